@@ -1,0 +1,218 @@
+"""Detector model: P_D(s) and P_FA(s) per bin of apparent object size (paper, section III-B).
+
+Size s is the side length sqrt(w * h) of a bounding box in detector-input pixels. A size below
+the first bin edge, or at or above the last, has P_D = P_FA = 0: the model claims nothing where
+it has no data. The YAML format is documented in docs/detector-model.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import DetectorModelError, where
+
+FORMAT_VERSION = 1
+SIZE_METRICS = ("sqrt_area",)
+
+
+@dataclass(frozen=True, slots=True)
+class BinCounts:
+    """The counts behind each bin: ground-truth objects, those detected, all detections."""
+
+    n_true: tuple[int, ...]
+    n_detected: tuple[int, ...]
+    n_detections: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorModel:
+    """Binned detection and false-alarm probabilities of one detector at fixed thresholds.
+
+    bin_edges_px: N + 1 strictly increasing sizes in detector-input pixels.
+    p_detect, p_false_alarm: N probabilities in [0, 1].
+    input_size_px: detector input size; image pixels are scaled by
+        input_size_px / max(image width, image height). None: sizes are image pixels.
+    """
+
+    bin_edges_px: tuple[float, ...]
+    p_detect: tuple[float, ...]
+    p_false_alarm: tuple[float, ...]
+    input_size_px: int | None = None
+    confidence_threshold: float | None = None
+    iou_threshold: float | None = None
+    size_metric: str = "sqrt_area"
+    counts: BinCounts | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        edges = np.asarray(self.bin_edges_px, dtype=float)
+        n = len(edges) - 1
+        src = self.source
+        if n < 1:
+            raise DetectorModelError(
+                f"{where(src, 'bin_edges_px')}: need at least 2 edges, got {len(edges)}")
+        if not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0) or edges[0] < 0:
+            raise DetectorModelError(
+                f"{where(src, 'bin_edges_px')}: edges must be finite, >= 0 and strictly "
+                f"increasing, got {list(self.bin_edges_px)}")
+        for key in ("p_detect", "p_false_alarm"):
+            p = np.asarray(getattr(self, key), dtype=float)
+            if p.shape != (n,):
+                raise DetectorModelError(
+                    f"{where(src, key)}: expected {n} values (one per bin), got {p.size}")
+            if not np.all((p >= 0) & (p <= 1)):
+                raise DetectorModelError(
+                    f"{where(src, key)}: probabilities must lie in [0, 1], got {p.tolist()}")
+        if self.size_metric not in SIZE_METRICS:
+            raise DetectorModelError(
+                f"{where(src, 'size_metric')}: expected one of {SIZE_METRICS}, "
+                f"got {self.size_metric!r}")
+        if self.input_size_px is not None and self.input_size_px <= 0:
+            raise DetectorModelError(
+                f"{where(src, 'input_size_px')}: expected a positive integer or null, "
+                f"got {self.input_size_px}")
+        if self.counts is not None:
+            for key in ("n_true", "n_detected", "n_detections"):
+                c = getattr(self.counts, key)
+                if len(c) != n or any(v < 0 for v in c):
+                    raise DetectorModelError(
+                        f"{where(src, 'counts.' + key)}: expected {n} non-negative counts, "
+                        f"got {list(c)}")
+
+    @property
+    def n_bins(self) -> int:
+        return len(self.bin_edges_px) - 1
+
+    def image_to_input_scale(self, width_px: int, height_px: int) -> float:
+        """Factor from image pixels to detector-input pixels for an image of this size."""
+        if self.input_size_px is None:
+            return 1.0
+        return self.input_size_px / max(width_px, height_px)
+
+    def bin_index(self, size_px: np.ndarray) -> np.ndarray:
+        """Index into ``lookup_table`` arrays: 0 below the first edge, N + 1 at/above the last,
+        i + 1 for bin i. NaN sizes map to 0."""
+        s = np.asarray(size_px, dtype=float)
+        idx = np.searchsorted(np.asarray(self.bin_edges_px), s, side="right")
+        idx[np.isnan(s)] = 0
+        return idx
+
+    def lookup(self, size_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """P_D and P_FA for sizes in detector-input pixels (vectorised; 0 outside the bins)."""
+        idx = self.bin_index(size_px)
+        pd, pfa = self.padded_tables()
+        return pd[idx], pfa[idx]
+
+    def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """P_D and P_FA with a zero prepended and appended, indexed by ``bin_index``."""
+        pd = np.concatenate(([0.0], np.asarray(self.p_detect, dtype=float), [0.0]))
+        pfa = np.concatenate(([0.0], np.asarray(self.p_false_alarm, dtype=float), [0.0]))
+        return pd, pfa
+
+    # -- YAML -------------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, doc: Any, source: str | None = None) -> DetectorModel:
+        """Build from a parsed YAML mapping; errors name ``source`` and the key."""
+        if not isinstance(doc, dict):
+            raise DetectorModelError(f"{source or 'detector model'}: expected a mapping")
+        version = doc.get("version")
+        if version != FORMAT_VERSION:
+            raise DetectorModelError(
+                f"{where(source, 'version')}: expected {FORMAT_VERSION}, got {version!r}")
+        for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
+            if key not in doc:
+                raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
+            if not isinstance(doc[key], list) or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in doc[key]):
+                raise DetectorModelError(
+                    f"{where(source, key)}: expected a list of numbers, got {doc[key]!r}")
+        counts = None
+        if doc.get("counts") is not None:
+            c = doc["counts"]
+            try:
+                counts = BinCounts(tuple(int(v) for v in c["n_true"]),
+                                   tuple(int(v) for v in c["n_detected"]),
+                                   tuple(int(v) for v in c["n_detections"]))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise DetectorModelError(
+                    f"{where(source, 'counts')}: expected n_true, n_detected and n_detections "
+                    f"lists of integers ({exc})") from None
+        known = {"version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
+                 "confidence_threshold", "iou_threshold", "size_metric", "counts"}
+        input_size = doc.get("input_size_px")
+        if input_size is not None and (not isinstance(input_size, int)
+                                       or isinstance(input_size, bool)):
+            raise DetectorModelError(
+                f"{where(source, 'input_size_px')}: expected an integer or null, "
+                f"got {input_size!r}")
+        return cls(
+            bin_edges_px=tuple(float(v) for v in doc["bin_edges_px"]),
+            p_detect=tuple(float(v) for v in doc["p_detect"]),
+            p_false_alarm=tuple(float(v) for v in doc["p_false_alarm"]),
+            input_size_px=input_size,
+            confidence_threshold=_opt_float(doc, "confidence_threshold", source),
+            iou_threshold=_opt_float(doc, "iou_threshold", source),
+            size_metric=doc.get("size_metric", "sqrt_area"),
+            counts=counts,
+            extra={k: v for k, v in doc.items() if k not in known},
+            source=source,
+        )
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> DetectorModel:
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise DetectorModelError(f"{path}: cannot read detector model ({exc.strerror})") \
+                from None
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise DetectorModelError(f"{path}: not valid YAML ({exc})") from None
+        return cls.from_dict(doc, source=str(path))
+
+    @classmethod
+    def illustrative(cls) -> DetectorModel:
+        """The bundled illustrative model (shape like the paper's Fig. 6; not a real detector)."""
+        ref = resources.files("pdcov") / "data" / "illustrative_detector.yaml"
+        return cls.from_dict(yaml.safe_load(ref.read_text()), source=str(ref))
+
+    def to_dict(self) -> dict[str, Any]:
+        doc: dict[str, Any] = {
+            "version": FORMAT_VERSION,
+            "size_metric": self.size_metric,
+            "input_size_px": self.input_size_px,
+            "confidence_threshold": self.confidence_threshold,
+            "iou_threshold": self.iou_threshold,
+            "bin_edges_px": [float(v) for v in self.bin_edges_px],
+            "p_detect": [float(v) for v in self.p_detect],
+            "p_false_alarm": [float(v) for v in self.p_false_alarm],
+        }
+        if self.counts is not None:
+            doc["counts"] = {"n_true": list(self.counts.n_true),
+                             "n_detected": list(self.counts.n_detected),
+                             "n_detections": list(self.counts.n_detections)}
+        doc.update(self.extra)
+        return doc
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+def _opt_float(doc: dict[str, Any], key: str, source: str | None) -> float | None:
+    v = doc.get(key)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise DetectorModelError(f"{where(source, key)}: expected a number, got {v!r}")
+    return float(v)

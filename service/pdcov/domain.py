@@ -1,0 +1,178 @@
+"""Search domain (polygon minus obstacles, ENU metres) and its grid of square cells.
+
+Cells are aligned to the domain's bounding box: cell (row i, col j) spans
+x in [x0 + j c, x0 + (j + 1) c), y in [y0 + i c, y0 + (i + 1) c); rows grow north, columns
+east. A cell is free when its centre lies in the free space.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely.geometry import MultiPolygon, Polygon, shape
+from shapely.validation import explain_validity
+
+from .errors import DomainError
+from .geodesy import Origin, geodetic_to_enu
+
+
+@dataclass(frozen=True, slots=True)
+class GridGeometry:
+    """A regular grid: south-west corner (x0_m, y0_m) of cell [0, 0] in ENU, cell size, shape."""
+
+    x0_m: float
+    y0_m: float
+    cell_size_m: float
+    n_rows: int
+    n_cols: int
+
+    def __post_init__(self) -> None:
+        if not (self.cell_size_m > 0 and math.isfinite(self.cell_size_m)):
+            raise DomainError(f"cell_size_m: expected a positive number, got {self.cell_size_m}")
+        if self.n_rows < 1 or self.n_cols < 1:
+            raise DomainError(f"grid must have at least one cell, got {self.n_rows} x "
+                              f"{self.n_cols}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.n_rows, self.n_cols)
+
+    def centres_enu(self) -> tuple[np.ndarray, np.ndarray]:
+        """x and y (each (n_cols,) and (n_rows,)) of the cell centres in ENU metres."""
+        c = self.cell_size_m
+        return (self.x0_m + c * (np.arange(self.n_cols) + 0.5),
+                self.y0_m + c * (np.arange(self.n_rows) + 0.5))
+
+    def cell_of(self, x_m: np.ndarray, y_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) integer indices of ENU points; may lie outside the grid."""
+        c = self.cell_size_m
+        return (np.floor((np.asarray(y_m) - self.y0_m) / c).astype(np.int64),
+                np.floor((np.asarray(x_m) - self.x0_m) / c).astype(np.int64))
+
+    @property
+    def extent_enu(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the grid in ENU metres."""
+        c = self.cell_size_m
+        return (self.x0_m, self.x0_m + c * self.n_cols, self.y0_m, self.y0_m + c * self.n_rows)
+
+
+@dataclass(frozen=True, slots=True)
+class Domain:
+    """The search area: outer boundary minus obstacles, in ENU metres."""
+
+    boundary: Polygon
+    obstacles: tuple[Polygon, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name, poly in [("polygon", self.boundary)] + [
+                (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)]:
+            if poly.is_empty or poly.area <= 0:
+                raise DomainError(f"domain.{name}: polygon has no area")
+            if not poly.is_valid:
+                raise DomainError(f"domain.{name}: invalid polygon ({explain_validity(poly)})")
+
+    @property
+    def free_space(self) -> Polygon | MultiPolygon:
+        """Boundary minus the union of the obstacles (shapely geometry, ENU metres)."""
+        if not self.obstacles:
+            return self.boundary
+        return self.boundary.difference(shapely.union_all(self.obstacles))
+
+    def grid_geometry(self, cell_size_m: float) -> GridGeometry:
+        """Cells of ``cell_size_m`` aligned to the boundary's bounding box."""
+        if not (cell_size_m > 0 and math.isfinite(cell_size_m)):
+            raise DomainError(f"domain.cell_size_m: expected a positive number of metres, "
+                              f"got {cell_size_m}")
+        x_min, y_min, x_max, y_max = self.boundary.bounds
+        n_cols = max(1, math.ceil((x_max - x_min) / cell_size_m - 1e-9))
+        n_rows = max(1, math.ceil((y_max - y_min) / cell_size_m - 1e-9))
+        return GridGeometry(x_min, y_min, cell_size_m, n_rows, n_cols)
+
+    def free_mask(self, geometry: GridGeometry) -> np.ndarray:
+        """Boolean (n_rows, n_cols): True where the cell centre lies in the free space."""
+        xs, ys = geometry.centres_enu()
+        X, Y = np.meshgrid(xs, ys)
+        free = self.free_space
+        shapely.prepare(free)
+        return shapely.contains_xy(free, X, Y)
+
+    @classmethod
+    def from_enu(cls, polygon_enu_m: Any, obstacles_enu_m: Any = (),
+                 source: str | None = None) -> Domain:
+        return cls(_polygon(polygon_enu_m, "domain.polygon_enu_m", source),
+                   tuple(_polygon(o, f"domain.obstacles_enu_m[{i}]", source)
+                         for i, o in enumerate(obstacles_enu_m or ())))
+
+    @classmethod
+    def from_geodetic(cls, polygon_deg: Any, obstacles_deg: Any, origin: Origin,
+                      source: str | None = None) -> Domain:
+        """From [[lat_deg, lon_deg], ...] rings, projected to ENU about ``origin``."""
+        def to_enu(ring: Any, key: str) -> list[list[float]]:
+            pts = _points(ring, key, source)
+            enu = geodetic_to_enu(pts[:, 0], pts[:, 1], origin.ground_alt_msl_m, origin)
+            return enu[:, :2].tolist()
+        return cls.from_enu(to_enu(polygon_deg, "domain.polygon_geodetic_deg"),
+                            [to_enu(o, f"domain.obstacles_geodetic_deg[{i}]")
+                             for i, o in enumerate(obstacles_deg or ())], source)
+
+    @classmethod
+    def from_geojson(cls, path: str | Path, origin: Origin) -> Domain:
+        """From a GeoJSON file (WGS84 lon/lat): the largest polygon is the boundary; its holes
+        and every other polygon inside it are obstacles."""
+        path = Path(path)
+        try:
+            doc = json.loads(path.read_text())
+        except OSError as exc:
+            raise DomainError(f"{path}: cannot read GeoJSON ({exc.strerror})") from None
+        except json.JSONDecodeError as exc:
+            raise DomainError(f"{path}: not valid JSON ({exc})") from None
+        geoms = []
+        features = doc.get("features") if isinstance(doc, dict) else None
+        items = features if features is not None else [doc]
+        for k, item in enumerate(items):
+            g = item.get("geometry", item) if isinstance(item, dict) else None
+            try:
+                geom = shape(g)
+            except Exception as exc:  # shapely raises several types for bad GeoJSON
+                raise DomainError(f"{path}: feature {k}: not a GeoJSON geometry ({exc})") \
+                    from None
+            geoms.extend(getattr(geom, "geoms", [geom]))
+        polys = [g for g in geoms if isinstance(g, Polygon)]
+        if not polys:
+            raise DomainError(f"{path}: no Polygon or MultiPolygon found")
+        polys.sort(key=lambda p: p.area, reverse=True)
+
+        def ring_enu(coords: Any) -> list[list[float]]:
+            ll = np.asarray(coords, dtype=float)[:, :2]
+            return geodetic_to_enu(ll[:, 1], ll[:, 0], origin.ground_alt_msl_m,
+                                   origin)[:, :2].tolist()
+        outer = polys[0]
+        obstacles = [ring_enu(h.coords) for h in outer.interiors]
+        obstacles += [ring_enu(p.exterior.coords) for p in polys[1:]]
+        return cls.from_enu(ring_enu(outer.exterior.coords), obstacles, str(path))
+
+
+def _points(ring: Any, key: str, source: str | None) -> np.ndarray:
+    try:
+        pts = np.asarray(ring, dtype=float)
+    except (TypeError, ValueError):
+        pts = np.empty((0,))
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.all(np.isfinite(pts)):
+        where = f"{source}: {key}" if source else key
+        raise DomainError(f"{where}: expected a list of at least 3 [x, y] pairs of finite "
+                          f"numbers, got {ring!r}"[:300])
+    return pts
+
+
+def _polygon(ring: Any, key: str, source: str | None) -> Polygon:
+    poly = Polygon(_points(ring, key, source))
+    if not poly.is_valid:
+        where = f"{source}: {key}" if source else key
+        raise DomainError(f"{where}: invalid polygon ({explain_validity(poly)})")
+    return poly

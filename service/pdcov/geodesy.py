@@ -1,0 +1,50 @@
+"""Geodetic <-> local ENU about the mission origin (pymap3d, WGS84).
+
+Altitudes are metres above mean sea level at both ends; the ENU z of a point is then its
+height above the origin's ground altitude (flat earth, as in the paper).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True, slots=True)
+class Origin:
+    """The local ENU origin: a geodetic point and the ground altitude there (m MSL)."""
+
+    lat_deg: float
+    lon_deg: float
+    ground_alt_msl_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.lat_deg) and -90.0 <= self.lat_deg <= 90.0):
+            raise ConfigError(f"origin.lat_deg: expected a latitude in [-90, 90], "
+                              f"got {self.lat_deg}")
+        if not (math.isfinite(self.lon_deg) and -180.0 <= self.lon_deg <= 360.0):
+            raise ConfigError(f"origin.lon_deg: expected a longitude in [-180, 180], "
+                              f"got {self.lon_deg}")
+        if not math.isfinite(self.ground_alt_msl_m):
+            raise ConfigError("origin.ground_alt_msl_m: expected a finite altitude in metres")
+
+
+def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_msl_m: np.ndarray,
+                    origin: Origin) -> np.ndarray:
+    """ENU metres (..., 3) of geodetic points about ``origin``."""
+    e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, alt_msl_m, origin.lat_deg,
+                                   origin.lon_deg, origin.ground_alt_msl_m)
+    return np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1)
+
+
+def enu_to_geodetic(r_enu: np.ndarray, origin: Origin) -> np.ndarray:
+    """(lat_deg, lon_deg, alt_msl_m) (..., 3) of ENU points about ``origin``."""
+    r = np.asarray(r_enu, dtype=float)
+    lat, lon, alt = pymap3d.enu2geodetic(r[..., 0], r[..., 1], r[..., 2], origin.lat_deg,
+                                         origin.lon_deg, origin.ground_alt_msl_m)
+    return np.stack([np.asarray(lat), np.asarray(lon), np.asarray(alt)], axis=-1)

@@ -1,0 +1,72 @@
+"""Rotation helpers on top of scipy's Rotation: Euler angles, quaternions, slerp.
+
+Conventions: ``R_a_b`` maps vectors in frame b into frame a. Quaternions are scalar first
+(w, x, y, z), as MAVLink sends them. Euler angles are the aerospace z-y-x sequence
+(yaw about z, then pitch about the new y, then roll about the new x), so that
+``R_parent_child = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, as MAVLink ATTITUDE and the gimbal
+protocol define them. Angles are radians.
+
+This is the one place that decomposes a rotation into Euler angles (``euler_zyx_from_R``);
+everything else works with matrices or quaternions, which have no gimbal lock.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+
+def R_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` as a 3x3 matrix (parent <- child)."""
+    return Rotation.from_euler("ZYX", [yaw_rad, pitch_rad, roll_rad]).as_matrix()
+
+
+def R_from_euler_zyx_many(roll_rad: np.ndarray, pitch_rad: np.ndarray,
+                          yaw_rad: np.ndarray) -> np.ndarray:
+    """Vectorised ``R_from_euler_zyx``: arrays of shape (N,) give (N, 3, 3)."""
+    angles = np.stack([np.asarray(yaw_rad, float), np.asarray(pitch_rad, float),
+                       np.asarray(roll_rad, float)], axis=-1)
+    return Rotation.from_euler("ZYX", angles).as_matrix()
+
+
+def euler_zyx_from_R(R: np.ndarray) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in radians of ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
+
+    At pitch = +-90 deg roll and yaw are not separable (gimbal lock); scipy then sets the
+    roll to zero and puts the whole rotation about the vertical into yaw.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # scipy's gimbal-lock warning
+        yaw, pitch, roll = Rotation.from_matrix(R).as_euler("ZYX")
+    return float(roll), float(pitch), float(yaw)
+
+
+def R_from_quat_wxyz(q_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z); (..., 4) gives (..., 3, 3)."""
+    return Rotation.from_quat(np.asarray(q_wxyz, dtype=float), scalar_first=True).as_matrix()
+
+
+def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix (..., 3, 3)."""
+    q = Rotation.from_matrix(R).as_quat(canonical=True, scalar_first=True)
+    return np.asarray(q)
+
+
+def Rz(angle_rad: float) -> np.ndarray:
+    """Rotation about z by ``angle_rad`` (parent <- child)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def slerp_R(t_samples_s: np.ndarray, R_samples: np.ndarray, t_query_s: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation of rotations (N, 3, 3) at times inside the samples."""
+    return Slerp(np.asarray(t_samples_s, float), Rotation.from_matrix(R_samples))(
+        np.asarray(t_query_s, float)).as_matrix()
+
+
+def angle_between_R(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    """Angle in radians of the rotation taking ``R_b`` to ``R_a``."""
+    c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
