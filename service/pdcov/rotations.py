@@ -70,3 +70,33 @@ def angle_between_R(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle in radians of the rotation taking ``R_b`` to ``R_a``."""
     c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def quat_wxyz_from_euler_zyx(roll_rad: np.ndarray, pitch_rad: np.ndarray,
+                             yaw_rad: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``; arrays (...) give
+    (..., 4). Closed form (no scipy object per call) for the per-message telemetry adapter."""
+    hr, hp, hy = (np.asarray(a, dtype=float) / 2.0 for a in (roll_rad, pitch_rad, yaw_rad))
+    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
+    return np.stack([cr * cp * cy + sr * sp * sy,
+                     sr * cp * cy - cr * sp * sy,
+                     cr * sp * cy + sr * cp * sy,
+                     cr * cp * sy - sr * sp * cy], axis=-1)
+
+
+def euler_zyx_from_R_many(R: np.ndarray) -> np.ndarray:
+    """Vectorised ``euler_zyx_from_R``: (N, 3, 3) gives (N, 3) columns roll, pitch, yaw in
+    radians, pitch in [-pi/2, pi/2]; at gimbal lock roll is 0 and yaw takes the rest."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # scipy's gimbal-lock warning
+        ypr = Rotation.from_matrix(np.asarray(R, float).reshape(-1, 3, 3)).as_euler("ZYX")
+    return ypr[:, ::-1].copy()
+
+
+def slerp_quat_wxyz(q0_wxyz: np.ndarray, q1_wxyz: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation from unit quaternions q0 to q1 (N, 4) by fractions
+    ``w`` (N,) in [0, 1], along the shorter arc; returns (N, 4) unit quaternions (w, x, y, z)."""
+    r0 = Rotation.from_quat(np.asarray(q0_wxyz, float), scalar_first=True)
+    r1 = Rotation.from_quat(np.asarray(q1_wxyz, float), scalar_first=True)
+    rotvec = (r0.inv() * r1).as_rotvec() * np.asarray(w, float)[:, None]
+    return (r0 * Rotation.from_rotvec(rotvec)).as_quat(scalar_first=True)

@@ -1,0 +1,361 @@
+"""What a gimbal's attitude report means, and whether to trust it.
+
+GIMBAL_DEVICE_ATTITUDE_STATUS (MAVLink gimbal protocol v2) carries a quaternion whose frame
+its flags give (``pose.gimbal_frame_from_flags``). A gimbal that measures its attitude
+(Gremsy, Siyi, ...) honours that: interpretation ``flags``. An ArduPilot servo mount
+(MNT1_TYPE 1) does not: AP_Mount_Servo::get_attitude_quaternion reports the body-frame servo
+demand (earth-frame target minus the vehicle's roll and pitch, body yaw) although the flags
+claim roll and pitch locked to the horizon: interpretation ``body``, which composes the
+demand with the vehicle attitude through the servos' axis order and clips it to the mount's
+angle limits. ``auto`` picks one from the autopilot's mount-type parameter. See
+docs/autopilots.md for the measured error of each on a real flight.
+
+Frames: the gimbal frame is x along the optical axis, y right, z down; R_ned_gimbal maps it
+into NED; R_ned_body is the vehicle attitude (FRD -> NED).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ConfigError, where
+from .pose import (
+    GIMBAL_FLAG_RETRACT,
+    GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
+    GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
+    GIMBAL_FLAG_YAW_LOCK,
+)
+from .rotations import R_from_quat_wxyz, euler_zyx_from_R_many
+
+ATTITUDE_FRAMES = ("flags", "body", "auto")
+UNTRUSTED_POLICIES = ("skip", "use")
+AXES = ("roll", "pitch", "yaw")
+QUAT_NORM_TOL = 1e-3
+"""A gimbal quaternion whose norm is off 1 by more than this is not a rotation report."""
+
+# GIMBAL_DEVICE_ERROR_FLAGS (common.xml) that make the reported attitude itself doubtful:
+# encoder, power, motor, software, comms error, calibration running. AT_*_LIMIT (1, 2, 4)
+# and NO_MANAGER (512) say the gimbal cannot follow its target, not that its report is wrong.
+GIMBAL_ERROR_UNTRUSTED = 8 | 16 | 32 | 64 | 128 | 256
+
+# ArduPilot MNTx_TYPE values whose GIMBAL_DEVICE_ATTITUDE_STATUS is a body-frame servo demand
+# (AP_Mount_Params.cpp: 1 = Servo). 7 = BrushlessPWM reports the earth-frame roll/pitch target
+# with body yaw, which is what its flags (yaw in vehicle frame) say.
+ARDUPILOT_SERVO_MOUNT_TYPES = {1: "Servo"}
+
+
+def _limits(doc: Mapping, key: str, source: str | None) -> tuple[float, float] | None:
+    value = doc.get(key)
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where(source, 'mount.' + key)}: expected [min_deg, max_deg], "
+                          f"got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and -360.0 <= lo <= hi <= 360.0):
+        raise ConfigError(f"{where(source, 'mount.' + key)}: expected finite "
+                          f"-360 <= min <= max <= 360 degrees, got {value!r}")
+    return (lo, hi)
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalMount:
+    """A camera on a gimbal that reports its attitude (mission config ``mount: {type: gimbal}``).
+
+    attitude_frame: 'flags' | 'body' | 'auto' (see module docstring). auto_fallback: what
+    'auto' uses when the log or link gives no mount-type parameter. servo_axis_order: the
+    servos from the body outwards in, e.g. ('yaw', 'pitch', 'roll') = R_body_gimbal =
+    Rz(yaw) Ry(pitch) Rx(roll), the order ArduPilot's demand angles are defined in.
+    *_limits_deg: servo angle limits [min, max] in degrees; None = the autopilot's
+    MNTn_*_MIN/MAX parameters where known, else unlimited. limit_tolerance_deg: a demand
+    further than this past a limit makes the frame untrusted. untrusted: 'skip' or 'use'
+    untrusted frames. lever_arm_frd_m: camera centre from the vehicle reference point, FRD m.
+    instance: mount number n of MNTn_* and of the autopilot's gimbal_device_id.
+    """
+
+    attitude_frame: str = "auto"
+    auto_fallback: str = "flags"
+    servo_axis_order: tuple[str, str, str] = ("yaw", "pitch", "roll")
+    roll_limits_deg: tuple[float, float] | None = None
+    pitch_limits_deg: tuple[float, float] | None = None
+    yaw_limits_deg: tuple[float, float] | None = None
+    limit_tolerance_deg: float = 0.5
+    untrusted: str = "skip"
+    lever_arm_frd_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    instance: int = 1
+
+    def __post_init__(self) -> None:
+        if self.attitude_frame not in ATTITUDE_FRAMES:
+            raise ConfigError(f"mount.attitude_frame: expected one of {ATTITUDE_FRAMES}, "
+                              f"got {self.attitude_frame!r}")
+        if self.auto_fallback not in ("flags", "body"):
+            raise ConfigError(f"mount.auto_fallback: expected 'flags' or 'body', "
+                              f"got {self.auto_fallback!r}")
+        if sorted(self.servo_axis_order) != sorted(AXES):
+            raise ConfigError(f"mount.servo_axis_order: expected a permutation of {AXES}, "
+                              f"got {self.servo_axis_order!r}")
+        if self.untrusted not in UNTRUSTED_POLICIES:
+            raise ConfigError(f"mount.untrusted: expected one of {UNTRUSTED_POLICIES}, "
+                              f"got {self.untrusted!r}")
+        if not (math.isfinite(self.limit_tolerance_deg) and self.limit_tolerance_deg >= 0):
+            raise ConfigError("mount.limit_tolerance_deg: expected a finite value >= 0")
+        if len(self.lever_arm_frd_m) != 3 or not np.all(np.isfinite(self.lever_arm_frd_m)):
+            raise ConfigError("mount.lever_arm_frd_m: expected 3 finite numbers (metres)")
+        if not 1 <= self.instance <= 6:
+            raise ConfigError(f"mount.instance: expected 1..6, got {self.instance!r}")
+
+    @classmethod
+    def from_config(cls, doc: Mapping, source: str | None = None) -> GimbalMount:
+        """From the mission config's ``mount`` mapping (``type: gimbal``); errors name
+        ``source`` (the file) and the key."""
+        known = {"type", "attitude_frame", "auto_fallback", "servo_axis_order",
+                 "roll_limits_deg", "pitch_limits_deg", "yaw_limits_deg",
+                 "limit_tolerance_deg", "untrusted", "lever_arm_frd_m", "instance"}
+        if not isinstance(doc, Mapping):
+            raise ConfigError(f"{where(source, 'mount')}: expected a mapping, got {doc!r}")
+        unknown = sorted(set(doc) - known)
+        if unknown:
+            raise ConfigError(f"{where(source, 'mount.' + unknown[0])}: unknown key for a "
+                              f"gimbal mount; expected some of {sorted(known)}")
+        if doc.get("type", "gimbal") != "gimbal":
+            raise ConfigError(f"{where(source, 'mount.type')}: expected 'gimbal', "
+                              f"got {doc.get('type')!r}")
+        kwargs: dict = {}
+        for key in ("attitude_frame", "auto_fallback", "untrusted"):
+            if key in doc:
+                kwargs[key] = str(doc[key])
+        order = doc.get("servo_axis_order")
+        if order is not None:
+            parts = order.split("_") if isinstance(order, str) else list(order)
+            if sorted(parts) != sorted(AXES):
+                raise ConfigError(f"{where(source, 'mount.servo_axis_order')}: expected the "
+                                  f"three axes outer to inner, e.g. yaw_pitch_roll, got {order!r}")
+            kwargs["servo_axis_order"] = tuple(parts)
+        for key in ("roll_limits_deg", "pitch_limits_deg", "yaw_limits_deg"):
+            kwargs[key] = _limits(doc, key, source)
+        try:
+            if "limit_tolerance_deg" in doc:
+                kwargs["limit_tolerance_deg"] = float(doc["limit_tolerance_deg"])
+            if "lever_arm_frd_m" in doc:
+                arm = tuple(float(v) for v in doc["lever_arm_frd_m"])
+                kwargs["lever_arm_frd_m"] = arm
+            if "instance" in doc:
+                kwargs["instance"] = int(doc["instance"])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{where(source, 'mount')}: {exc}") from None
+        try:
+            return cls(**kwargs)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalInterpretation:
+    """The interpretation in force: 'flags' or 'body', the servo limits (radians, rows
+    roll/pitch/yaw, columns min/max; +-inf = none), and why it was chosen (for summaries)."""
+
+    frame: str
+    reason: str
+    limits_rad: np.ndarray = field(default_factory=lambda: np.tile([-np.inf, np.inf], (3, 1)))
+    limits_reason: str = "no servo limits"
+    axis_order: tuple[str, str, str] = ("yaw", "pitch", "roll")
+    limit_tolerance_rad: float = math.radians(0.5)
+
+    def describe(self) -> str:
+        if self.frame == "flags":
+            return f"gimbal attitude read as its flags say ('flags': {self.reason})"
+        order = "-".join(self.axis_order)
+        return (f"gimbal attitude read as a body-frame servo demand ('body': {self.reason}); "
+                f"servo axes {order}, {self.limits_reason}")
+
+
+def _param_limits(params: Mapping[str, float], n: int) -> tuple[np.ndarray, str] | None:
+    names = [(f"MNT{n}_{a.upper()}_MIN", f"MNT{n}_{a.upper()}_MAX") for a in AXES]
+    if all(lo in params and hi in params for lo, hi in names):
+        return (np.radians([[params[lo], params[hi]] for lo, hi in names]),
+                f"limits from MNT{n}_*_MIN/MAX")
+    # ArduCopter <= 4.2: MNT_ANGMIN_ROL/TIL/PAN in centidegrees.
+    old = [("MNT_ANGMIN_ROL", "MNT_ANGMAX_ROL"), ("MNT_ANGMIN_TIL", "MNT_ANGMAX_TIL"),
+           ("MNT_ANGMIN_PAN", "MNT_ANGMAX_PAN")]
+    if n == 1 and all(lo in params and hi in params for lo, hi in old):
+        return (np.radians([[params[lo] / 100, params[hi] / 100] for lo, hi in old]),
+                "limits from MNT_ANGMIN/ANGMAX_*")
+    return None
+
+
+def mount_type_param(params: Mapping[str, float], instance: int = 1) -> tuple[str, int] | None:
+    """(name, value) of the autopilot's mount-type parameter, if the parameters hold it."""
+    for name in (f"MNT{instance}_TYPE", "MNT_TYPE" if instance == 1 else ""):
+        if name in params:
+            return name, int(params[name])
+    return None
+
+
+def resolve_interpretation(mount: GimbalMount, params: Mapping[str, float],
+                           params_origin: str = "the log") -> GimbalInterpretation:
+    """Decide the interpretation in force from the config and the autopilot's parameters
+    (MNTn_TYPE, MNTn_*_MIN/MAX; ArduPilot names), saying how it was decided."""
+    if mount.attitude_frame == "auto":
+        found = mount_type_param(params, mount.instance)
+        if found is None:
+            frame = mount.auto_fallback
+            reason = (f"auto: {params_origin} has no MNT{mount.instance}_TYPE parameter, "
+                      f"so mount.auto_fallback={frame!r} decides")
+        else:
+            name, value = found
+            servo = ARDUPILOT_SERVO_MOUNT_TYPES.get(value)
+            frame = "body" if servo else "flags"
+            kind = (f"{servo} mount reports its servo demand" if servo
+                    else "the gimbal reports its attitude")
+            reason = f"auto: {name}={value} in {params_origin}, {kind}"
+    else:
+        frame, reason = mount.attitude_frame, "configured"
+    configured = [mount.roll_limits_deg, mount.pitch_limits_deg, mount.yaw_limits_deg]
+    from_params = _param_limits(params, mount.instance)
+    limits = np.tile([-np.inf, np.inf], (3, 1))
+    sources = []
+    for i, axis in enumerate(AXES):
+        if configured[i] is not None:
+            limits[i] = np.radians(configured[i])
+            sources.append(f"{axis} configured")
+        elif from_params is not None:
+            limits[i] = from_params[0][i]
+            sources.append(f"{axis} {from_params[1]}")
+    limits_reason = ("limits " + ", ".join(sources) + " "
+                     + " ".join(f"{a} [{np.degrees(lo):.0f}, {np.degrees(hi):.0f}] deg"
+                                for a, (lo, hi) in zip(AXES, limits, strict=True))
+                     if sources else "no servo limits known")
+    return GimbalInterpretation(frame, reason, limits, limits_reason, mount.servo_axis_order,
+                                math.radians(mount.limit_tolerance_deg))
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalAttitudes:
+    """Interpreted gimbal attitudes for N reports: R_ned_gimbal (N, 3, 3), trusted (N,) and
+    the reason a report is not trusted ('' when it is); ``usable`` is False where no
+    rotation can be formed at all (NaN quaternion), whatever the untrusted policy."""
+
+    R_ned_gimbal: np.ndarray
+    trusted: np.ndarray
+    reasons: np.ndarray
+    usable: np.ndarray
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _axis_R(axis: str, angle: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(angle), np.ones_like(angle)
+    rows = {"roll": [[o, z, z], [z, c, -s], [z, s, c]],
+            "pitch": [[c, z, s], [z, o, z], [-s, z, c]],
+            "yaw": [[c, -s, z], [s, c, z], [z, z, o]]}[axis]
+    return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
+
+
+def servo_angles(R_body_demand: np.ndarray, limits_rad: np.ndarray) -> np.ndarray:
+    """Servo demand angles (N, 3: roll, pitch, yaw rad) of body-frame demands (N, 3, 3).
+
+    ArduPilot builds the reported quaternion from z-y-x Euler angles (Quaternion::from_euler)
+    that may lie outside [-90, 90] deg of pitch (e.g. -110 deg when nose-up with the camera
+    at nadir). Both Euler branches give the same rotation; the one closer to the servo limits
+    is taken (at pitch +-90 deg roll is 0 and yaw takes the rest, rotations.py).
+    """
+    a = euler_zyx_from_R_many(R_body_demand)
+    b = np.stack([_wrap(a[:, 0] + np.pi), _wrap(-np.pi - a[:, 1]), _wrap(a[:, 2] + np.pi)],
+                 axis=1)
+    def excess(x: np.ndarray) -> np.ndarray:
+        return (np.clip(limits_rad[:, 0] - x, 0, None) + np.clip(x - limits_rad[:, 1], 0, None)
+                ).sum(axis=1)
+    return np.where((excess(b) < excess(a) - 1e-9)[:, None], b, a)
+
+
+def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.ndarray,
+                     R_ned_body: np.ndarray, interp: GimbalInterpretation) -> GimbalAttitudes:
+    """Gimbal attitudes in NED for N reports (vectorised; N = 1 for a single report).
+
+    q_wxyz (N, 4) as sent, flags and failure_flags (N,) as sent, R_ned_body (N, 3, 3) the
+    vehicle attitude at the same instants.
+    """
+    q = np.asarray(q_wxyz, float).reshape(-1, 4)
+    flags = np.asarray(flags, np.int64).reshape(-1)
+    failure = np.asarray(failure_flags, np.int64).reshape(-1)
+    R_ned_body = np.asarray(R_ned_body, float).reshape(-1, 3, 3)
+    n = len(q)
+    norm = np.linalg.norm(q, axis=1)
+    usable = np.isfinite(norm) & (norm > 0.5)
+    q_unit = np.where(usable[:, None], q / np.where(usable, norm, 1.0)[:, None], [1, 0, 0, 0])
+    R_ref = R_from_quat_wxyz(q_unit).reshape(n, 3, 3)
+    reasons = np.full(n, "", dtype=object)
+
+    def distrust(mask: np.ndarray, why: str) -> None:
+        reasons[mask & (reasons == "")] = why
+
+    distrust(~usable, "gimbal quaternion missing or NaN")
+    distrust(np.abs(norm - 1.0) > QUAT_NORM_TOL, "gimbal quaternion not unit")
+    distrust((failure & GIMBAL_ERROR_UNTRUSTED) != 0, "gimbal failure flags")
+    distrust((flags & GIMBAL_FLAG_RETRACT) != 0, "gimbal retracted")
+
+    if interp.frame == "body":
+        angles = servo_angles(R_ref, interp.limits_rad)
+        clipped = np.clip(angles, interp.limits_rad[:, 0], interp.limits_rad[:, 1])
+        over = np.abs(angles - clipped) > interp.limit_tolerance_rad
+        for i, axis in enumerate(AXES):
+            distrust(over[:, i] & usable, f"servo at {axis} limit")
+        idx = {a: i for i, a in enumerate(AXES)}
+        R_body_gimbal = np.broadcast_to(np.eye(3), (n, 3, 3))
+        for axis in interp.axis_order:  # outermost servo first
+            R_body_gimbal = R_body_gimbal @ _axis_R(axis, clipped[:, idx[axis]])
+        R_ned_gimbal = R_ned_body @ R_body_gimbal
+    else:
+        # common.xml GIMBAL_DEVICE_ATTITUDE_STATUS: q is in the earth frame (NED) with
+        # YAW_IN_EARTH_FRAME, in the vehicle frame (NED turned by the vehicle's heading) with
+        # YAW_IN_VEHICLE_FRAME; with neither, YAW_LOCK means earth frame.
+        earth = ((flags & GIMBAL_FLAG_YAW_IN_EARTH_FRAME) != 0) | (
+            ((flags & GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME) == 0)
+            & ((flags & GIMBAL_FLAG_YAW_LOCK) != 0))
+        heading = np.arctan2(R_ned_body[:, 1, 0], R_ned_body[:, 0, 0])
+        R_ned_gimbal = np.where(earth[:, None, None], R_ref, _axis_R("yaw", heading) @ R_ref)
+    return GimbalAttitudes(R_ned_gimbal, reasons == "", reasons, usable)
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalVerdict:
+    """One report interpreted: R_ned_gimbal (3, 3), trusted, and why not ('' if trusted)."""
+
+    R_ned_gimbal: np.ndarray
+    trusted: bool
+    reason: str
+
+
+def gimbal_attitude(q_wxyz: np.ndarray, flags: int, failure_flags: int,
+                    R_ned_body: np.ndarray, interp: GimbalInterpretation) -> GimbalVerdict:
+    """One gimbal report + the vehicle attitude -> R_ned_gimbal and a trust verdict.
+    Raises ValueError when the quaternion is NaN or zero (no rotation to report)."""
+    out = interpret_gimbal(np.asarray(q_wxyz)[None], [flags], [failure_flags],
+                           np.asarray(R_ned_body)[None], interp)
+    if not out.usable[0]:
+        raise ValueError(f"gimbal quaternion {q_wxyz!r} is not a rotation")
+    return GimbalVerdict(out.R_ned_gimbal[0], bool(out.trusted[0]), str(out.reasons[0]))
+
+
+def preferred_gimbal_source(flags_seen: Mapping[tuple[int, int, int], int],
+                            autopilot_component: int = 1,
+                            instance: int = 1) -> tuple[int, int, int]:
+    """Which gimbal status source to follow among (system, component, gimbal_device_id) keys,
+    given the OR of the flags each sent: the gimbal device's own report when it carries a
+    YAW_IN_* flag (it knows its frame; gimbal protocol v2), else the autopilot's report for
+    mount ``instance`` (gimbal_device_id 1..6 = a gimbal the autopilot reports on behalf of),
+    else the autopilot's other reports, else the first key."""
+    yaw_in = GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME | GIMBAL_FLAG_YAW_IN_EARTH_FRAME
+    keys = sorted(flags_seen)
+    ranked = ([k for k in keys if k[1] != autopilot_component and flags_seen[k] & yaw_in]
+              + [k for k in keys if k[1] == autopilot_component and k[2] == instance]
+              + [k for k in keys if k[1] == autopilot_component] + keys)
+    return ranked[0]

@@ -1,0 +1,411 @@
+"""Flight logs -> one ``FlightLog`` of time-sorted telemetry arrays in the autopilot clock.
+
+Formats: MAVLink telemetry logs (.tlog: pymavlink mavlogfile), ArduPilot DataFlash (.bin:
+pymavlink DFReader) and PX4 ULog (.ulg: pyulog, the optional ``ulog`` extra), told apart by
+their first bytes. Times are the autopilot's boot clock (time_boot_ms, TimeUS, ULog
+timestamps), made monotonic across restarts by ``telemetry.BootClock``; a tlog's wall-clock
+stamps are never used (a log may have been recorded faster than real time). Every failure to
+read becomes a ``TelemetryError`` that names the file.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import Counter, defaultdict
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .errors import TelemetryError
+from .gimbal import preferred_gimbal_source
+from .telemetry import (
+    DATAFLASH_TYPES,
+    MAV_AUTOPILOT_INVALID,
+    REBOOT_GAP_S,
+    AttitudeSample,
+    AttitudeSeries,
+    BootClock,
+    CaptureSample,
+    GimbalSample,
+    GimbalSeries,
+    HeartbeatSample,
+    HomeSample,
+    MountTargetSample,
+    MountTargetSeries,
+    ParamSample,
+    PositionSample,
+    PositionSeries,
+    dataflash_boot_time_s,
+    mavlink_boot_time_s,
+    sample_from_mavlink,
+    samples_from_dataflash,
+)
+
+DATAFLASH_MAGIC = b"\xa3\x95"
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+
+@dataclass(frozen=True, slots=True)
+class FlightLog:
+    """What pdcov uses of one flight log, for one vehicle (``system_id``).
+
+    All times are seconds in the autopilot's boot clock (monotonic across restarts). gimbal
+    holds the chosen source (``gimbal_source`` = (system, component, gimbal_device_id)) only;
+    homes are in log order; params hold each parameter's last value. notes say, in words,
+    which clock, sources and fallbacks were used (for summaries).
+    """
+
+    path: str
+    format: str
+    system_id: int | None
+    attitude: AttitudeSeries
+    position: PositionSeries
+    gimbal: GimbalSeries
+    gimbal_source: tuple[int, int, int] | None
+    homes: tuple[HomeSample, ...]
+    captures: tuple[CaptureSample, ...]
+    params: Mapping[str, float]
+    mount_targets: MountTargetSeries
+    restarts_t_s: tuple[float, ...] = ()
+    notes: tuple[str, ...] = ()
+
+
+def read_flight_log(path: str | Path, *, system_id: int | None = None) -> FlightLog:
+    """Read a .tlog, DataFlash .bin or .ulg file (format from its first bytes).
+
+    system_id: the MAVLink system to follow (tlogs); None = the autopilot announced by
+    HEARTBEAT. Raises TelemetryError naming the file when it cannot be read or holds no
+    attitude or position.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(4096)
+    except OSError as exc:
+        raise TelemetryError(f"{path}: cannot open log: {exc.strerror or exc}") from None
+    if not head:
+        raise TelemetryError(f"{path}: empty file, not a flight log")
+    if head.startswith(ULOG_MAGIC):
+        log = _read_ulog(path)
+    elif head.startswith(DATAFLASH_MAGIC):
+        log = _read_dataflash(path)
+    elif b"FMT," in head and _mostly_text(head):
+        raise TelemetryError(
+            f"{path}: a text DataFlash log (.log); pdcov reads binary DataFlash (.bin), "
+            "MAVLink .tlog and PX4 .ulg logs only. Use the .bin the autopilot wrote, or "
+            "convert this one with a tool that understands its layout")
+    else:
+        log = _read_tlog(path, system_id)
+    if len(log.attitude.t_s) == 0:
+        raise TelemetryError(f"{path}: no attitude messages (ATTITUDE / ATT / "
+                             f"vehicle_attitude) for the followed vehicle")
+    if len(log.position.t_s) == 0:
+        raise TelemetryError(f"{path}: no position messages (GLOBAL_POSITION_INT / POS / "
+                             f"vehicle_global_position) with a valid fix")
+    return log
+
+
+def _mostly_text(head: bytes) -> bool:
+    printable = sum(32 <= b < 127 or b in (9, 10, 13) for b in head)
+    return printable > 0.95 * len(head)
+
+
+# --- MAVLink telemetry logs -----------------------------------------------------------------
+
+@dataclass(slots=True)
+class _Component:
+    """Per (system, component): its clock, its samples, and (device time, autopilot time)
+    pairs for mapping a non-autopilot clock onto the autopilot's."""
+
+    clock: BootClock = field(default_factory=BootClock)
+    samples: dict[str, list] = field(default_factory=lambda: defaultdict(list))
+    clock_pairs: list[tuple[float, float]] = field(default_factory=list)
+
+
+def _read_tlog(path: Path, system_id: int | None) -> FlightLog:
+    from pymavlink import mavutil
+
+    comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
+    heartbeats: list[HeartbeatSample] = []
+    counts: Counter[str] = Counter()
+    error = ""
+    try:
+        conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
+    except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
+        raise TelemetryError(f"{path}: cannot open as a MAVLink log: {exc}") from None
+    try:
+        while True:
+            msg = conn.recv_msg()
+            if msg is None:
+                break
+            mtype = msg.get_type()
+            if mtype == "BAD_DATA" or mtype.startswith("UNKNOWN"):
+                counts["bad" if mtype == "BAD_DATA" else "unknown"] += 1
+                continue
+            counts["ok"] += 1
+            key = (msg.get_srcSystem(), msg.get_srcComponent())
+            comp = comps[key]
+            boot_s = mavlink_boot_time_s(msg)
+            if boot_s is not None:
+                t_s = comp.clock.to_s(boot_s)
+                if key[1] != 1:
+                    comp.clock_pairs.append((t_s, comps[(key[0], 1)].clock.now_s))
+            else:
+                t_s = comp.clock.now_s
+            sample = sample_from_mavlink(msg, t_s)
+            if isinstance(sample, HeartbeatSample):
+                heartbeats.append(sample)
+            elif sample is not None:
+                comp.samples[type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION"
+                                                      else "")].append(sample)
+    except Exception as exc:  # noqa: BLE001
+        error = f"{type(exc).__name__}: {exc}"
+    finally:
+        conn.close()
+    if counts["ok"] == 0:
+        why = f" ({error})" if error else ""
+        raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt{why}")
+    notes = []
+    if error:
+        notes.append(f"reading stopped early at a corrupt record ({error}); "
+                     "using the messages before it")
+    if counts["bad"] or counts["unknown"]:
+        notes.append(f"skipped {counts['bad']} runs of bytes that are not MAVLink and "
+                     f"{counts['unknown']} messages of unknown ids")
+    sysid, ap_comp, why = _choose_system(comps, heartbeats, system_id, path)
+    notes.append(why)
+    ap = comps[(sysid, ap_comp)]
+    notes.append(f"clock: time_boot_ms of the autopilot ({sysid}, {ap_comp}); "
+                 "the tlog's wall-clock stamps are not used")
+    restarts = tuple(ap.clock.restarts_t_s)
+    if restarts:
+        notes.append(_restart_note(len(restarts), "time_boot_ms"))
+
+    def gather(kind: str) -> list:
+        out = []
+        for (s, c), comp in comps.items():
+            if s != sysid:
+                continue
+            items = comp.samples.get(kind, [])
+            if c != ap_comp and items:
+                items = _to_autopilot_clock(items, comp.clock_pairs)
+            out.extend(items)
+        return out
+
+    attitude = ap.samples.get("AttitudeSample") or ap.samples.get("AttitudeSampleQ", [])
+    gimbals = gather("GimbalSample")
+    gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp)
+    if gnote:
+        notes.append(gnote)
+    params = {p.name: p.value for p in ap.samples.get("ParamSample", [])}
+    return _shifted(FlightLog(
+        str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
+        PositionSeries.from_samples(ap.samples.get("PositionSample", [])), gimbal, source,
+        tuple(gather("HomeSample")), tuple(sorted(gather("CaptureSample"), key=lambda c: c.t_s)),
+        params, MountTargetSeries.from_samples([]), restarts, tuple(notes)), -ap.clock.offset_s)
+
+
+def _restart_note(n: int, field_name: str) -> str:
+    return (f"{field_name} restarted {n}x (autopilot reboot): t_s is the last boot's own time; "
+            f"earlier boots are placed before it with a {REBOOT_GAP_S:.0f} s gap, so no frame "
+            "interpolates across a reboot")
+
+
+def _shifted(log: FlightLog, dt_s: float) -> FlightLog:
+    """The same log with every time moved by ``dt_s`` seconds."""
+    if dt_s == 0.0:
+        return log
+
+    def series(x: object) -> object:
+        return replace(x, t_s=x.t_s + dt_s)
+
+    return replace(log, attitude=series(log.attitude), position=series(log.position),
+                   gimbal=series(log.gimbal), mount_targets=series(log.mount_targets),
+                   homes=tuple(replace(h, t_s=h.t_s + dt_s) for h in log.homes),
+                   captures=tuple(replace(c, t_s=c.t_s + dt_s) for c in log.captures),
+                   restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))
+
+
+def _choose_system(comps: Mapping[tuple[int, int], _Component],
+                   heartbeats: list[HeartbeatSample], system_id: int | None,
+                   path: Path) -> tuple[int, int, str]:
+    """(system, autopilot component, note): the configured system, else the one whose
+    HEARTBEAT names a real autopilot (MAV_AUTOPILOT != INVALID), else the one sending the
+    most attitudes; ties and alternatives are named in the note."""
+    autopilots: dict[int, int] = {}
+    for hb in heartbeats:
+        if hb.autopilot != MAV_AUTOPILOT_INVALID:
+            autopilots.setdefault(hb.system_id, hb.component_id)
+    n_att = Counter()
+    for (s, _c), comp in comps.items():
+        n_att[s] += len(comp.samples.get("AttitudeSample", ())) + len(
+            comp.samples.get("AttitudeSampleQ", ()))
+    seen = sorted({s for s, _c in comps})
+    if system_id is not None:
+        if system_id not in seen:
+            raise TelemetryError(f"{path}: system id {system_id} does not appear in the log; "
+                                 f"systems seen: {seen}")
+        return system_id, autopilots.get(system_id, 1), (
+            f"following system {system_id} (configured); systems seen: {seen}")
+    if autopilots:
+        sysid = max(autopilots, key=lambda s: (n_att[s], -s))
+        how = "its HEARTBEAT names an autopilot"
+        if len(autopilots) > 1:
+            how += (f"; other autopilots {sorted(set(autopilots) - {sysid})} ignored "
+                    "(set the system id to choose)")
+        return sysid, autopilots[sysid], f"following system {sysid}: {how}; systems seen: {seen}"
+    if not n_att or max(n_att.values()) == 0:
+        raise TelemetryError(f"{path}: no autopilot HEARTBEAT and no attitude messages; "
+                             f"systems seen: {seen}")
+    sysid = max(n_att, key=lambda s: (n_att[s], -s))
+    return sysid, 1, (f"following system {sysid}: no autopilot HEARTBEAT, it sends the most "
+                      f"attitude messages; systems seen: {seen}")
+
+
+def _to_autopilot_clock(samples: list, pairs: list[tuple[float, float]]) -> list:
+    """Restamp a component's samples from its own boot clock onto the autopilot's, by the
+    median offset between its time stamps and the autopilot time when they arrived."""
+    diffs = [ap - own for own, ap in pairs if math.isfinite(ap)]
+    if not diffs:
+        return []
+    offset = statistics.median(diffs)
+    return [replace(s, t_s=s.t_s + offset) for s in samples]
+
+
+def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int = 1
+                   ) -> tuple[GimbalSeries, tuple[int, int, int] | None, str]:
+    if not samples:
+        return GimbalSeries.from_samples([]), None, ""
+    flags_seen: dict[tuple[int, int, int], int] = defaultdict(int)
+    for s in samples:
+        flags_seen[s.source] |= s.flags
+    source = preferred_gimbal_source(flags_seen, ap_comp, instance)
+    chosen = [s for s in samples if s.source == source]
+    note = ""
+    if len(flags_seen) > 1:
+        note = (f"gimbal status from {sorted(flags_seen)} (system, component, device id); "
+                f"following {source}")
+    return GimbalSeries.from_samples(chosen), source, note
+
+
+# --- ArduPilot DataFlash ------------------------------------------------------------------
+
+def _read_dataflash(path: Path) -> FlightLog:
+    from pymavlink import DFReader
+
+    clock = BootClock()
+    by_type: dict[type, list] = defaultdict(list)
+    positions: dict[str, list[PositionSample]] = defaultdict(list)
+    error = ""
+    try:
+        reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
+    except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
+        raise TelemetryError(f"{path}: cannot read as a DataFlash log: {exc}") from None
+    try:
+        while True:
+            msg = reader.recv_match(type=list(DATAFLASH_TYPES))
+            if msg is None:
+                break
+            boot_s = dataflash_boot_time_s(msg)
+            t_s = clock.now_s if boot_s is None else clock.to_s(boot_s)
+            for sample in samples_from_dataflash(msg, t_s):
+                if isinstance(sample, PositionSample):
+                    positions[msg.get_type()].append(sample)
+                else:
+                    by_type[type(sample)].append(sample)
+    except Exception as exc:  # noqa: BLE001
+        error = f"{type(exc).__name__}: {exc}"
+    notes = ["clock: DataFlash TimeUS (autopilot boot time)"]
+    if error:
+        notes.append(f"reading stopped early at a corrupt record ({error}); "
+                     "using the messages before it")
+    pos = positions.get("POS") or positions.get("GPS", [])
+    if not positions.get("POS") and pos:
+        notes.append("no POS messages: positions from GPS (3D fix only)")
+    gimbal, source, gnote = _choose_gimbal(by_type[GimbalSample], 1)
+    if gnote:
+        notes.append(gnote)
+    if source is not None:
+        notes.append("gimbal attitude from MNT Roll/Pitch/YawB (the angles of the quaternion "
+                     "ArduPilot sends in GIMBAL_DEVICE_ATTITUDE_STATUS)")
+    if clock.restarts_t_s:
+        notes.append(_restart_note(len(clock.restarts_t_s), "TimeUS"))
+    params = {p.name: p.value for p in by_type[ParamSample]}
+    return _shifted(FlightLog(
+        str(path), "dataflash", None, AttitudeSeries.from_samples(by_type[AttitudeSample]),
+        PositionSeries.from_samples(pos), gimbal, source, tuple(by_type[HomeSample]),
+        tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
+        MountTargetSeries.from_samples(by_type[MountTargetSample]),
+        tuple(clock.restarts_t_s), tuple(notes)), -clock.offset_s)
+
+
+# --- PX4 ULog ------------------------------------------------------------------------------
+
+_ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", "gimbal_device_attitude_status",
+                "home_position", "camera_capture", "camera_trigger"]
+
+
+def _read_ulog(path: Path) -> FlightLog:
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise TelemetryError(f"{path}: a PX4 ULog; reading it needs pyulog "
+                             "(pip install 'pdcov[ulog]')") from None
+    try:
+        ulog = ULog(str(path), _ULOG_TOPICS)
+    except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
+        raise TelemetryError(f"{path}: cannot read as a ULog: {exc}") from None
+    topics: dict[str, dict[str, np.ndarray]] = {}
+    for d in ulog.data_list:
+        if d.multi_id == 0:
+            topics[d.name] = d.data
+
+    def col(topic: str, name: str) -> np.ndarray:
+        return np.asarray(topics[topic][name], float)
+
+    # ULog timestamps: microseconds since boot (PX4 hrt_absolute_time).
+    def t_of(topic: str) -> np.ndarray:
+        return col(topic, "timestamp") * 1e-6
+
+    def quat(topic: str) -> np.ndarray:
+        return np.stack([col(topic, f"q[{i}]") for i in range(4)], axis=1)
+
+    att = AttitudeSeries(np.zeros(0), np.zeros((0, 4)))
+    if "vehicle_attitude" in topics:  # q: body FRD -> NED (PX4 vehicle_attitude.msg)
+        att = AttitudeSeries.from_samples([AttitudeSample(t, tuple(q)) for t, q in zip(
+            t_of("vehicle_attitude"), quat("vehicle_attitude"), strict=True)])
+    pos_samples: list[PositionSample] = []
+    if "vehicle_global_position" in topics:  # lat/lon deg, alt m AMSL
+        g = "vehicle_global_position"
+        pos_samples = [PositionSample(*row) for row in zip(
+            t_of(g), col(g, "lat"), col(g, "lon"), col(g, "alt"), strict=True)]
+    gimbal_samples: list[GimbalSample] = []
+    g = "gimbal_device_attitude_status"
+    if g in topics:
+        n = len(t_of(g))
+        dev = (col(g, "gimbal_device_id") if "gimbal_device_id" in topics[g] else np.zeros(n))
+        fail = col(g, "failure_flags") if "failure_flags" in topics[g] else np.zeros(n)
+        gimbal_samples = [GimbalSample(t, tuple(q), int(f), int(e), 1, 154, int(d))
+                          for t, q, f, e, d in zip(t_of(g), quat(g), col(g, "device_flags"),
+                                                   fail, dev, strict=True)]
+    homes = ()
+    if "home_position" in topics:
+        h = "home_position"
+        homes = tuple(HomeSample(t, la, lo, al, "home_position") for t, la, lo, al in zip(
+            t_of(h), col(h, "lat"), col(h, "lon"), col(h, "alt"), strict=True))
+    captures: list[CaptureSample] = []
+    for topic in ("camera_capture", "camera_trigger"):
+        if topic in topics and not captures:
+            captures = [CaptureSample(t, int(s), topic)
+                        for t, s in zip(t_of(topic), col(topic, "seq"), strict=True)]
+    params = dict(ulog.initial_parameters)
+    for _t, name, value in ulog.changed_parameters:
+        params[name] = value
+    gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1)
+    notes = ["clock: ULog timestamps (PX4 boot time)"] + ([gnote] if gnote else [])
+    return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
+                     gimbal, source, homes, tuple(captures), params,
+                     MountTargetSeries.from_samples([]), (), tuple(notes))

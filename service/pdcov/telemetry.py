@@ -1,0 +1,431 @@
+"""Telemetry samples in SI units and radians, and the adapters from autopilot messages.
+
+The adapters are the one place where MAVLink and DataFlash units (degE7, mm, cdeg, deg)
+become SI; everything downstream sees only these samples. They do not decide the time
+base: the caller passes ``t_s`` in the autopilot clock (see ``BootClock``), because
+several messages (HEARTBEAT, PARAM_VALUE, HOME_POSITION) carry no boot time of their own.
+
+Frames: attitudes are body FRD -> NED quaternions (MAVLink ATTITUDE); gimbal quaternions
+are in the frame their flags (or the configured interpretation, gimbal.py) say.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .rotations import quat_wxyz_from_euler_zyx
+
+REBOOT_BACKSTEP_S = 2.0
+"""A boot time this far behind the latest one means the autopilot restarted (messages of
+different types may arrive slightly out of order, never by seconds)."""
+
+REBOOT_GAP_S = 60.0
+"""Clock gap inserted at a restart so that no interpolation bridges the reboot."""
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSample:
+    """Vehicle attitude at ``t_s``: unit quaternion (w, x, y, z) of R_ned_body (FRD -> NED)."""
+
+    t_s: float
+    q_ned_body_wxyz: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class PositionSample:
+    """Vehicle position: WGS84 degrees, altitude metres above mean sea level, and height
+    above home in metres (NaN when the message has none)."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_msl_m: float
+    relative_alt_m: float = float("nan")
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalSample:
+    """One GIMBAL_DEVICE_ATTITUDE_STATUS (or its DataFlash equivalent).
+
+    q_wxyz: gimbal attitude quaternion as sent (frame per ``flags`` or per the configured
+    interpretation; not normalised, so that a bad norm can be reported). flags:
+    GIMBAL_DEVICE_FLAGS bits. failure_flags: GIMBAL_DEVICE_ERROR_FLAGS bits. The source is
+    (system_id, component_id, device_id); device_id 0 = the gimbal reporting for itself.
+    """
+
+    t_s: float
+    q_wxyz: tuple[float, float, float, float]
+    flags: int
+    failure_flags: int = 0
+    system_id: int = 1
+    component_id: int = 1
+    device_id: int = 0
+
+    @property
+    def source(self) -> tuple[int, int, int]:
+        return (self.system_id, self.component_id, self.device_id)
+
+
+@dataclass(frozen=True, slots=True)
+class HomeSample:
+    """Home (or EKF origin) position: degrees, metres MSL; ``source`` names the message."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_msl_m: float
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class CaptureSample:
+    """A camera capture (trigger) event at ``t_s``."""
+
+    t_s: float
+    image_index: int
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSample:
+    """An autopilot parameter value (PARAM_VALUE, DataFlash PARM, ULog parameter)."""
+
+    t_s: float
+    name: str
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class MountTargetSample:
+    """The mount's desired earth-frame target as DataFlash MNT logs it (DRoll, DPitch,
+    DYawB, DYawE), radians; yaw_earth_rad is NaN when yaw is not earth-locked."""
+
+    t_s: float
+    roll_rad: float
+    pitch_rad: float
+    yaw_body_rad: float
+    yaw_earth_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class HeartbeatSample:
+    """Who is on the link: MAVLink HEARTBEAT source, autopilot (MAV_AUTOPILOT), MAV_TYPE."""
+
+    t_s: float
+    system_id: int
+    component_id: int
+    autopilot: int
+    vehicle_type: int
+    armed: bool
+
+
+Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
+          | ParamSample | MountTargetSample | HeartbeatSample)
+
+MAV_AUTOPILOT_INVALID = 8  # common.xml MAV_AUTOPILOT: not a flight controller (GCS, gimbal)
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+
+class BootClock:
+    """Turns a source's boot time (time_boot_ms, TimeUS) into one monotonic clock in seconds.
+
+    The first boot segment keeps its own time (t_s = time since boot). When the boot time
+    falls back by more than REBOOT_BACKSTEP_S the source restarted: later segments are
+    shifted to start REBOOT_GAP_S after the previous one ended, so that sorting and
+    interpolation never mix two boots. ``restarts_t_s`` records where each began;
+    ``offset_s`` is the current boot's shift (offline readers subtract it at the end so that
+    the last boot, normally the flight, keeps its own time_boot_ms).
+    """
+
+    __slots__ = ("offset_s", "_max_boot_s", "restarts_t_s")
+
+    def __init__(self) -> None:
+        self.offset_s = 0.0
+        self._max_boot_s = -math.inf
+        self.restarts_t_s: list[float] = []
+
+    def to_s(self, boot_s: float) -> float:
+        if boot_s < self._max_boot_s - REBOOT_BACKSTEP_S:
+            self.offset_s += self._max_boot_s + REBOOT_GAP_S
+            self._max_boot_s = boot_s
+            self.restarts_t_s.append(boot_s + self.offset_s)
+        self._max_boot_s = max(self._max_boot_s, boot_s)
+        return boot_s + self.offset_s
+
+    @property
+    def now_s(self) -> float:
+        """The latest time seen (NaN before the first)."""
+        return self._max_boot_s + self.offset_s if math.isfinite(self._max_boot_s) else math.nan
+
+
+# --- MAVLink -------------------------------------------------------------------------------
+
+def mavlink_boot_time_s(msg: Any) -> float | None:
+    """The sender's boot time of a MAVLink message in seconds, if it carries time_boot_ms."""
+    ms = getattr(msg, "time_boot_ms", None)
+    return None if ms is None else ms * 1e-3
+
+
+def _quat(q: Sequence[float]) -> tuple[float, float, float, float]:
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
+def _attitude(msg: Any, t_s: float) -> AttitudeSample | None:
+    # ATTITUDE: roll, pitch, yaw in rad, body FRD -> NED (common.xml), z-y-x Euler.
+    angles = (msg.roll, msg.pitch, msg.yaw)
+    if not all(math.isfinite(a) for a in angles):
+        return None
+    return AttitudeSample(t_s, _quat(quat_wxyz_from_euler_zyx(*angles)))
+
+
+def _attitude_quaternion(msg: Any, t_s: float) -> AttitudeSample | None:
+    q = (msg.q1, msg.q2, msg.q3, msg.q4)  # ATTITUDE_QUATERNION: w, x, y, z
+    if not all(math.isfinite(v) for v in q):
+        return None
+    return AttitudeSample(t_s, _quat(q))
+
+
+def _global_position_int(msg: Any, t_s: float) -> PositionSample | None:
+    # lat/lon degE7, alt mm MSL, relative_alt mm above home (common.xml). ArduPilot sends
+    # all zeros before it has a position estimate: not a position.
+    if msg.lat == 0 and msg.lon == 0:
+        return None
+    return PositionSample(t_s, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                          msg.relative_alt * 1e-3)
+
+
+def _gimbal_status(msg: Any, t_s: float) -> GimbalSample:
+    src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+    return GimbalSample(t_s, _quat(msg.q), int(msg.flags), int(msg.failure_flags or 0),
+                        src_sys, src_comp, int(getattr(msg, "gimbal_device_id", 0) or 0))
+
+
+def _home_position(msg: Any, t_s: float) -> HomeSample:
+    # latitude/longitude degE7, altitude mm MSL (common.xml HOME_POSITION).
+    return HomeSample(t_s, msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
+                      "HOME_POSITION")
+
+
+def _param_value(msg: Any, t_s: float) -> ParamSample:
+    name = msg.param_id
+    if isinstance(name, bytes):
+        name = name.decode("ascii", "replace")
+    return ParamSample(t_s, name.rstrip("\x00"), float(msg.param_value))
+
+
+def _image_captured(msg: Any, t_s: float) -> CaptureSample | None:
+    # capture_result 1 = success (common.xml CAMERA_IMAGE_CAPTURED).
+    if msg.capture_result != 1:
+        return None
+    return CaptureSample(t_s, int(msg.image_index), "CAMERA_IMAGE_CAPTURED")
+
+
+def _camera_feedback(msg: Any, t_s: float) -> CaptureSample:
+    return CaptureSample(t_s, int(msg.img_idx), "CAMERA_FEEDBACK")
+
+
+def _heartbeat(msg: Any, t_s: float) -> HeartbeatSample:
+    return HeartbeatSample(t_s, msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot),
+                           int(msg.type), bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED))
+
+
+_MAVLINK = {
+    "ATTITUDE": _attitude,
+    "ATTITUDE_QUATERNION": _attitude_quaternion,
+    "GLOBAL_POSITION_INT": _global_position_int,
+    "GIMBAL_DEVICE_ATTITUDE_STATUS": _gimbal_status,
+    "HOME_POSITION": _home_position,
+    "PARAM_VALUE": _param_value,
+    "CAMERA_IMAGE_CAPTURED": _image_captured,
+    "CAMERA_FEEDBACK": _camera_feedback,
+    "HEARTBEAT": _heartbeat,
+}
+MAVLINK_TYPES = tuple(_MAVLINK)
+
+
+def sample_from_mavlink(msg: Any, t_s: float) -> Sample | None:
+    """The sample a pymavlink message carries, stamped ``t_s`` (autopilot clock, s), or None
+    for message types pdcov does not use and for messages that carry no valid value."""
+    adapter = _MAVLINK.get(msg.get_type())
+    return None if adapter is None else adapter(msg, t_s)
+
+
+# --- DataFlash (ArduPilot onboard logs) ----------------------------------------------------
+
+def dataflash_boot_time_s(msg: Any) -> float | None:
+    """Boot time in seconds of a DataFlash message (TimeUS; TimeMS in old layouts)."""
+    us = getattr(msg, "TimeUS", None)
+    if us is not None:
+        return us * 1e-6
+    ms = getattr(msg, "TimeMS", None)
+    return None if ms is None else ms * 1e-3
+
+
+def _df_att(msg: Any, t_s: float) -> AttitudeSample | None:
+    # ATT Roll, Pitch, Yaw in degrees (AP_Logger LogStructure.h), same z-y-x convention.
+    angles = np.radians([msg.Roll, msg.Pitch, msg.Yaw])
+    if not np.all(np.isfinite(angles)):
+        return None
+    return AttitudeSample(t_s, _quat(quat_wxyz_from_euler_zyx(*angles)))
+
+
+def _df_pos(msg: Any, t_s: float) -> PositionSample | None:
+    # POS Lat/Lng degrees, Alt m MSL; height above home is RelHomeAlt (4.x) or RelAlt (3.x).
+    if msg.Lat == 0 and msg.Lng == 0:
+        return None
+    rel = getattr(msg, "RelHomeAlt", None)
+    if rel is None:
+        rel = getattr(msg, "RelAlt", float("nan"))
+    return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt), float(rel))
+
+
+# The DataFlash MNT message logs the roll/pitch/body-yaw Euler angles of the same quaternion
+# the autopilot sends in GIMBAL_DEVICE_ATTITUDE_STATUS (AP_Mount_Backend::write_log); ArduPilot
+# sends that message with these flags (ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME).
+DATAFLASH_MNT_FLAGS = 4 | 8 | 32
+
+
+def _df_mnt(msg: Any, t_s: float) -> tuple[GimbalSample, MountTargetSample] | None:
+    fields = ("Roll", "Pitch", "YawB", "DRoll", "DPitch", "DYawB", "DYawE")
+    if not all(hasattr(msg, f) for f in fields):
+        return None  # older MNT layouts (before 4.3) log no body-frame yaw
+    q = quat_wxyz_from_euler_zyx(*np.radians([msg.Roll, msg.Pitch, msg.YawB]))
+    instance = int(getattr(msg, "I", 0))
+    gimbal = GimbalSample(t_s, _quat(q), DATAFLASH_MNT_FLAGS, 0, 1, 1, instance + 1)
+    target = MountTargetSample(t_s, *(math.radians(v) for v in
+                                      (msg.DRoll, msg.DPitch, msg.DYawB, msg.DYawE)))
+    return gimbal, target
+
+
+def _df_parm(msg: Any, t_s: float) -> ParamSample:
+    return ParamSample(t_s, str(msg.Name), float(msg.Value))
+
+
+def _df_orgn(msg: Any, t_s: float) -> HomeSample:
+    # ORGN Type 0 = EKF origin, 1 = AHRS home (AP_Logger LogOriginType).
+    source = "ORGN home" if int(msg.Type) == 1 else "ORGN EKF origin"
+    return HomeSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt), source)
+
+
+def _df_cam(msg: Any, t_s: float) -> CaptureSample:
+    return CaptureSample(t_s, int(getattr(msg, "Img", getattr(msg, "I", 0)) or 0),
+                         msg.get_type())
+
+
+def _df_gps(msg: Any, t_s: float) -> PositionSample | None:
+    # GPS Status >= 3 is a 3D fix (AP_GPS::GPS_Status); Lat/Lng deg, Alt m MSL. Used only
+    # when a log has no POS (ArduCopter before 3.3), first receiver only.
+    if int(getattr(msg, "I", 0)) != 0 or msg.Status < 3:
+        return None
+    return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt))
+
+
+_DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
+              "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps}
+DATAFLASH_TYPES = tuple(_DATAFLASH)
+
+
+def samples_from_dataflash(msg: Any, t_s: float) -> tuple[Sample, ...]:
+    """The samples a DataFlash message carries (MNT gives a gimbal sample and a target)."""
+    adapter = _DATAFLASH.get(msg.get_type())
+    out = None if adapter is None else adapter(msg, t_s)
+    if out is None:
+        return ()
+    return out if isinstance(out, tuple) else (out,)
+
+
+# --- time-sorted series --------------------------------------------------------------------
+
+def _sort_unique(t_s: np.ndarray) -> np.ndarray:
+    """Indices that sort ``t_s`` (stable) and keep the last of equal times."""
+    order = np.argsort(t_s, kind="stable")
+    ts = t_s[order]
+    keep = np.append(ts[1:] != ts[:-1], True) if len(ts) else np.zeros(0, bool)
+    return order[keep]
+
+
+def _sorted_columns(rows: list[tuple[float, ...]], n_columns: int,
+                    n_required: int) -> list[np.ndarray]:
+    """Columns of ``rows`` (first = time) without rows whose first ``n_required`` values are
+    not finite, sorted by time with unique times."""
+    a = np.array(rows, float).reshape(-1, n_columns)
+    a = a[np.all(np.isfinite(a[:, :n_required]), axis=1)]
+    a = a[_sort_unique(a[:, 0])]
+    return [a[:, i].copy() for i in range(n_columns)]
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSeries:
+    """Attitude samples as arrays sorted by strictly increasing t_s (s): q_ned_body_wxyz
+    (N, 4) unit quaternions of R_ned_body."""
+
+    t_s: np.ndarray
+    q_ned_body_wxyz: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[AttitudeSample]) -> AttitudeSeries:
+        t = np.array([s.t_s for s in samples], float)
+        q = np.array([s.q_ned_body_wxyz for s in samples], float).reshape(-1, 4)
+        ok = np.isfinite(t) & np.all(np.isfinite(q), axis=1)
+        t, q = t[ok], q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True)
+        idx = _sort_unique(t)
+        return cls(t[idx], q[idx])
+
+
+@dataclass(frozen=True, slots=True)
+class PositionSeries:
+    """Position samples sorted by strictly increasing t_s (s): degrees, metres MSL, metres
+    above home (NaN where unknown)."""
+
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_msl_m: np.ndarray
+    relative_alt_m: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[PositionSample]) -> PositionSeries:
+        return cls(*_sorted_columns([(s.t_s, s.lat_deg, s.lon_deg, s.alt_msl_m,
+                                      s.relative_alt_m) for s in samples], 5, 4))
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalSeries:
+    """Gimbal status samples of one source sorted by strictly increasing t_s (s): q_wxyz
+    (N, 4) as sent (NaN rows kept, so that they are counted), flags, failure_flags (N,)."""
+
+    t_s: np.ndarray
+    q_wxyz: np.ndarray
+    flags: np.ndarray
+    failure_flags: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[GimbalSample]) -> GimbalSeries:
+        t = np.array([s.t_s for s in samples], float)
+        q = np.array([s.q_wxyz for s in samples], float).reshape(-1, 4)
+        flags = np.array([s.flags for s in samples], np.int64)
+        fail = np.array([s.failure_flags for s in samples], np.int64)
+        ok = np.isfinite(t)
+        idx = _sort_unique(t[ok])
+        return cls(t[ok][idx], q[ok][idx], flags[ok][idx], fail[ok][idx])
+
+
+@dataclass(frozen=True, slots=True)
+class MountTargetSeries:
+    """Mount targets (DataFlash MNT desired angles, radians) sorted by t_s (s)."""
+
+    t_s: np.ndarray
+    roll_rad: np.ndarray
+    pitch_rad: np.ndarray
+    yaw_body_rad: np.ndarray
+    yaw_earth_rad: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[MountTargetSample]) -> MountTargetSeries:
+        return cls(*_sorted_columns([(s.t_s, s.roll_rad, s.pitch_rad, s.yaw_body_rad,
+                                      s.yaw_earth_rad) for s in samples], 5, 1))
