@@ -1,0 +1,537 @@
+"""Detector statistics (paper, section III-B): from a labelled test set to a ``DetectorModel``.
+
+Pure: boxes in, counts, models and test results out. Steps:
+
+1. ``match_image`` / ``match_images``: per image, keep the ground truth and the detections of
+   the class set (merged into one target class), drop degenerate boxes and boxes at least half
+   inside ignored regions, and match detections at or above the confidence threshold, highest
+   confidence first, each to the unmatched ground truth of highest IoU at or above the IoU
+   threshold (the COCO rule, crowd/ignored ground truth last, matched by intersection over the
+   detection's area and never consumed).
+2. Object size s = sqrt(w h) in detector-input pixels (image pixels times
+   input_size_px / max(image width, height)).
+3. ``count_in_bins``: N_true and N_det by ground-truth size, N_total and N_TP by detection size;
+   ``fit_binned``: P_D = N_det / N_true, P_FA = 1 - N_TP / N_total with 95 % intervals;
+   ``fit_logistic``: P_D and P_FA as logistic functions of log size (MIL-HDBK-1823A hit/miss).
+4. ``validate``: observed against predicted detections per bin on another split.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+import shapely
+from scipy import optimize, special, stats
+
+from .annotations import Boxes, ImageTruth
+from .detector import BinCounts, DetectorModel
+from .errors import ConfigError, DetectorModelError, InputFileError
+
+CONFIDENCE_LEVEL = 0.95
+INTERVAL_METHODS = {"wilson": "wilson", "clopper-pearson": "exact"}  # ours -> scipy's name
+BIN_RULES = ("quantile", "log")
+VALIDATION_TESTS = ("binomial", "chi2")
+_Z95 = float(stats.norm.ppf(0.5 + CONFIDENCE_LEVEL / 2))
+
+
+class TruthStatus(IntEnum):
+    """What matching made of a ground-truth box; only MISSED and DETECTED are counted."""
+
+    MISSED = 0
+    DETECTED = 1
+    OTHER_CLASS = 2
+    IGNORED = 3  # COCO crowd, VisDrone score 0
+    DEGENERATE = 4  # width or height <= 0
+    IN_IGNORED_REGION = 5
+
+
+class DetectionStatus(IntEnum):
+    """What matching made of a detection; only FALSE and TRUE are counted."""
+
+    FALSE = 0
+    TRUE = 1
+    OTHER_CLASS = 2
+    BELOW_THRESHOLD = 3
+    DEGENERATE = 4
+    IN_IGNORED_REGION = 5
+    ON_IGNORED_TRUTH = 6
+
+
+@dataclass(frozen=True, slots=True)
+class MatchSettings:
+    """Thresholds and the class set of a fit. classes None: every class, merged."""
+
+    confidence_threshold: float = 0.5
+    iou_threshold: float = 0.5
+    input_size_px: int | None = 640
+    classes: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.confidence_threshold <= 1:
+            raise ConfigError(f"--conf: expected a confidence in [0, 1], got "
+                              f"{self.confidence_threshold}")
+        if not 0 < self.iou_threshold <= 1:
+            raise ConfigError(f"--iou: expected an IoU in (0, 1], got {self.iou_threshold}")
+        if self.input_size_px is not None and self.input_size_px <= 0:
+            raise ConfigError(f"--input-size: expected a positive number of pixels, got "
+                              f"{self.input_size_px}")
+        if self.classes is not None and not self.classes:
+            raise ConfigError("--classes: expected at least one class name")
+
+
+@dataclass(frozen=True, slots=True)
+class ImageMatch:
+    """Status of each ground-truth box and each detection of one image, in input order."""
+
+    truth_status: np.ndarray
+    detection_status: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class Matches:
+    """Matching outcome of a whole set: sizes (detector-input px) of the counted ground truth
+    and whether it was detected; of the counted detections and whether they were true; and
+    how many boxes each status holds (e.g. ``truth_degenerate``)."""
+
+    settings: MatchSettings
+    truth_size_px: np.ndarray
+    truth_detected: np.ndarray
+    detection_size_px: np.ndarray
+    detection_true: np.ndarray
+    n_images: int
+    status_counts: dict[str, int]
+
+
+def iou_matrix(det_xywh: np.ndarray, truth_xywh: np.ndarray,
+               over_detection: np.ndarray) -> np.ndarray:
+    """(n_det, n_truth) intersection over union; over the detection's area alone in the
+    columns where ``over_detection`` is True (COCO crowd boxes)."""
+    d = det_xywh[:, None, :]
+    t = truth_xywh[None, :, :]
+    iw = np.clip(np.minimum(d[..., 0] + d[..., 2], t[..., 0] + t[..., 2])
+                 - np.maximum(d[..., 0], t[..., 0]), 0, None)
+    ih = np.clip(np.minimum(d[..., 1] + d[..., 3], t[..., 1] + t[..., 3])
+                 - np.maximum(d[..., 1], t[..., 1]), 0, None)
+    inter = iw * ih
+    area_d = d[..., 2] * d[..., 3]
+    union = np.where(over_detection[None, :], area_d, area_d + t[..., 2] * t[..., 3] - inter)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+def _in_regions(xywh: np.ndarray, regions_xywh: np.ndarray) -> np.ndarray:
+    """True for boxes at least half of whose area lies in the union of the regions."""
+    if len(regions_xywh) == 0 or len(xywh) == 0:
+        return np.zeros(len(xywh), bool)
+    r = regions_xywh
+    union = shapely.union_all(shapely.box(r[:, 0], r[:, 1], r[:, 0] + r[:, 2], r[:, 1] + r[:, 3]))
+    boxes = shapely.box(xywh[:, 0], xywh[:, 1], xywh[:, 0] + xywh[:, 2], xywh[:, 1] + xywh[:, 3])
+    area = xywh[:, 2] * xywh[:, 3]
+    return shapely.area(shapely.intersection(boxes, union)) >= 0.5 * area
+
+
+def _in_class_set(labels: tuple[str, ...], classes: tuple[str, ...] | None) -> np.ndarray:
+    if classes is None:
+        return np.ones(len(labels), bool)
+    return np.array([lab in classes for lab in labels], bool).reshape(len(labels))
+
+
+def match_image(truth: ImageTruth, detections: Boxes, settings: MatchSettings) -> ImageMatch:
+    """Match one image's detections to its ground truth (see the module docstring)."""
+    gt, dt = truth.boxes, detections
+    ts = np.full(len(gt), TruthStatus.MISSED, np.int8)
+    ts[gt.ignore] = TruthStatus.IGNORED
+    ts[(gt.xywh[:, 2] <= 0) | (gt.xywh[:, 3] <= 0)] = TruthStatus.DEGENERATE
+    ts[(ts != TruthStatus.DEGENERATE) & _in_regions(gt.xywh, truth.ignore_regions_xywh)] = \
+        TruthStatus.IN_IGNORED_REGION
+    ts[~_in_class_set(gt.labels, settings.classes)] = TruthStatus.OTHER_CLASS
+
+    ds = np.full(len(dt), DetectionStatus.FALSE, np.int8)
+    ds[dt.scores < settings.confidence_threshold] = DetectionStatus.BELOW_THRESHOLD
+    degenerate = (dt.xywh[:, 2] <= 0) | (dt.xywh[:, 3] <= 0)
+    ds[degenerate] = DetectionStatus.DEGENERATE
+    ds[~degenerate & _in_regions(dt.xywh, truth.ignore_regions_xywh)] = \
+        DetectionStatus.IN_IGNORED_REGION
+    ds[~_in_class_set(dt.labels, settings.classes)] = DetectionStatus.OTHER_CLASS
+
+    real = np.flatnonzero(ts == TruthStatus.MISSED)
+    crowd = np.flatnonzero(ts == TruthStatus.IGNORED)
+    cand = np.flatnonzero(ds == DetectionStatus.FALSE)
+    cand = cand[np.argsort(-dt.scores[cand], kind="mergesort")]
+    if len(cand) and len(real) + len(crowd):
+        cols = np.concatenate([real, crowd])
+        ious = iou_matrix(dt.xywh[cand], gt.xywh[cols],
+                          np.arange(len(cols)) >= len(real))
+        thr = min(settings.iou_threshold, 1 - 1e-10)  # as COCOeval, so that IoU 1 can match
+        free = np.ones(len(real), bool)
+        for row, d in zip(ious, cand, strict=True):
+            ok = free & (row[:len(real)] >= thr)
+            if ok.any():
+                # COCOeval keeps the last of equal best IoUs
+                best = np.where(ok, row[:len(real)], -1.0)
+                g = len(best) - 1 - int(np.argmax(best[::-1]))
+                free[g] = False
+                ts[real[g]] = TruthStatus.DETECTED
+                ds[d] = DetectionStatus.TRUE
+            elif (row[len(real):] >= thr).any():
+                ds[d] = DetectionStatus.ON_IGNORED_TRUTH
+    return ImageMatch(ts, ds)
+
+
+def _sqrt_area(xywh: np.ndarray) -> np.ndarray:
+    return np.sqrt(xywh[:, 2] * xywh[:, 3])
+
+
+def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
+                 settings: MatchSettings) -> Matches:
+    """Match every image and gather counted sizes (detector-input px) and outcomes."""
+    t_size, t_hit, d_size, d_true = [], [], [], []
+    counts: Counter[str] = Counter()
+    n_images = 0
+    for truth, dets in pairs:
+        m = match_image(truth, dets, settings)
+        scale = 1.0
+        if settings.input_size_px is not None:
+            if truth.width_px is None or truth.height_px is None:
+                raise InputFileError(f"image {truth.image_id!r}: size unknown, needed to scale "
+                                     f"to the {settings.input_size_px}-px detector input")
+            scale = settings.input_size_px / max(truth.width_px, truth.height_px)
+        tk = m.truth_status <= TruthStatus.DETECTED
+        dk = m.detection_status <= DetectionStatus.TRUE
+        t_size.append(_sqrt_area(truth.boxes.xywh[tk]) * scale)
+        t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
+        d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
+        d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
+        counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
+        counts.update(f"detection_{DetectionStatus(s).name.lower()}" for s in m.detection_status)
+        n_images += 1
+
+    def cat(parts: list[np.ndarray], dtype: type) -> np.ndarray:
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+    return Matches(settings, cat(t_size, float), cat(t_hit, bool), cat(d_size, float),
+                   cat(d_true, bool), n_images, dict(sorted(counts.items())))
+
+
+# -- bins and intervals ----------------------------------------------------------------------
+
+
+def auto_bin_edges(size_px: np.ndarray, rule: str, n_bins: int) -> tuple[float, ...]:
+    """Bin edges (px) spanning the sizes: ``quantile`` puts about equal counts in each bin,
+    ``log`` spaces edges evenly in log size. Edges are rounded to 0.1 px (first down, last up
+    past the largest size); edges that coincide merge, so ties can give fewer bins."""
+    s = np.asarray(size_px, dtype=float)
+    if rule not in BIN_RULES:
+        raise ConfigError(f"--bins: expected edges or a rule {BIN_RULES}, got {rule!r}")
+    if n_bins < 1:
+        raise ConfigError(f"--bins: expected at least 1 bin, got {n_bins}")
+    if s.size < 2:
+        raise InputFileError(f"cannot choose bins from {s.size} ground-truth objects; "
+                             f"give --bins edges")
+    lo, hi = float(s.min()), float(s.max())
+    if rule == "quantile":
+        inner = np.quantile(s, np.linspace(0, 1, n_bins + 1)[1:-1])
+    else:
+        inner = np.geomspace(lo, hi, n_bins + 1)[1:-1]
+    first, last = math.floor(lo * 10) / 10, math.floor(hi * 10) / 10 + 0.1
+    inner = np.round(inner, 1)
+    edges = np.unique(np.concatenate([[first], inner[(inner > first) & (inner < last)],
+                                      [last]]))
+    return tuple(round(float(e), 1) for e in edges)
+
+
+def proportion_ci(k: np.ndarray, n: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """95 % interval of a binomial proportion k / n per element (``wilson`` or
+    ``clopper-pearson``); [0, 1] where n = 0."""
+    if method not in INTERVAL_METHODS:
+        raise ConfigError(f"--interval: expected one of {tuple(INTERVAL_METHODS)}, "
+                          f"got {method!r}")
+    lo, hi = np.zeros(len(n)), np.ones(len(n))
+    for i, (ki, ni) in enumerate(zip(k, n, strict=True)):
+        if ni > 0:
+            ci = stats.binomtest(int(ki), int(ni)).proportion_ci(
+                confidence_level=CONFIDENCE_LEVEL, method=INTERVAL_METHODS[method])
+            lo[i], hi[i] = ci.low, ci.high
+    return lo, hi
+
+
+@dataclass(frozen=True, slots=True)
+class BinnedCounts:
+    """Counts per bin [edge_i, edge_i+1) px: ground truth (n_true) and the detected part
+    (n_detected) by ground-truth size; detections (n_detections) and the true ones
+    (n_true_positives) by detection size; sizes outside all bins."""
+
+    edges_px: tuple[float, ...]
+    n_true: np.ndarray
+    n_detected: np.ndarray
+    n_detections: np.ndarray
+    n_true_positives: np.ndarray
+    truth_outside: int
+    detections_outside: int
+
+
+def _bin_of(size_px: np.ndarray, edges: tuple[float, ...]) -> np.ndarray:
+    """Bin index of each size, -1 outside [edges[0], edges[-1])."""
+    i = np.searchsorted(np.asarray(edges), size_px, side="right") - 1
+    return np.where((i >= 0) & (i < len(edges) - 1), i, -1)
+
+
+def count_in_bins(matches: Matches, edges: tuple[float, ...]) -> BinnedCounts:
+    n = len(edges) - 1
+    if n < 1 or np.any(np.diff(edges) <= 0):
+        raise ConfigError(f"--bins: edges must be at least 2 strictly increasing sizes, "
+                          f"got {list(edges)}")
+    ti = _bin_of(matches.truth_size_px, edges)
+    di = _bin_of(matches.detection_size_px, edges)
+
+    def count(i: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+        keep = i >= 0
+        return np.bincount(i[keep], None if w is None else w[keep], minlength=n).astype(int)
+
+    return BinnedCounts(tuple(edges), count(ti), count(ti, matches.truth_detected),
+                        count(di), count(di, matches.detection_true),
+                        int((ti < 0).sum()), int((di < 0).sum()))
+
+
+# -- models ----------------------------------------------------------------------------------
+
+
+def _fit_record(matches: Matches, c: BinnedCounts) -> dict[str, Any]:
+    s = matches.settings
+    return {"classes": list(s.classes) if s.classes is not None else None,
+            "n_images": matches.n_images,
+            "truth_outside_bins": c.truth_outside,
+            "detections_outside_bins": c.detections_outside,
+            "status_counts": matches.status_counts}
+
+
+def _model(matches: Matches, c: BinnedCounts, p_d: np.ndarray, p_fa: np.ndarray,
+           extra: dict[str, Any]) -> DetectorModel:
+    s = matches.settings
+    return DetectorModel(
+        bin_edges_px=c.edges_px, p_detect=tuple(float(v) for v in p_d),
+        p_false_alarm=tuple(float(v) for v in p_fa), input_size_px=s.input_size_px,
+        confidence_threshold=s.confidence_threshold, iou_threshold=s.iou_threshold,
+        counts=BinCounts(tuple(int(v) for v in c.n_true), tuple(int(v) for v in c.n_detected),
+                         tuple(int(v) for v in c.n_detections)),
+        extra={**extra, "n_true_positives": [int(v) for v in c.n_true_positives],
+               "fit": _fit_record(matches, c)})
+
+
+def _pairs(lo: np.ndarray, hi: np.ndarray) -> list[list[float]]:
+    return [[round(float(a), 6), round(float(b), 6)] for a, b in zip(lo, hi, strict=True)]
+
+
+def fit_binned(matches: Matches, edges: tuple[float, ...],
+               interval: str = "wilson") -> DetectorModel:
+    """The paper's histogram model with ``interval`` 95 % intervals. An empty bin has
+    P = 0 (the engine assumes nothing where there is no data) and the interval [0, 1]."""
+    c = count_in_bins(matches, edges)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_d = np.where(c.n_true > 0, c.n_detected / c.n_true, 0.0)
+        p_fa = np.where(c.n_detections > 0, 1 - c.n_true_positives / c.n_detections, 0.0)
+    d_lo, d_hi = proportion_ci(c.n_detected, c.n_true, interval)
+    prec_lo, prec_hi = proportion_ci(c.n_true_positives, c.n_detections, interval)
+    return _model(matches, c, p_d, p_fa, {
+        "model": "binned", "interval_method": interval, "confidence_level": CONFIDENCE_LEVEL,
+        "p_detect_ci95": _pairs(d_lo, d_hi),
+        "p_false_alarm_ci95": _pairs(1 - prec_hi, 1 - prec_lo)})
+
+
+@dataclass(frozen=True, slots=True)
+class LogisticCurve:
+    """P(s) = 1 / (1 + exp(-(b0 + b1 z + ... + b_k z^k))), z = (ln s - log_center) / log_scale,
+    s in px; ``covariance`` of the coefficients from the observed information."""
+
+    coefficients: tuple[float, ...]
+    covariance: tuple[tuple[float, ...], ...]
+    log_center: float
+    log_scale: float
+
+    def design(self, size_px: np.ndarray) -> np.ndarray:
+        z = (np.log(np.asarray(size_px, dtype=float)) - self.log_center) / self.log_scale
+        return np.vander(z, len(self.coefficients), increasing=True)
+
+    def evaluate(self, size_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """P and its pointwise 95 % band (Wald on the logit scale) at the sizes."""
+        X = self.design(size_px)
+        eta = X @ np.asarray(self.coefficients)
+        se = np.sqrt(np.einsum("ij,jk,ik->i", X, np.asarray(self.covariance), X))
+        return special.expit(eta), special.expit(eta - _Z95 * se), special.expit(eta + _Z95 * se)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"log_center": self.log_center, "log_scale": self.log_scale,
+                "coefficients": list(self.coefficients),
+                "covariance": [list(r) for r in self.covariance]}
+
+
+def fit_logistic_curve(size_px: np.ndarray, hit: np.ndarray, degree: int = 1) -> LogisticCurve:
+    """Maximum-likelihood logistic regression of hits on a polynomial in log size."""
+    s, y = np.asarray(size_px, dtype=float), np.asarray(hit, dtype=float)
+    if degree not in (1, 2):
+        raise ConfigError(f"--logistic-degree: expected 1 or 2, got {degree}")
+    if s.size == 0 or y.sum() < degree + 1 or (1 - y).sum() < degree + 1:
+        raise DetectorModelError(
+            f"logistic fit needs at least {degree + 1} hits and {degree + 1} misses, got "
+            f"{int(y.sum())} and {int((1 - y).sum())}; use the binned model")
+    ln = np.log(s)
+    curve = LogisticCurve((0.0,) * (degree + 1), (), float(ln.mean()),
+                          float(ln.std()) or 1.0)
+    X = curve.design(s)
+
+    def nll(b: np.ndarray) -> tuple[float, np.ndarray]:
+        eta = X @ b
+        return float(np.sum(np.logaddexp(0, eta) - y * eta)), X.T @ (special.expit(eta) - y)
+
+    def hess(b: np.ndarray) -> np.ndarray:
+        p = special.expit(X @ b)
+        return (X * (p * (1 - p))[:, None]).T @ X
+
+    res = optimize.minimize(nll, np.zeros(degree + 1), jac=True, hess=hess,
+                            method="trust-exact")
+    H = hess(res.x)
+    if not res.success or np.linalg.cond(H) > 1e12 or np.any(np.abs(res.x) > 50):
+        raise DetectorModelError(
+            f"logistic fit did not converge ({res.message}); hits and misses may be "
+            f"separated by size; use the binned model")
+    cov = np.linalg.inv(H)
+    return LogisticCurve(tuple(float(v) for v in res.x),
+                         tuple(tuple(float(v) for v in r) for r in cov),
+                         curve.log_center, curve.log_scale)
+
+
+def fit_logistic(matches: Matches, edges: tuple[float, ...], n_fine: int = 64,
+                 degree: int = 1) -> DetectorModel:
+    """P_D and P_FA as logistic functions of log size (hit/miss analysis of MIL-HDBK-1823A),
+    fitted to the objects and detections inside [edges[0], edges[-1]) and written on
+    ``n_fine`` log-spaced bins over that range, valued at each bin's geometric centre."""
+    if n_fine < 1:
+        raise ConfigError(f"--fine-bins: expected at least 1, got {n_fine}")
+    lo = edges[0] if edges[0] > 0 else float(matches.truth_size_px.min(initial=math.inf))
+    if not lo < edges[-1]:
+        raise InputFileError("no ground-truth object inside the bins to fit")
+    fine = tuple(float(v) for v in np.geomspace(lo, edges[-1], n_fine + 1))
+    ti = _bin_of(matches.truth_size_px, fine) >= 0
+    di = _bin_of(matches.detection_size_px, fine) >= 0
+    pd_curve = fit_logistic_curve(matches.truth_size_px[ti], matches.truth_detected[ti], degree)
+    fa_curve = fit_logistic_curve(matches.detection_size_px[di], ~matches.detection_true[di],
+                                  degree)
+    centres = np.sqrt(np.asarray(fine[:-1]) * np.asarray(fine[1:]))
+    p_d, d_lo, d_hi = pd_curve.evaluate(centres)
+    p_fa, fa_lo, fa_hi = fa_curve.evaluate(centres)
+    c = count_in_bins(matches, fine)
+    return _model(matches, c, p_d, p_fa, {
+        "model": "logistic", "interval_method": "wald-logit", "confidence_level":
+        CONFIDENCE_LEVEL, "p_detect_ci95": _pairs(d_lo, d_hi),
+        "p_false_alarm_ci95": _pairs(fa_lo, fa_hi),
+        "logistic": {"link": "logit", "covariate": "z = (ln(size_px) - log_center) / log_scale",
+                     "degree": degree, "fit_range_px": [lo, edges[-1]],
+                     "p_detect": pd_curve.to_dict(), "p_false_alarm": fa_curve.to_dict()}})
+
+
+# -- validation ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class BinTest:
+    """One bin's check: trials n, observed successes, successes the model predicts, p-value
+    (None for an empty bin)."""
+
+    n: int
+    observed: int
+    expected: float
+    p_value: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class ValidationReport:
+    """Per-bin tests of a model on another split: detections among ground truth (P_D) and
+    true detections among detections (precision, 1 - P_FA)."""
+
+    bin_edges_px: tuple[float, ...]
+    detect: tuple[BinTest, ...]
+    precision: tuple[BinTest, ...]
+    test: str
+    alpha: float = 0.05
+    model: dict[str, Any] = field(default_factory=dict)
+
+    def n_failed(self, which: str) -> tuple[int, int]:
+        """(bins with p < alpha, bins tested) for ``detect`` or ``precision``."""
+        tests = [t for t in getattr(self, which) if t.p_value is not None]
+        return sum(t.p_value < self.alpha for t in tests), len(tests)
+
+    def to_dict(self) -> dict[str, Any]:
+        bins = []
+        for i, (d, p) in enumerate(zip(self.detect, self.precision, strict=True)):
+            bins.append({"lo_px": self.bin_edges_px[i], "hi_px": self.bin_edges_px[i + 1],
+                         "n_true": d.n, "detected": d.observed,
+                         "expected_detected": round(d.expected, 6), "p_value_detect": d.p_value,
+                         "n_detections": p.n, "true_positives": p.observed,
+                         "expected_true_positives": round(p.expected, 6),
+                         "p_value_precision": p.p_value})
+        fd, nd = self.n_failed("detect")
+        fp, np_ = self.n_failed("precision")
+        return {"version": 1, "test": self.test, "alpha": self.alpha, "model": self.model,
+                "bins": bins, "failed_detect": fd, "tested_detect": nd,
+                "failed_precision": fp, "tested_precision": np_}
+
+    @classmethod
+    def from_dict(cls, doc: Any, source: str) -> ValidationReport:
+        try:
+            bins = doc["bins"]
+            edges = tuple(float(b["lo_px"]) for b in bins) + (float(bins[-1]["hi_px"]),)
+            detect = tuple(BinTest(int(b["n_true"]), int(b["detected"]),
+                                   float(b["expected_detected"]), b["p_value_detect"])
+                           for b in bins)
+            precision = tuple(BinTest(int(b["n_detections"]), int(b["true_positives"]),
+                                      float(b["expected_true_positives"]),
+                                      b["p_value_precision"]) for b in bins)
+            return cls(edges, detect, precision, str(doc["test"]), float(doc["alpha"]),
+                       dict(doc.get("model", {})))
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            raise InputFileError(f"{source}: not a pdcov validation report ({exc!r})") from None
+
+
+def _bin_test(n: int, k: int, expected: float, test: str) -> BinTest:
+    if n == 0:
+        return BinTest(0, 0, 0.0, None)
+    p = min(max(expected / n, 0.0), 1.0)
+    if test == "chi2" and 0 < expected < n:
+        pv = stats.chisquare([k, n - k], [expected, n - expected]).pvalue
+    else:  # exact; also where chi-square is undefined (a predicted count of 0)
+        pv = stats.binomtest(k, n, p).pvalue
+    return BinTest(n, k, expected, float(pv))
+
+
+def validate(model: DetectorModel, matches: Matches, edges: tuple[float, ...] | None = None,
+             test: str = "binomial", alpha: float = 0.05) -> ValidationReport:
+    """Compare, per bin (the model's unless ``edges``), the observed detections with the
+    number the model predicts: the sum of P_D over the ground truth in the bin, and of
+    1 - P_FA over the detections. ``binomial``: exact two-sided test with the bin's mean
+    predicted probability (exact for a binned model on its own bins); ``chi2``: Pearson's
+    chi-square with one degree of freedom."""
+    if test not in VALIDATION_TESTS:
+        raise ConfigError(f"--test: expected one of {VALIDATION_TESTS}, got {test!r}")
+    if not 0 < alpha < 1:
+        raise ConfigError(f"--alpha: expected a level in (0, 1), got {alpha}")
+    edges = edges or model.bin_edges_px
+    c = count_in_bins(matches, edges)
+    pd, _ = model.lookup(matches.truth_size_px)
+    _, pfa = model.lookup(matches.detection_size_px)
+    ti, di = _bin_of(matches.truth_size_px, edges), _bin_of(matches.detection_size_px, edges)
+    n = len(edges) - 1
+    exp_d = np.bincount(ti[ti >= 0], pd[ti >= 0], minlength=n)
+    exp_tp = np.bincount(di[di >= 0], 1 - pfa[di >= 0], minlength=n)
+    return ValidationReport(
+        tuple(edges),
+        tuple(_bin_test(int(a), int(b), float(e), test)
+              for a, b, e in zip(c.n_true, c.n_detected, exp_d, strict=True)),
+        tuple(_bin_test(int(a), int(b), float(e), test)
+              for a, b, e in zip(c.n_detections, c.n_true_positives, exp_tp, strict=True)),
+        test, alpha)
