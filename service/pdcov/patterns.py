@@ -1,0 +1,374 @@
+"""Coverage patterns as plans: lawnmower (linear Morse function), spiral (radial Morse
+function), and the IAMSAR expanding-square and sector searches.
+
+Every pattern is a polyline in ENU metres clipped to the free space; where it leaves the free
+space, or where one cell's tracks end and the next cell's begin, the vehicle transits along
+the shortest path inside the free space (a visibility graph over the free space's vertices).
+Only parts of the free space that are not connected to each other are joined by a straight
+line across what separates them.
+
+Headings are bearings: radians clockwise from north, so a heading of psi points along
+ENU (sin psi, cos psi).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import shapely
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from shapely.geometry import LinearRing, LineString, MultiPolygon, Point, Polygon
+from shapely.ops import substring
+
+from .decomposition import Decomposition, boustrophedon_decomposition, polygons_of
+from .errors import ConfigError
+from .plan import Plan
+
+_COVER_TOL_M = 1e-5
+
+
+def unit_of_heading(heading_rad: float) -> np.ndarray:
+    """ENU unit vector (east, north) of a bearing (radians clockwise from north)."""
+    return np.array([math.sin(heading_rad), math.cos(heading_rad)])
+
+
+def swath_width_m(footprint_enu: Polygon, track_heading_rad: float) -> float:
+    """Width of the ground strip a footprint sweeps when moved along ``track_heading_rad``:
+    its extent across the track, metres. Empty footprint: 0."""
+    if footprint_enu.is_empty:
+        return 0.0
+    across = unit_of_heading(track_heading_rad + math.pi / 2)
+    pts = shapely.get_coordinates(footprint_enu)
+    d = pts @ across
+    return float(d.max() - d.min())
+
+
+def track_spacing_m(swath_m: float, side_overlap: float) -> float:
+    """Distance between neighbouring tracks for a swath width and a side overlap in [0, 1)."""
+    if not 0.0 <= side_overlap < 1.0:
+        raise ConfigError(f"side overlap: expected a fraction in [0, 1), got {side_overlap}")
+    if not swath_m > 0:
+        raise ConfigError(f"swath width: the camera sees no ground strip ({swath_m} m); "
+                          f"check the mount pitch and altitude")
+    return swath_m * (1.0 - side_overlap)
+
+
+def _check_spacing(spacing_m: float) -> None:
+    if not (spacing_m > 0 and math.isfinite(spacing_m)):
+        raise ConfigError(f"track spacing: expected a positive number of metres, "
+                          f"got {spacing_m}")
+
+
+class FreeSpaceRouter:
+    """Shortest paths between points of the free space (ENU metres), staying inside it.
+
+    The straight line is used when it lies in the free space; otherwise the path runs through
+    the free space's vertices (visibility graph, Dijkstra), built on first need."""
+
+    def __init__(self, free_enu: Polygon | MultiPolygon):
+        self._free = free_enu.buffer(_COVER_TOL_M)
+        shapely.prepare(self._free)
+        self._nodes = np.unique(shapely.get_coordinates(free_enu), axis=0)
+        self._rings = [LinearRing(r) for p in polygons_of(free_enu)
+                       for r in (p.exterior, *p.interiors)]
+        self._graph: csr_matrix | None = None
+
+    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Whether each segment a[i] -> b[i] lies in the free space."""
+        segs = shapely.linestrings(np.stack([a, b], axis=1))
+        return shapely.covers(self._free, segs)
+
+    def _node_graph(self) -> csr_matrix:
+        if self._graph is None:
+            n = len(self._nodes)
+            i, j = np.triu_indices(n, k=1)
+            ok = self._visible(self._nodes[i], self._nodes[j])
+            i, j = i[ok], j[ok]
+            w = np.linalg.norm(self._nodes[i] - self._nodes[j], axis=1)
+            self._graph = csr_matrix((np.concatenate([w, w]), (np.concatenate([i, j]),
+                                      np.concatenate([j, i]))), shape=(n, n))
+        return self._graph
+
+    def boundary_path(self, a_enu_m: np.ndarray, b_enu_m: np.ndarray) -> np.ndarray | None:
+        """(K, 2) points from a to b along the shorter way round the free-space boundary ring
+        both lie on; None when they do not lie on one ring."""
+        a, b = Point(a_enu_m), Point(b_enu_m)
+        for ring in self._rings:
+            if ring.distance(a) > _COVER_TOL_M or ring.distance(b) > _COVER_TOL_M:
+                continue
+            length = ring.length
+            da, db = ring.project(a), ring.project(b)
+            forward = (db - da) % length
+            start, end, backward = (da, db, False) if forward <= length / 2 else (db, da, True)
+            if end >= start:
+                arc = shapely.get_coordinates(substring(ring, start, end))
+            else:
+                arc = np.vstack([shapely.get_coordinates(substring(ring, start, length)),
+                                 shapely.get_coordinates(substring(ring, 0.0, end))])
+            arc = arc[::-1] if backward else arc
+            return np.vstack([[a.x, a.y], arc[1:-1], [b.x, b.y]])
+        return None
+
+    def path(self, a_enu_m: np.ndarray, b_enu_m: np.ndarray) -> np.ndarray:
+        """(K, 2) points from a to b inclusive; a straight line when none exists in free
+        space (a and b in parts of the free space that do not touch)."""
+        a, b = np.asarray(a_enu_m, float), np.asarray(b_enu_m, float)
+        if self._visible(a[None], b[None])[0]:
+            return np.array([a, b])
+        g = self._node_graph()
+        n = len(self._nodes)
+        ends = np.array([a, b])
+        # Augmented graph: nodes, then a (n) and b (n + 1), joined to the nodes they see.
+        rows, cols, wts = [], [], []
+        for k, p in enumerate(ends):
+            vis = self._visible(np.repeat(p[None], n, axis=0), self._nodes)
+            idx = np.flatnonzero(vis)
+            d = np.linalg.norm(self._nodes[idx] - p, axis=1)
+            rows += [idx, np.full(len(idx), n + k)]
+            cols += [np.full(len(idx), n + k), idx]
+            wts += [d, d]
+        coo = g.tocoo()
+        full = csr_matrix((np.concatenate([coo.data, *wts]),
+                           (np.concatenate([coo.row, *rows]), np.concatenate([coo.col, *cols]))),
+                          shape=(n + 2, n + 2))
+        dist, pred = dijkstra(full, indices=n, return_predecessors=True)
+        if not np.isfinite(dist[n + 1]):
+            return np.array([a, b])
+        order = [n + 1]
+        while order[-1] != n:
+            order.append(int(pred[order[-1]]))
+        pts = np.vstack([self._nodes, ends])
+        return pts[order[::-1]]
+
+
+class PathBuilder:
+    """Accumulates a polyline, joining each new piece through the free space."""
+
+    def __init__(self, router: FreeSpaceRouter):
+        self._router = router
+        self._pts: list[np.ndarray] = []
+
+    @property
+    def last(self) -> np.ndarray | None:
+        return self._pts[-1] if self._pts else None
+
+    def add(self, piece_enu_m: np.ndarray, along_boundary: bool = False) -> None:
+        """Append a piece; with ``along_boundary``, a link between two points of one boundary
+        ring follows that ring (so that the strip along the boundary is flown too)."""
+        piece = np.asarray(piece_enu_m, dtype=float).reshape(-1, 2)
+        if self._pts:
+            link = (self._router.boundary_path(self._pts[-1], piece[0]) if along_boundary
+                    else None)
+            if link is None:
+                link = self._router.path(self._pts[-1], piece[0])
+            self._pts.extend(link[1:-1])
+        self._pts.extend(piece)
+
+    def points(self) -> np.ndarray:
+        return np.array(self._pts).reshape(-1, 2)
+
+
+def clip_polyline(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon) -> list[np.ndarray]:
+    """The parts of a polyline inside the free space, in order along it (each (K, 2))."""
+    free = free_enu
+    shapely.prepare(free)
+    pts = np.asarray(xy_enu_m, dtype=float).reshape(-1, 2)
+    pieces: list[list[np.ndarray]] = []
+    for p, q in zip(pts[:-1], pts[1:], strict=True):
+        seg = LineString([p, q])
+        if shapely.covers(free, seg):
+            parts = [(0.0, p, q)]
+        elif not shapely.intersects(free, seg):
+            parts = []
+        else:
+            parts = []
+            for g in getattr(seg.intersection(free), "geoms", [seg.intersection(free)]):
+                if isinstance(g, LineString) and g.length > _COVER_TOL_M:
+                    c = np.asarray(g.coords)
+                    if np.dot(c[-1] - c[0], q - p) < 0:
+                        c = c[::-1]
+                    parts.append((float(np.dot(c[0] - p, q - p)), c[0], c[-1]))
+            parts.sort(key=lambda t: t[0])
+        for _, a, b in parts:
+            if pieces and np.linalg.norm(pieces[-1][-1] - a) < 1e-6:
+                pieces[-1].append(b)
+            else:
+                pieces.append([a, b])
+    return [np.array(p) for p in pieces]
+
+
+def _clip_and_join(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon,
+                   simplify_m: float = 0.0) -> np.ndarray:
+    builder = PathBuilder(FreeSpaceRouter(free_enu))
+    for piece in clip_polyline(xy_enu_m, free_enu):
+        if simplify_m > 0 and len(piece) > 2:
+            piece = np.asarray(LineString(piece).simplify(simplify_m).coords)
+        builder.add(piece, along_boundary=True)
+    pts = builder.points()
+    if len(pts) == 0:
+        raise ConfigError("pattern: no part of it lies in the free space; check the centre "
+                          "or datum and the radius")
+    return pts
+
+
+# -- lawnmower -----------------------------------------------------------------------------
+
+def cell_tracks(decomposition: Decomposition, spacing_m: float) -> list[list[np.ndarray]]:
+    """Per cell, its back-and-forth tracks as (2, 2) ENU segments, in sweep order.
+
+    Tracks run along the slices of h; within a cell they are exactly ``spacing_m`` apart and
+    centred, so no point of the cell is further than spacing/2 from a track across the
+    sweep direction. A cell narrower than the spacing gets one track at its middle."""
+    _check_spacing(spacing_m)
+    frame = decomposition.frame
+    out = []
+    for cell in decomposition.cells:
+        c = frame.to_sweep(cell)
+        x0, y0, x1, y1 = c.bounds
+        n = max(1, math.ceil((x1 - x0) / spacing_m - 1e-9))
+        first = 0.5 * (x0 + x1) - 0.5 * (n - 1) * spacing_m
+        tracks = []
+        for k in range(n):
+            x = first + k * spacing_m
+            chord = c.intersection(LineString([(x, y0 - 1.0), (x, y1 + 1.0)]))
+            if chord.is_empty or chord.length <= 0:
+                continue
+            _, lo, _, hi = chord.bounds
+            tracks.append(frame.points_to_enu(np.array([[x, lo], [x, hi]])))
+        out.append(tracks)
+    return out
+
+
+def _track_with_corners(cell_enu: Polygon, track_enu: np.ndarray,
+                        spacing_m: float) -> list[np.ndarray]:
+    """A track as pieces: the band of the cell within spacing/2 of it may reach further
+    along the track than the track's own chord (a slanted edge, a corner); the track then
+    starts and ends at those furthest points, reached along the boundary."""
+    along = track_enu[1] - track_enu[0]
+    length = float(np.linalg.norm(along))
+    if length == 0:
+        return [track_enu]
+    along /= length
+    reach = 2 * math.hypot(*np.ptp(shapely.get_coordinates(cell_enu), axis=0))
+    strip = LineString([track_enu[0] - reach * along, track_enu[1] + reach * along]).buffer(
+        spacing_m / 2, cap_style="flat")
+    band = shapely.get_coordinates(cell_enu.intersection(strip))
+    if len(band) == 0:
+        return [track_enu]
+    s = (band - track_enu[0]) @ along
+    pieces = [track_enu]
+    if s.min() < -1e-6:
+        pieces.insert(0, band[np.argmin(s)][None])
+    if s.max() > length + 1e-6:
+        pieces.append(band[np.argmax(s)][None])
+    return pieces
+
+
+def lawnmower(free_enu: Polygon | MultiPolygon, spacing_m: float, heading_rad: float,
+              alt_agl_m: float, speed_mps: float) -> Plan:
+    """Boustrophedon plan: tracks along ``heading_rad`` spaced ``spacing_m`` apart, cell by
+    cell in the order of the decomposition's walk (paper Fig. 3 and 4a). Turns between the
+    tracks of a cell follow the free-space boundary, and a track is stretched to the furthest
+    corner of the cell within half a spacing of it, so that slanted edges are flown too."""
+    decomposition = boustrophedon_decomposition(free_enu, -heading_rad)
+    tracks = cell_tracks(decomposition, spacing_m)
+    builder = PathBuilder(FreeSpaceRouter(free_enu))
+    for c in decomposition.visit_order():
+        cell = [_track_with_corners(decomposition.cells[c], t, spacing_m) for t in tracks[c]]
+        if not cell:
+            continue
+        here = builder.last
+        if here is not None:
+            # Start from whichever end of the cell, and of its first track, is nearer.
+            ends = np.array([[t[0][0], t[-1][-1]] for t in (cell[0], cell[-1])])
+            d = np.linalg.norm(ends - here, axis=2)  # [first/last track, start/end]
+            if d[1].min() < d[0].min():
+                cell = cell[::-1]
+                d = d[::-1]
+            flip = bool(d[0, 1] < d[0, 0])
+        else:
+            flip = False
+        for k, pieces in enumerate(cell):
+            if (k % 2 == 1) != flip:
+                pieces = [p[::-1] for p in pieces[::-1]]
+            # Turns and stretches follow the boundary where both ends lie on it.
+            for j, piece in enumerate(pieces):
+                builder.add(piece, along_boundary=k > 0 or j > 0)
+    return Plan.from_xy(builder.points(), alt_agl_m, speed_mps,
+                        f"lawnmower spacing {spacing_m:g} m heading "
+                        f"{math.degrees(heading_rad):g} deg")
+
+
+# -- spiral and IAMSAR patterns ------------------------------------------------------------
+
+def auto_centre_enu_m(free_enu: Polygon | MultiPolygon) -> np.ndarray:
+    """Centre of the smallest circle enclosing the free space (ENU metres): the spiral
+    centre that reaches every point with the fewest turns."""
+    c = shapely.minimum_bounding_circle(free_enu).centroid
+    return np.array([c.x, c.y])
+
+
+def _reach_m(free_enu: Polygon | MultiPolygon, centre: np.ndarray) -> float:
+    return float(np.linalg.norm(shapely.get_coordinates(free_enu) - centre, axis=1).max())
+
+
+def spiral(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
+           speed_mps: float, centre_enu_m: np.ndarray | None = None) -> Plan:
+    """Archimedean spiral outward from the centre, turns ``spacing_m`` apart: the
+    continuous form of the evenly spaced level sets of h = |(x, y) - centre| (paper Fig. 4b),
+    counter-clockwise, clipped to the free space."""
+    _check_spacing(spacing_m)
+    c = auto_centre_enu_m(free_enu) if centre_enu_m is None else np.asarray(centre_enu_m, float)
+    r_end = _reach_m(free_enu, c) + 1.5 * spacing_m
+    theta_end = 2 * math.pi * r_end / spacing_m
+    # Sample every ~0.5 m of arc (or 5 deg), then simplify each clipped piece to 5 cm.
+    r = np.arange(0.0, r_end, 0.5)
+    theta = 2 * math.pi * r / spacing_m
+    theta = np.unique(np.concatenate([theta, np.arange(0.0, theta_end, math.radians(5))]))
+    rr = spacing_m * theta / (2 * math.pi)
+    xy = c + np.column_stack([rr * np.cos(theta), rr * np.sin(theta)])
+    return Plan.from_xy(_clip_and_join(xy, free_enu, simplify_m=0.05), alt_agl_m, speed_mps,
+                        f"spiral spacing {spacing_m:g} m centre ({c[0]:.1f}, {c[1]:.1f}) m")
+
+
+def expanding_square(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
+                     speed_mps: float, datum_enu_m: np.ndarray | None = None,
+                     heading_rad: float = 0.0) -> Plan:
+    """IAMSAR expanding square (SS): from the datum, legs of 1, 1, 2, 2, 3, 3, ... spacings,
+    turning right 90 deg after each, first leg along ``heading_rad``, until the square
+    contains the free space; clipped to it."""
+    _check_spacing(spacing_m)
+    d = auto_centre_enu_m(free_enu) if datum_enu_m is None else np.asarray(datum_enu_m, float)
+    reach = _reach_m(free_enu, d)
+    pts = [d]
+    k = 0
+    while (k // 2) * spacing_m <= 2 * reach + spacing_m:
+        leg = (k // 2 + 1) * spacing_m
+        pts.append(pts[-1] + leg * unit_of_heading(heading_rad + k * math.pi / 2))
+        k += 1
+    return Plan.from_xy(_clip_and_join(np.array(pts), free_enu), alt_agl_m, speed_mps,
+                        f"expanding square spacing {spacing_m:g} m datum "
+                        f"({d[0]:.1f}, {d[1]:.1f}) m")
+
+
+def sector_search(free_enu: Polygon | MultiPolygon, alt_agl_m: float, speed_mps: float,
+                  datum_enu_m: np.ndarray | None = None, heading_rad: float = 0.0,
+                  radius_m: float | None = None) -> Plan:
+    """IAMSAR sector search (VS): three equilateral triangles through the datum, right turns
+    of 120 deg, first leg along ``heading_rad``; radius defaults to the free space's reach
+    from the datum. Points at bearings h + (0, 60, 240, 300, 120, 180) deg."""
+    d = auto_centre_enu_m(free_enu) if datum_enu_m is None else np.asarray(datum_enu_m, float)
+    radius = _reach_m(free_enu, d) if radius_m is None else radius_m
+    if not (radius > 0 and math.isfinite(radius)):
+        raise ConfigError(f"sector search radius: expected a positive number of metres, "
+                          f"got {radius}")
+
+    def at(deg: float) -> np.ndarray:
+        return d + radius * unit_of_heading(heading_rad + math.radians(deg))
+
+    pts = np.array([d, at(0), at(60), d, at(240), at(300), d, at(120), at(180), d])
+    return Plan.from_xy(_clip_and_join(pts, free_enu), alt_agl_m, speed_mps,
+                        f"sector search radius {radius:g} m datum ({d[0]:.1f}, {d[1]:.1f}) m")
+

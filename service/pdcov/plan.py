@@ -1,0 +1,351 @@
+"""Flight plans: waypoints in ENU with altitude above ground, speed and hover time, and their
+mission files (QGroundControl ``.plan`` JSON and the ``QGC WPL 110`` text format).
+
+A plan is converted to MAVLink mission items once (``mission_items``); both file formats and
+the uploader carry those items. Items (MAVLink common.xml):
+
+* MAV_CMD_NAV_TAKEOFF (22) to the first waypoint's altitude, at the origin;
+* MAV_CMD_DO_CHANGE_SPEED (178) before the first waypoint and wherever the speed changes
+  (param1 = 1: ground speed, param2 = m/s, param3 = -1: throttle unchanged);
+* MAV_CMD_NAV_WAYPOINT (16) per waypoint, param1 = hold time in s;
+* MAV_CMD_NAV_RETURN_TO_LAUNCH (20) at the end.
+
+Altitudes are MAV_FRAME_GLOBAL_RELATIVE_ALT (3), metres above home; home is the mission
+origin on the ground, so on the flat earth of the paper relative altitude = altitude above
+ground. Reading accepts frames 0 (MSL, converted with the origin's ground altitude), 3 and 10
+(terrain), ignores take-off, landing, return and DO commands other than the speed change,
+and refuses other navigation commands, naming the file and item.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputFileError
+from .geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_FRAME_GLOBAL = 0
+MAV_FRAME_MISSION = 2
+MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
+MAV_FRAME_GLOBAL_TERRAIN_ALT = 10
+_SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
+_FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
+_LAST_DO_COMMAND = 252
+QGC_FIRMWARE_ARDUPILOT = 3
+QGC_VEHICLE_MULTIROTOR = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Waypoint:
+    """One waypoint: ENU metres, altitude above ground (m), speed to fly towards it (m/s),
+    and the time to hover on reaching it (s)."""
+
+    x_enu_m: float
+    y_enu_m: float
+    alt_agl_m: float
+    speed_mps: float
+    hover_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in (self.x_enu_m, self.y_enu_m, self.alt_agl_m)):
+            raise ValueError(f"waypoint position must be finite, got {self}")
+        if not self.alt_agl_m > 0:
+            raise ValueError(f"alt_agl_m must be > 0 m, got {self.alt_agl_m}")
+        if not (self.speed_mps > 0 and math.isfinite(self.speed_mps)):
+            raise ValueError(f"speed_mps must be > 0, got {self.speed_mps}")
+        if not (self.hover_s >= 0 and math.isfinite(self.hover_s)):
+            raise ValueError(f"hover_s must be >= 0 s, got {self.hover_s}")
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """An ordered list of waypoints and a one-line description of how it was made."""
+
+    waypoints: tuple[Waypoint, ...]
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if len(self.waypoints) < 1:
+            raise ValueError("a plan needs at least one waypoint")
+
+    @property
+    def xy_enu_m(self) -> np.ndarray:
+        """(N, 2) waypoint positions, ENU metres."""
+        return np.array([[w.x_enu_m, w.y_enu_m] for w in self.waypoints], dtype=float)
+
+    @property
+    def path_length_m(self) -> float:
+        """Length of the polyline through the waypoints in 3-D, metres."""
+        p = np.array([[w.x_enu_m, w.y_enu_m, w.alt_agl_m] for w in self.waypoints])
+        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+    @classmethod
+    def from_xy(cls, xy_enu_m: np.ndarray, alt_agl_m: float, speed_mps: float,
+                description: str = "") -> Plan:
+        """A plan at one altitude and speed through (N, 2) ENU points; repeated points are
+        dropped."""
+        pts = np.asarray(xy_enu_m, dtype=float).reshape(-1, 2)
+        keep = np.ones(len(pts), dtype=bool)
+        keep[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-6
+        return cls(tuple(Waypoint(float(x), float(y), alt_agl_m, speed_mps)
+                         for x, y in pts[keep]), description)
+
+
+@dataclass(frozen=True, slots=True)
+class MissionItem:
+    """One MAVLink mission item (MISSION_ITEM_INT fields; lat/lon in degrees, z in metres)."""
+
+    command: int
+    frame: int
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    z_m: float = 0.0
+    autocontinue: bool = True
+
+
+def home_item(origin: Origin) -> MissionItem:
+    """The home position item (seq 0 in WPL files and on ArduPilot): origin on the ground."""
+    return MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, lat_deg=origin.lat_deg,
+                       lon_deg=origin.lon_deg, z_m=origin.ground_alt_msl_m)
+
+
+def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
+    """Take-off, speed changes, waypoints and return to launch (no home item)."""
+    enu = np.array([[w.x_enu_m, w.y_enu_m, 0.0] for w in plan.waypoints])
+    geo = enu_to_geodetic(enu, origin)
+    items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                         param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
+                         z_m=plan.waypoints[0].alt_agl_m)]
+    speed = math.nan
+    for w, (lat, lon, _) in zip(plan.waypoints, geo, strict=True):
+        if w.speed_mps != speed:
+            speed = w.speed_mps
+            items.append(MissionItem(MAV_CMD_DO_CHANGE_SPEED, MAV_FRAME_MISSION, param1=1.0,
+                                     param2=speed, param3=-1.0))
+        items.append(MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                                 param1=w.hover_s, param4=math.nan, lat_deg=float(lat),
+                                 lon_deg=float(lon), z_m=w.alt_agl_m))
+    items.append(MissionItem(MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_FRAME_MISSION))
+    return tuple(items)
+
+
+def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
+                            origin: Origin, source: str = "mission",
+                            default_speed_mps: float | None = None) -> Plan:
+    """The waypoints of a mission, in ENU about ``origin``; see the module doc for what is
+    accepted. ``default_speed_mps`` applies before the first speed change."""
+    speed = default_speed_mps
+    rows: list[tuple[float, float, float, float, float]] = []
+    for k, it in enumerate(items):
+        if it.command == MAV_CMD_DO_CHANGE_SPEED:
+            if it.param2 > 0:
+                speed = it.param2
+            continue
+        if it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND:
+            continue
+        if it.command != MAV_CMD_NAV_WAYPOINT:
+            raise InputFileError(f"{source}: item {k}: command {it.command} is not supported "
+                                 f"(waypoints, take-off, landing, return and DO commands are)")
+        if it.frame == MAV_FRAME_GLOBAL:
+            alt_agl = it.z_m - origin.ground_alt_msl_m
+        elif it.frame in (MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_GLOBAL_TERRAIN_ALT):
+            alt_agl = it.z_m
+        else:
+            raise InputFileError(f"{source}: item {k}: frame {it.frame} is not supported "
+                                 f"(expected 0 global, 3 relative or 10 terrain)")
+        if speed is None:
+            raise InputFileError(f"{source}: item {k}: no speed before the first waypoint "
+                                 f"(add MAV_CMD_DO_CHANGE_SPEED or give a default speed)")
+        rows.append((it.lat_deg, it.lon_deg, alt_agl, speed, it.param1))
+    if not rows:
+        raise InputFileError(f"{source}: no waypoints (MAV_CMD_NAV_WAYPOINT) found")
+    a = np.array(rows, dtype=float)
+    enu = geodetic_to_enu(a[:, 0], a[:, 1], np.full(len(a), origin.ground_alt_msl_m), origin)
+    try:
+        return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]))
+                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}")
+    except ValueError as exc:
+        raise InputFileError(f"{source}: {exc}") from None
+
+
+# -- QGroundControl .plan ------------------------------------------------------------------
+
+def _json_number(v: float) -> float | None:
+    return None if math.isnan(v) else v
+
+
+def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
+                      cruise_speed_mps: float) -> dict[str, Any]:
+    """A QGroundControl plan (file version 1, mission version 2) of simple mission items."""
+    simple = []
+    for k, it in enumerate(items):
+        entry: dict[str, Any] = {
+            "autoContinue": it.autocontinue, "command": it.command, "doJumpId": k + 1,
+            "frame": it.frame,
+            "params": [_json_number(v) for v in (it.param1, it.param2, it.param3, it.param4,
+                                                 it.lat_deg, it.lon_deg, it.z_m)],
+            "type": "SimpleItem"}
+        if it.frame in (MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                        MAV_FRAME_GLOBAL_TERRAIN_ALT):
+            entry.update({"AMSLAltAboveTerrain": None, "Altitude": it.z_m,
+                          "AltitudeMode": {0: 2, 3: 1, 10: 3}[it.frame]})
+        simple.append(entry)
+    return {
+        "fileType": "Plan", "groundStation": "pdcov", "version": 1,
+        "geoFence": {"circles": [], "polygons": [], "version": 2},
+        "rallyPoints": {"points": [], "version": 2},
+        "mission": {"version": 2, "firmwareType": QGC_FIRMWARE_ARDUPILOT,
+                    "vehicleType": QGC_VEHICLE_MULTIROTOR, "globalPlanAltitudeMode": 1,
+                    "cruiseSpeed": cruise_speed_mps, "hoverSpeed": cruise_speed_mps,
+                    "plannedHomePosition": [origin.lat_deg, origin.lon_deg,
+                                            origin.ground_alt_msl_m],
+                    "items": simple},
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class MissionFile:
+    """What a mission file holds: its items (no home), its home position item if any, and
+    its default speed in m/s (QGC hoverSpeed; NaN when the file has none)."""
+
+    items: tuple[MissionItem, ...]
+    home: MissionItem | None
+    default_speed_mps: float = math.nan
+
+
+def mission_from_qgc_document(doc: Any, source: str) -> MissionFile:
+    """The mission in a QGC plan document. Complex items (QGC's own surveys) are refused:
+    convert them to simple items in QGC first."""
+    mission = doc.get("mission") if isinstance(doc, dict) else None
+    if not isinstance(doc, dict) or doc.get("fileType") != "Plan" or not isinstance(
+            mission, dict) or not isinstance(mission.get("items"), list):
+        raise InputFileError(f"{source}: not a QGroundControl plan (expected fileType 'Plan' "
+                             f"and mission.items)")
+    out = []
+    for k, e in enumerate(mission["items"]):
+        key = f"{source}: mission.items[{k}]"
+        if not isinstance(e, dict) or e.get("type") != "SimpleItem":
+            raise InputFileError(f"{key}: only SimpleItem is supported, got "
+                                 f"{e.get('type') if isinstance(e, dict) else e!r}")
+        params = e.get("params")
+        if not isinstance(params, list) or len(params) != 7:
+            raise InputFileError(f"{key}.params: expected 7 values, got {params!r}")
+        try:
+            p = [math.nan if v is None else float(v) for v in params]
+            out.append(MissionItem(int(e["command"]), int(e["frame"]), *p,
+                                   autocontinue=bool(e.get("autoContinue", True))))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputFileError(f"{key}: bad command, frame or params ({exc})") from None
+    home = None
+    planned = mission.get("plannedHomePosition")
+    if isinstance(planned, list) and len(planned) == 3 and all(
+            isinstance(v, (int, float)) for v in planned):
+        home = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, lat_deg=planned[0],
+                           lon_deg=planned[1], z_m=planned[2])
+    hover = mission.get("hoverSpeed")
+    speed = float(hover) if isinstance(hover, (int, float)) and hover > 0 else math.nan
+    return MissionFile(tuple(out), home, speed)
+
+
+# -- QGC WPL 110 ---------------------------------------------------------------------------
+
+WPL_HEADER = "QGC WPL 110"
+
+
+def wpl_text(items: tuple[MissionItem, ...], origin: Origin) -> str:
+    """QGC WPL 110: a header, then home as item 0, then one tab-separated line per item:
+    seq current frame command p1 p2 p3 p4 lat lon alt autocontinue."""
+    lines = [WPL_HEADER]
+    for seq, it in enumerate((home_item(origin), *items)):
+        params = [0.0 if math.isnan(v) else v
+                  for v in (it.param1, it.param2, it.param3, it.param4)]
+        fields = [seq, int(seq == 0), it.frame, it.command, *params,
+                  f"{it.lat_deg:.8f}", f"{it.lon_deg:.8f}", f"{it.z_m:.6f}",
+                  int(it.autocontinue)]
+        lines.append("\t".join(str(f) for f in fields))
+    return "\n".join(lines) + "\n"
+
+
+def mission_from_wpl_text(text: str, source: str) -> MissionFile:
+    """The mission in a WPL 110 file; line seq 0 is home."""
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    if not lines or not lines[0].startswith("QGC WPL 110"):
+        raise InputFileError(f"{source}: line 1: expected the header '{WPL_HEADER}'")
+    out = []
+    for n, line in enumerate(lines[1:], start=2):
+        f = line.split()
+        if len(f) != 12:
+            raise InputFileError(f"{source}: line {n}: expected 12 fields, got {len(f)}")
+        try:
+            seq, frame, cmd = int(f[0]), int(f[2]), int(f[3])
+            vals = [float(v) for v in f[4:11]]
+            auto = bool(int(f[11]))
+        except ValueError as exc:
+            raise InputFileError(f"{source}: line {n}: {exc}") from None
+        if seq != n - 2:
+            raise InputFileError(f"{source}: line {n}: expected seq {n - 2}, got {seq}")
+        out.append(MissionItem(cmd, frame, *vals, autocontinue=auto))
+    if not out:
+        raise InputFileError(f"{source}: no items (not even the home line)")
+    return MissionFile(tuple(out[1:]), out[0])
+
+
+# -- files ---------------------------------------------------------------------------------
+
+WPL_SUFFIXES = (".waypoints", ".txt", ".mission")
+
+
+def write_plan(path: str | Path, plan: Plan, origin: Origin) -> Path:
+    """Write ``plan`` as QGC ``.plan`` JSON, or WPL 110 for .waypoints/.txt/.mission."""
+    path = Path(path)
+    items = mission_items(plan, origin)
+    if path.suffix == ".plan":
+        doc = qgc_plan_document(items, origin, plan.waypoints[0].speed_mps)
+        path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    elif path.suffix in WPL_SUFFIXES:
+        path.write_text(wpl_text(items, origin))
+    else:
+        raise InputFileError(f"{path}: unknown plan format (use .plan or one of "
+                             f"{', '.join(WPL_SUFFIXES)})")
+    return path
+
+
+def read_mission(path: str | Path) -> MissionFile:
+    """The mission in a ``.plan`` (JSON) or WPL 110 file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read plan ({exc.strerror})") from None
+    if text.lstrip().startswith("{"):
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputFileError(f"{path}: not valid JSON ({exc})") from None
+        return mission_from_qgc_document(doc, str(path))
+    return mission_from_wpl_text(text, str(path))
+
+
+def read_plan(path: str | Path, origin: Origin,
+              default_speed_mps: float | None = None) -> Plan:
+    """The plan in a ``.plan`` or WPL 110 file, in ENU about ``origin``; the file's own
+    default speed, if any, takes precedence over ``default_speed_mps``."""
+    mission = read_mission(path)
+    speed = (default_speed_mps if math.isnan(mission.default_speed_mps)
+             else mission.default_speed_mps)
+    return plan_from_mission_items(mission.items, origin, str(path), speed)
