@@ -236,7 +236,7 @@ def auto_bin_edges(size_px: np.ndarray, rule: str, n_bins: int) -> tuple[float, 
                              f"give --bins edges")
     lo, hi = float(s.min()), float(s.max())
     if rule == "quantile":
-        inner = np.quantile(s, np.linspace(0, 1, n_bins + 1)[1:-1])
+        inner = np.quantile(s, np.linspace(0, 1, n_bins + 1)[1:-1], method="inverted_cdf")
     else:
         inner = np.geomspace(lo, hi, n_bins + 1)[1:-1]
     first, last = math.floor(lo * 10) / 10, math.floor(hi * 10) / 10 + 0.1
@@ -396,11 +396,14 @@ def fit_logistic_curve(size_px: np.ndarray, hit: np.ndarray, degree: int = 1) ->
     res = optimize.minimize(nll, np.zeros(degree + 1), jac=True, hess=hess,
                             method="trust-exact")
     H = hess(res.x)
-    if not res.success or np.linalg.cond(H) > 1e12 or np.any(np.abs(res.x) > 50):
+    cov = np.linalg.pinv(H)
+    # Where size separates hits from misses the MLE does not exist: the optimiser stops at
+    # large coefficients whose standard errors (in units of z) explode.
+    if not res.success or np.max(np.sqrt(np.abs(np.diag(cov)))) > 10:
         raise DetectorModelError(
-            f"logistic fit did not converge ({res.message}); hits and misses may be "
-            f"separated by size; use the binned model")
-    cov = np.linalg.inv(H)
+            f"logistic fit is undetermined ({res.message.rstrip('.')}; standard errors "
+            f"{np.sqrt(np.abs(np.diag(cov))).round(1).tolist()}): too few objects, or size "
+            f"separates hits from misses; use the binned model")
     return LogisticCurve(tuple(float(v) for v in res.x),
                          tuple(tuple(float(v) for v in r) for r in cov),
                          curve.log_center, curve.log_scale)

@@ -1,0 +1,277 @@
+"""``pdcov detector fit | validate | plot``: build, check and draw a detector model.
+
+The workflow and the formats are described in docs/detector-statistics.md; the model file in
+docs/detector-model.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import yaml
+from tqdm import tqdm
+
+from pdcov.annotations import FORMATS, Boxes, ImageTruth, read_detections, read_truth
+from pdcov.detector import DetectorModel
+from pdcov.detector_stats import (
+    BIN_RULES,
+    INTERVAL_METHODS,
+    VALIDATION_TESTS,
+    Matches,
+    MatchSettings,
+    ValidationReport,
+    auto_bin_edges,
+    fit_binned,
+    fit_logistic,
+    match_images,
+    validate,
+)
+from pdcov.errors import ConfigError, InputFileError
+
+DEFAULT_BINS = "quantile:20"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "detector", help="fit, validate and plot a detector model (P_D, P_FA by object size)",
+        description="Detector statistics of the paper's section III-B.")
+    sub = p.add_subparsers(dest="detector_command", metavar="ACTION", required=True)
+
+    fit = sub.add_parser("fit", help="fit P_D(size) and P_FA(size) from a labelled test set")
+    _data_args(fit)
+    fit.add_argument("--out", required=True, type=Path, help="detector model YAML to write")
+    fit.add_argument("--bins", default=DEFAULT_BINS,
+                     help="edges '4,8,16,...' (px) or a rule 'quantile:N' (equal counts) or "
+                          f"'log:N' (log-spaced) on the ground-truth sizes "
+                          f"(default {DEFAULT_BINS})")
+    fit.add_argument("--conf", type=float, default=0.5, help="confidence threshold (0.5)")
+    fit.add_argument("--iou", type=float, default=0.5, help="IoU threshold (0.5)")
+    fit.add_argument("--classes", help="comma-separated class names, merged into one target "
+                                       "class (default: every class)")
+    fit.add_argument("--input-size", default="640",
+                     help="detector input size in px; box sizes are scaled by it over the "
+                          "image's longest side ('none': image pixels; default 640)")
+    fit.add_argument("--interval", choices=tuple(INTERVAL_METHODS), default="wilson",
+                     help="95 %% interval of the binned proportions (wilson)")
+    fit.add_argument("--model", choices=("binned", "logistic"), default="binned",
+                     help="binned histogram (the paper) or logistic in log size")
+    fit.add_argument("--logistic-degree", type=int, default=1, choices=(1, 2),
+                     help="polynomial degree in log size of the logistic model (1)")
+    fit.add_argument("--fine-bins", type=int, default=64,
+                     help="log-spaced bins the logistic model is written on (64)")
+    fit.set_defaults(func=run_fit)
+
+    val = sub.add_parser("validate", help="test a model against a second split")
+    val.add_argument("model", type=Path, help="detector model YAML")
+    _data_args(val)
+    val.add_argument("--classes", help="class names (default: those the model was fitted on)")
+    val.add_argument("--bins", help="bins to test in, as for fit (default: the model's)")
+    val.add_argument("--test", choices=VALIDATION_TESTS, default="binomial",
+                     help="per-bin test: exact binomial or chi-square (binomial)")
+    val.add_argument("--alpha", type=float, default=0.05, help="significance level (0.05)")
+    val.add_argument("--report", type=Path, help="write the per-bin report as JSON")
+    val.set_defaults(func=run_validate)
+
+    plot = sub.add_parser("plot", help="draw the paper's Fig. 6: P_D and precision by size")
+    plot.add_argument("model", type=Path, help="detector model YAML")
+    plot.add_argument("--validation", type=Path, help="report JSON of 'detector validate'")
+    plot.add_argument("--out", required=True, type=Path, help="image to write (.png, .pdf)")
+    plot.add_argument("--title", help="figure title")
+    plot.set_defaults(func=run_plot)
+
+
+def _data_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ground-truth", required=True, type=Path,
+                   help="COCO instances JSON, or a directory of YOLO / VisDrone label files")
+    p.add_argument("--detections", required=True, type=Path,
+                   help="COCO results JSON, or a directory of YOLO / VisDrone txt files")
+    p.add_argument("--format", choices=FORMATS,
+                   help="format of both (default: .json is COCO, else guessed from the text)")
+    p.add_argument("--detections-format", choices=FORMATS,
+                   help="format of the detections if it differs from the ground truth's")
+    p.add_argument("--images", type=Path, help="image directory, for image sizes")
+    p.add_argument("--sizes", type=Path, help="file of lines 'image width height'")
+    p.add_argument("--names", type=Path, help="YOLO class names (data YAML or one a line)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+# -- fit -------------------------------------------------------------------------------------
+
+
+def _parse_bins(spec: str) -> tuple[str, int] | tuple[float, ...]:
+    """'quantile:20' -> ('quantile', 20); '4,8,16' -> (4.0, 8.0, 16.0)."""
+    rule, _, n = spec.partition(":")
+    if rule in BIN_RULES:
+        try:
+            return rule, int(n)
+        except ValueError:
+            raise ConfigError(f"--bins: expected {rule}:N with an integer N, got {spec!r}") \
+                from None
+    try:
+        return tuple(float(v) for v in spec.split(","))
+    except ValueError:
+        raise ConfigError(f"--bins: expected comma-separated edges in px or "
+                          f"{' / '.join(r + ':N' for r in BIN_RULES)}, got {spec!r}") from None
+
+
+def _edges(spec: str, matches: Matches) -> tuple[float, ...]:
+    bins = _parse_bins(spec)
+    if isinstance(bins[0], str):
+        rule, n = bins
+        return auto_bin_edges(matches.truth_size_px, str(rule), int(n))
+    return tuple(float(v) for v in bins)
+
+
+def _input_size(text: str) -> int | None:
+    if text.lower() == "none":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise ConfigError(f"--input-size: expected a number of pixels or 'none', "
+                          f"got {text!r}") from None
+
+
+def _classes(text: str | None) -> tuple[str, ...] | None:
+    return tuple(c.strip() for c in text.split(",") if c.strip()) if text else None
+
+
+def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
+    truth = read_truth(args.ground_truth, args.format, args.images, args.sizes, args.names)
+    detections = read_detections(args.detections, truth, args.detections_format or args.format)
+    if settings.classes is not None:
+        truth.check_classes(settings.classes)
+    if settings.input_size_px is not None:
+        truth.check_sizes()
+    if not truth.images:
+        raise InputFileError(f"{truth.source}: no images")
+
+    def pairs() -> Iterator[tuple[ImageTruth, Boxes]]:
+        empty = Boxes.from_rows([], [])
+        for image_id, image in tqdm(truth.images.items(), desc="matching", unit="image",
+                                    disable=args.quiet, file=sys.stderr):
+            yield image, detections.get(image_id, empty)
+
+    return match_images(pairs(), settings)
+
+
+def _dump(model: DetectorModel) -> str:
+    return yaml.safe_dump(model.to_dict(), sort_keys=False, default_flow_style=None, width=100)
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    settings = MatchSettings(args.conf, args.iou, _input_size(args.input_size),
+                             _classes(args.classes))
+    matches = _match(args, settings)
+    edges = _edges(args.bins, matches)
+    if args.model == "logistic":
+        model = fit_logistic(matches, edges, args.fine_bins, args.logistic_degree)
+    else:
+        model = fit_binned(matches, edges, args.interval)
+    fit = {**model.extra["fit"], "ground_truth": str(args.ground_truth),
+           "detections": str(args.detections), "bins": args.bins}
+    model = replace(model, extra={**model.extra, "fit": fit})
+    args.out.write_text(_dump(model))
+    print(format_model_table(model))
+    print(f"{matches.n_images} images; {len(matches.truth_size_px)} objects, "
+          f"{len(matches.detection_size_px)} detections counted; outside the bins: "
+          f"{fit['truth_outside_bins']} objects, {fit['detections_outside_bins']} detections")
+    dropped = {k: v for k, v in fit["status_counts"].items()
+               if not k.endswith(("_missed", "_detected", "_true", "_false"))}
+    if dropped:
+        print("not counted: " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def format_model_table(model: DetectorModel) -> str:
+    """Per-bin table: size range, P_D with its interval and counts, P_FA likewise."""
+    ci_d = model.extra.get("p_detect_ci95")
+    ci_fa = model.extra.get("p_false_alarm_ci95")
+    c = model.counts
+    rows = [f"{'size px':>15} {'N_true':>7} {'N_det':>7} {'P_D':>6} {'95% CI':>15} "
+            f"{'N_total':>7} {'P_FA':>6} {'95% CI':>15}"]
+    for i in range(model.n_bins):
+        lo, hi = model.bin_edges_px[i], model.bin_edges_px[i + 1]
+        rows.append(
+            f"{lo:7.1f}-{hi:<7.1f} "
+            f"{c.n_true[i] if c else '':>7} {c.n_detected[i] if c else '':>7} "
+            f"{model.p_detect[i]:6.3f} {_ci(ci_d, i):>15} "
+            f"{c.n_detections[i] if c else '':>7} {model.p_false_alarm[i]:6.3f} "
+            f"{_ci(ci_fa, i):>15}")
+    return "\n".join(rows)
+
+
+def _ci(ci: list[list[float]] | None, i: int) -> str:
+    return f"[{ci[i][0]:.3f}, {ci[i][1]:.3f}]" if ci else ""
+
+
+# -- validate --------------------------------------------------------------------------------
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    model = DetectorModel.from_yaml(args.model)
+    fit = model.extra.get("fit")
+    fitted = fit.get("classes") if isinstance(fit, dict) else None
+    classes = _classes(args.classes) or (tuple(fitted) if fitted else None)
+    settings = MatchSettings(
+        model.confidence_threshold if model.confidence_threshold is not None else 0.5,
+        model.iou_threshold if model.iou_threshold is not None else 0.5,
+        model.input_size_px, classes)
+    matches = _match(args, settings)
+    edges = _edges(args.bins, matches) if args.bins else None
+    report = validate(model, matches, edges, args.test, args.alpha)
+    report = replace(report, model={"path": str(args.model),
+                                    "ground_truth": str(args.ground_truth),
+                                    "detections": str(args.detections)})
+    print(format_validation_table(report))
+    if args.report:
+        args.report.write_text(json.dumps(report.to_dict(), indent=1) + "\n")
+        print(f"wrote {args.report}")
+    return 0
+
+
+def format_validation_table(report: ValidationReport) -> str:
+    """Per-bin observed and predicted counts with p-values, and the number of bins failing."""
+    rows = [f"{'size px':>15} {'N_true':>7} {'det':>6} {'pred':>8} {'p':>8}   "
+            f"{'N_total':>7} {'TP':>6} {'pred':>8} {'p':>8}"]
+
+    def p(v: float | None) -> str:
+        return "-" if v is None else f"{v:.3g}" + ("*" if v < report.alpha else "")
+
+    for i, (d, q) in enumerate(zip(report.detect, report.precision, strict=True)):
+        lo, hi = report.bin_edges_px[i], report.bin_edges_px[i + 1]
+        rows.append(f"{lo:7.1f}-{hi:<7.1f} {d.n:7d} {d.observed:6d} {d.expected:8.1f} "
+                    f"{p(d.p_value):>8}   {q.n:7d} {q.observed:6d} {q.expected:8.1f} "
+                    f"{p(q.p_value):>8}")
+    fd, nd = report.n_failed("detect")
+    fp, np_ = report.n_failed("precision")
+    test = "exact binomial" if report.test == "binomial" else "chi-square"
+    rows.append(f"{test} tests, * p < {report.alpha:g}: P_D fails in {fd} of {nd} bins, "
+                f"precision in {fp} of {np_} bins")
+    return "\n".join(rows)
+
+
+# -- plot ------------------------------------------------------------------------------------
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    from pdcov.detector_plot import plot_detector_model
+
+    model = DetectorModel.from_yaml(args.model)
+    report = None
+    if args.validation:
+        try:
+            doc = json.loads(args.validation.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputFileError(f"{args.validation}: cannot read validation report "
+                                 f"({exc})") from None
+        report = ValidationReport.from_dict(doc, str(args.validation))
+    plot_detector_model(model, args.out, report, args.title)
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,95 @@
+"""The paper's Fig. 6: P_D (recall) and precision by object size, with 95 % intervals and,
+given a validation report, the per-bin p-values written over the bins.
+
+matplotlib is an optional extra (``pdcov[plots]``); it is imported when a figure is drawn,
+with the non-interactive Agg canvas, so nothing here touches a display.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .detector import DetectorModel
+from .detector_stats import BinTest, ValidationReport
+from .errors import PdcovError
+
+
+def plot_detector_model(model: DetectorModel, out_path: str | Path,
+                        report: ValidationReport | None = None,
+                        title: str | None = None) -> None:
+    """Write the figure to ``out_path`` (format from its suffix)."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise PdcovError("plotting needs matplotlib: pip install 'pdcov[plots]'") from None
+    edges = np.asarray(model.bin_edges_px)
+    fig = Figure(figsize=(10, 6.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_d, ax_p = fig.subplots(2, 1, sharex=True)
+    precision = 1 - np.asarray(model.p_false_alarm)
+    ci_fa = model.extra.get("p_false_alarm_ci95")
+    ci_p = [[1 - hi, 1 - lo] for lo, hi in ci_fa] if ci_fa else None
+    counts = model.counts
+    _panel(ax_d, edges, np.asarray(model.p_detect), model.extra.get("p_detect_ci95"),
+           "P_D (recall)", "tab:blue", counts.n_true if counts else None,
+           report.detect if report else None, report)
+    _panel(ax_p, edges, precision, ci_p, "precision (1 − P_FA)", "tab:orange",
+           counts.n_detections if counts else None,
+           report.precision if report else None, report)
+    if edges[0] > 0 and edges[-1] / edges[0] > 8:
+        ax_p.set_xscale("log")
+        ax_p.xaxis.set_major_formatter("{x:g}")
+        ax_p.xaxis.set_minor_formatter("")
+    ax_p.set_xlim(edges[0], edges[-1])
+    unit = (f"{model.input_size_px}-px detector input" if model.input_size_px
+            else "image pixels")
+    ax_p.set_xlabel(f"bounding-box side length sqrt(w·h), px ({unit})")
+    thresholds = []
+    if model.confidence_threshold is not None:
+        thresholds.append(f"confidence ≥ {model.confidence_threshold:g}")
+    if model.iou_threshold is not None:
+        thresholds.append(f"IoU ≥ {model.iou_threshold:g}")
+    method = model.extra.get("interval_method")
+    whiskers = f"whiskers: 95 % interval ({method})" if method else ""
+    fig.suptitle(title or "Detector model: recall and precision by object size")
+    fig.text(0.01, 0.005, "   ".join(thresholds + [whiskers]), fontsize=8, color="0.3")
+    fig.savefig(out_path, dpi=150)
+
+
+def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | None,
+           label: str, color: str, n: tuple[int, ...] | None,
+           tests: tuple[BinTest, ...] | None, report: ValidationReport | None) -> None:
+    lo, hi = edges[:-1], edges[1:]
+    centres = np.sqrt(lo * hi) if edges[0] > 0 else (lo + hi) / 2
+    ax.bar(lo, p, width=hi - lo, align="edge", color=color, alpha=0.75,
+           edgecolor="white", linewidth=0.5)
+    if n is not None:
+        empty = np.asarray(n) == 0
+        ax.bar(lo[empty], np.ones(empty.sum()), width=(hi - lo)[empty], align="edge",
+               color="none", edgecolor="0.6", hatch="//", linewidth=0, label="no data")
+        if empty.any():
+            ax.legend(loc="upper right", fontsize=8, frameon=False)
+    if ci:
+        c = np.asarray(ci, dtype=float)
+        ax.errorbar(centres, p, yerr=np.clip([p - c[:, 0], c[:, 1] - p], 0, None),
+                    fmt="none", ecolor="black", elinewidth=1, capsize=2)
+    ax.set_ylim(0, 1.18 if tests else 1.02)
+    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.set_ylabel(label)
+    ax.grid(axis="y", color="0.9")
+    ax.set_axisbelow(True)
+    if tests and report is not None:
+        t_edges = np.asarray(report.bin_edges_px)
+        t_lo, t_hi = t_edges[:-1], t_edges[1:]
+        t_centres = np.sqrt(t_lo * t_hi) if t_edges[0] > 0 else (t_lo + t_hi) / 2
+        for x, t in zip(t_centres, tests, strict=True):
+            if t.p_value is None:
+                continue
+            bad = t.p_value < report.alpha
+            ax.text(x, 1.03, f"{t.p_value:.2g}", rotation=90, ha="center", va="bottom",
+                    fontsize=7, color="tab:red" if bad else "0.2",
+                    fontweight="bold" if bad else "normal")
