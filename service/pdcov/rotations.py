@@ -68,8 +68,7 @@ def slerp_R(t_samples_s: np.ndarray, R_samples: np.ndarray, t_query_s: np.ndarra
 
 def angle_between_R(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle in radians of the rotation taking ``R_b`` to ``R_a``."""
-    c = (np.trace(R_a.T @ R_b) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    return float(Rotation.from_matrix(R_a.T @ R_b).magnitude())
 
 
 def quat_wxyz_from_euler_zyx(roll_rad: np.ndarray, pitch_rad: np.ndarray,

@@ -1,0 +1,341 @@
+"""Calibrated camera: intrinsics, distortion (OpenCV), and the calibrated field of view.
+
+Pixel convention (OpenCV): pixel (x, y) has its centre at integer coordinates; the picture
+spans x in [-0.5, width - 0.5), y in [-0.5, height - 0.5). Normalised coordinates are
+(X/Z, Y/Z) of a point in the OpenCV optical frame.
+
+Projection and undistortion are OpenCV's (projectPoints, fisheye.projectPoints,
+undistortPointsIter, fisheye.undistortPoints). The distortion polynomial of a strongly
+distorted lens folds points far outside the field of view back into the image; a point is
+therefore only ever reported visible when its direction lies inside the *calibrated field of
+view*: the cone of directions of the image border, undistorted (see ``in_fov``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from .errors import CalibrationError, where
+
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
+_COEFF_COUNTS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (8,), "fisheye": (4,)}
+_MODEL_ALIASES = {"equidistant": "fisheye", "pinhole": "plumb_bob"}
+_BORDER_SAMPLES_PER_SIDE = 256
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+
+
+@dataclass(frozen=True, slots=True)
+class CameraModel:
+    """A calibrated pinhole camera with OpenCV distortion.
+
+    K: 3x3 intrinsic matrix [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] in pixels.
+    dist_coeffs: plumb_bob (k1 k2 p1 p2 [k3 [k4 k5 k6]]) or fisheye (k1 k2 k3 k4).
+    """
+
+    width_px: int
+    height_px: int
+    K: np.ndarray
+    distortion_model: str = "plumb_bob"
+    dist_coeffs: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    source: str | None = None
+    # Calibrated field of view: border angle from the optical axis (rad) per azimuth.
+    _fov_azimuth_rad: np.ndarray = field(init=False, repr=False, compare=False)
+    _fov_theta_rad: np.ndarray = field(init=False, repr=False, compare=False)
+    _border_rays_cam: np.ndarray = field(init=False, repr=False, compare=False)
+    _K_no_skew: np.ndarray = field(init=False, repr=False, compare=False)
+    _skew: float = field(init=False, repr=False, compare=False)
+    # Where projection is trustworthy: angle from the axis (rad) before the radial mapping
+    # stops growing (distortion fold-back), per azimuth on the same samples as the field of view.
+    _proj_theta_rad: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        src = self.source
+        model = _MODEL_ALIASES.get(self.distortion_model, self.distortion_model)
+        if model not in DISTORTION_MODELS:
+            raise CalibrationError(
+                f"{where(src, 'distortion_model')}: expected one of "
+                f"{', '.join(DISTORTION_MODELS)} (or equidistant), got {self.distortion_model!r}")
+        for key in ("width_px", "height_px"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise CalibrationError(f"{where(src, key)}: expected a positive integer, "
+                                       f"got {v!r}")
+        K = np.array(self.K, dtype=float)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise CalibrationError(f"{where(src, 'K')}: expected a finite 3x3 matrix, "
+                                   f"got {self.K!r}")
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        if fx <= 0 or fy <= 0:
+            raise CalibrationError(f"{where(src, 'K')}: focal lengths fx, fy must be "
+                                   f"positive, got fx={fx}, fy={fy}")
+        if not (0 <= cx <= self.width_px and 0 <= cy <= self.height_px):
+            raise CalibrationError(
+                f"{where(src, 'K')}: principal point ({cx}, {cy}) lies outside the "
+                f"{self.width_px} x {self.height_px} image")
+        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            raise CalibrationError(f"{where(src, 'K')}: last row must be [0, 0, 1] and "
+                                   f"K[1][0] must be 0, got {K.tolist()}")
+        d = np.array(self.dist_coeffs, dtype=float).reshape(-1)
+        if d.size not in _COEFF_COUNTS[model]:
+            raise CalibrationError(
+                f"{where(src, 'distortion_coeffs')}: {model} takes "
+                f"{' or '.join(str(n) for n in _COEFF_COUNTS[model])} coefficients, "
+                f"got {d.size}")
+        if not np.all(np.isfinite(d)):
+            raise CalibrationError(f"{where(src, 'distortion_coeffs')}: NaN or infinite "
+                                   f"coefficient in {d.tolist()}")
+        if model != "fisheye" and d.size == 0:
+            d = np.zeros(5)
+        K.setflags(write=False)
+        d.setflags(write=False)
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist_coeffs", d)
+        object.__setattr__(self, "distortion_model", model)
+        # OpenCV's point functions ignore K[0][1]; the skew is applied around them instead.
+        K_no_skew = K.copy()
+        K_no_skew[0, 1] = 0.0
+        object.__setattr__(self, "_K_no_skew", K_no_skew)
+        object.__setattr__(self, "_skew", float(K[0, 1]))
+        self._init_fov()
+
+    # -- construction -----------------------------------------------------------------------
+
+    @classmethod
+    def from_config(cls, doc: Any, source: str | None = None, key: str = "camera"
+                    ) -> CameraModel:
+        """From a mission-config mapping: width_px, height_px, K, distortion_model,
+        distortion_coeffs."""
+        if not isinstance(doc, dict):
+            raise CalibrationError(f"{where(source, key)}: expected a mapping")
+        for k in ("width_px", "height_px", "K"):
+            if k not in doc:
+                raise CalibrationError(f"{where(source, key + '.' + k)}: missing")
+        return cls(doc["width_px"], doc["height_px"], _matrix(doc["K"], source, key + ".K"),
+                   doc.get("distortion_model", "plumb_bob"),
+                   _floats(doc.get("distortion_coeffs", []), source,
+                           key + ".distortion_coeffs"),
+                   source=f"{source}: {key}" if source else key)
+
+    @classmethod
+    def from_camera_info(cls, path: str | Path) -> CameraModel:
+        """From a ROS ``camera_info`` YAML (image_width, image_height, camera_matrix,
+        distortion_model, distortion_coefficients) as camera_calibration writes it."""
+        path = Path(path)
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except OSError as exc:
+            raise CalibrationError(f"{path}: cannot read calibration ({exc.strerror})") \
+                from None
+        except yaml.YAMLError as exc:
+            raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+        src = str(path)
+        if not isinstance(doc, dict):
+            raise CalibrationError(f"{src}: expected a camera_info mapping")
+        for k in ("image_width", "image_height", "camera_matrix"):
+            if k not in doc:
+                raise CalibrationError(f"{where(src, k)}: missing")
+        K = _ros_matrix(doc["camera_matrix"], src, "camera_matrix", 9)
+        dist = doc.get("distortion_coefficients")
+        coeffs = (_ros_matrix(dist, src, "distortion_coefficients", None)
+                  if dist is not None else np.zeros(5))
+        return cls(doc["image_width"], doc["image_height"], K.reshape(3, 3),
+                   doc.get("distortion_model", "plumb_bob"), coeffs, source=src)
+
+    @classmethod
+    def from_fov(cls, width_px: int, height_px: int, hfov_deg: float,
+                 distortion_model: str = "plumb_bob",
+                 dist_coeffs: tuple[float, ...] = ()) -> CameraModel:
+        """A centred camera with square pixels and the given horizontal field of view
+        (pinhole: f = (w/2) / tan(hfov/2); fisheye: equidistant f = (w/2) / (hfov/2))."""
+        half = math.radians(hfov_deg) / 2
+        f = (width_px / 2) / (half if distortion_model == "fisheye" else math.tan(half))
+        K = np.array([[f, 0, width_px / 2 - 0.5], [0, f, height_px / 2 - 0.5], [0, 0, 1]])
+        coeffs = dist_coeffs or ((0.0,) * 4 if distortion_model == "fisheye" else (0.0,) * 5)
+        return cls(width_px, height_px, K, distortion_model, np.array(coeffs, float))
+
+    # -- geometry ---------------------------------------------------------------------------
+
+    @property
+    def is_fisheye(self) -> bool:
+        return self.distortion_model == "fisheye"
+
+    def project(self, p_cam: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (N, 2) of points (N, 3) in the optical frame, through OpenCV.
+
+        Only meaningful where ``in_fov`` is True; elsewhere the values may be folded back or
+        infinite. Use ``visible`` for the combined test.
+        """
+        p = np.ascontiguousarray(np.asarray(p_cam, dtype=np.float64).reshape(-1, 1, 3))
+        if len(p) == 0:
+            return np.empty((0, 2))
+        zero = np.zeros(3)
+        with np.errstate(all="ignore"):
+            if self.is_fisheye:
+                px, _ = cv2.fisheye.projectPoints(p, zero, zero, self._K_no_skew,
+                                                  self.dist_coeffs)
+            else:
+                px, _ = cv2.projectPoints(p, zero, zero, self._K_no_skew, self.dist_coeffs)
+        px = px.reshape(-1, 2)
+        if self._skew:
+            px[:, 0] += self._skew * (px[:, 1] - self.K[1, 2]) / self.K[1, 1]
+        return px
+
+    def pixel_rays(self, px: np.ndarray) -> np.ndarray:
+        """Unit direction vectors (N, 3) in the optical frame of pixels (N, 2)."""
+        uv = self.undistort_normalized(px)
+        rays = np.concatenate([uv, np.ones((len(uv), 1))], axis=1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+    def undistort_normalized(self, px: np.ndarray) -> np.ndarray:
+        """Normalised rectified coordinates (u, v) (N, 2) of pixels (N, 2), through OpenCV."""
+        p = np.array(px, dtype=np.float64).reshape(-1, 1, 2)
+        if len(p) == 0:
+            return np.empty((0, 2))
+        if self._skew:
+            p[:, 0, 0] -= self._skew * (p[:, 0, 1] - self.K[1, 2]) / self.K[1, 1]
+        if self.is_fisheye:
+            uv = cv2.fisheye.undistortPoints(p, self._K_no_skew, self.dist_coeffs,
+                                             criteria=_UNDISTORT_CRITERIA)
+        else:
+            uv = _undistort_points_iter(p, self._K_no_skew, self.dist_coeffs)
+        return uv.reshape(-1, 2)
+
+    def in_fov(self, p_cam: np.ndarray) -> np.ndarray:
+        """True where the direction of points (N, 3) lies inside the calibrated field of view
+        (the cone of the undistorted image border), whatever the distortion polynomial does
+        beyond it."""
+        p = np.asarray(p_cam, dtype=float).reshape(-1, 3)
+        theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
+        azimuth = np.arctan2(p[:, 1], p[:, 0])
+        theta_max = np.interp(azimuth, self._fov_azimuth_rad, self._fov_theta_rad)
+        return theta < theta_max
+
+    def projectable(self, p_cam: np.ndarray) -> np.ndarray:
+        """True where ``project`` is trustworthy for points (N, 3): in front of the camera and
+        inside the cone where the distortion's radial mapping still grows with the angle from
+        the axis. Wider than the field of view, so that the corners of cells at the picture's
+        edge project correctly (they land outside the picture)."""
+        p = np.asarray(p_cam, dtype=float).reshape(-1, 3)
+        theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
+        azimuth = np.arctan2(p[:, 1], p[:, 0])
+        return theta < np.interp(azimuth, self._fov_azimuth_rad, self._proj_theta_rad)
+
+    def in_picture(self, px: np.ndarray) -> np.ndarray:
+        """True where pixel coordinates (N, 2) lie inside the picture."""
+        x, y = px[:, 0], px[:, 1]
+        return (x >= -0.5) & (x < self.width_px - 0.5) & (y >= -0.5) & (y < self.height_px - 0.5)
+
+    def visible(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels (N, 2) of points (N, 3) and a mask: in front, in the calibrated field of
+        view, and inside the picture."""
+        p = np.asarray(p_cam, dtype=float).reshape(-1, 3)
+        ok = (p[:, 2] > 0) & self.in_fov(p)
+        px = np.full((len(p), 2), np.nan)
+        if ok.any():
+            px[ok] = self.project(p[ok])
+            ok &= self.in_picture(np.nan_to_num(px, nan=-1e9))
+        return px, ok
+
+    @property
+    def border_rays_cam(self) -> np.ndarray:
+        """Unit rays (M, 3) through the picture's border, in order around it (optical frame)."""
+        return self._border_rays_cam
+
+    @property
+    def max_fov_half_angle_rad(self) -> float:
+        """Largest angle between the optical axis and a border ray."""
+        return float(self._fov_theta_rad.max())
+
+    @property
+    def focal_px(self) -> float:
+        """Larger focal length in pixels (the finest angular resolution near the axis)."""
+        return float(max(self.K[0, 0], self.K[1, 1]))
+
+    def _init_fov(self) -> None:
+        border = border_pixels(self.width_px, self.height_px, _BORDER_SAMPLES_PER_SIDE)
+        rays = self.pixel_rays(border)
+        if not np.all(np.isfinite(rays)) or np.any(rays[:, 2] <= 0):
+            raise CalibrationError(
+                f"{self.source or 'camera'}: the image border does not undistort to "
+                f"directions in front of the camera; check the distortion coefficients "
+                f"{self.dist_coeffs.tolist()} (fisheye fields of view must stay below 180 deg)")
+        theta = np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2])
+        azimuth = np.arctan2(rays[:, 1], rays[:, 0])
+        order = np.argsort(azimuth)
+        azimuth, theta = azimuth[order], theta[order]
+        # Wrap one sample each way so that interpolation covers [-pi, pi] without ``period``.
+        azimuth = np.concatenate([[azimuth[-1] - 2 * np.pi], azimuth, [azimuth[0] + 2 * np.pi]])
+        theta = np.concatenate([[theta[-1]], theta, [theta[0]]])
+        object.__setattr__(self, "_fov_azimuth_rad", azimuth)
+        object.__setattr__(self, "_fov_theta_rad", theta)
+        object.__setattr__(self, "_border_rays_cam", rays)
+        object.__setattr__(self, "_proj_theta_rad", self._fold_back_theta(azimuth))
+        # The field of view never extends past the trustworthy cone.
+        object.__setattr__(self, "_fov_theta_rad", np.minimum(theta, self._proj_theta_rad))
+
+    def _fold_back_theta(self, azimuth_rad: np.ndarray) -> np.ndarray:
+        """Per azimuth, the angle from the axis (rad) where the projected radius stops growing,
+        searched up to 89.5 deg; one sample step is kept as margin."""
+        theta = np.radians(np.linspace(0.0, 89.5, 600))[1:]
+        ca, sa = np.cos(azimuth_rad), np.sin(azimuth_rad)
+        st, ct = np.sin(theta), np.cos(theta)
+        dirs = np.stack([st[None, :] * ca[:, None], st[None, :] * sa[:, None],
+                         np.broadcast_to(ct, (len(ca), len(theta)))], axis=-1)
+        px = self.project(dirs.reshape(-1, 3)).reshape(len(ca), len(theta), 2)
+        radius = np.hypot(px[..., 0] - self.K[0, 2], px[..., 1] - self.K[1, 2])
+        growing = np.diff(radius, axis=1) > 0
+        growing &= np.isfinite(radius[:, 1:])
+        first_bad = np.where(growing.all(axis=1), len(theta) - 1, np.argmin(growing, axis=1))
+        return theta[np.maximum(first_bad - 1, 0)]
+
+    def to_config(self) -> dict[str, Any]:
+        return {"width_px": int(self.width_px), "height_px": int(self.height_px),
+                "K": self.K.tolist(), "distortion_model": self.distortion_model,
+                "distortion_coeffs": self.dist_coeffs.tolist()}
+
+
+def _undistort_points_iter(p: np.ndarray, K: np.ndarray, d: np.ndarray) -> np.ndarray:
+    # OpenCV 4 has undistortPointsIter; OpenCV 5 folded its criteria into undistortPoints.
+    if hasattr(cv2, "undistortPointsIter"):
+        return cv2.undistortPointsIter(p, K, d, None, None, _UNDISTORT_CRITERIA)
+    return cv2.undistortPoints(p, K, d, None, None, None, _UNDISTORT_CRITERIA)
+
+
+def border_pixels(width_px: int, height_px: int, per_side: int) -> np.ndarray:
+    """Points (4 * per_side, 2) along the picture's outer edge, clockwise from top-left."""
+    x0, y0, x1, y1 = -0.5, -0.5, width_px - 0.5, height_px - 0.5
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    top = np.stack([x0 + t * (x1 - x0), np.full_like(t, y0)], axis=1)
+    right = np.stack([np.full_like(t, x1), y0 + t * (y1 - y0)], axis=1)
+    bottom = np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], axis=1)
+    left = np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], axis=1)
+    return np.concatenate([top, right, bottom, left])
+
+
+def _floats(v: Any, source: str | None, key: str) -> np.ndarray:
+    if not isinstance(v, (list, tuple)) or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise CalibrationError(f"{where(source, key)}: expected a list of numbers, got {v!r}")
+    return np.array(v, dtype=float)
+
+
+def _matrix(v: Any, source: str | None, key: str) -> np.ndarray:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise CalibrationError(f"{where(source, key)}: expected [[fx, s, cx], [0, fy, cy], "
+                               f"[0, 0, 1]], got {v!r}")
+    return np.array([_floats(row, source, key) for row in v], dtype=float).reshape(3, -1)
+
+
+def _ros_matrix(v: Any, source: str, key: str, size: int | None) -> np.ndarray:
+    data = v.get("data") if isinstance(v, dict) else v
+    arr = _floats(data, source, key + ".data")
+    if size is not None and arr.size != size:
+        raise CalibrationError(f"{where(source, key)}: expected {size} values, got {arr.size}")
+    return arr

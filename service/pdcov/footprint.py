@@ -1,0 +1,107 @@
+"""Sensor footprint on the flat ground z = 0 (paper, section III-A) and the per-pixel ray
+count of the paper's Fig. 5.
+
+A pixel's ray is ``R_enu_cam @ d_cam * t + r_cam_enu``; it sees the ground where z = 0 at
+t > 0. Rays that never reach the ground, or reach it beyond ``max_range_m`` from the camera,
+are clipped to the circle of ground points at that slant range.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from .camera import CameraModel
+from .domain import GridGeometry
+from .pose import CameraPose
+
+_HORIZON_EPS = 1e-9
+
+
+def ground_range_m(pose: CameraPose, max_range_m: float) -> float:
+    """Horizontal radius about the nadir point of the ground disk within ``max_range_m``
+    slant range of the camera; 0 when the camera is at or below the ground."""
+    h = float(pose.r_cam_enu[2])
+    if h <= 0 or max_range_m <= h:
+        return 0.0
+    return math.sqrt(max_range_m**2 - h**2)
+
+
+def footprint_ring_enu(camera: CameraModel, pose: CameraPose, max_range_m: float
+                       ) -> np.ndarray:
+    """Ground points (M, 2) ENU of the rays through the picture border, in order around it.
+
+    Points beyond the ground disk of ``max_range_m`` slant range (and rays above the horizon)
+    are moved onto the disk's circle along their azimuth. Empty (0, 2) when no border ray nor
+    the optical axis reaches the ground.
+    """
+    rho_max = ground_range_m(pose, max_range_m)
+    d = camera.border_rays_cam @ pose.R_enu_cam.T
+    if rho_max <= 0 or (np.all(d[:, 2] >= -_HORIZON_EPS) and pose.R_enu_cam[2, 2] >= 0):
+        return np.empty((0, 2))
+    h = pose.r_cam_enu[2]
+    down = d[:, 2] < -_HORIZON_EPS
+    horiz = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(down, h * horiz / -d[:, 2], np.inf)
+        scale = np.where(horiz > 0, np.minimum(rho, rho_max) / horiz, 0.0)
+    return pose.r_cam_enu[:2] + d[:, :2] * scale[:, None]
+
+
+def footprint_polygon(camera: CameraModel, pose: CameraPose, max_range_m: float) -> Polygon:
+    """The ground footprint as a shapely polygon in ENU metres (empty when nothing is seen)."""
+    ring = footprint_ring_enu(camera, pose, max_range_m)
+    if len(ring) < 3:
+        return Polygon()
+    poly = shapely.make_valid(Polygon(ring))
+    disk = shapely.Point(pose.r_cam_enu[:2]).buffer(ground_range_m(pose, max_range_m),
+                                                     quad_segs=64)
+    poly = poly.intersection(disk)
+    if poly.geom_type != "Polygon":
+        parts = [g for g in getattr(poly, "geoms", []) if g.geom_type == "Polygon"]
+        poly = max(parts, key=lambda g: g.area) if parts else Polygon()
+    return poly
+
+
+def pixel_grid_rays(camera: CameraModel, step_px: int = 1) -> np.ndarray:
+    """Unit rays (N, 3) float32 in the optical frame through every ``step_px``-th pixel
+    centre, row by row."""
+    xs = np.arange(0, camera.width_px, step_px, dtype=np.float64)
+    ys = np.arange(0, camera.height_px, step_px, dtype=np.float64)
+    out = np.empty((len(xs) * len(ys), 3), dtype=np.float32)
+    rows_per_chunk = max(1, 2_000_000 // len(xs))
+    for i in range(0, len(ys), rows_per_chunk):
+        X, Y = np.meshgrid(xs, ys[i:i + rows_per_chunk])
+        px = np.stack([X.ravel(), Y.ravel()], axis=1)
+        out[i * len(xs):i * len(xs) + len(px)] = camera.pixel_rays(px)
+    return out
+
+
+def ray_count_map(rays_cam: np.ndarray, pose: CameraPose, geometry: GridGeometry,
+                  max_range_m: float = math.inf) -> np.ndarray:
+    """Fig. 5: for each cell, the number of pixel rays meeting the ground inside it.
+
+    rays_cam: (N, 3) rays in the optical frame (``pixel_grid_rays``). Returns int64
+    (n_rows, n_cols). A ray counts where it meets the ground at t > 0 within
+    ``max_range_m`` of the camera.
+    """
+    counts = np.zeros(geometry.shape, dtype=np.int64)
+    R = pose.R_enu_cam.astype(np.float32)
+    r = pose.r_cam_enu
+    chunk = 1_000_000
+    for i in range(0, len(rays_cam), chunk):
+        d = rays_cam[i:i + chunk] @ R.T
+        down = d[:, 2] < -_HORIZON_EPS
+        d = d[down].astype(np.float64)
+        t = -r[2] / d[:, 2]
+        keep = (t > 0) & (t <= max_range_m)
+        x = r[0] + t[keep] * d[keep, 0]
+        y = r[1] + t[keep] * d[keep, 1]
+        row, col = geometry.cell_of(x, y)
+        inside = (row >= 0) & (row < geometry.n_rows) & (col >= 0) & (col < geometry.n_cols)
+        flat = row[inside] * geometry.n_cols + col[inside]
+        counts += np.bincount(flat, minlength=counts.size).reshape(geometry.shape)
+    return counts

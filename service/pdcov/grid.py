@@ -1,0 +1,346 @@
+"""The coverage grid: cumulative P_D and P_FA per cell over camera frames (paper, III-C).
+
+Accumulators are log-miss sums ``L = sum(log(1 - P(s)))`` so that ``P = 1 - exp(L)``; an update
+is an addition, grids merge by adding, and frame order does not matter. This equals the
+paper's recursion ``P(k) = P(k-1) + (1 - P(k-1)) P(s)``.
+
+A cell is observed in a frame when the ray through its centre reaches the picture: in front
+of the camera, inside the calibrated field of view, inside the image, within the maximum
+range. Its apparent size is the square root of the area, in pixels, of its image inside the
+picture, scaled to detector-input pixels.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .camera import CameraModel
+from .detector import DetectorModel
+from .domain import GridGeometry
+from .errors import InputFileError
+from .footprint import footprint_ring_enu
+from .pose import CameraPose
+
+SNAPSHOT_VERSION = 1
+_SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
+
+
+@dataclass(frozen=True, slots=True)
+class Metrics:
+    """Summary of a grid. Proportions are of free cells; false alarms sum P_FA over observed
+    free cells."""
+
+    frames: int
+    cells_free: int
+    cells_observed: int
+    proportion_at_or_above: dict[float, float]
+    mean_pd: float
+    expected_false_alarms: float
+
+
+class CoverageGrid:
+    """Cumulative detection and false-alarm probabilities over a grid of cells.
+
+    geometry: the cells (ENU). mask: bool (n_rows, n_cols), True for free cells (only those
+    are updated). max_range_m: slant range beyond which cells are not observed; None chooses
+    the range where a cell on the optical axis would look half as large as the smallest size
+    the detector model covers (beyond it P_D is 0 anyway). min_revisit_s: count at most one
+    observation per cell per this many seconds (None: every frame counts, as in the paper).
+    """
+
+    def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
+                 detector: DetectorModel, *, max_range_m: float | None = None,
+                 min_revisit_s: float | None = None) -> None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != geometry.shape:
+            raise ValueError(f"mask shape {mask.shape} != grid shape {geometry.shape}")
+        self.geometry = geometry
+        self.mask = mask
+        self.camera = camera
+        self.detector = detector
+        self.size_scale = detector.image_to_input_scale(camera.width_px, camera.height_px)
+        if max_range_m is None:
+            max_range_m = (2.0 * camera.focal_px * geometry.cell_size_m * self.size_scale
+                           / max(detector.bin_edges_px[0], 1e-3))
+        if not max_range_m > 0:
+            raise ValueError(f"max_range_m must be positive, got {max_range_m}")
+        self.max_range_m = float(max_range_m)
+        self.min_revisit_s = min_revisit_s
+        self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
+        self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
+        self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
+        self.last_obs_s = (np.full(geometry.shape, -np.inf, dtype=np.float32)
+                           if min_revisit_s else None)
+        self.frames = 0
+        pd, pfa = detector.padded_tables()
+        with np.errstate(divide="ignore"):
+            self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
+                                     np.log1p(-pfa).astype(np.float32))
+
+    # -- results ----------------------------------------------------------------------------
+
+    @property
+    def pd(self) -> np.ndarray:
+        """Cumulative probability of detection per cell (float64, 0 where not free)."""
+        return -np.expm1(self.log_miss_d.astype(np.float64))
+
+    @property
+    def pfa(self) -> np.ndarray:
+        """Cumulative probability of false alarm per cell (float64)."""
+        return -np.expm1(self.log_miss_fa.astype(np.float64))
+
+    def metrics(self, thresholds: tuple[float, ...] | list[float]) -> Metrics:
+        pd = self.pd[self.mask]
+        observed = self.mask & (self.n_obs > 0)
+        n_free = int(self.mask.sum())
+        return Metrics(
+            frames=self.frames,
+            cells_free=n_free,
+            cells_observed=int(observed.sum()),
+            proportion_at_or_above={float(t): float((pd >= t).mean()) if n_free else 0.0
+                                    for t in thresholds},
+            mean_pd=float(pd.mean()) if n_free else 0.0,
+            expected_false_alarms=float(self.pfa[observed].sum()),
+        )
+
+    # -- update -----------------------------------------------------------------------------
+
+    def update(self, pose: CameraPose, t_s: float | None = None) -> int:
+        """Add one camera frame; returns the number of free cells it observed.
+
+        t_s (s, autopilot clock) defaults to ``pose.t_s``; it is only used with
+        ``min_revisit_s``.
+        """
+        self.frames += 1
+        window = self._window(pose)
+        if window is None:
+            return 0
+        r0, r1, c0, c1 = window
+        observed, size_img_px = self.observe(pose, window)
+        if self.last_obs_s is not None:
+            t = pose.t_s if t_s is None else t_s
+            if not math.isfinite(t):
+                raise ValueError("min_revisit_s needs frame times: pose.t_s or t_s")
+            last = self.last_obs_s[r0:r1, c0:c1]
+            due = (t - last[observed]) >= self.min_revisit_s
+            idx_obs = np.flatnonzero(observed)[due]
+            observed = np.zeros_like(observed)
+            observed.flat[idx_obs] = True
+            size_img_px = size_img_px[due]
+            last[observed] = t
+        idx = self.detector.bin_index(size_img_px * self.size_scale)
+        tab_d, tab_fa = self._log_miss_tables
+        self.log_miss_d[r0:r1, c0:c1][observed] += tab_d[idx]
+        self.log_miss_fa[r0:r1, c0:c1][observed] += tab_fa[idx]
+        self.n_obs[r0:r1, c0:c1][observed] += 1
+        return int(observed.sum())
+
+    def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Cells of ``window`` (r0, r1, c0, c1) observed by ``pose``, and their apparent size.
+
+        Returns a bool mask (r1 - r0, c1 - c0) and, for the True cells in row-major order, the
+        square root of the area in image pixels of each cell's image inside the picture.
+        """
+        r0, r1, c0, c1 = window
+        g = self.geometry
+        cs = g.cell_size_m
+        cam = self.camera
+        R_cam_enu = pose.R_enu_cam.T
+        r = pose.r_cam_enu
+        # Points on the ground in the optical frame: R_cam_enu @ ([x, y, 0] - r).
+        xv = g.x0_m + cs * np.arange(c0, c1 + 1) - r[0]
+        yv = g.y0_m + cs * np.arange(r0, r1 + 1) - r[1]
+        base = -r[2] * R_cam_enu[:, 2]
+        vx = xv[:, None] * R_cam_enu[:, 0]
+        vy = yv[:, None] * R_cam_enu[:, 1]
+        # Cell centres.
+        p_c = (0.5 * (vy[:-1] + vy[1:])[:, None, :] + 0.5 * (vx[:-1] + vx[1:])[None, :, :]
+               + base)
+        free = self.mask[r0:r1, c0:c1]
+        in_range = np.einsum("ijk,ijk->ij", p_c, p_c) <= self.max_range_m**2
+        cand = free & in_range & (p_c[..., 2] > 0)
+        cand[cand] = cam.in_fov(p_c[cand])
+        if not cand.any():
+            return cand, np.empty(0)
+        px_c = cam.project(p_c[cand])
+        observed = cand.copy()
+        observed[cand] = cam.in_picture(px_c)
+        if not observed.any():
+            return observed, np.empty(0)
+        # Vertices of the observed cells' corners.
+        rows, cols = np.nonzero(observed)
+        need = np.zeros((r1 - r0 + 1, c1 - c0 + 1), dtype=bool)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                need[rows + dr, cols + dc] = True
+        p_v = vy[:, None, :] + vx[None, :, :] + base
+        vr, vc = np.nonzero(need)
+        pv = p_v[vr, vc]
+        v_ok = cam.projectable(pv)
+        px_v = np.full((len(pv), 2), np.nan)
+        v_in_picture = v_ok.copy()
+        if v_ok.any():
+            px_v[v_ok] = cam.project(pv[v_ok])
+            v_in_picture[v_ok] = cam.in_picture(px_v[v_ok])
+        lut = np.full(need.shape, -1, dtype=np.int64)
+        lut[vr, vc] = np.arange(len(pv))
+        corners = np.stack([lut[rows, cols], lut[rows, cols + 1], lut[rows + 1, cols + 1],
+                            lut[rows + 1, cols]], axis=1)
+        whole = v_in_picture[corners].all(axis=1)
+        area = np.empty(len(rows))
+        area[whole] = _quad_area(px_v[corners[whole]])
+        # Cells straddling the picture's edge: clip their image to the picture.
+        clip = ~whole & v_ok[corners].all(axis=1)
+        area[clip] = _clipped_quad_area(px_v[corners[clip]], cam.width_px, cam.height_px)
+        # Cells with a corner where projection folds back: integrate over sub-cells.
+        rest = np.flatnonzero(~whole & ~clip)
+        if len(rest):
+            area[rest] = self._partial_area(pose, rows[rest] + r0, cols[rest] + c0)
+        return observed, np.sqrt(area)
+
+    def _partial_area(self, pose: CameraPose, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Image area (px^2) inside the picture of cells only partly inside it: each cell is
+        split into sub-cells, and a sub-cell counts with its whole image area when its corners
+        project trustworthily and the centre of its image is inside the picture."""
+        m = _SUBDIVISIONS
+        g = self.geometry
+        cs = g.cell_size_m
+        f = np.linspace(0.0, 1.0, m + 1)
+        x = g.x0_m + cs * (cols[:, None, None] + f[None, None, :])       # (k, 1, m+1)
+        y = g.y0_m + cs * (rows[:, None, None] + f[None, :, None])       # (k, m+1, 1)
+        x, y = np.broadcast_arrays(x, y)
+        p_enu = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
+        p_cam = (p_enu - pose.r_cam_enu) @ pose.R_enu_cam
+        ok = self.camera.projectable(p_cam)
+        px = np.zeros((len(p_cam), 2))
+        px[ok] = self.camera.project(p_cam[ok])
+        px = px.reshape(len(rows), m + 1, m + 1, 2)
+        ok = ok.reshape(len(rows), m + 1, m + 1)
+        quads = np.stack([px[:, :-1, :-1], px[:, :-1, 1:], px[:, 1:, 1:], px[:, 1:, :-1]],
+                         axis=3)                                           # (k, m, m, 4, 2)
+        sub_ok = ok[:, :-1, :-1] & ok[:, :-1, 1:] & ok[:, 1:, 1:] & ok[:, 1:, :-1]
+        centre = quads.mean(axis=3).reshape(-1, 2)
+        sub_ok &= self.camera.in_picture(centre).reshape(sub_ok.shape)
+        return np.where(sub_ok, _quad_area(quads), 0.0).sum(axis=(1, 2))
+
+    def _window(self, pose: CameraPose) -> tuple[int, int, int, int] | None:
+        """(r0, r1, c0, c1): the grid cells that may be observed, from the footprint's extent
+        padded by one cell and by the chord error of the sampled border."""
+        ring = footprint_ring_enu(self.camera, pose, self.max_range_m)
+        if len(ring) == 0:
+            return None
+        g = self.geometry
+        pad = 1.5 * g.cell_size_m + 0.01 * self.max_range_m
+        row_lo, col_lo = g.cell_of(ring[:, 0].min() - pad, ring[:, 1].min() - pad)
+        row_hi, col_hi = g.cell_of(ring[:, 0].max() + pad, ring[:, 1].max() + pad)
+        r0, r1 = max(int(row_lo), 0), min(int(row_hi) + 1, g.n_rows)
+        c0, c1 = max(int(col_lo), 0), min(int(col_hi) + 1, g.n_cols)
+        if r0 >= r1 or c0 >= c1:
+            return None
+        return r0, r1, c0, c1
+
+    # -- combine and persist ----------------------------------------------------------------
+
+    def merge(self, other: CoverageGrid) -> None:
+        """Add another grid of the same geometry (another flight or vehicle) into this one."""
+        if other.geometry != self.geometry or not np.array_equal(other.mask, self.mask):
+            raise ValueError("cannot merge grids of different geometry or free-space mask")
+        self.log_miss_d += other.log_miss_d
+        self.log_miss_fa += other.log_miss_fa
+        self.n_obs += other.n_obs
+        self.frames += other.frames
+        if self.last_obs_s is not None and other.last_obs_s is not None:
+            np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
+
+    def save_npz(self, path: str | Path) -> None:
+        """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
+        log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames."""
+        path = Path(path)
+        g = self.geometry
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(
+                    fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
+                    mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
+                    x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @classmethod
+    def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
+                 **kwargs: float | None) -> CoverageGrid:
+        """Restore a snapshot written by ``save_npz``."""
+        path = Path(path)
+        try:
+            with np.load(path) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise InputFileError(f"{path}: cannot read grid snapshot ({exc})") from None
+        missing = {"mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m",
+                   "cell_size_m"} - set(data)
+        if missing:
+            raise InputFileError(f"{path}: not a pdcov grid snapshot (missing "
+                                 f"{', '.join(sorted(missing))})")
+        mask = data["mask"].astype(bool)
+        geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
+                                float(data["cell_size_m"]), *mask.shape)
+        grid = cls(geometry, mask, camera, detector, **kwargs)
+        grid.log_miss_d[:] = data["log_miss_d"]
+        grid.log_miss_fa[:] = data["log_miss_fa"]
+        grid.n_obs[:] = data["n_obs"]
+        grid.frames = int(data.get("frames", 0))
+        return grid
+
+
+def _clipped_quad_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
+    """Area of quadrilaterals (K, 4, 2) inside the picture [-0.5, w - 0.5) x [-0.5, h - 0.5).
+
+    Sutherland-Hodgman against the picture's four edges, vectorised over K: each stage keeps
+    the inside vertices and the edge crossings; the valid vertices are then moved to the front
+    and the tail is padded with the first one, which adds nothing to the shoelace sum.
+    """
+    poly = q
+    for axis, bound, keep_above in ((0, -0.5, True), (0, width_px - 0.5, False),
+                                    (1, -0.5, True), (1, height_px - 0.5, False)):
+        if poly.shape[0] == 0:
+            break
+        a = poly
+        b = np.roll(poly, -1, axis=1)
+        da = a[..., axis] - bound
+        db = b[..., axis] - bound
+        if not keep_above:
+            da, db = -da, -db
+        a_in = da >= 0
+        cross = (da >= 0) != (db >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(cross, da / (da - db), 0.0)
+        x = a + t[..., None] * (b - a)
+        out = np.stack([a, x], axis=2).reshape(len(poly), -1, 2)
+        valid = np.stack([a_in, cross], axis=2).reshape(len(poly), -1)
+        order = np.argsort(~valid, axis=1, kind="stable")
+        out = np.take_along_axis(out, order[..., None], axis=1)
+        n_valid = valid.sum(axis=1)
+        pad = np.arange(out.shape[1])[None, :] >= n_valid[:, None]
+        out = np.where(pad[..., None], out[:, :1], out)
+        poly = out[:, :max(int(n_valid.max(initial=0)), 1)]
+    x, y = poly[..., 0], poly[..., 1]
+    return 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+
+
+def _quad_area(q: np.ndarray) -> np.ndarray:
+    """Shoelace area of quadrilaterals (..., 4, 2), any orientation."""
+    x, y = q[..., 0], q[..., 1]
+    return 0.5 * np.abs((x[..., 0] - x[..., 2]) * (y[..., 1] - y[..., 3])
+                        - (x[..., 1] - x[..., 3]) * (y[..., 0] - y[..., 2]))

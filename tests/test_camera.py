@@ -1,0 +1,82 @@
+"""Camera model: OpenCV round trips, the calibrated field of view, calibration errors."""
+
+import numpy as np
+import pytest
+import yaml
+
+from pdcov.camera import CameraModel
+from pdcov.errors import CalibrationError
+
+K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+
+
+def cameras():
+    yield CameraModel(640, 480, np.array(K), "plumb_bob", np.array([-0.1, 0.05, 1e-3, -1e-3, 0]))
+    yield CameraModel(640, 480, np.array(K), "plumb_bob",
+                      np.array([-0.1, 0.05, 0, 0, 0.01, 0.02, 0.001, 0.0]))
+    yield CameraModel.from_fov(1280, 720, 150, "fisheye", (0.02, -0.01, 0.003, -0.001))
+
+
+@pytest.mark.parametrize("cam", list(cameras()), ids=["plumb_bob", "rational", "fisheye"])
+def test_pixel_ray_project_round_trip(cam):
+    rng = np.random.default_rng(1)
+    px = rng.uniform([0, 0], [cam.width_px - 1, cam.height_px - 1], size=(500, 2))
+    rays = cam.pixel_rays(px)
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=1), 1.0)
+    np.testing.assert_allclose(cam.project(rays * 7.0), px, atol=1e-6)
+    _, ok = cam.visible(rays * 3.0)
+    assert ok.all()
+
+
+def test_pinhole_centre_and_known_point():
+    cam = CameraModel(640, 480, np.array(K), "plumb_bob", np.zeros(5))
+    np.testing.assert_allclose(cam.project(np.array([[0.1, -0.2, 1.0]])), [[370.0, 140.0]])
+    px, ok = cam.visible(np.array([[0, 0, 1.0], [0, 0, -1.0], [10, 0, 1.0]]))
+    assert ok.tolist() == [True, False, False]
+
+
+def test_fold_back_guard_rejects_points_beyond_the_field_of_view():
+    # Strong barrel distortion: the polynomial folds far-off-axis points back into the image.
+    cam = CameraModel(640, 480, np.array(K), "plumb_bob", np.array([-0.3, 0, 0, 0, 0]))
+    far = np.array([[2.0, 0.0, 1.0]])  # 63 deg off axis, outside the ~39 deg half-width
+    folded = cam.project(far)
+    assert cam.in_picture(folded).all(), "premise: OpenCV folds this point into the image"
+    _, ok = cam.visible(far)
+    assert not ok.any()
+
+
+def test_from_camera_info(tmp_path):
+    info = {"image_width": 640, "image_height": 480,
+            "camera_matrix": {"rows": 3, "cols": 3, "data": sum(K, [])},
+            "distortion_model": "plumb_bob",
+            "distortion_coefficients": {"rows": 1, "cols": 5, "data": [-0.1, 0.01, 0, 0, 0]}}
+    path = tmp_path / "cam.yaml"
+    path.write_text(yaml.safe_dump(info))
+    cam = CameraModel.from_camera_info(path)
+    assert cam.width_px == 640 and cam.K[0, 0] == 500 and cam.dist_coeffs[0] == -0.1
+    info["distortion_model"] = "equidistant"
+    info["distortion_coefficients"]["data"] = [0.01, 0, 0, 0]
+    path.write_text(yaml.safe_dump(info))
+    assert CameraModel.from_camera_info(path).is_fisheye
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"K": [[-500, 0, 320], [0, 500, 240], [0, 0, 1]]}, "focal"),
+    ({"K": [[500, 0, 900], [0, 500, 240], [0, 0, 1]]}, "principal point"),
+    ({"distortion_coeffs": [0.1, 0.2, 0.3]}, "distortion_coeffs"),
+    ({"distortion_coeffs": [float("nan"), 0, 0, 0, 0]}, "distortion_coeffs"),
+    ({"width_px": 0}, "width_px"),
+    ({"distortion_model": "kannala"}, "distortion_model"),
+    ({"K": [[500, 0, 320], [0, 500, 240]]}, "K"),
+])
+def test_bad_calibration_names_the_field(change, field):
+    doc = {"width_px": 640, "height_px": 480, "K": K, "distortion_model": "plumb_bob",
+           "distortion_coeffs": [0, 0, 0, 0, 0]} | change
+    with pytest.raises(CalibrationError, match=field):
+        CameraModel.from_config(doc, source="mission.yaml")
+
+
+def test_skew_is_honoured():
+    Ks = np.array([[500.0, 5.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    cam = CameraModel(640, 480, Ks, "plumb_bob", np.zeros(5))
+    np.testing.assert_allclose(cam.project(np.array([[0.1, 0.1, 1.0]])), [[370.5, 290.0]])
