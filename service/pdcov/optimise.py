@@ -1,0 +1,224 @@
+"""Predict a plan's coverage, and choose plans by sweeping pattern parameters (the paper's
+future work): every combination is built, flown kinematically at the camera frame rate
+through the coverage grid, and scored by the proportion of free cells whose predicted P_D
+reaches the target; the plans on the Pareto front of that proportion against flight time
+are reported.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import multiprocessing
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from shapely.geometry import MultiPolygon, Polygon
+from tqdm import tqdm
+
+from . import patterns
+from .camera import CameraModel
+from .detector import DetectorModel
+from .domain import GridGeometry
+from .errors import ConfigError
+from .footprint import footprint_polygon
+from .gimbal import GimbalMount
+from .grid import CoverageGrid
+from .plan import Plan
+from .pose import FixedMount
+from .rotations import Rz
+from .trajectory import Flight, Kinematics, camera_poses, fly
+
+PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector")
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    """What a prediction needs from the mission: free space and its grid, camera, detector,
+    mount, frame rate (Hz), the grid's range limit (m; None = the grid's default) and the
+    vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold."""
+
+    free_space: Polygon | MultiPolygon
+    geometry: GridGeometry
+    mask: np.ndarray
+    camera: CameraModel
+    detector: DetectorModel
+    mount: FixedMount | GimbalMount
+    frame_rate_hz: float
+    max_range_m: float | None = None
+    min_revisit_s: float | None = None
+    kinematics: Kinematics = Kinematics()
+    gimbal_pitch_rad: float = -math.pi / 2
+
+    def new_grid(self) -> CoverageGrid:
+        return CoverageGrid(self.geometry, self.mask, self.camera, self.detector,
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
+
+    def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0) -> float:
+        """Ground strip seen across the track by a level vehicle at ``alt_agl_m`` flying
+        ``heading_rad``, within the grid's range limit (metres)."""
+        level = Flight(np.zeros(1), np.array([[0.0, 0.0, alt_agl_m]]),
+                       Rz(heading_rad)[None], np.zeros(1), 0.0, 0.0)
+        (pose,) = camera_poses(level, self.mount, self.gimbal_pitch_rad)
+        fp = footprint_polygon(self.camera, pose, self.new_grid().max_range_m)
+        return patterns.swath_width_m(fp, heading_rad)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanParams:
+    """One candidate: pattern, altitude above ground (m), track spacing (m; None: from the
+    swath and ``overlap``), speed (m/s), heading (rad; first leg or track direction)."""
+
+    pattern: str
+    alt_agl_m: float
+    speed_mps: float
+    heading_rad: float = 0.0
+    spacing_m: float | None = None
+    overlap: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.pattern not in PATTERNS:
+            raise ConfigError(f"pattern: expected one of {PATTERNS}, got {self.pattern!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class Prediction:
+    """A plan flown through the coverage grid."""
+
+    params: PlanParams
+    plan: Plan
+    flight: Flight
+    grid: CoverageGrid
+
+
+@dataclass(frozen=True, slots=True)
+class Score:
+    """A candidate's result: the spacing actually used, the proportion of free cells at or
+    above the target P_D, flight time (s), flown path length (m), mean P_D."""
+
+    params: PlanParams
+    spacing_m: float
+    proportion: float
+    flight_time_s: float
+    path_length_m: float
+    mean_pd: float
+
+
+def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
+    """The plan for ``params`` and the track spacing it used (m)."""
+    spacing = params.spacing_m
+    if spacing is None:
+        swath = scenario.swath_width_m(params.alt_agl_m, params.heading_rad)
+        spacing = patterns.track_spacing_m(swath, params.overlap)
+    free, alt, v, h = (scenario.free_space, params.alt_agl_m, params.speed_mps,
+                       params.heading_rad)
+    if params.pattern == "lawnmower":
+        plan = patterns.lawnmower(free, spacing, h, alt, v)
+    elif params.pattern == "spiral":
+        plan = patterns.spiral(free, spacing, alt, v)
+    elif params.pattern == "expanding-square":
+        plan = patterns.expanding_square(free, spacing, alt, v, heading_rad=h)
+    else:
+        plan = patterns.sector_search(free, alt, v, heading_rad=h)
+    return plan, spacing
+
+
+def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
+            progress: bool = False) -> Prediction:
+    """Fly ``plan`` at the frame rate and accumulate every frame in a fresh grid."""
+    flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
+    grid = scenario.new_grid()
+    poses = camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad)
+    for pose in tqdm(poses, desc="frames", unit="frame", disable=not progress):
+        grid.update(pose)
+    return Prediction(params or PlanParams("lawnmower", plan.waypoints[0].alt_agl_m,
+                                           plan.waypoints[0].speed_mps), plan, flight, grid)
+
+
+def score(scenario: Scenario, params: PlanParams, target_pd: float) -> Score:
+    plan, spacing = build_plan(scenario, params)
+    p = predict(scenario, plan, params)
+    pd = p.grid.pd[scenario.mask]
+    return Score(params, spacing, float((pd >= target_pd).mean()) if pd.size else 0.0,
+                 p.flight.duration_s, p.flight.path_length_m,
+                 float(pd.mean()) if pd.size else 0.0)
+
+
+def candidates(patterns_: Sequence[str], alts_m: Sequence[float], speeds_mps: Sequence[float],
+               headings_rad: Sequence[float], spacings_m: Sequence[float] | None,
+               overlaps: Sequence[float]) -> list[PlanParams]:
+    """Every combination; heading is dropped for the spiral (it has none), so no duplicates."""
+    out: dict[PlanParams, None] = {}
+    spacing_opts: list[tuple[float | None, float]] = (
+        [(s, 0.0) for s in spacings_m] if spacings_m else [(None, o) for o in overlaps])
+    for pat, alt, v, h, (s, o) in itertools.product(patterns_, alts_m, speeds_mps,
+                                                    headings_rad, spacing_opts):
+        out[PlanParams(pat, alt, v, 0.0 if pat == "spiral" else h, s, o)] = None
+    return list(out)
+
+
+def pareto_front(scores: Sequence[Score]) -> list[int]:
+    """Indices of the scores no other score dominates (at least as high a proportion and at
+    least as short a flight, better in one), by increasing flight time."""
+    idx = sorted(range(len(scores)), key=lambda i: (scores[i].flight_time_s,
+                                                    -scores[i].proportion))
+    front: list[int] = []
+    best = -math.inf
+    for i in idx:
+        if scores[i].proportion > best:
+            front.append(i)
+            best = scores[i].proportion
+    return front
+
+
+def best_index(scores: Sequence[Score], min_proportion: float) -> int:
+    """The shortest flight reaching ``min_proportion``, else the highest proportion."""
+    ok = [i for i, s in enumerate(scores) if s.proportion >= min_proportion]
+    if ok:
+        return min(ok, key=lambda i: (scores[i].flight_time_s, -scores[i].proportion))
+    return max(range(len(scores)), key=lambda i: (scores[i].proportion,
+                                                  -scores[i].flight_time_s))
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(scenario: Scenario, target_pd: float) -> None:
+    _WORKER["scenario"], _WORKER["target"] = scenario, target_pd
+
+
+def _score_in_worker(params: PlanParams) -> Score | str:
+    try:
+        return score(_WORKER["scenario"], params, _WORKER["target"])
+    except ConfigError as exc:  # e.g. a camera that sees no ground at this altitude
+        return f"{params}: {exc}"
+
+
+def sweep(scenario: Scenario, params: Sequence[PlanParams], target_pd: float,
+          processes: int | None = None, progress: bool = False
+          ) -> tuple[list[Score], list[str]]:
+    """Score every candidate on ``processes`` cores (default: all); returns the scores in
+    the order of ``params`` (failed candidates left out) and one message per failure."""
+    n_proc = max(1, min(processes or os.cpu_count() or 1, len(params)))
+    results: list[Score | str]
+    if n_proc == 1:
+        _init_worker(scenario, target_pd)
+        results = [_score_in_worker(p) for p in tqdm(params, desc="plans", unit="plan",
+                                                     disable=not progress)]
+    else:
+        ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
+        with ctx.Pool(n_proc, initializer=_init_worker,
+                      initargs=(scenario, target_pd)) as pool:
+            it: Iterator[Score | str] = pool.imap(_score_in_worker, params, chunksize=1)
+            results = list(tqdm(it, total=len(params), desc="plans", unit="plan",
+                                disable=not progress))
+    return ([r for r in results if isinstance(r, Score)],
+            [r for r in results if isinstance(r, str)])
+
+
+def with_spacing(params: PlanParams, spacing_m: float) -> PlanParams:
+    """The same candidate with its spacing fixed (to rebuild exactly the scored plan)."""
+    return replace(params, spacing_m=spacing_m)

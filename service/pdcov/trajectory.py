@@ -1,0 +1,221 @@
+"""A plan flown kinematically: timed vehicle states and camera poses at the frame rate.
+
+The model of a multicopter in an auto mission (a planning prediction, not a simulator):
+
+* straight legs at each waypoint's speed, starting and ending at rest;
+* at a corner without hover the path is rounded by a circular arc tangent to both legs
+  (as autopilots cut corners): the largest radius that fits in half of each leg, up to the
+  radius v^2 / a that allows the leg speed; the speed on the arc is sqrt(a * radius), so a
+  reversal (a U-turn at a point) slows to a stop;
+* a waypoint with a hover time is reached exactly, at rest, and held;
+* speed changes at most ``max_accel_mps2`` along the path, heading (the direction of travel,
+  as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
+* with ``tilt``, the body tilts so that its thrust axis carries the acceleration (no drag).
+
+Positions are ENU metres (z = height above the flat ground), times seconds from the start.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gimbal import GimbalMount
+from .plan import Plan
+from .pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose
+from .rotations import R_from_euler_zyx, Rz
+
+G_MPS2 = 9.80665
+_STEP_M = 0.1
+_ARC_STEP_RAD = math.radians(3.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Kinematics:
+    """Limits of the vehicle: acceleration along and across the path (m/s^2), heading rate
+    (rad/s), and whether the body tilts with the acceleration."""
+
+    max_accel_mps2: float = 2.5
+    max_yaw_rate_rad_s: float = math.radians(60.0)
+    tilt: bool = True
+
+    def __post_init__(self) -> None:
+        if not (self.max_accel_mps2 > 0 and self.max_yaw_rate_rad_s > 0):
+            raise ValueError(f"kinematic limits must be positive, got {self}")
+
+
+@dataclass(frozen=True, slots=True)
+class Flight:
+    """Vehicle states at the sample times.
+
+    t_s (N,): seconds from the start. r_body_enu (N, 3): ENU metres. R_ned_body (N, 3, 3):
+    attitude (FRD -> NED). speed_mps (N,). duration_s: time to fly the whole plan, including
+    hovers. path_length_m: length of the flown (corner-rounded) path in 3-D.
+    """
+
+    t_s: np.ndarray
+    r_body_enu: np.ndarray
+    R_ned_body: np.ndarray
+    speed_mps: np.ndarray
+    duration_s: float
+    path_length_m: float
+
+
+def _path_samples(plan: Plan, a: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                 np.ndarray]:
+    """Dense samples of the rounded path: points (K, 3), speed limit (K,), hover time (K,),
+    signed curvature (K,) (positive turning left)."""
+    P = np.array([[w.x_enu_m, w.y_enu_m, w.alt_agl_m] for w in plan.waypoints], dtype=float)
+    n = len(P)
+    # Per corner: tangent distance d, radius, turn sign, corner speed limit.
+    d = np.zeros(n)
+    radius = np.zeros(n)
+    turn = np.zeros(n)
+    v_corner = np.full(n, np.inf)
+    for i in range(1, n - 1):
+        u_in, u_out = P[i, :2] - P[i - 1, :2], P[i + 1, :2] - P[i, :2]
+        l_in, l_out = np.linalg.norm(u_in), np.linalg.norm(u_out)
+        if plan.waypoints[i].hover_s > 0 or l_in < 1e-9 or l_out < 1e-9:
+            v_corner[i] = 0.0 if plan.waypoints[i].hover_s > 0 else v_corner[i]
+            continue
+        u_in, u_out = u_in / l_in, u_out / l_out
+        cross = u_in[0] * u_out[1] - u_in[1] * u_out[0]
+        delta = math.atan2(abs(cross), float(u_in @ u_out))
+        if delta < 1e-6:
+            continue
+        v = min(plan.waypoints[i].speed_mps, plan.waypoints[i + 1].speed_mps)
+        tan_half = math.tan(delta / 2)
+        d_cap = 0.5 * min(l_in, l_out)
+        rho = min(v * v / a, d_cap / tan_half)
+        if rho < 1e-3:
+            v_corner[i] = 0.0
+            continue
+        d[i], radius[i], turn[i] = rho * tan_half, rho, math.copysign(1.0, cross)
+        v_corner[i] = math.sqrt(a * rho)
+    v_corner[0] = v_corner[-1] = 0.0
+
+    pts: list[np.ndarray] = [P[0]]
+    vlim: list[float] = [0.0]
+    hover: list[float] = [plan.waypoints[0].hover_s]
+    kappa: list[float] = [0.0]
+    for i in range(n - 1):
+        u = P[i + 1, :2] - P[i, :2]
+        lh = np.linalg.norm(u)
+        u = u / lh if lh > 1e-9 else np.zeros(2)
+        start = np.concatenate([P[i, :2] + d[i] * u, P[i, 2:]])
+        end = np.concatenate([P[i + 1, :2] - d[i + 1] * u, P[i + 1, 2:]])
+        speed = plan.waypoints[i + 1].speed_mps
+        m = max(1, math.ceil(np.linalg.norm(end - start) / _STEP_M))
+        f = np.linspace(0.0, 1.0, m + 1)[1:]
+        pts.extend(start + f[:, None] * (end - start))
+        vlim.extend([speed] * m)
+        hover.extend([0.0] * m)
+        kappa.extend([0.0] * m)
+        j = i + 1
+        if radius[j] > 0:
+            u_out = P[j + 1, :2] - P[j, :2]
+            u_out /= np.linalg.norm(u_out)
+            normal = turn[j] * np.array([-u[1], u[0]])  # towards the centre of the turn
+            centre = end[:2] + radius[j] * normal
+            a0 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+            sweep = math.acos(float(np.clip(u @ u_out, -1.0, 1.0)))
+            k = max(2, math.ceil(sweep / _ARC_STEP_RAD))
+            ang = a0 + turn[j] * sweep * np.arange(1, k + 1) / k
+            arc = centre + radius[j] * np.column_stack([np.cos(ang), np.sin(ang)])
+            pts.extend(np.column_stack([arc, np.full(k, P[j, 2])]))
+            vlim.extend([min(speed, v_corner[j])] * k)
+            hover.extend([0.0] * k)
+            kappa.extend([turn[j] / radius[j]] * k)
+        else:
+            vlim[-1] = min(vlim[-1], v_corner[j])
+            hover[-1] = plan.waypoints[j].hover_s
+    return np.array(pts), np.array(vlim), np.array(hover), np.array(kappa)
+
+
+def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Flight:
+    """The vehicle states at ``rate_hz`` (the camera frame rate) while flying ``plan``."""
+    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    a = kinematics.max_accel_mps2
+    pts, vlim, hover, kappa = _path_samples(plan, a)
+    ds = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    v = vlim.copy()
+    for k in range(1, len(v)):
+        v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2 * a * ds[k - 1]))
+    for k in range(len(v) - 2, -1, -1):
+        v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2 * a * ds[k]))
+    dxy = np.diff(pts[:, :2], axis=0)
+    moving = np.linalg.norm(dxy, axis=1) > 1e-9
+    seg_heading = np.arctan2(dxy[:, 0], dxy[:, 1])  # bearing, clockwise from north
+    # Heading at a sample: of the segment ending there; held where the vehicle stands still.
+    heading = np.zeros(len(pts))
+    last = float(seg_heading[moving][0]) if moving.any() else 0.0
+    heading[0] = last
+    for k in range(1, len(pts)):
+        if moving[k - 1]:
+            last = float(seg_heading[k - 1])
+        heading[k] = last
+    heading = np.unwrap(heading)
+    v_mid = 0.5 * (v[1:] + v[:-1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt = np.where(ds > 0, ds / np.maximum(v_mid, 1e-9), 0.0)
+    dt = np.maximum(dt, np.abs(np.diff(heading)) / kinematics.max_yaw_rate_rad_s)
+    t_arrive = np.concatenate([[0.0], np.cumsum(dt)])
+    # Hover: the sample is reached at t_arrive (+ earlier hovers) and left after hover_s.
+    hover_before = np.concatenate([[0.0], np.cumsum(hover)[:-1]])
+    t_in = t_arrive + hover_before
+    t_out = t_in + hover
+    knots_t = np.column_stack([t_in, t_out]).ravel()
+    duration = float(knots_t[-1])
+    t = np.arange(0.0, duration + 1e-9, 1.0 / rate_hz)
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        return np.interp(t, knots_t, np.repeat(values, 2))
+
+    r = np.column_stack([interp(pts[:, i]) for i in range(3)])
+    psi = interp(heading)
+    speed = interp(v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a_seg = np.where(ds > 0, (v[1:] ** 2 - v[:-1] ** 2) / (2 * ds), 0.0)
+    a_along = interp(np.concatenate([a_seg[:1], a_seg]))
+    a_across = speed ** 2 * interp(kappa)
+    R = _attitudes(psi, a_along, a_across, kinematics.tilt)
+    return Flight(t, r, R, speed, duration, float(ds.sum()))
+
+
+def _attitudes(heading_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.ndarray,
+               tilt: bool) -> np.ndarray:
+    """R_ned_body (N, 3, 3): yaw = heading; with ``tilt`` the body's -z axis along the
+    specific force (acceleration minus gravity)."""
+    if not tilt:
+        return np.stack([Rz(h) for h in heading_rad])
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    fwd = np.column_stack([c, s, np.zeros_like(c)])  # NED
+    left = np.column_stack([s, -c, np.zeros_like(c)])  # NED
+    acc = a_along_mps2[:, None] * fwd + a_left_mps2[:, None] * left
+    z_b = np.column_stack([-acc[:, 0], -acc[:, 1], np.full(len(c), G_MPS2)])
+    z_b /= np.linalg.norm(z_b, axis=1, keepdims=True)
+    x_b = fwd - np.sum(fwd * z_b, axis=1, keepdims=True) * z_b
+    x_b /= np.linalg.norm(x_b, axis=1, keepdims=True)
+    y_b = np.cross(z_b, x_b)
+    return np.stack([x_b, y_b, z_b], axis=2)
+
+
+def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
+                 gimbal_pitch_rad: float = -math.pi / 2) -> list[CameraPose]:
+    """Camera poses along a flight. A fixed mount turns and tilts with the body; a gimbal is
+    assumed to hold ``gimbal_pitch_rad`` (-pi/2: nadir) and zero roll against the horizon,
+    with its yaw following the vehicle's heading."""
+    poses = []
+    if isinstance(mount, FixedMount):
+        for t, r, R in zip(flight.t_s, flight.r_body_enu, flight.R_ned_body, strict=True):
+            poses.append(fixed_mount_pose(R, r, mount, float(t)))
+        return poses
+    arm = np.asarray(mount.lever_arm_frd_m, dtype=float)
+    R_level = R_from_euler_zyx(0.0, gimbal_pitch_rad, 0.0)
+    for t, r, R in zip(flight.t_s, flight.r_body_enu, flight.R_ned_body, strict=True):
+        yaw = math.atan2(R[1, 0], R[0, 0])
+        poses.append(camera_pose(R, r, Rz(yaw) @ R_level, arm, float(t)))
+    return poses
