@@ -1,0 +1,97 @@
+"""Prediction and parameter sweep: a real sweep on a small domain, and the Pareto front."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pdcov.camera import CameraModel
+from pdcov.detector import DetectorModel
+from pdcov.domain import Domain
+from pdcov.optimise import (
+    PlanParams,
+    Scenario,
+    Score,
+    best_index,
+    build_plan,
+    candidates,
+    pareto_front,
+    predict,
+    sweep,
+)
+from pdcov.pose import FixedMount
+
+
+def small_scenario(size_m=16.0):
+    dom = Domain.from_enu([(0, 0), (size_m, 0), (size_m, size_m), (0, size_m)])
+    geo = dom.grid_geometry(1.0)
+    return Scenario(dom.free_space, geo, dom.free_mask(geo), CameraModel.from_fov(640, 480, 70),
+                    DetectorModel.illustrative(), FixedMount(), frame_rate_hz=2.0)
+
+
+def dominates(a: Score, b: Score) -> bool:
+    return (a.proportion >= b.proportion and a.flight_time_s <= b.flight_time_s
+            and (a.proportion > b.proportion or a.flight_time_s < b.flight_time_s))
+
+
+def test_swath_of_a_nadir_camera():
+    sc = small_scenario()
+    # 70 deg horizontal field of view, image x across the track: 2 h tan(35 deg).
+    assert sc.swath_width_m(10.0) == pytest.approx(20 * math.tan(math.radians(35)), rel=1e-3)
+
+
+def test_sweep_front_is_non_dominated_and_complete():
+    sc = small_scenario()
+    params = candidates(["lawnmower", "spiral"], [6.0, 12.0], [3.0, 8.0], [0.0, math.pi / 2],
+                        None, [0.0, 0.4])
+    assert len(params) == 2 * 2 * 2 * 2 + 2 * 2 * 2  # the spiral has no heading
+    scores, failures = sweep(sc, params, target_pd=0.8, processes=2)
+    assert failures == [] and len(scores) == len(params)
+    assert [s.params for s in scores] == params
+    front = pareto_front(scores)
+    assert front
+    for i in front:
+        assert not any(dominates(scores[j], scores[i]) for j in range(len(scores)))
+    for j in set(range(len(scores))) - set(front):
+        assert any(dominates(scores[i], scores[j]) or (
+            scores[i].proportion == scores[j].proportion
+            and scores[i].flight_time_s == scores[j].flight_time_s) for i in front)
+    # Slower and lower flights see more; the sweep must not give every plan the same score.
+    assert len({round(s.proportion, 6) for s in scores}) > 1
+    assert len({round(s.flight_time_s, 3) for s in scores}) > 1
+
+
+def test_prediction_matches_sweep_score():
+    sc = small_scenario()
+    p = PlanParams("lawnmower", 8.0, 4.0, 0.0, None, 0.2)
+    plan, spacing = build_plan(sc, p)
+    assert spacing == pytest.approx(0.8 * sc.swath_width_m(8.0))
+    pred = predict(sc, plan, p)
+    (s,), _ = sweep(sc, [p], 0.5, processes=1)
+    assert s.flight_time_s == pytest.approx(pred.flight.duration_s)
+    assert s.proportion == pytest.approx((pred.grid.pd[sc.mask] >= 0.5).mean())
+    assert pred.grid.frames == len(pred.flight.t_s) > 0
+
+
+score_st = st.builds(lambda p, t: Score(PlanParams("spiral", 10, 5), 5.0, p, t, 0.0, 0.0),
+                     st.floats(0, 1), st.floats(1, 100))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(score_st, min_size=1, max_size=30))
+def test_pareto_front_property(scores):
+    front = pareto_front(scores)
+    for i in front:
+        assert not any(dominates(s, scores[i]) for s in scores)
+    times = [scores[i].flight_time_s for i in front]
+    assert times == sorted(times)
+
+
+def test_best_is_shortest_reaching_the_minimum():
+    mk = [Score(PlanParams("spiral", 10, 5), 5.0, p, t, 0.0, 0.0)
+          for p, t in [(0.99, 300), (0.96, 200), (0.90, 100)]]
+    assert best_index(mk, 0.95) == 1
+    assert best_index(mk, 0.999) == 0
