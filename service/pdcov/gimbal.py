@@ -69,18 +69,21 @@ class GimbalMount:
 
     attitude_frame: 'flags' | 'body' | 'auto' (see module docstring). auto_fallback: what
     'auto' uses when the log or link gives no mount-type parameter. servo_axis_order: the
-    servos from the body outwards in, e.g. ('yaw', 'pitch', 'roll') = R_body_gimbal =
-    Rz(yaw) Ry(pitch) Rx(roll), the order ArduPilot's demand angles are defined in.
+    servos from the body outwards in: the default ('yaw', 'roll', 'pitch') = R_body_gimbal =
+    Rz(yaw) Rx(roll) Ry(pitch), the common 3-axis build (camera on the tilt axis), and the
+    one in which ArduPilot's roll/pitch compensation is exact (docs/autopilots.md).
     *_limits_deg: servo angle limits [min, max] in degrees; None = the autopilot's
     MNTn_*_MIN/MAX parameters where known, else unlimited. limit_tolerance_deg: a demand
-    further than this past a limit makes the frame untrusted. untrusted: 'skip' or 'use'
-    untrusted frames. lever_arm_frd_m: camera centre from the vehicle reference point, FRD m.
-    instance: mount number n of MNTn_* and of the autopilot's gimbal_device_id.
+    further than this past a limit makes the frame untrusted (a demand exactly at a limit,
+    as the 4.7 servo backend reports it clipped, is counted but trusted: the servo is there).
+    untrusted: 'skip' or 'use' untrusted frames. lever_arm_frd_m: camera centre from the
+    vehicle reference point, FRD m. instance: n of MNTn_* and the autopilot's
+    gimbal_device_id.
     """
 
     attitude_frame: str = "auto"
     auto_fallback: str = "flags"
-    servo_axis_order: tuple[str, str, str] = ("yaw", "pitch", "roll")
+    servo_axis_order: tuple[str, str, str] = ("yaw", "roll", "pitch")
     roll_limits_deg: tuple[float, float] | None = None
     pitch_limits_deg: tuple[float, float] | None = None
     yaw_limits_deg: tuple[float, float] | None = None
@@ -163,7 +166,7 @@ class GimbalInterpretation:
     reason: str
     limits_rad: np.ndarray = field(default_factory=lambda: np.tile([-np.inf, np.inf], (3, 1)))
     limits_reason: str = "no servo limits"
-    axis_order: tuple[str, str, str] = ("yaw", "pitch", "roll")
+    axis_order: tuple[str, str, str] = ("yaw", "roll", "pitch")
     limit_tolerance_rad: float = math.radians(0.5)
 
     def describe(self) -> str:
@@ -238,12 +241,17 @@ def resolve_interpretation(mount: GimbalMount, params: Mapping[str, float],
 class GimbalAttitudes:
     """Interpreted gimbal attitudes for N reports: R_ned_gimbal (N, 3, 3), trusted (N,) and
     the reason a report is not trusted ('' when it is); ``usable`` is False where no
-    rotation can be formed at all (NaN quaternion), whatever the untrusted policy."""
+    rotation can be formed at all (NaN quaternion), whatever the untrusted policy;
+    ``at_limit`` marks body-frame demands at a servo limit (clipped by the autopilot)."""
 
     R_ned_gimbal: np.ndarray
     trusted: np.ndarray
     reasons: np.ndarray
     usable: np.ndarray
+    at_limit: np.ndarray
+
+
+_AT_LIMIT_RAD = math.radians(0.05)
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -302,10 +310,17 @@ def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.nd
     distrust((failure & GIMBAL_ERROR_UNTRUSTED) != 0, "gimbal failure flags")
     distrust((flags & GIMBAL_FLAG_RETRACT) != 0, "gimbal retracted")
 
+    at_limit = np.zeros(n, bool)
     if interp.frame == "body":
         angles = servo_angles(R_ref, interp.limits_rad)
         clipped = np.clip(angles, interp.limits_rad[:, 0], interp.limits_rad[:, 1])
         over = np.abs(angles - clipped) > interp.limit_tolerance_rad
+        # A yaw range of a full turn has no stop; float32 quaternions put a clipped demand
+        # within ~1e-4 rad of its limit.
+        stops = np.isfinite(interp.limits_rad) & (np.ptp(interp.limits_rad, axis=1) <
+                                                   2 * np.pi - 1e-6)[:, None]
+        near = np.abs(angles[:, :, None] - interp.limits_rad[None]) < _AT_LIMIT_RAD
+        at_limit = usable & np.any(near & stops[None], axis=(1, 2))
         for i, axis in enumerate(AXES):
             distrust(over[:, i] & usable, f"servo at {axis} limit")
         idx = {a: i for i, a in enumerate(AXES)}
@@ -322,7 +337,7 @@ def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.nd
             & ((flags & GIMBAL_FLAG_YAW_LOCK) != 0))
         heading = np.arctan2(R_ned_body[:, 1, 0], R_ned_body[:, 0, 0])
         R_ned_gimbal = np.where(earth[:, None, None], R_ref, _axis_R("yaw", heading) @ R_ref)
-    return GimbalAttitudes(R_ned_gimbal, reasons == "", reasons, usable)
+    return GimbalAttitudes(R_ned_gimbal, reasons == "", reasons, usable, at_limit)
 
 
 @dataclass(frozen=True, slots=True)

@@ -98,7 +98,8 @@ class FrameBatch:
     (then the pose is valid); ``trusted``/``untrusted_reason`` judge the camera direction.
     Arrays: t_s (N,), R_ned_body (N, 3, 3), r_body_enu (N, 3) m, R_enu_cam (N, 3, 3),
     r_cam_enu (N, 3) m, gimbal_q_wxyz (N, 4) as interpolated (NaN for a fixed mount),
-    gimbal_flags (N,) (-1 for a fixed mount), interpretation (N,) str."""
+    gimbal_flags (N,) (-1 for a fixed mount), interpretation (N,) str, at_limit (N,) a
+    servo demand at its limit."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -111,6 +112,7 @@ class FrameBatch:
     interpretation: np.ndarray
     trusted: np.ndarray
     untrusted_reason: np.ndarray
+    at_limit: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -297,6 +299,7 @@ class PoseTracker:
         gimbal_q = np.full((n, 4), np.nan)
         gimbal_flags = np.full(n, -1, np.int64)
         trusted = np.ones(n, bool)
+        at_limit = np.zeros(n, bool)
         untrusted = np.full(n, "", dtype=object)
         if isinstance(self.mount, FixedMount):
             R_ned_gimbal = R_ned_body @ self.mount.R_body_gimbal
@@ -324,13 +327,14 @@ class PoseTracker:
                 att = interpret_gimbal(gimbal_q, gimbal_flags, failure, R_ned_body,
                                        self.interpretation)
                 R_ned_gimbal, trusted, untrusted = att.R_ned_gimbal, att.trusted, att.reasons
+                at_limit = att.at_limit
                 if self.interpretation.frame == "flags":
                     interp = np.where(_frame_codes(gimbal_flags) == 1, "flags:earth",
                                       "flags:vehicle").astype(object)
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
         return FrameBatch(t, reason, R_ned_body, r_body, R_enu_cam, r_cam, gimbal_q,
-                          gimbal_flags, interp, trusted, untrusted)
+                          gimbal_flags, interp, trusted, untrusted, at_limit)
 
 
 # --- offline: a whole log ----------------------------------------------------------------
@@ -345,7 +349,8 @@ class LogPoses:
     are per used frame, for ``write_pose_csv``: vehicle_rpy_deg (F, 3) roll/pitch/yaw of
     R_ned_body, gimbal_q_wxyz (F, 4) as reported and interpolated (NaN for a fixed mount),
     gimbal_flags (F,) (-1 fixed), interpretation (F,) str, trusted (F,) bool,
-    untrusted_reason (F,) str. skipped_t_s: frame times skipped by gaps.
+    untrusted_reason (F,) str, at_limit (F,) a servo demand at its limit. skipped_t_s:
+    frame times skipped by gaps.
     """
 
     poses: tuple[CameraPose, ...]
@@ -358,6 +363,7 @@ class LogPoses:
     interpretation: tuple[str, ...]
     trusted: np.ndarray
     untrusted_reason: tuple[str, ...]
+    at_limit: np.ndarray
     skipped_t_s: np.ndarray
 
     def export_rows(self) -> Iterable[list[str]]:
@@ -503,13 +509,18 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
         lines.append(f"untrusted frames: {int(bad.sum())} ({action}, mount.untrusted="
                      f"{policy!r})" + (": " + ", ".join(f"{r} {c}" for r, c in
                                                         why.most_common()) if why else ""))
+        if interp.frame == "body":
+            n_limit = int((valid & b.at_limit).sum())
+            lines.append(f"frames with a servo demand at its limit: {n_limit} (trusted: the "
+                         "autopilot clipped the demand, the servo is at its stop)")
     else:
         lines.append("fixed mount: camera attitude from the vehicle attitude and the mount "
                      "angles")
     return LogPoses(poses, origin, tracker._pos_enu.copy(), tuple(lines), rpy,
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
-                    tuple(str(s) for s in b.untrusted_reason[use]), skipped)
+                    tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
+                    skipped)
 
 
 # --- pose CSV ------------------------------------------------------------------------------
