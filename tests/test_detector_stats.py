@@ -392,6 +392,7 @@ def test_empty_bins_are_explicit_without_warnings(fitted_synthetic):
         model = fit_binned(matches, edges, "clopper-pearson")
     assert model.counts.n_true[0] == 0 and model.counts.n_detections[-1] == 0
     assert model.p_detect[0] == 0 and model.p_false_alarm[-1] == 0
+    assert model.p_detect[1] == pytest.approx(model.counts.n_detected[1] / 600, abs=1e-6)
     assert model.extra["p_detect_ci95"][0] == [0.0, 1.0]
     assert model.extra["p_false_alarm_ci95"][-1] == [0.0, 1.0]
 
@@ -499,3 +500,17 @@ def test_validation_of_empty_bins_has_no_p_value(fitted_synthetic):
     report = validate(model, _matches(14), edges=(1.0, 2.0) + EDGES[1:])
     assert report.detect[0].p_value is None
     assert report.n_failed("detect")[1] == len(EDGES) - 1
+
+
+def test_fisher_test_compares_with_the_fit_counts(fitted_synthetic):
+    _, model = fitted_synthetic
+    same = validate(model, _matches(15), test="fisher")
+    c = model.counts
+    k, n = same.detect[0].observed, same.detect[0].n
+    assert same.detect[0].p_value == pytest.approx(stats.fisher_exact(
+        [[k, n - k], [c.n_detected[0], c.n_true[0] - c.n_detected[0]]]).pvalue)
+    assert same.n_failed("detect")[0] <= 2
+    worse = validate(model, _matches(16, p_d=tuple(p - 0.15 for p in P_D)), test="fisher")
+    assert worse.n_failed("detect")[0] >= 5
+    with pytest.raises(ConfigError, match="its own bins"):
+        validate(model, _matches(15), edges=EDGES[:4], test="fisher")

@@ -174,11 +174,13 @@ def read_truth(path: str | Path, fmt: str | None = None, images_dir: str | Path 
 def read_detections(path: str | Path, truth: TruthSet,
                     fmt: str | None = None) -> dict[str, Boxes]:
     """Read detector outputs for the images of ``truth`` (whose class ids name the classes);
-    images without any have none. A detection on an image not in ``truth`` is an error."""
+    images without any have none. A detection on an image not in ``truth`` is an error.
+    ``fmt`` None: a directory is in the ground truth's text format, else as detected."""
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path}: no such file or directory")
-    fmt = fmt or detect_format(path)
+    if fmt is None:  # a directory of text files is read like the ground truth's
+        fmt = truth.format if path.is_dir() and truth.format != "coco" else detect_format(path)
     if fmt == "coco":
         return _read_coco_detections(path, truth)
     if fmt not in ("yolo", "visdrone"):

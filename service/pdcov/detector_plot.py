@@ -24,6 +24,7 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
+        from matplotlib.ticker import LogLocator
     except ImportError:
         raise PdcovError("plotting needs matplotlib: pip install 'pdcov[plots]'") from None
     edges = np.asarray(model.bin_edges_px)
@@ -42,6 +43,7 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
            report.precision if report else None, report)
     if edges[0] > 0 and edges[-1] / edges[0] > 8:
         ax_p.set_xscale("log")
+        ax_p.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 3.0, 5.0)))
         ax_p.xaxis.set_major_formatter("{x:g}")
         ax_p.xaxis.set_minor_formatter("")
     ax_p.set_xlim(edges[0], edges[-1])
@@ -54,9 +56,13 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     if model.iou_threshold is not None:
         thresholds.append(f"IoU ≥ {model.iou_threshold:g}")
     method = model.extra.get("interval_method")
-    whiskers = f"whiskers: 95 % interval ({method})" if method else ""
+    whiskers = f"whiskers: 95 % interval ({method})"
     fig.suptitle(title or "Detector model: recall and precision by object size")
-    fig.text(0.01, 0.005, "   ".join(thresholds + [whiskers]), fontsize=8, color="0.3")
+    notes = thresholds + ([whiskers] if method else [])
+    if report is not None:
+        split = report.model.get("ground_truth", "a second split")
+        notes.append(f"p-values: {report.test} test on {split}, red < {report.alpha:g}")
+    ax_d.set_title("   ".join(notes), fontsize=8, color="0.3", loc="left")
     fig.savefig(out_path, dpi=150)
 
 
@@ -77,7 +83,7 @@ def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | No
         c = np.asarray(ci, dtype=float)
         ax.errorbar(centres, p, yerr=np.clip([p - c[:, 0], c[:, 1] - p], 0, None),
                     fmt="none", ecolor="black", elinewidth=1, capsize=2)
-    ax.set_ylim(0, 1.18 if tests else 1.02)
+    ax.set_ylim(0, 1.3 if tests else 1.02)
     ax.set_yticks(np.linspace(0, 1, 6))
     ax.set_ylabel(label)
     ax.grid(axis="y", color="0.9")

@@ -36,7 +36,7 @@ from .errors import ConfigError, DetectorModelError, InputFileError
 CONFIDENCE_LEVEL = 0.95
 INTERVAL_METHODS = {"wilson": "wilson", "clopper-pearson": "exact"}  # ours -> scipy's name
 BIN_RULES = ("quantile", "log")
-VALIDATION_TESTS = ("binomial", "chi2")
+VALIDATION_TESTS = ("binomial", "chi2", "fisher")
 _Z95 = float(stats.norm.ppf(0.5 + CONFIDENCE_LEVEL / 2))
 
 
@@ -315,8 +315,8 @@ def _model(matches: Matches, c: BinnedCounts, p_d: np.ndarray, p_fa: np.ndarray,
            extra: dict[str, Any]) -> DetectorModel:
     s = matches.settings
     return DetectorModel(
-        bin_edges_px=c.edges_px, p_detect=tuple(float(v) for v in p_d),
-        p_false_alarm=tuple(float(v) for v in p_fa), input_size_px=s.input_size_px,
+        bin_edges_px=c.edges_px, p_detect=tuple(round(float(v), 6) for v in p_d),
+        p_false_alarm=tuple(round(float(v), 6) for v in p_fa), input_size_px=s.input_size_px,
         confidence_threshold=s.confidence_threshold, iou_threshold=s.iou_threshold,
         counts=BinCounts(tuple(int(v) for v in c.n_true), tuple(int(v) for v in c.n_detected),
                          tuple(int(v) for v in c.n_detections)),
@@ -501,14 +501,18 @@ class ValidationReport:
             raise InputFileError(f"{source}: not a pdcov validation report ({exc!r})") from None
 
 
-def _bin_test(n: int, k: int, expected: float, test: str) -> BinTest:
-    if n == 0:
-        return BinTest(0, 0, 0.0, None)
-    p = min(max(expected / n, 0.0), 1.0)
-    if test == "chi2" and 0 < expected < n:
+def _bin_test(n: int, k: int, expected: float, test: str,
+              fitted: tuple[int, int] | None = None) -> BinTest:
+    """``fitted``: (successes, trials) of the fit in this bin, for the two-sample test."""
+    if n == 0 or (fitted is not None and fitted[1] == 0):
+        return BinTest(n, k, expected, None)
+    if fitted is not None:
+        k0, n0 = fitted
+        pv = stats.fisher_exact([[k, n - k], [k0, n0 - k0]]).pvalue
+    elif test == "chi2" and 0 < expected < n:
         pv = stats.chisquare([k, n - k], [expected, n - expected]).pvalue
     else:  # exact; also where chi-square is undefined (a predicted count of 0)
-        pv = stats.binomtest(k, n, p).pvalue
+        pv = stats.binomtest(k, n, min(max(expected / n, 0.0), 1.0)).pvalue
     return BinTest(n, k, expected, float(pv))
 
 
@@ -516,25 +520,38 @@ def validate(model: DetectorModel, matches: Matches, edges: tuple[float, ...] | 
              test: str = "binomial", alpha: float = 0.05) -> ValidationReport:
     """Compare, per bin (the model's unless ``edges``), the observed detections with the
     number the model predicts: the sum of P_D over the ground truth in the bin, and of
-    1 - P_FA over the detections. ``binomial``: exact two-sided test with the bin's mean
-    predicted probability (exact for a binned model on its own bins); ``chi2``: Pearson's
-    chi-square with one degree of freedom."""
+    1 - P_FA over the detections.
+
+    ``binomial``: exact two-sided test with the bin's mean predicted probability (exact for a
+    binned model on its own bins); ``chi2``: Pearson's chi-square, one degree of freedom. Both
+    take the model as exact, so they reject too often when the fit's split is not much larger
+    than this one. ``fisher``: Fisher's exact test of the fit's counts against these (two
+    samples; needs the model's counts and its own bins)."""
     if test not in VALIDATION_TESTS:
         raise ConfigError(f"--test: expected one of {VALIDATION_TESTS}, got {test!r}")
     if not 0 < alpha < 1:
         raise ConfigError(f"--alpha: expected a level in (0, 1), got {alpha}")
-    edges = edges or model.bin_edges_px
+    edges = tuple(edges or model.bin_edges_px)
+    n = len(edges) - 1
+    fitted_d: list[tuple[int, int] | None] = [None] * n
+    fitted_p: list[tuple[int, int] | None] = [None] * n
+    if test == "fisher":
+        tp = model.extra.get("n_true_positives")
+        if model.counts is None or tp is None or edges != tuple(model.bin_edges_px):
+            raise ConfigError("--test fisher compares with the counts of the fit: it needs a "
+                              "model written by 'pdcov detector fit', tested on its own bins")
+        fitted_d = list(zip(model.counts.n_detected, model.counts.n_true, strict=True))
+        fitted_p = list(zip(tp, model.counts.n_detections, strict=True))
     c = count_in_bins(matches, edges)
     pd, _ = model.lookup(matches.truth_size_px)
     _, pfa = model.lookup(matches.detection_size_px)
     ti, di = _bin_of(matches.truth_size_px, edges), _bin_of(matches.detection_size_px, edges)
-    n = len(edges) - 1
     exp_d = np.bincount(ti[ti >= 0], pd[ti >= 0], minlength=n)
     exp_tp = np.bincount(di[di >= 0], 1 - pfa[di >= 0], minlength=n)
     return ValidationReport(
-        tuple(edges),
-        tuple(_bin_test(int(a), int(b), float(e), test)
-              for a, b, e in zip(c.n_true, c.n_detected, exp_d, strict=True)),
-        tuple(_bin_test(int(a), int(b), float(e), test)
-              for a, b, e in zip(c.n_detections, c.n_true_positives, exp_tp, strict=True)),
+        edges,
+        tuple(_bin_test(int(c.n_true[i]), int(c.n_detected[i]), float(exp_d[i]), test,
+                        fitted_d[i]) for i in range(n)),
+        tuple(_bin_test(int(c.n_detections[i]), int(c.n_true_positives[i]), float(exp_tp[i]),
+                        test, fitted_p[i]) for i in range(n)),
         test, alpha)

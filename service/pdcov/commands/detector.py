@@ -72,7 +72,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     val.add_argument("--classes", help="class names (default: those the model was fitted on)")
     val.add_argument("--bins", help="bins to test in, as for fit (default: the model's)")
     val.add_argument("--test", choices=VALIDATION_TESTS, default="binomial",
-                     help="per-bin test: exact binomial or chi-square (binomial)")
+                     help="per-bin test against the model's predictions: exact binomial or "
+                          "chi-square; or Fisher's exact test against the fit's counts "
+                          "(binomial)")
     val.add_argument("--alpha", type=float, default=0.05, help="significance level (0.05)")
     val.add_argument("--report", type=Path, help="write the per-bin report as JSON")
     val.set_defaults(func=run_validate)
@@ -251,7 +253,8 @@ def format_validation_table(report: ValidationReport) -> str:
                     f"{p(q.p_value):>8}")
     fd, nd = report.n_failed("detect")
     fp, np_ = report.n_failed("precision")
-    test = "exact binomial" if report.test == "binomial" else "chi-square"
+    test = {"binomial": "exact binomial", "chi2": "chi-square", "fisher": "Fisher exact"}[
+        report.test]
     rows.append(f"{test} tests, * p < {report.alpha:g}: P_D fails in {fd} of {nd} bins, "
                 f"precision in {fp} of {np_} bins")
     return "\n".join(rows)
