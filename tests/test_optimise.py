@@ -7,6 +7,7 @@ import math
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from shapely.geometry import LineString
 
 from pdcov.camera import CameraModel
 from pdcov.detector import DetectorModel
@@ -95,3 +96,29 @@ def test_best_is_shortest_reaching_the_minimum():
           for p, t in [(0.99, 300), (0.96, 200), (0.90, 100)]]
     assert best_index(mk, 0.95) == 1
     assert best_index(mk, 0.999) == 0
+
+
+def test_refly_finds_the_gaps_and_lifts_them_to_the_target():
+    import numpy as np
+
+    from pdcov.refly import find_gaps, plan_refly
+
+    dom = Domain.from_enu([(0, 0), (40, 0), (40, 40), (0, 40)])
+    geo = dom.grid_geometry(1.0)
+    sc = Scenario(dom.free_space, geo, dom.free_mask(geo), CameraModel.from_fov(1280, 720, 60),
+                  DetectorModel.illustrative(), FixedMount(), frame_rate_hz=1.0)
+    first = predict(sc, build_plan(sc, PlanParams("lawnmower", 12.0, 8.0, spacing_m=20.0))[0])
+    gaps = find_gaps(first.grid.pd, sc, 0.8)
+    assert 0 < gaps.n_cells < sc.mask.sum()
+    assert sum(r.area for r in gaps.regions) == pytest.approx(gaps.n_cells * 1.0)
+    assert np.all(first.grid.pd[gaps.mask] < 0.8) and np.all(first.grid.pd[~gaps.mask] >= 0.8)
+    r = plan_refly(sc, first.grid.log_miss_d, 0.8, 10.0, 3.0, 8.0, start_enu_m=(20.0, 20.0))
+    assert r.gaps_before.n_cells == gaps.n_cells
+    assert r.gaps_after.n_cells <= 0.01 * gaps.n_cells
+    # P_D only grows with a second flight; the follow-up stays in the free space, and beats
+    # re-surveying the square with the same tracks spacing, which leaves gaps.
+    assert np.all(r.pd_after >= first.grid.pd - 1e-6)
+    assert dom.free_space.buffer(1e-4).covers(LineString(r.plan.xy_enu_m))
+    full = predict(sc, build_plan(sc, PlanParams("lawnmower", 10.0, 3.0, spacing_m=8.0))[0])
+    full_after = -np.expm1(first.grid.log_miss_d + full.grid.log_miss_d)
+    assert find_gaps(full_after, sc, 0.8).n_cells > r.gaps_after.n_cells

@@ -70,7 +70,9 @@ class Scenario:
 @dataclass(frozen=True, slots=True)
 class PlanParams:
     """One candidate: pattern, altitude above ground (m), track spacing (m; None: from the
-    swath and ``overlap``), speed (m/s), heading (rad; first leg or track direction)."""
+    swath and ``overlap``), speed (m/s), heading (rad; first leg or track direction), centre
+    of a spiral or datum of the IAMSAR patterns (ENU m; None: automatic), sector radius (m;
+    None: reach the whole free space)."""
 
     pattern: str
     alt_agl_m: float
@@ -78,6 +80,8 @@ class PlanParams:
     heading_rad: float = 0.0
     spacing_m: float | None = None
     overlap: float = 0.2
+    centre_enu_m: tuple[float, float] | None = None
+    radius_m: float | None = None
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -115,14 +119,16 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
         spacing = patterns.track_spacing_m(swath, params.overlap)
     free, alt, v, h = (scenario.free_space, params.alt_agl_m, params.speed_mps,
                        params.heading_rad)
+    c = None if params.centre_enu_m is None else np.asarray(params.centre_enu_m, dtype=float)
     if params.pattern == "lawnmower":
         plan = patterns.lawnmower(free, spacing, h, alt, v)
     elif params.pattern == "spiral":
-        plan = patterns.spiral(free, spacing, alt, v)
+        plan = patterns.spiral(free, spacing, alt, v, centre_enu_m=c)
     elif params.pattern == "expanding-square":
-        plan = patterns.expanding_square(free, spacing, alt, v, heading_rad=h)
+        plan = patterns.expanding_square(free, spacing, alt, v, datum_enu_m=c, heading_rad=h)
     else:
-        plan = patterns.sector_search(free, alt, v, heading_rad=h)
+        plan = patterns.sector_search(free, alt, v, datum_enu_m=c, heading_rad=h,
+                                      radius_m=params.radius_m)
     return plan, spacing
 
 

@@ -267,14 +267,17 @@ def _track_with_corners(cell_enu: Polygon, track_enu: np.ndarray,
 
 
 def lawnmower(free_enu: Polygon | MultiPolygon, spacing_m: float, heading_rad: float,
-              alt_agl_m: float, speed_mps: float) -> Plan:
+              alt_agl_m: float, speed_mps: float,
+              route_in_enu: Polygon | MultiPolygon | None = None) -> Plan:
     """Boustrophedon plan: tracks along ``heading_rad`` spaced ``spacing_m`` apart, cell by
     cell in the order of the decomposition's walk (paper Fig. 3 and 4a). Turns between the
     tracks of a cell follow the free-space boundary, and a track is stretched to the furthest
-    corner of the cell within half a spacing of it, so that slanted edges are flown too."""
+    corner of the cell within half a spacing of it, so that slanted edges are flown too.
+    ``route_in_enu``: where transits may go when ``free_enu`` is only the part to survey
+    (default: ``free_enu``)."""
     decomposition = boustrophedon_decomposition(free_enu, -heading_rad)
     tracks = cell_tracks(decomposition, spacing_m)
-    builder = PathBuilder(FreeSpaceRouter(free_enu))
+    builder = PathBuilder(FreeSpaceRouter(free_enu if route_in_enu is None else route_in_enu))
     for c in decomposition.visit_order():
         cell = [_track_with_corners(decomposition.cells[c], t, spacing_m) for t in tracks[c]]
         if not cell:
