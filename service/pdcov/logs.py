@@ -133,7 +133,7 @@ def _read_tlog(path: Path, system_id: int | None) -> FlightLog:
     counts: Counter[str] = Counter()
     error = ""
     try:
-        conn = mavutil.mavlogfile(str(path), robust_parsing=True)
+        conn = mavutil.mavmmaplog(str(path))
     except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
         raise TelemetryError(f"{path}: cannot open as a MAVLink log: {exc}") from None
     try:

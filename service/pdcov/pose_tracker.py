@@ -246,6 +246,12 @@ class PoseTracker:
 
     # --- querying --------------------------------------------------------------------------
 
+    @property
+    def positions_enu(self) -> np.ndarray:
+        """The buffered vehicle positions (M, 3), ENU m, in time order."""
+        self._merge()
+        return self._pos_enu.copy()
+
     def coverage_s(self) -> tuple[float, float]:
         """(first, last) time at which every stream the mount needs has samples (NaN, NaN
         when one is empty)."""
@@ -346,7 +352,9 @@ class LogPoses:
     poses: one CameraPose per frame used (t_s in the autopilot clock, s). origin: the ENU
     origin as resolved. track_enu (M, 3): vehicle positions in ENU m over the log, for
     plotting the flown track. summary_lines: what was done, in words. The remaining arrays
-    are per used frame, for ``write_pose_csv``: vehicle_rpy_deg (F, 3) roll/pitch/yaw of
+    are per used frame, for ``write_pose_csv``: q_enu_cam_wxyz (F, 4) the quaternions the
+    poses were built from (written as such, so the CSV reads back bit-identical),
+    vehicle_rpy_deg (F, 3) roll/pitch/yaw of
     R_ned_body, gimbal_q_wxyz (F, 4) as reported and interpolated (NaN for a fixed mount),
     gimbal_flags (F,) (-1 fixed), interpretation (F,) str, trusted (F,) bool,
     untrusted_reason (F,) str, at_limit (F,) a servo demand at its limit. skipped_t_s:
@@ -357,6 +365,7 @@ class LogPoses:
     origin: Origin
     track_enu: np.ndarray
     summary_lines: tuple[str, ...]
+    q_enu_cam_wxyz: np.ndarray
     vehicle_rpy_deg: np.ndarray
     gimbal_q_wxyz: np.ndarray
     gimbal_flags: np.ndarray
@@ -371,7 +380,7 @@ class LogPoses:
         EXPORT_EXTRA_COLUMNS); floats printed to round-trip exactly."""
         for i, pose in enumerate(self.poses):
             yield ([repr(float(pose.t_s)), *map(repr, map(float, pose.r_cam_enu)),
-                    *map(repr, map(float, pose.q_enu_cam_wxyz)),
+                    *map(repr, map(float, self.q_enu_cam_wxyz[i])),
                     *(f"{v:.6f}" for v in self.vehicle_rpy_deg[i]),
                     *("" if math.isnan(v) else repr(float(v)) for v in self.gimbal_q_wxyz[i]),
                     "" if self.gimbal_flags[i] < 0 else str(int(self.gimbal_flags[i])),
@@ -516,7 +525,7 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     else:
         lines.append("fixed mount: camera attitude from the vehicle attitude and the mount "
                      "angles")
-    return LogPoses(poses, origin, tracker._pos_enu.copy(), tuple(lines), rpy,
+    return LogPoses(poses, origin, tracker.positions_enu, tuple(lines), q_cam, rpy,
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
