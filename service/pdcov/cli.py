@@ -15,6 +15,7 @@ from .errors import PdcovError
 
 # One module per command group, in the order ``pdcov --help`` lists them.
 COMMAND_MODULES = (
+    "pdcov.commands.demo",
     "pdcov.commands.evaluate",
     "pdcov.commands.detector",
 )

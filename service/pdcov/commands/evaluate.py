@@ -1,0 +1,188 @@
+"""``pdcov evaluate``, ``pdcov compare`` and ``pdcov footprint``."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from pdcov.config import load_mission
+from pdcov.errors import InputFileError, PdcovError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="coverage of a flown (or simulated) flight",
+                       description="Replay camera poses (a pose CSV) or a flight log through "
+                                   "the coverage grid and write the run's maps and metrics.")
+    p.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--poses", type=Path,
+                     help="pose CSV: t_s,x_m,y_m,z_m,qw,qx,qy,qz (camera centre ENU m, "
+                          "R_enu_cam quaternion)")
+    src.add_argument("--log", type=Path, help="flight log: .tlog, DataFlash .bin, PX4 .ulg")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--plan", type=Path, help="planned mission (.plan or WPL) to draw")
+    p.add_argument("--prior", type=Path,
+                   help="probability of area: .npy or GeoTIFF aligned with the grid, or a "
+                        "GeoJSON of segments with a 'poa' property")
+    p.add_argument("--frame-source", choices=("rate", "capture"),
+                   help="frames at the camera rate or at the log's capture events "
+                        "(default: the config's log.frame_source)")
+    p.add_argument("--export-poses", type=Path, help="write the camera poses used (CSV)")
+    p.add_argument("--outline-threshold", type=float,
+                   help="P_D threshold outlined in the heat map and GeoJSON (default: the "
+                        "largest configured threshold)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_evaluate)
+
+    c = sub.add_parser("compare", help="overlay several runs (paper Fig. 8)",
+                       description="Compare the proportions of cells reaching each threshold "
+                                   "across runs of `pdcov evaluate` or `pdcov plan`.")
+    c.add_argument("runs", nargs="+", type=Path, help="run folders")
+    c.add_argument("--out", type=Path, default=Path("compare.png"), help="figure to write")
+    c.add_argument("--names", help="comma-separated labels (default: folder names)")
+    c.set_defaults(func=run_compare)
+
+    f = sub.add_parser("footprint", help="ray-count footprint of one pose (paper Fig. 5)",
+                       description="Draw the per-pixel ray count of the configured camera "
+                                   "for a vehicle pose given on the command line.")
+    f.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    f.add_argument("--altitude-m", type=float, required=True, help="height above ground")
+    f.add_argument("--roll-deg", type=float, default=0.0, help="vehicle roll")
+    f.add_argument("--pitch-deg", type=float, default=0.0, help="vehicle pitch")
+    f.add_argument("--yaw-deg", type=float, default=0.0, help="vehicle heading")
+    f.add_argument("--camera-pitch-deg", type=float,
+                   help="camera pitch against the horizon for a gimbal (default -90: nadir); "
+                        "a fixed mount uses the config's angles")
+    f.add_argument("--cell-size-m", type=float, help="cell size (default: the config's)")
+    f.add_argument("--pixel-step", type=int, default=1, help="use every n-th pixel")
+    f.add_argument("--out", type=Path, default=Path("footprint.png"), help="figure to write")
+    f.set_defaults(func=run_footprint)
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    from pdcov.evaluate import evaluate_poses, finite_track, load_prior, summary_text, write_outputs
+    from pdcov.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
+
+    mission = load_mission(args.config)
+    progress = not args.no_progress
+    lines = [f"pdcov evaluate: {args.config}"]
+    if args.poses is not None:
+        if args.export_poses:
+            raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
+        poses = read_pose_csv(args.poses)
+        origin = mission.origin()
+        track = np.array([p.r_cam_enu for p in poses]) if poses else None
+        lines.append(f"poses: {args.poses} ({len(poses)} frames)")
+        if mission.ground_alt_msl_m is None:
+            lines.append("origin.ground_alt_msl_m not set: ENU heights in the CSV are taken "
+                         "as heights above the ground")
+    else:
+        log_poses = poses_from_log(
+            args.log, origin_lat_deg=mission.origin_lat_deg,
+            origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
+            mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
+            frame_source=args.frame_source or mission.frame_source,
+            max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress)
+        poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
+        lines += list(log_poses.summary_lines)
+    if not poses:
+        raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate")
+    plan_enu = None
+    if args.plan is not None:
+        from pdcov.plan import read_plan
+        plan_enu = read_plan(args.plan, origin).xy_enu_m
+    geometry = mission.domain.grid_geometry(mission.cell_size_m)
+    prior = (load_prior(args.prior, geometry, mission.domain.free_mask(geometry), origin)
+             if args.prior is not None else None)
+    if args.outline_threshold is not None and not 0 <= args.outline_threshold <= 1:
+        raise PdcovError(f"--outline-threshold: expected a probability in [0, 1], got "
+                         f"{args.outline_threshold}")
+    grid = evaluate_poses(mission, poses, progress=progress, total=len(poses))
+    if args.log is not None and args.export_poses:
+        write_pose_csv(args.export_poses, log_poses)
+        lines.append(f"camera poses written to {args.export_poses}")
+    source = (args.poses or args.log).name
+    run = write_outputs(args.out, mission, grid, origin,
+                        title=f"{mission.vehicle_id}: {source}", track_enu=finite_track(track),
+                        plan_enu=plan_enu, outline_threshold=args.outline_threshold,
+                        prior=prior)
+    print(summary_text(run, lines))
+    return 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from pdcov.evaluate import read_run
+    from pdcov.plots import compare_figure
+
+    names = args.names.split(",") if args.names else [p.name or str(p) for p in args.runs]
+    if len(names) != len(args.runs):
+        raise PdcovError(f"--names: {len(names)} labels for {len(args.runs)} runs")
+    runs: list = []
+    thresholds: tuple[float, ...] = ()
+    rows = []
+    for name, run_dir in zip(names, args.runs, strict=True):
+        doc, pd, mask = read_run(run_dir)
+        t = tuple(float(k) for k in doc["proportion_at_or_above"])
+        thresholds = thresholds or t
+        runs.append((name, pd, mask))
+        rows.append((name, doc, pd[mask]))
+    width = max(len(n) for n in names)
+    print(f"{'run':<{width}}  frames  mean P_D  " + "  ".join(f">= {t:<5g}" for t in thresholds)
+          + "  false alarms")
+    for name, doc, values in rows:
+        shares = [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
+        print(f"{name:<{width}}  {doc['frames']:>6}  {doc['mean_pd']:>7.3f}  "
+              + "  ".join(f"{s:>8.3f}" for s in shares)
+              + f"  {doc['expected_false_alarms']:>12.2f}")
+    compare_figure(args.out, runs, thresholds)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def run_footprint(args: argparse.Namespace) -> int:
+    from pdcov.domain import GridGeometry
+    from pdcov.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
+    from pdcov.plots import ray_count_figure
+    from pdcov.pose import FixedMount, camera_pose, fixed_mount_pose
+    from pdcov.rotations import R_from_euler_zyx, Rz
+
+    mission = load_mission(args.config)
+    for name in ("altitude_m", "roll_deg", "pitch_deg", "yaw_deg"):
+        if not math.isfinite(getattr(args, name)):
+            raise PdcovError(f"--{name.replace('_', '-')}: expected a finite number")
+    if args.altitude_m <= 0:
+        raise PdcovError(f"--altitude-m: expected a height above ground > 0, got "
+                         f"{args.altitude_m}")
+    if args.pixel_step < 1:
+        raise PdcovError("--pixel-step: expected an integer >= 1")
+    R_ned_body = R_from_euler_zyx(*np.radians([args.roll_deg, args.pitch_deg, args.yaw_deg]))
+    r = np.array([0.0, 0.0, args.altitude_m])
+    if isinstance(mission.mount, FixedMount) and args.camera_pitch_deg is None:
+        pose = fixed_mount_pose(R_ned_body, r, mission.mount)
+        how = "fixed mount"
+    else:
+        pitch = math.radians(-90.0 if args.camera_pitch_deg is None else args.camera_pitch_deg)
+        R_ned_gimbal = Rz(math.radians(args.yaw_deg)) @ R_from_euler_zyx(0.0, pitch, 0.0)
+        pose = camera_pose(R_ned_body, r, R_ned_gimbal)
+        how = f"camera pitch {math.degrees(pitch):g} deg"
+    grid = mission.new_grid()
+    fp = footprint_polygon(mission.camera, pose, grid.max_range_m)
+    if fp.is_empty:
+        raise PdcovError("the camera sees no ground from this pose")
+    cell = args.cell_size_m or mission.cell_size_m
+    x0, y0, x1, y1 = fp.bounds
+    geometry = GridGeometry(math.floor(x0 / cell) * cell, math.floor(y0 / cell) * cell, cell,
+                            math.ceil((y1 - y0) / cell) + 2, math.ceil((x1 - x0) / cell) + 2)
+    counts = ray_count_map(pixel_grid_rays(mission.camera, args.pixel_step), pose, geometry,
+                           grid.max_range_m)
+    outline = np.asarray(fp.exterior.coords)
+    ray_count_figure(args.out, counts, geometry, outline, r[:2],
+                     title=f"{mission.camera.distortion_model} camera "
+                           f"{mission.camera.width_px}x{mission.camera.height_px} at "
+                           f"{args.altitude_m:g} m, {how}")
+    print(f"footprint area {fp.area:.1f} m^2, {int((counts > 0).sum())} cells hit, "
+          f"max {int(counts.max())} rays per cell; wrote {args.out}")
+    return 0

@@ -1,0 +1,259 @@
+"""Mission config YAML (docs/mission-config.md): origin, domain, camera, mount, detector,
+thresholds, and the coverage and log options. Every error names the file, the key and what
+was expected.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .camera import CameraModel
+from .detector import DetectorModel
+from .domain import Domain
+from .errors import ConfigError, PdcovError, where
+from .geodesy import Origin
+from .gimbal import GimbalMount
+from .grid import CoverageGrid
+from .pose import FixedMount
+
+TOP_LEVEL_KEYS = ("vehicle_id", "origin", "domain", "camera", "calibration", "mount",
+                  "detector", "thresholds", "coverage", "log", "planning")
+DEFAULT_THRESHOLDS = (0.5, 0.7, 0.8)
+
+
+@dataclass(frozen=True, slots=True)
+class Mission:
+    """A parsed mission config.
+
+    ground_alt_msl_m: ground altitude at the origin (m MSL); None = the autopilot's home
+    altitude, resolved from the log or link. max_range_m / min_revisit_s: CoverageGrid
+    options (None = its defaults). frame_source: 'rate' or 'capture'. max_gap_s: telemetry
+    gap that skips frames. system_id: the autopilot to follow (None = from its HEARTBEAT).
+    """
+
+    vehicle_id: str
+    origin_lat_deg: float
+    origin_lon_deg: float
+    ground_alt_msl_m: float | None
+    domain: Domain
+    cell_size_m: float
+    camera: CameraModel
+    frame_rate_hz: float
+    mount: FixedMount | GimbalMount
+    detector: DetectorModel
+    thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS
+    max_range_m: float | None = None
+    min_revisit_s: float | None = None
+    frame_source: str = "rate"
+    max_gap_s: float = 1.0
+    system_id: int | None = None
+    source: str | None = None
+    raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
+
+    def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
+        """The ENU origin; the ground altitude given here overrides the configured one."""
+        alt = ground_alt_msl_m if ground_alt_msl_m is not None else self.ground_alt_msl_m
+        return Origin(self.origin_lat_deg, self.origin_lon_deg, alt or 0.0)
+
+    def new_grid(self) -> CoverageGrid:
+        """An empty coverage grid over the domain's free cells."""
+        g = self.domain.grid_geometry(self.cell_size_m)
+        return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and validate a mission config; relative paths inside resolve against its folder."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read mission config ({exc.strerror or exc})") \
+            from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    return mission_from_dict(doc, source=str(path), base_dir=path.parent)
+
+
+def mission_from_dict(doc: Any, source: str | None = None,
+                      base_dir: Path | None = None) -> Mission:
+    """Validate a parsed mission config mapping."""
+    src = source
+    base = base_dir or Path(".")
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{src or 'mission config'}: expected a mapping of the keys "
+                          f"{', '.join(TOP_LEVEL_KEYS)}")
+    unknown = sorted(set(doc) - set(TOP_LEVEL_KEYS))
+    if unknown:
+        raise ConfigError(f"{where(src, unknown[0])}: unknown key; expected some of "
+                          f"{', '.join(TOP_LEVEL_KEYS)}")
+    for key in ("origin", "domain", "camera", "detector"):
+        if key not in doc and not (key == "camera" and "calibration" in doc):
+            raise ConfigError(f"{where(src, key)}: missing (see docs/mission-config.md)")
+
+    origin = _mapping(doc, "origin", src)
+    lat = _number(origin, "lat_deg", src, "origin")
+    lon = _number(origin, "lon_deg", src, "origin")
+    ground = (None if origin.get("ground_alt_msl_m") is None
+              else _number(origin, "ground_alt_msl_m", src, "origin"))
+    try:
+        origin_value = Origin(lat, lon, ground or 0.0)
+    except ConfigError as exc:
+        raise ConfigError(f"{src}: {exc}" if src else str(exc)) from None
+
+    dom = _mapping(doc, "domain", src)
+    cell = _number(dom, "cell_size_m", src, "domain", default=1.0, positive=True)
+    domain = _domain(dom, src, base, origin_value)
+
+    camera, rate = _camera(doc, src, base)
+    mount = _mount(doc.get("mount", {"type": "fixed"}), src)
+    detector = _detector(doc["detector"], src, base)
+
+    thresholds = doc.get("thresholds", list(DEFAULT_THRESHOLDS))
+    if (not isinstance(thresholds, list) or not thresholds or not all(
+            isinstance(t, (int, float)) and not isinstance(t, bool) and 0 <= t <= 1
+            for t in thresholds)):
+        raise ConfigError(f"{where(src, 'thresholds')}: expected a non-empty list of "
+                          f"probabilities in [0, 1], got {thresholds!r}")
+
+    cov = _mapping(doc, "coverage", src, required=False)
+    log = _mapping(doc, "log", src, required=False)
+    frame_source = log.get("frame_source", "rate")
+    if frame_source not in ("rate", "capture"):
+        raise ConfigError(f"{where(src, 'log.frame_source')}: expected 'rate' or 'capture', "
+                          f"got {frame_source!r}")
+    system_id = log.get("system_id")
+    if system_id is not None and (not isinstance(system_id, int) or not 1 <= system_id <= 255):
+        raise ConfigError(f"{where(src, 'log.system_id')}: expected a MAVLink system id "
+                          f"1..255, got {system_id!r}")
+    vehicle_id = doc.get("vehicle_id", "uav1")
+    if not isinstance(vehicle_id, str) or not vehicle_id.replace("_", "").replace("-", "") \
+            .isalnum():
+        raise ConfigError(f"{where(src, 'vehicle_id')}: expected letters, digits, - and _, "
+                          f"got {vehicle_id!r}")
+    return Mission(
+        vehicle_id=vehicle_id, origin_lat_deg=lat, origin_lon_deg=lon, ground_alt_msl_m=ground,
+        domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
+        detector=detector, thresholds=tuple(float(t) for t in thresholds),
+        max_range_m=_opt_number(cov, "max_range_m", src, "coverage"),
+        min_revisit_s=_opt_number(cov, "min_revisit_s", src, "coverage"),
+        frame_source=frame_source,
+        max_gap_s=_number(log, "max_gap_s", src, "log", default=1.0, positive=True),
+        system_id=system_id, source=src, raw=doc)
+
+
+def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
+             required: bool = True) -> Mapping[str, Any]:
+    v = doc.get(key)
+    if v is None and not required:
+        return {}
+    if not isinstance(v, dict):
+        raise ConfigError(f"{where(src, key)}: expected a mapping, got {v!r}")
+    return v
+
+
+def _number(doc: Mapping[str, Any], key: str, src: str | None, section: str,
+            default: float | None = None, positive: bool = False) -> float:
+    full = f"{section}.{key}"
+    v = doc.get(key, default)
+    if v is None:
+        raise ConfigError(f"{where(src, full)}: missing (a number)")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(f"{where(src, full)}: expected a finite number, got {v!r}")
+    if positive and v <= 0:
+        raise ConfigError(f"{where(src, full)}: expected a positive number, got {v!r}")
+    return float(v)
+
+
+def _opt_number(doc: Mapping[str, Any], key: str, src: str | None, section: str
+                ) -> float | None:
+    return None if doc.get(key) is None else _number(doc, key, src, section, positive=True)
+
+
+def _domain(dom: Mapping[str, Any], src: str | None, base: Path, origin: Origin) -> Domain:
+    forms = [k for k in ("polygon_enu_m", "polygon_geodetic_deg", "geojson") if k in dom]
+    if len(forms) != 1:
+        raise ConfigError(f"{where(src, 'domain')}: expected exactly one of polygon_enu_m, "
+                          f"polygon_geodetic_deg or geojson, got {forms or 'none'}")
+    try:
+        if forms[0] == "polygon_enu_m":
+            return Domain.from_enu(dom["polygon_enu_m"], dom.get("obstacles_enu_m"), src)
+        if forms[0] == "polygon_geodetic_deg":
+            return Domain.from_geodetic(dom["polygon_geodetic_deg"],
+                                        dom.get("obstacles_geodetic_deg"), origin, src)
+        return Domain.from_geojson(_resolve(dom["geojson"], base, src, "domain.geojson"),
+                                   origin)
+    except PdcovError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[CameraModel, float]:
+    cam = doc.get("camera", {})
+    if not isinstance(cam, dict):
+        raise ConfigError(f"{where(src, 'camera')}: expected a mapping, got {cam!r}")
+    calibration = cam.get("calibration", doc.get("calibration"))
+    if calibration is not None:
+        extra = sorted(set(cam) - {"calibration", "frame_rate_hz"})
+        if extra:
+            raise ConfigError(f"{where(src, 'camera.' + extra[0])}: not allowed with a "
+                              f"calibration file (give the intrinsics in one place)")
+        camera = CameraModel.from_camera_info(_resolve(calibration, base, src, "calibration"))
+    else:
+        inline = {k: v for k, v in cam.items() if k != "frame_rate_hz"}
+        camera = CameraModel.from_config(inline, src, "camera")
+    rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
+    return camera, rate
+
+
+def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{where(src, 'mount')}: expected a mapping, got {doc!r}")
+    kind = doc.get("type", "fixed")
+    if kind == "gimbal":
+        return GimbalMount.from_config(doc, src)
+    if kind != "fixed":
+        raise ConfigError(f"{where(src, 'mount.type')}: expected 'fixed' or 'gimbal', "
+                          f"got {kind!r}")
+    known = {"type", "roll_deg", "pitch_deg", "yaw_deg", "lever_arm_frd_m"}
+    unknown = sorted(set(doc) - known)
+    if unknown:
+        raise ConfigError(f"{where(src, 'mount.' + unknown[0])}: unknown key for a fixed "
+                          f"mount; expected some of {sorted(known)}")
+    angles = [math.radians(_number(doc, k, src, "mount", default=d))
+              for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]
+    arm = doc.get("lever_arm_frd_m", [0.0, 0.0, 0.0])
+    if (not isinstance(arm, list) or len(arm) != 3 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            for v in arm)):
+        raise ConfigError(f"{where(src, 'mount.lever_arm_frd_m')}: expected [forward, right, "
+                          f"down] in metres, got {arm!r}")
+    return FixedMount(*angles, tuple(float(v) for v in arm))
+
+
+def _detector(v: Any, src: str | None, base: Path) -> DetectorModel:
+    if isinstance(v, str):
+        if v == "illustrative":
+            return DetectorModel.illustrative()
+        return DetectorModel.from_yaml(_resolve(v, base, src, "detector"))
+    if isinstance(v, dict):
+        return DetectorModel.from_dict(v, source=f"{src}: detector" if src else "detector")
+    raise ConfigError(f"{where(src, 'detector')}: expected a path to a detector model YAML, "
+                      f"'illustrative', or an inline model mapping, got {v!r}")
+
+
+def _resolve(v: Any, base: Path, src: str | None, key: str) -> Path:
+    if not isinstance(v, str) or not v:
+        raise ConfigError(f"{where(src, key)}: expected a file path, got {v!r}")
+    p = Path(v).expanduser()
+    p = p if p.is_absolute() else base / p
+    if not p.is_file():
+        raise ConfigError(f"{where(src, key)}: file not found: {p}")
+    return p

@@ -1,0 +1,208 @@
+"""Offline evaluation: camera poses through the coverage grid, and the run's outputs.
+
+Outputs in a run folder (docs/outputs.md): metrics.json, grid.npz, heatmap.png,
+thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks), outline.geojson, and with a prior
+posterior.npy / posterior.tif. Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+
+from .atomic import atomic_write, write_text_atomic
+from .config import Mission
+from .domain import GridGeometry
+from .errors import InputFileError
+from .geodesy import Origin, geodetic_to_enu
+from .grid import CoverageGrid, Metrics
+from .pose import CameraPose
+from .search_theory import SearchOutcome, search_outcome
+
+METRICS_VERSION = 1
+
+
+def evaluate_poses(mission: Mission, poses: Iterable[CameraPose], progress: bool = False,
+                   total: int | None = None) -> CoverageGrid:
+    """A new grid for ``mission`` updated with every pose (each a camera frame)."""
+    grid = mission.new_grid()
+    if progress:
+        from tqdm import tqdm
+        poses = tqdm(poses, desc="frames", unit="frame", total=total, mininterval=0.5)
+    for pose in poses:
+        grid.update(pose)
+    return grid
+
+
+def threshold_key(t: float) -> str:
+    """A threshold as it appears in metrics.json, e.g. 0.8 -> "0.8"."""
+    return repr(float(t))
+
+
+def metrics_document(metrics: Metrics, outcome: SearchOutcome | None = None) -> dict[str, Any]:
+    """The metrics.json mapping (version 1)."""
+    doc: dict[str, Any] = {
+        "version": METRICS_VERSION,
+        "frames": metrics.frames,
+        "cells_free": metrics.cells_free,
+        "cells_observed": metrics.cells_observed,
+        "proportion_at_or_above": {threshold_key(t): p
+                                   for t, p in metrics.proportion_at_or_above.items()},
+        "mean_pd": metrics.mean_pd,
+        "expected_false_alarms": metrics.expected_false_alarms,
+    }
+    if outcome is not None:
+        doc["probability_of_success"] = outcome.probability_of_success
+        doc["prior_mass_in_grid"] = outcome.prior_mass
+    return doc
+
+
+def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
+               origin: Origin) -> np.ndarray:
+    """Probability of area per cell from a .npy or GeoTIFF aligned with the grid, or a
+    GeoJSON of segments (polygons, WGS84) each with a ``poa`` property, spread evenly over
+    the free cells whose centres it contains. Raises InputFileError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: prior file not found")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            poa = np.load(path, allow_pickle=False).astype(float)
+            if poa.shape != geometry.shape:
+                raise ValueError(f"array shape {poa.shape} != grid shape {geometry.shape} "
+                                 "(rows north, columns east)")
+        elif suffix in (".tif", ".tiff"):
+            from .gis import read_geotiff_band
+            poa = np.nan_to_num(read_geotiff_band(path, geometry), nan=0.0)
+        elif suffix in (".geojson", ".json"):
+            poa = _prior_from_segments(json.loads(path.read_text()), geometry, mask, origin)
+        else:
+            raise ValueError("expected a .npy, .tif or .geojson prior")
+    except (ValueError, OSError, KeyError, TypeError) as exc:
+        raise InputFileError(f"{path}: cannot use as a prior: {exc}") from None
+    if not np.all(np.isfinite(poa)) or np.any(poa < 0) or poa.sum() <= 0:
+        raise InputFileError(f"{path}: prior probabilities must be finite, >= 0, and not all 0")
+    return poa
+
+
+def _prior_from_segments(doc: Any, geometry: GridGeometry, mask: np.ndarray,
+                         origin: Origin) -> np.ndarray:
+    features = doc.get("features") if isinstance(doc, dict) else None
+    if not features:
+        raise ValueError("expected a FeatureCollection of segments")
+    xs, ys = geometry.centres_enu()
+    X, Y = np.meshgrid(xs, ys)
+    poa = np.zeros(geometry.shape)
+    for k, feature in enumerate(features):
+        props = feature.get("properties") or {}
+        if "poa" not in props:
+            raise ValueError(f"feature {k}: missing property 'poa'")
+        p = float(props["poa"])
+        geom = shapely.geometry.shape(feature["geometry"])
+        rings = []
+        for part in getattr(geom, "geoms", [geom]):
+            ll = np.asarray(part.exterior.coords)
+            enu = geodetic_to_enu(ll[:, 1], ll[:, 0], origin.ground_alt_msl_m, origin)
+            rings.append(shapely.Polygon(enu[:, :2]))
+        inside = shapely.contains_xy(shapely.union_all(rings), X, Y) & mask
+        if not inside.any():
+            raise ValueError(f"feature {k}: segment contains no free cell of the grid")
+        poa[inside] += p / inside.sum()
+    return poa
+
+
+@dataclass(frozen=True, slots=True)
+class RunOutputs:
+    """What a run wrote, and the numbers for the summary."""
+
+    out_dir: Path
+    files: tuple[str, ...]
+    metrics: Metrics
+    outcome: SearchOutcome | None
+
+
+def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, origin: Origin,
+                  *, title: str, track_enu: np.ndarray | None = None,
+                  plan_enu: np.ndarray | None = None, outline_threshold: float | None = None,
+                  prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
+                  figures: bool = True) -> RunOutputs:
+    """Write the run's files into ``out_dir`` (created if needed)."""
+    from .gis import threshold_outline, write_geotiff, write_outline_geojson
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = grid.metrics(mission.thresholds)
+    pd, pfa, mask, g = grid.pd, grid.pfa, grid.mask, grid.geometry
+    outcome = search_outcome(prior, pd, mask) if prior is not None else None
+    doc = metrics_document(metrics, outcome)
+    doc.update(extra_metrics or {})
+    threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
+    outline = threshold_outline(pd, mask, g, threshold)
+    files = ["metrics.json", "grid.npz", "pd.tif", "outline.geojson"]
+    write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
+    grid.save_npz(out / "grid.npz")
+    write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}, g, origin,
+                  mask)
+    write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
+    if outcome is not None:
+        with atomic_write(out / "posterior.npy", "wb") as f:
+            np.save(f, outcome.posterior)
+        write_geotiff(out / "posterior.tif", {"posterior_poa": outcome.posterior}, g, origin,
+                      np.ones_like(mask))
+        files += ["posterior.npy", "posterior.tif"]
+    if figures:
+        from .plots import heatmap_figure, thresholds_figure
+        heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
+                       outline_enu=outline, threshold=threshold, track_enu=track_enu,
+                       plan_enu=plan_enu)
+        thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds, title=title)
+        files += ["heatmap.png", "thresholds.png"]
+    return RunOutputs(out, tuple(files), metrics, outcome)
+
+
+def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
+    """A one-screen summary of a run."""
+    m = run.metrics
+    out = [*lines,
+           f"frames: {m.frames}   free cells: {m.cells_free}   observed: {m.cells_observed} "
+           f"({m.cells_observed / max(m.cells_free, 1):.1%})",
+           f"mean P_D: {m.mean_pd:.3f}   expected false alarms: {m.expected_false_alarms:.2f}",
+           "proportion of free cells with P_D at or above: " + "   ".join(
+               f"{t:g}: {p:.3f}" for t, p in m.proportion_at_or_above.items())]
+    if run.outcome is not None:
+        out.append(f"probability of success POS: {run.outcome.probability_of_success:.3f} "
+                   f"(prior mass in grid {run.outcome.prior_mass:.3f}); posterior written")
+    out.append(f"wrote {', '.join(run.files)} in {run.out_dir}")
+    return "\n".join(out)
+
+
+def read_run(run_dir: str | Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """metrics.json, pd and mask of a run folder. Raises InputFileError naming the file."""
+    run = Path(run_dir)
+    try:
+        doc = json.loads((run / "metrics.json").read_text())
+        with np.load(run / "grid.npz") as z:
+            pd, mask = z["pd"], z["mask"].astype(bool)
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputFileError(f"{run}: not a pdcov run folder ({exc})") from None
+    if doc.get("version") != METRICS_VERSION:
+        raise InputFileError(f"{run / 'metrics.json'}: version {doc.get('version')!r}, "
+                             f"expected {METRICS_VERSION}")
+    return doc, pd, mask
+
+
+def finite_track(track_enu: np.ndarray | None) -> np.ndarray | None:
+    """Drop non-finite rows of a track (N, 3); None stays None."""
+    if track_enu is None:
+        return None
+    t = np.asarray(track_enu, dtype=float)
+    return t[np.all(np.isfinite(t), axis=1)] if len(t) else t
+
+

@@ -1,0 +1,97 @@
+"""GIS exports: the P_D grid as a GeoTIFF and the threshold outline as GeoJSON (rasterio).
+
+The grid lives in the local ENU plane about the mission origin. The GeoTIFF's CRS is a
+transverse Mercator projection centred on that origin (scale 1, no false easting or
+northing), which equals the ENU tangent plane to well under a millimetre over a few km; the
+GeoJSON is WGS84 longitude/latitude as RFC 7946 requires.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .atomic import atomic_path, write_text_atomic
+from .domain import GridGeometry
+from .geodesy import Origin, enu_to_geodetic
+
+
+def local_crs_wkt(origin: Origin) -> str:
+    """PROJ string of the transverse Mercator plane centred on ``origin``."""
+    return (f"+proj=tmerc +lat_0={origin.lat_deg:.9f} +lon_0={origin.lon_deg:.9f} +k=1 "
+            "+x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs")
+
+
+def _transform(geometry: GridGeometry) -> Any:
+    from rasterio.transform import from_origin
+
+    x0, _, _, y1 = geometry.extent_enu
+    return from_origin(x0, y1, geometry.cell_size_m, geometry.cell_size_m)
+
+
+def write_geotiff(path: str | Path, bands: dict[str, np.ndarray], geometry: GridGeometry,
+                  origin: Origin, mask: np.ndarray) -> None:
+    """Float32 GeoTIFF with one band per entry of ``bands`` (rows grow north, as in the grid;
+    written north-up), NaN outside the free cells. Atomic: temp file then rename."""
+    import rasterio
+
+    with atomic_path(path) as tmp, rasterio.open(
+            tmp, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
+            count=len(bands), dtype="float32", crs=local_crs_wkt(origin),
+            transform=_transform(geometry), nodata=np.nan, compress="deflate") as dst:
+        for i, (name, band) in enumerate(bands.items(), start=1):
+            data = np.where(mask, band, np.nan).astype(np.float32)
+            dst.write(np.flipud(data), i)
+            dst.set_band_description(i, name)
+
+
+def read_geotiff_band(path: str | Path, geometry: GridGeometry) -> np.ndarray:
+    """Band 1 of a GeoTIFF aligned with ``geometry`` (same size and transform), as a grid
+    array with rows growing north. Raises ValueError when it is not aligned."""
+    import rasterio
+
+    with rasterio.open(path) as src:
+        if (src.width, src.height) != (geometry.n_cols, geometry.n_rows):
+            raise ValueError(f"raster is {src.width} x {src.height} cells, the grid is "
+                             f"{geometry.n_cols} x {geometry.n_rows}")
+        if not np.allclose(tuple(src.transform)[:6], tuple(_transform(geometry))[:6],
+                           atol=1e-6):
+            raise ValueError(f"raster transform {tuple(src.transform)[:6]} does not match the "
+                             f"grid's {tuple(_transform(geometry))[:6]}")
+        return np.flipud(src.read(1).astype(float))
+
+
+def threshold_outline(pd: np.ndarray, mask: np.ndarray, geometry: GridGeometry,
+                      threshold: float) -> list[list[list[list[float]]]]:
+    """Polygons (ENU metres, rings of [x, y]) of the free cells with P_D >= ``threshold``:
+    a list of polygons, each a list of rings (exterior first, then holes)."""
+    from rasterio.features import shapes
+
+    hit = (mask & (pd >= threshold)).astype(np.uint8)
+    polys = []
+    for geom, value in shapes(np.flipud(hit), mask=np.flipud(hit) > 0,
+                              transform=_transform(geometry)):
+        if value == 1:
+            polys.append([[list(map(float, p)) for p in ring] for ring in geom["coordinates"]])
+    return polys
+
+
+def write_outline_geojson(path: str | Path, polygons_enu: list[list[list[list[float]]]],
+                          origin: Origin, threshold: float) -> None:
+    """GeoJSON FeatureCollection (WGS84 lon/lat) of the threshold outline, atomically."""
+    coords = []
+    for poly in polygons_enu:
+        rings = []
+        for ring in poly:
+            enu = np.array(ring, dtype=float)
+            lla = enu_to_geodetic(np.c_[enu, np.zeros(len(enu))], origin)
+            rings.append([[round(lon, 9), round(lat, 9)] for lat, lon, _ in lla])
+        coords.append(rings)
+    doc = {"type": "FeatureCollection", "features": [{
+        "type": "Feature",
+        "properties": {"pd_threshold": threshold, "cells": "P_D >= threshold"},
+        "geometry": {"type": "MultiPolygon", "coordinates": coords}}]}
+    write_text_atomic(path, json.dumps(doc))

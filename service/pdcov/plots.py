@@ -1,0 +1,162 @@
+"""Figures (matplotlib, the ``plots`` extra): the paper's Fig. 5 ray-count map, Fig. 7 heat
+map, the threshold curve and Fig. 8's comparison. Axes are ENU metres (east right, north up).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .atomic import atomic_path
+from .domain import Domain, GridGeometry
+from .errors import PdcovError
+
+
+def _pyplot() -> Any:
+    try:
+        import matplotlib
+    except ImportError:
+        raise PdcovError("figures need matplotlib: pip install 'pdcov[plots]'") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: str | Path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=130, bbox_inches="tight")
+    _pyplot().close(fig)
+
+
+def _draw_domain(ax: Any, domain: Domain) -> None:
+    x, y = domain.boundary.exterior.xy
+    ax.plot(x, y, color="black", lw=1.5, label="search domain")
+    for i, obstacle in enumerate(domain.obstacles):
+        x, y = obstacle.exterior.xy
+        ax.fill(x, y, facecolor="0.35", edgecolor="black", lw=1.0,
+                label="obstacle" if i == 0 else None)
+
+
+def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
+                   geometry: GridGeometry, domain: Domain, *, title: str,
+                   outline_enu: Sequence[Sequence[Sequence[Sequence[float]]]] = (),
+                   threshold: float | None = None, track_enu: np.ndarray | None = None,
+                   plan_enu: np.ndarray | None = None) -> None:
+    """Fig. 7: cumulative P_D per cell with a colour bar, the domain and obstacles, the
+    planned path, the flown track and the outline of the cells at or above ``threshold``."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    x0, x1, y0, y1 = geometry.extent_enu
+    shown = np.ma.masked_where(~mask, pd)
+    im = ax.imshow(shown, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis", vmin=0,
+                   vmax=1, interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="cumulative probability of detection $P_D$", shrink=0.85)
+    _draw_domain(ax, domain)
+    if plan_enu is not None and len(plan_enu):
+        ax.plot(plan_enu[:, 0], plan_enu[:, 1], "--", color="white", lw=1.3, label="plan")
+    if track_enu is not None and len(track_enu):
+        ax.plot(track_enu[:, 0], track_enu[:, 1], color="orangered", lw=1.0,
+                label="flown track")
+    for k, poly in enumerate(outline_enu):
+        for ring in poly:
+            r = np.asarray(ring)
+            ax.plot(r[:, 0], r[:, 1], color="deepskyblue", lw=1.6,
+                    label=f"$P_D \\geq {threshold:g}$" if k == 0 and ring is poly[0] else None)
+    pad = 0.05 * max(x1 - x0, y1 - y0)
+    ax.set_xlim(x0 - pad, x1 + pad)
+    ax.set_ylim(y0 - pad, y1 + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_title(title)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=5, fontsize=8,
+              frameon=False)
+    _save(fig, path)
+
+
+def proportion_curve(pd: np.ndarray, mask: np.ndarray, n: int = 201
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Thresholds 0..1 and the proportion of free cells with P_D at or above each."""
+    t = np.linspace(0.0, 1.0, n)
+    values = np.sort(pd[mask])
+    if len(values) == 0:
+        return t, np.zeros_like(t)
+    return t, 1.0 - np.searchsorted(values, t, side="left") / len(values)
+
+
+def thresholds_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
+                      thresholds: Sequence[float], *, title: str) -> None:
+    """Proportion of free cells at or above each P_D threshold, over thresholds 0..1."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    t, p = proportion_curve(pd, mask)
+    ax.plot(t, p, color="navy", lw=2)
+    values = pd[mask]
+    for th in thresholds:
+        share = float((values >= th).mean()) if len(values) else 0.0
+        ax.plot([th], [share], "o", color="crimson")
+        ax.annotate(f"{share:.3f} at {th:g}", (th, share), textcoords="offset points",
+                    xytext=(6, 6), fontsize=9)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("$P_D$ threshold")
+    ax.set_ylabel("proportion of free cells at or above")
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    _save(fig, path)
+
+
+def compare_figure(path: str | Path, runs: Sequence[tuple[str, np.ndarray, np.ndarray]],
+                   thresholds: Sequence[float]) -> None:
+    """Fig. 8: per run (name, pd, mask) the proportion at each threshold as grouped bars,
+    beside the full proportion curves."""
+    plt = _pyplot()
+    fig, (ax_bar, ax_curve) = plt.subplots(1, 2, figsize=(12, 4.6))
+    width = 0.8 / max(len(runs), 1)
+    x = np.arange(len(thresholds))
+    for i, (name, pd, mask) in enumerate(runs):
+        values = pd[mask]
+        shares = [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
+        bars = ax_bar.bar(x + (i - (len(runs) - 1) / 2) * width, shares, width, label=name)
+        ax_bar.bar_label(bars, fmt="%.3f", fontsize=7, rotation=90, padding=2)
+        t, p = proportion_curve(pd, mask)
+        ax_curve.plot(t, p, lw=1.8, label=name)
+    ax_bar.set_xticks(x, [f"$P_D \\geq {t:g}$" for t in thresholds])
+    ax_bar.set_ylim(0, 1.15)
+    ax_bar.set_ylabel("proportion of free cells")
+    ax_bar.set_title("cells reaching each threshold")
+    ax_bar.legend(fontsize=8)
+    ax_curve.set_xlim(0, 1)
+    ax_curve.set_ylim(0, 1.02)
+    ax_curve.set_xlabel("$P_D$ threshold")
+    ax_curve.set_ylabel("proportion at or above")
+    ax_curve.grid(alpha=0.3)
+    ax_curve.set_title("proportion over thresholds")
+    _save(fig, path)
+
+
+def ray_count_figure(path: str | Path, counts: np.ndarray, geometry: GridGeometry,
+                     footprint_xy: np.ndarray | None, camera_xy: Sequence[float], *,
+                     title: str) -> None:
+    """Fig. 5: rays from the camera's pixels meeting the ground, counted per cell."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    x0, x1, y0, y1 = geometry.extent_enu
+    shown = np.ma.masked_where(counts == 0, counts)
+    im = ax.imshow(shown, origin="lower", extent=(x0, x1, y0, y1), cmap="magma",
+                   interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="pixel rays per cell", shrink=0.85)
+    if footprint_xy is not None and len(footprint_xy):
+        ax.plot(footprint_xy[:, 0], footprint_xy[:, 1], color="deepskyblue", lw=1.2,
+                label="footprint")
+    ax.plot([camera_xy[0]], [camera_xy[1]], "w+", ms=12, mew=2, label="camera (nadir point)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=8)
+    _save(fig, path)
