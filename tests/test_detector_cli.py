@@ -191,8 +191,9 @@ def test_malformed_detection_file_is_named(pdcov, tmp_path):
 
 def test_plot_without_validation_and_a_bad_report(pdcov, tmp_path):
     model = tmp_path / "m.yaml"
-    model.write_text("version: 1\nbin_edges_px: [0, 10, 20]\np_detect: [0.5, 0.75]\n"
-                     "p_false_alarm: [0.25, 0.5]\n")
+    model.write_text("version: 1\nbin_edges_px: [0, 10, 20]\np_detect: [0.0, 0.75]\n"
+                     "p_false_alarm: [0.25, 0.5]\ncounts: {n_true: [0, 4], n_detected: [0, 3],"
+                     " n_detections: [2, 6]}\n")  # an empty bin is drawn as 'no data'
     status, _, err = pdcov("detector", "plot", model, "--out", tmp_path / "f.png")
     assert status == 0, err
     assert (tmp_path / "f.png").stat().st_size > 0

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,7 +62,7 @@ class Boxes:
                              f"{self.scores.shape}, {self.ignore.shape}")
 
     @classmethod
-    def from_rows(cls, rows: list[tuple[float, float, float, float]], labels: list[str],
+    def from_rows(cls, rows: Sequence[Sequence[float]], labels: list[str],
                   scores: list[float] | None = None, ignore: list[bool] | None = None) -> Boxes:
         n = len(labels)
         return cls(xywh=np.asarray(rows, dtype=float).reshape(n, 4), labels=tuple(labels),

@@ -34,12 +34,14 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     precision = 1 - np.asarray(model.p_false_alarm)
     ci_fa = model.extra.get("p_false_alarm_ci95")
     ci_p = [[1 - hi, 1 - lo] for lo, hi in ci_fa] if ci_fa else None
-    counts = model.counts
+    # A binned model's empty bins hold no estimate; a logistic model's curve spans them.
+    no_data = np.zeros(model.n_bins, bool), np.zeros(model.n_bins, bool)
+    if model.counts is not None and model.extra.get("model") != "logistic":
+        no_data = (np.asarray(model.counts.n_true) == 0,
+                   np.asarray(model.counts.n_detections) == 0)
     _panel(ax_d, edges, np.asarray(model.p_detect), model.extra.get("p_detect_ci95"),
-           "P_D (recall)", "tab:blue", counts.n_true if counts else None,
-           report.detect if report else None, report)
-    _panel(ax_p, edges, precision, ci_p, "precision (1 − P_FA)", "tab:orange",
-           counts.n_detections if counts else None,
+           "P_D (recall)", "tab:blue", no_data[0], report.detect if report else None, report)
+    _panel(ax_p, edges, precision, ci_p, "precision (1 − P_FA)", "tab:orange", no_data[1],
            report.precision if report else None, report)
     if edges[0] > 0 and edges[-1] / edges[0] > 8:
         ax_p.set_xscale("log")
@@ -66,22 +68,27 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     fig.savefig(out_path, dpi=150)
 
 
-def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | None,
-           label: str, color: str, n: tuple[int, ...] | None,
-           tests: tuple[BinTest, ...] | None, report: ValidationReport | None) -> None:
+def _centres(edges: np.ndarray) -> np.ndarray:
+    """Bin centres: geometric (they sit mid-bin on a log axis) unless an edge is 0."""
     lo, hi = edges[:-1], edges[1:]
-    centres = np.sqrt(lo * hi) if edges[0] > 0 else (lo + hi) / 2
-    ax.bar(lo, p, width=hi - lo, align="edge", color=color, alpha=0.75,
+    return np.sqrt(lo * hi) if edges[0] > 0 else (lo + hi) / 2
+
+
+def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | None,
+           label: str, color: str, no_data: np.ndarray,
+           tests: tuple[BinTest, ...] | None, report: ValidationReport | None) -> None:
+    lo, width = edges[:-1], np.diff(edges)
+    ok = ~no_data
+    ax.bar(lo[ok], p[ok], width=width[ok], align="edge", color=color, alpha=0.75,
            edgecolor="white", linewidth=0.5)
-    if n is not None:
-        empty = np.asarray(n) == 0
-        ax.bar(lo[empty], np.ones(empty.sum()), width=(hi - lo)[empty], align="edge",
+    if no_data.any():
+        ax.bar(lo[no_data], np.ones(no_data.sum()), width=width[no_data], align="edge",
                color="none", edgecolor="0.6", hatch="//", linewidth=0, label="no data")
-        if empty.any():
-            ax.legend(loc="upper right", fontsize=8, frameon=False)
+        ax.legend(loc="upper right", fontsize=8, frameon=False)
     if ci:
-        c = np.asarray(ci, dtype=float)
-        ax.errorbar(centres, p, yerr=np.clip([p - c[:, 0], c[:, 1] - p], 0, None),
+        c = np.asarray(ci, dtype=float)[ok]
+        ax.errorbar(_centres(edges)[ok], p[ok],
+                    yerr=np.clip([p[ok] - c[:, 0], c[:, 1] - p[ok]], 0, None),
                     fmt="none", ecolor="black", elinewidth=1, capsize=2)
     ax.set_ylim(0, 1.3 if tests else 1.02)
     ax.set_yticks(np.linspace(0, 1, 6))
@@ -89,10 +96,7 @@ def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | No
     ax.grid(axis="y", color="0.9")
     ax.set_axisbelow(True)
     if tests and report is not None:
-        t_edges = np.asarray(report.bin_edges_px)
-        t_lo, t_hi = t_edges[:-1], t_edges[1:]
-        t_centres = np.sqrt(t_lo * t_hi) if t_edges[0] > 0 else (t_lo + t_hi) / 2
-        for x, t in zip(t_centres, tests, strict=True):
+        for x, t in zip(_centres(np.asarray(report.bin_edges_px)), tests, strict=True):
             if t.p_value is None:
                 continue
             bad = t.p_value < report.alpha

@@ -16,7 +16,7 @@ from pathlib import Path
 import yaml
 from tqdm import tqdm
 
-from pdcov.annotations import FORMATS, Boxes, ImageTruth, read_detections, read_truth
+from pdcov.annotations import FORMATS, NO_BOXES, Boxes, ImageTruth, read_detections, read_truth
 from pdcov.detector import DetectorModel
 from pdcov.detector_stats import (
     BIN_RULES,
@@ -154,10 +154,9 @@ def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
         raise InputFileError(f"{truth.source}: no images")
 
     def pairs() -> Iterator[tuple[ImageTruth, Boxes]]:
-        empty = Boxes.from_rows([], [])
         for image_id, image in tqdm(truth.images.items(), desc="matching", unit="image",
                                     disable=args.quiet, file=sys.stderr):
-            yield image, detections.get(image_id, empty)
+            yield image, detections.get(image_id, NO_BOXES)
 
     return match_images(pairs(), settings)
 
