@@ -142,7 +142,7 @@ def detect_format(path: Path) -> str:
         return "coco"
     if path.is_dir():
         for txt in sorted(_labels_dir(path).glob("*.txt")):
-            for line in txt.read_text().splitlines():
+            for line in txt.read_text(errors="replace").splitlines():
                 if line.strip():
                     return "visdrone" if "," in line else "yolo"
         raise InputFileError(f"{path}: no non-empty .txt file to tell the format from; "
