@@ -62,14 +62,7 @@ def test_round_trip(tmp_path: Path) -> None:
 def test_junk_prefix_and_unknown_bytes(tmp_path: Path) -> None:
     junk = b"console output: booting...\r\n" * 40 + bytes(range(256))
     log = read_flight_log(write_tlog(tmp_path / "j.tlog", flight(), prefix=junk))
-    # A junk 0xFE/0xFD byte announces a frame up to 263 bytes long, and pymavlink's tlog
-    # reader does not rescan what such a false frame swallowed: a few messages after junk
-    # are lost (docs/logs.md), the rest is read.
-    assert 38 <= len(log.attitude.t_s) <= 50
-    assert log.attitude.t_s[-1] == pytest.approx(5.9)
-    clean = read_flight_log(write_tlog(tmp_path / "c.tlog", flight(),
-                                       prefix=b"console output: booting...\r\n" * 40))
-    assert len(clean.attitude.t_s) == 50
+    assert len(log.attitude.t_s) == 50
     assert any("not MAVLink" in n for n in log.notes)
 
 

@@ -182,7 +182,7 @@ def _param_limits(params: Mapping[str, float], n: int) -> tuple[np.ndarray, str]
     if all(lo in params and hi in params for lo, hi in names):
         return (np.radians([[params[lo], params[hi]] for lo, hi in names]),
                 f"limits from MNT{n}_*_MIN/MAX")
-    # ArduCopter <= 4.2: MNT_ANGMIN_ROL/TIL/PAN in centidegrees.
+    # Older firmware (e.g. ArduCopter 3.4): MNT_ANGMIN_ROL/TIL/PAN in centidegrees.
     old = [("MNT_ANGMIN_ROL", "MNT_ANGMAX_ROL"), ("MNT_ANGMIN_TIL", "MNT_ANGMAX_TIL"),
            ("MNT_ANGMIN_PAN", "MNT_ANGMAX_PAN")]
     if n == 1 and all(lo in params and hi in params for lo, hi in old):

@@ -293,7 +293,7 @@ DATAFLASH_MNT_FLAGS = 4 | 8 | 32
 def _df_mnt(msg: Any, t_s: float) -> tuple[GimbalSample, MountTargetSample] | None:
     fields = ("Roll", "Pitch", "YawB", "DRoll", "DPitch", "DYawB", "DYawE")
     if not all(hasattr(msg, f) for f in fields):
-        return None  # older MNT layouts (before 4.3) log no body-frame yaw
+        return None  # older MNT layouts log no body-frame yaw
     q = quat_wxyz_from_euler_zyx(*np.radians([msg.Roll, msg.Pitch, msg.YawB]))
     instance = int(getattr(msg, "I", 0))
     gimbal = GimbalSample(t_s, _quat(q), DATAFLASH_MNT_FLAGS, 0, 1, 1, instance + 1)
