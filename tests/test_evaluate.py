@@ -1,0 +1,312 @@
+"""`pdcov evaluate` end to end: pose CSV and tlog inputs give the core's grid, the outputs
+are complete and readable, and bad input fails with a clear message and exit status 2."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from mavlink_fixtures import KnownFlight, samples_from_flight, write_tlog
+
+from pdcov.cli import main
+from pdcov.config import load_mission
+from pdcov.geodesy import Origin
+from pdcov.pose import (
+    GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
+    GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
+    GimbalFrame,
+    R_ned_gimbal_from_quat,
+    camera_pose,
+    fixed_mount_pose,
+)
+from pdcov.rotations import R_from_euler_zyx, R_from_euler_zyx_many, quat_wxyz_from_R
+
+ORIGIN = Origin(39.35, -76.33, 5.0)
+RATE_HZ = 5.0
+
+
+def mission_doc(mount: dict | None = None, **extra) -> dict:
+    doc = {
+        "vehicle_id": "uav1",
+        "origin": {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg,
+                   "ground_alt_msl_m": ORIGIN.ground_alt_msl_m},
+        "domain": {"polygon_enu_m": [[0, 0], [40, 0], [40, 40], [0, 40]],
+                   "obstacles_enu_m": [[[18, 18], [22, 18], [22, 22], [18, 22]]],
+                   "cell_size_m": 1.0},
+        "camera": {"width_px": 640, "height_px": 480,
+                   "K": [[480, 0, 319.5], [0, 480, 239.5], [0, 0, 1]],
+                   "distortion_model": "plumb_bob", "distortion_coeffs": [-0.05, 0.01, 0, 0, 0],
+                   "frame_rate_hz": RATE_HZ},
+        "mount": mount or {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0},
+        "detector": "illustrative",
+        "thresholds": [0.5, 0.7, 0.8],
+    }
+    doc.update(extra)
+    return doc
+
+
+def write_config(tmp_path: Path, doc: dict, name: str = "mission.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def known_flight(gimbal_flags: int | None = None) -> KnownFlight:
+    """A 20 s pass north along x = 20 m at 8-12 m height with some roll, pitch and yaw."""
+    t = np.arange(0.0, 20.0 + 1e-9, 1 / RATE_HZ)
+    r = np.c_[20 + 3 * np.sin(t / 3), 2 * t, 10 + 2 * np.sin(t / 5)]
+    R = R_from_euler_zyx_many(0.05 * np.sin(t), -0.1 + 0.03 * np.cos(t), 0.2 * np.sin(t / 4))
+    q = None
+    if gimbal_flags is not None:
+        q = np.array([quat_wxyz_from_R(R_from_euler_zyx(0.02, -1.2 + 0.1 * np.sin(x), 0.3))
+                      for x in t])
+    flags = None if q is None else [gimbal_flags] * len(t)
+    return KnownFlight(ORIGIN, t, R, r, q, flags)
+
+
+def expected_poses(flight: KnownFlight, frame: GimbalFrame | None):
+    poses = []
+    for i, t in enumerate(flight.t_s):
+        if frame is None:
+            from pdcov.pose import FixedMount
+            poses.append(fixed_mount_pose(flight.R_ned_body[i], flight.r_body_enu[i],
+                                          FixedMount(), float(t)))
+        else:
+            R_ng = R_ned_gimbal_from_quat(flight.q_gimbal_wxyz[i], frame, flight.R_ned_body[i])
+            poses.append(camera_pose(flight.R_ned_body[i], flight.r_body_enu[i], R_ng,
+                                     t_s=float(t)))
+    return poses
+
+
+def write_pose_csv(path: Path, poses) -> Path:
+    lines = ["t_s,x_m,y_m,z_m,qw,qx,qy,qz"]
+    for p in poses:
+        lines.append(",".join(repr(float(v)) for v in
+                              (p.t_s, *p.r_cam_enu, *p.q_enu_cam_wxyz)))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def run(*argv: str) -> int:
+    return main(list(argv))
+
+
+def load_grid(run_dir: Path) -> dict:
+    with np.load(run_dir / "grid.npz") as z:
+        return {k: z[k] for k in z.files}
+
+
+def test_pose_csv_gives_the_core_grid(tmp_path):
+    config = write_config(tmp_path, mission_doc())
+    poses = expected_poses(known_flight(), None)
+    csv = write_pose_csv(tmp_path / "poses.csv", poses)
+    assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+               str(tmp_path / "run"), "--no-progress") == 0
+    grid = load_mission(config).new_grid()
+    for p in poses:
+        grid.update(p)
+    out = load_grid(tmp_path / "run")
+    np.testing.assert_allclose(out["pd"], grid.pd, atol=1e-6)
+    np.testing.assert_array_equal(out["n_obs"], grid.n_obs)
+    assert grid.n_obs.sum() > 1000 and out["pd"].max() > 0.5
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert set(metrics) == {"version", "frames", "cells_free", "cells_observed",
+                            "proportion_at_or_above", "mean_pd", "expected_false_alarms"}
+    assert metrics["frames"] == len(poses) and metrics["cells_free"] == 1600 - 16
+    assert list(metrics["proportion_at_or_above"]) == ["0.5", "0.7", "0.8"]
+    free_pd = grid.pd[grid.mask]
+    assert metrics["proportion_at_or_above"]["0.7"] == pytest.approx((free_pd >= 0.7).mean())
+    assert float(out["x0_m"]) == 0 and float(out["y0_m"]) == 0 and out["mask"].shape == (40, 40)
+
+
+@pytest.mark.parametrize("flags, frame, mount", [
+    (None, None, None),
+    (GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME, GimbalFrame.VEHICLE,
+     {"type": "gimbal", "attitude_frame": "flags"}),
+    (GIMBAL_FLAG_YAW_IN_EARTH_FRAME, GimbalFrame.EARTH,
+     {"type": "gimbal", "attitude_frame": "flags"}),
+], ids=["fixed", "gimbal-yaw-in-vehicle-frame", "gimbal-yaw-in-earth-frame"])
+def test_tlog_evaluates_to_the_pose_csv_grid(tmp_path, flags, frame, mount):
+    flight = known_flight(flags)
+    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(flight))
+    config = write_config(tmp_path, mission_doc(mount))
+    csv = write_pose_csv(tmp_path / "poses.csv", expected_poses(flight, frame))
+    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
+               str(tmp_path / "from_log"), "--export-poses", str(tmp_path / "used.csv"),
+               "--no-progress") == 0
+    assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+               str(tmp_path / "from_csv"), "--no-progress") == 0
+    a, b = load_grid(tmp_path / "from_log"), load_grid(tmp_path / "from_csv")
+    # The tlog carries float32 angles and degE7 / mm positions: a cell on the edge of a
+    # footprint may flip; nearly all agree exactly.
+    assert (a["n_obs"] != b["n_obs"]).sum() <= 0.01 * b["n_obs"].size
+    assert np.abs(a["pd"] - b["pd"]).mean() < 2e-3
+    # The exported poses evaluate to exactly the log's grid.
+    assert run("evaluate", "--config", str(config), "--poses", str(tmp_path / "used.csv"),
+               "--out", str(tmp_path / "from_export"), "--no-progress") == 0
+    c = load_grid(tmp_path / "from_export")
+    np.testing.assert_array_equal(c["n_obs"], a["n_obs"])
+    np.testing.assert_allclose(c["pd"], a["pd"], atol=1e-7)
+
+
+def test_outputs_are_readable_and_follow_the_input(tmp_path):
+    import rasterio
+    from PIL import Image
+
+    config = write_config(tmp_path, mission_doc())
+    poses = expected_poses(known_flight(), None)
+    csv_a = write_pose_csv(tmp_path / "a.csv", poses)
+    csv_b = write_pose_csv(tmp_path / "b.csv", poses[: len(poses) // 2])
+    for name, csv in (("a", csv_a), ("b", csv_b)):
+        assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+                   str(tmp_path / name), "--no-progress") == 0
+    for png in ("heatmap.png", "thresholds.png"):
+        images = [np.asarray(Image.open(tmp_path / n / png)) for n in "ab"]
+        assert images[0].shape[0] > 300 and images[0].shape[1] > 400
+        assert images[0].shape != images[1].shape or np.any(images[0] != images[1])
+    grid = load_grid(tmp_path / "a")
+    with rasterio.open(tmp_path / "a" / "pd.tif") as tif:
+        assert tif.count == 3 and tif.crs is not None
+        band = tif.read(1)
+        # North-up raster: the grid's row 0 (south) is the raster's last row.
+        np.testing.assert_allclose(band[::-1][grid["mask"]], grid["pd"][grid["mask"]],
+                                   atol=1e-6)
+        x, y = tif.xy(tif.height - 1, 0)  # centre of the south-west cell
+        assert (x, y) == pytest.approx((0.5, 0.5))
+    outline = json.loads((tmp_path / "a" / "outline.geojson").read_text())
+    geom = outline["features"][0]["geometry"]
+    assert geom["type"] == "MultiPolygon" and geom["coordinates"]
+    lon, lat = geom["coordinates"][0][0][0]
+    assert abs(lat - ORIGIN.lat_deg) < 0.001 and abs(lon - ORIGIN.lon_deg) < 0.001
+
+
+def test_prior_gives_probability_of_success_and_posterior(tmp_path):
+    config = write_config(tmp_path, mission_doc())
+    csv = write_pose_csv(tmp_path / "poses.csv", expected_poses(known_flight(), None))
+    poa = np.zeros((40, 40))
+    poa[:, :20] = 1.0 / (40 * 20)  # the person is somewhere in the western half
+    np.save(tmp_path / "prior.npy", poa)
+    assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+               str(tmp_path / "run"), "--prior", str(tmp_path / "prior.npy"),
+               "--no-progress") == 0
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    pd = load_grid(tmp_path / "run")["pd"]
+    mask = load_grid(tmp_path / "run")["mask"]
+    assert metrics["probability_of_success"] == pytest.approx((poa * pd * mask).sum())
+    posterior = np.load(tmp_path / "run" / "posterior.npy")
+    assert posterior.sum() == pytest.approx(1.0)
+    expected = poa * (1 - pd * mask)
+    np.testing.assert_allclose(posterior, expected / expected.sum())
+
+
+def test_compare_and_footprint(tmp_path, capsys):
+    config = write_config(tmp_path, mission_doc())
+    poses = expected_poses(known_flight(), None)
+    for name, subset in (("full", poses), ("half", poses[::2])):
+        csv = write_pose_csv(tmp_path / f"{name}.csv", subset)
+        assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+                   str(tmp_path / name), "--no-progress") == 0
+    capsys.readouterr()
+    assert run("compare", str(tmp_path / "full"), str(tmp_path / "half"), "--out",
+               str(tmp_path / "cmp.png")) == 0
+    table = capsys.readouterr().out
+    assert "full" in table and "half" in table and (tmp_path / "cmp.png").stat().st_size > 0
+    assert run("footprint", "--config", str(config), "--altitude-m", "10", "--out",
+               str(tmp_path / "fp.png")) == 0
+    out = capsys.readouterr().out
+    # Nadir 640x480, f = 480 px, 10 m: 13.33 m x 10 m (barrel distortion widens it a bit).
+    area = float(out.split("footprint area ")[1].split(" ")[0])
+    assert 133.0 < area < 150.0
+
+
+def cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pdcov.cli", *argv], capture_output=True,
+                          text=True, timeout=120)
+
+
+def assert_clean_failure(proc: subprocess.CompletedProcess, *words: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr, proc.stderr
+    for w in words:
+        assert w in proc.stderr, proc.stderr
+
+
+def test_bad_inputs_fail_clearly(tmp_path):
+    config = write_config(tmp_path, mission_doc())
+    out = str(tmp_path / "run")
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--poses",
+                             str(tmp_path / "missing.csv"), "--out", out), "missing.csv")
+    nan_csv = tmp_path / "nan.csv"
+    nan_csv.write_text("t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,1,2,nan,1,0,0,0\n")
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--poses", str(nan_csv),
+                             "--out", out), "nan.csv:2")
+    bad_q = tmp_path / "q.csv"
+    bad_q.write_text("t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0,1,2,10,0.9,0,0,0\n")
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--poses", str(bad_q),
+                             "--out", out), "q.csv:2")
+    flight = known_flight()
+    good = write_tlog(tmp_path / "good.tlog", samples_from_flight(flight))
+    truncated = tmp_path / "truncated.tlog"
+    truncated.write_bytes(good.read_bytes()[:37])
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--log", str(truncated),
+                             "--out", out), "truncated.tlog")
+    garbage = tmp_path / "garbage.bin"
+    garbage.write_bytes(np.random.default_rng(3).bytes(5000))
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--log", str(garbage),
+                             "--out", out), "garbage.bin")
+    from pdcov.telemetry import PositionSample
+    no_pos = write_tlog(tmp_path / "nopos.tlog", [s for s in samples_from_flight(flight)
+                                                 if not isinstance(s, PositionSample)])
+    assert_clean_failure(cli("evaluate", "--config", str(config), "--log", str(no_pos),
+                             "--out", out), "nopos.tlog")
+    assert not (tmp_path / "run").exists(), "nothing may be written on bad input"
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"origin": {"lat_deg": 95, "lon_deg": 0}}, ["mission.yaml", "origin.lat_deg"]),
+    ({"camera": {"width_px": 640, "height_px": 480, "K": [[0, 0, 320], [0, 480, 240],
+                                                           [0, 0, 1]], "frame_rate_hz": 5}},
+     ["mission.yaml", "camera", "focal"]),
+    ({"camera": {"width_px": 640, "height_px": 480, "K": [[480, 0, 320], [0, 480, 240],
+                                                           [0, 0, 1]]}},
+     ["mission.yaml", "camera.frame_rate_hz"]),
+    ({"domain": {"polygon_enu_m": [[0, 0], [1, 1]]}}, ["mission.yaml", "domain.polygon_enu_m"]),
+    ({"detector": "nowhere.yaml"}, ["mission.yaml", "detector", "nowhere.yaml"]),
+    ({"thresholds": [0.5, 1.5]}, ["mission.yaml", "thresholds"]),
+    ({"mount": {"type": "fixed", "pitch": -90}}, ["mission.yaml", "mount.pitch"]),
+    ({"mount": {"type": "gimbal", "attitude_frame": "sideways"}},
+     ["mission.yaml", "mount.attitude_frame"]),
+    ({"treshold": [0.5]}, ["mission.yaml", "treshold"]),
+])
+def test_config_errors_name_file_and_key(tmp_path, change, words):
+    config = write_config(tmp_path, mission_doc() | change)
+    csv = write_pose_csv(tmp_path / "poses.csv", expected_poses(known_flight(), None)[:3])
+    proc = cli("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+               str(tmp_path / "run"))
+    assert_clean_failure(proc, *words)
+    assert not (tmp_path / "run").exists()
+
+
+def test_calibration_file_and_relative_detector_path(tmp_path):
+    from pdcov.detector import DetectorModel
+
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "det.yaml").write_text(DetectorModel.illustrative().to_yaml())
+    (tmp_path / "cam.yaml").write_text(yaml.safe_dump({
+        "image_width": 640, "image_height": 480,
+        "camera_matrix": {"rows": 3, "cols": 3, "data": [480, 0, 319.5, 0, 480, 239.5, 0, 0, 1]},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": [-0.05, 0.01, 0, 0, 0]}}))
+    doc = mission_doc(detector="models/det.yaml")
+    doc["camera"] = {"calibration": "cam.yaml", "frame_rate_hz": 5}
+    mission = load_mission(write_config(tmp_path, doc))
+    inline = load_mission(write_config(tmp_path, mission_doc(), "inline.yaml"))
+    np.testing.assert_array_equal(mission.camera.K, inline.camera.K)
+    assert mission.detector.p_detect == inline.detector.p_detect
+    assert math.isclose(mission.frame_rate_hz, 5.0)
