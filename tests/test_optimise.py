@@ -122,3 +122,28 @@ def test_refly_finds_the_gaps_and_lifts_them_to_the_target():
     full = predict(sc, build_plan(sc, PlanParams("lawnmower", 10.0, 3.0, spacing_m=8.0))[0])
     full_after = -np.expm1(first.grid.log_miss_d + full.grid.log_miss_d)
     assert find_gaps(full_after, sc, 0.8).n_cells > r.gaps_after.n_cells
+
+
+def test_cli_plan_writes_plan_and_prediction(tmp_path):
+    import json
+    from importlib import resources
+
+    from pdcov.cli import main
+    from pdcov.config import load_mission
+    from pdcov.plan import read_plan
+
+    cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"
+    out = tmp_path / "plan"
+    assert main(["plan", "--config", str(cfg), "--pattern", "spiral", "--altitude-m", "10",
+                 "--speed-mps", "6", "--out", str(out), "--no-figures"]) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["plan"]["flight_time_s"] > doc["plan"]["path_length_m"] / 6.0
+    assert doc["plan"]["waypoints"] > 10
+    mission = load_mission(cfg)
+    plan = read_plan(out / "plan.plan", mission.origin())
+    wpl = read_plan(out / "plan.waypoints", mission.origin())
+    assert len(plan.waypoints) == len(wpl.waypoints) == doc["plan"]["waypoints"]
+    assert all(abs(a.x_enu_m - b.x_enu_m) < 1e-3 and abs(a.y_enu_m - b.y_enu_m) < 1e-3
+               for a, b in zip(plan.waypoints, wpl.waypoints, strict=True))
+    assert all(w.speed_mps == 6.0 and w.alt_agl_m == 10.0 for w in plan.waypoints)
+    assert (out / "grid.npz").exists()

@@ -12,7 +12,8 @@ from pdcov.plan import Plan, Waypoint
 from pdcov.pose import FixedMount
 from pdcov.trajectory import G_MPS2, Kinematics, camera_poses, fly
 
-KIN = Kinematics(max_accel_mps2=2.0, max_yaw_rate_rad_s=math.radians(90), tilt=True)
+KIN = Kinematics(max_accel_mps2=2.0, max_yaw_rate_rad_s=math.radians(90), tilt=True,
+                 corner_cut_m=20.0)
 
 
 def test_straight_leg_trapezoid_time_and_rate():
@@ -44,6 +45,11 @@ def test_corner_is_rounded_and_slowed_but_reversal_stops():
     body_down_ned = f.R_ned_body[i][:, 2]
     tilt = math.degrees(math.acos(body_down_ned[2]))
     assert tilt == pytest.approx(math.degrees(math.atan2(2.0, G_MPS2)), abs=1.0)
+    # With the turn starting at most 2 m before the corner: radius 2 m, sqrt(2 a) m/s.
+    tight = fly(right_angle, 20.0, Kinematics(max_accel_mps2=2.0, corner_cut_m=2.0))
+    d_tight = np.linalg.norm(tight.r_body_enu[:, :2] - [0, 50], axis=1)
+    assert d_tight.min() == pytest.approx(2.0 * (math.sqrt(2) - 1), rel=0.02)
+    assert tight.speed_mps[np.argmin(d_tight)] == pytest.approx(2.0, rel=0.01)
     reversal = Plan((Waypoint(0, 0, 10, 5), Waypoint(0, 50, 10, 5), Waypoint(0, 0, 10, 5)))
     g = fly(reversal, 20.0, KIN)
     assert np.linalg.norm(g.r_body_enu[:, :2] - [0, 50], axis=1).min() < 0.05

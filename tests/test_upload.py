@@ -164,3 +164,17 @@ def test_state_machine_times_out_after_retries():
     assert [m.get_type() for m in up.poll(2.0)] == ["MISSION_COUNT"]
     assert up.poll(3.0) == [] and up.result is not None
     assert up.result.result == "TIMEOUT" and "MISSION_COUNT after 2 resends" in up.result.detail
+
+
+def test_cli_upload_reports_success_and_refusal(vehicle_factory, tmp_path, capsys):
+    from pdcov.cli import main
+    from pdcov.plan import write_plan
+
+    path = write_plan(tmp_path / "m.plan", PLAN, ORIGIN)
+    ok = vehicle_factory()
+    assert main(["upload", str(path), "--connect", url(ok), "--timeout-s", "5"]) == 0
+    assert "vehicle accepted" in capsys.readouterr().out
+    assert len(ok.received) == len(ITEMS)
+    full = vehicle_factory(capacity=2)
+    assert main(["upload", str(path), "--connect", url(full), "--timeout-s", "5"]) == 1
+    assert "MAV_MISSION_NO_SPACE" in capsys.readouterr().err

@@ -18,6 +18,7 @@ COMMAND_MODULES = (
     "pdcov.commands.demo",
     "pdcov.commands.evaluate",
     "pdcov.commands.detector",
+    "pdcov.commands.plan",
 )
 
 

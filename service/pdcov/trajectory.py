@@ -4,9 +4,10 @@ The model of a multicopter in an auto mission (a planning prediction, not a simu
 
 * straight legs at each waypoint's speed, starting and ending at rest;
 * at a corner without hover the path is rounded by a circular arc tangent to both legs
-  (as autopilots cut corners): the largest radius that fits in half of each leg, up to the
-  radius v^2 / a that allows the leg speed; the speed on the arc is sqrt(a * radius), so a
-  reversal (a U-turn at a point) slows to a stop;
+  that starts at most ``corner_cut_m`` before the waypoint (the autopilot's waypoint radius,
+  ArduPilot WPNAV_RADIUS / PX4 NAV_ACC_RAD) and within half of each leg, and whose radius
+  is at most v^2 / a (what the leg speed needs); the speed on the arc is sqrt(a * radius),
+  so a sharp corner slows the vehicle and a reversal (a U-turn at a point) stops it;
 * a waypoint with a hover time is reached exactly, at rest, and held;
 * speed changes at most ``max_accel_mps2`` along the path, heading (the direction of travel,
   as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
@@ -35,14 +36,17 @@ _ARC_STEP_RAD = math.radians(3.0)
 @dataclass(frozen=True, slots=True)
 class Kinematics:
     """Limits of the vehicle: acceleration along and across the path (m/s^2), heading rate
-    (rad/s), and whether the body tilts with the acceleration."""
+    (rad/s), whether the body tilts with the acceleration, and how far before a waypoint a
+    turn may begin (m)."""
 
     max_accel_mps2: float = 2.5
     max_yaw_rate_rad_s: float = math.radians(60.0)
     tilt: bool = True
+    corner_cut_m: float = 2.0
 
     def __post_init__(self) -> None:
-        if not (self.max_accel_mps2 > 0 and self.max_yaw_rate_rad_s > 0):
+        if not (self.max_accel_mps2 > 0 and self.max_yaw_rate_rad_s > 0
+                and self.corner_cut_m >= 0):
             raise ValueError(f"kinematic limits must be positive, got {self}")
 
 
@@ -63,7 +67,7 @@ class Flight:
     path_length_m: float
 
 
-def _path_samples(plan: Plan, a: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                  np.ndarray]:
     """Dense samples of the rounded path: points (K, 3), speed limit (K,), hover time (K,),
     signed curvature (K,) (positive turning left)."""
@@ -87,7 +91,7 @@ def _path_samples(plan: Plan, a: float) -> tuple[np.ndarray, np.ndarray, np.ndar
             continue
         v = min(plan.waypoints[i].speed_mps, plan.waypoints[i + 1].speed_mps)
         tan_half = math.tan(delta / 2)
-        d_cap = 0.5 * min(l_in, l_out)
+        d_cap = min(0.5 * min(l_in, l_out), cut_m)
         rho = min(v * v / a, d_cap / tan_half)
         if rho < 1e-3:
             v_corner[i] = 0.0
@@ -139,7 +143,7 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     if not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate_hz must be positive, got {rate_hz}")
     a = kinematics.max_accel_mps2
-    pts, vlim, hover, kappa = _path_samples(plan, a)
+    pts, vlim, hover, kappa = _path_samples(plan, a, kinematics.corner_cut_m)
     ds = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     v = vlim.copy()
     for k in range(1, len(v)):

@@ -1,0 +1,331 @@
+"""``pdcov plan | optimise | refly | upload``: coverage plans, their predicted P_D, the choice
+of parameters, the follow-up flight over the gaps, and the upload to a vehicle.
+
+Algorithms, limits and file formats: docs/planning.md. The mission config's optional
+``planning`` section sets the vehicle's kinematic limits for the predictions:
+``{max_accel_mps2: 2.5, max_yaw_rate_deg_s: 60, tilt: true, corner_cut_m: 2,
+gimbal_pitch_deg: -90}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pdcov.config import Mission, load_mission
+from pdcov.errors import ConfigError, where
+from pdcov.evaluate import summary_text, write_outputs
+from pdcov.grid import CoverageGrid
+from pdcov.optimise import (
+    PATTERNS,
+    PlanParams,
+    Prediction,
+    Scenario,
+    Score,
+    best_index,
+    build_plan,
+    candidates,
+    pareto_front,
+    predict,
+    sweep,
+    with_spacing,
+)
+from pdcov.patterns import track_spacing_m
+from pdcov.plan import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem, read_mission, write_plan
+from pdcov.refly import plan_refly
+from pdcov.trajectory import Kinematics
+from pdcov.upload import upload_mission
+
+PLANNING_KEYS = ("max_accel_mps2", "max_yaw_rate_deg_s", "tilt", "corner_cut_m",
+                 "gimbal_pitch_deg")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("plan", help="make a coverage plan and predict its P_D map",
+                              description="Write a plan (.plan and .waypoints) and the "
+                                          "predicted evaluation of flying it.")
+    p.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    p.add_argument("--pattern", choices=PATTERNS, default="lawnmower")
+    p.add_argument("--altitude-m", type=float, required=True, help="altitude above ground")
+    _spacing_args(p)
+    p.add_argument("--heading-deg", type=float, default=0.0,
+                   help="track direction (lawnmower) or first leg, clockwise from north (0)")
+    p.add_argument("--speed-mps", type=float, default=5.0, help="ground speed (5)")
+    p.add_argument("--centre-enu-m", type=float, nargs=2, metavar=("X", "Y"),
+                   help="spiral centre or IAMSAR datum in ENU m (default: centre of the "
+                        "smallest circle around the domain)")
+    p.add_argument("--radius-m", type=float, help="sector search radius (default: reach "
+                                                  "the whole domain)")
+    p.add_argument("--out", required=True, type=Path, help="folder to write")
+    p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
+    p.set_defaults(func=run_plan)
+
+    o = subparsers.add_parser(
+        "optimise", help="sweep plan parameters; Pareto front of P_D coverage vs flight time",
+        description="Predict every combination of the given parameters on all cores and "
+                    "report the plans on the Pareto front of the proportion of cells at or "
+                    "above the target P_D against flight time.")
+    o.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    o.add_argument("--target-pd", type=float, required=True, help="P_D target per cell")
+    o.add_argument("--min-proportion", type=float, default=0.95,
+                   help="proportion of cells that must reach the target (0.95); the best "
+                        "plan is the shortest flight reaching it")
+    o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"])
+    o.add_argument("--altitudes-m", nargs="+", type=float, default=[8.0, 10.0, 12.0])
+    o.add_argument("--speeds-mps", nargs="+", type=float, default=[3.0, 5.0])
+    o.add_argument("--headings-deg", nargs="+", type=float, default=[0.0, 90.0])
+    o.add_argument("--spacings-m", nargs="+", type=float,
+                   help="track spacings (default: from the swath and --overlaps)")
+    o.add_argument("--overlaps", nargs="+", type=float, default=[0.0, 0.2, 0.4],
+                   help="side overlaps of the swath (0 0.2 0.4)")
+    o.add_argument("--processes", type=int, help="worker processes (default: all cores)")
+    o.add_argument("--out", required=True, type=Path, help="folder to write")
+    o.set_defaults(func=run_optimise)
+
+    r = subparsers.add_parser("refly", help="find cells below the target after a flight "
+                                            "and plan a follow-up",
+                              description="Gap finder and follow-up flight.")
+    r.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    r.add_argument("--grid", required=True, type=Path, help="grid.npz of the flight so far")
+    r.add_argument("--target-pd", type=float, required=True)
+    r.add_argument("--altitude-m", type=float, default=10.0, help="altitude above ground (10)")
+    r.add_argument("--speed-mps", type=float, default=3.0, help="ground speed (3)")
+    _spacing_args(r)
+    r.add_argument("--headings-deg", nargs="+", type=float, default=[0.0, 90.0],
+                   help="track directions to try (0 90)")
+    r.add_argument("--start-enu-m", type=float, nargs=2, default=[0.0, 0.0],
+                   metavar=("X", "Y"), help="where the follow-up starts (home: 0 0)")
+    r.add_argument("--out", required=True, type=Path, help="folder to write")
+    r.set_defaults(func=run_refly)
+
+    u = subparsers.add_parser("upload", help="upload a plan to a vehicle (MAVLink mission)",
+                              description="Upload a .plan or WPL file with the MAVLink "
+                                          "mission protocol and report what the vehicle said.")
+    u.add_argument("plan", type=Path, help=".plan or WPL 110 file")
+    u.add_argument("--connect", required=True,
+                   help="pymavlink URL, e.g. udpin:0.0.0.0:14550, udpout:192.168.1.10:14555, "
+                        "tcp:127.0.0.1:5760, /dev/ttyUSB0")
+    u.add_argument("--timeout-s", type=float, default=10.0,
+                   help="wait this long for the vehicle's heartbeat (10)")
+    u.set_defaults(func=run_upload)
+
+
+def _spacing_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--spacing-m", type=float, help="track spacing (default: from the camera "
+                                                   "swath and --overlap)")
+    g.add_argument("--overlap", type=float, default=0.2, help="side overlap (0.2)")
+
+
+def scenario_of(mission: Mission) -> Scenario:
+    """The prediction inputs of a mission, with its ``planning`` section applied."""
+    doc = mission.raw.get("planning") or {}
+    src = mission.source
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
+    unknown = sorted(set(doc) - set(PLANNING_KEYS))
+    if unknown:
+        raise ConfigError(f"{where(src, 'planning.' + unknown[0])}: unknown key; expected "
+                          f"some of {PLANNING_KEYS}")
+    try:
+        kin = Kinematics(float(doc.get("max_accel_mps2", 2.5)),
+                         math.radians(float(doc.get("max_yaw_rate_deg_s", 60.0))),
+                         bool(doc.get("tilt", True)), float(doc.get("corner_cut_m", 2.0)))
+        pitch = math.radians(float(doc.get("gimbal_pitch_deg", -90.0)))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
+    g = mission.domain.grid_geometry(mission.cell_size_m)
+    return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
+                    mission.detector, mission.mount, mission.frame_rate_hz,
+                    mission.max_range_m, mission.min_revisit_s, kin, pitch)
+
+
+def _write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
+                      title: str, spacing_m: float | None, figures: bool = True) -> str:
+    """Plan files and the predicted evaluation in ``out``; returns the summary text."""
+    out.mkdir(parents=True, exist_ok=True)
+    origin = mission.origin()
+    write_plan(out / "plan.plan", pred.plan, origin)
+    write_plan(out / "plan.waypoints", pred.plan, origin)
+    extra = {"plan": {"description": pred.plan.description,
+                      "waypoints": len(pred.plan.waypoints),
+                      "spacing_m": spacing_m,
+                      "flight_time_s": round(pred.flight.duration_s, 2),
+                      "path_length_m": round(pred.flight.path_length_m, 2),
+                      "planned_path_length_m": round(pred.plan.path_length_m, 2)}}
+    run = write_outputs(out, mission, grid, origin, title=title,
+                        track_enu=pred.flight.r_body_enu[:, :2], plan_enu=pred.plan.xy_enu_m,
+                        extra_metrics=extra, figures=figures)
+    return summary_text(run, [
+        f"plan: {pred.plan.description}; {len(pred.plan.waypoints)} waypoints",
+        f"predicted flight time: {pred.flight.duration_s:.1f} s   path length: "
+        f"{pred.flight.path_length_m:.1f} m",
+        f"wrote plan.plan (QGroundControl) and plan.waypoints (WPL 110) in {out}"])
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    mission = load_mission(args.config)
+    sc = scenario_of(mission)
+    params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
+                        math.radians(args.heading_deg), args.spacing_m, args.overlap,
+                        tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m)
+    plan, spacing = build_plan(sc, params)
+    pred = predict(sc, plan, params, progress=sys.stderr.isatty())
+    print(_write_prediction(args.out, mission, pred, pred.grid,
+                            f"predicted: {plan.description} at {args.altitude_m:g} m",
+                            spacing, figures=not args.no_figures))
+    return 0
+
+
+def _score_row(s: Score) -> dict[str, Any]:
+    p = s.params
+    return {"pattern": p.pattern, "altitude_m": p.alt_agl_m, "speed_mps": p.speed_mps,
+            "heading_deg": round(math.degrees(p.heading_rad), 3),
+            "overlap": None if p.spacing_m is not None else p.overlap,
+            "spacing_m": round(s.spacing_m, 3), "proportion": round(s.proportion, 4),
+            "mean_pd": round(s.mean_pd, 4), "flight_time_s": round(s.flight_time_s, 1),
+            "path_length_m": round(s.path_length_m, 1)}
+
+
+def _table(rows: Sequence[dict[str, Any]]) -> str:
+    keys = list(rows[0])
+    cells = [[("" if r[k] is None else str(r[k])) for k in keys] for r in rows]
+    widths = [max(len(k), *(len(c[i]) for c in cells)) for i, k in enumerate(keys)]
+    lines = ["  ".join(k.rjust(w) for k, w in zip(keys, widths, strict=True))]
+    lines += ["  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in cells]
+    return "\n".join(lines)
+
+
+def run_optimise(args: argparse.Namespace) -> int:
+    mission = load_mission(args.config)
+    sc = scenario_of(mission)
+    params = candidates(args.patterns, args.altitudes_m, args.speeds_mps,
+                        [math.radians(h) for h in args.headings_deg], args.spacings_m,
+                        args.overlaps)
+    t0 = time.monotonic()
+    scores, failures = sweep(sc, params, args.target_pd, args.processes, progress=True)
+    elapsed = time.monotonic() - t0
+    for msg in failures:
+        print(f"skipped: {msg}", file=sys.stderr)
+    if not scores:
+        raise ConfigError("optimise: no candidate plan could be built (see the messages "
+                          "above)")
+    front = pareto_front(scores)
+    best = best_index(scores, args.min_proportion)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    rows = [_score_row(s) for s in scores]
+    for name, idx in (("candidates.csv", range(len(scores))), ("front.csv", front)):
+        with (out / name).open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["on_front"])
+            w.writeheader()
+            for i in idx:
+                w.writerow({**rows[i], "on_front": i in front})
+    _front_figure(out / "pareto.png", scores, front, best, args.target_pd)
+    s = scores[best]
+    plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
+    pred = predict(sc, plan, s.params)
+    summary = _write_prediction(out / "best", mission, pred, pred.grid,
+                                f"best: {plan.description} at {s.params.alt_agl_m:g} m",
+                                spacing)
+    (out / "optimise.json").write_text(json.dumps({
+        "target_pd": args.target_pd, "min_proportion": args.min_proportion,
+        "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
+        "front": [rows[i] for i in front], "best": rows[best]}, indent=2) + "\n")
+    print(f"{len(scores)} plans in {elapsed:.1f} s "
+          f"({60 * len(scores) / max(elapsed, 1e-9):.0f} plans/min); Pareto front of the "
+          f"proportion of cells with P_D >= {args.target_pd:g} vs flight time:")
+    print(_table([rows[i] for i in front]))
+    reached = s.proportion >= args.min_proportion
+    print(f"best ({'shortest flight reaching' if reached else 'none reaches'} "
+          f"{args.min_proportion:g}): {plan.description}, {s.params.alt_agl_m:g} m, "
+          f"{s.params.speed_mps:g} m/s -> proportion {s.proportion:.3f}, "
+          f"{s.flight_time_s:.0f} s")
+    print(summary)
+    return 0
+
+
+def _front_figure(path: Path, scores: Sequence[Score], front: Sequence[int], best: int,
+                  target_pd: float) -> None:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib not installed: no pareto.png (pip install 'pdcov[plots]')",
+              file=sys.stderr)
+        return
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for pat in sorted({s.params.pattern for s in scores}):
+        sel = [s for s in scores if s.params.pattern == pat]
+        ax.scatter([s.flight_time_s for s in sel], [s.proportion for s in sel], s=18,
+                   alpha=0.6, label=pat)
+    f = sorted(front, key=lambda i: scores[i].flight_time_s)
+    ax.step([scores[i].flight_time_s for i in f], [scores[i].proportion for i in f],
+            where="post", color="k", lw=1, label="Pareto front")
+    ax.scatter([scores[best].flight_time_s], [scores[best].proportion], s=120,
+               facecolors="none", edgecolors="r", label="best")
+    ax.set_xlabel("predicted flight time (s)")
+    ax.set_ylabel(f"proportion of cells with P_D >= {target_pd:g}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_refly(args: argparse.Namespace) -> int:
+    mission = load_mission(args.config)
+    sc = scenario_of(mission)
+    flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
+                                  max_range_m=mission.max_range_m,
+                                  min_revisit_s=mission.min_revisit_s)
+    if flown.geometry != sc.geometry:
+        raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
+                          f"{sc.geometry} (same domain and cell_size_m?)")
+    spacing = args.spacing_m
+    if spacing is None:
+        spacing = track_spacing_m(sc.swath_width_m(args.altitude_m), args.overlap)
+    r = plan_refly(sc, flown.log_miss_d, args.target_pd, args.altitude_m, args.speed_mps,
+                   spacing, tuple(math.radians(h) for h in args.headings_deg),
+                   tuple(args.start_enu_m), progress=sys.stderr.isatty())
+    flown.merge(r.prediction.grid)
+    out: Path = args.out
+    summary = _write_prediction(out, mission, r.prediction, flown,
+                                f"after the follow-up: {r.plan.description}", spacing)
+    (out / "gaps.json").write_text(json.dumps({
+        "target_pd": args.target_pd,
+        "before": {"cells": r.gaps_before.n_cells,
+                   "proportion": round(r.gaps_before.proportion, 4)},
+        "after": {"cells": r.gaps_after.n_cells,
+                  "proportion": round(r.gaps_after.proportion, 4)},
+        "regions_enu_m": [np.round(np.asarray(p.exterior.coords), 2).tolist()
+                          for p in r.gaps_before.regions]}, indent=2) + "\n")
+    print(f"gaps below P_D {args.target_pd:g}: {r.gaps_before.n_cells} cells "
+          f"({r.gaps_before.proportion:.1%}) before, {r.gaps_after.n_cells} "
+          f"({r.gaps_after.proportion:.1%}) predicted after the follow-up")
+    print(summary)
+    return 0
+
+
+def run_upload(args: argparse.Namespace) -> int:
+    mission = read_mission(args.plan)
+    home = mission.home
+    if home is None:
+        first = next((i for i in mission.items if i.command == MAV_CMD_NAV_WAYPOINT), None)
+        if first is None:
+            raise ConfigError(f"{args.plan}: no waypoint to upload")
+        home = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, lat_deg=first.lat_deg,
+                           lon_deg=first.lon_deg)
+    result = upload_mission(mission.items, args.connect, home, timeout_s=args.timeout_s)
+    print(result.report(), file=sys.stdout if result.accepted else sys.stderr)
+    return 0 if result.accepted else 1
