@@ -33,7 +33,8 @@ class Mission:
 
     ground_alt_msl_m: ground altitude at the origin (m MSL); None = the autopilot's home
     altitude, resolved from the log or link. max_range_m / min_revisit_s: CoverageGrid
-    options (None = its defaults). frame_source: 'rate' or 'capture'. max_gap_s: telemetry
+    options (None = its defaults). min_height_m: frames with the camera lower than this above
+    the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or 'capture'. max_gap_s: telemetry
     gap that skips frames. system_id: the autopilot to follow (None = from its HEARTBEAT).
     """
 
@@ -50,6 +51,7 @@ class Mission:
     thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS
     max_range_m: float | None = None
     min_revisit_s: float | None = None
+    min_height_m: float = 1.0
     frame_source: str = "rate"
     max_gap_s: float = 1.0
     system_id: int | None = None
@@ -145,6 +147,7 @@ def mission_from_dict(doc: Any, source: str | None = None,
         detector=detector, thresholds=tuple(float(t) for t in thresholds),
         max_range_m=_opt_number(cov, "max_range_m", src, "coverage"),
         min_revisit_s=_opt_number(cov, "min_revisit_s", src, "coverage"),
+        min_height_m=_number(cov, "min_height_m", src, "coverage", default=1.0),
         frame_source=frame_source,
         max_gap_s=_number(log, "max_gap_s", src, "log", default=1.0, positive=True),
         system_id=system_id, source=src, raw=doc)

@@ -88,6 +88,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)
+    _check_near_origin(poses, args.poses or args.log, mission.source)
+    low = sum(1 for p in poses if p.r_cam_enu[2] < mission.min_height_m)
+    if low:
+        poses = [p for p in poses if p.r_cam_enu[2] >= mission.min_height_m]
+        lines.append(f"{low} frames with the camera below coverage.min_height_m = "
+                     f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:
         raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate")
     plan_enu = None
@@ -111,6 +117,18 @@ def run_evaluate(args: argparse.Namespace) -> int:
                         prior=prior)
     print(summary_text(run, lines))
     return 0
+
+
+def _check_near_origin(poses, source: Path, config: str | None) -> None:
+    """A flight tens of km from the origin is a wrong origin, not a survey: say so."""
+    if not poses:
+        return
+    xy = np.array([p.r_cam_enu[:2] for p in poses])
+    dist_km = float(np.median(np.hypot(xy[:, 0], xy[:, 1]))) / 1000
+    if dist_km > 50:
+        raise InputFileError(
+            f"{source}: the camera is {dist_km:,.0f} km from the mission origin; "
+            f"check origin.lat_deg / origin.lon_deg in {config}")
 
 
 def run_compare(args: argparse.Namespace) -> int:
