@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
-import tempfile
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -24,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import ConfigError, InputFileError, TelemetryError
 from .geodesy import Origin, geodetic_to_enu
 from .gimbal import (
@@ -535,21 +534,11 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
 # --- pose CSV ------------------------------------------------------------------------------
 
 def write_pose_csv(path: str | Path, log_poses: LogPoses) -> None:
-    """Write the poses as CSV (POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS), atomically: a temp
-    file beside the target, fsync, rename."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            writer = csv.writer(f, lineterminator="\n")
-            writer.writerow(POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS)
-            writer.writerows(log_poses.export_rows())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write the poses as CSV (POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS), atomically."""
+    with atomic_write(path, "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS)
+        writer.writerows(log_poses.export_rows())
 
 
 def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
