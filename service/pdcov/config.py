@@ -34,8 +34,9 @@ class Mission:
     ground_alt_msl_m: ground altitude at the origin (m MSL); None = the autopilot's home
     altitude, resolved from the log or link. max_range_m / min_revisit_s: CoverageGrid
     options (None = its defaults). min_height_m: frames with the camera lower than this above
-    the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or 'capture'. max_gap_s: telemetry
-    gap that skips frames. system_id: the autopilot to follow (None = from its HEARTBEAT).
+    the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or
+    'capture'. max_gap_s: telemetry gap that skips frames. system_id: the autopilot to
+    follow (None = from its HEARTBEAT).
     """
 
     vehicle_id: str

@@ -57,7 +57,7 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     fig.colorbar(im, ax=ax, label="cumulative probability of detection $P_D$", shrink=0.85)
     _draw_domain(ax, domain)
     if plan_enu is not None and len(plan_enu):
-        ax.plot(plan_enu[:, 0], plan_enu[:, 1], "--", color="white", lw=1.3, label="plan")
+        ax.plot(plan_enu[:, 0], plan_enu[:, 1], "--", color="magenta", lw=1.3, label="plan")
     if track_enu is not None and len(track_enu):
         ax.plot(track_enu[:, 0], track_enu[:, 1], color="orangered", lw=1.0,
                 label="flown track")

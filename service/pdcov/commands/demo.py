@@ -23,8 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    from pdcov.evaluate import summary_text, write_outputs
-    from pdcov.optimise import PlanParams, Scenario, build_plan, predict
+    from pdcov.commands.plan import scenario_of, write_prediction
+    from pdcov.optimise import PlanParams, build_plan, predict
     from pdcov.plots import compare_figure
 
     ref = resources.files("pdcov") / "data" / "demo_mission.yaml"
@@ -32,26 +32,16 @@ def run_demo(args: argparse.Namespace) -> int:
         mission = load_mission(path)
     print(f"pdcov demo: mission {ref.name} ({mission.vehicle_id}); detector model is "
           "ILLUSTRATIVE, not measured")
-    g = mission.domain.grid_geometry(mission.cell_size_m)
-    scenario = Scenario(mission.domain.free_space, g, mission.domain.free_mask(g),
-                        mission.camera, mission.detector, mission.mount,
-                        mission.frame_rate_hz, mission.max_range_m, mission.min_revisit_s)
+    scenario = scenario_of(mission)
     runs = []
     for pattern in ("lawnmower", "spiral"):
         params = PlanParams(pattern, args.altitude_m, args.speed_mps)
         plan, spacing = build_plan(scenario, params)
         pred = predict(scenario, plan, params)
-        run = write_outputs(
-            args.out / pattern, mission, pred.grid, mission.origin(),
-            title=f"{pattern} at {args.altitude_m:g} m, {args.speed_mps:g} m/s (predicted)",
-            track_enu=pred.flight.r_body_enu, plan_enu=plan.xy_enu_m,
-            extra_metrics={"flight_time_s": pred.flight.duration_s,
-                           "path_length_m": pred.flight.path_length_m,
-                           "track_spacing_m": spacing})
         print()
-        print(summary_text(run, [f"{pattern}: track spacing {spacing:.1f} m, flight "
-                                 f"{pred.flight.duration_s:.0f} s over "
-                                 f"{pred.flight.path_length_m:.0f} m"]))
+        print(write_prediction(args.out / pattern, mission, pred, pred.grid,
+                               f"{pattern} at {args.altitude_m:g} m, {args.speed_mps:g} m/s "
+                               "(predicted)", spacing))
         runs.append((pattern, pred.grid.pd, pred.grid.mask))
     compare_figure(args.out / "compare.png", runs, mission.thresholds)
     print(f"\ncompare: {args.out / 'compare.png'}")

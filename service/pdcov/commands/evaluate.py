@@ -99,7 +99,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     plan_enu = None
     if args.plan is not None:
         from pdcov.plan import read_plan
-        plan_enu = read_plan(args.plan, origin).xy_enu_m
+        # Only drawn: a file without a speed command still gives its waypoints.
+        plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
     geometry = mission.domain.grid_geometry(mission.cell_size_m)
     prior = (load_prior(args.prior, geometry, mission.domain.free_mask(geometry), origin)
              if args.prior is not None else None)

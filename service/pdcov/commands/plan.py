@@ -149,7 +149,7 @@ def scenario_of(mission: Mission) -> Scenario:
                     mission.max_range_m, mission.min_revisit_s, kin, pitch)
 
 
-def _write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
+def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
                       title: str, spacing_m: float | None, figures: bool = True) -> str:
     """Plan files and the predicted evaluation in ``out``; returns the summary text."""
     out.mkdir(parents=True, exist_ok=True)
@@ -180,7 +180,7 @@ def run_plan(args: argparse.Namespace) -> int:
                         tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m)
     plan, spacing = build_plan(sc, params)
     pred = predict(sc, plan, params, progress=sys.stderr.isatty())
-    print(_write_prediction(args.out, mission, pred, pred.grid,
+    print(write_prediction(args.out, mission, pred, pred.grid,
                             f"predicted: {plan.description} at {args.altitude_m:g} m",
                             spacing, figures=not args.no_figures))
     return 0
@@ -234,7 +234,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     s = scores[best]
     plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
     pred = predict(sc, plan, s.params)
-    summary = _write_prediction(out / "best", mission, pred, pred.grid,
+    summary = write_prediction(out / "best", mission, pred, pred.grid,
                                 f"best: {plan.description} at {s.params.alt_agl_m:g} m",
                                 spacing)
     (out / "optimise.json").write_text(json.dumps({
@@ -300,7 +300,7 @@ def run_refly(args: argparse.Namespace) -> int:
                    tuple(args.start_enu_m), progress=sys.stderr.isatty())
     flown.merge(r.prediction.grid)
     out: Path = args.out
-    summary = _write_prediction(out, mission, r.prediction, flown,
+    summary = write_prediction(out, mission, r.prediction, flown,
                                 f"after the follow-up: {r.plan.description}", spacing)
     (out / "gaps.json").write_text(json.dumps({
         "target_pd": args.target_pd,
