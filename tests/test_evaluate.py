@@ -310,3 +310,35 @@ def test_calibration_file_and_relative_detector_path(tmp_path):
     np.testing.assert_array_equal(mission.camera.K, inline.camera.K)
     assert mission.detector.p_detect == inline.detector.p_detect
     assert math.isclose(mission.frame_rate_hz, 5.0)
+
+
+def test_prior_from_geojson_segments_and_geotiff(tmp_path):
+    from pdcov.evaluate import load_prior
+    from pdcov.geodesy import enu_to_geodetic
+    from pdcov.gis import write_geotiff
+
+    mission = load_mission(write_config(tmp_path, mission_doc()))
+    g = mission.domain.grid_geometry(1.0)
+    mask = mission.domain.free_mask(g)
+
+    def ring(x0, y0, x1, y1):
+        enu = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0], [x0, y0, 0]])
+        return [[lon, lat] for lat, lon, _ in enu_to_geodetic(enu, ORIGIN)]
+    doc = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"poa": 0.6},
+         "geometry": {"type": "Polygon", "coordinates": [ring(0, 0, 10, 10)]}},
+        {"type": "Feature", "properties": {"poa": 0.3},
+         "geometry": {"type": "Polygon", "coordinates": [ring(30, 30, 40, 40)]}}]}
+    (tmp_path / "segments.geojson").write_text(json.dumps(doc))
+    poa = load_prior(tmp_path / "segments.geojson", g, mask, ORIGIN)
+    assert poa.sum() == pytest.approx(0.9)
+    assert poa[5, 5] == pytest.approx(0.6 / 100) and poa[35, 35] == pytest.approx(0.3 / 100)
+    assert poa[20, 5] == 0
+    write_geotiff(tmp_path / "prior.tif", {"poa": poa}, g, ORIGIN, np.ones_like(mask))
+    np.testing.assert_allclose(load_prior(tmp_path / "prior.tif", g, mask, ORIGIN), poa,
+                               rtol=1e-6)
+    doc["features"][0]["properties"] = {}
+    (tmp_path / "bad.geojson").write_text(json.dumps(doc))
+    from pdcov.errors import InputFileError
+    with pytest.raises(InputFileError, match="bad.geojson.*poa"):
+        load_prior(tmp_path / "bad.geojson", g, mask, ORIGIN)

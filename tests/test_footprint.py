@@ -1,0 +1,41 @@
+"""Footprint polygon: clipping at the horizon and at the maximum range."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pdcov.camera import CameraModel
+from pdcov.footprint import footprint_polygon, ground_range_m
+from pdcov.pose import FixedMount, fixed_mount_pose
+from pdcov.rotations import R_from_euler_zyx
+
+CAM = CameraModel.from_fov(640, 480, 90)  # +-45 deg across, +-36.9 deg up-down
+
+
+def looking_north(cam_pitch_deg: float, h: float = 10.0):
+    return fixed_mount_pose(R_from_euler_zyx(0, 0, 0), (0, 0, h),
+                            FixedMount(pitch_rad=math.radians(cam_pitch_deg)))
+
+
+def test_rays_above_the_horizon_are_clipped_at_the_range_circle():
+    pose = looking_north(-20)  # the top of the image is 17 deg above the horizon
+    fp = footprint_polygon(CAM, pose, max_range_m=100.0)
+    rho = ground_range_m(pose, 100.0)
+    assert rho == pytest.approx(math.sqrt(100**2 - 10**2))
+    pts = np.asarray(fp.exterior.coords)
+    assert np.hypot(pts[:, 0], pts[:, 1]).max() <= rho + 1e-6
+    assert pts[:, 1].max() == pytest.approx(rho, rel=1e-3)  # reaches the circle due north
+    # The near edge: the bottom of the image, 20 + 36.87 deg below the horizon.
+    assert pts[:, 1].min() == pytest.approx(10 / math.tan(math.radians(56.87)), rel=1e-3)
+
+
+def test_range_shorter_than_the_near_edge_sees_nothing_and_camera_up_sees_nothing():
+    assert footprint_polygon(CAM, looking_north(-90), max_range_m=9.0).is_empty
+    assert footprint_polygon(CAM, looking_north(60), max_range_m=1000.0).is_empty
+
+
+def test_range_clips_a_nadir_footprint_to_a_disk():
+    fp = footprint_polygon(CAM, looking_north(-90), max_range_m=math.hypot(10, 5))
+    # Rectangle 20 m x 15 m about the nadir point, cut by a 5 m disk: the disk itself.
+    assert fp.area == pytest.approx(math.pi * 25, rel=2e-3)
