@@ -11,8 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from .camera import CameraModel
 from .detector import DetectorModel
 from .domain import Domain
@@ -21,6 +19,7 @@ from .geodesy import Origin
 from .gimbal import GimbalMount
 from .grid import CoverageGrid
 from .pose import FixedMount
+from .yaml_file import load_yaml
 
 TOP_LEVEL_KEYS = ("vehicle_id", "origin", "domain", "camera", "calibration", "mount",
                   "detector", "thresholds", "coverage", "log", "planning")
@@ -74,15 +73,7 @@ class Mission:
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission config; relative paths inside resolve against its folder."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read mission config ({exc.strerror or exc})") \
-            from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    doc = load_yaml(path, "mission config")
     return mission_from_dict(doc, source=str(path), base_dir=path.parent)
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from .errors import DetectorModelError, where
+from .yaml_file import load_yaml
 
 FORMAT_VERSION = 1
 SIZE_METRICS = ("sqrt_area",)
@@ -169,16 +170,7 @@ class DetectorModel:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> DetectorModel:
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise DetectorModelError(f"{path}: cannot read detector model ({exc.strerror})") \
-                from None
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise DetectorModelError(f"{path}: not valid YAML ({exc})") from None
+        doc = load_yaml(path, "detector model", DetectorModelError)
         return cls.from_dict(doc, source=str(path))
 
     @classmethod
