@@ -20,15 +20,17 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 
 from .errors import CalibrationError, where
+from .yaml_file import load_yaml
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
 _COEFF_COUNTS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (8,), "fisheye": (4,)}
 _MODEL_ALIASES = {"equidistant": "fisheye", "pinhole": "plumb_bob"}
 _BORDER_SAMPLES_PER_SIDE = 256
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+_SECTORS = 1024  # pseudo-azimuth sectors of the fast angular-limit test
+_ANGLE_MARGIN_RAD = 1e-9
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,15 +47,15 @@ class CameraModel:
     distortion_model: str = "plumb_bob"
     dist_coeffs: np.ndarray = field(default_factory=lambda: np.zeros(5))
     source: str | None = None
-    # Calibrated field of view: border angle from the optical axis (rad) per azimuth.
-    _fov_azimuth_rad: np.ndarray = field(init=False, repr=False, compare=False)
-    _fov_theta_rad: np.ndarray = field(init=False, repr=False, compare=False)
+    # Calibrated field of view: border angle from the optical axis per azimuth.
+    _fov: AngularLimit = field(init=False, repr=False, compare=False)
+    # Where projection is trustworthy: angle from the axis before the radial mapping stops
+    # growing (distortion fold-back), per azimuth on the same samples as the field of view.
+    _proj: AngularLimit = field(init=False, repr=False, compare=False)
     _border_rays_cam: np.ndarray = field(init=False, repr=False, compare=False)
     _K_no_skew: np.ndarray = field(init=False, repr=False, compare=False)
     _skew: float = field(init=False, repr=False, compare=False)
-    # Where projection is trustworthy: angle from the axis (rad) before the radial mapping
-    # stops growing (distortion fold-back), per azimuth on the same samples as the field of view.
-    _proj_theta_rad: np.ndarray = field(init=False, repr=False, compare=False)
+    _distorted: bool = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         src = self.source
@@ -103,6 +105,7 @@ class CameraModel:
         K_no_skew[0, 1] = 0.0
         object.__setattr__(self, "_K_no_skew", K_no_skew)
         object.__setattr__(self, "_skew", float(K[0, 1]))
+        object.__setattr__(self, "_distorted", model == "fisheye" or bool(np.any(d)))
         self._init_fov()
 
     # -- construction -----------------------------------------------------------------------
@@ -127,14 +130,7 @@ class CameraModel:
     def from_camera_info(cls, path: str | Path) -> CameraModel:
         """From a ROS ``camera_info`` YAML (image_width, image_height, camera_matrix,
         distortion_model, distortion_coefficients) as camera_calibration writes it."""
-        path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise CalibrationError(f"{path}: cannot read calibration ({exc.strerror})") \
-                from None
-        except yaml.YAMLError as exc:
-            raise CalibrationError(f"{path}: not valid YAML ({exc})") from None
+        doc = load_yaml(path, "camera calibration", CalibrationError)
         src = str(path)
         if not isinstance(doc, dict):
             raise CalibrationError(f"{src}: expected a camera_info mapping")
@@ -187,6 +183,42 @@ class CameraModel:
             px[:, 0] += self._skew * (px[:, 1] - self.K[1, 2]) / self.K[1, 1]
         return px
 
+    def project_lattice(self, H_cam_lattice: np.ndarray, n_cols: int, n_rows: int
+                        ) -> np.ndarray:
+        """Pixel coordinates (n_rows, n_cols, 2) of the lattice points
+        ``p_cam = H_cam_lattice @ [j, i, 1]`` (column j, row i) in the optical frame.
+
+        The batch form of ``project`` for a regular grid of points on a plane, as the ground
+        is: OpenCV's ``initUndistortRectifyMap`` evaluates the same distortion model over the
+        whole lattice in one call (``H_cam_lattice`` plays the inverse rectification), far
+        faster than ``projectPoints``, which always computes its Jacobians. Its output is
+        float32 (pixel coordinates rounded to ~1e-4 px); without distortion the pinhole
+        projection is evaluated exactly in float64 instead. Like ``project``, only meaningful
+        where ``projectable``.
+        """
+        H = np.asarray(H_cam_lattice, dtype=np.float64)
+        if not self._distorted:
+            j = np.arange(n_cols, dtype=np.float64)
+            i = np.arange(n_rows, dtype=np.float64)[:, None]
+            px = np.empty((n_rows, n_cols, 2))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inv_z = 1.0 / (H[2, 0] * j + H[2, 1] * i + H[2, 2])
+                px[..., 0] = self._K_no_skew[0, 0] * (H[0, 0] * j + H[0, 1] * i + H[0, 2]) \
+                    * inv_z + self.K[0, 2]
+                px[..., 1] = self._K_no_skew[1, 1] * (H[1, 0] * j + H[1, 1] * i + H[1, 2]) \
+                    * inv_z + self.K[1, 2]
+        elif self.is_fisheye:  # its map takes no two-channel output
+            px = np.dstack(cv2.fisheye.initUndistortRectifyMap(
+                self._K_no_skew, self.dist_coeffs, np.linalg.inv(H), np.eye(3),
+                (n_cols, n_rows), cv2.CV_32FC1))
+        else:
+            px, _ = cv2.initUndistortRectifyMap(self._K_no_skew, self.dist_coeffs,
+                                                np.linalg.inv(H), np.eye(3), (n_cols, n_rows),
+                                                cv2.CV_32FC2)
+        if self._skew:
+            px[..., 0] += self._skew * (px[..., 1] - self.K[1, 2]) / self.K[1, 1]
+        return px
+
     def pixel_rays(self, px: np.ndarray) -> np.ndarray:
         """Unit direction vectors (N, 3) in the optical frame of pixels (N, 2)."""
         uv = self.undistort_normalized(px)
@@ -208,28 +240,31 @@ class CameraModel:
         return uv.reshape(-1, 2)
 
     def in_fov(self, p_cam: np.ndarray) -> np.ndarray:
-        """True where the direction of points (N, 3) lies inside the calibrated field of view
+        """True where the direction of points (..., 3) lies inside the calibrated field of view
         (the cone of the undistorted image border), whatever the distortion polynomial does
         beyond it."""
-        p = np.asarray(p_cam, dtype=float).reshape(-1, 3)
-        theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
-        azimuth = np.arctan2(p[:, 1], p[:, 0])
-        theta_max = np.interp(azimuth, self._fov_azimuth_rad, self._fov_theta_rad)
-        return theta < theta_max
+        return self._fov.contains(p_cam)
+
+    def in_fov_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``in_fov`` for the optical-frame coordinates given as three float64 arrays."""
+        return self._fov.contains_xyz(x, y, z)
 
     def projectable(self, p_cam: np.ndarray) -> np.ndarray:
-        """True where ``project`` is trustworthy for points (N, 3): in front of the camera and
-        inside the cone where the distortion's radial mapping still grows with the angle from
-        the axis. Wider than the field of view, so that the corners of cells at the picture's
-        edge project correctly (they land outside the picture)."""
-        p = np.asarray(p_cam, dtype=float).reshape(-1, 3)
-        theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
-        azimuth = np.arctan2(p[:, 1], p[:, 0])
-        return theta < np.interp(azimuth, self._fov_azimuth_rad, self._proj_theta_rad)
+        """True where ``project`` is trustworthy for points (..., 3): in front of the camera
+        and inside the cone where the distortion's radial mapping still grows with the angle
+        from the axis. Wider than the field of view, so that the corners of cells at the
+        picture's edge project correctly (they land outside the picture)."""
+        return self._proj.contains(p_cam)
+
+    def all_projectable(self, corners_cam: np.ndarray) -> bool:
+        """True when every point of the convex hull of ``corners_cam`` (k, 3) is
+        ``projectable`` (the corners lie inside the narrowest cone of trustworthy
+        projection, which is convex)."""
+        return bool(self._proj.inscribed_contains(corners_cam).all())
 
     def in_picture(self, px: np.ndarray) -> np.ndarray:
-        """True where pixel coordinates (N, 2) lie inside the picture."""
-        x, y = px[:, 0], px[:, 1]
+        """True where pixel coordinates (..., 2) lie inside the picture."""
+        x, y = px[..., 0], px[..., 1]
         return (x >= -0.5) & (x < self.width_px - 0.5) & (y >= -0.5) & (y < self.height_px - 0.5)
 
     def visible(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +286,7 @@ class CameraModel:
     @property
     def max_fov_half_angle_rad(self) -> float:
         """Largest angle between the optical axis and a border ray."""
-        return float(self._fov_theta_rad.max())
+        return float(self._fov.theta_rad.max())
 
     @property
     def focal_px(self) -> float:
@@ -273,12 +308,12 @@ class CameraModel:
         # Wrap one sample each way so that interpolation covers [-pi, pi] without ``period``.
         azimuth = np.concatenate([[azimuth[-1] - 2 * np.pi], azimuth, [azimuth[0] + 2 * np.pi]])
         theta = np.concatenate([[theta[-1]], theta, [theta[0]]])
-        object.__setattr__(self, "_fov_azimuth_rad", azimuth)
-        object.__setattr__(self, "_fov_theta_rad", theta)
+        proj_theta = self._fold_back_theta(azimuth)
         object.__setattr__(self, "_border_rays_cam", rays)
-        object.__setattr__(self, "_proj_theta_rad", self._fold_back_theta(azimuth))
+        object.__setattr__(self, "_proj", AngularLimit.from_samples(azimuth, proj_theta))
         # The field of view never extends past the trustworthy cone.
-        object.__setattr__(self, "_fov_theta_rad", np.minimum(theta, self._proj_theta_rad))
+        object.__setattr__(self, "_fov", AngularLimit.from_samples(
+            azimuth, np.minimum(theta, proj_theta)))
 
     def _fold_back_theta(self, azimuth_rad: np.ndarray) -> np.ndarray:
         """Per azimuth, the angle from the axis (rad) where the projected radius stops growing,
@@ -299,6 +334,92 @@ class CameraModel:
         return {"width_px": int(self.width_px), "height_px": int(self.height_px),
                 "K": self.K.tolist(), "distortion_model": self.distortion_model,
                 "distortion_coeffs": self.dist_coeffs.tolist()}
+
+
+@dataclass(frozen=True, slots=True)
+class AngularLimit:
+    """A cone of directions about the optical axis: angle from the axis (rad) below a limit
+    that varies with the azimuth, linearly between samples.
+
+    ``contains`` is exactly ``theta < interp(azimuth, azimuth_rad, theta_rad)``; to avoid two
+    arctangents and an interpolation per point, it first compares tan^2(theta) with bounds of
+    the limit over sectors of a trigonometry-free pseudo-azimuth, and evaluates the exact
+    test only for the points that fall between the bounds.
+    """
+
+    azimuth_rad: np.ndarray   # (M,) increasing, wrapped one sample past -pi and pi
+    theta_rad: np.ndarray     # (M,) limit at each azimuth, in (0, pi/2)
+    tan2_lo: np.ndarray       # (S,) per sector: below this tan^2(theta) the point is inside
+    tan2_hi: np.ndarray       # (S,) per sector: above this tan^2(theta) the point is outside
+    tan2_inscribed: float     # tan^2 of the smallest limit (a convex circular cone), minus margin
+
+    @classmethod
+    def from_samples(cls, azimuth_rad: np.ndarray, theta_rad: np.ndarray) -> AngularLimit:
+        """From the wrapped samples; bounds of the limit over each sector, widened by the
+        neighbouring sectors and a margin so that rounding never decides."""
+        edges = np.linspace(0.0, 4.0, _SECTORS + 1)
+        phi_edges = np.arctan2(*_direction_of_pseudo_azimuth(edges)[::-1])
+        phi_edges[0] = -np.pi  # key 0 and key 4 are the same direction, at -pi and +pi
+        phi_all = np.concatenate([phi_edges, azimuth_rad[(azimuth_rad > -np.pi)
+                                                          & (azimuth_rad < np.pi)]])
+        order = np.argsort(phi_all, kind="stable")
+        phi_all = phi_all[order]
+        limit = np.interp(phi_all, azimuth_rad, theta_rad)
+        start = np.searchsorted(phi_all, phi_edges[:-1], side="left")
+        stop = np.searchsorted(phi_all, phi_edges[1:], side="right")
+        sector_min = [np.min(limit[a:b]) for a, b in zip(start, stop, strict=True)]
+        sector_max = [np.max(limit[a:b]) for a, b in zip(start, stop, strict=True)]
+        lo = np.min([np.roll(sector_min, k) for k in (-1, 0, 1)], axis=0) - _ANGLE_MARGIN_RAD
+        hi = np.max([np.roll(sector_max, k) for k in (-1, 0, 1)], axis=0) + _ANGLE_MARGIN_RAD
+        return cls(azimuth_rad, theta_rad, np.tan(np.maximum(lo, 0.0)) ** 2,
+                   np.tan(np.minimum(hi, np.pi / 2 - _ANGLE_MARGIN_RAD)) ** 2,
+                   float(np.tan(max(theta_rad.min() - _ANGLE_MARGIN_RAD, 0.0)) ** 2))
+
+    def contains(self, p_cam: np.ndarray) -> np.ndarray:
+        """True where points (..., 3) in the optical frame lie strictly inside the cone."""
+        p = np.asarray(p_cam, dtype=float)
+        return self.contains_xyz(p[..., 0], p[..., 1], p[..., 2])
+
+    def contains_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``contains`` for the coordinates given as three arrays of one shape (float64)."""
+        r2 = x * x
+        r2 += y * y
+        z2 = z * z
+        with np.errstate(invalid="ignore", divide="ignore"):
+            key = _pseudo_azimuth(x, y)
+            key *= _SECTORS / 4.0
+            sector = np.fmax(key, 0.0).astype(np.intp)  # NaN (x = y = 0) -> 0
+        np.minimum(sector, _SECTORS - 1, out=sector)
+        inside = r2 < self.tan2_lo.take(sector) * z2
+        inside &= z > 0
+        outside = r2 > self.tan2_hi.take(sector) * z2
+        outside |= z < 0
+        unsure = ~(inside | outside)
+        if unsure.any():
+            xu, yu, zu = x[unsure], y[unsure], z[unsure]
+            theta = np.arctan2(np.hypot(xu, yu), zu)
+            azimuth = np.arctan2(yu, xu)
+            inside[unsure] = theta < np.interp(azimuth, self.azimuth_rad, self.theta_rad)
+        return inside
+
+    def inscribed_contains(self, p_cam: np.ndarray) -> np.ndarray:
+        """True where points (..., 3) lie inside the circular cone of the smallest limit."""
+        p = np.asarray(p_cam, dtype=float)
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        return (z > 0) & (x * x + y * y < self.tan2_inscribed * z * z)
+
+
+def _pseudo_azimuth(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A trigonometry-free key in [0, 4] increasing with arctan2(y, x) over [-pi, pi]."""
+    p = y / (np.abs(x) + np.abs(y))
+    return np.where(x >= 0, p + 2.0, np.where(y < 0, -p, 4.0 - p))
+
+
+def _direction_of_pseudo_azimuth(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of a direction with the given ``_pseudo_azimuth`` key (inverse of it)."""
+    p = np.where(key < 1, -key, np.where(key <= 3, key - 2.0, 4.0 - key))
+    x = np.where(key < 1, -(1 + p), np.where(key <= 3, 1 - np.abs(p), -(1 - p)))
+    return x, p
 
 
 def _undistort_points_iter(p: np.ndarray, K: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -82,6 +82,9 @@ class CoverageGrid:
         with np.errstate(divide="ignore"):
             self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
                                      np.log1p(-pfa).astype(np.float32))
+        # Bin edges as image areas (px^2), float64 and float32: [area dtype is float32].
+        area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / self.size_scale) ** 2
+        self._area_edges_px2 = (area_edges, area_edges.astype(np.float32))
 
     # -- results ----------------------------------------------------------------------------
 
@@ -122,24 +125,26 @@ class CoverageGrid:
         if window is None:
             return 0
         r0, r1, c0, c1 = window
-        observed, size_img_px = self.observe(pose, window)
+        observed, area_px2 = self._observe_area(pose, window)
         if self.last_obs_s is not None:
             t = pose.t_s if t_s is None else t_s
             if not math.isfinite(t):
                 raise ValueError("min_revisit_s needs frame times: pose.t_s or t_s")
             last = self.last_obs_s[r0:r1, c0:c1]
-            due = (t - last[observed]) >= self.min_revisit_s
-            idx_obs = np.flatnonzero(observed)[due]
-            observed = np.zeros_like(observed)
-            observed.flat[idx_obs] = True
-            size_img_px = size_img_px[due]
+            observed &= (t - last) >= self.min_revisit_s
             last[observed] = t
-        idx = self.detector.bin_index(size_img_px * self.size_scale)
+        # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
+        # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
+        # over the window (cheaper than masked scatters) and leave those cells unchanged.
+        edges = self._area_edges_px2[area_px2.dtype == np.float32]
+        with np.errstate(invalid="ignore"):
+            idx = np.searchsorted(edges, area_px2, side="right")
+        idx *= observed
         tab_d, tab_fa = self._log_miss_tables
-        self.log_miss_d[r0:r1, c0:c1][observed] += tab_d[idx]
-        self.log_miss_fa[r0:r1, c0:c1][observed] += tab_fa[idx]
-        self.n_obs[r0:r1, c0:c1][observed] += 1
-        return int(observed.sum())
+        self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
+        self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
+        self.n_obs[r0:r1, c0:c1] += observed
+        return int(np.count_nonzero(observed))
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -148,62 +153,66 @@ class CoverageGrid:
         Returns a bool mask (r1 - r0, c1 - c0) and, for the True cells in row-major order, the
         square root of the area in image pixels of each cell's image inside the picture.
         """
+        observed, area_px2 = self._observe_area(pose, window)
+        return observed, np.sqrt(area_px2[observed].astype(np.float64))
+
+    def _observe_area(self, pose: CameraPose, window: tuple[int, int, int, int]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """The observed mask of ``window`` and the image area (px^2) inside the picture of
+        every cell of it (meaningful only where observed; float32 or float64)."""
         r0, r1, c0, c1 = window
+        n_rows, n_cols = r1 - r0, c1 - c0
         g = self.geometry
         cs = g.cell_size_m
         cam = self.camera
-        R_cam_enu = pose.R_enu_cam.T
         r = pose.r_cam_enu
-        # Points on the ground in the optical frame: R_cam_enu @ ([x, y, 0] - r).
-        xv = g.x0_m + cs * np.arange(c0, c1 + 1) - r[0]
-        yv = g.y0_m + cs * np.arange(r0, r1 + 1) - r[1]
-        base = -r[2] * R_cam_enu[:, 2]
-        vx = xv[:, None] * R_cam_enu[:, 0]
-        vy = yv[:, None] * R_cam_enu[:, 1]
-        # Cell centres.
-        p_c = (0.5 * (vy[:-1] + vy[1:])[:, None, :] + 0.5 * (vx[:-1] + vx[1:])[None, :, :]
-               + base)
-        free = self.mask[r0:r1, c0:c1]
-        in_range = np.einsum("ijk,ijk->ij", p_c, p_c) <= self.max_range_m**2
-        cand = free & in_range & (p_c[..., 2] > 0)
-        cand[cand] = cam.in_fov(p_c[cand])
-        if not cand.any():
-            return cand, np.empty(0)
-        px_c = cam.project(p_c[cand])
-        observed = cand.copy()
-        observed[cand] = cam.in_picture(px_c)
-        if not observed.any():
-            return observed, np.empty(0)
-        # Vertices of the observed cells' corners.
-        rows, cols = np.nonzero(observed)
-        need = np.zeros((r1 - r0 + 1, c1 - c0 + 1), dtype=bool)
-        for dr in (0, 1):
-            for dc in (0, 1):
-                need[rows + dr, cols + dc] = True
-        p_v = vy[:, None, :] + vx[None, :, :] + base
-        vr, vc = np.nonzero(need)
-        pv = p_v[vr, vc]
-        v_ok = cam.projectable(pv)
-        px_v = np.full((len(pv), 2), np.nan)
-        v_in_picture = v_ok.copy()
-        if v_ok.any():
-            px_v[v_ok] = cam.project(pv[v_ok])
-            v_in_picture[v_ok] = cam.in_picture(px_v[v_ok])
-        lut = np.full(need.shape, -1, dtype=np.int64)
-        lut[vr, vc] = np.arange(len(pv))
-        corners = np.stack([lut[rows, cols], lut[rows, cols + 1], lut[rows + 1, cols + 1],
-                            lut[rows + 1, cols]], axis=1)
-        whole = v_in_picture[corners].all(axis=1)
-        area = np.empty(len(rows))
-        area[whole] = _quad_area(px_v[corners[whole]])
+        # The window's cell corners form a lattice on the ground; the corner (col c0 + j,
+        # row r0 + i) is, in the optical frame, R_cam_enu @ ([x, y, 0] - r) = H @ [j, i, 1].
+        H = pose.R_enu_cam.T @ np.array([[cs, 0.0, g.x0_m + cs * c0 - r[0]],
+                                         [0.0, cs, g.y0_m + cs * r0 - r[1]],
+                                         [0.0, 0.0, -r[2]]])
+        H_centre = H.copy()
+        H_centre[:, 2] += 0.5 * (H[:, 0] + H[:, 1])
+        # Cell centres: free, in range, in the picture, in the calibrated field of view.
+        dx2 = (g.x0_m + cs * (np.arange(c0, c1) + 0.5) - r[0]) ** 2
+        dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
+        observed = self.mask[r0:r1, c0:c1] & (
+            dy2[:, None] + (dx2 + r[2] ** 2) <= self.max_range_m**2)
+        with np.errstate(invalid="ignore"):
+            observed &= cam.in_picture(cam.project_lattice(H_centre, n_cols, n_rows))
+        j = np.arange(n_cols, dtype=np.float64)
+        i = np.arange(n_rows, dtype=np.float64)[:, None]
+        observed &= cam.in_fov_xyz(*(H_centre[k, 0] * j + (H_centre[k, 1] * i + H_centre[k, 2])
+                                     for k in range(3)))
+        # Corners: projected all at once; a cell wholly in the picture takes the area of its
+        # corners' quadrilateral.
+        px_v = cam.project_lattice(H, n_cols + 1, n_rows + 1)
+        corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1], [n_cols, n_rows, 1]])
+        if cam.all_projectable(corners @ H.T):
+            v_ok = np.ones((n_rows + 1, n_cols + 1), dtype=bool)
+        else:
+            jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
+            v_ok = cam.projectable(jj[..., None] * H[:, 0] + ii[..., None] * H[:, 1] + H[:, 2])
+        with np.errstate(invalid="ignore"):
+            v_in = v_ok & cam.in_picture(px_v)
+        whole = v_in[:-1, :-1] & v_in[:-1, 1:] & v_in[1:, 1:] & v_in[1:, :-1]
+        quad = (px_v[:-1, :-1], px_v[:-1, 1:], px_v[1:, 1:], px_v[1:, :-1])
+        with np.errstate(invalid="ignore", over="ignore"):
+            area = _quad_area(*quad)
         # Cells straddling the picture's edge: clip their image to the picture.
-        clip = ~whole & v_ok[corners].all(axis=1)
-        area[clip] = _clipped_quad_area(px_v[corners[clip]], cam.width_px, cam.height_px)
-        # Cells with a corner where projection folds back: integrate over sub-cells.
-        rest = np.flatnonzero(~whole & ~clip)
-        if len(rest):
-            area[rest] = self._partial_area(pose, rows[rest] + r0, cols[rest] + c0)
-        return observed, np.sqrt(area)
+        rows, cols = np.nonzero(observed & ~whole)
+        if len(rows):
+            q = np.stack([c[rows, cols] for c in quad], axis=1).astype(np.float64)
+            ok = (v_ok[rows, cols] & v_ok[rows, cols + 1] & v_ok[rows + 1, cols + 1]
+                  & v_ok[rows + 1, cols])
+            edge_area = np.empty(len(rows))
+            edge_area[ok] = _clipped_quad_area(q[ok], cam.width_px, cam.height_px)
+            # Cells with a corner where projection folds back: integrate over sub-cells.
+            if not ok.all():
+                edge_area[~ok] = self._partial_area(pose, rows[~ok] + r0, cols[~ok] + c0)
+            area = area.astype(np.float64) if area.dtype != np.float64 else area
+            area[rows, cols] = edge_area
+        return observed, area
 
     def _partial_area(self, pose: CameraPose, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Image area (px^2) inside the picture of cells only partly inside it: each cell is
@@ -228,7 +237,7 @@ class CoverageGrid:
         sub_ok = ok[:, :-1, :-1] & ok[:, :-1, 1:] & ok[:, 1:, 1:] & ok[:, 1:, :-1]
         centre = quads.mean(axis=3).reshape(-1, 2)
         sub_ok &= self.camera.in_picture(centre).reshape(sub_ok.shape)
-        return np.where(sub_ok, _quad_area(quads), 0.0).sum(axis=(1, 2))
+        return np.where(sub_ok, _quad_area(*np.moveaxis(quads, 3, 0)), 0.0).sum(axis=(1, 2))
 
     def _window(self, pose: CameraPose) -> tuple[int, int, int, int] | None:
         """(r0, r1, c0, c1): the grid cells that may be observed, from the footprint's extent
@@ -305,7 +314,57 @@ class CoverageGrid:
 
 
 def _clipped_quad_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
-    """Area of quadrilaterals (K, 4, 2) inside the picture [-0.5, w - 0.5) x [-0.5, h - 0.5).
+    """Area of quadrilaterals (K, 4, 2) inside the picture [-0.5, w - 0.5] x [-0.5, h - 0.5].
+
+    By Green's theorem the area of the clipped quadrilateral is the integral of
+    (x - x_ref) dy around its boundary. With x_ref on the picture's left (or right) edge the
+    integrand vanishes along that edge and, dy being 0, along the top and bottom edges; so
+    when the quadrilateral does not reach past the opposite vertical edge, only its own sides,
+    each clipped to the picture, contribute. Quadrilaterals past both vertical edges use the
+    same formula with x and y exchanged; those past all four edges (a cell larger than the
+    picture) go through ``_polygon_clipped_area``.
+    """
+    hi = np.array([width_px - 0.5, height_px - 0.5])
+    past_lo = (q < -0.5).any(axis=1)                     # (K, 2): per axis
+    past_hi = (q > hi).any(axis=1)
+    both = past_lo & past_hi
+    area = np.empty(len(q))
+    for sel, axes in ((~both[:, 0], [0, 1]), (both[:, 0] & ~both[:, 1], [1, 0])):
+        if sel.any():
+            area[sel] = _green_clipped_area(q[sel][..., axes], hi[axes], past_hi[sel, axes[0]])
+    rest = both.all(axis=1)
+    if rest.any():
+        area[rest] = _polygon_clipped_area(q[rest], width_px, height_px)
+    return area
+
+
+def _green_clipped_area(q: np.ndarray, hi: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Area inside [-0.5, hi[0]] x [-0.5, hi[1]] of quadrilaterals (K, 4, 2) that do not reach
+    past both x bounds; ``right`` (K,) is True for those past the upper one."""
+    a = q
+    d = np.roll(q, -1, axis=1) - a
+    t_in = np.zeros(a.shape[:2])
+    t_out = np.ones(a.shape[:2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in (0, 1):
+            pa, da = a[..., axis], d[..., axis]
+            t1 = (-0.5 - pa) / da
+            t2 = (hi[axis] - pa) / da
+            flat = da == 0
+            inside = (pa >= -0.5) & (pa <= hi[axis])
+            t_in = np.maximum(t_in, np.where(flat, np.where(inside, -np.inf, np.inf),
+                                             np.minimum(t1, t2)))
+            t_out = np.minimum(t_out, np.where(flat, np.where(inside, np.inf, -np.inf),
+                                               np.maximum(t1, t2)))
+        span = t_out - t_in
+        x_ref = np.where(right, hi[0], -0.5)[:, None]
+        x_mid = a[..., 0] + 0.5 * (t_in + t_out) * d[..., 0] - x_ref
+        integral = np.where(span > 0, x_mid * span * d[..., 1], 0.0)
+    return np.abs(integral.sum(axis=1))
+
+
+def _polygon_clipped_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
+    """Area of polygons (K, n, 2) inside the picture [-0.5, w - 0.5) x [-0.5, h - 0.5).
 
     Sutherland-Hodgman against the picture's four edges, vectorised over K: each stage keeps
     the inside vertices and the edge crossings; the valid vertices are then moved to the front
@@ -339,8 +398,7 @@ def _clipped_quad_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarr
     return 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
 
 
-def _quad_area(q: np.ndarray) -> np.ndarray:
-    """Shoelace area of quadrilaterals (..., 4, 2), any orientation."""
-    x, y = q[..., 0], q[..., 1]
-    return 0.5 * np.abs((x[..., 0] - x[..., 2]) * (y[..., 1] - y[..., 3])
-                        - (x[..., 1] - x[..., 3]) * (y[..., 0] - y[..., 2]))
+def _quad_area(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Shoelace area of quadrilaterals a-b-c-d, any orientation; corners (..., 2)."""
+    return 0.5 * np.abs((a[..., 0] - c[..., 0]) * (b[..., 1] - d[..., 1])
+                        - (b[..., 0] - d[..., 0]) * (a[..., 1] - c[..., 1]))
