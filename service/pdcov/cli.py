@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "pdcov.commands.evaluate",
     "pdcov.commands.detector",
     "pdcov.commands.plan",
+    "pdcov.commands.mount",
 )
 
 

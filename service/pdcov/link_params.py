@@ -1,0 +1,153 @@
+"""Autopilot parameters over a live MAVLink link: find the autopilot, read parameters by name.
+
+Edge module: blocking pymavlink I/O on a connection the caller opened (UDP, TCP, serial)
+and the monotonic clock for timeouts. The parameter protocol (mavlink.io/en/services/
+parameter.html): PARAM_REQUEST_READ with param_index -1 asks for one parameter by its name
+(param_id, at most 16 characters); the autopilot answers with PARAM_VALUE, or with nothing
+when it has no such parameter (ArduPilot), so a name without a reply is only "missing".
+
+Values are returned as PARAM_VALUE carries them: ArduPilot casts every parameter to float
+(MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT). PX4 packs integers bytewise; the ArduPilot mount
+parameters read here do not exist there.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
+
+from .errors import TelemetryError
+from .gimbal import AXES
+
+PARAM_ID_MAX_CHARS = 16
+MAV_COMP_ID_ALL = 0
+HEARTBEAT_PERIOD_S = 1.0
+"""How often ``wait_autopilot`` sends the ground station's HEARTBEAT (MAVLink: 1 Hz)."""
+
+# ArduPilot 4.3+ has up to two mounts (HAL_MOUNT_MAX_INSTANCES), each with MNTn_TYPE.
+MOUNT_TYPE_PARAMS = ("MNT1_TYPE", "MNT2_TYPE")
+
+
+@dataclass(frozen=True, slots=True)
+class ParamRead:
+    """Parameters asked for by name and the values the autopilot answered with."""
+
+    requested: tuple[str, ...]
+    values: Mapping[str, float]
+
+    @property
+    def missing(self) -> tuple[str, ...]:
+        """The names asked for that got no reply, in the order asked."""
+        return tuple(n for n in self.requested if n not in self.values)
+
+
+def mount_param_names(instance: int) -> tuple[str, ...]:
+    """ArduPilot 4.3+ parameters of mount ``instance`` (AP_Mount_Params.cpp): MNTn_TYPE and
+    MNTn_{ROLL,PITCH,YAW}_{MIN,MAX} (degrees). While MNTn_TYPE is 0 (no mount) ArduPilot
+    hides the others (AP_PARAM_FLAG_ENABLE), so they go unanswered."""
+    return (f"MNT{instance}_TYPE",
+            *(f"MNT{instance}_{axis.upper()}_{end}" for axis in AXES for end in ("MIN", "MAX")))
+
+
+def legacy_mount_param_names(instance: int) -> tuple[str, ...]:
+    """The same for ArduPilot up to 4.2 (one mount: MNT_TYPE, MNT_ANGMIN/ANGMAX_ROL/TIL/PAN
+    in centidegrees), as ``gimbal.resolve_interpretation`` reads them; () for instance > 1."""
+    if instance != 1:
+        return ()
+    return ("MNT_TYPE", *(f"MNT_ANG{end}_{axis}" for axis in ("ROL", "TIL", "PAN")
+                          for end in ("MIN", "MAX")))
+
+
+def wait_autopilot(conn: mavutil.mavfile, timeout_s: float, *,
+                   system_id: int | None = None) -> tuple[int, int]:
+    """(system id, component id) of the first autopilot HEARTBEAT on ``conn``, from
+    ``system_id`` if given. Heartbeats of ground stations (MAV_TYPE_GCS) and of components
+    that are no autopilot (MAV_AUTOPILOT_INVALID: gimbals, cameras, companions) are ignored.
+    Sends our own ground-station HEARTBEAT each second meanwhile: on a udpout: link the
+    vehicle learns our address from it. Raises TelemetryError after ``timeout_s`` seconds."""
+    t_end = time.monotonic() + timeout_s
+    next_beat = 0.0
+    ignored: set[tuple[int, int]] = set()
+    while (now := time.monotonic()) < t_end:
+        if now >= next_beat:
+            conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID,
+                                    0, 0, 0)
+            next_beat = now + HEARTBEAT_PERIOD_S
+        msg = conn.recv_match(type="HEARTBEAT", blocking=True,
+                              timeout=min(t_end, next_beat) - now)
+        if msg is None:
+            continue
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if (msg.type == mavlink2.MAV_TYPE_GCS or msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID
+                or (system_id is not None and source[0] != system_id)):
+            ignored.add(source)
+            continue
+        return source
+    of_system = f" of system {system_id}" if system_id is not None else ""
+    heard = ", ".join(f"system {s} component {c}" for s, c in sorted(ignored))
+    raise TelemetryError(f"no HEARTBEAT of an autopilot{of_system} on {conn.address} within "
+                         f"{timeout_s:g} s" + (f" (ignored: {heard})" if heard else ""))
+
+
+def read_params(conn: mavutil.mavfile, names: Iterable[str], *, target_system: int,
+                target_component: int = 1, timeout_s: float = 3.0,
+                retries: int = 2) -> dict[str, float]:
+    """Read parameters by name: {name: value} of those the autopilot answered.
+
+    Sends PARAM_REQUEST_READ (param_index -1) for each name, then collects PARAM_VALUE from
+    ``target_system`` (and ``target_component`` unless it is 0) matched by param_id, ignoring
+    all other traffic. The read takes at most ``timeout_s`` seconds, split into
+    ``retries + 1`` equal rounds: each round resends the names still unanswered (a request
+    or reply lost on the link). Returns early once every name is answered; what a missing
+    name means is for the caller to decide.
+    """
+    wanted = tuple(dict.fromkeys(names))
+    for name in wanted:
+        if not 1 <= len(name) <= PARAM_ID_MAX_CHARS or not name.isascii():
+            raise ValueError(f"parameter name {name!r}: expected 1..{PARAM_ID_MAX_CHARS} "
+                             f"ASCII characters (MAVLink param_id)")
+    if retries < 0 or not timeout_s > 0:
+        raise ValueError(f"expected timeout_s > 0 and retries >= 0, got {timeout_s!r}, "
+                         f"{retries!r}")
+    got: dict[str, float] = {}
+    t_start = time.monotonic()
+    for round_ in range(1, retries + 2):
+        for name in wanted:
+            if name not in got:
+                conn.mav.param_request_read_send(target_system, target_component,
+                                                 name.encode("ascii"), -1)
+        t_end = t_start + timeout_s * round_ / (retries + 1)
+        while len(got) < len(wanted) and (left := t_end - time.monotonic()) > 0:
+            msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=left)
+            if (msg is None or msg.get_srcSystem() != target_system
+                    or target_component not in (MAV_COMP_ID_ALL, msg.get_srcComponent())):
+                continue
+            if msg.param_id in wanted:
+                got.setdefault(msg.param_id, float(msg.param_value))
+        if len(got) == len(wanted):
+            break
+    return got
+
+
+def read_mount_params(conn: mavutil.mavfile, instance: int, *, target_system: int,
+                      target_component: int = 1, timeout_s: float = 3.0,
+                      retries: int = 2) -> ParamRead:
+    """The mount parameters ``gimbal.resolve_interpretation`` uses, as the autopilot has them:
+    ``mount_param_names(instance)`` and MNT1_TYPE / MNT2_TYPE; when MNTn_TYPE is unanswered,
+    a second read of ``legacy_mount_param_names`` (older firmware). Each read as
+    ``read_params`` (at most ``timeout_s`` seconds)."""
+    names = tuple(dict.fromkeys((*mount_param_names(instance), *MOUNT_TYPE_PARAMS)))
+    values = read_params(conn, names, target_system=target_system,
+                         target_component=target_component, timeout_s=timeout_s,
+                         retries=retries)
+    legacy = legacy_mount_param_names(instance)
+    if f"MNT{instance}_TYPE" in values or not legacy:
+        return ParamRead(names, values)
+    values |= read_params(conn, legacy, target_system=target_system,
+                          target_component=target_component, timeout_s=timeout_s,
+                          retries=retries)
+    return ParamRead((*names, *legacy), values)

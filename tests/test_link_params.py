@@ -1,0 +1,227 @@
+"""Reading the mount parameters from a live autopilot over a real UDP socket on 127.0.0.1.
+
+The autopilot is a vehicle-side peer written here with pymavlink: it answers the ground
+station's HEARTBEAT as an ArduPilot quadrotor and each PARAM_REQUEST_READ (by name) with a
+PARAM_VALUE from its parameter table, or with nothing for a name it does not have (as
+ArduPilot does). It can drop the first request of each name, and put a ground station's
+HEARTBEAT, other traffic and another system's PARAM_VALUE on the link before its own.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+from test_evaluate import mission_doc, write_config
+
+from pdcov.cli import main
+from pdcov.errors import TelemetryError
+from pdcov.gimbal import GimbalMount, resolve_interpretation
+from pdcov.link_params import (
+    legacy_mount_param_names,
+    mount_param_names,
+    read_mount_params,
+    read_params,
+    wait_autopilot,
+)
+from pdcov.upload import mavlink2_connection
+
+SYSID = 7  # not 1: the ground station must learn it from the HEARTBEAT
+SERVO_PARAMS = {"MNT1_TYPE": 1, "MNT1_ROLL_MIN": -30, "MNT1_ROLL_MAX": 30,
+                "MNT1_PITCH_MIN": -90, "MNT1_PITCH_MAX": 20, "MNT1_YAW_MIN": -180,
+                "MNT1_YAW_MAX": 180, "MNT2_TYPE": 0, "SYSID_THISMAV": SYSID}
+GREMSY_PARAMS = {**SERVO_PARAMS, "MNT1_TYPE": 6, "MNT1_PITCH_MIN": -120}
+NO_MOUNT_PARAMS = {"SYSID_THISMAV": SYSID}  # a firmware without the mount library
+
+
+class Autopilot(threading.Thread):
+    """An ArduPilot autopilot's parameter server on a UDP port of 127.0.0.1."""
+
+    def __init__(self, params, drop_first=False, noisy=False):
+        super().__init__(daemon=True)
+        self.conn = mavlink2_connection("udpin:127.0.0.1:0", SYSID, 1)
+        self.port = self.conn.port.getsockname()[1]
+        # A ground station and a companion computer sharing the link (system 250).
+        self.other = mavlink2.MAVLink(self.conn, srcSystem=250, srcComponent=190)
+        self.params = dict(params)
+        self.drop_first = drop_first
+        self.noisy = noisy
+        self.requests: dict[str, int] = {}
+        self.stop = threading.Event()
+
+    def run(self):
+        while not self.stop.is_set():
+            msg = self.conn.recv_match(blocking=True, timeout=0.05)
+            if msg is None:
+                continue
+            if msg.get_type() == "HEARTBEAT":
+                if self.noisy:
+                    self.other.heartbeat_send(mavlink2.MAV_TYPE_GCS,
+                                              mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR,
+                                             mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0,
+                                             mavlink2.MAV_STATE_STANDBY)
+            elif (msg.get_type() == "PARAM_REQUEST_READ" and msg.target_system == SYSID
+                  and msg.param_index == -1):
+                self._answer(msg.param_id)
+        self.conn.close()
+
+    def _answer(self, name):
+        self.requests[name] = self.requests.get(name, 0) + 1
+        if self.drop_first and self.requests[name] == 1:
+            return  # lost on the link: the ground station must ask again
+        if self.noisy:
+            self.conn.mav.attitude_send(0, 0.1, -0.3, 1.0, 0, 0, 0)
+            self.other.param_value_send(name.encode(), 99.0,
+                                        mavlink2.MAV_PARAM_TYPE_REAL32, 1, 0)
+        if name in self.params:
+            names = sorted(self.params)
+            self.conn.mav.param_value_send(name.encode(), float(self.params[name]),
+                                           mavlink2.MAV_PARAM_TYPE_REAL32, len(names),
+                                           names.index(name))
+
+
+@pytest.fixture
+def autopilot():
+    started = []
+
+    def make(params, **kw):
+        peer = Autopilot(params, **kw)
+        peer.start()
+        started.append(peer)
+        return peer
+    yield make
+    for peer in started:
+        peer.stop.set()
+        peer.join(timeout=2)
+
+
+@pytest.fixture
+def link():
+    opened = []
+
+    def connect(peer):
+        conn = mavlink2_connection(f"udpout:127.0.0.1:{peer.port}", 255, 190)
+        opened.append(conn)
+        return conn
+    yield connect
+    for conn in opened:
+        conn.close()
+
+
+def gimbal_config(tmp_path, **mount):
+    return write_config(tmp_path, mission_doc(mount={"type": "gimbal", **mount}))
+
+
+def mount_check(config, peer, capsys, timeout_s=2.0):
+    code = main(["mount-check", "--config", str(config),
+                 "--connect", f"udpout:127.0.0.1:{peer.port}", "--timeout-s", str(timeout_s)])
+    return code, capsys.readouterr()
+
+
+def test_param_names_are_ardupilots():
+    assert mount_param_names(2) == ("MNT2_TYPE", "MNT2_ROLL_MIN", "MNT2_ROLL_MAX",
+                                    "MNT2_PITCH_MIN", "MNT2_PITCH_MAX", "MNT2_YAW_MIN",
+                                    "MNT2_YAW_MAX")
+    assert legacy_mount_param_names(1) == ("MNT_TYPE", "MNT_ANGMIN_ROL", "MNT_ANGMAX_ROL",
+                                           "MNT_ANGMIN_TIL", "MNT_ANGMAX_TIL",
+                                           "MNT_ANGMIN_PAN", "MNT_ANGMAX_PAN")
+    assert legacy_mount_param_names(2) == ()
+
+
+def test_servo_mount_reads_as_body_with_the_limits(autopilot, link, tmp_path, capsys):
+    peer = autopilot(SERVO_PARAMS)
+    conn = link(peer)
+    assert wait_autopilot(conn, 2.0) == (SYSID, 1)
+    read = read_mount_params(conn, 1, target_system=SYSID, timeout_s=2.0)
+    assert read.values == {k: float(v) for k, v in SERVO_PARAMS.items() if k != "SYSID_THISMAV"}
+    assert read.missing == ()
+    interp = resolve_interpretation(GimbalMount(), read.values, "the link")
+    assert interp.frame == "body" and "MNT1_TYPE=1 in the link" in interp.reason
+    assert interp.limits_rad[1, 0] == pytest.approx(-1.5708, abs=1e-4)
+
+    code, out = mount_check(gimbal_config(tmp_path), peer, capsys)
+    assert code == 0, out.err
+    assert f"system {SYSID}, component 1" in out.out
+    assert "MNT1_TYPE=1 (Servo)" in out.out and "MNT1_ROLL_MIN=-30" in out.out
+    assert "missing (no reply): none" in out.out
+    assert "interpretation: body:" in out.out
+    assert "MNT1_TYPE=1 in the autopilot's parameters over MAVLink" in out.out
+    assert "roll [-30, 30] deg pitch [-90, 20] deg yaw [-180, 180] deg" in out.out
+
+
+def test_smart_gimbal_reads_as_flags_and_a_configured_frame_is_questioned(
+        autopilot, tmp_path, capsys):
+    peer = autopilot(GREMSY_PARAMS)
+    code, out = mount_check(gimbal_config(tmp_path), peer, capsys)
+    assert code == 0, out.err
+    assert "MNT1_TYPE=6 (Gremsy)" in out.out and "interpretation: flags:" in out.out
+    assert "warning" not in out.out
+
+    code, out = mount_check(gimbal_config(tmp_path, attitude_frame="body"), peer, capsys)
+    assert code == 0 and "interpretation: body:" in out.out
+    assert "warning: MNT1_TYPE=6 reads as 'flags' under attitude_frame: auto" in out.out
+    assert "pitch [-120, 20] deg" in out.out
+
+
+def test_unknown_parameters_leave_auto_to_the_fallback(autopilot, tmp_path, capsys):
+    peer = autopilot(NO_MOUNT_PARAMS)
+    code, out = mount_check(gimbal_config(tmp_path, auto_fallback="body"), peer, capsys,
+                            timeout_s=0.3)
+    assert code == 0, out.err
+    assert "parameters read: none" in out.out
+    assert "MNT1_TYPE, MNT1_ROLL_MIN" in out.out and "MNT_TYPE, MNT_ANGMIN_ROL" in out.out
+    assert "interpretation: body:" in out.out
+    assert "has no MNT1_TYPE parameter, so mount.auto_fallback='body' decides" in out.out
+    assert "no servo limits known" in out.out
+    assert peer.requests["MNT1_TYPE"] == 3  # asked, then twice more
+
+
+def test_lossy_link_gets_every_parameter_on_the_retry(autopilot, link):
+    peer = autopilot(SERVO_PARAMS, drop_first=True)
+    conn = link(peer)
+    system, component = wait_autopilot(conn, 2.0)
+    names = mount_param_names(1)
+    got = read_params(conn, names, target_system=system, target_component=component,
+                      timeout_s=0.9, retries=2)
+    assert got == {n: float(SERVO_PARAMS[n]) for n in names}
+    assert all(peer.requests[n] == 2 for n in names)
+
+
+def test_gcs_heartbeat_and_other_traffic_are_not_the_autopilot(autopilot, link):
+    peer = autopilot(SERVO_PARAMS, noisy=True)
+    conn = link(peer)
+    assert wait_autopilot(conn, 2.0) == (SYSID, 1)
+    got = read_params(conn, ["MNT1_TYPE", "MNT1_PITCH_MIN"], target_system=SYSID,
+                      timeout_s=2.0)
+    assert got == {"MNT1_TYPE": 1.0, "MNT1_PITCH_MIN": -90.0}  # not system 250's 99
+
+
+def test_only_a_ground_station_is_no_autopilot(autopilot, link):
+    peer = autopilot(SERVO_PARAMS, noisy=True)
+    conn = link(peer)
+    with pytest.raises(TelemetryError, match=r"no HEARTBEAT of an autopilot of system 3 .*"
+                                        r"ignored: system 7 component 1, system 250"):
+        wait_autopilot(conn, 0.3, system_id=3)
+
+
+def test_no_autopilot_exits_2_with_one_clear_line(tmp_path):
+    config = gimbal_config(tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "pdcov.cli", "mount-check", "--config",
+                           str(config), "--connect", "udpin:127.0.0.1:0", "--timeout-s", "0.3"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
+    assert proc.stderr.strip().count("\n") == 0
+    assert "pdcov mount-check: error: no HEARTBEAT of an autopilot on 127.0.0.1:0 within 0.3 s" \
+        in proc.stderr
+
+
+def test_a_fixed_mount_is_refused(tmp_path, capsys):
+    config = write_config(tmp_path, mission_doc())
+    assert main(["mount-check", "--config", str(config), "--connect", "udpin:127.0.0.1:0",
+                 "--timeout-s", "0.1"]) == 2
+    assert "mount.type: mount-check reads a gimbal mount's parameters" in capsys.readouterr().err
