@@ -40,15 +40,14 @@ def footprint_ring_enu(camera: CameraModel, pose: CameraPose, max_range_m: float
     """
     rho_max = ground_range_m(pose, max_range_m)
     d = camera.border_rays_cam @ pose.R_enu_cam.T
-    if rho_max <= 0 or (np.all(d[:, 2] >= -_HORIZON_EPS) and pose.R_enu_cam[2, 2] >= 0):
+    if rho_max <= 0 or (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS):
         return np.empty((0, 2))
-    h = pose.r_cam_enu[2]
-    down = d[:, 2] < -_HORIZON_EPS
-    horiz = np.hypot(d[:, 0], d[:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):
-        rho = np.where(down, h * horiz / -d[:, 2], np.inf)
-        scale = np.where(horiz > 0, np.minimum(rho, rho_max) / horiz, 0.0)
-    return pose.r_cam_enu[:2] + d[:, :2] * scale[:, None]
+        # Ray parameter to the ground, at most to the disk's circle: min(h / -d_z, rho / |d_xy|).
+        t = np.where(d[:, 2] < -_HORIZON_EPS, pose.r_cam_enu[2] / -d[:, 2], np.inf)
+        np.minimum(t, rho_max / np.hypot(d[:, 0], d[:, 1]), out=t)
+    t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
+    return pose.r_cam_enu[:2] + d[:, :2] * t[:, None]
 
 
 def footprint_polygon(camera: CameraModel, pose: CameraPose, max_range_m: float) -> Polygon:

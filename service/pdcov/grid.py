@@ -29,6 +29,7 @@ from .pose import CameraPose
 
 SNAPSHOT_VERSION = 1
 _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
+_NEXT = [1, 2, 3, 0]  # the next corner of a quadrilateral
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,39 +179,43 @@ class CoverageGrid:
         dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
         observed = self.mask[r0:r1, c0:c1] & (
             dy2[:, None] + (dx2 + r[2] ** 2) <= self.max_range_m**2)
-        with np.errstate(invalid="ignore"):
-            observed &= cam.in_picture(cam.project_lattice(H_centre, n_cols, n_rows))
-        j = np.arange(n_cols, dtype=np.float64)
-        i = np.arange(n_rows, dtype=np.float64)[:, None]
-        observed &= cam.in_fov_xyz(*(H_centre[k, 0] * j + (H_centre[k, 1] * i + H_centre[k, 2])
-                                     for k in range(3)))
-        # Corners: projected all at once; a cell wholly in the picture takes the area of its
-        # corners' quadrilateral.
-        px_v = cam.project_lattice(H, n_cols + 1, n_rows + 1)
-        corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1], [n_cols, n_rows, 1]])
-        if cam.all_projectable(corners @ H.T):
-            v_ok = np.ones((n_rows + 1, n_cols + 1), dtype=bool)
-        else:
-            jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
-            v_ok = cam.projectable(jj[..., None] * H[:, 0] + ii[..., None] * H[:, 1] + H[:, 2])
-        with np.errstate(invalid="ignore"):
-            v_in = v_ok & cam.in_picture(px_v)
-        whole = v_in[:-1, :-1] & v_in[:-1, 1:] & v_in[1:, 1:] & v_in[1:, :-1]
-        quad = (px_v[:-1, :-1], px_v[:-1, 1:], px_v[1:, 1:], px_v[1:, :-1])
+        # Behind the camera the maps hold meaningless values; the tests below reject those.
         with np.errstate(invalid="ignore", over="ignore"):
-            area = _quad_area(*quad)
+            observed &= cam.in_picture(cam.project_lattice(H_centre, n_cols, n_rows))
+            if not observed.any():
+                return observed, np.zeros(observed.shape)
+            j = np.arange(n_cols, dtype=np.float64)
+            i = np.arange(n_rows, dtype=np.float64)[:, None]
+            observed &= cam.in_fov_xyz(*(H_centre[k, 0] * j + (H_centre[k, 1] * i
+                                                               + H_centre[k, 2])
+                                         for k in range(3)))
+            # Corners, projected all at once: a cell wholly in the picture takes the area of
+            # its corners' quadrilateral.
+            px_v = cam.project_lattice(H, n_cols + 1, n_rows + 1)
+            v_in = cam.in_picture(px_v)
+            corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1],
+                                [n_cols, n_rows, 1]])
+            v_ok = None  # all projectable
+            if not cam.all_projectable(corners @ H.T):
+                jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
+                v_ok = cam.projectable(jj[..., None] * H[:, 0] + ii[..., None] * H[:, 1]
+                                       + H[:, 2])
+                v_in &= v_ok
+            whole = v_in[:-1, :-1] & v_in[:-1, 1:] & v_in[1:, 1:] & v_in[1:, :-1]
+            area = _quad_area(px_v[:-1, :-1], px_v[:-1, 1:], px_v[1:, 1:], px_v[1:, :-1])
         # Cells straddling the picture's edge: clip their image to the picture.
         rows, cols = np.nonzero(observed & ~whole)
         if len(rows):
-            q = np.stack([c[rows, cols] for c in quad], axis=1).astype(np.float64)
-            ok = (v_ok[rows, cols] & v_ok[rows, cols + 1] & v_ok[rows + 1, cols + 1]
-                  & v_ok[rows + 1, cols])
+            # Flat indices of the corners (row, col), (row, col + 1), (row + 1, col + 1),
+            # (row + 1, col) in the corner lattice.
+            at = (rows * (n_cols + 1) + cols)[:, None] + np.array([0, 1, n_cols + 2, n_cols + 1])
+            q = px_v.reshape(-1, 2)[at].astype(np.float64)
+            ok = np.ones(len(rows), dtype=bool) if v_ok is None else v_ok.ravel()[at].all(axis=1)
             edge_area = np.empty(len(rows))
             edge_area[ok] = _clipped_quad_area(q[ok], cam.width_px, cam.height_px)
             # Cells with a corner where projection folds back: integrate over sub-cells.
             if not ok.all():
                 edge_area[~ok] = self._partial_area(pose, rows[~ok] + r0, cols[~ok] + c0)
-            area = area.astype(np.float64) if area.dtype != np.float64 else area
             area[rows, cols] = edge_area
         return observed, area
 
@@ -324,43 +329,51 @@ def _clipped_quad_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarr
     same formula with x and y exchanged; those past all four edges (a cell larger than the
     picture) go through ``_polygon_clipped_area``.
     """
-    hi = np.array([width_px - 0.5, height_px - 0.5])
-    past_lo = (q < -0.5).any(axis=1)                     # (K, 2): per axis
-    past_hi = (q > hi).any(axis=1)
-    both = past_lo & past_hi
+    x, y = q[..., 0], q[..., 1]
+    w, h = width_px - 0.5, height_px - 0.5
+    left, right = _corner_min(x) < -0.5, _corner_max(x) > w
+    both_x = left & right
+    if not both_x.any():
+        return _green_clipped_area(x, y, w, h, right)
+    below, above = _corner_min(y) < -0.5, _corner_max(y) > h
     area = np.empty(len(q))
-    for sel, axes in ((~both[:, 0], [0, 1]), (both[:, 0] & ~both[:, 1], [1, 0])):
-        if sel.any():
-            area[sel] = _green_clipped_area(q[sel][..., axes], hi[axes], past_hi[sel, axes[0]])
-    rest = both.all(axis=1)
-    if rest.any():
-        area[rest] = _polygon_clipped_area(q[rest], width_px, height_px)
+    for sel, u, v, bu, bv, past in ((~both_x, x, y, w, h, right),
+                                    (both_x & ~(below & above), y, x, h, w, above)):
+        area[sel] = _green_clipped_area(u[sel], v[sel], bu, bv, past[sel])
+    rest = both_x & below & above
+    area[rest] = _polygon_clipped_area(q[rest], width_px, height_px)
     return area
 
 
-def _green_clipped_area(q: np.ndarray, hi: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Area inside [-0.5, hi[0]] x [-0.5, hi[1]] of quadrilaterals (K, 4, 2) that do not reach
-    past both x bounds; ``right`` (K,) is True for those past the upper one."""
-    a = q
-    d = np.roll(q, -1, axis=1) - a
-    t_in = np.zeros(a.shape[:2])
-    t_out = np.ones(a.shape[:2])
+def _corner_min(v: np.ndarray) -> np.ndarray:
+    return np.minimum(np.minimum(v[:, 0], v[:, 1]), np.minimum(v[:, 2], v[:, 3]))
+
+
+def _corner_max(v: np.ndarray) -> np.ndarray:
+    return np.maximum(np.maximum(v[:, 0], v[:, 1]), np.maximum(v[:, 2], v[:, 3]))
+
+
+def _green_clipped_area(x: np.ndarray, y: np.ndarray, x_hi: float, y_hi: float,
+                        right: np.ndarray) -> np.ndarray:
+    """Area inside [-0.5, x_hi] x [-0.5, y_hi] of quadrilaterals with corners x, y (K, 4)
+    that do not reach past both x bounds; ``right`` (K,) is True for those past x_hi."""
+    dx = x[:, _NEXT] - x
+    dy = y[:, _NEXT] - y
+    t_in = np.zeros(x.shape)
+    t_out = np.ones(x.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for axis in (0, 1):
-            pa, da = a[..., axis], d[..., axis]
-            t1 = (-0.5 - pa) / da
-            t2 = (hi[axis] - pa) / da
-            flat = da == 0
-            inside = (pa >= -0.5) & (pa <= hi[axis])
-            t_in = np.maximum(t_in, np.where(flat, np.where(inside, -np.inf, np.inf),
-                                             np.minimum(t1, t2)))
-            t_out = np.minimum(t_out, np.where(flat, np.where(inside, np.inf, -np.inf),
-                                               np.maximum(t1, t2)))
+        # Liang-Barsky: the part t in [t_in, t_out] of each side a + t d inside the picture.
+        for a, d, hi in ((x, dx, x_hi), (y, dy, y_hi)):
+            t1 = (-0.5 - a) / d
+            t2 = (hi - a) / d
+            flat = d == 0
+            np.maximum(t_in, np.where(flat, -np.inf, np.minimum(t1, t2)), out=t_in)
+            np.minimum(t_out, np.where(flat, np.inf, np.maximum(t1, t2)), out=t_out)
+            t_in[flat & ((a < -0.5) | (a > hi))] = np.inf
         span = t_out - t_in
-        x_ref = np.where(right, hi[0], -0.5)[:, None]
-        x_mid = a[..., 0] + 0.5 * (t_in + t_out) * d[..., 0] - x_ref
-        integral = np.where(span > 0, x_mid * span * d[..., 1], 0.0)
-    return np.abs(integral.sum(axis=1))
+        x_mid = x + 0.5 * (t_in + t_out) * dx - np.where(right, x_hi, -0.5)[:, None]
+        integral = np.where(span > 0, x_mid * span * dy, 0.0)
+    return np.abs(integral[:, 0] + integral[:, 1] + integral[:, 2] + integral[:, 3])
 
 
 def _polygon_clipped_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarray:
