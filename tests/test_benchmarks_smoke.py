@@ -1,0 +1,66 @@
+"""The benchmarks at their tiny CI size: every step runs, and the reference grids agree with
+pdcov's within the tolerances the benchmark states. No timing is asserted."""
+
+import numpy as np
+import pytest
+
+from benchmarks.__main__ import (
+    R1_MIN_SHARE,
+    R1_TOLERANCE_PD,
+    R2_MIN_SHARE,
+    R2_TOLERANCE_PD,
+    SMOKE,
+    compare_reference,
+    main,
+)
+from benchmarks.references import r1_pixel_rays
+from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
+from benchmarks.scenarios import scenarios, spaced
+from pdcov.camera import CameraModel
+
+
+@pytest.mark.parametrize("name", ["S1", "S3", "S4"])
+def test_references_agree_with_pdcov(name):
+    sc = scenarios(smoke=True)[name]
+    frames = spaced(sc.poses(), 4, max(1, round(sc.rate_hz * 0.5)))
+    rays = r1_pixel_rays(sc.camera)
+    _, _, r1, _ = compare_reference(sc, frames, "R1", rays, R1_TOLERANCE_PD)
+    _, _, r2, skipped = compare_reference(sc, frames, "R2", rays, R2_TOLERANCE_PD)
+    assert r1.cells_compared > 100 and r2.cells_compared > 100
+    assert r2.looks_differ == 0 and skipped == 0
+    assert r2.share_within >= R2_MIN_SHARE
+    if name == "S1":  # the target's scenario; elsewhere R1's pixel counting is coarser
+        assert r1.share_within >= R1_MIN_SHARE
+
+
+def test_smoke_run_completes(capsys):
+    assert main(["--smoke", "--scenarios", "S1", "S2"]) == 0
+    out = capsys.readouterr().out
+    for figure in ("update: frames/s", "floor passes", "R1 / pdcov", "R2 vs pdcov grid",
+                   "offline evaluate (tlog)", "planner: plans/min"):
+        assert figure in out
+    assert f"{SMOKE.r1_frames} frames" in out
+
+
+def test_lattice_projection_matches_opencv_project_points():
+    # The grid's fast path (initUndistortRectifyMap) against projectPoints, point by point.
+    H = np.array([[1.0, 0.1, -40.0], [0.05, -0.9, 20.0], [0.02, 0.3, 60.0]])
+    jj, ii = np.meshgrid(np.arange(61), np.arange(41))
+    p_cam = np.stack([jj, ii, np.ones_like(jj)], axis=-1) @ H.T
+    for cam in (CameraModel.from_fov(1920, 1080, 80, "plumb_bob", (-0.05, 0.01, 5e-4, -5e-4, 0)),
+                CameraModel.from_fov(1920, 1080, 150, "fisheye", (0.01, -0.005, 0.001, 0.0)),
+                CameraModel.from_fov(640, 480, 70)):
+        px = cam.project_lattice(H, 61, 41)
+        np.testing.assert_allclose(px.reshape(-1, 2), cam.project(p_cam.reshape(-1, 3)),
+                                   atol=2e-4 if cam.dist_coeffs.any() or cam.is_fisheye
+                                   else 1e-9)
+
+
+def test_readme_block_is_replaced_between_markers_only(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# title\n\ntext\n")
+    write_readme_block(readme, "table 1")
+    write_readme_block(readme, "table 2")
+    text = readme.read_text()
+    assert text.startswith("# title\n\ntext\n\n" + START_MARKER)
+    assert "table 2" in text and "table 1" not in text and text.count(END_MARKER) == 1
