@@ -17,10 +17,8 @@ BINS = ",".join(f"{e:g}" for e in EDGES)
 
 
 @pytest.fixture
-def pdcov(monkeypatch, capsys):
-    """Run the real console entry point with only this command group registered (the other
-    groups are other modules' business), returning (status, stdout, stderr)."""
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ("pdcov.commands.detector",))
+def pdcov(capsys):
+    """Run the real console entry point, returning (status, stdout, stderr)."""
 
     def run(*argv: str | Path) -> tuple[int, str, str]:
         status = cli.main([str(a) for a in argv])

@@ -13,29 +13,40 @@ import sys
 from . import __version__
 from .errors import PdcovError
 
-# One module per command group, in the order ``pdcov --help`` lists them.
-COMMAND_MODULES = (
-    "pdcov.commands.demo",
-    "pdcov.commands.evaluate",
-    "pdcov.commands.detector",
-    "pdcov.commands.plan",
-    "pdcov.commands.mount",
-)
+# Each sub-command and the module that registers it, in the order ``pdcov --help`` lists
+# them. Only the module of the command given is imported: start-up stays short.
+COMMANDS = {
+    "demo": "pdcov.commands.demo",
+    "evaluate": "pdcov.commands.evaluate",
+    "compare": "pdcov.commands.evaluate",
+    "footprint": "pdcov.commands.evaluate",
+    "detector": "pdcov.commands.detector",
+    "plan": "pdcov.commands.plan",
+    "optimise": "pdcov.commands.plan",
+    "refly": "pdcov.commands.plan",
+    "upload": "pdcov.commands.plan",
+    "mount-check": "pdcov.commands.mount",
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with ``command``'s module registered, or every module when it is None or
+    not a known command (for ``--help`` and the usage error)."""
     parser = argparse.ArgumentParser(
         prog="pdcov",
         description="Probability-of-detection coverage maps for search-and-rescue UAVs.")
     parser.add_argument("--version", action="version", version=f"pdcov {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    modules = ([COMMANDS[command]] if command in COMMANDS
+               else list(dict.fromkeys(COMMANDS.values())))
+    for name in modules:
         importlib.import_module(name).register(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

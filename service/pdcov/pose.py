@@ -31,6 +31,7 @@ R_GIMBAL_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 x_cam = y_gimbal (right), y_cam = z_gimbal (down)."""
 
 _ORTHO_TOL = 1e-6
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,12 +50,15 @@ class CameraPose:
     def __post_init__(self) -> None:
         R = np.array(self.R_enu_cam, dtype=float)
         r = np.array(self.r_cam_enu, dtype=float).reshape(-1)
-        if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        if R.shape != (3, 3) or not np.isfinite(R).all():
             raise ValueError(f"R_enu_cam must be a finite 3x3 matrix, got {R!r}")
-        if (np.abs(R.T @ R - np.eye(3)).max() > _ORTHO_TOL
-                or abs(np.linalg.det(R) - 1.0) > _ORTHO_TOL):
+        # Orthonormal with det +1: R^T R = I and the third column is x cross y.
+        (a, b, c), (d, e, f_), (g, h, i) = R.tolist()
+        if (np.abs(R.T @ R - _EYE3).max() > _ORTHO_TOL
+                or abs(b * f_ - c * e - g) + abs(c * d - a * f_ - h) + abs(a * e - b * d - i)
+                > 3 * _ORTHO_TOL):
             raise ValueError("R_enu_cam must be a proper rotation (orthonormal, det +1)")
-        if r.shape != (3,) or not np.all(np.isfinite(r)):
+        if r.shape != (3,) or not np.isfinite(r).all():
             raise ValueError(f"r_cam_enu must be 3 finite numbers, got {r!r}")
         R.setflags(write=False)
         r.setflags(write=False)

@@ -550,7 +550,8 @@ def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
         f = path.open(newline="")
     except OSError as exc:
         raise InputFileError(f"{path}: cannot open pose CSV: {exc.strerror or exc}") from None
-    poses = []
+    rows: list[list[float]] = []
+    lines: list[int] = []
     with f:
         reader = csv.reader(f)
         try:
@@ -562,28 +563,34 @@ def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
                 line = reader.line_num
                 if not row or all(not c.strip() for c in row):
                     continue
+                if len(row) < 8:
+                    raise InputFileError(f"{path}:{line}: expected 8 columns, got {len(row)}")
                 try:
-                    values = np.array([float(c) for c in row[:8]])
+                    rows.append([float(c) for c in row[:8]])
                 except ValueError:
                     raise InputFileError(f"{path}:{line}: expected 8 numbers, got {row[:8]!r}"
                                          ) from None
-                if len(values) < 8:
-                    raise InputFileError(f"{path}:{line}: expected 8 columns, got {len(row)}")
-                if not np.all(np.isfinite(values)):
-                    bad = [POSE_CSV_COLUMNS[i] for i in np.flatnonzero(~np.isfinite(values))]
-                    raise InputFileError(f"{path}:{line}: {', '.join(bad)} not a finite number")
-                q = values[4:]
-                norm = float(np.linalg.norm(q))
-                if abs(norm - 1.0) > QUAT_NORM_TOL:
-                    raise InputFileError(f"{path}:{line}: quaternion (qw, qx, qy, qz) has norm "
-                                         f"{norm:.6f}; expected a unit quaternion "
-                                         f"(within {QUAT_NORM_TOL})")
-                # from_quat normalises, exactly as when the poses were written.
-                poses.append(CameraPose.from_quat(q, values[1:4], float(values[0])))
+                lines.append(line)
         except UnicodeDecodeError:
             raise InputFileError(f"{path}: not a text CSV file") from None
         except csv.Error as exc:
             raise InputFileError(f"{path}:{reader.line_num}: {exc}") from None
+    values = np.array(rows, dtype=float).reshape(-1, 8)
+    finite = np.isfinite(values)
+    if not finite.all():
+        k = int(np.flatnonzero(~finite.all(axis=1))[0])
+        bad = [POSE_CSV_COLUMNS[i] for i in np.flatnonzero(~finite[k])]
+        raise InputFileError(f"{path}:{lines[k]}: {', '.join(bad)} not a finite number")
+    norm = np.linalg.norm(values[:, 4:], axis=1)
+    off = np.abs(norm - 1.0) > QUAT_NORM_TOL
+    if off.any():
+        k = int(np.flatnonzero(off)[0])
+        raise InputFileError(f"{path}:{lines[k]}: quaternion (qw, qx, qy, qz) has norm "
+                             f"{norm[k]:.6f}; expected a unit quaternion "
+                             f"(within {QUAT_NORM_TOL})")
+    # from_quat normalises, exactly as when the poses were written.
+    R_enu_cam = R_from_quat_wxyz(values[:, 4:]).reshape(-1, 3, 3)
+    poses = [CameraPose(R, v[1:4], float(v[0])) for R, v in zip(R_enu_cam, values, strict=True)]
     if not poses:
         raise InputFileError(f"{path}: no pose rows after the header")
     return tuple(poses)
