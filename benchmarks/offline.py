@@ -27,8 +27,10 @@ from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario
 TELEMETRY_RATE_HZ = 10.0  # ATTITUDE and GLOBAL_POSITION_INT, a usual stream rate
 MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA = 2, 3
 
-# Runs the pdcov console script in this child and reports its peak resident memory.
-_CHILD = ("import resource, sys\n"
+# Runs the pdcov console script in this child, pinned to one CPU (the target is "on one
+# core"; OpenCV would otherwise use every core), and reports its peak resident memory.
+_CHILD = ("import os, resource, sys\n"
+          "os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})\n"
           "from pdcov.cli import main\n"
           "rc = main(sys.argv[1:])\n"
           "print('peak_rss_kib', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,\n"
