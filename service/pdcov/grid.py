@@ -13,13 +13,12 @@ picture, scaled to detector-input pixels.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write
 from .camera import CameraModel
 from .detector import DetectorModel
 from .domain import GridGeometry
@@ -92,12 +91,12 @@ class CoverageGrid:
     @property
     def pd(self) -> np.ndarray:
         """Cumulative probability of detection per cell (float64, 0 where not free)."""
-        return -np.expm1(self.log_miss_d.astype(np.float64))
+        return 0.0 - np.expm1(self.log_miss_d.astype(np.float64))  # 0.0 - : no -0.0
 
     @property
     def pfa(self) -> np.ndarray:
         """Cumulative probability of false alarm per cell (float64)."""
-        return -np.expm1(self.log_miss_fa.astype(np.float64))
+        return 0.0 - np.expm1(self.log_miss_fa.astype(np.float64))
 
     def metrics(self, thresholds: tuple[float, ...] | list[float]) -> Metrics:
         pd = self.pd[self.mask]
@@ -276,21 +275,12 @@ class CoverageGrid:
     def save_npz(self, path: str | Path) -> None:
         """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
         log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames."""
-        path = Path(path)
         g = self.geometry
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(
-                    fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
-                    mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
-                    x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_write(path, "wb") as fh:
+            np.savez_compressed(
+                fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
+                mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
+                x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames)
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
