@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import write_text_atomic
 from .errors import InputFileError
 from .geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 
@@ -311,14 +312,15 @@ WPL_SUFFIXES = (".waypoints", ".txt", ".mission")
 
 
 def write_plan(path: str | Path, plan: Plan, origin: Origin) -> Path:
-    """Write ``plan`` as QGC ``.plan`` JSON, or WPL 110 for .waypoints/.txt/.mission."""
+    """Write ``plan`` (atomically) as QGC ``.plan`` JSON, or WPL 110 for
+    .waypoints/.txt/.mission."""
     path = Path(path)
     items = mission_items(plan, origin)
     if path.suffix == ".plan":
         doc = qgc_plan_document(items, origin, plan.waypoints[0].speed_mps)
-        path.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        write_text_atomic(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     elif path.suffix in WPL_SUFFIXES:
-        path.write_text(wpl_text(items, origin))
+        write_text_atomic(path, wpl_text(items, origin))
     else:
         raise InputFileError(f"{path}: unknown plan format (use .plan or one of "
                              f"{', '.join(WPL_SUFFIXES)})")
