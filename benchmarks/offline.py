@@ -29,12 +29,14 @@ MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA = 2, 3
 
 # Runs the pdcov console script in this child, pinned to one CPU (the target is "on one
 # core"; OpenCV would otherwise use every core), and reports its peak resident memory.
-_CHILD = ("import os, resource, sys\n"
+# VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss across fork and exec, so a child
+# of the (large) benchmark process would report the parent's peak.
+_CHILD = ("import os, sys\n"
           "os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})\n"
           "from pdcov.cli import main\n"
           "rc = main(sys.argv[1:])\n"
-          "print('peak_rss_kib', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,\n"
-          "      file=sys.stderr)\n"
+          "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
+          "print('peak_rss_kib', hwm[0].split()[1], file=sys.stderr)\n"
           "sys.exit(rc)\n")
 
 
