@@ -72,6 +72,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
+        log_poses = None
         poses = read_pose_csv(args.poses)
         origin = mission.origin()
         track = np.array([p.r_cam_enu for p in poses]) if poses else None
@@ -108,9 +109,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise PdcovError(f"--outline-threshold: expected a probability in [0, 1], got "
                          f"{args.outline_threshold}")
     grid = evaluate_poses(mission, poses, progress=progress, total=len(poses))
-    if args.log is not None and args.export_poses:
+    if log_poses is not None and args.export_poses:
         write_pose_csv(args.export_poses, log_poses)
         lines.append(f"camera poses written to {args.export_poses}")
+    # The per-frame poses are done with: free them before writing the outputs (the peak).
+    del poses, log_poses
     source = (args.poses or args.log).name
     run = write_outputs(args.out, mission, grid, origin,
                         title=f"{mission.vehicle_id}: {source}", track_enu=finite_track(track),
