@@ -167,8 +167,9 @@ class CameraModel:
     def project(self, p_cam: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N, 2) of points (N, 3) in the optical frame, through OpenCV.
 
-        Only meaningful where ``in_fov`` is True; elsewhere the values may be folded back or
-        infinite. Use ``visible`` for the combined test.
+        Only meaningful where ``projectable`` is True; elsewhere the values may be folded back
+        or infinite. Use ``visible`` for the combined test (in front, in the calibrated field
+        of view, in the picture).
         """
         p = np.ascontiguousarray(np.asarray(p_cam, dtype=np.float64).reshape(-1, 1, 3))
         if len(p) == 0:
@@ -284,11 +285,6 @@ class CameraModel:
     def border_rays_cam(self) -> np.ndarray:
         """Unit rays (M, 3) through the picture's border, in order around it (optical frame)."""
         return self._border_rays_cam
-
-    @property
-    def max_fov_half_angle_rad(self) -> float:
-        """Largest angle between the optical axis and a border ray."""
-        return float(self._fov.theta_rad.max())
 
     @property
     def focal_px(self) -> float:

@@ -36,7 +36,8 @@ def footprint_ring_enu(camera: CameraModel, pose: CameraPose, max_range_m: float
 
     Points beyond the ground disk of ``max_range_m`` slant range (and rays above the horizon)
     are moved onto the disk's circle along their azimuth. Empty (0, 2) when no border ray nor
-    the optical axis reaches the ground.
+    the optical axis reaches the ground, or when the camera is at or below the ground or
+    higher than ``max_range_m`` above it.
     """
     rho_max = ground_range_m(pose, max_range_m)
     d = camera.border_rays_cam @ pose.R_enu_cam.T

@@ -28,10 +28,11 @@ class Origin:
             raise ConfigError(f"origin.lat_deg: expected a latitude in [-90, 90], "
                               f"got {self.lat_deg}")
         if not (math.isfinite(self.lon_deg) and -180.0 <= self.lon_deg <= 360.0):
-            raise ConfigError(f"origin.lon_deg: expected a longitude in [-180, 180], "
+            raise ConfigError(f"origin.lon_deg: expected a longitude in [-180, 360], "
                               f"got {self.lon_deg}")
         if not math.isfinite(self.ground_alt_msl_m):
-            raise ConfigError("origin.ground_alt_msl_m: expected a finite altitude in metres")
+            raise ConfigError(f"origin.ground_alt_msl_m: expected a finite altitude in metres, "
+                              f"got {self.ground_alt_msl_m}")
 
 
 def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_msl_m: np.ndarray,

@@ -82,7 +82,8 @@ class CoverageGrid:
         with np.errstate(divide="ignore"):
             self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
                                      np.log1p(-pfa).astype(np.float32))
-        # Bin edges as image areas (px^2), float64 and float32: [area dtype is float32].
+        # Bin edges as image areas (px^2), indexed by ``area dtype is float32``: (float64
+        # edges, float32 edges), so that update compares areas with edges of their own dtype.
         area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / self.size_scale) ** 2
         self._area_edges_px2 = (area_edges, area_edges.astype(np.float32))
 

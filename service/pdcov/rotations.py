@@ -6,7 +6,8 @@ Conventions: ``R_a_b`` maps vectors in frame b into frame a. Quaternions are sca
 ``R_parent_child = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, as MAVLink ATTITUDE and the gimbal
 protocol define them. Angles are radians.
 
-This is the one place that decomposes a rotation into Euler angles (``euler_zyx_from_R``);
+This is the one place that decomposes a rotation into Euler angles (``euler_zyx_from_R``,
+``euler_zyx_from_R_many``);
 everything else works with matrices or quaternions, which have no gimbal lock.
 """
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 
 def R_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
@@ -58,12 +59,6 @@ def Rz(angle_rad: float) -> np.ndarray:
     """Rotation about z by ``angle_rad`` (parent <- child)."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def slerp_R(t_samples_s: np.ndarray, R_samples: np.ndarray, t_query_s: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation of rotations (N, 3, 3) at times inside the samples."""
-    return Slerp(np.asarray(t_samples_s, float), Rotation.from_matrix(R_samples))(
-        np.asarray(t_query_s, float)).as_matrix()
 
 
 def angle_between_R(R_a: np.ndarray, R_b: np.ndarray) -> float:

@@ -2,7 +2,8 @@
 
 POA: probability that the missing person is in each cell (the prior; sums to at most 1 over
 the grid). POS = sum(POA * P_D). After an unsuccessful search, Bayes gives the posterior
-POA' = POA * (1 - P_D) / (1 - POS), the map a search manager plans the next sortie from.
+POA' = POA * (1 - P_D) / (1 - POS), the map a search manager plans the next sortie from;
+``search_outcome`` conditions it on the person being in the grid (it sums to 1 over the grid).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import numpy as np
 
 @dataclass(frozen=True, slots=True)
 class SearchOutcome:
-    """POS of the search, the prior's mass inside the grid's free cells, and the posterior
-    (same shape as the grid; sums to the prior's in-grid mass renormalised to 1)."""
+    """POS of the search, the prior's mass over the grid (free cells and obstacles), and the
+    posterior (same shape as the grid), renormalised to sum to 1 over the grid: the
+    probability of area given that the person is in the grid and was not found."""
 
     probability_of_success: float
     prior_mass: float
