@@ -342,3 +342,18 @@ def test_prior_from_geojson_segments_and_geotiff(tmp_path):
     from pdcov.errors import InputFileError
     with pytest.raises(InputFileError, match="bad.geojson.*poa"):
         load_prior(tmp_path / "bad.geojson", g, mask, ORIGIN)
+
+
+def test_prior_summing_above_one_is_rejected(tmp_path):
+    # A prior of weights rather than probabilities gave a probability of success above 1.
+    from pdcov.errors import InputFileError
+    from pdcov.evaluate import load_prior
+
+    mission = load_mission(write_config(tmp_path, mission_doc()))
+    g = mission.domain.grid_geometry(1.0)
+    mask = mission.domain.free_mask(g)
+    np.save(tmp_path / "weights.npy", np.ones(g.shape))
+    with pytest.raises(InputFileError, match=r"weights.npy.*sum to 1600"):
+        load_prior(tmp_path / "weights.npy", g, mask, ORIGIN)
+    np.save(tmp_path / "prior.npy", np.full(g.shape, 1.0 / g.n_rows / g.n_cols))
+    assert load_prior(tmp_path / "prior.npy", g, mask, ORIGIN).sum() == pytest.approx(1.0)

@@ -26,6 +26,7 @@ from .pose import CameraPose
 from .search_theory import SearchOutcome, search_outcome
 
 METRICS_VERSION = 1
+_PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
 
 
 def evaluate_poses(mission: Mission, poses: Iterable[CameraPose], progress: bool = False,
@@ -89,6 +90,11 @@ def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
         raise InputFileError(f"{path}: cannot use as a prior: {exc}") from None
     if not np.all(np.isfinite(poa)) or np.any(poa < 0) or poa.sum() <= 0:
         raise InputFileError(f"{path}: prior probabilities must be finite, >= 0, and not all 0")
+    # A probability of area sums to at most 1 (the rest lies outside the grid); more would
+    # give a probability of success above 1.
+    if poa.sum() > 1.0 + _PRIOR_SUM_TOL:
+        raise InputFileError(f"{path}: prior probabilities sum to {poa.sum():.6g} over the "
+                             f"grid; a probability of area sums to at most 1 (normalise it)")
     return poa
 
 
