@@ -23,7 +23,7 @@ from pdcov.pose import (
 )
 from pdcov.pose_tracker import PoseTracker, poses_from_log, read_pose_csv, write_pose_csv
 from pdcov.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
-from pdcov.telemetry import CaptureSample
+from pdcov.telemetry import AttitudeSample, CaptureSample, GimbalSample, PositionSample
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 RATE_HZ = 20.0  # telemetry rate; frames at 5 Hz fall on telemetry samples
@@ -169,6 +169,26 @@ def test_live_feed_equals_offline(tmp_path: Path) -> None:
         np.testing.assert_allclose(a.R_enu_cam, b.R_enu_cam, atol=1e-4)
         np.testing.assert_allclose(a.r_cam_enu, b.r_cam_enu, atol=0.02)
     assert tracker.pose_at(1000.0).pose is None
+
+
+def test_live_gimbal_reports_without_quaternion_are_counted_not_raised() -> None:
+    """A gimbal that first sends NaN quaternions (no attitude yet) leaves the live tracker
+    with no usable gimbal report: frames are skipped, the reports counted, nothing raised."""
+    tracker = PoseTracker(ORIGIN, GimbalMount(attitude_frame="flags"))
+    nan = float("nan")
+    for t in (0.0, 0.1):
+        tracker.add_attitude(AttitudeSample(t, (1.0, 0.0, 0.0, 0.0)))
+        tracker.add_position(PositionSample(t, ORIGIN.lat_deg, ORIGIN.lon_deg, 600.0))
+        tracker.add_gimbal(GimbalSample(t, (nan, nan, nan, nan),
+                                        GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME))
+    result = tracker.pose_at(0.05)
+    assert result.pose is None and result.reason == "outside the gimbal samples"
+    assert tracker.dropped_gimbal_reports == 2
+    tracker.add_gimbal(GimbalSample(0.2, (1.0, 0.0, 0.0, 0.0),
+                                    GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME))
+    tracker.add_attitude(AttitudeSample(0.2, (1.0, 0.0, 0.0, 0.0)))
+    tracker.add_position(PositionSample(0.2, ORIGIN.lat_deg, ORIGIN.lon_deg, 600.0))
+    assert tracker.pose_at(0.2).pose is not None
 
 
 def test_pose_csv_round_trip_is_exact(tmp_path: Path) -> None:

@@ -254,6 +254,18 @@ class GimbalAttitudes:
 _AT_LIMIT_RAD = math.radians(0.05)
 
 
+def earth_frame_mask(flags: np.ndarray) -> np.ndarray:
+    """Vectorised ``pose.gimbal_frame_from_flags``: True where a report's quaternion is in the
+    earth frame (NED), False where in the vehicle frame (NED turned by the heading).
+
+    common.xml GIMBAL_DEVICE_ATTITUDE_STATUS: YAW_IN_EARTH_FRAME or YAW_IN_VEHICLE_FRAME
+    decide; with neither, YAW_LOCK means earth frame."""
+    flags = np.asarray(flags, np.int64)
+    return ((flags & GIMBAL_FLAG_YAW_IN_EARTH_FRAME) != 0) | (
+        ((flags & GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME) == 0)
+        & ((flags & GIMBAL_FLAG_YAW_LOCK) != 0))
+
+
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -329,12 +341,7 @@ def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.nd
             R_body_gimbal = R_body_gimbal @ _axis_R(axis, clipped[:, idx[axis]])
         R_ned_gimbal = R_ned_body @ R_body_gimbal
     else:
-        # common.xml GIMBAL_DEVICE_ATTITUDE_STATUS: q is in the earth frame (NED) with
-        # YAW_IN_EARTH_FRAME, in the vehicle frame (NED turned by the vehicle's heading) with
-        # YAW_IN_VEHICLE_FRAME; with neither, YAW_LOCK means earth frame.
-        earth = ((flags & GIMBAL_FLAG_YAW_IN_EARTH_FRAME) != 0) | (
-            ((flags & GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME) == 0)
-            & ((flags & GIMBAL_FLAG_YAW_LOCK) != 0))
+        earth = earth_frame_mask(flags)
         heading = np.arctan2(R_ned_body[:, 1, 0], R_ned_body[:, 0, 0])
         R_ned_gimbal = np.where(earth[:, None, None], R_ref, _axis_R("yaw", heading) @ R_ref)
     return GimbalAttitudes(R_ned_gimbal, reasons == "", reasons, usable, at_limit)

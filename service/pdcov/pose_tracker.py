@@ -28,15 +28,13 @@ from .geodesy import Origin, geodetic_to_enu
 from .gimbal import (
     GimbalInterpretation,
     GimbalMount,
+    earth_frame_mask,
     interpret_gimbal,
     preferred_gimbal_source,
     resolve_interpretation,
 )
 from .logs import FlightLog, read_flight_log
 from .pose import (
-    GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
-    GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
-    GIMBAL_FLAG_YAW_LOCK,
     R_ENU_NED,
     R_GIMBAL_CAM,
     CameraPose,
@@ -84,11 +82,18 @@ def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
     return lo, hi, w, inside, inside & (gap <= max_gap_s)
 
 
-def _frame_codes(flags: np.ndarray) -> np.ndarray:
-    """0 = vehicle frame, 1 = earth frame, per pose.gimbal_frame_from_flags (vectorised)."""
-    earth = (flags & GIMBAL_FLAG_YAW_IN_EARTH_FRAME) != 0
-    neither = (flags & (GIMBAL_FLAG_YAW_IN_EARTH_FRAME | GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME)) == 0
-    return (earth | (neither & ((flags & GIMBAL_FLAG_YAW_LOCK) != 0))).astype(int)
+def _merge_sorted(old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
+                  ) -> list[np.ndarray]:
+    """Columns (time first) of two time-sorted sets merged in time order; of equal times the
+    one from ``new`` is kept. Either set may be empty."""
+    cols = [np.concatenate([a, b]) for a, b in zip(old, new, strict=True)]
+    order = np.argsort(cols[0], kind="stable")
+    keep = np.diff(cols[0][order], append=np.inf) > 0
+    return [c[order][keep] for c in cols]
+
+
+def _gimbal_columns(g: GimbalSeries) -> tuple[np.ndarray, ...]:
+    return (g.t_s, g.q_wxyz, g.flags, g.failure_flags)
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,35 +208,26 @@ class PoseTracker:
         norm = np.linalg.norm(g.q_wxyz, axis=1)
         ok = np.isfinite(norm) & (norm > 0.5)
         self.dropped_gimbal_reports += int((~ok).sum())
-        return GimbalSeries(g.t_s[ok], g.q_wxyz[ok], g.flags[ok], g.failure_flags[ok])
+        return GimbalSeries(*(c[ok] for c in _gimbal_columns(g)))
 
     def _merge(self) -> None:
         """Fold pending samples into the sorted series; drop history older than history_s."""
         if self._pending_att:
             new = AttitudeSeries.from_samples(self._pending_att)
-            t = np.concatenate([self._att.t_s, new.t_s])
-            q = np.concatenate([self._att.q_ned_body_wxyz, new.q_ned_body_wxyz])
-            order = np.argsort(t, kind="stable")
-            keep = np.append(np.diff(t[order]) > 0, True)
-            both = AttitudeSeries(t[order][keep], q[order][keep])
-            self._att, self._pending_att = both, []
+            self._att = AttitudeSeries(*_merge_sorted(
+                (self._att.t_s, self._att.q_ned_body_wxyz), (new.t_s, new.q_ned_body_wxyz)))
+            self._pending_att = []
         if self._pending_pos:
             new = PositionSeries.from_samples(self._pending_pos)
             enu = geodetic_to_enu(new.lat_deg, new.lon_deg, new.alt_msl_m,
                                   self.origin).reshape(-1, 3)
-            t = np.concatenate([self._pos_t, new.t_s])
-            e = np.concatenate([self._pos_enu, enu])
-            order = np.argsort(t, kind="stable")
-            keep = np.append(np.diff(t[order]) > 0, True)
-            self._pos_t, self._pos_enu, self._pending_pos = t[order][keep], e[order][keep], []
+            self._pos_t, self._pos_enu = _merge_sorted((self._pos_t, self._pos_enu),
+                                                       (new.t_s, enu))
+            self._pending_pos = []
         if self._pending_gim:
             new = self._usable_gimbal(GimbalSeries.from_samples(self._pending_gim))
-            parts = [np.concatenate([a, b]) for a, b in zip(
-                (self._gim.t_s, self._gim.q_wxyz, self._gim.flags, self._gim.failure_flags),
-                (new.t_s, new.q_wxyz, new.flags, new.failure_flags), strict=True)]
-            order = np.argsort(parts[0], kind="stable")
-            keep = np.append(np.diff(parts[0][order]) > 0, True)
-            self._gim = GimbalSeries(*(p[order][keep] for p in parts))
+            self._gim = GimbalSeries(*_merge_sorted(_gimbal_columns(self._gim),
+                                                    _gimbal_columns(new)))
             self._pending_gim = []
         if self.history_s is not None and len(self._att.t_s):
             cut = self._att.t_s[-1] - self.history_s
@@ -240,8 +236,7 @@ class PoseTracker:
             p = self._pos_t >= cut
             self._pos_t, self._pos_enu = self._pos_t[p], self._pos_enu[p]
             g = self._gim.t_s >= cut
-            self._gim = GimbalSeries(self._gim.t_s[g], self._gim.q_wxyz[g],
-                                     self._gim.flags[g], self._gim.failure_flags[g])
+            self._gim = GimbalSeries(*(c[g] for c in _gimbal_columns(self._gim)))
 
     # --- querying --------------------------------------------------------------------------
 
@@ -306,23 +301,22 @@ class PoseTracker:
         trusted = np.ones(n, bool)
         at_limit = np.zeros(n, bool)
         untrusted = np.full(n, "", dtype=object)
+        lever = np.asarray(self.mount.lever_arm_frd_m, float)
         if isinstance(self.mount, FixedMount):
             R_ned_gimbal = R_ned_body @ self.mount.R_body_gimbal
             interp = np.full(n, "fixed", dtype=object)
-            lever = np.asarray(self.mount.lever_arm_frd_m, float)
         else:
             g = self._gim
             lo, hi, w, inside, gap_ok = _bracket(g.t_s, t, self.max_gap_s)
             check("gimbal", inside, gap_ok)
             R_ned_gimbal = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
             interp = np.full(n, self.interpretation.frame, dtype=object)
-            lever = np.asarray(self.mount.lever_arm_frd_m, float)
             if len(g.t_s):
                 near = np.where(w < 0.5, lo, hi)
                 norm = np.linalg.norm(g.q_wxyz, axis=1)
                 q_unit = g.q_wxyz / norm[:, None]
-                codes = _frame_codes(g.flags)
-                same = codes[lo] == codes[hi]  # never slerp across a change of frame
+                earth = earth_frame_mask(g.flags)
+                same = earth[lo] == earth[hi]  # never slerp across a change of frame
                 q_i = slerp_quat_wxyz(q_unit[lo], q_unit[hi], np.where(same, w, 0.0))
                 q_i = np.where(same[:, None], q_i, q_unit[near])
                 # Carry the nearer report's norm so that a non-unit report is judged as sent.
@@ -334,7 +328,7 @@ class PoseTracker:
                 R_ned_gimbal, trusted, untrusted = att.R_ned_gimbal, att.trusted, att.reasons
                 at_limit = att.at_limit
                 if self.interpretation.frame == "flags":
-                    interp = np.where(_frame_codes(gimbal_flags) == 1, "flags:earth",
+                    interp = np.where(earth_frame_mask(gimbal_flags), "flags:earth",
                                       "flags:vehicle").astype(object)
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
