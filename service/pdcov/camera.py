@@ -126,7 +126,7 @@ class CameraModel:
                    doc.get("distortion_model", "plumb_bob"),
                    _floats(doc.get("distortion_coeffs", []), source,
                            key + ".distortion_coeffs"),
-                   source=f"{source}: {key}" if source else key)
+                   source=where(source, key))
 
     @classmethod
     def from_camera_info(cls, path: str | Path) -> CameraModel:

@@ -239,7 +239,7 @@ def _detector(v: Any, src: str | None, base: Path) -> DetectorModel:
             return DetectorModel.illustrative()
         return DetectorModel.from_yaml(_resolve(v, base, src, "detector"))
     if isinstance(v, dict):
-        return DetectorModel.from_dict(v, source=f"{src}: detector" if src else "detector")
+        return DetectorModel.from_dict(v, source=where(src, "detector"))
     raise ConfigError(f"{where(src, 'detector')}: expected a path to a detector model YAML, "
                       f"'illustrative', or an inline model mapping, got {v!r}")
 

@@ -18,7 +18,7 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
-from .errors import DomainError
+from .errors import DomainError, where
 from .geodesy import Origin, geodetic_to_enu
 
 
@@ -164,15 +164,13 @@ def _points(ring: Any, key: str, source: str | None) -> np.ndarray:
     except (TypeError, ValueError):
         pts = np.empty((0,))
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.all(np.isfinite(pts)):
-        where = f"{source}: {key}" if source else key
-        raise DomainError(f"{where}: expected a list of at least 3 [x, y] pairs of finite "
-                          f"numbers, got {ring!r}"[:300])
+        raise DomainError(f"{where(source, key)}: expected a list of at least 3 [x, y] pairs "
+                          f"of finite numbers, got {ring!r}"[:300])
     return pts
 
 
 def _polygon(ring: Any, key: str, source: str | None) -> Polygon:
     poly = Polygon(_points(ring, key, source))
     if not poly.is_valid:
-        where = f"{source}: {key}" if source else key
-        raise DomainError(f"{where}: invalid polygon ({explain_validity(poly)})")
+        raise DomainError(f"{where(source, key)}: invalid polygon ({explain_validity(poly)})")
     return poly

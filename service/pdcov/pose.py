@@ -146,7 +146,9 @@ class FixedMount:
     def __post_init__(self) -> None:
         values = (self.roll_rad, self.pitch_rad, self.yaw_rad, *self.lever_arm_frd_m)
         if len(self.lever_arm_frd_m) != 3 or not np.all(np.isfinite(values)):
-            raise ConfigError("mount: angles and lever_arm_frd_m (3 values) must be finite")
+            raise ConfigError(f"mount: angles and lever_arm_frd_m (3 values) must be finite, "
+                              f"got roll_rad={self.roll_rad}, pitch_rad={self.pitch_rad}, "
+                              f"yaw_rad={self.yaw_rad}, lever_arm_frd_m={self.lever_arm_frd_m}")
 
     @property
     def R_body_gimbal(self) -> np.ndarray:
