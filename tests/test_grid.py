@@ -204,6 +204,13 @@ def test_min_revisit_counts_one_look_per_interval():
     assert plain.n_obs[40, 40] == 10
 
 
+def test_min_revisit_without_frame_time_raises_before_counting_the_frame():
+    grid = square_grid(min_revisit_s=1.0)
+    with pytest.raises(ValueError, match="frame times"):
+        grid.update(pose(xyz=(0.5, 0.5, 10)))
+    assert grid.frames == 0 and grid.n_obs.sum() == 0
+
+
 def test_obstacle_cells_are_never_updated():
     dom = Domain.from_enu([[-20, -20], [20, -20], [20, 20], [-20, 20]],
                           [[[-2, -2], [2, -2], [2, 2], [-2, 2]]])

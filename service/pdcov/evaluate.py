@@ -29,10 +29,9 @@ METRICS_VERSION = 1
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
 
 
-def evaluate_poses(mission: Mission, poses: Iterable[CameraPose], progress: bool = False,
+def evaluate_poses(grid: CoverageGrid, poses: Iterable[CameraPose], progress: bool = False,
                    total: int | None = None) -> CoverageGrid:
-    """A new grid for ``mission`` updated with every pose (each a camera frame)."""
-    grid = mission.new_grid()
+    """``grid`` (e.g. ``Mission.new_grid()``) updated with every pose (each a camera frame)."""
     if progress:
         from tqdm import tqdm
         poses = tqdm(poses, desc="frames", unit="frame", total=total, mininterval=0.5)

@@ -31,6 +31,14 @@ _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
 _NEXT = [1, 2, 3, 0]  # the next corner of a quadrilateral
 
 
+def default_max_range_m(camera: CameraModel, detector: DetectorModel,
+                        cell_size_m: float) -> float:
+    """Slant range (m) where a cell of ``cell_size_m`` on the optical axis looks half as large
+    as the smallest size the detector model covers (beyond it P_D is 0 anyway)."""
+    scale = detector.image_to_input_scale(camera.width_px, camera.height_px)
+    return 2.0 * camera.focal_px * cell_size_m * scale / max(detector.bin_edges_px[0], 1e-3)
+
+
 @dataclass(frozen=True, slots=True)
 class Metrics:
     """Summary of a grid. Proportions are of free cells; false alarms sum P_FA over observed
@@ -49,8 +57,7 @@ class CoverageGrid:
 
     geometry: the cells (ENU). mask: bool (n_rows, n_cols), True for free cells (only those
     are updated). max_range_m: slant range beyond which cells are not observed; None chooses
-    the range where a cell on the optical axis would look half as large as the smallest size
-    the detector model covers (beyond it P_D is 0 anyway). min_revisit_s: count at most one
+    ``default_max_range_m``. min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
     """
 
@@ -66,8 +73,7 @@ class CoverageGrid:
         self.detector = detector
         self.size_scale = detector.image_to_input_scale(camera.width_px, camera.height_px)
         if max_range_m is None:
-            max_range_m = (2.0 * camera.focal_px * geometry.cell_size_m * self.size_scale
-                           / max(detector.bin_edges_px[0], 1e-3))
+            max_range_m = default_max_range_m(camera, detector, geometry.cell_size_m)
         if not max_range_m > 0:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self.max_range_m = float(max_range_m)
@@ -121,6 +127,9 @@ class CoverageGrid:
         t_s (s, autopilot clock) defaults to ``pose.t_s``; it is only used with
         ``min_revisit_s``.
         """
+        t = pose.t_s if t_s is None else t_s
+        if self.last_obs_s is not None and not math.isfinite(t):
+            raise ValueError(f"min_revisit_s needs frame times: pose.t_s or t_s, got {t}")
         self.frames += 1
         window = self._window(pose)
         if window is None:
@@ -128,9 +137,6 @@ class CoverageGrid:
         r0, r1, c0, c1 = window
         observed, area_px2 = self._observe_area(pose, window)
         if self.last_obs_s is not None:
-            t = pose.t_s if t_s is None else t_s
-            if not math.isfinite(t):
-                raise ValueError("min_revisit_s needs frame times: pose.t_s or t_s")
             last = self.last_obs_s[r0:r1, c0:c1]
             observed &= (t - last) >= self.min_revisit_s
             last[observed] = t

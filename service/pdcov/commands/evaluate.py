@@ -67,6 +67,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
 
     mission = load_mission(args.config)
+    if args.outline_threshold is not None and not 0 <= args.outline_threshold <= 1:
+        raise PdcovError(f"--outline-threshold: expected a probability in [0, 1], got "
+                         f"{args.outline_threshold}")
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
     if args.poses is not None:
@@ -102,13 +105,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
         from pdcov.plan import read_plan
         # Only drawn: a file without a speed command still gives its waypoints.
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
-    geometry = mission.domain.grid_geometry(mission.cell_size_m)
-    prior = (load_prior(args.prior, geometry, mission.domain.free_mask(geometry), origin)
+    grid = mission.new_grid()
+    prior = (load_prior(args.prior, grid.geometry, grid.mask, origin)
              if args.prior is not None else None)
-    if args.outline_threshold is not None and not 0 <= args.outline_threshold <= 1:
-        raise PdcovError(f"--outline-threshold: expected a probability in [0, 1], got "
-                         f"{args.outline_threshold}")
-    grid = evaluate_poses(mission, poses, progress=progress, total=len(poses))
+    evaluate_poses(grid, poses, progress=progress, total=len(poses))
     if log_poses is not None and args.export_poses:
         write_pose_csv(args.export_poses, log_poses)
         lines.append(f"camera poses written to {args.export_poses}")
@@ -167,6 +167,7 @@ def run_compare(args: argparse.Namespace) -> int:
 def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.domain import GridGeometry
     from pdcov.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
+    from pdcov.grid import default_max_range_m
     from pdcov.plots import ray_count_figure
     from pdcov.pose import FixedMount, camera_pose, fixed_mount_pose
     from pdcov.rotations import R_from_euler_zyx, Rz
@@ -190,8 +191,10 @@ def run_footprint(args: argparse.Namespace) -> int:
         R_ned_gimbal = Rz(math.radians(args.yaw_deg)) @ R_from_euler_zyx(0.0, pitch, 0.0)
         pose = camera_pose(R_ned_body, r, R_ned_gimbal)
         how = f"camera pitch {math.degrees(pitch):g} deg"
-    grid = mission.new_grid()
-    fp = footprint_polygon(mission.camera, pose, grid.max_range_m)
+    # The coverage grid's range, without building the grid (its free mask) just to read it.
+    max_range_m = mission.max_range_m or default_max_range_m(mission.camera, mission.detector,
+                                                             mission.cell_size_m)
+    fp = footprint_polygon(mission.camera, pose, max_range_m)
     if fp.is_empty:
         raise PdcovError("the camera sees no ground from this pose")
     cell = args.cell_size_m or mission.cell_size_m
@@ -199,7 +202,7 @@ def run_footprint(args: argparse.Namespace) -> int:
     geometry = GridGeometry(math.floor(x0 / cell) * cell, math.floor(y0 / cell) * cell, cell,
                             math.ceil((y1 - y0) / cell) + 2, math.ceil((x1 - x0) / cell) + 2)
     counts = ray_count_map(pixel_grid_rays(mission.camera, args.pixel_step), pose, geometry,
-                           grid.max_range_m)
+                           max_range_m)
     outline = np.asarray(fp.exterior.coords)
     ray_count_figure(args.out, counts, geometry, outline, r[:2],
                      title=f"{mission.camera.distortion_model} camera "
