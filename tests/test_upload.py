@@ -27,7 +27,8 @@ class Vehicle(threading.Thread):
     """A vehicle's mission server on a UDP port of 127.0.0.1."""
 
     def __init__(self, autopilot=mavlink2.MAV_AUTOPILOT_PX4, capacity=100,
-                 refuse_frame=None, legacy_requests=False, drop_first_count=False):
+                 refuse_frame=None, legacy_requests=False, drop_first_count=False,
+                 gimbal_heartbeat=False):
         super().__init__(daemon=True)
         self.conn = mavlink2_connection("udpin:127.0.0.1:0", 1, 1)
         self.port = self.conn.port.getsockname()[1]
@@ -36,6 +37,9 @@ class Vehicle(threading.Thread):
         self.refuse_frame = refuse_frame
         self.legacy_requests = legacy_requests
         self.drop_first_count = drop_first_count
+        self.gimbal = (mavlink2.MAVLink(self.conn, srcSystem=1, srcComponent=154)
+                       if gimbal_heartbeat else None)
+        self.count_components: list[int] = []
         self.received: dict[int, object] = {}
         self.counts_seen = 0
         self.stop = threading.Event()
@@ -54,10 +58,14 @@ class Vehicle(threading.Thread):
                 continue
             kind = msg.get_type()
             if kind == "HEARTBEAT":
+                if self.gimbal is not None:  # a gimbal on the same link speaks first
+                    self.gimbal.heartbeat_send(mavlink2.MAV_TYPE_GIMBAL,
+                                               mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
                 self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR, self.autopilot,
                                              0, 0, mavlink2.MAV_STATE_STANDBY)
             elif kind == "MISSION_COUNT" and msg.target_system == 1:
                 self.counts_seen += 1
+                self.count_components.append(msg.target_component)
                 if self.drop_first_count and self.counts_seen == 1:
                     continue  # lost on the link: the ground station must resend it
                 count = msg.count
@@ -142,6 +150,12 @@ def test_lost_count_is_resent(vehicle_factory):
     v = vehicle_factory(drop_first_count=True)
     result = upload_mission(ITEMS, url(v), home_item(ORIGIN), timeout_s=5, retry_s=0.3)
     assert result.accepted and v.counts_seen == 2
+
+
+def test_gimbal_heartbeat_is_not_the_vehicle(vehicle_factory):
+    v = vehicle_factory(gimbal_heartbeat=True)
+    result = upload_mission(ITEMS, url(v), home_item(ORIGIN), timeout_s=5)
+    assert result.accepted and v.count_components == [1]
 
 
 def test_silent_link_raises(vehicle_factory):

@@ -64,9 +64,17 @@ def legacy_mount_param_names(instance: int) -> tuple[str, ...]:
 
 def wait_autopilot(conn: mavutil.mavfile, timeout_s: float, *,
                    system_id: int | None = None) -> tuple[int, int]:
-    """(system id, component id) of the first autopilot HEARTBEAT on ``conn``, from
-    ``system_id`` if given. Heartbeats of ground stations (MAV_TYPE_GCS) and of components
-    that are no autopilot (MAV_AUTOPILOT_INVALID: gimbals, cameras, companions) are ignored.
+    """(system id, component id) of the first autopilot HEARTBEAT on ``conn``
+    (``wait_autopilot_heartbeat``)."""
+    msg = wait_autopilot_heartbeat(conn, timeout_s, system_id=system_id)
+    return msg.get_srcSystem(), msg.get_srcComponent()
+
+
+def wait_autopilot_heartbeat(conn: mavutil.mavfile, timeout_s: float, *,
+                             system_id: int | None = None) -> mavlink2.MAVLink_heartbeat_message:
+    """The first autopilot HEARTBEAT on ``conn``, from ``system_id`` if given. Heartbeats of
+    ground stations (MAV_TYPE_GCS) and of components that are no autopilot
+    (MAV_AUTOPILOT_INVALID: gimbals, cameras, companions) are ignored.
     Sends our own ground-station HEARTBEAT each second meanwhile: on a udpout: link the
     vehicle learns our address from it. Raises TelemetryError after ``timeout_s`` seconds."""
     t_end = time.monotonic() + timeout_s
@@ -86,7 +94,7 @@ def wait_autopilot(conn: mavutil.mavfile, timeout_s: float, *,
                 or (system_id is not None and source[0] != system_id)):
             ignored.add(source)
             continue
-        return source
+        return msg
     of_system = f" of system {system_id}" if system_id is not None else ""
     heard = ", ".join(f"system {s} component {c}" for s, c in sorted(ignored))
     raise TelemetryError(f"no HEARTBEAT of an autopilot{of_system} on {conn.address} within "

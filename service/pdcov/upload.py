@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from .errors import PdcovError
+from .errors import PdcovError, TelemetryError
+from .link_params import wait_autopilot_heartbeat
 from .plan import MissionItem
 
 MAV_MISSION_TYPE_MISSION = 0
@@ -162,25 +163,16 @@ def upload_mission(items: tuple[MissionItem, ...], url: str, home: MissionItem,
     """Upload ``items`` to the first vehicle heard on ``url``; ArduPilot vehicles get
     ``home`` as item 0 first (ArduPilot keeps home at seq 0, PX4 does not).
 
-    Sends a ground-station HEARTBEAT each second until the vehicle's HEARTBEAT arrives
-    (needed on a udpout: link, where the vehicle learns our address from it).
+    Waits for the autopilot's HEARTBEAT as ``link_params.wait_autopilot_heartbeat`` does
+    (sending ours each second, as a udpout: link needs; ignoring ground stations and
+    components that are no autopilot, such as a gimbal or camera).
     Raises UploadError when no vehicle answers within ``timeout_s``."""
     conn = mavlink2_connection(url, source_system, source_component)
     try:
-        t_end = time.monotonic() + timeout_s
-        next_beat = 0.0
-        vehicle = None
-        while vehicle is None:
-            now = time.monotonic()
-            if now > t_end:
-                raise UploadError(f"no vehicle HEARTBEAT on {url} within {timeout_s:g} s")
-            if now >= next_beat:
-                conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS,
-                                        mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                next_beat = now + 1.0
-            msg = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
-            if msg is not None and msg.type != mavlink2.MAV_TYPE_GCS:
-                vehicle = msg
+        try:
+            vehicle = wait_autopilot_heartbeat(conn, timeout_s)
+        except TelemetryError as exc:
+            raise UploadError(f"no vehicle HEARTBEAT on {url} to upload to: {exc}") from None
         if vehicle.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
             items = (home, *items)
         upload = MissionUpload(items, vehicle.get_srcSystem(), vehicle.get_srcComponent(),
