@@ -333,7 +333,7 @@ def read_mission(path: str | Path) -> MissionFile:
     try:
         text = path.read_text()
     except OSError as exc:
-        raise InputFileError(f"{path}: cannot read plan ({exc.strerror})") from None
+        raise InputFileError(f"{path}: cannot read plan ({exc.strerror or exc})") from None
     if text.lstrip().startswith("{"):
         try:
             doc = json.loads(text)

@@ -25,7 +25,7 @@ import numpy as np
 
 from .gimbal import GimbalMount
 from .plan import Plan
-from .pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose
+from .pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose, heading_rad
 from .rotations import R_from_euler_zyx, Rz
 
 G_MPS2 = 9.80665
@@ -220,6 +220,5 @@ def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
     arm = np.asarray(mount.lever_arm_frd_m, dtype=float)
     R_level = R_from_euler_zyx(0.0, gimbal_pitch_rad, 0.0)
     for t, r, R in zip(flight.t_s, flight.r_body_enu, flight.R_ned_body, strict=True):
-        yaw = math.atan2(R[1, 0], R[0, 0])
-        poses.append(camera_pose(R, r, Rz(yaw) @ R_level, arm, float(t)))
+        poses.append(camera_pose(R, r, Rz(heading_rad(R)) @ R_level, arm, float(t)))
     return poses

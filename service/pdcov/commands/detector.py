@@ -17,6 +17,7 @@ import yaml
 from tqdm import tqdm
 
 from pdcov.annotations import FORMATS, NO_BOXES, Boxes, ImageTruth, read_detections, read_truth
+from pdcov.atomic import write_text_atomic
 from pdcov.detector import DetectorModel
 from pdcov.detector_stats import (
     BIN_RULES,
@@ -177,7 +178,7 @@ def run_fit(args: argparse.Namespace) -> int:
     fit = {**model.extra["fit"], "ground_truth": str(args.ground_truth),
            "detections": str(args.detections), "bins": args.bins}
     model = replace(model, extra={**model.extra, "fit": fit})
-    args.out.write_text(_dump(model))
+    write_text_atomic(args.out, _dump(model))
     print(format_model_table(model))
     print(f"{matches.n_images} images; {len(matches.truth_size_px)} objects, "
           f"{len(matches.detection_size_px)} detections counted; outside the bins: "
@@ -232,7 +233,7 @@ def run_validate(args: argparse.Namespace) -> int:
                                     "detections": str(args.detections)})
     print(format_validation_table(report))
     if args.report:
-        args.report.write_text(json.dumps(report.to_dict(), indent=1) + "\n")
+        write_text_atomic(args.report, json.dumps(report.to_dict(), indent=1) + "\n")
         print(f"wrote {args.report}")
     return 0
 

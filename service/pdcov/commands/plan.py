@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.config import Mission, load_mission
 from pdcov.errors import ConfigError, where
 from pdcov.evaluate import summary_text, write_outputs
@@ -225,7 +226,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = [_score_row(s) for s in scores]
     for name, idx in (("candidates.csv", range(len(scores))), ("front.csv", front)):
-        with (out / name).open("w", newline="") as f:
+        with atomic_write(out / name, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["on_front"])
             w.writeheader()
             for i in idx:
@@ -237,7 +238,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     summary = write_prediction(out / "best", mission, pred, pred.grid,
                                 f"best: {plan.description} at {s.params.alt_agl_m:g} m",
                                 spacing)
-    (out / "optimise.json").write_text(json.dumps({
+    write_text_atomic(out / "optimise.json", json.dumps({
         "target_pd": args.target_pd, "min_proportion": args.min_proportion,
         "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
         "front": [rows[i] for i in front], "best": rows[best]}, indent=2) + "\n")
@@ -302,7 +303,7 @@ def run_refly(args: argparse.Namespace) -> int:
     out: Path = args.out
     summary = write_prediction(out, mission, r.prediction, flown,
                                 f"after the follow-up: {r.plan.description}", spacing)
-    (out / "gaps.json").write_text(json.dumps({
+    write_text_atomic(out / "gaps.json", json.dumps({
         "target_pd": args.target_pd,
         "before": {"cells": r.gaps_before.n_cells,
                    "proportion": round(r.gaps_before.proportion, 4)},
