@@ -125,6 +125,19 @@ def test_gimbal_device_report_preferred_and_reclocked(tmp_path: Path) -> None:
     assert abs(np.median(log.gimbal.t_s) - np.median(log.attitude.t_s)) < 5.0
 
 
+def test_gimbal_instance_chooses_among_the_autopilots_gimbals(tmp_path: Path) -> None:
+    samples = flight()
+    for k in range(50):
+        t = 1.0 + 0.1 * k
+        samples.append(GimbalSample(t, tuple(quat_wxyz_from_euler_zyx(0, -1.0, 0)), 44, 0,
+                                    1, 1, 1))
+        samples.append(GimbalSample(t, tuple(quat_wxyz_from_euler_zyx(0, -0.5, 0)), 44, 0,
+                                    1, 1, 2))
+    path = write_tlog(tmp_path / "two.tlog", samples)
+    assert read_flight_log(path).gimbal_source == (1, 1, 1)
+    assert read_flight_log(path, gimbal_instance=2).gimbal_source == (1, 1, 2)
+
+
 @pytest.mark.parametrize("content, match", [
     (b"", "empty file"),
     (bytes(np.random.default_rng(1).integers(0, 256, 5000, dtype=np.uint8)), "no MAVLink"),

@@ -73,12 +73,14 @@ class FlightLog:
     notes: tuple[str, ...] = ()
 
 
-def read_flight_log(path: str | Path, *, system_id: int | None = None) -> FlightLog:
+def read_flight_log(path: str | Path, *, system_id: int | None = None,
+                    gimbal_instance: int = 1) -> FlightLog:
     """Read a .tlog, DataFlash .bin or .ulg file (format from its first bytes).
 
     system_id: the MAVLink system to follow (tlogs); None = the autopilot announced by
-    HEARTBEAT. Raises TelemetryError naming the file when it cannot be read or holds no
-    attitude or position.
+    HEARTBEAT. gimbal_instance: the gimbal to follow where several report (the mount's
+    ``instance``, as the live tracker uses it). Raises TelemetryError naming the file when
+    it cannot be read or holds no attitude or position.
     """
     path = Path(path)
     try:
@@ -89,16 +91,16 @@ def read_flight_log(path: str | Path, *, system_id: int | None = None) -> Flight
     if not head:
         raise TelemetryError(f"{path}: empty file, not a flight log")
     if head.startswith(ULOG_MAGIC):
-        log = _read_ulog(path)
+        log = _read_ulog(path, gimbal_instance)
     elif head.startswith(DATAFLASH_MAGIC):
-        log = _read_dataflash(path)
+        log = _read_dataflash(path, gimbal_instance)
     elif b"FMT," in head and _mostly_text(head):
         raise TelemetryError(
             f"{path}: a text DataFlash log (.log); pdcov reads binary DataFlash (.bin), "
             "MAVLink .tlog and PX4 .ulg logs only. Use the .bin the autopilot wrote, or "
             "convert this one with a tool that understands its layout")
     else:
-        log = _read_tlog(path, system_id)
+        log = _read_tlog(path, system_id, gimbal_instance)
     if len(log.attitude.t_s) == 0:
         raise TelemetryError(f"{path}: no attitude messages (ATTITUDE / ATT / "
                              f"vehicle_attitude) for the followed vehicle")
@@ -125,7 +127,7 @@ class _Component:
     clock_pairs: list[tuple[float, float]] = field(default_factory=list)
 
 
-def _read_tlog(path: Path, system_id: int | None) -> FlightLog:
+def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> FlightLog:
     from pymavlink import mavutil
 
     comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
@@ -197,7 +199,7 @@ def _read_tlog(path: Path, system_id: int | None) -> FlightLog:
 
     attitude = ap.samples.get("AttitudeSample") or ap.samples.get("AttitudeSampleQ", [])
     gimbals = gather("GimbalSample")
-    gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp)
+    gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp, gimbal_instance)
     if gnote:
         notes.append(gnote)
     params = {p.name: p.value for p in ap.samples.get("ParamSample", [])}
@@ -275,7 +277,7 @@ def _to_autopilot_clock(samples: list, pairs: list[tuple[float, float]]) -> list
     return [replace(s, t_s=s.t_s + offset) for s in samples]
 
 
-def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int = 1
+def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int
                    ) -> tuple[GimbalSeries, tuple[int, int, int] | None, str]:
     if not samples:
         return GimbalSeries.from_samples([]), None, ""
@@ -293,7 +295,7 @@ def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int = 1
 
 # --- ArduPilot DataFlash ------------------------------------------------------------------
 
-def _read_dataflash(path: Path) -> FlightLog:
+def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     from pymavlink import DFReader
 
     clock = BootClock()
@@ -325,7 +327,7 @@ def _read_dataflash(path: Path) -> FlightLog:
     pos = positions.get("POS") or positions.get("GPS", [])
     if not positions.get("POS") and pos:
         notes.append("no POS messages: positions from GPS (3D fix only)")
-    gimbal, source, gnote = _choose_gimbal(by_type[GimbalSample], 1)
+    gimbal, source, gnote = _choose_gimbal(by_type[GimbalSample], 1, gimbal_instance)
     if gnote:
         notes.append(gnote)
     if source is not None:
@@ -348,7 +350,7 @@ _ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", "gimbal_device_at
                 "home_position", "camera_capture", "camera_trigger"]
 
 
-def _read_ulog(path: Path) -> FlightLog:
+def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     try:
         from pyulog import ULog
     except ImportError:
@@ -404,7 +406,7 @@ def _read_ulog(path: Path) -> FlightLog:
     params = dict(ulog.initial_parameters)
     for _t, name, value in ulog.changed_parameters:
         params[name] = value
-    gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1)
+    gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1, gimbal_instance)
     notes = ["clock: ULog timestamps (PX4 boot time)"] + ([gnote] if gnote else [])
     return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
                      gimbal, source, homes, tuple(captures), params,

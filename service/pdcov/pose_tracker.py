@@ -448,7 +448,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     gap longer than max_gap_s are skipped; untrusted gimbal frames follow mount.untrusted.
     Raises TelemetryError / ConfigError with a message naming the file.
     """
-    log = read_flight_log(path, system_id=system_id)
+    log = read_flight_log(path, system_id=system_id,
+                          gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
+                          else 1)
     ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m)
     origin = Origin(origin_lat_deg, origin_lon_deg, ground_alt)
     interp = None
