@@ -184,7 +184,8 @@ def clip_polyline(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon) -> lis
             parts = []
         else:
             parts = []
-            for g in getattr(seg.intersection(free), "geoms", [seg.intersection(free)]):
+            inside = seg.intersection(free)
+            for g in getattr(inside, "geoms", [inside]):
                 if isinstance(g, LineString) and g.length > _COVER_TOL_M:
                     c = np.asarray(g.coords)
                     if np.dot(c[-1] - c[0], q - p) < 0:
