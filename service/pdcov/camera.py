@@ -317,6 +317,10 @@ class CameraModel:
         """Per azimuth, the angle from the axis (rad) where the projected radius stops growing,
         searched up to 89.5 deg; one sample step is kept as margin."""
         theta = np.radians(np.linspace(0.0, 89.5, 600))[1:]
+        if not self._distorted:
+            # The pinhole radius f tan(theta) (skewed or not) grows all the way: the search
+            # would find no fold-back. Skipping it saves ~0.3 s of start-up per camera.
+            return np.full(len(azimuth_rad), theta[-2])
         ca, sa = np.cos(azimuth_rad), np.sin(azimuth_rad)
         st, ct = np.sin(theta), np.cos(theta)
         dirs = np.stack([st[None, :] * ca[:, None], st[None, :] * sa[:, None],
