@@ -89,6 +89,13 @@ def proportion_curve(pd: np.ndarray, mask: np.ndarray, n: int = 201
     return t, 1.0 - np.searchsorted(values, t, side="left") / len(values)
 
 
+def proportions_at_or_above(pd: np.ndarray, mask: np.ndarray,
+                            thresholds: Sequence[float]) -> list[float]:
+    """Proportion of free cells with P_D at or above each threshold (0 without free cells)."""
+    values = pd[mask]
+    return [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
+
+
 def thresholds_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
                       thresholds: Sequence[float], *, title: str) -> None:
     """Proportion of free cells at or above each P_D threshold, over thresholds 0..1."""
@@ -96,9 +103,8 @@ def thresholds_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     t, p = proportion_curve(pd, mask)
     ax.plot(t, p, color="navy", lw=2)
-    values = pd[mask]
-    for th in thresholds:
-        share = float((values >= th).mean()) if len(values) else 0.0
+    for th, share in zip(thresholds, proportions_at_or_above(pd, mask, thresholds),
+                         strict=True):
         ax.plot([th], [share], "o", color="crimson")
         ax.annotate(f"{share:.3f} at {th:g}", (th, share), textcoords="offset points",
                     xytext=(6, 6), fontsize=9)
@@ -120,8 +126,7 @@ def compare_figure(path: str | Path, runs: Sequence[tuple[str, np.ndarray, np.nd
     width = 0.8 / max(len(runs), 1)
     x = np.arange(len(thresholds))
     for i, (name, pd, mask) in enumerate(runs):
-        values = pd[mask]
-        shares = [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
+        shares = proportions_at_or_above(pd, mask, thresholds)
         bars = ax_bar.bar(x + (i - (len(runs) - 1) / 2) * width, shares, width, label=name)
         ax_bar.bar_label(bars, fmt="%.3f", fontsize=7, rotation=90, padding=2)
         t, p = proportion_curve(pd, mask)

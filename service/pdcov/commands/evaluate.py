@@ -137,25 +137,25 @@ def _check_near_origin(poses, source: Path, config: str | None) -> None:
 
 def run_compare(args: argparse.Namespace) -> int:
     from pdcov.evaluate import read_run
-    from pdcov.plots import compare_figure
+    from pdcov.plots import compare_figure, proportions_at_or_above
 
     names = args.names.split(",") if args.names else [p.name or str(p) for p in args.runs]
     if len(names) != len(args.runs):
         raise PdcovError(f"--names: {len(names)} labels for {len(args.runs)} runs")
     runs: list = []
     thresholds: tuple[float, ...] = ()
-    rows = []
+    docs = []
     for name, run_dir in zip(names, args.runs, strict=True):
         doc, pd, mask = read_run(run_dir)
         t = tuple(float(k) for k in doc["proportion_at_or_above"])
         thresholds = thresholds or t
         runs.append((name, pd, mask))
-        rows.append((name, doc, pd[mask]))
+        docs.append(doc)
     width = max(len(n) for n in names)
     print(f"{'run':<{width}}  frames  mean P_D  " + "  ".join(f">= {t:<5g}" for t in thresholds)
           + "  false alarms")
-    for name, doc, values in rows:
-        shares = [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
+    for (name, pd, mask), doc in zip(runs, docs, strict=True):
+        shares = proportions_at_or_above(pd, mask, thresholds)
         print(f"{name:<{width}}  {doc['frames']:>6}  {doc['mean_pd']:>7.3f}  "
               + "  ".join(f"{s:>8.3f}" for s in shares)
               + f"  {doc['expected_false_alarms']:>12.2f}")
