@@ -20,6 +20,12 @@ def test_lookup_bins_and_outside():
     np.testing.assert_allclose(pfa, [0, 0.1, 0.1, 0.2, 0.2, 0, 0, 0])
 
 
+def test_lookup_of_a_scalar_size():
+    # searchsorted returns a numpy scalar for a scalar; marking NaN by item assignment failed.
+    assert model().lookup(15.0) == (pytest.approx(0.3), pytest.approx(0.1))
+    assert model().lookup(float("nan")) == (0.0, 0.0)
+
+
 def test_input_scale():
     m = model()
     assert m.image_to_input_scale(1920, 1080) == pytest.approx(640 / 1920)

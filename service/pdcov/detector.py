@@ -100,11 +100,10 @@ class DetectorModel:
 
     def bin_index(self, size_px: np.ndarray) -> np.ndarray:
         """Index into ``lookup_table`` arrays: 0 below the first edge, N + 1 at/above the last,
-        i + 1 for bin i. NaN sizes map to 0."""
+        i + 1 for bin i. NaN sizes map to 0. A scalar size gives a 0-d array."""
         s = np.asarray(size_px, dtype=float)
         idx = np.searchsorted(np.asarray(self.bin_edges_px), s, side="right")
-        idx[np.isnan(s)] = 0
-        return idx
+        return np.where(np.isnan(s), 0, idx)
 
     def lookup(self, size_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """P_D and P_FA for sizes in detector-input pixels (vectorised; 0 outside the bins)."""
