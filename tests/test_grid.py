@@ -236,6 +236,21 @@ def test_snapshot_round_trip(tmp_path):
         assert float(z["x0_m"]) == -40 and float(z["cell_size_m"]) == 1.0
 
 
+def test_snapshot_of_another_version_or_inconsistent_shapes_is_refused(tmp_path):
+    from pdcov.errors import InputFileError
+
+    grid = square_grid(half_m=5)
+    grid.save_npz(tmp_path / "grid.npz")
+    with np.load(tmp_path / "grid.npz") as z:
+        data = dict(z)
+    np.savez(tmp_path / "v2.npz", **(data | {"version": 2}))
+    with pytest.raises(InputFileError, match="v2.npz.*version 2, expected 1"):
+        CoverageGrid.load_npz(tmp_path / "v2.npz", PINHOLE, DETECTOR)
+    np.savez(tmp_path / "cut.npz", **(data | {"n_obs": data["n_obs"][:3]}))
+    with pytest.raises(InputFileError, match="cut.npz: n_obs has shape"):
+        CoverageGrid.load_npz(tmp_path / "cut.npz", PINHOLE, DETECTOR)
+
+
 def test_metrics():
     grid = square_grid(half_m=10)
     for _ in range(3):

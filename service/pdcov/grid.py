@@ -304,7 +304,15 @@ class CoverageGrid:
         if missing:
             raise InputFileError(f"{path}: not a pdcov grid snapshot (missing "
                                  f"{', '.join(sorted(missing))})")
+        version = int(data.get("version", SNAPSHOT_VERSION))
+        if version != SNAPSHOT_VERSION:
+            raise InputFileError(f"{path}: grid snapshot version {version}, expected "
+                                 f"{SNAPSHOT_VERSION}")
         mask = data["mask"].astype(bool)
+        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+            if data[key].shape != mask.shape:
+                raise InputFileError(f"{path}: {key} has shape {data[key].shape}, the mask "
+                                     f"{mask.shape}")
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
         grid = cls(geometry, mask, camera, detector, **kwargs)
