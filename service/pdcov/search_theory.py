@@ -1,9 +1,10 @@
 """Search theory on the coverage grid: probability of success and the posterior map.
 
 POA: probability that the missing person is in each cell (the prior; sums to at most 1 over
-the grid). POS = sum(POA * P_D). After an unsuccessful search, Bayes gives the posterior
-POA' = POA * (1 - P_D) / (1 - POS), the map a search manager plans the next sortie from;
-``search_outcome`` conditions it on the person being in the grid (it sums to 1 over the grid).
+the grid, the rest of the mass lying outside it). POS = sum(POA * P_D). After an unsuccessful
+search, Bayes gives the posterior POA' = POA * (1 - P_D) / (1 - POS) in each cell, the map a
+search manager plans the next sortie from; the mass outside the grid grows to
+(1 - sum(POA)) / (1 - POS).
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ import numpy as np
 @dataclass(frozen=True, slots=True)
 class SearchOutcome:
     """POS of the search, the prior's mass over the grid (free cells and obstacles), and the
-    posterior (same shape as the grid), renormalised to sum to 1 over the grid: the
-    probability of area given that the person is in the grid and was not found."""
+    posterior probability of area per cell (same shape as the grid) given that the search
+    did not find the person; it sums to 1 less the posterior mass outside the grid."""
 
     probability_of_success: float
     prior_mass: float
@@ -28,7 +29,8 @@ def search_outcome(poa: np.ndarray, pd: np.ndarray, mask: np.ndarray) -> SearchO
     """POS and posterior for a prior ``poa`` (cells, >= 0) and cumulative ``pd`` per cell.
 
     Cells outside ``mask`` (obstacles) keep their prior mass in the posterior but cannot be
-    searched. Raises ValueError for negative, NaN or all-zero priors.
+    searched. Raises ValueError for negative, NaN or all-zero priors, or more than 1 in all.
+    When the search was certain to succeed (POS = 1) the posterior is 0 everywhere.
     """
     poa = np.asarray(poa, dtype=float)
     if poa.shape != pd.shape:
@@ -38,7 +40,9 @@ def search_outcome(poa: np.ndarray, pd: np.ndarray, mask: np.ndarray) -> SearchO
     total = poa.sum()
     if total <= 0:
         raise ValueError("prior has no probability mass in the grid")
+    if total > 1 + 1e-4:
+        raise ValueError(f"prior probabilities sum to {total:.6f} > 1")
     p_d = np.where(mask, pd, 0.0)
     pos = float((poa * p_d).sum())
     remaining = poa * (1.0 - p_d)
-    return SearchOutcome(pos, float(total), remaining / remaining.sum())
+    return SearchOutcome(pos, float(total), remaining / max(1.0 - pos, np.finfo(float).tiny))
