@@ -251,6 +251,17 @@ def test_snapshot_of_another_version_or_inconsistent_shapes_is_refused(tmp_path)
         CoverageGrid.load_npz(tmp_path / "cut.npz", PINHOLE, DETECTOR)
 
 
+def test_snapshot_keeps_the_revisit_clock(tmp_path):
+    grid = square_grid(min_revisit_s=1.0)
+    grid.update(pose(xyz=(0.5, 0.5, 10), t_s=0.0))
+    grid.save_npz(tmp_path / "g.npz")
+    again = CoverageGrid.load_npz(tmp_path / "g.npz", PINHOLE, DETECTOR, min_revisit_s=1.0)
+    again.update(pose(xyz=(0.5, 0.5, 10), t_s=0.5))  # within 1 s of the saved look
+    assert again.n_obs[40, 40] == 1
+    again.update(pose(xyz=(0.5, 0.5, 10), t_s=1.2))
+    assert again.n_obs[40, 40] == 2
+
+
 def test_metrics():
     grid = square_grid(half_m=10)
     for _ in range(3):

@@ -281,13 +281,16 @@ class CoverageGrid:
 
     def save_npz(self, path: str | Path) -> None:
         """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
-        log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames."""
+        log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames, and
+        with ``min_revisit_s`` each cell's last counted look, last_obs_s."""
         g = self.geometry
+        revisit = {} if self.last_obs_s is None else {"last_obs_s": self.last_obs_s}
         with atomic_write(path, "wb") as fh:
             np.savez_compressed(
                 fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
                 mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
-                x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames)
+                x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames,
+                **revisit)
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
@@ -320,6 +323,8 @@ class CoverageGrid:
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]
         grid.frames = int(data.get("frames", 0))
+        if grid.last_obs_s is not None and "last_obs_s" in data:
+            grid.last_obs_s[:] = data["last_obs_s"]
         return grid
 
 

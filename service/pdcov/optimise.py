@@ -26,7 +26,7 @@ from .domain import GridGeometry
 from .errors import ConfigError
 from .footprint import footprint_polygon
 from .gimbal import GimbalMount
-from .grid import CoverageGrid
+from .grid import CoverageGrid, default_max_range_m
 from .plan import Plan
 from .pose import FixedMount
 from .rotations import Rz
@@ -63,7 +63,9 @@ class Scenario:
         level = Flight(np.zeros(1), np.array([[0.0, 0.0, alt_agl_m]]),
                        Rz(heading_rad)[None], np.zeros(1), 0.0, 0.0)
         (pose,) = camera_poses(level, self.mount, self.gimbal_pitch_rad)
-        fp = footprint_polygon(self.camera, pose, self.new_grid().max_range_m)
+        max_range_m = self.max_range_m or default_max_range_m(
+            self.camera, self.detector, self.geometry.cell_size_m)
+        fp = footprint_polygon(self.camera, pose, max_range_m)
         return patterns.swath_width_m(fp, heading_rad)
 
 
