@@ -200,6 +200,7 @@ class CameraModel:
         where ``projectable``.
         """
         H = np.asarray(H_cam_lattice, dtype=np.float64)
+        px: np.ndarray
         if not self._distorted:
             j = np.arange(n_cols, dtype=np.float64)
             i = np.arange(n_rows, dtype=np.float64)[:, None]

@@ -222,15 +222,16 @@ def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:
     if unknown:
         raise ConfigError(f"{where(src, 'mount.' + unknown[0])}: unknown key for a fixed "
                           f"mount; expected some of {sorted(known)}")
-    angles = [math.radians(_number(doc, k, src, "mount", default=d))
-              for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]
+    roll_rad, pitch_rad, yaw_rad = [
+        math.radians(_number(doc, k, src, "mount", default=d))
+        for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]
     arm = doc.get("lever_arm_frd_m", [0.0, 0.0, 0.0])
     if (not isinstance(arm, list) or len(arm) != 3 or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             for v in arm)):
         raise ConfigError(f"{where(src, 'mount.lever_arm_frd_m')}: expected [forward, right, "
                           f"down] in metres, got {arm!r}")
-    return FixedMount(*angles, tuple(float(v) for v in arm))
+    return FixedMount(roll_rad, pitch_rad, yaw_rad, (float(arm[0]), float(arm[1]), float(arm[2])))
 
 
 def _detector(v: Any, src: str | None, base: Path) -> DetectorModel:

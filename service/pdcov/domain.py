@@ -132,7 +132,7 @@ class Domain:
             raise DomainError(f"{path}: cannot read GeoJSON ({exc.strerror})") from None
         except json.JSONDecodeError as exc:
             raise DomainError(f"{path}: not valid JSON ({exc})") from None
-        geoms = []
+        geoms: list[Any] = []  # shapely geometries (shapely ships no type hints)
         features = doc.get("features") if isinstance(doc, dict) else None
         items = features if features is not None else [doc]
         for k, item in enumerate(items):

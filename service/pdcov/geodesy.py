@@ -35,9 +35,10 @@ class Origin:
                               f"got {self.ground_alt_msl_m}")
 
 
-def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_msl_m: np.ndarray,
+def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_msl_m: np.ndarray | float,
                     origin: Origin) -> np.ndarray:
-    """ENU metres (..., 3) of geodetic points about ``origin``."""
+    """ENU metres (..., 3) of geodetic points about ``origin``; a scalar ``alt_msl_m``
+    broadcasts over the points."""
     e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, alt_msl_m, origin.lat_deg,
                                    origin.lon_deg, origin.ground_alt_msl_m)
     return np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1)

@@ -223,8 +223,9 @@ def resolve_interpretation(mount: GimbalMount, params: Mapping[str, float],
     limits = np.tile([-np.inf, np.inf], (3, 1))
     sources = []
     for i, axis in enumerate(AXES):
-        if configured[i] is not None:
-            limits[i] = np.radians(configured[i])
+        conf = configured[i]
+        if conf is not None:
+            limits[i] = np.radians(conf)
             sources.append(f"{axis} configured")
         elif from_params is not None:
             limits[i] = from_params[0][i]
@@ -360,7 +361,8 @@ def gimbal_attitude(q_wxyz: np.ndarray, flags: int, failure_flags: int,
                     R_ned_body: np.ndarray, interp: GimbalInterpretation) -> GimbalVerdict:
     """One gimbal report + the vehicle attitude -> R_ned_gimbal and a trust verdict.
     Raises ValueError when the quaternion is NaN or zero (no rotation to report)."""
-    out = interpret_gimbal(np.asarray(q_wxyz)[None], [flags], [failure_flags],
+    out = interpret_gimbal(np.asarray(q_wxyz)[None], np.asarray([flags], np.int64),
+                           np.asarray([failure_flags], np.int64),
                            np.asarray(R_ned_body)[None], interp)
     if not out.usable[0]:
         raise ValueError(f"gimbal quaternion {q_wxyz!r} is not a rotation")

@@ -137,6 +137,8 @@ class CoverageGrid:
         r0, r1, c0, c1 = window
         observed, area_px2 = self._observe_area(pose, window)
         if self.last_obs_s is not None:
+            if self.min_revisit_s is None:  # only if min_revisit_s was cleared after __init__
+                raise TypeError("min_revisit_s is None but last_obs_s is kept")
             last = self.last_obs_s[r0:r1, c0:c1]
             observed &= (t - last) >= self.min_revisit_s
             last[observed] = t
@@ -239,7 +241,7 @@ class CoverageGrid:
         p_enu = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
         p_cam = (p_enu - pose.r_cam_enu) @ pose.R_enu_cam
         ok = self.camera.projectable(p_cam)
-        px = np.zeros((len(p_cam), 2))
+        px: np.ndarray = np.zeros((len(p_cam), 2))
         px[ok] = self.camera.project(p_cam[ok])
         px = px.reshape(len(rows), m + 1, m + 1, 2)
         ok = ok.reshape(len(rows), m + 1, m + 1)
@@ -290,7 +292,7 @@ class CoverageGrid:
                 fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
                 mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
                 x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames,
-                **revisit)
+                **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,

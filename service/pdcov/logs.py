@@ -16,6 +16,7 @@ from collections import Counter, defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -46,6 +47,8 @@ from .telemetry import (
 
 DATAFLASH_MAGIC = b"\xa3\x95"
 ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+_Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries)
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,7 +224,7 @@ def _shifted(log: FlightLog, dt_s: float) -> FlightLog:
     if dt_s == 0.0:
         return log
 
-    def series(x: object) -> object:
+    def series(x: _Series) -> _Series:
         return replace(x, t_s=x.t_s + dt_s)
 
     return replace(log, attitude=series(log.attitude), position=series(log.position),
@@ -241,7 +244,7 @@ def _choose_system(comps: Mapping[tuple[int, int], _Component],
     for hb in heartbeats:
         if hb.autopilot != MAV_AUTOPILOT_INVALID:
             autopilots.setdefault(hb.system_id, hb.component_id)
-    n_att = Counter()
+    n_att: Counter[int] = Counter()
     for (s, _c), comp in comps.items():
         n_att[s] += len(comp.samples.get("AttitudeSample", ())) + len(
             comp.samples.get("AttitudeSampleQ", ()))
@@ -393,7 +396,7 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
         gimbal_samples = [GimbalSample(t, tuple(q), int(f), int(e), 1, 154, int(d))
                           for t, q, f, e, d in zip(t_of(g), quat(g), col(g, "device_flags"),
                                                    fail, dev, strict=True)]
-    homes = ()
+    homes: tuple[HomeSample, ...] = ()
     if "home_position" in topics:
         h = "home_position"
         homes = tuple(HomeSample(t, la, lo, al, "home_position") for t, la, lo, al in zip(

@@ -247,9 +247,10 @@ def mission_from_qgc_document(doc: Any, source: str) -> MissionFile:
         if not isinstance(params, list) or len(params) != 7:
             raise InputFileError(f"{key}.params: expected 7 values, got {params!r}")
         try:
-            p = [math.nan if v is None else float(v) for v in params]
-            out.append(MissionItem(int(e["command"]), int(e["frame"]), *p,
-                                   autocontinue=bool(e.get("autoContinue", True))))
+            p1, p2, p3, p4, lat, lon, z = [math.nan if v is None else float(v)
+                                           for v in params]
+            out.append(MissionItem(int(e["command"]), int(e["frame"]), p1, p2, p3, p4,
+                                   lat, lon, z, autocontinue=bool(e.get("autoContinue", True))))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(f"{key}: bad command, frame or params ({exc})") from None
     home = None
@@ -294,13 +295,13 @@ def mission_from_wpl_text(text: str, source: str) -> MissionFile:
             raise InputFileError(f"{source}: line {n}: expected 12 fields, got {len(f)}")
         try:
             seq, frame, cmd = int(f[0]), int(f[2]), int(f[3])
-            vals = [float(v) for v in f[4:11]]
+            p1, p2, p3, p4, lat, lon, z = (float(v) for v in f[4:11])
             auto = bool(int(f[11]))
         except ValueError as exc:
             raise InputFileError(f"{source}: line {n}: {exc}") from None
         if seq != n - 2:
             raise InputFileError(f"{source}: line {n}: expected seq {n - 2}, got {seq}")
-        out.append(MissionItem(cmd, frame, *vals, autocontinue=auto))
+        out.append(MissionItem(cmd, frame, p1, p2, p3, p4, lat, lon, z, autocontinue=auto))
     if not out:
         raise InputFileError(f"{source}: no items (not even the home line)")
     return MissionFile(tuple(out[1:]), out[0])

@@ -146,7 +146,7 @@ def compare_figure(path: str | Path, runs: Sequence[tuple[str, np.ndarray, np.nd
 
 
 def ray_count_figure(path: str | Path, counts: np.ndarray, geometry: GridGeometry,
-                     footprint_xy: np.ndarray | None, camera_xy: Sequence[float], *,
+                     footprint_xy: np.ndarray | None, camera_xy: Sequence[float] | np.ndarray, *,
                      title: str) -> None:
     """Fig. 5: rays from the camera's pixels meeting the ground, counted per cell."""
     plt = _pyplot()

@@ -156,7 +156,7 @@ class FixedMount:
 
 
 def camera_pose(R_ned_body: np.ndarray, r_body_enu: np.ndarray, R_ned_gimbal: np.ndarray,
-                lever_arm_frd_m: np.ndarray = (0.0, 0.0, 0.0),
+                lever_arm_frd_m: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
                 t_s: float = float("nan")) -> CameraPose:
     """Camera pose from the vehicle attitude and position and the gimbal attitude in NED.
 

@@ -213,21 +213,22 @@ class PoseTracker:
     def _merge(self) -> None:
         """Fold pending samples into the sorted series; drop history older than history_s."""
         if self._pending_att:
-            new = AttitudeSeries.from_samples(self._pending_att)
+            new_att = AttitudeSeries.from_samples(self._pending_att)
             self._att = AttitudeSeries(*_merge_sorted(
-                (self._att.t_s, self._att.q_ned_body_wxyz), (new.t_s, new.q_ned_body_wxyz)))
+                (self._att.t_s, self._att.q_ned_body_wxyz),
+                (new_att.t_s, new_att.q_ned_body_wxyz)))
             self._pending_att = []
         if self._pending_pos:
-            new = PositionSeries.from_samples(self._pending_pos)
-            enu = geodetic_to_enu(new.lat_deg, new.lon_deg, new.alt_msl_m,
+            new_pos = PositionSeries.from_samples(self._pending_pos)
+            enu = geodetic_to_enu(new_pos.lat_deg, new_pos.lon_deg, new_pos.alt_msl_m,
                                   self.origin).reshape(-1, 3)
             self._pos_t, self._pos_enu = _merge_sorted((self._pos_t, self._pos_enu),
-                                                       (new.t_s, enu))
+                                                       (new_pos.t_s, enu))
             self._pending_pos = []
         if self._pending_gim:
-            new = self._usable_gimbal(GimbalSeries.from_samples(self._pending_gim))
+            new_gim = self._usable_gimbal(GimbalSeries.from_samples(self._pending_gim))
             self._gim = GimbalSeries(*_merge_sorted(_gimbal_columns(self._gim),
-                                                    _gimbal_columns(new)))
+                                                    _gimbal_columns(new_gim)))
             self._pending_gim = []
         if self.history_s is not None and len(self._att.t_s):
             cut = self._att.t_s[-1] - self.history_s
@@ -306,11 +307,14 @@ class PoseTracker:
             R_ned_gimbal = R_ned_body @ self.mount.R_body_gimbal
             interp = np.full(n, "fixed", dtype=object)
         else:
+            interpretation = self.interpretation
+            if interpretation is None:  # __init__ resolves one for every GimbalMount
+                raise AttributeError("PoseTracker.interpretation is None for a gimbal mount")
             g = self._gim
             lo, hi, w, inside, gap_ok = _bracket(g.t_s, t, self.max_gap_s)
             check("gimbal", inside, gap_ok)
             R_ned_gimbal = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-            interp = np.full(n, self.interpretation.frame, dtype=object)
+            interp = np.full(n, interpretation.frame, dtype=object)
             if len(g.t_s):
                 near = np.where(w < 0.5, lo, hi)
                 norm = np.linalg.norm(g.q_wxyz, axis=1)
@@ -324,10 +328,10 @@ class PoseTracker:
                 gimbal_flags = g.flags[near]
                 failure = g.failure_flags[lo] | g.failure_flags[hi]
                 att = interpret_gimbal(gimbal_q, gimbal_flags, failure, R_ned_body,
-                                       self.interpretation)
+                                       interpretation)
                 R_ned_gimbal, trusted, untrusted = att.R_ned_gimbal, att.trusted, att.reasons
                 at_limit = att.at_limit
-                if self.interpretation.frame == "flags":
+                if interpretation.frame == "flags":
                     interp = np.where(earth_frame_mask(gimbal_flags), "flags:earth",
                                       "flags:vehicle").astype(object)
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
@@ -501,7 +505,7 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
         lines.append(f"skipped {len(skipped)} frames in {len(runs)} gaps longer than "
                      f"{max_gap_s:g} s or outside the data: {shown}{more}; reasons: "
                      + ", ".join(f"{r} {c}" for r, c in why.most_common()))
-    if isinstance(mount, GimbalMount):
+    if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
         if tracker.dropped_gimbal_reports:

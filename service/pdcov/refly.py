@@ -118,7 +118,7 @@ def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
             benefit = float(np.minimum(deficit, gain[i]).sum())
             seg = tracks[i] if (np.linalg.norm(tracks[i][0] - here)
                                 <= np.linalg.norm(tracks[i][1] - here)) else tracks[i][::-1]
-            rate = benefit / (cost[i] + np.linalg.norm(seg[0] - here) / speed_mps)
+            rate = float(benefit / (cost[i] + np.linalg.norm(seg[0] - here) / speed_mps))
             if rate > best_rate:
                 best, best_rate, best_seg = i, rate, seg
         if best_seg is None:

@@ -171,7 +171,7 @@ def mavlink_boot_time_s(msg: Any) -> float | None:
     return None if ms is None else ms * 1e-3
 
 
-def _quat(q: Sequence[float]) -> tuple[float, float, float, float]:
+def _quat(q: Sequence[float] | np.ndarray) -> tuple[float, float, float, float]:
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
@@ -278,7 +278,7 @@ def _df_pos(msg: Any, t_s: float) -> PositionSample | None:
     # POS Lat/Lng degrees, Alt m MSL; height above home is RelHomeAlt (4.x) or RelAlt (3.x).
     if msg.Lat == 0 and msg.Lng == 0:
         return None
-    rel = getattr(msg, "RelHomeAlt", None)
+    rel: Any = getattr(msg, "RelHomeAlt", None)
     if rel is None:
         rel = getattr(msg, "RelAlt", float("nan"))
     return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt), float(rel))

@@ -80,7 +80,7 @@ def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.nd
     v_corner = np.full(n, np.inf)
     for i in range(1, n - 1):
         u_in, u_out = P[i, :2] - P[i - 1, :2], P[i + 1, :2] - P[i, :2]
-        l_in, l_out = np.linalg.norm(u_in), np.linalg.norm(u_out)
+        l_in, l_out = float(np.linalg.norm(u_in)), float(np.linalg.norm(u_out))
         if plan.waypoints[i].hover_s > 0 or l_in < 1e-9 or l_out < 1e-9:
             v_corner[i] = 0.0 if plan.waypoints[i].hover_s > 0 else v_corner[i]
             continue

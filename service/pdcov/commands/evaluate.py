@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pdcov.config import load_mission
 from pdcov.errors import InputFileError, PdcovError
+
+if TYPE_CHECKING:
+    from pdcov.pose import CameraPose
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -76,7 +81,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
         log_poses = None
-        poses = read_pose_csv(args.poses)
+        poses: Sequence[CameraPose] = read_pose_csv(args.poses)
         origin = mission.origin()
         track = np.array([p.r_cam_enu for p in poses]) if poses else None
         lines.append(f"poses: {args.poses} ({len(poses)} frames)")
