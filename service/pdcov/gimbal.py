@@ -177,16 +177,41 @@ class GimbalInterpretation:
                 f"servo axes {order}, {self.limits_reason}")
 
 
+def limit_param_names(instance: int) -> tuple[tuple[str, str], ...]:
+    """(min, max) ArduPilot 4.3+ limit parameters of mount ``instance``, per axis of AXES, in
+    degrees (AP_Mount_Params.cpp: MNTn_{ROLL,PITCH,YAW}_{MIN,MAX})."""
+    return tuple((f"MNT{instance}_{a.upper()}_MIN", f"MNT{instance}_{a.upper()}_MAX")
+                 for a in AXES)
+
+
+# Older firmware (e.g. ArduCopter 3.4, up to 4.2): one mount, limits in centidegrees.
+LEGACY_LIMIT_PARAMS = (("MNT_ANGMIN_ROL", "MNT_ANGMAX_ROL"), ("MNT_ANGMIN_TIL", "MNT_ANGMAX_TIL"),
+                       ("MNT_ANGMIN_PAN", "MNT_ANGMAX_PAN"))
+
+
+def mount_param_names(instance: int) -> tuple[str, ...]:
+    """ArduPilot 4.3+ parameters of mount ``instance`` that ``resolve_interpretation`` reads:
+    MNTn_TYPE and the limits. While MNTn_TYPE is 0 (no mount) ArduPilot hides the others
+    (AP_PARAM_FLAG_ENABLE), so a live read of them goes unanswered."""
+    return (f"MNT{instance}_TYPE", *(n for pair in limit_param_names(instance) for n in pair))
+
+
+def legacy_mount_param_names(instance: int) -> tuple[str, ...]:
+    """The same for ArduPilot up to 4.2 (MNT_TYPE, MNT_ANGMIN/ANGMAX_ROL/TIL/PAN); () for
+    instance > 1, which those versions did not have."""
+    if instance != 1:
+        return ()
+    return ("MNT_TYPE", *(n for pair in LEGACY_LIMIT_PARAMS for n in pair))
+
+
 def _param_limits(params: Mapping[str, float], n: int) -> tuple[np.ndarray, str] | None:
-    names = [(f"MNT{n}_{a.upper()}_MIN", f"MNT{n}_{a.upper()}_MAX") for a in AXES]
+    names = limit_param_names(n)
     if all(lo in params and hi in params for lo, hi in names):
         return (np.radians([[params[lo], params[hi]] for lo, hi in names]),
                 f"limits from MNT{n}_*_MIN/MAX")
-    # Older firmware (e.g. ArduCopter 3.4): MNT_ANGMIN_ROL/TIL/PAN in centidegrees.
-    old = [("MNT_ANGMIN_ROL", "MNT_ANGMAX_ROL"), ("MNT_ANGMIN_TIL", "MNT_ANGMAX_TIL"),
-           ("MNT_ANGMIN_PAN", "MNT_ANGMAX_PAN")]
-    if n == 1 and all(lo in params and hi in params for lo, hi in old):
-        return (np.radians([[params[lo] / 100, params[hi] / 100] for lo, hi in old]),
+    if n == 1 and all(lo in params and hi in params for lo, hi in LEGACY_LIMIT_PARAMS):
+        return (np.radians([[params[lo] / 100, params[hi] / 100]
+                            for lo, hi in LEGACY_LIMIT_PARAMS]),
                 "limits from MNT_ANGMIN/ANGMAX_*")
     return None
 

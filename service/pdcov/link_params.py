@@ -21,7 +21,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from .errors import TelemetryError
-from .gimbal import AXES
+from .gimbal import legacy_mount_param_names, mount_param_names
 
 PARAM_ID_MAX_CHARS = 16
 MAV_COMP_ID_ALL = 0
@@ -43,23 +43,6 @@ class ParamRead:
     def missing(self) -> tuple[str, ...]:
         """The names asked for that got no reply, in the order asked."""
         return tuple(n for n in self.requested if n not in self.values)
-
-
-def mount_param_names(instance: int) -> tuple[str, ...]:
-    """ArduPilot 4.3+ parameters of mount ``instance`` (AP_Mount_Params.cpp): MNTn_TYPE and
-    MNTn_{ROLL,PITCH,YAW}_{MIN,MAX} (degrees). While MNTn_TYPE is 0 (no mount) ArduPilot
-    hides the others (AP_PARAM_FLAG_ENABLE), so they go unanswered."""
-    return (f"MNT{instance}_TYPE",
-            *(f"MNT{instance}_{axis.upper()}_{end}" for axis in AXES for end in ("MIN", "MAX")))
-
-
-def legacy_mount_param_names(instance: int) -> tuple[str, ...]:
-    """The same for ArduPilot up to 4.2 (one mount: MNT_TYPE, MNT_ANGMIN/ANGMAX_ROL/TIL/PAN
-    in centidegrees), as ``gimbal.resolve_interpretation`` reads them; () for instance > 1."""
-    if instance != 1:
-        return ()
-    return ("MNT_TYPE", *(f"MNT_ANG{end}_{axis}" for axis in ("ROL", "TIL", "PAN")
-                          for end in ("MIN", "MAX")))
 
 
 def wait_autopilot(conn: mavutil.mavfile, timeout_s: float, *,

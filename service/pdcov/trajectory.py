@@ -189,13 +189,15 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     return Flight(t, r, R, speed, duration, float(ds.sum()))
 
 
-def _attitudes(heading_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.ndarray,
+def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.ndarray,
                tilt: bool) -> np.ndarray:
-    """R_ned_body (N, 3, 3): yaw = heading; with ``tilt`` the body's -z axis along the
-    specific force (acceleration minus gravity)."""
+    """R_ned_body (N, 3, 3): yaw = the direction of travel; with ``tilt`` the body's -z axis
+    along the specific force (acceleration minus gravity)."""
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
     if not tilt:
-        return np.stack([Rz(h) for h in heading_rad])
-    c, s = np.cos(heading_rad), np.sin(heading_rad)
+        R = np.zeros((len(c), 3, 3))
+        R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+        return R
     fwd = np.column_stack([c, s, np.zeros_like(c)])  # NED
     left = np.column_stack([s, -c, np.zeros_like(c)])  # NED
     acc = a_along_mps2[:, None] * fwd + a_left_mps2[:, None] * left
