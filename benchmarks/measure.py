@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.grid import CoverageGrid
-from pdcov.pose import CameraPose
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose
 
 from .references import ReferenceGrid
 

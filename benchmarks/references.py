@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from pdcov.camera import CameraModel
-from pdcov.detector import DetectorModel
-from pdcov.domain import GridGeometry
-from pdcov.pose import CameraPose
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import GridGeometry
+from pdcov.core.pose import CameraPose
 
 
 class ReferenceGrid:

@@ -13,13 +13,13 @@ from typing import Any
 
 from shapely.geometry import box
 
-from pdcov.camera import CameraModel
-from pdcov.detector import DetectorModel
-from pdcov.domain import Domain
-from pdcov.grid import CoverageGrid
-from pdcov.patterns import lawnmower, spiral
-from pdcov.pose import CameraPose, FixedMount
-from pdcov.trajectory import Flight, camera_poses, fly
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import Domain
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose, FixedMount
+from pdcov.planning.patterns import lawnmower, spiral
+from pdcov.planning.trajectory import Flight, camera_poses, fly
 
 MILD_PLUMB_BOB = (-0.05, 0.01, 0.0005, -0.0005, 0.0)
 FISHEYE_COEFFS = (0.01, -0.005, 0.001, 0.0)

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.geodesy import Origin, enu_to_geodetic
-from pdcov.rotations import R_from_quat_wxyz, euler_zyx_from_R, quat_wxyz_from_R
-from pdcov.telemetry import (
+from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.rotations import R_from_quat_wxyz, euler_zyx_from_R, quat_wxyz_from_R
+from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
     GimbalSample,

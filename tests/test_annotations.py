@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pdcov.annotations import detect_format, read_detections, read_truth
+from pdcov.detection.annotations import detect_format, read_detections, read_truth
 from pdcov.errors import ConfigError, InputFileError
 
 

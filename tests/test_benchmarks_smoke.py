@@ -16,7 +16,7 @@ from benchmarks.__main__ import (
 from benchmarks.references import r1_pixel_rays
 from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
 from benchmarks.scenarios import scenarios, spaced
-from pdcov.camera import CameraModel
+from pdcov.core.camera import CameraModel
 
 
 @pytest.mark.parametrize("name", ["S1", "S3", "S4"])

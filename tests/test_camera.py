@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pdcov.camera import CameraModel
+from pdcov.core.camera import CameraModel
 from pdcov.errors import CalibrationError
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]

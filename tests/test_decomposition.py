@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Polygon
 
-from pdcov.decomposition import boustrophedon_decomposition
-from pdcov.domain import Domain
+from pdcov.core.domain import Domain
+from pdcov.planning.decomposition import boustrophedon_decomposition
 
 # Non-convex outer boundary with notches on three sides, one non-convex obstacle (Fig. 3).
 OUTER = [(0, 0), (30, 0), (30, 10), (45, 5), (60, 12), (60, 40), (40, 45), (35, 30),

@@ -11,7 +11,7 @@ from PIL import Image
 from test_detector_stats import EDGES, INPUT, P_D, synthetic_set, write_coco
 
 from pdcov import cli
-from pdcov.detector import DetectorModel
+from pdcov.core.detector import DetectorModel
 
 BINS = ",".join(f"{e:g}" for e in EDGES)
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pdcov.detector import DetectorModel
+from pdcov.core.detector import DetectorModel
 from pdcov.errors import DetectorModelError
 
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from scipy import special, stats
 
-from pdcov.annotations import Boxes, ImageTruth, read_detections, read_truth
-from pdcov.detector import DetectorModel
-from pdcov.detector_stats import (
+from pdcov.core.detector import DetectorModel
+from pdcov.detection.annotations import Boxes, ImageTruth, read_detections, read_truth
+from pdcov.detection.statistics import (
     DetectionStatus,
     MatchSettings,
     TruthStatus,

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from pdcov.domain import Domain
+from pdcov.core.domain import Domain
+from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import DomainError
-from pdcov.geodesy import Origin, enu_to_geodetic
 
 
 def test_grid_aligned_to_bounding_box_and_mask():

@@ -16,8 +16,8 @@ from mavlink_fixtures import KnownFlight, samples_from_flight, write_tlog
 
 from pdcov.cli import main
 from pdcov.config import load_mission
-from pdcov.geodesy import Origin
-from pdcov.pose import (
+from pdcov.core.geodesy import Origin
+from pdcov.core.pose import (
     GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
     GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
     GimbalFrame,
@@ -25,7 +25,7 @@ from pdcov.pose import (
     camera_pose,
     fixed_mount_pose,
 )
-from pdcov.rotations import R_from_euler_zyx, R_from_euler_zyx_many, quat_wxyz_from_R
+from pdcov.core.rotations import R_from_euler_zyx, R_from_euler_zyx_many, quat_wxyz_from_R
 
 ORIGIN = Origin(39.35, -76.33, 5.0)
 RATE_HZ = 5.0
@@ -74,7 +74,7 @@ def expected_poses(flight: KnownFlight, frame: GimbalFrame | None):
     poses = []
     for i, t in enumerate(flight.t_s):
         if frame is None:
-            from pdcov.pose import FixedMount
+            from pdcov.core.pose import FixedMount
             poses.append(fixed_mount_pose(flight.R_ned_body[i], flight.r_body_enu[i],
                                           FixedMount(), float(t)))
         else:
@@ -260,7 +260,7 @@ def test_bad_inputs_fail_clearly(tmp_path):
     garbage.write_bytes(np.random.default_rng(3).bytes(5000))
     assert_clean_failure(cli("evaluate", "--config", str(config), "--log", str(garbage),
                              "--out", out), "garbage.bin")
-    from pdcov.telemetry import PositionSample
+    from pdcov.telemetry.samples import PositionSample
     no_pos = write_tlog(tmp_path / "nopos.tlog", [s for s in samples_from_flight(flight)
                                                  if not isinstance(s, PositionSample)])
     assert_clean_failure(cli("evaluate", "--config", str(config), "--log", str(no_pos),
@@ -294,7 +294,7 @@ def test_config_errors_name_file_and_key(tmp_path, change, words):
 
 
 def test_calibration_file_and_relative_detector_path(tmp_path):
-    from pdcov.detector import DetectorModel
+    from pdcov.core.detector import DetectorModel
 
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "det.yaml").write_text(DetectorModel.illustrative().to_yaml())
@@ -313,9 +313,9 @@ def test_calibration_file_and_relative_detector_path(tmp_path):
 
 
 def test_prior_from_geojson_segments_and_geotiff(tmp_path):
-    from pdcov.evaluate import load_prior
-    from pdcov.geodesy import enu_to_geodetic
-    from pdcov.gis import write_geotiff
+    from pdcov.core.geodesy import enu_to_geodetic
+    from pdcov.report.gis import write_geotiff
+    from pdcov.report.outputs import load_prior
 
     mission = load_mission(write_config(tmp_path, mission_doc()))
     g = mission.domain.grid_geometry(1.0)
@@ -347,7 +347,7 @@ def test_prior_from_geojson_segments_and_geotiff(tmp_path):
 def test_prior_summing_above_one_is_rejected(tmp_path):
     # A prior of weights rather than probabilities gave a probability of success above 1.
     from pdcov.errors import InputFileError
-    from pdcov.evaluate import load_prior
+    from pdcov.report.outputs import load_prior
 
     mission = load_mission(write_config(tmp_path, mission_doc()))
     g = mission.domain.grid_geometry(1.0)

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from pdcov.camera import CameraModel
-from pdcov.footprint import footprint_polygon, ground_range_m
-from pdcov.pose import FixedMount, fixed_mount_pose
-from pdcov.rotations import R_from_euler_zyx
+from pdcov.core.camera import CameraModel
+from pdcov.core.footprint import footprint_polygon, ground_range_m
+from pdcov.core.pose import FixedMount, fixed_mount_pose
+from pdcov.core.rotations import R_from_euler_zyx
 
 CAM = CameraModel.from_fov(640, 480, 90)  # +-45 deg across, +-36.9 deg up-down
 

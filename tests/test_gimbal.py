@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pdcov.core.rotations import R_from_euler_zyx, quat_wxyz_from_euler_zyx
 from pdcov.errors import ConfigError
-from pdcov.gimbal import (
+from pdcov.telemetry.gimbal import (
     GimbalMount,
     gimbal_attitude,
     interpret_gimbal,
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from pdcov.rotations import R_from_euler_zyx, quat_wxyz_from_euler_zyx
 
 DEG = np.pi / 180
 DOWN = np.array([0.0, 0.0, 1.0])  # NED

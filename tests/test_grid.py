@@ -9,13 +9,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from pdcov.camera import CameraModel
-from pdcov.detector import DetectorModel
-from pdcov.domain import Domain, GridGeometry
-from pdcov.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
-from pdcov.grid import CoverageGrid
-from pdcov.pose import CameraPose, FixedMount, fixed_mount_pose
-from pdcov.rotations import R_from_euler_zyx
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import Domain, GridGeometry
+from pdcov.core.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose, FixedMount, fixed_mount_pose
+from pdcov.core.rotations import R_from_euler_zyx
 
 DEG = math.pi / 180
 PINHOLE = CameraModel(640, 480, np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]))

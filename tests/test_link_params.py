@@ -18,16 +18,17 @@ from pymavlink.dialects.v20 import common as mavlink2
 from test_evaluate import mission_doc, write_config
 
 from pdcov.cli import main
+from pdcov.core.mount import GimbalMount
 from pdcov.errors import TelemetryError
-from pdcov.gimbal import GimbalMount, resolve_interpretation
-from pdcov.link_params import (
+from pdcov.telemetry.gimbal import resolve_interpretation
+from pdcov.telemetry.link_params import (
     legacy_mount_param_names,
     mount_param_names,
     read_mount_params,
     read_params,
     wait_autopilot,
 )
-from pdcov.upload import mavlink2_connection
+from pdcov.telemetry.upload import mavlink2_connection
 
 SYSID = 7  # not 1: the ground station must learn it from the HEARTBEAT
 SERVO_PARAMS = {"MNT1_TYPE": 1, "MNT1_ROLL_MIN": -30, "MNT1_ROLL_MAX": 30,

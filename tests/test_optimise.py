@@ -9,10 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString
 
-from pdcov.camera import CameraModel
-from pdcov.detector import DetectorModel
-from pdcov.domain import Domain
-from pdcov.optimise import (
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import Domain
+from pdcov.core.pose import FixedMount
+from pdcov.planning.optimise import (
     PlanParams,
     Scenario,
     Score,
@@ -23,7 +24,6 @@ from pdcov.optimise import (
     predict,
     sweep,
 )
-from pdcov.pose import FixedMount
 
 
 def small_scenario(size_m=16.0):
@@ -101,7 +101,7 @@ def test_best_is_shortest_reaching_the_minimum():
 def test_refly_finds_the_gaps_and_lifts_them_to_the_target():
     import numpy as np
 
-    from pdcov.refly import find_gaps, plan_refly
+    from pdcov.planning.refly import find_gaps, plan_refly
 
     dom = Domain.from_enu([(0, 0), (40, 0), (40, 40), (0, 40)])
     geo = dom.grid_geometry(1.0)
@@ -130,7 +130,7 @@ def test_cli_plan_writes_plan_and_prediction(tmp_path):
 
     from pdcov.cli import main
     from pdcov.config import load_mission
-    from pdcov.plan import read_plan
+    from pdcov.planning.plan import read_plan
 
     cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"
     out = tmp_path / "plan"

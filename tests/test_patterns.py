@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon, box
 
-from pdcov import patterns as P
-from pdcov.decomposition import boustrophedon_decomposition
-from pdcov.domain import Domain
+from pdcov.planning import patterns as P
+from pdcov.core.domain import Domain
 from pdcov.errors import ConfigError
+from pdcov.planning.decomposition import boustrophedon_decomposition
 
 OUTER = [(0, 0), (30, 0), (30, 10), (45, 5), (60, 12), (60, 40), (40, 45), (35, 30),
          (25, 45), (0, 40), (8, 20)]

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from pdcov.core.geodesy import Origin
 from pdcov.errors import InputFileError
-from pdcov.geodesy import Origin
-from pdcov.plan import (
+from pdcov.planning.plan import (
     MAV_CMD_DO_CHANGE_SPEED,
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pdcov.pose import (
+from pdcov.core.pose import (
     GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
     GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
     GIMBAL_FLAG_YAW_LOCK,
@@ -17,7 +17,7 @@ from pdcov.pose import (
     fixed_mount_pose,
     gimbal_frame_from_flags,
 )
-from pdcov.rotations import (
+from pdcov.core.rotations import (
     R_from_euler_zyx,
     angle_between_R,
     euler_zyx_from_R,

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from mavlink_fixtures import KnownFlight, samples_from_flight, write_tlog
 
-from pdcov.errors import InputFileError, TelemetryError
-from pdcov.geodesy import Origin
-from pdcov.gimbal import GimbalMount
-from pdcov.pose import (
+from pdcov.core.geodesy import Origin
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import (
     GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
     GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
     FixedMount,
@@ -21,9 +20,10 @@ from pdcov.pose import (
     camera_pose,
     fixed_mount_pose,
 )
-from pdcov.pose_tracker import PoseTracker, poses_from_log, read_pose_csv, write_pose_csv
-from pdcov.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
-from pdcov.telemetry import AttitudeSample, CaptureSample, GimbalSample, PositionSample
+from pdcov.core.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
+from pdcov.errors import InputFileError, TelemetryError
+from pdcov.telemetry.pose_tracker import PoseTracker, poses_from_log, read_pose_csv, write_pose_csv
+from pdcov.telemetry.samples import AttitudeSample, CaptureSample, GimbalSample, PositionSample
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 RATE_HZ = 20.0  # telemetry rate; frames at 5 Hz fall on telemetry samples

@@ -7,12 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pdcov.core.geodesy import Origin
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import FixedMount
 from pdcov.errors import PdcovError, TelemetryError
-from pdcov.geodesy import Origin
-from pdcov.gimbal import GimbalMount, resolve_interpretation
-from pdcov.logs import read_flight_log
-from pdcov.pose import FixedMount
-from pdcov.pose_tracker import PoseTracker, poses_from_log
+from pdcov.telemetry.gimbal import resolve_interpretation
+from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.pose_tracker import PoseTracker, poses_from_log
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pdcov.search_theory import search_outcome
+from pdcov.core.search_theory import search_outcome
 
 
 def test_two_cells_by_hand():

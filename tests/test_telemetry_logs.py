@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
 
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.errors import TelemetryError
-from pdcov.logs import read_flight_log
-from pdcov.rotations import quat_wxyz_from_euler_zyx
-from pdcov.telemetry import (
+from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.samples import (
     REBOOT_GAP_S,
     AttitudeSample,
     BootClock,

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from pdcov.gimbal import GimbalMount
-from pdcov.plan import Plan, Waypoint
-from pdcov.pose import FixedMount
-from pdcov.trajectory import G_MPS2, Kinematics, camera_poses, fly
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import FixedMount
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.trajectory import G_MPS2, Kinematics, camera_poses, fly
 
 KIN = Kinematics(max_accel_mps2=2.0, max_yaw_rate_rad_s=math.radians(90), tilt=True,
                  corner_cut_m=20.0)

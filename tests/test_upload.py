@@ -13,9 +13,9 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov.geodesy import Origin
-from pdcov.plan import Plan, Waypoint, home_item, mission_items
-from pdcov.upload import MissionUpload, UploadError, mavlink2_connection, upload_mission
+from pdcov.core.geodesy import Origin
+from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
+from pdcov.telemetry.upload import MissionUpload, UploadError, mavlink2_connection, upload_mission
 
 ORIGIN = Origin(39.35, -76.33, 12.5)
 PLAN = Plan((Waypoint(0.0, 0.0, 10.0, 5.0), Waypoint(0.0, 40.0, 10.0, 5.0, 2.0),
@@ -182,7 +182,7 @@ def test_state_machine_times_out_after_retries():
 
 def test_cli_upload_reports_success_and_refusal(vehicle_factory, tmp_path, capsys):
     from pdcov.cli import main
-    from pdcov.plan import write_plan
+    from pdcov.planning.plan import write_plan
 
     path = write_plan(tmp_path / "m.plan", PLAN, ORIGIN)
     ok = vehicle_factory()

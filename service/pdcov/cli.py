@@ -10,8 +10,8 @@ import argparse
 import importlib
 import sys
 
-from . import __version__
-from .errors import PdcovError
+from pdcov import __version__
+from pdcov.errors import PdcovError
 
 # Each sub-command and the module that registers it, in the order ``pdcov --help`` lists
 # them. Only the module of the command given is imported: start-up stays short.

@@ -11,15 +11,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .camera import CameraModel
-from .detector import DetectorModel
-from .domain import Domain
-from .errors import ConfigError, PdcovError, where
-from .geodesy import Origin
-from .gimbal import GimbalMount
-from .grid import CoverageGrid
-from .pose import FixedMount
-from .yaml_file import load_yaml
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import Domain
+from pdcov.core.geodesy import Origin
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import FixedMount
+from pdcov.errors import ConfigError, PdcovError, where
+from pdcov.yaml_file import load_yaml
 
 TOP_LEVEL_KEYS = ("vehicle_id", "origin", "domain", "camera", "calibration", "mount",
                   "detector", "thresholds", "coverage", "log", "planning")

@@ -7,7 +7,7 @@ from typing import Any
 
 import yaml
 
-from .errors import ConfigError
+from pdcov.errors import ConfigError
 
 
 def load_yaml(path: str | Path, what: str, error: type[ConfigError] = ConfigError) -> Any:

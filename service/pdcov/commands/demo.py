@@ -24,8 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_demo(args: argparse.Namespace) -> int:
     from pdcov.commands.plan import scenario_of, write_prediction
-    from pdcov.optimise import PlanParams, build_plan, predict
-    from pdcov.plots import compare_figure
+    from pdcov.planning.optimise import PlanParams, build_plan, predict
+    from pdcov.report.plots import compare_figure
 
     ref = resources.files("pdcov") / "data" / "demo_mission.yaml"
     with resources.as_file(ref) as path:

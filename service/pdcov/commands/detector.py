@@ -16,10 +16,17 @@ from pathlib import Path
 import yaml
 from tqdm import tqdm
 
-from pdcov.annotations import FORMATS, NO_BOXES, Boxes, ImageTruth, read_detections, read_truth
 from pdcov.atomic import write_text_atomic
-from pdcov.detector import DetectorModel
-from pdcov.detector_stats import (
+from pdcov.core.detector import DetectorModel
+from pdcov.detection.annotations import (
+    FORMATS,
+    NO_BOXES,
+    Boxes,
+    ImageTruth,
+    read_detections,
+    read_truth,
+)
+from pdcov.detection.statistics import (
     BIN_RULES,
     INTERVAL_METHODS,
     VALIDATION_TESTS,
@@ -264,7 +271,7 @@ def format_validation_table(report: ValidationReport) -> str:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    from pdcov.detector_plot import plot_detector_model
+    from pdcov.detection.figures import plot_detector_model
 
     model = DetectorModel.from_yaml(args.model)
     report = None

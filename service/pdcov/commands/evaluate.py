@@ -14,7 +14,7 @@ from pdcov.config import load_mission
 from pdcov.errors import InputFileError, PdcovError
 
 if TYPE_CHECKING:
-    from pdcov.pose import CameraPose
+    from pdcov.core.pose import CameraPose
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -68,8 +68,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
-    from pdcov.evaluate import evaluate_poses, finite_track, load_prior, summary_text, write_outputs
-    from pdcov.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
+    from pdcov.report.outputs import (
+        evaluate_poses,
+        finite_track,
+        load_prior,
+        summary_text,
+        write_outputs,
+    )
+    from pdcov.telemetry.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
 
     mission = load_mission(args.config)
     if args.outline_threshold is not None and not 0 <= args.outline_threshold <= 1:
@@ -107,7 +113,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate")
     plan_enu = None
     if args.plan is not None:
-        from pdcov.plan import read_plan
+        from pdcov.planning.plan import read_plan
         # Only drawn: a file without a speed command still gives its waypoints.
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
     grid = mission.new_grid()
@@ -141,8 +147,8 @@ def _check_near_origin(poses, source: Path, config: str | None) -> None:
 
 
 def run_compare(args: argparse.Namespace) -> int:
-    from pdcov.evaluate import read_run
-    from pdcov.plots import compare_figure, proportions_at_or_above
+    from pdcov.report.outputs import read_run
+    from pdcov.report.plots import compare_figure, proportions_at_or_above
 
     names = args.names.split(",") if args.names else [p.name or str(p) for p in args.runs]
     if len(names) != len(args.runs):
@@ -170,12 +176,12 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def run_footprint(args: argparse.Namespace) -> int:
-    from pdcov.domain import GridGeometry
-    from pdcov.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
-    from pdcov.grid import default_max_range_m
-    from pdcov.plots import ray_count_figure
-    from pdcov.pose import FixedMount, camera_pose, fixed_mount_pose
-    from pdcov.rotations import R_from_euler_zyx, Rz
+    from pdcov.core.domain import GridGeometry
+    from pdcov.core.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
+    from pdcov.core.grid import default_max_range_m
+    from pdcov.core.pose import FixedMount, camera_pose, fixed_mount_pose
+    from pdcov.core.rotations import R_from_euler_zyx, Rz
+    from pdcov.report.plots import ray_count_figure
 
     mission = load_mission(args.config)
     for name in ("altitude_m", "roll_deg", "pitch_deg", "yaw_deg"):

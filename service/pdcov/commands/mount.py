@@ -10,10 +10,11 @@ import math
 from pathlib import Path
 
 from pdcov.config import load_mission
+from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, where
-from pdcov.gimbal import GimbalMount, mount_type_param, resolve_interpretation
-from pdcov.link_params import ParamRead, read_mount_params, wait_autopilot
-from pdcov.upload import mavlink2_connection
+from pdcov.telemetry.gimbal import mount_type_param, resolve_interpretation
+from pdcov.telemetry.link_params import ParamRead, read_mount_params, wait_autopilot
+from pdcov.telemetry.upload import mavlink2_connection
 
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 GCS_SYSTEM_ID = 255

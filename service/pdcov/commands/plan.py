@@ -23,10 +23,10 @@ import numpy as np
 
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.config import Mission, load_mission
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
 from pdcov.errors import ConfigError, where
-from pdcov.evaluate import summary_text, write_outputs
-from pdcov.grid import CoverageGrid
-from pdcov.optimise import (
+from pdcov.planning.optimise import (
     PATTERNS,
     PlanParams,
     Prediction,
@@ -40,11 +40,12 @@ from pdcov.optimise import (
     sweep,
     with_spacing,
 )
-from pdcov.patterns import track_spacing_m
-from pdcov.plan import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem, read_mission, write_plan
-from pdcov.refly import plan_refly
-from pdcov.trajectory import Kinematics
-from pdcov.upload import upload_mission
+from pdcov.planning.patterns import track_spacing_m
+from pdcov.planning.plan import read_mission, write_plan
+from pdcov.planning.refly import plan_refly
+from pdcov.planning.trajectory import Kinematics
+from pdcov.report.outputs import summary_text, write_outputs
+from pdcov.telemetry.upload import upload_mission
 
 PLANNING_KEYS = ("max_accel_mps2", "max_yaw_rate_deg_s", "tilt", "corner_cut_m",
                  "gimbal_pitch_deg")

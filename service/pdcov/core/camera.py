@@ -21,8 +21,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .errors import CalibrationError, where
-from .yaml_file import load_yaml
+from pdcov.errors import CalibrationError, where
+from pdcov.yaml_file import load_yaml
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
 _COEFF_COUNTS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (8,), "fisheye": (4,)}

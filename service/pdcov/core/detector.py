@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import DetectorModelError, where
-from .yaml_file import load_yaml
+from pdcov.errors import DetectorModelError, where
+from pdcov.yaml_file import load_yaml
 
 FORMAT_VERSION = 1
 SIZE_METRICS = ("sqrt_area",)

@@ -18,8 +18,8 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
-from .errors import DomainError, where
-from .geodesy import Origin, geodetic_to_enu
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.errors import DomainError, where
 
 
 @dataclass(frozen=True, slots=True)

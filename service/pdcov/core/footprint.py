@@ -14,9 +14,9 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from .camera import CameraModel
-from .domain import GridGeometry
-from .pose import CameraPose
+from pdcov.core.camera import CameraModel
+from pdcov.core.domain import GridGeometry
+from pdcov.core.pose import CameraPose
 
 _HORIZON_EPS = 1e-9
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymap3d
 
-from .errors import ConfigError
+from pdcov.errors import ConfigError
 
 
 @dataclass(frozen=True, slots=True)

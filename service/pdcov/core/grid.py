@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
-from .camera import CameraModel
-from .detector import DetectorModel
-from .domain import GridGeometry
-from .errors import InputFileError
-from .footprint import footprint_ring_enu
-from .pose import CameraPose
+from pdcov.atomic import atomic_write
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import GridGeometry
+from pdcov.core.footprint import footprint_ring_enu
+from pdcov.core.pose import CameraPose
+from pdcov.errors import InputFileError
 
 SNAPSHOT_VERSION = 1
 _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture

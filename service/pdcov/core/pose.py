@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ConfigError
-from .rotations import R_from_euler_zyx, R_from_quat_wxyz, Rz, quat_wxyz_from_R
+from pdcov.core.rotations import R_from_euler_zyx, R_from_quat_wxyz, Rz, quat_wxyz_from_R
+from pdcov.errors import ConfigError
 
 R_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 """Maps NED vectors into ENU (its own inverse)."""

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ConfigError, InputFileError
+from pdcov.errors import ConfigError, InputFileError
 
 FORMATS = ("coco", "yolo", "visdrone")
 VISDRONE_CLASSES = ("ignored regions", "pedestrian", "people", "bicycle", "car", "van", "truck",

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from .detector import DetectorModel
-from .detector_stats import BinTest, ValidationReport
-from .errors import PdcovError
+from pdcov.core.detector import DetectorModel
+from pdcov.detection.statistics import BinTest, ValidationReport
+from pdcov.errors import PdcovError
 
 
 def plot_detector_model(model: DetectorModel, out_path: str | Path,

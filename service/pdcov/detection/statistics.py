@@ -29,9 +29,9 @@ import numpy as np
 import shapely
 from scipy import optimize, special, stats
 
-from .annotations import Boxes, ImageTruth
-from .detector import BinCounts, DetectorModel
-from .errors import ConfigError, DetectorModelError, InputFileError
+from pdcov.core.detector import BinCounts, DetectorModel
+from pdcov.detection.annotations import Boxes, ImageTruth
+from pdcov.errors import ConfigError, DetectorModelError, InputFileError
 
 CONFIDENCE_LEVEL = 0.95
 INTERVAL_METHODS = {"wilson": "wilson", "clopper-pearson": "exact"}  # ours -> scipy's name

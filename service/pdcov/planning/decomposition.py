@@ -27,7 +27,7 @@ from shapely import affinity
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from shapely.geometry.base import BaseGeometry
 
-from .errors import DomainError
+from pdcov.errors import DomainError
 
 _REL_TOL = 1e-9
 

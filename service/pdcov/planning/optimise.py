@@ -19,18 +19,18 @@ import numpy as np
 from shapely.geometry import MultiPolygon, Polygon
 from tqdm import tqdm
 
-from . import patterns
-from .camera import CameraModel
-from .detector import DetectorModel
-from .domain import GridGeometry
-from .errors import ConfigError
-from .footprint import footprint_polygon
-from .gimbal import GimbalMount
-from .grid import CoverageGrid, default_max_range_m
-from .plan import Plan
-from .pose import FixedMount
-from .rotations import Rz
-from .trajectory import Flight, Kinematics, camera_poses, fly
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import GridGeometry
+from pdcov.core.footprint import footprint_polygon
+from pdcov.core.grid import CoverageGrid, default_max_range_m
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import FixedMount
+from pdcov.core.rotations import Rz
+from pdcov.errors import ConfigError
+from pdcov.planning import patterns
+from pdcov.planning.plan import Plan
+from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
 PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector")
 

@@ -22,9 +22,9 @@ from scipy.sparse.csgraph import dijkstra
 from shapely.geometry import LinearRing, LineString, MultiPolygon, Point, Polygon
 from shapely.ops import substring
 
-from .decomposition import Decomposition, boustrophedon_decomposition, polygons_of
-from .errors import ConfigError
-from .plan import Plan
+from pdcov.errors import ConfigError
+from pdcov.planning.decomposition import Decomposition, boustrophedon_decomposition, polygons_of
+from pdcov.planning.plan import Plan
 
 _COVER_TOL_M = 1e-5
 

@@ -27,19 +27,22 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import write_text_atomic
-from .errors import InputFileError
-from .geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from pdcov.atomic import write_text_atomic
+from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from pdcov.core.mission import (
+    MAV_CMD_DO_CHANGE_SPEED,
+    MAV_CMD_NAV_LAND,
+    MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    MAV_CMD_NAV_TAKEOFF,
+    MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_GLOBAL,
+    MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    MAV_FRAME_MISSION,
+    MissionItem,
+)
+from pdcov.errors import InputFileError
 
-MAV_CMD_NAV_WAYPOINT = 16
-MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
-MAV_CMD_NAV_LAND = 21
-MAV_CMD_NAV_TAKEOFF = 22
-MAV_CMD_DO_CHANGE_SPEED = 178
-MAV_FRAME_GLOBAL = 0
-MAV_FRAME_MISSION = 2
-MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
-MAV_FRAME_GLOBAL_TERRAIN_ALT = 10
 _SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
 _FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
 _LAST_DO_COMMAND = 252
@@ -101,22 +104,6 @@ class Plan:
         keep[1:] = np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-6
         return cls(tuple(Waypoint(float(x), float(y), alt_agl_m, speed_mps)
                          for x, y in pts[keep]), description)
-
-
-@dataclass(frozen=True, slots=True)
-class MissionItem:
-    """One MAVLink mission item (MISSION_ITEM_INT fields; lat/lon in degrees, z in metres)."""
-
-    command: int
-    frame: int
-    param1: float = 0.0
-    param2: float = 0.0
-    param3: float = 0.0
-    param4: float = 0.0
-    lat_deg: float = 0.0
-    lon_deg: float = 0.0
-    z_m: float = 0.0
-    autocontinue: bool = True
 
 
 def home_item(origin: Origin) -> MissionItem:

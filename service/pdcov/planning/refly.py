@@ -22,11 +22,11 @@ import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from tqdm import tqdm
 
-from .decomposition import SweepFrame, polygons_of
-from .errors import ConfigError
-from .optimise import Prediction, Scenario, predict
-from .patterns import FreeSpaceRouter, PathBuilder, clip_polyline, lawnmower
-from .plan import Plan
+from pdcov.errors import ConfigError
+from pdcov.planning.decomposition import SweepFrame, polygons_of
+from pdcov.planning.optimise import Prediction, Scenario, predict
+from pdcov.planning.patterns import FreeSpaceRouter, PathBuilder, clip_polyline, lawnmower
+from pdcov.planning.plan import Plan
 
 
 @dataclass(frozen=True, slots=True)

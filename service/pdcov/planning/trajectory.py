@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .gimbal import GimbalMount
-from .plan import Plan
-from .pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose, heading_rad
-from .rotations import R_from_euler_zyx, Rz
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose, heading_rad
+from pdcov.core.rotations import R_from_euler_zyx, Rz
+from pdcov.planning.plan import Plan
 
 G_MPS2 = 9.80665
 _STEP_M = 0.1

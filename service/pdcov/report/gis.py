@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import atomic_path, write_text_atomic
-from .domain import GridGeometry
-from .geodesy import Origin, enu_to_geodetic
+from pdcov.atomic import atomic_path, write_text_atomic
+from pdcov.core.domain import GridGeometry
+from pdcov.core.geodesy import Origin, enu_to_geodetic
 
 
 def local_crs_wkt(origin: Origin) -> str:

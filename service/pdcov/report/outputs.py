@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 import shapely
 
-from .atomic import atomic_write, write_text_atomic
-from .config import Mission
-from .domain import GridGeometry
-from .errors import InputFileError
-from .geodesy import Origin, geodetic_to_enu
-from .grid import CoverageGrid, Metrics
-from .pose import CameraPose
-from .search_theory import SearchOutcome, search_outcome
+from pdcov.atomic import atomic_write, write_text_atomic
+from pdcov.config import Mission
+from pdcov.core.domain import GridGeometry
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.core.grid import CoverageGrid, Metrics
+from pdcov.core.pose import CameraPose
+from pdcov.core.search_theory import SearchOutcome, search_outcome
+from pdcov.errors import InputFileError
 
 METRICS_VERSION = 1
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
@@ -79,7 +79,7 @@ def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
                 raise ValueError(f"array shape {poa.shape} != grid shape {geometry.shape} "
                                  "(rows north, columns east)")
         elif suffix in (".tif", ".tiff"):
-            from .gis import read_geotiff_band
+            from pdcov.report.gis import read_geotiff_band
             poa = np.nan_to_num(read_geotiff_band(path, geometry), nan=0.0)
         elif suffix in (".geojson", ".json"):
             poa = _prior_from_segments(json.loads(path.read_text()), geometry, mask, origin)
@@ -139,7 +139,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
                   figures: bool = True) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed)."""
-    from .gis import threshold_outline, write_geotiff, write_outline_geojson
+    from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -163,7 +163,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                       np.ones_like(mask))
         files += ["posterior.npy", "posterior.tif"]
     if figures:
-        from .plots import heatmap_figure, thresholds_figure
+        from pdcov.report.plots import heatmap_figure, thresholds_figure
         heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
                        outline_enu=outline, threshold=threshold, track_enu=track_enu,
                        plan_enu=plan_enu)

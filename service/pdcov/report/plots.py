@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import atomic_path
-from .domain import Domain, GridGeometry
-from .errors import PdcovError
+from pdcov.atomic import atomic_path
+from pdcov.core.domain import Domain, GridGeometry
+from pdcov.errors import PdcovError
 
 
 def _pyplot() -> Any:

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from .errors import TelemetryError
-from .gimbal import legacy_mount_param_names, mount_param_names
+from pdcov.errors import TelemetryError
+from pdcov.telemetry.gimbal import legacy_mount_param_names, mount_param_names
 
 PARAM_ID_MAX_CHARS = 16
 MAV_COMP_ID_ALL = 0

@@ -20,9 +20,9 @@ from typing import TypeVar
 
 import numpy as np
 
-from .errors import TelemetryError
-from .gimbal import preferred_gimbal_source
-from .telemetry import (
+from pdcov.errors import TelemetryError
+from pdcov.telemetry.gimbal import preferred_gimbal_source
+from pdcov.telemetry.samples import (
     DATAFLASH_TYPES,
     MAV_AUTOPILOT_INVALID,
     REBOOT_GAP_S,

@@ -22,10 +22,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
-from .errors import ConfigError, InputFileError, TelemetryError
-from .geodesy import Origin, geodetic_to_enu
-from .gimbal import (
+from pdcov.atomic import atomic_write
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.core.pose import (
+    R_ENU_NED,
+    R_GIMBAL_CAM,
+    CameraPose,
+    FixedMount,
+)
+from pdcov.core.rotations import (
+    R_from_quat_wxyz,
+    euler_zyx_from_R_many,
+    quat_wxyz_from_R,
+    slerp_quat_wxyz,
+)
+from pdcov.errors import ConfigError, InputFileError, TelemetryError
+from pdcov.telemetry.gimbal import (
     GimbalInterpretation,
     GimbalMount,
     earth_frame_mask,
@@ -33,20 +45,8 @@ from .gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from .logs import FlightLog, read_flight_log
-from .pose import (
-    R_ENU_NED,
-    R_GIMBAL_CAM,
-    CameraPose,
-    FixedMount,
-)
-from .rotations import (
-    R_from_quat_wxyz,
-    euler_zyx_from_R_many,
-    quat_wxyz_from_R,
-    slerp_quat_wxyz,
-)
-from .telemetry import (
+from pdcov.telemetry.logs import FlightLog, read_flight_log
+from pdcov.telemetry.samples import (
     AttitudeSample,
     AttitudeSeries,
     GimbalSample,

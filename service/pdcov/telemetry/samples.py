@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .rotations import quat_wxyz_from_euler_zyx
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 
 REBOOT_BACKSTEP_S = 2.0
 """A boot time this far behind the latest one means the autopilot restarted (messages of

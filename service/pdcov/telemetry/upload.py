@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from .errors import PdcovError, TelemetryError
-from .link_params import wait_autopilot_heartbeat
-from .plan import MissionItem
+from pdcov.core.mission import MissionItem
+from pdcov.errors import PdcovError, TelemetryError
+from pdcov.telemetry.link_params import wait_autopilot_heartbeat
 
 MAV_MISSION_TYPE_MISSION = 0
 

@@ -1,0 +1,1 @@
+"""The Zenoh protocol (key expressions, payloads) shared by the daemon and the watcher."""

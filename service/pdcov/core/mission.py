@@ -1,0 +1,32 @@
+"""MAVLink mission items: the vocabulary that plan files, planning and the uploader share
+(MAV_CMD and MAV_FRAME values from common.xml)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_FRAME_GLOBAL = 0
+MAV_FRAME_MISSION = 2
+MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
+MAV_FRAME_GLOBAL_TERRAIN_ALT = 10
+
+
+@dataclass(frozen=True, slots=True)
+class MissionItem:
+    """One MAVLink mission item (MISSION_ITEM_INT fields; lat/lon in degrees, z in metres)."""
+
+    command: int
+    frame: int
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    z_m: float = 0.0
+    autocontinue: bool = True

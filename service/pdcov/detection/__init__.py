@@ -1,0 +1,1 @@
+"""Detector statistics from labelled test sets: readers, matching and binning, figures."""

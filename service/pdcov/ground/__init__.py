@@ -1,0 +1,1 @@
+"""The ground station (`pdcov watch`): terminal view and web map."""

@@ -1,0 +1,1 @@
+"""Evaluation outputs: metrics, figures, GIS exports."""

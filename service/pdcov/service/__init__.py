@@ -1,0 +1,1 @@
+"""The onboard daemon (`pdcov serve`): link, frame clock, checkpoints, publishing."""
