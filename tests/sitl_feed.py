@@ -8,6 +8,7 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from pdcov_sitl.faults import GimbalHealth
 from pdcov_sitl.protocol import AutopilotEndpoint
 
 LAT_DEG, LON_DEG, ALT_MSL_M = -35.363261, 149.165230, 584.0
@@ -58,8 +59,13 @@ def hover_message(endpoint: AutopilotEndpoint, name: str, t_s: float, autopilot:
     if name == "EXTENDED_SYS_STATE":
         return mav.extended_sys_state_encode(0, mavlink2.MAV_LANDED_STATE_IN_AIR)
     if name == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+        health = endpoint.gimbal_health(t_s)
+        if health is GimbalHealth.SILENT:
+            return None
+        failure = (mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+                   if health is GimbalHealth.FAILED else 0)
         return mav.gimbal_device_attitude_status_encode(0, 0, boot_ms, 44, [1, 0, 0, 0],
-                                                        0, 0, 0, 0)
+                                                        0, 0, 0, failure)
     return None
 
 
