@@ -243,9 +243,9 @@ def test_snapshot_of_another_version_or_inconsistent_shapes_is_refused(tmp_path)
     grid.save_npz(tmp_path / "grid.npz")
     with np.load(tmp_path / "grid.npz") as z:
         data = dict(z)
-    np.savez(tmp_path / "v2.npz", **(data | {"version": 2}))
-    with pytest.raises(InputFileError, match="v2.npz.*version 2, expected 1"):
-        CoverageGrid.load_npz(tmp_path / "v2.npz", PINHOLE, DETECTOR)
+    np.savez(tmp_path / "v9.npz", **(data | {"version": 9}))
+    with pytest.raises(InputFileError, match="v9.npz.*version 9, expected 1 or 2"):
+        CoverageGrid.load_npz(tmp_path / "v9.npz", PINHOLE, DETECTOR)
     np.savez(tmp_path / "cut.npz", **(data | {"n_obs": data["n_obs"][:3]}))
     with pytest.raises(InputFileError, match="cut.npz: n_obs has shape"):
         CoverageGrid.load_npz(tmp_path / "cut.npz", PINHOLE, DETECTOR)

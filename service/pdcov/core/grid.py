@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -26,7 +27,15 @@ from pdcov.core.footprint import footprint_ring_enu
 from pdcov.core.pose import CameraPose
 from pdcov.errors import InputFileError
 
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2  # 2: the revisit clock (last_obs_s) in float64; 1: float32
+_READABLE_VERSIONS = (1, 2)
+# Frame times closer than this count as equal in the revisit test: decimal times read from a
+# file (0.1 s steps, or epoch times near 1.7e9 s with 2.4e-7 s float64 spacing) differ from
+# their true differences by rounding well below it, so the same poses give the same grid
+# whatever their time origin.
+_REVISIT_TOL_S = 1e-6
+# A version-1 revisit clock (float32) is used only where it resolves 1 ms: times below 2^13 s.
+_FLOAT32_CLOCK_LIMIT_S = 2.0**13
 _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
 _NEXT = [1, 2, 3, 0]  # the next corner of a quadrilateral
 
@@ -59,6 +68,11 @@ class CoverageGrid:
     are updated). max_range_m: slant range beyond which cells are not observed; None chooses
     ``default_max_range_m``. min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
+
+    With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
+    must come in time order (``update`` refuses one earlier than the latest); times are kept
+    in float64 seconds (any clock: boot time or Unix epoch give the same grid), and two times
+    within 1 microsecond count as equal.
     """
 
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
@@ -81,8 +95,9 @@ class CoverageGrid:
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
-        self.last_obs_s = (np.full(geometry.shape, -np.inf, dtype=np.float32)
+        self.last_obs_s = (np.full(geometry.shape, -np.inf, dtype=np.float64)
                            if min_revisit_s else None)
+        self.latest_frame_t_s = -math.inf  # latest frame time seen (s), with min_revisit_s
         self.frames = 0
         pd, pfa = detector.padded_tables()
         with np.errstate(divide="ignore"):
@@ -125,11 +140,16 @@ class CoverageGrid:
         """Add one camera frame; returns the number of free cells it observed.
 
         t_s (s, autopilot clock) defaults to ``pose.t_s``; it is only used with
-        ``min_revisit_s``.
+        ``min_revisit_s``, and must then not go back in time (ValueError, nothing counted).
         """
-        t = pose.t_s if t_s is None else t_s
-        if self.last_obs_s is not None and not math.isfinite(t):
-            raise ValueError(f"min_revisit_s needs frame times: pose.t_s or t_s, got {t}")
+        t = float(pose.t_s if t_s is None else t_s)
+        if self.last_obs_s is not None:
+            if not math.isfinite(t):
+                raise ValueError(f"min_revisit_s needs frame times: pose.t_s or t_s, got {t}")
+            if t < self.latest_frame_t_s - _REVISIT_TOL_S:
+                raise ValueError(f"min_revisit_s needs frames in time order: t_s = {t!r} s "
+                                 f"after a frame at {self.latest_frame_t_s!r} s")
+            self.latest_frame_t_s = max(self.latest_frame_t_s, t)
         self.frames += 1
         window = self._window(pose)
         if window is None:
@@ -140,7 +160,7 @@ class CoverageGrid:
             if self.min_revisit_s is None:  # only if min_revisit_s was cleared after __init__
                 raise TypeError("min_revisit_s is None but last_obs_s is kept")
             last = self.last_obs_s[r0:r1, c0:c1]
-            observed &= (t - last) >= self.min_revisit_s
+            observed &= (t - last) >= self.min_revisit_s - _REVISIT_TOL_S
             last[observed] = t
         # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
@@ -280,24 +300,32 @@ class CoverageGrid:
         self.frames += other.frames
         if self.last_obs_s is not None and other.last_obs_s is not None:
             np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
+            self.latest_frame_t_s = max(self.latest_frame_t_s, other.latest_frame_t_s)
 
     def save_npz(self, path: str | Path) -> None:
         """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
         log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames, and
         with ``min_revisit_s`` each cell's last counted look, last_obs_s."""
+        with atomic_write(path, "wb") as fh:
+            self.write_npz(fh)
+
+    def write_npz(self, fh: BinaryIO) -> None:
+        """Write the snapshot ``save_npz`` writes to an open binary file (the daemon sends
+        these bytes over Zenoh: np.load reads them)."""
         g = self.geometry
         revisit = {} if self.last_obs_s is None else {"last_obs_s": self.last_obs_s}
-        with atomic_write(path, "wb") as fh:
-            np.savez_compressed(
-                fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
-                mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
-                x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames,
-                **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
+        np.savez_compressed(
+            fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
+            mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
+            x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames,
+            **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
                  **kwargs: float | None) -> CoverageGrid:
-        """Restore a snapshot written by ``save_npz``."""
+        """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
+        clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
+        more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
         path = Path(path)
         try:
             with np.load(path) as z:
@@ -309,10 +337,10 @@ class CoverageGrid:
         if missing:
             raise InputFileError(f"{path}: not a pdcov grid snapshot (missing "
                                  f"{', '.join(sorted(missing))})")
-        version = int(data.get("version", SNAPSHOT_VERSION))
-        if version != SNAPSHOT_VERSION:
+        version = int(data.get("version", 1))
+        if version not in _READABLE_VERSIONS:
             raise InputFileError(f"{path}: grid snapshot version {version}, expected "
-                                 f"{SNAPSHOT_VERSION}")
+                                 f"{' or '.join(map(str, _READABLE_VERSIONS))}")
         mask = data["mask"].astype(bool)
         for key in ("log_miss_d", "log_miss_fa", "n_obs"):
             if data[key].shape != mask.shape:
@@ -326,7 +354,20 @@ class CoverageGrid:
         grid.n_obs[:] = data["n_obs"]
         grid.frames = int(data.get("frames", 0))
         if grid.last_obs_s is not None and "last_obs_s" in data:
-            grid.last_obs_s[:] = data["last_obs_s"]
+            last = data["last_obs_s"]
+            if last.shape != mask.shape:
+                raise InputFileError(f"{path}: last_obs_s has shape {last.shape}, the mask "
+                                     f"{mask.shape}")
+            finite = last[np.isfinite(last)]
+            latest = float(finite.max()) if finite.size else -math.inf
+            if version == 1 and finite.size and np.abs(finite).max() >= _FLOAT32_CLOCK_LIMIT_S:
+                raise InputFileError(
+                    f"{path}: grid snapshot version 1 keeps the revisit clock in float32, "
+                    f"which resolves only {np.spacing(np.float32(latest)):g} s at t = "
+                    f"{latest:.0f} s; re-create the grid with this pdcov, or load it "
+                    "without coverage.min_revisit_s")
+            grid.last_obs_s[:] = last
+            grid.latest_frame_t_s = float(data.get("latest_frame_t_s", latest))
         return grid
 
 

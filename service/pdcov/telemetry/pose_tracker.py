@@ -544,7 +544,8 @@ def write_pose_csv(path: str | Path, log_poses: LogPoses) -> None:
 def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
     """Camera poses from a pose CSV: header starting ``t_s,x_m,y_m,z_m,qw,qx,qy,qz`` (more
     columns allowed and ignored), camera centre ENU m and the unit quaternion (w, x, y, z)
-    of R_enu_cam. Raises InputFileError naming the file and line."""
+    of R_enu_cam. The poses come sorted by time, whatever the order of the rows. Raises
+    InputFileError naming the file and line."""
     path = Path(path)
     try:
         f = path.open(newline="")
@@ -588,6 +589,10 @@ def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
         raise InputFileError(f"{path}:{lines[k]}: quaternion (qw, qx, qy, qz) has norm "
                              f"{norm[k]:.6f}; expected a unit quaternion "
                              f"(within {QUAT_NORM_TOL})")
+    # Rows in time order (ties by their values): which look counts with
+    # coverage.min_revisit_s depends on the order of the frames, and the grid's float sums on
+    # the order of the additions, so any order of the same rows gives the same grid.
+    values = values[np.lexsort(values.T[::-1])]
     # from_quat normalises, exactly as when the poses were written.
     R_enu_cam = R_from_quat_wxyz(values[:, 4:]).reshape(-1, 3, 3)
     poses = [CameraPose(R, v[1:4], float(v[0])) for R, v in zip(R_enu_cam, values, strict=True)]
