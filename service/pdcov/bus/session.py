@@ -1,0 +1,141 @@
+"""The mission config's ``bus`` section and the Zenoh session it opens.
+
+``bus`` (docs/protocol.md "Session"): mode peer | client | router (default peer: on the
+aircraft the session opens with no router and connects in the background), connect and
+listen endpoint lists (``tcp/10.0.0.2:7447``, ``tls/...``, ``quic/...``), multicast_scouting
+(default true; false keeps a session from announcing itself on the LAN), config_file (a
+Zenoh JSON5 config read first), zenoh (a mapping of Zenoh config paths to values, inserted
+last: TLS certificates, access_control, anything Zenoh takes), and the publishing options
+status_period_s, tiles_period_s, tile_size, tiles_max_bytes_per_s.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from pdcov.errors import ConfigError, where
+
+MODES = ("peer", "client", "router")
+BUS_KEYS = ("mode", "connect", "listen", "multicast_scouting", "config_file", "zenoh",
+            "status_period_s", "tiles_period_s", "tile_size", "tiles_max_bytes_per_s")
+
+
+@dataclass(frozen=True, slots=True)
+class BusConfig:
+    """How the daemon talks Zenoh: session (mode, endpoints, scouting, extra Zenoh config)
+    and publishing (status every status_period_s s, changed tiles every tiles_period_s s in
+    tiles of tile_size cells, at most tiles_max_bytes_per_s bytes/s of tiles on average)."""
+
+    mode: str = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast_scouting: bool = True
+    config_file: str | None = None
+    zenoh: Mapping[str, Any] = field(default_factory=dict)
+    status_period_s: float = 1.0
+    tiles_period_s: float = 0.2
+    tile_size: int = 32
+    tiles_max_bytes_per_s: int = 65536
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"bus.mode: expected one of {', '.join(MODES)}, got "
+                              f"{self.mode!r}")
+        for name in ("status_period_s", "tiles_period_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"bus.{name}: expected seconds > 0, got {v!r}")
+        if not (isinstance(self.tile_size, int) and 4 <= self.tile_size <= 1024):
+            raise ConfigError(f"bus.tile_size: expected cells 4..1024, got {self.tile_size!r}")
+        if not (isinstance(self.tiles_max_bytes_per_s, int)
+                and self.tiles_max_bytes_per_s >= 1024):
+            raise ConfigError(f"bus.tiles_max_bytes_per_s: expected bytes/s >= 1024, got "
+                              f"{self.tiles_max_bytes_per_s!r}")
+        for name in ("connect", "listen"):
+            for e in getattr(self, name):
+                if not isinstance(e, str) or "/" not in e:
+                    raise ConfigError(f"bus.{name}: endpoint {e!r}: expected "
+                                      "PROTOCOL/ADDRESS such as tcp/192.168.1.10:7447")
+
+    def with_endpoints(self, connect: tuple[str, ...] | None,
+                       listen: tuple[str, ...] | None) -> BusConfig:
+        """The config with command-line endpoints in place of the configured ones."""
+        return replace(self, connect=self.connect if connect is None else tuple(connect),
+                       listen=self.listen if listen is None else tuple(listen))
+
+
+def unknown_key_error(section: str, key: str, allowed: tuple[str, ...],
+                      source: str | None) -> ConfigError:
+    """'unknown key' naming the closest allowed key when one is near."""
+    near = difflib.get_close_matches(str(key), allowed, n=1)
+    hint = f"; did you mean {near[0]!r}?" if near else ""
+    return ConfigError(f"{where(source, f'{section}.{key}')}: unknown key{hint} (expected "
+                       f"some of {', '.join(allowed)})")
+
+
+def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
+    """Validate the ``bus`` section (a mapping, or None for the defaults)."""
+    if doc is None:
+        return BusConfig()
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{where(source, 'bus')}: expected a mapping")
+    for k in doc:
+        if k not in BUS_KEYS:
+            raise unknown_key_error("bus", k, BUS_KEYS, source)
+    kw = dict(doc)
+    for name in ("connect", "listen"):
+        if name in kw:
+            v = kw[name]
+            if isinstance(v, str):
+                v = [v]
+            if not isinstance(v, list) or not all(isinstance(e, str) for e in v):
+                raise ConfigError(f"{where(source, 'bus.' + name)}: expected a list of "
+                                  "endpoints such as tcp/192.168.1.10:7447")
+            kw[name] = tuple(v)
+    if "multicast_scouting" in kw and not isinstance(kw["multicast_scouting"], bool):
+        raise ConfigError(f"{where(source, 'bus.multicast_scouting')}: expected true or false")
+    if "zenoh" in kw and not isinstance(kw["zenoh"], Mapping):
+        raise ConfigError(f"{where(source, 'bus.zenoh')}: expected a mapping of Zenoh config "
+                          "paths (e.g. transport/link/tls/root_ca_certificate) to values")
+    try:
+        return BusConfig(**kw)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+
+def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
+    """The zenoh.Config for ``bus``: the config file (if any), then mode, endpoints and
+    scouting, then each ``bus.zenoh`` path. Zenoh's own errors become ConfigError."""
+    import zenoh
+
+    try:
+        conf = zenoh.Config.from_file(bus.config_file) if bus.config_file else zenoh.Config()
+        conf.insert_json5("mode", json.dumps(bus.mode))
+        if bus.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(bus.connect)))
+        if bus.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(bus.listen)))
+        if not bus.multicast_scouting:
+            conf.insert_json5("scouting/multicast/enabled", "false")
+        for path, value in bus.zenoh.items():
+            conf.insert_json5(str(path), json.dumps(value))
+    except Exception as exc:  # noqa: BLE001 - zenoh raises its own ZError for any bad value
+        raise ConfigError(f"bus: Zenoh refuses the session config: {exc}") from None
+    return conf
+
+
+def open_session(bus: BusConfig):  # -> zenoh.Session
+    """Open a Zenoh session for ``bus`` (close it with ``.close()`` before exiting)."""
+    import zenoh
+
+    conf = zenoh_config(bus)
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:  # noqa: BLE001
+        raise ConfigError(f"bus: cannot open the Zenoh session ({bus.mode}, connect "
+                          f"{list(bus.connect)}, listen {list(bus.listen)}): {exc}") from None

@@ -1,0 +1,187 @@
+"""The tiles payload (``pdcov/<id>/tiles``): the grid's changed tiles, exactly.
+
+The grid is cut into square tiles of ``tile_size`` cells (the last row and column of tiles
+may be smaller). A message carries whole tiles with their current values (not increments),
+so applying a tile twice, or an older tile after a newer one of the same message sequence,
+cannot drift; a subscriber that notices a gap in ``seq`` fetches the snapshot.
+
+Layout (little-endian; docs/protocol.md "tiles"): a 48-byte header
+
+    magic b"PDTL" | version u16 | flags u16 (0) | seq u64 | grid hash 8 bytes (the 16 hex
+    digits of grid_state.grid_hash) | t_s f64 | frames u32 | tile_size u16 | n_tiles u16 |
+    n_rows u32 | n_cols u32
+
+then a zlib stream of n_tiles records: tile_row u16, tile_col u16, then for the tile's
+h x w cells in row-major order log_miss_d float32[h*w], log_miss_fa float32[h*w],
+n_obs uint32[h*w] and pd_q uint16[h*w] (P_D quantised as round(P_D * 65535), for display).
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
+
+MAGIC = b"PDTL"
+TILES_VERSION = 1
+_HEADER = struct.Struct("<4sHHQ8sdIHHII")
+_TILE_ID = struct.Struct("<HH")
+BYTES_PER_CELL = 4 + 4 + 4 + 2
+MAX_TILE_SIZE = 1024
+MAX_BODY_BYTES = 64 << 20
+"""Largest inflated tiles body a decoder accepts (the daemon sends far less per message)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Tile:
+    """One tile's cells: its (tile_row, tile_col) and (h, w) arrays as the grid holds them."""
+
+    tile_row: int
+    tile_col: int
+    log_miss_d: np.ndarray
+    log_miss_fa: np.ndarray
+    n_obs: np.ndarray
+    pd_q: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class TileUpdate:
+    """A decoded tiles message. t_s: autopilot time (s) of the newest frame in it; frames:
+    the daemon's frame count then."""
+
+    seq: int
+    grid_hash: str
+    t_s: float
+    frames: int
+    tile_size: int
+    n_rows: int
+    n_cols: int
+    tiles: tuple[Tile, ...]
+
+
+def tile_bounds(tile_row: int, tile_col: int, tile_size: int, n_rows: int, n_cols: int
+                ) -> tuple[int, int, int, int]:
+    """(r0, r1, c0, c1): the cells of a tile, clipped to the grid."""
+    r0, c0 = tile_row * tile_size, tile_col * tile_size
+    return r0, min(r0 + tile_size, n_rows), c0, min(c0 + tile_size, n_cols)
+
+
+def tile_grid_shape(tile_size: int, n_rows: int, n_cols: int) -> tuple[int, int]:
+    """How many tile rows and columns cover an n_rows x n_cols grid."""
+    return -(-n_rows // tile_size), -(-n_cols // tile_size)
+
+
+def tile_wire_bytes(tile_size: int) -> int:
+    """Uncompressed bytes of one full tile record (the compressed size is less)."""
+    return _TILE_ID.size + BYTES_PER_CELL * tile_size * tile_size
+
+
+def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int,
+                 t_s: float, tile_size: int, level: int = 6) -> bytes:
+    """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col))."""
+    g = state.geometry
+    ids = list(dict.fromkeys((int(r), int(c)) for r, c in tiles))
+    if not 1 <= tile_size <= MAX_TILE_SIZE:
+        raise ValueError(f"tile_size {tile_size}: expected 1..{MAX_TILE_SIZE}")
+    if len(ids) > 0xFFFF:
+        raise ValueError(f"{len(ids)} tiles in one message; at most 65535")
+    pd = state.pd
+    parts = []
+    for tr, tc in ids:
+        r0, r1, c0, c1 = tile_bounds(tr, tc, tile_size, g.n_rows, g.n_cols)
+        if r0 >= r1 or c0 >= c1:
+            raise ValueError(f"tile ({tr}, {tc}) lies outside the grid")
+        win = np.s_[r0:r1, c0:c1]
+        parts += [_TILE_ID.pack(tr, tc), state.log_miss_d[win].astype("<f4").tobytes(),
+                  state.log_miss_fa[win].astype("<f4").tobytes(),
+                  state.n_obs[win].astype("<u4").tobytes(),
+                  np.rint(pd[win] * 65535.0).astype("<u2").tobytes()]
+    header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(state.hash), float(t_s),
+                          min(state.frames, 0xFFFFFFFF), tile_size, len(ids), g.n_rows, g.n_cols)
+    return header + zlib.compress(b"".join(parts), level)
+
+
+def decode_tiles(payload: bytes, key: str = "tiles",
+                 max_body_bytes: int = MAX_BODY_BYTES) -> TileUpdate:
+    """Validate and decode a tiles message: magic, version, header sizes, a grid of at most
+    MAX_CELLS, tile indices inside the grid and not repeated, the exact body length (the
+    inflated size is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN.
+    Raises BusPayloadError naming ``key``."""
+    def bad(why: str) -> BusPayloadError:
+        return BusPayloadError(f"{key}: not a usable tiles message: {why}")
+
+    data = bytes(payload)
+    if len(data) < _HEADER.size:
+        raise bad(f"{len(data)} bytes, shorter than the {_HEADER.size}-byte header")
+    (magic, version, _flags, seq, ghash, t_s, frames, tile_size, n_tiles, n_rows,
+     n_cols) = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise bad(f"magic {magic!r}, expected {MAGIC!r}")
+    if version != TILES_VERSION:
+        raise bad(f"version {version}, expected {TILES_VERSION}")
+    if not 1 <= tile_size <= MAX_TILE_SIZE or n_rows < 1 or n_cols < 1 \
+            or n_rows * n_cols > MAX_CELLS:
+        raise bad(f"tile_size {tile_size}, grid {n_rows} x {n_cols}")
+    n_tr, n_tc = tile_grid_shape(tile_size, n_rows, n_cols)
+    if n_tiles > n_tr * n_tc:
+        raise bad(f"{n_tiles} tiles, the grid has {n_tr * n_tc}")
+    bound = min(n_tiles * tile_wire_bytes(tile_size),
+                n_tiles * _TILE_ID.size + BYTES_PER_CELL * n_rows * n_cols, max_body_bytes)
+    d = zlib.decompressobj()
+    try:
+        body = d.decompress(data[_HEADER.size:], bound + 1)
+    except zlib.error as exc:
+        raise bad(f"zlib: {exc}") from None
+    if len(body) > bound or not d.eof or d.unused_data:
+        raise bad("the zlib body is longer than its tiles, incomplete, or followed by bytes")
+    tiles = []
+    seen = set()
+    at = 0
+    for _ in range(n_tiles):
+        if at + _TILE_ID.size > len(body):
+            raise bad("body ends inside a tile record")
+        tr, tc = _TILE_ID.unpack_from(body, at)
+        if tr >= n_tr or tc >= n_tc:
+            raise bad(f"tile ({tr}, {tc}) outside the {n_tr} x {n_tc} tiles of the grid")
+        if (tr, tc) in seen:
+            raise bad(f"tile ({tr}, {tc}) appears twice")
+        seen.add((tr, tc))
+        r0, r1, c0, c1 = tile_bounds(tr, tc, tile_size, n_rows, n_cols)
+        shape = (r1 - r0, c1 - c0)
+        n = shape[0] * shape[1]
+        at += _TILE_ID.size
+        if at + BYTES_PER_CELL * n > len(body):
+            raise bad("body ends inside a tile record")
+        arrays = []
+        for dtype in ("<f4", "<f4", "<u4", "<u2"):
+            a = np.frombuffer(body, dtype=dtype, count=n, offset=at)
+            arrays.append(a.reshape(shape).astype(dtype[1:]))
+            at += a.nbytes
+        tiles.append(Tile(tr, tc, arrays[0], arrays[1], arrays[2].astype(np.int64), arrays[3]))
+    if at != len(body):
+        raise bad(f"{len(body) - at} bytes after the last tile")
+    for t in tiles:
+        check_values(t.log_miss_d, t.log_miss_fa, t.n_obs, bad)
+    return TileUpdate(seq, ghash.hex(), t_s, frames, tile_size, n_rows, n_cols, tuple(tiles))
+
+
+def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles") -> None:
+    """Write the update's tiles into ``state``; checks first that it is meant for this grid
+    (hash and shape), so that a mismatched update changes nothing (BusPayloadError)."""
+    g = state.geometry
+    if update.grid_hash != state.hash or (update.n_rows, update.n_cols) != g.shape:
+        raise BusPayloadError(f"{key}: tiles for grid {update.grid_hash} "
+                              f"({update.n_rows} x {update.n_cols}), this grid is {state.hash} "
+                              f"({g.n_rows} x {g.n_cols}); fetch the snapshot")
+    for t in update.tiles:
+        r0, r1, c0, c1 = tile_bounds(t.tile_row, t.tile_col, update.tile_size, *g.shape)
+        state.log_miss_d[r0:r1, c0:c1] = t.log_miss_d
+        state.log_miss_fa[r0:r1, c0:c1] = t.log_miss_fa
+        state.n_obs[r0:r1, c0:c1] = t.n_obs
+    state.frames = update.frames
