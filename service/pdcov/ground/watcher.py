@@ -1,0 +1,372 @@
+"""The watcher's decisions, with no I/O: decoded payloads and ``now_s`` in, grids and
+actions out (the asyncio/Zenoh shell in ground/shell.py does the I/O).
+
+Per vehicle it rebuilds the daemon's grid exactly (docs/protocol.md "Joining late"):
+
+* first contact (liveliness, status or tiles) asks for the snapshot; tiles received
+  while the reply is awaited are kept;
+* a snapshot holding ``frames = F`` already contains every tiles message the daemon
+  published with ``frames <= F`` (tiles carry current values of whole tiles, not
+  increments, and a grid only changes when a frame is added), so the kept messages with
+  ``frames <= F`` are dropped and the rest applied in sequence order;
+* from then on tiles apply in order; a jump in ``seq``, a ``seq`` going back (the daemon
+  restarted) or another grid hash asks for the snapshot again, and so does a status whose
+  ``tiles_seq`` stays ahead of the last applied message for ``trailing_gap_s`` (the last
+  messages of a flight were lost, so no later one reveals the gap).
+
+The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIGN.md:
+grids merge by adding). ``now_s`` is the watcher's own monotonic clock in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.grid_state import GridState
+from pdcov.bus.tiles import TileUpdate, apply_tiles
+
+__all__ = ["FleetReport", "QuerySnapshot", "VehicleFeed", "VehicleReport", "Watcher"]
+
+
+@dataclass(frozen=True, slots=True)
+class QuerySnapshot:
+    """Action: query ``pdcov/<vehicle_id>/snapshot`` and hand the reply to on_snapshot
+    (or on_snapshot_failed)."""
+
+    vehicle_id: str
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleReport:
+    """One vehicle's figures. proportion_at_or_above / mean_pd come from the rebuilt grid
+    when it is ready, else from the last status; age_s: seconds since its last message
+    (None: nothing yet); link: the daemon's link state ("" unknown)."""
+
+    vehicle_id: str
+    alive: bool | None
+    grid_ready: bool
+    thresholds: tuple[float, ...]
+    proportion_at_or_above: dict[float, float]
+    mean_pd: float | None
+    frames_used: int | None
+    frames_skipped: int | None
+    link: str
+    age_s: float | None
+    status_proportion_at_or_above: dict[float, float]
+    gaps: int
+    snapshots: int
+    bad_payloads: int
+
+
+@dataclass(frozen=True, slots=True)
+class FleetReport:
+    """The fleet's merged figures over the vehicles in ``merged`` (those sharing one grid),
+    and each vehicle's. target: the threshold shown large (the highest configured)."""
+
+    vehicles: tuple[VehicleReport, ...]
+    merged: tuple[str, ...]
+    thresholds: tuple[float, ...]
+    target: float | None
+    proportion_at_or_above: dict[float, float]
+    mean_pd: float | None
+    cells_free: int
+
+
+@dataclass(slots=True)
+class VehicleFeed:
+    """What the watcher holds about one vehicle (mutable, owned by the Watcher)."""
+
+    vehicle_id: str
+    state: GridState | None = None
+    status: dict[str, Any] | None = None
+    alive: bool | None = None
+    last_msg_s: float | None = None
+    awaiting_since_s: float | None = None
+    pending: list[TileUpdate] = field(default_factory=list)
+    last_seq: int | None = None
+    seq_floor: int | None = None
+    behind_since_s: float | None = None
+    track_lat_lon_alt: list[tuple[float, float, float]] = field(default_factory=list)
+    last_pose_t_s: float | None = None
+    footprint: dict[str, Any] | None = None
+    gaps: int = 0
+    snapshots: int = 0
+    bad_payloads: int = 0
+    received: Counter[str] = field(default_factory=Counter)
+
+
+class Watcher:
+    """Per-vehicle grids rebuilt from status, tiles and snapshot replies, and the fleet.
+
+    vehicle: the one vehicle id to follow, or None for all. snapshot_timeout_s: ask again
+    when a snapshot reply has not come in this long. trailing_gap_s: how long a status may
+    announce a tiles sequence number not yet received before the snapshot is asked again.
+    """
+
+    def __init__(self, vehicle: str | None = None, *, snapshot_timeout_s: float = 5.0,
+                 trailing_gap_s: float = 3.0, max_track_points: int = 20_000) -> None:
+        self.vehicle = vehicle
+        self.snapshot_timeout_s = snapshot_timeout_s
+        self.trailing_gap_s = trailing_gap_s
+        self.max_track_points = max_track_points
+        self.feeds: dict[str, VehicleFeed] = {}
+
+    # -- inputs -------------------------------------------------------------------------
+
+    def wants(self, vehicle_id: str) -> bool:
+        return self.vehicle is None or vehicle_id == self.vehicle
+
+    def on_alive(self, vehicle_id: str, alive: bool, now_s: float) -> list[QuerySnapshot]:
+        """A liveliness token appeared (alive) or went away."""
+        if not self.wants(vehicle_id):
+            return []
+        feed = self._feed(vehicle_id)
+        feed.alive = alive
+        return self._ensure_grid(feed, now_s) if alive else []
+
+    def on_status(self, vehicle_id: str, doc: dict[str, Any], now_s: float
+                  ) -> list[QuerySnapshot]:
+        """A decoded status (bus.status.decode_status)."""
+        if not self.wants(vehicle_id):
+            return []
+        feed = self._touch(vehicle_id, "status", now_s)
+        previous = feed.status
+        feed.status = doc
+        pose = doc.get("pose")
+        if isinstance(pose, dict):
+            self._add_track_point(feed, pose)
+        actions = self._ensure_grid(feed, now_s)
+        if actions:
+            return actions
+        state = feed.state
+        if state is not None and doc["grid"]["hash"] != state.hash:
+            return self._requery(feed, now_s)  # the daemon now runs another mission
+        if previous is not None and doc["uptime_s"] < previous["uptime_s"]:
+            return self._requery(feed, now_s)  # the daemon restarted
+        announced = doc["tiles_seq"]
+        if feed.awaiting_since_s is not None:
+            return []
+        if feed.last_seq is None and feed.seq_floor is None:
+            feed.seq_floor = announced  # first status since the snapshot: no tiles owed yet
+        known = feed.last_seq if feed.last_seq is not None else feed.seq_floor
+        if known is not None and announced > known:
+            if feed.behind_since_s is None:
+                feed.behind_since_s = now_s
+        else:
+            feed.behind_since_s = None
+        return []
+
+    def on_tiles(self, vehicle_id: str, update: TileUpdate, now_s: float
+                 ) -> list[QuerySnapshot]:
+        """A decoded tiles message (bus.tiles.decode_tiles)."""
+        if not self.wants(vehicle_id):
+            return []
+        feed = self._touch(vehicle_id, "tiles", now_s)
+        if feed.state is None or feed.awaiting_since_s is not None:
+            feed.pending.append(update)
+            return self._ensure_grid(feed, now_s)
+        return self._apply(feed, update, now_s)
+
+    def on_snapshot(self, vehicle_id: str, state: GridState, now_s: float
+                    ) -> list[QuerySnapshot]:
+        """A decoded snapshot reply (bus.grid_state.decode_snapshot)."""
+        if not self.wants(vehicle_id):
+            return []
+        feed = self._touch(vehicle_id, "snapshot", now_s)
+        feed.state = state
+        feed.snapshots += 1
+        feed.awaiting_since_s = None
+        feed.behind_since_s = None
+        feed.last_seq = None
+        feed.seq_floor = None
+        pending, feed.pending = sorted(feed.pending, key=lambda u: u.seq), []
+        for update in pending:
+            if update.grid_hash != state.hash:
+                continue  # published for another grid (before a restart): superseded
+            if update.frames <= state.frames:
+                feed.last_seq = update.seq  # already inside the snapshot
+                continue
+            actions = self._apply(feed, update, now_s)
+            if actions:
+                return actions
+        return []
+
+    def on_snapshot_failed(self, vehicle_id: str, now_s: float) -> list[QuerySnapshot]:
+        """No usable snapshot reply came (timeout, no queryable, bad payload): ask again at
+        the next poll after snapshot_timeout_s."""
+        feed = self._feed(vehicle_id)
+        if feed.awaiting_since_s is not None:
+            feed.awaiting_since_s = min(feed.awaiting_since_s, now_s - self.snapshot_timeout_s)
+        return []
+
+    def on_footprint(self, vehicle_id: str, doc: dict[str, Any], now_s: float) -> None:
+        """A decoded footprint reply (bus.footprint.decode_footprint)."""
+        if self.wants(vehicle_id):
+            self._touch(vehicle_id, "footprint", now_s).footprint = doc
+
+    def on_bad_payload(self, vehicle_id: str, error: BusPayloadError) -> None:
+        """A payload that did not decode: counted, never applied."""
+        if self.wants(vehicle_id):
+            self._feed(vehicle_id).bad_payloads += 1
+
+    def poll(self, now_s: float) -> list[QuerySnapshot]:
+        """Timers: a snapshot reply overdue, or announced tiles that never came."""
+        actions: list[QuerySnapshot] = []
+        for feed in self.feeds.values():
+            if feed.awaiting_since_s is not None:
+                if now_s - feed.awaiting_since_s >= self.snapshot_timeout_s:
+                    feed.awaiting_since_s = now_s
+                    actions.append(QuerySnapshot(feed.vehicle_id))
+            elif (feed.behind_since_s is not None
+                  and now_s - feed.behind_since_s >= self.trailing_gap_s):
+                feed.gaps += 1
+                actions += self._requery(feed, now_s)
+        return actions
+
+    # -- outputs ------------------------------------------------------------------------
+
+    def fleet_state(self) -> tuple[GridState | None, tuple[str, ...]]:
+        """The merged grid (log-miss sums and counts added, float32 as the daemons hold
+        them) of the vehicles that share the most common grid, and their ids (sorted)."""
+        ready = [f for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id)
+                 if f.state is not None and f.awaiting_since_s is None]
+        if not ready:
+            return None, ()
+        hashes = Counter(f.state.hash for f in ready if f.state is not None)
+        top = hashes.most_common(1)[0][0]
+        group = [f.state for f in ready if f.state is not None and f.state.hash == top]
+        first = group[0]
+        merged = GridState(first.geometry, first.mask.copy(), first.log_miss_d.copy(),
+                           first.log_miss_fa.copy(), first.n_obs.copy(), first.frames)
+        for s in group[1:]:
+            merged.log_miss_d += s.log_miss_d
+            merged.log_miss_fa += s.log_miss_fa
+            merged.n_obs += s.n_obs
+            merged.frames += s.frames
+        ids = tuple(f.vehicle_id for f in ready if f.state is not None and f.state.hash == top)
+        return merged, ids
+
+    def report(self, now_s: float) -> FleetReport:
+        """Every vehicle's figures and the fleet's, as of ``now_s``."""
+        vehicles = tuple(self._vehicle_report(f, now_s)
+                         for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id))
+        thresholds = _union_thresholds(v.thresholds for v in vehicles)
+        merged, ids = self.fleet_state()
+        props: dict[float, float] = {}
+        mean_pd = None
+        cells_free = 0
+        if merged is not None:
+            props = {t: merged.proportion_at_or_above(t) for t in thresholds}
+            cells_free = int(merged.mask.sum())
+            mean_pd = float(merged.pd[merged.mask].mean()) if cells_free else 0.0
+        return FleetReport(vehicles, ids, thresholds, max(thresholds) if thresholds else None,
+                           props, mean_pd, cells_free)
+
+    # -- internals ----------------------------------------------------------------------
+
+    def _feed(self, vehicle_id: str) -> VehicleFeed:
+        feed = self.feeds.get(vehicle_id)
+        if feed is None:
+            feed = self.feeds[vehicle_id] = VehicleFeed(vehicle_id)
+        return feed
+
+    def _touch(self, vehicle_id: str, kind: str, now_s: float) -> VehicleFeed:
+        feed = self._feed(vehicle_id)
+        feed.last_msg_s = now_s
+        feed.received[kind] += 1
+        return feed
+
+    def _ensure_grid(self, feed: VehicleFeed, now_s: float) -> list[QuerySnapshot]:
+        if feed.state is None and feed.awaiting_since_s is None:
+            feed.awaiting_since_s = now_s
+            return [QuerySnapshot(feed.vehicle_id)]
+        return []
+
+    def _requery(self, feed: VehicleFeed, now_s: float) -> list[QuerySnapshot]:
+        if feed.awaiting_since_s is not None:
+            return []
+        feed.awaiting_since_s = now_s
+        feed.behind_since_s = None
+        feed.pending = []
+        return [QuerySnapshot(feed.vehicle_id)]
+
+    def _apply(self, feed: VehicleFeed, update: TileUpdate, now_s: float
+               ) -> list[QuerySnapshot]:
+        state = feed.state
+        if state is None:
+            raise RuntimeError("_apply without a grid")  # callers check; a bug if reached
+        if feed.last_seq is not None:
+            if update.seq == feed.last_seq:
+                return []  # a duplicate
+            if update.seq != feed.last_seq + 1:
+                feed.gaps += 1
+                actions = self._requery(feed, now_s)
+                feed.pending.append(update)
+                return actions
+        try:
+            apply_tiles(state, update, key=f"pdcov/{feed.vehicle_id}/tiles")
+        except BusPayloadError:
+            feed.bad_payloads += 1  # another grid: the daemon restarted with a new mission
+            actions = self._requery(feed, now_s)
+            feed.pending.append(update)
+            return actions
+        feed.last_seq = update.seq
+        status = feed.status
+        if status is not None and status["tiles_seq"] <= update.seq:
+            feed.behind_since_s = None
+        return []
+
+    def _add_track_point(self, feed: VehicleFeed, pose: dict[str, Any]) -> None:
+        try:
+            lat, lon = float(pose["lat_deg"]), float(pose["lon_deg"])
+            alt = float(pose.get("alt_msl_m") or 0.0)
+            t = pose.get("t_s")
+        except (KeyError, TypeError, ValueError):
+            return
+        if not (math.isfinite(lat) and math.isfinite(lon)) or (
+                t is not None and t == feed.last_pose_t_s):
+            return
+        feed.last_pose_t_s = t
+        feed.track_lat_lon_alt.append((lat, lon, alt))
+        if len(feed.track_lat_lon_alt) > self.max_track_points:
+            del feed.track_lat_lon_alt[: len(feed.track_lat_lon_alt) // 2: 2]  # thin the old
+
+    def _vehicle_report(self, feed: VehicleFeed, now_s: float) -> VehicleReport:
+        status = feed.status or {}
+        thresholds = tuple(float(t) for t in status.get("thresholds", ()))
+        status_props = {float(k): float(v)
+                        for k, v in (status.get("proportion_at_or_above") or {}).items()}
+        ready = feed.state is not None and feed.awaiting_since_s is None
+        if ready and feed.state is not None:
+            s = feed.state
+            free = s.mask
+            props = {t: s.proportion_at_or_above(t) for t in thresholds}
+            mean_pd: float | None = float(s.pd[free].mean()) if free.any() else 0.0
+        else:
+            props = status_props
+            mean_pd = status.get("mean_pd")
+        frames = status.get("frames") or {}
+        skipped = frames.get("skipped")
+        link = status.get("link") or {}
+        return VehicleReport(
+            vehicle_id=feed.vehicle_id, alive=feed.alive, grid_ready=ready,
+            thresholds=thresholds, proportion_at_or_above=props, mean_pd=mean_pd,
+            frames_used=frames.get("used"),
+            frames_skipped=(sum(v for v in skipped.values() if isinstance(v, int))
+                            if isinstance(skipped, dict) else skipped),
+            link=str(link.get("state", "")) if isinstance(link, dict) else str(link),
+            age_s=None if feed.last_msg_s is None else max(0.0, now_s - feed.last_msg_s),
+            status_proportion_at_or_above=status_props, gaps=feed.gaps,
+            snapshots=feed.snapshots, bad_payloads=feed.bad_payloads)
+
+
+def _union_thresholds(groups: Any) -> tuple[float, ...]:
+    out: set[float] = set()
+    for g in groups:
+        out.update(g)
+    return tuple(sorted(out))
+

@@ -1,0 +1,87 @@
+"""A tiny stand-in publisher for the watcher's tests: a real CoverageGrid updated with nadir
+frames, encoded with the bus codecs as the daemon publishes it (status, tiles, snapshot).
+It is not the daemon; the end-to-end tests use the real one."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
+from pdcov.bus.status import encode_status
+from pdcov.bus.tiles import encode_tiles, tile_grid_shape
+from pdcov.config import load_mission
+from pdcov.core.pose import CameraPose
+
+DEMO = "service/pdcov/data/demo_mission.yaml"
+R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
+
+
+class TinyPublisher:
+    """The demo mission's grid flown along a lane at ``y_m``; after each ``step`` the tiles
+    that changed since the last ``tiles()`` are due."""
+
+    def __init__(self, vehicle_id: str = "demo", y_m: float = -40.0, tile_size: int = 8,
+                 mission_path: str = DEMO) -> None:
+        self.mission = load_mission(mission_path)
+        self.vehicle_id = vehicle_id
+        self.grid = self.mission.new_grid()
+        self.y_m = y_m
+        self.tile_size = tile_size
+        self.seq = 0
+        self.t_s = 0.0
+        self.uptime_s = 0.0
+        self._changed: set[tuple[int, int]] = set()
+
+    def step(self, n: int = 1) -> None:
+        """Add ``n`` frames 0.5 s apart, moving 1.5 m east per frame."""
+        ts = self.tile_size
+        for _ in range(n):
+            before = self.grid.log_miss_d.copy()
+            x = -58.0 + 1.5 * (self.grid.frames % 26)
+            self.grid.update(CameraPose(R_ENU_CAM_NADIR, np.array([x, self.y_m, 10.0]),
+                                        self.t_s), self.t_s)
+            self.t_s += 0.5
+            self.uptime_s += 0.5
+            rows, cols = np.nonzero(before != self.grid.log_miss_d)
+            self._changed.update(zip((rows // ts).tolist(), (cols // ts).tolist(),
+                                     strict=True))
+
+    def tiles(self) -> bytes | None:
+        """The next tiles message (seq + 1), or None when nothing changed."""
+        if not self._changed:
+            return None
+        self.seq += 1
+        payload = encode_tiles(GridState.from_grid(self.grid), sorted(self._changed),
+                               seq=self.seq, t_s=self.t_s, tile_size=self.tile_size)
+        self._changed.clear()
+        return payload
+
+    def snapshot(self) -> bytes:
+        return encode_snapshot(self.grid)
+
+    def status(self) -> bytes:
+        g = self.grid
+        m = g.metrics(self.mission.thresholds)
+        geo = g.geometry
+        o = self.mission.origin()
+        return encode_status({
+            "vehicle_id": self.vehicle_id, "seq": int(self.uptime_s * 2),
+            "uptime_s": self.uptime_s, "t_s": self.t_s,
+            "thresholds": list(self.mission.thresholds),
+            "proportion_at_or_above": {str(t): p for t, p in m.proportion_at_or_above.items()},
+            "mean_pd": m.mean_pd, "expected_false_alarms": m.expected_false_alarms,
+            "cells_free": m.cells_free, "cells_observed": m.cells_observed,
+            "frames": {"used": g.frames, "skipped": {"stale": 0}},
+            "link": {"state": "up"},
+            "pose": {"lat_deg": o.lat_deg + 1e-5 * g.frames, "lon_deg": o.lon_deg,
+                     "alt_msl_m": 15.0, "heading_deg": 90.0, "t_s": self.t_s},
+            "gimbal": {}, "faults": {}, "tiles_seq": self.seq,
+            "grid": {"hash": grid_hash(geo, g.mask), "x0_m": geo.x0_m, "y0_m": geo.y0_m,
+                     "cell_size_m": geo.cell_size_m, "n_rows": geo.n_rows,
+                     "n_cols": geo.n_cols, "tile_size": self.tile_size,
+                     "origin": {"lat_deg": o.lat_deg, "lon_deg": o.lon_deg,
+                                "ground_alt_msl_m": o.ground_alt_msl_m}}})
+
+    def n_tiles(self) -> int:
+        r, c = tile_grid_shape(self.tile_size, *self.grid.geometry.shape)
+        return r * c
