@@ -1,0 +1,115 @@
+"""The real ArduCopter firmware for tests (../shared/ardupilot-sitl, see its README).
+
+``ardupilot_sitl(run_dir, extra_parms)`` boots it with ``--defaults copter.parm,EXTRA...`` on a
+free instance number (-I N: TCP 5760+10N is SERIAL0, 5762+10N SERIAL1, 5763+10N SERIAL2),
+yields where to connect, and kills it on exit, whatever happened. Tests using it skip when the
+folder is absent (``requires_ardupilot_sitl``).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import socket
+import subprocess
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+SITL_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "ardupilot-sitl"
+ARDUCOPTER = SITL_DIR / "arducopter"
+COPTER_PARM = SITL_DIR / "copter.parm"
+MOUNT_SERVO_PARM = SITL_DIR / "mount_servo.parm"
+# The README's home: Canberra model-flying field, 584 m MSL, heading 353 deg.
+HOME = "-35.363261,149.165230,584,353"
+
+requires_ardupilot_sitl = pytest.mark.skipif(
+    not os.access(ARDUCOPTER, os.X_OK), reason=f"{ARDUCOPTER} absent (real-firmware tests)")
+
+
+@dataclass(frozen=True, slots=True)
+class Sitl:
+    process: subprocess.Popen
+    instance: int
+    run_dir: Path
+
+    def serial_url(self, serial: int) -> str:
+        """pymavlink URL of SERIAL0 / 1 / 2 (TCP)."""
+        return f"tcp:127.0.0.1:{self.port(serial)}"
+
+    def port(self, serial: int) -> int:
+        return 5760 + 10 * self.instance + {0: 0, 1: 2, 2: 3}[serial]
+
+    def output(self) -> str:
+        return (self.run_dir / "arducopter.out").read_text(errors="replace")
+
+
+def _ports_free(instance: int) -> bool:
+    for offset in (0, 2, 3):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", 5760 + 10 * instance + offset))
+            except OSError:
+                return False
+    return True
+
+
+def free_instance() -> int:
+    """An -I number whose SERIAL0..2 TCP ports are free now (random, so that parallel runs
+    rarely race for the same one)."""
+    for _ in range(200):
+        n = random.randrange(20, 256)  # the firmware takes -I modulo 256
+        if _ports_free(n):
+            return n
+    raise RuntimeError("no free ArduPilot SITL instance number")
+
+
+@contextmanager
+def ardupilot_sitl(run_dir: Path, extra_parms: Sequence[Path] = (), *, speedup: float = 1.0,
+                   ) -> Iterator[Sitl]:
+    """Boot ArduCopter SITL in ``run_dir`` (eeprom.bin and logs/ go there); kill it on exit.
+    It waits for a connection on SERIAL0 before it boots."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    defaults = ",".join(str(p) for p in (COPTER_PARM, *extra_parms))
+    instance = free_instance()
+    out = (run_dir / "arducopter.out").open("wb")
+    proc = subprocess.Popen(
+        [str(ARDUCOPTER), "--model", "quad", "--speedup", f"{speedup:g}", f"-I{instance}", "-w",
+         "--defaults", defaults, "--home", HOME],
+        cwd=run_dir, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    sitl = Sitl(proc, instance, run_dir)
+    try:
+        wait_listening(sitl.port(0), 20.0, proc)
+        yield sitl
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        out.close()
+
+
+def wait_listening(port: int, timeout_s: float, proc: subprocess.Popen | None = None) -> None:
+    """Return once something accepts TCP connections on 127.0.0.1:port."""
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"ArduPilot SITL exited with {proc.returncode} before listening")
+        if not _port_bindable(port):
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"nothing listening on 127.0.0.1:{port} after {timeout_s:g} s")
+
+
+def _port_bindable(port: int) -> bool:
+    # Probing by bind, not connect: a connect to SERIAL0 would be taken as the ground station.
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+        return True
