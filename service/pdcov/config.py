@@ -11,19 +11,58 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pdcov.core.camera import CameraModel
-from pdcov.core.detector import DetectorModel
+from pdcov.core.camera import CAMERA_CONFIG, CameraModel
+from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.mount import GimbalMount
+from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import ConfigError, PdcovError, where
+from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
 
-TOP_LEVEL_KEYS = ("vehicle_id", "origin", "domain", "camera", "calibration", "mount",
-                  "detector", "thresholds", "coverage", "log", "planning")
 DEFAULT_THRESHOLDS = (0.5, 0.7, 0.8)
+
+# Sections of the onboard daemon (`pdcov serve`), declared by its own modules: see
+# ``mission_schema``. Until a schema is passed for one, any mapping is accepted there.
+RESERVED_SECTIONS = ("link", "bus", "service")
+FIXED_MOUNT_CONFIG = Section.of("type", "roll_deg", "pitch_deg", "yaw_deg", "lever_arm_frd_m")
+PLANNING_CONFIG = Section.of("max_accel_mps2", "max_yaw_rate_deg_s", "tilt", "corner_cut_m",
+                             "gimbal_pitch_deg")
+MISSION_CONFIG = Section.of(
+    "vehicle_id", "calibration", "thresholds",
+    origin=Section.of("lat_deg", "lon_deg", "ground_alt_msl_m"),
+    domain=Section.of("polygon_enu_m", "polygon_geodetic_deg", "geojson", "obstacles_enu_m",
+                      "obstacles_geodetic_deg", "cell_size_m"),
+    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None),
+    mount=Variants("type", "fixed", {"fixed": FIXED_MOUNT_CONFIG,
+                                     "gimbal": GIMBAL_MOUNT_CONFIG}),
+    detector=MODEL_SCHEMA,
+    coverage=Section.of("max_range_m", "min_revisit_s", "min_height_m"),
+    log=Section.of("frame_source", "max_gap_s", "system_id"),
+    planning=PLANNING_CONFIG,
+    **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
+
+
+def mission_schema(sections: Mapping[str, Section] | None = None) -> Section:
+    """The keys of a mission config, every section and subsection (checked by
+    ``mission_from_dict`` before any value is read).
+
+    ``sections``: schemas of the reserved top-level sections ``link``, ``bus`` and
+    ``service``, which belong to the onboard daemon: its modules declare them (a ``Section``,
+    or a frozen dataclass per section through ``Section.of_dataclass(LinkConfig)``) and load
+    the config with ``load_mission(path, sections={"link": LINK_CONFIG, ...})``; the section's
+    mapping is then in ``Mission.raw["link"]`` for the daemon to build its values from. A
+    reserved section without a schema here is accepted as any mapping (the offline tools do
+    not read it).
+    """
+    sections = dict(sections or {})
+    other = sorted(set(sections) - set(RESERVED_SECTIONS))
+    if other:
+        raise ValueError(f"only the reserved sections {RESERVED_SECTIONS} can be declared "
+                         f"by another module, not {other}")
+    return MISSION_CONFIG.extended(**sections)
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,25 +109,21 @@ class Mission:
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
 
 
-def load_mission(path: str | Path) -> Mission:
-    """Read and validate a mission config; relative paths inside resolve against its folder."""
+def load_mission(path: str | Path, sections: Mapping[str, Section] | None = None) -> Mission:
+    """Read and validate a mission config; relative paths inside resolve against its folder.
+    ``sections``: schemas of the daemon's reserved sections (``mission_schema``)."""
     path = Path(path)
     doc = load_yaml(path, "mission config")
-    return mission_from_dict(doc, source=str(path), base_dir=path.parent)
+    return mission_from_dict(doc, source=str(path), base_dir=path.parent, sections=sections)
 
 
-def mission_from_dict(doc: Any, source: str | None = None,
-                      base_dir: Path | None = None) -> Mission:
-    """Validate a parsed mission config mapping."""
+def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None = None,
+                      sections: Mapping[str, Section] | None = None) -> Mission:
+    """Validate a parsed mission config mapping: first its keys, all sections
+    (``mission_schema``), then the values."""
     src = source
     base = base_dir or Path(".")
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{src or 'mission config'}: expected a mapping of the keys "
-                          f"{', '.join(TOP_LEVEL_KEYS)}")
-    unknown = sorted(set(doc) - set(TOP_LEVEL_KEYS))
-    if unknown:
-        raise ConfigError(f"{where(src, unknown[0])}: unknown key; expected some of "
-                          f"{', '.join(TOP_LEVEL_KEYS)}")
+    check_keys(doc, mission_schema(sections), src or "mission config")
     for key in ("origin", "domain", "camera", "detector"):
         if key not in doc and not (key == "camera" and "calibration" in doc):
             raise ConfigError(f"{where(src, key)}: missing (see docs/mission-config.md)")
@@ -196,7 +231,7 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[Camera
         raise ConfigError(f"{where(src, 'camera')}: expected a mapping, got {cam!r}")
     calibration = cam.get("calibration", doc.get("calibration"))
     if calibration is not None:
-        extra = sorted(set(cam) - {"calibration", "frame_rate_hz"})
+        extra = sorted(set(cam) & set(CAMERA_CONFIG.keys))
         if extra:
             raise ConfigError(f"{where(src, 'camera.' + extra[0])}: not allowed with a "
                               f"calibration file (give the intrinsics in one place)")
@@ -217,11 +252,7 @@ def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:
     if kind != "fixed":
         raise ConfigError(f"{where(src, 'mount.type')}: expected 'fixed' or 'gimbal', "
                           f"got {kind!r}")
-    known = {"type", "roll_deg", "pitch_deg", "yaw_deg", "lever_arm_frd_m"}
-    unknown = sorted(set(doc) - known)
-    if unknown:
-        raise ConfigError(f"{where(src, 'mount.' + unknown[0])}: unknown key for a fixed "
-                          f"mount; expected some of {sorted(known)}")
+    check_keys(doc, FIXED_MOUNT_CONFIG, src, "mount")
     roll_rad, pitch_rad, yaw_rad = [
         math.radians(_number(doc, k, src, "mount", default=d))
         for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]

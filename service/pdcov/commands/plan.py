@@ -47,9 +47,6 @@ from pdcov.planning.trajectory import Kinematics
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
 
-PLANNING_KEYS = ("max_accel_mps2", "max_yaw_rate_deg_s", "tilt", "corner_cut_m",
-                 "gimbal_pitch_deg")
-
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("plan", help="make a coverage plan and predict its P_D map",
@@ -134,10 +131,6 @@ def scenario_of(mission: Mission) -> Scenario:
     src = mission.source
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
-    unknown = sorted(set(doc) - set(PLANNING_KEYS))
-    if unknown:
-        raise ConfigError(f"{where(src, 'planning.' + unknown[0])}: unknown key; expected "
-                          f"some of {PLANNING_KEYS}")
     try:
         kin = Kinematics(float(doc.get("max_accel_mps2", 2.5)),
                          math.radians(float(doc.get("max_yaw_rate_deg_s", 60.0))),

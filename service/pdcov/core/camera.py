@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from pdcov.errors import CalibrationError, where
+from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
@@ -33,6 +34,16 @@ _PROJECT_CHUNK = 32768
 _EYE3 = np.eye(3)
 _SECTORS = 1024  # pseudo-azimuth sectors of the fast angular-limit test
 _ANGLE_MARGIN_RAD = 1e-9
+
+# The keys of a camera in the mission config, and of a ROS camera_info file (as
+# camera_calibration and camera_info_manager write it; rectification and projection are read
+# by nothing here but belong to the format).
+CAMERA_CONFIG = Section.of("width_px", "height_px", "K", "distortion_model",
+                           "distortion_coeffs")
+_ROS_MATRIX = Section.of("rows", "cols", "data")
+CAMERA_INFO = Section.of("image_width", "image_height", "camera_name", "distortion_model",
+                         camera_matrix=_ROS_MATRIX, distortion_coefficients=_ROS_MATRIX,
+                         rectification_matrix=_ROS_MATRIX, projection_matrix=_ROS_MATRIX)
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,6 +130,7 @@ class CameraModel:
         distortion_coeffs."""
         if not isinstance(doc, dict):
             raise CalibrationError(f"{where(source, key)}: expected a mapping")
+        check_keys(doc, CAMERA_CONFIG, source, key, CalibrationError)
         for k in ("width_px", "height_px", "K"):
             if k not in doc:
                 raise CalibrationError(f"{where(source, key + '.' + k)}: missing")
@@ -136,6 +148,7 @@ class CameraModel:
         src = str(path)
         if not isinstance(doc, dict):
             raise CalibrationError(f"{src}: expected a camera_info mapping")
+        check_keys(doc, CAMERA_INFO, src, "", CalibrationError)
         for k in ("image_width", "image_height", "camera_matrix"):
             if k not in doc:
                 raise CalibrationError(f"{where(src, k)}: missing")

@@ -17,10 +17,28 @@ import numpy as np
 import yaml
 
 from pdcov.errors import DetectorModelError, where
+from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
 FORMAT_VERSION = 1
 SIZE_METRICS = ("sqrt_area",)
+
+# The keys of a model file (docs/detector-model.md): the engine's, then those `pdcov detector
+# fit` writes for validate and plot (kept in ``DetectorModel.extra``), and free-text notes.
+_LOGISTIC_CURVE = Section.of("log_center", "log_scale", "coefficients", "covariance")
+MODEL_SCHEMA = Section.of(
+    "version", "size_metric", "input_size_px", "confidence_threshold", "iou_threshold",
+    "bin_edges_px", "p_detect", "p_false_alarm",
+    "model", "interval_method", "confidence_level", "p_detect_ci95", "p_false_alarm_ci95",
+    "n_true_positives", "illustrative", "notes",
+    counts=Section.of("n_true", "n_detected", "n_detections"),
+    fit=Section.of("classes", "n_images", "truth_outside_bins", "detections_outside_bins",
+                   "max_detections", "ground_truth", "detections", "bins",
+                   status_counts=Section(open=True)),
+    logistic=Section.of("link", "covariate", "degree", "fit_range_px",
+                        p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE))
+_ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
+                "confidence_threshold", "iou_threshold", "size_metric", "counts")
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,6 +142,7 @@ class DetectorModel:
         """Build from a parsed YAML mapping; errors name ``source`` and the key."""
         if not isinstance(doc, dict):
             raise DetectorModelError(f"{source or 'detector model'}: expected a mapping")
+        check_keys(doc, MODEL_SCHEMA, source, "", DetectorModelError)
         version = doc.get("version")
         if version != FORMAT_VERSION:
             raise DetectorModelError(
@@ -146,8 +165,6 @@ class DetectorModel:
                 raise DetectorModelError(
                     f"{where(source, 'counts')}: expected n_true, n_detected and n_detections "
                     f"lists of integers ({exc})") from None
-        known = {"version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
-                 "confidence_threshold", "iou_threshold", "size_metric", "counts"}
         input_size = doc.get("input_size_px")
         if input_size is not None and (not isinstance(input_size, int)
                                        or isinstance(input_size, bool)):
@@ -163,7 +180,7 @@ class DetectorModel:
             iou_threshold=_opt_float(doc, "iou_threshold", source),
             size_metric=doc.get("size_metric", "sqrt_area"),
             counts=counts,
-            extra={k: v for k, v in doc.items() if k not in known},
+            extra={k: v for k, v in doc.items() if k not in _ENGINE_KEYS},
             source=source,
         )
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.errors import ConfigError, where
+from pdcov.schema import Section, check_keys
 
 ATTITUDE_FRAMES = ("flags", "body", "auto")
 UNTRUSTED_POLICIES = ("skip", "use")
@@ -89,15 +90,9 @@ class GimbalMount:
     def from_config(cls, doc: Mapping, source: str | None = None) -> GimbalMount:
         """From the mission config's ``mount`` mapping (``type: gimbal``); errors name
         ``source`` (the file) and the key."""
-        known = {"type", "attitude_frame", "auto_fallback", "servo_axis_order",
-                 "roll_limits_deg", "pitch_limits_deg", "yaw_limits_deg",
-                 "limit_tolerance_deg", "untrusted", "lever_arm_frd_m", "instance"}
         if not isinstance(doc, Mapping):
             raise ConfigError(f"{where(source, 'mount')}: expected a mapping, got {doc!r}")
-        unknown = sorted(set(doc) - known)
-        if unknown:
-            raise ConfigError(f"{where(source, 'mount.' + unknown[0])}: unknown key for a "
-                              f"gimbal mount; expected some of {sorted(known)}")
+        check_keys(dict(doc), GIMBAL_MOUNT_CONFIG, source, "mount")
         if doc.get("type", "gimbal") != "gimbal":
             raise ConfigError(f"{where(source, 'mount.type')}: expected 'gimbal', "
                               f"got {doc.get('type')!r}")
@@ -128,6 +123,10 @@ class GimbalMount:
             return cls(**kwargs)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
+
+
+# The mission config's ``mount`` keys for a gimbal: the fields of GimbalMount, and its type.
+GIMBAL_MOUNT_CONFIG = Section.of_dataclass(GimbalMount, type=None)
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
