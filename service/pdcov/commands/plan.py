@@ -304,10 +304,18 @@ def run_refly(args: argparse.Namespace) -> int:
         "after": {"cells": r.gaps_after.n_cells,
                   "proportion": round(r.gaps_after.proportion, 4)},
         "regions_enu_m": [np.round(np.asarray(p.exterior.coords), 2).tolist()
-                          for p in r.gaps_before.regions]}, indent=2) + "\n")
+                          for p in r.gaps_before.regions],
+        "compared": [{"description": o.description, "flight_time_s": round(o.flight_time_s, 1),
+                      "path_length_m": round(o.path_length_m, 1), "gaps_after": o.gaps_after}
+                     for o in r.compared]}, indent=2) + "\n")
     print(f"gaps below P_D {args.target_pd:g}: {r.gaps_before.n_cells} cells "
           f"({r.gaps_before.proportion:.1%}) before, {r.gaps_after.n_cells} "
           f"({r.gaps_after.proportion:.1%}) predicted after the follow-up")
+    print("follow-ups compared (the shortest flight reaching the target is kept):")
+    for o in r.compared:
+        mark = "*" if o.description == r.plan.description else " "
+        print(f" {mark} {o.flight_time_s:7.1f} s {o.path_length_m:8.1f} m  "
+              f"{o.gaps_after:6d} gap cells after  {o.description}")
     print(summary)
     return 0
 

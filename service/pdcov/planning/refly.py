@@ -1,15 +1,21 @@
 """Gap finder and follow-up flight: which free cells are still below the target P_D after a
 flight, and a short plan that lifts them to it.
 
-Two kinds of follow-up are built and the shorter one that reaches the target (else the one
-leaving the fewest gap cells) is kept: a lawnmower over the gaps in each given direction, and
-a greedy pick of tracks (a set-cover heuristic, not an optimum): candidate tracks
-are straight lines over the gaps in a few directions, half a spacing apart; each is flown
-on its own through a fresh grid, giving its log-miss contribution per cell. Repeatedly, the
-track with the most still-needed log-miss per second of flight (its own time plus the transit
-to it from where the last one ended) is taken, until every gap cell reaches the target or no
-track helps. The chosen tracks are joined through the free space in that order, and the
-whole plan is predicted again (its transits see cells too).
+Several follow-ups are built and predicted, and the shortest flight that reaches the target
+(else the one leaving the fewest gap cells) is kept; every option is reported. Per heading:
+
+* a greedy pick of tracks (a set-cover heuristic, not an optimum): candidate tracks are
+  straight lines over the gaps, half a spacing apart; each is flown on its own through a
+  fresh grid, giving its log-miss contribution per cell. Repeatedly, the track with the most
+  still-needed log-miss per second of flight (its own time plus the transit to it) is taken,
+  until every gap cell reaches the target or no track helps. The chosen tracks are flown
+  part by part of the gap area, as a boustrophedon (by offset across the heading,
+  alternating direction), not in the order picked;
+* a lawnmower over the gap regions;
+* a lawnmower over the whole free space, at the spacing and at half of it (re-flying
+  everything can be shorter than chasing scattered gaps).
+
+Every plan is predicted whole (its transits and turns see cells too).
 """
 
 from __future__ import annotations
@@ -61,33 +67,136 @@ def find_gaps(pd: np.ndarray, scenario: Scenario, target_pd: float) -> Gaps:
 
 
 @dataclass(frozen=True, slots=True)
+class Option:
+    """One follow-up that was built and predicted: what it is, its predicted flight time (s)
+    and path length (m), and the gap cells it would leave."""
+
+    description: str
+    flight_time_s: float
+    path_length_m: float
+    gaps_after: int
+
+
+@dataclass(frozen=True, slots=True)
 class Refly:
     """A follow-up: the plan, its prediction alone, P_D after both flights, the gaps before
-    and after."""
+    and after, and every option compared (the chosen one included), in the order built."""
 
     plan: Plan
     prediction: Prediction
     pd_after: np.ndarray
     gaps_before: Gaps
     gaps_after: Gaps
+    compared: tuple[Option, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Track:
+    """A candidate straight track: (2, 2) ENU ends, its heading (rad), the part of the
+    survey area it lies in, and its offset across the heading (m)."""
+
+    seg_enu_m: np.ndarray
+    heading_rad: float
+    part: int
+    across_m: float
 
 
 def candidate_tracks(gaps: Gaps, scenario: Scenario, spacing_m: float,
-                     headings_rad: tuple[float, ...]) -> list[np.ndarray]:
-    """(2, 2) ENU segments over the gaps (widened by half a spacing) in the free space."""
-    area = shapely.union_all(gaps.regions).buffer(spacing_m / 2).intersection(
-        scenario.free_space)
+                     headings_rad: tuple[float, ...]) -> list[Track]:
+    """Tracks over the gaps (widened by half a spacing) in the free space, half a spacing
+    apart in each heading. A chord shorter than half a spacing that passes over no gap cell
+    is left out: it is a sliver of the widened area's rounded edge (a metre or so long),
+    which the greedy pick took for its low cost and flew as a short reversing leg."""
+    gap_union = shapely.union_all(gaps.regions)
+    area = gap_union.buffer(spacing_m / 2).intersection(scenario.free_space)
+    shapely.prepare(gap_union)
     out = []
-    for heading in headings_rad:
-        frame = SweepFrame(-heading)  # x' across the tracks, y' along them
-        x0, y0, x1, y1 = frame.to_sweep(area).bounds
-        n = max(1, math.ceil((x1 - x0) / (spacing_m / 2)))
-        for x in x0 + (x1 - x0) * (np.arange(n) + 0.5) / n:
-            line = frame.points_to_enu(np.array([[x, y0 - 1.0], [x, y1 + 1.0]]))
-            for piece in clip_polyline(line, area):
-                if LineString(piece).length > 0.5:
-                    out.append(piece[[0, -1]])
+    for part_index, part in enumerate(polygons_of(area)):
+        for heading in headings_rad:
+            frame = SweepFrame(-heading)  # x' across the tracks, y' along them
+            x0, y0, x1, y1 = frame.to_sweep(part).bounds
+            n = max(1, math.ceil((x1 - x0) / (spacing_m / 2)))
+            for x in x0 + (x1 - x0) * (np.arange(n) + 0.5) / n:
+                line = frame.points_to_enu(np.array([[x, y0 - 1.0], [x, y1 + 1.0]]))
+                for piece in clip_polyline(line, part):
+                    seg = piece[[0, -1]]
+                    line = LineString(seg)
+                    if line.length >= spacing_m / 2 or shapely.intersects(gap_union, line):
+                        out.append(Track(seg, heading, part_index, float(x)))
     return out
+
+
+def sweep_order(tracks: list[Track], start_enu_m: np.ndarray) -> list[np.ndarray]:
+    """Chosen tracks as (2, 2) segments in flying order: part by part (nearest next), each
+    part heading by heading, and within a heading by offset across it, alternating
+    direction (a boustrophedon), so that no transit cuts across other tracks."""
+    groups: dict[tuple[int, float], list[Track]] = {}
+    for t in tracks:
+        groups.setdefault((t.part, t.heading_rad), []).append(t)
+    here = np.asarray(start_enu_m, dtype=float)
+    out: list[np.ndarray] = []
+    while groups:
+        options = []
+        for key, group in groups.items():
+            frame = SweepFrame(-key[1])
+            lines = sorted({round(t.across_m, 6) for t in group})
+            for across_rev in (False, True):
+                for along_rev in (False, True):
+                    ordered = _boustrophedon(group, frame, lines, across_rev, along_rev)
+                    options.append((float(np.linalg.norm(ordered[0][0] - here)), key, ordered))
+        _, key, ordered = min(options, key=lambda o: o[0])
+        out.extend(ordered)
+        here = ordered[-1][1]
+        del groups[key]
+    return out
+
+
+def _boustrophedon(group: list[Track], frame: SweepFrame, lines: list[float],
+                   across_rev: bool, along_rev: bool) -> list[np.ndarray]:
+    out = []
+    for k, x in enumerate(lines[::-1] if across_rev else lines):
+        on_line = [t.seg_enu_m for t in group if round(t.across_m, 6) == x]
+        # y' of each end in the sweep frame: tracks run along y'.
+        segs = [s if _along(frame, s[1]) >= _along(frame, s[0]) else s[::-1] for s in on_line]
+        segs.sort(key=lambda s: _along(frame, s[0]))
+        if (k % 2 == 1) != along_rev:
+            segs = [s[::-1] for s in segs[::-1]]
+        out.extend(segs)
+    return out
+
+
+def _along(frame: SweepFrame, p_enu: np.ndarray) -> float:
+    a, b = math.cos(frame.h_angle_rad), math.sin(frame.h_angle_rad)
+    return float(-b * p_enu[0] + a * p_enu[1])
+
+
+def greedy_tracks(tracks: list[Track], gain: list[np.ndarray], cost_s: list[float],
+                  deficit: np.ndarray, start_enu_m: np.ndarray, speed_mps: float
+                  ) -> list[Track]:
+    """Set-cover heuristic: repeatedly the track with the most still-needed log-miss
+    (``deficit``, > 0 where needed) per second of flight, its own and the transit to it,
+    until nothing is needed or no track helps."""
+    chosen: list[Track] = []
+    here = np.asarray(start_enu_m, dtype=float)
+    available = list(range(len(tracks)))
+    while available and np.any(deficit > 1e-9):
+        best, best_rate = -1, 0.0
+        for i in available:
+            seg = tracks[i].seg_enu_m
+            transit_m = min(np.linalg.norm(seg[0] - here), np.linalg.norm(seg[1] - here))
+            benefit = float(np.minimum(deficit, gain[i]).sum())
+            rate = benefit / (cost_s[i] + transit_m / speed_mps)
+            if rate > best_rate:
+                best, best_rate = i, rate
+        if best < 0:
+            break
+        chosen.append(tracks[best])
+        deficit = np.maximum(deficit - gain[best], 0.0)
+        available.remove(best)
+        seg = tracks[best].seg_enu_m
+        here = seg[1] if np.linalg.norm(seg[0] - here) <= np.linalg.norm(seg[1] - here) \
+            else seg[0]
+    return chosen
 
 
 def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
@@ -96,59 +205,65 @@ def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
                start_enu_m: tuple[float, float] = (0.0, 0.0), progress: bool = False
                ) -> Refly:
     """A follow-up plan lifting the gap cells of a grid (log-miss sums ``log_miss_now``,
-    float (n_rows, n_cols)) to ``target_pd``; starts from ``start_enu_m`` (home)."""
+    float (n_rows, n_cols)) to ``target_pd``; starts from ``start_enu_m`` (home).
+
+    Options built and predicted, per heading: the greedy tracks over the gaps, a lawnmower
+    over the gaps, and a lawnmower over the whole free space at the spacing and at half
+    of it. The shortest flight that lifts every gap cell to the target is kept, else the
+    one leaving the fewest gap cells (then the shortest); ``compared`` lists them all."""
     L_now = np.asarray(log_miss_now, dtype=np.float64)
     gaps = find_gaps(-np.expm1(L_now), scenario, target_pd)
     if gaps.n_cells == 0:
         raise ConfigError(f"no gaps: every free cell already has P_D >= {target_pd}")
+    start = np.asarray(start_enu_m, dtype=float)
     tracks = candidate_tracks(gaps, scenario, spacing_m, headings_rad)
     L_target = math.log1p(-target_pd)
-    deficit = np.where(gaps.mask, L_now - L_target, 0.0)[gaps.mask]  # > 0 where needed
+    deficit = (L_now - L_target)[gaps.mask]  # > 0 where needed
     gain, cost = [], []
-    for seg in tqdm(tracks, desc="candidate tracks", unit="track", disable=not progress):
-        p = predict(scenario, Plan.from_xy(seg, alt_agl_m, speed_mps))
+    for t in tqdm(tracks, desc="candidate tracks", unit="track", disable=not progress):
+        p = predict(scenario, Plan.from_xy(t.seg_enu_m, alt_agl_m, speed_mps))
         gain.append(-p.grid.log_miss_d.astype(np.float64)[gaps.mask])
         cost.append(p.flight.duration_s)
-    chosen: list[np.ndarray] = []
-    here = np.asarray(start_enu_m, dtype=float)
-    available = list(range(len(tracks)))
-    while available and np.any(deficit > 1e-9):
-        best, best_rate, best_seg = -1, 0.0, None
-        for i in available:
-            benefit = float(np.minimum(deficit, gain[i]).sum())
-            seg = tracks[i] if (np.linalg.norm(tracks[i][0] - here)
-                                <= np.linalg.norm(tracks[i][1] - here)) else tracks[i][::-1]
-            rate = float(benefit / (cost[i] + np.linalg.norm(seg[0] - here) / speed_mps))
-            if rate > best_rate:
-                best, best_rate, best_seg = i, rate, seg
-        if best_seg is None:
-            break
-        chosen.append(best_seg)
-        deficit = np.maximum(deficit - gain[best], 0.0)
-        available.remove(best)
-        here = best_seg[1]
+    router = FreeSpaceRouter(scenario.free_space)
+    what = f"refly to P_D {target_pd:g}"
     options = []
-    if chosen:
-        builder = PathBuilder(FreeSpaceRouter(scenario.free_space))
-        for seg in chosen:
-            builder.add(seg)
-        options.append(Plan.from_xy(builder.points(), alt_agl_m, speed_mps,
-                                    f"refly to P_D {target_pd:g}: {len(chosen)} greedy tracks "
-                                    f"over {gaps.n_cells} gap cells"))
+    for heading in headings_rad:
+        # One heading at a time: tracks of another heading picked to mop up the ends of
+        # these would be joined by transits across them.
+        idx = [i for i, t in enumerate(tracks) if t.heading_rad == heading]
+        chosen = greedy_tracks([tracks[i] for i in idx], [gain[i] for i in idx],
+                               [cost[i] for i in idx], deficit, start, speed_mps)
+        if chosen:
+            builder = PathBuilder(router)
+            for seg in sweep_order(chosen, start):
+                builder.add(seg)
+            options.append(Plan.from_xy(
+                builder.points(), alt_agl_m, speed_mps,
+                f"{what}: {len(chosen)} greedy tracks heading {math.degrees(heading):g} deg "
+                f"over {gaps.n_cells} gap cells"))
     area = _survey_area(gaps, scenario)
     for heading in headings_rad:
         plan = lawnmower(area, spacing_m, heading, alt_agl_m, speed_mps,
                          route_in_enu=scenario.free_space)
-        options.append(replace(plan, description=f"refly to P_D {target_pd:g}: lawnmower "
-                               f"over {gaps.n_cells} gap cells ({plan.description})"))
+        options.append(replace(plan, description=f"{what}: lawnmower over {gaps.n_cells} "
+                                                 f"gap cells ({plan.description})"))
+    for s in (spacing_m, spacing_m / 2):
+        for heading in headings_rad:
+            plan = lawnmower(scenario.free_space, s, heading, alt_agl_m, speed_mps)
+            options.append(replace(plan, description=f"{what}: whole-area pass "
+                                                     f"({plan.description})"))
     results = []
     for plan in options:
         pred = predict(scenario, plan, progress=progress)
         pd_after = -np.expm1(L_now + pred.grid.log_miss_d.astype(np.float64))
         results.append(Refly(plan, pred, pd_after, gaps,
                              find_gaps(pd_after, scenario, target_pd)))
-    return min(results, key=lambda r: (r.gaps_after.n_cells > 0, r.gaps_after.n_cells,
+    compared = tuple(Option(r.plan.description, r.prediction.flight.duration_s,
+                            r.prediction.flight.path_length_m, r.gaps_after.n_cells)
+                     for r in results)
+    best = min(results, key=lambda r: (r.gaps_after.n_cells > 0, r.gaps_after.n_cells,
                                        r.prediction.flight.duration_s))
+    return replace(best, compared=compared)
 
 
 def _survey_area(gaps: Gaps, scenario: Scenario) -> Polygon | MultiPolygon:
