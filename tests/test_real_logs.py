@@ -139,3 +139,44 @@ def test_bin_and_tlog_give_the_same_poses() -> None:
     assert np.percentile(rot_deg, 95) < 0.5
     assert np.percentile(axis_deg, 95) < 0.5
     assert pos_m.max() < 0.3
+
+
+# --- real logs damaged at test time: junk before, after, inside; cut short ------------------
+
+def _junk(n: int, seed: int) -> bytes:
+    return bytes(np.random.default_rng(seed).integers(0, 256, n, dtype=np.uint8))
+
+
+@pytest.fixture(scope="module")
+def whole() -> dict:
+    return {p: read_flight_log(p) for p in (TLOG, BIN)}
+
+
+@pytest.mark.parametrize("source, damage", [
+    (TLOG, "prepend"), (TLOG, "append"), (TLOG, "insert"), (TLOG, "truncate"),
+    (BIN, "append"), (BIN, "insert"), (BIN, "truncate")])  # a .BIN is told by its first bytes
+def test_damaged_real_log_reads_up_to_the_damage(tmp_path: Path, whole: dict, source: Path,
+                                                 damage: str, capfd) -> None:
+    data = source.read_bytes()
+    middle = len(data) // 2 + 13
+    hostile = {"prepend": _junk(37, 1) + data, "append": data + _junk(4096, 2),
+               "insert": data[:middle] + _junk(20000, 3) + data[middle:],
+               "truncate": data[:middle]}[damage]
+    path = tmp_path / f"hostile{source.suffix}"
+    path.write_bytes(hostile)
+    capfd.readouterr()
+    log, ref = read_flight_log(path), whole[source]
+    out = capfd.readouterr()
+    assert "bad header" not in out.err + out.out and len(out.err) < 200  # no flood of lines
+    n_ref, n = len(ref.attitude.t_s), len(log.attitude.t_s)
+    if damage == "truncate":
+        assert 0.4 * n_ref < n < 0.6 * n_ref
+        assert any("cut short" in line for line in log.damage)
+    else:
+        assert n_ref - 2 <= n <= n_ref  # at most the damaged record is lost
+        assert len(log.gimbal.t_s) >= len(ref.gimbal.t_s) - 2
+        assert any("not MAVLink" in line or "not DataFlash" in line for line in log.damage)
+    if damage == "append":
+        assert any("reading stopped at byte" in line for line in log.damage)
+    # Every message read is one of the original's: none is made up from the junk.
+    assert np.isin(np.round(log.attitude.t_s, 4), np.round(ref.attitude.t_s, 4)).all()

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
 
+from pdcov.core.mount import GimbalMount
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.pose_tracker import poses_from_log
 from pdcov.telemetry.samples import (
     REBOOT_GAP_S,
     AttitudeSample,
@@ -177,3 +182,98 @@ def test_zero_position_before_fix_is_dropped(tmp_path: Path) -> None:
     log = read_flight_log(write_tlog(tmp_path / "z.tlog", samples))
     assert log.position.t_s[0] == pytest.approx(1.0)
     assert not math.isnan(log.position.relative_alt_m[0])
+
+
+# --- damaged tlogs: resynchronise, read up to the damage, say where it stopped --------------
+
+def gimbal_flight() -> list[object]:
+    samples = flight()
+    q = tuple(quat_wxyz_from_euler_zyx(0, -1.0, 0))
+    samples += [GimbalSample(1.0 + 0.1 * k, q, 44, 0, 1, 1, 1) for k in range(50)]
+    return samples
+
+
+@pytest.mark.parametrize("junk", [
+    b"\xfe\x05" + b"\x00" * 20,  # a MAVLink 1 magic first: pymavlink then drops MAVLink 2
+    b"\x00" * 8 + b"\xfe\x09\x00\x01\x01\x00" + bytes(11),  # a MAVLink 1 header, bad checksum
+    bytes(np.random.default_rng(7).integers(0, 256, 3000, dtype=np.uint8)),
+])
+def test_junk_at_start_keeps_mavlink2_messages(tmp_path: Path, junk: bytes) -> None:
+    log = read_flight_log(write_tlog(tmp_path / "j.tlog", gimbal_flight(), prefix=junk))
+    assert len(log.attitude.t_s) == 50
+    assert len(log.gimbal.t_s) == 50  # GIMBAL_DEVICE_ATTITUDE_STATUS is MAVLink 2 only
+    assert any("not MAVLink" in n and "at byte 0" in n for n in log.damage)
+
+
+def test_mavlink2_kept_in_a_fresh_process(tmp_path: Path) -> None:
+    """pymavlink chooses the protocol from the process environment and the first magic byte
+    it meets; pdcov's reading must depend on neither (the CLI imports pymavlink cold)."""
+    path = write_tlog(tmp_path / "j.tlog", gimbal_flight(),
+                      prefix=bytes(8) + b"\xfe\x05" + bytes(12))
+    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
+    code = ("import sys; from pdcov.telemetry.logs import read_flight_log; "
+            "print(len(read_flight_log(sys.argv[1]).gimbal.t_s))")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], env=env, timeout=120,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "50"
+
+
+def test_junk_appended_is_read_up_to_and_located(tmp_path: Path) -> None:
+    data = tlog_bytes([Heartbeat(0.5), *gimbal_flight()])
+    junk = bytes(np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8))
+    path = tmp_path / "tail.tlog"
+    path.write_bytes(data + junk)
+    log = read_flight_log(path)
+    assert len(log.attitude.t_s) == 50 and len(log.gimbal.t_s) == 50
+    assert any(f"reading stopped at byte {len(data)} of {len(data) + 4096}" in n
+               for n in log.notes)
+
+
+def test_junk_inserted_anywhere_loses_only_the_damaged_record(tmp_path: Path) -> None:
+    """Random junk at random places: every message outside the damage is read, and no
+    message is made up from the junk."""
+    records = [struct_record(s) for s in [Heartbeat(0.5), *flight(n=200)]]
+    rng = np.random.default_rng(11)
+    for trial in range(6):
+        cuts = sorted(rng.choice(len(records), 3, replace=False))
+        parts, damaged = [], set()
+        for k, rec in enumerate(records):
+            if k in cuts:  # junk inside this record: it is lost
+                at = int(rng.integers(1, len(rec)))
+                junk = bytes(rng.integers(0, 256, int(rng.integers(1, 600)), dtype=np.uint8))
+                rec = rec[:at] + junk + rec[at:]
+                damaged.add(k)
+            parts.append(rec)
+        path = tmp_path / f"mid{trial}.tlog"
+        path.write_bytes(b"".join(parts))
+        log = read_flight_log(path)
+        n_att_damaged = sum(1 for k in damaged if k % 2 == 1)  # records 1, 3, ...: attitude
+        assert len(log.attitude.t_s) >= 200 - n_att_damaged
+        assert len(log.attitude.t_s) <= 200
+        assert set(np.round(log.attitude.t_s, 3)) <= set(np.round(1.0 + 0.1 * np.arange(200), 3))
+        assert any("runs of bytes that are not MAVLink" in n for n in log.damage)
+
+
+def struct_record(sample: object) -> bytes:
+    """One tlog record (stamp + frame) of a sample."""
+    return b"\x00\x06" + b"\x00" * 6 + encode(sample)
+
+
+def test_truncated_log_says_it_was_cut(tmp_path: Path) -> None:
+    data = tlog_bytes([Heartbeat(0.5), *flight()])
+    path = tmp_path / "cut.tlog"
+    path.write_bytes(data[: len(data) - 7])
+    log = read_flight_log(path)
+    assert len(log.attitude.t_s) == 50 and len(log.position.t_s) == 49
+    assert any("cut short" in n for n in log.damage)
+    assert read_flight_log(write_tlog(tmp_path / "whole.tlog", flight())).damage == ()
+
+
+def test_missing_gimbal_never_suggests_another_mount(tmp_path: Path) -> None:
+    path = write_tlog(tmp_path / "ng.tlog", flight(), prefix=b"\x01" * 40)
+    with pytest.raises(TelemetryError) as exc:
+        poses_from_log(path, origin_lat_deg=LAT, origin_lon_deg=LON, ground_alt_msl_m=ALT,
+                       mount=GimbalMount(), frame_rate_hz=5.0)
+    message = str(exc.value)
+    assert "no gimbal attitude" in message and "fixed" not in message
+    assert "not MAVLink" in message  # what reading the log skipped is named

@@ -1,22 +1,26 @@
 """Flight logs -> one ``FlightLog`` of time-sorted telemetry arrays in the autopilot clock.
 
-Formats: MAVLink telemetry logs (.tlog: pymavlink mavlogfile), ArduPilot DataFlash (.bin:
+Formats: MAVLink telemetry logs (.tlog: ``telemetry.tlog``), ArduPilot DataFlash (.bin:
 pymavlink DFReader) and PX4 ULog (.ulg: pyulog, the optional ``ulog`` extra), told apart by
 their first bytes. Times are the autopilot's boot clock (time_boot_ms, TimeUS, ULog
 timestamps), made monotonic across restarts by ``telemetry.BootClock``; a tlog's wall-clock
 stamps are never used (a log may have been recorded faster than real time). Every failure to
-read becomes a ``TelemetryError`` that names the file.
+read becomes a ``TelemetryError`` that names the file; a damaged log is read up to and past
+its damage, which ``FlightLog.damage`` describes.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import statistics
+import sys
 from collections import Counter, defaultdict
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -44,6 +48,7 @@ from pdcov.telemetry.samples import (
     sample_from_mavlink,
     samples_from_dataflash,
 )
+from pdcov.telemetry.tlog import LogDamage, TlogScanner
 
 DATAFLASH_MAGIC = b"\xa3\x95"
 ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -58,7 +63,8 @@ class FlightLog:
     All times are seconds in the autopilot's boot clock (monotonic across restarts). gimbal
     holds the chosen source (``gimbal_source`` = (system, component, gimbal_device_id)) only;
     homes are in log order; params hold each parameter's last value. notes say, in words,
-    which clock, sources and fallbacks were used (for summaries).
+    which clock, sources and fallbacks were used (for summaries); damage says what was
+    skipped or cut while reading (also among the notes).
     """
 
     path: str
@@ -74,6 +80,7 @@ class FlightLog:
     mount_targets: MountTargetSeries
     restarts_t_s: tuple[float, ...] = ()
     notes: tuple[str, ...] = ()
+    damage: tuple[str, ...] = ()
 
 
 def read_flight_log(path: str | Path, *, system_id: int | None = None,
@@ -131,55 +138,35 @@ class _Component:
 
 
 def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> FlightLog:
-    from pymavlink import mavutil
-
     comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
     heartbeats: list[HeartbeatSample] = []
-    counts: Counter[str] = Counter()
-    error = ""
+    n_ok = 0
     try:
-        conn = mavutil.mavmmaplog(str(path))
-    except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
-        raise TelemetryError(f"{path}: cannot open as a MAVLink log: {exc}") from None
-    try:
-        while True:
-            msg = conn.recv_msg()
-            if msg is None:
-                break
-            mtype = msg.get_type()
-            if mtype == "BAD_DATA" or mtype.startswith("UNKNOWN"):
-                counts["bad" if mtype == "BAD_DATA" else "unknown"] += 1
-                continue
-            counts["ok"] += 1
-            key = (msg.get_srcSystem(), msg.get_srcComponent())
-            comp = comps[key]
-            boot_s = mavlink_boot_time_s(msg)
-            if boot_s is not None:
-                t_s = comp.clock.to_s(boot_s)
-                if key[1] != 1:
-                    comp.clock_pairs.append((t_s, comps[(key[0], 1)].clock.now_s))
-            else:
-                t_s = comp.clock.now_s
-            sample = sample_from_mavlink(msg, t_s)
-            if isinstance(sample, HeartbeatSample):
-                heartbeats.append(sample)
-            elif sample is not None:
-                comp.samples[type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION"
-                                                      else "")].append(sample)
-    except Exception as exc:  # noqa: BLE001
-        error = f"{type(exc).__name__}: {exc}"
-    finally:
-        conn.close()
-    if counts["ok"] == 0:
-        why = f" ({error})" if error else ""
-        raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt{why}")
-    notes = []
-    if error:
-        notes.append(f"reading stopped early at a corrupt record ({error}); "
-                     "using the messages before it")
-    if counts["bad"] or counts["unknown"]:
-        notes.append(f"skipped {counts['bad']} runs of bytes that are not MAVLink and "
-                     f"{counts['unknown']} messages of unknown ids")
+        scanner = TlogScanner(path.read_bytes())
+    except OSError as exc:
+        raise TelemetryError(f"{path}: cannot read log: {exc.strerror or exc}") from None
+    for msg in scanner.messages():
+        mtype = msg.get_type()
+        n_ok += 1
+        key = (msg.get_srcSystem(), msg.get_srcComponent())
+        comp = comps[key]
+        boot_s = mavlink_boot_time_s(msg)
+        if boot_s is not None:
+            t_s = comp.clock.to_s(boot_s)
+            if key[1] != 1:
+                comp.clock_pairs.append((t_s, comps[(key[0], 1)].clock.now_s))
+        else:
+            t_s = comp.clock.now_s
+        sample = sample_from_mavlink(msg, t_s)
+        if isinstance(sample, HeartbeatSample):
+            heartbeats.append(sample)
+        elif sample is not None:
+            comp.samples[type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION"
+                                                  else "")].append(sample)
+    if n_ok == 0:
+        raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt")
+    damage = scanner.damage.describe()
+    notes = list(damage)
     sysid, ap_comp, why = _choose_system(comps, heartbeats, system_id, path)
     notes.append(why)
     ap = comps[(sysid, ap_comp)]
@@ -210,7 +197,8 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
         PositionSeries.from_samples(ap.samples.get("PositionSample", [])), gimbal, source,
         tuple(gather("HomeSample")), tuple(sorted(gather("CaptureSample"), key=lambda c: c.t_s)),
-        params, MountTargetSeries.from_samples([]), restarts, tuple(notes)), -ap.clock.offset_s)
+        params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage)),
+        -ap.clock.offset_s)
 
 
 def _restart_note(n: int, field_name: str) -> str:
@@ -298,6 +286,59 @@ def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int
 
 # --- ArduPilot DataFlash ------------------------------------------------------------------
 
+@contextmanager
+def _silenced_output() -> Iterator[None]:
+    """Discard what is printed to fds 1 and 2 meanwhile, by Python or C code: pymavlink's
+    DataFlash indexer prints a "bad header" line per damaged byte (tens of thousands);
+    pdcov reports the damage in one summary line instead."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+            with redirect_stdout(null), redirect_stderr(null):
+                yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+
+
+def _dataflash_damage(reader: Any, size: int) -> tuple[frozenset[int], LogDamage]:
+    """(message starts to drop, damage) from the indexed message starts and lengths of a
+    DataFlash reader. Records follow each other with no gap, so a "message" with damage
+    on both sides is bytes that happen to look like a header (DataFlash has no checksum)
+    and is dropped; a last record running past the end of the file is a cut log."""
+    starts, lengths = [], []
+    for type_id, offsets in enumerate(reader.offsets):
+        if offsets:
+            starts.append(np.asarray(offsets, np.int64))
+            lengths.append(np.full(len(offsets), reader.formats[type_id].len))
+    damage = LogDamage(size=size, kind="DataFlash records")
+    if not starts:
+        return frozenset(), damage
+    start = np.concatenate(starts)
+    order = np.argsort(start, kind="stable")
+    start, end = start[order], start[order] + np.concatenate(lengths)[order]
+    after_prev = np.r_[start[0] == 0, start[1:] == end[:-1]]
+    before_next = np.r_[end[:-1] == start[1:], end[-1] >= size]
+    isolated = ~after_prev & ~before_next
+    start, end = start[~isolated], end[~isolated]
+    if len(start) == 0:
+        return frozenset(), damage
+    prev_end = np.r_[0, end[:-1]]
+    for a, b in zip(prev_end[start > prev_end], start[start > prev_end], strict=True):
+        damage.junk.append((int(a), int(b - a)))
+    if end[-1] > size:
+        damage.cut_at = int(start[-1])
+    elif end[-1] < size:
+        damage.junk.append((int(end[-1]), int(size - end[-1])))
+    return frozenset(int(x) for x in np.concatenate(starts)[order][isolated]), damage
+
+
 def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     from pymavlink import DFReader
 
@@ -306,24 +347,30 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     positions: dict[str, list[PositionSample]] = defaultdict(list)
     error = ""
     try:
-        reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
+        with _silenced_output():
+            reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
     except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
         raise TelemetryError(f"{path}: cannot read as a DataFlash log: {exc}") from None
+    drop, damage = _dataflash_damage(reader, reader.data_len)
     try:
-        while True:
-            msg = reader.recv_match(type=list(DATAFLASH_TYPES))
-            if msg is None:
-                break
-            boot_s = dataflash_boot_time_s(msg)
-            t_s = clock.now_s if boot_s is None else clock.to_s(boot_s)
-            for sample in samples_from_dataflash(msg, t_s):
-                if isinstance(sample, PositionSample):
-                    positions[msg.get_type()].append(sample)
-                else:
-                    by_type[type(sample)].append(sample)
+        with _silenced_output():
+            while True:
+                msg = reader.recv_match(type=list(DATAFLASH_TYPES))
+                if msg is None:
+                    break
+                if reader.offset - reader.formats[reader.name_to_id[msg.get_type()]].len in drop:
+                    continue
+                boot_s = dataflash_boot_time_s(msg)
+                t_s = clock.now_s if boot_s is None else clock.to_s(boot_s)
+                for sample in samples_from_dataflash(msg, t_s):
+                    if isinstance(sample, PositionSample):
+                        positions[msg.get_type()].append(sample)
+                    else:
+                        by_type[type(sample)].append(sample)
     except Exception as exc:  # noqa: BLE001
         error = f"{type(exc).__name__}: {exc}"
-    notes = ["clock: DataFlash TimeUS (autopilot boot time)"]
+    damage_lines = damage.describe()
+    notes = [*damage_lines, "clock: DataFlash TimeUS (autopilot boot time)"]
     if error:
         notes.append(f"reading stopped early at a corrupt record ({error}); "
                      "using the messages before it")
@@ -344,7 +391,7 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
         PositionSeries.from_samples(pos), gimbal, source, tuple(by_type[HomeSample]),
         tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
         MountTargetSeries.from_samples(by_type[MountTargetSample]),
-        tuple(clock.restarts_t_s), tuple(notes)), -clock.offset_s)
+        tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines)), -clock.offset_s)
 
 
 # --- PX4 ULog ------------------------------------------------------------------------------

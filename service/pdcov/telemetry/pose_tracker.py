@@ -460,9 +460,14 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     interp = None
     if isinstance(mount, GimbalMount):
         if log.gimbal_source is None:
+            # Missing data never changes the physical model: a gimbal flight read as a
+            # fixed mount would give a wrong map.
+            read = "; ".join(log.damage) or "read whole, no damage found"
             raise TelemetryError(f"{log.path}: the mount is a gimbal but the log has no gimbal "
                                  "attitude (GIMBAL_DEVICE_ATTITUDE_STATUS / MNT / "
-                                 "gimbal_device_attitude_status); use a fixed mount")
+                                 "gimbal_device_attitude_status), so the camera's attitude is "
+                                 f"unknown; reading the log: {read}. Use a log that recorded "
+                                 "the gimbal's attitude")
         where = {"tlog": "the tlog's PARAM_VALUE messages (a tlog records parameters only "
                          "when the ground station read them)",
                  "dataflash": "the DataFlash PARM records",
