@@ -12,6 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from pdcov.bus.session import bus_config_from_dict
+from pdcov.config import load_mission
+
 SYSTEMD_DIR = Path(__file__).resolve().parents[1] / "systemd"
 UNIT = SYSTEMD_DIR / "pdcov.service"
 SYSUSERS = SYSTEMD_DIR / "pdcov.sysusers"
@@ -105,3 +108,14 @@ def test_sysusers_creates_pdcov_in_dialout(tmp_path) -> None:
                                                .read_text().splitlines())}
     assert "pdcov" in members["dialout"]
     assert "pdcov" in members
+
+
+def test_example_config_loads_with_the_config_loader() -> None:
+    mission = load_mission(SYSTEMD_DIR / "pdcov.yaml")
+    assert mission.new_grid().mask.sum() > 0
+    assert mission.mount.attitude_frame == "auto"
+    bus = bus_config_from_dict(mission.raw["bus"], mission.source)
+    assert bus.mode == "peer" and not bus.multicast_scouting
+    # The unit's --state-dir %S/pdcov is the state_dir the config names.
+    assert mission.raw["service"]["state_dir"] == "/var/lib/pdcov"
+    assert mission.raw["link"]["connect"][0].startswith("serial:/dev/serial0:")
