@@ -1,0 +1,294 @@
+"""The daemon's side of the MAVLink conversation with the autopilot, with no I/O.
+
+``LinkProtocol`` is fed every decoded message (``receive``) and the time (``poll``); it
+returns the telemetry samples (stamped in the autopilot's clock, s) and the messages to send.
+It: follows one autopilot (the configured system id, else the first HEARTBEAT of a real
+autopilot); identifies as that system's component 191 (MAV_COMP_ID_ONBOARD_COMPUTER) --
+never system 255, which ArduPilot takes for its ground station (its HEARTBEAT would mask the
+GCS-loss failsafe); sends an onboard-controller HEARTBEAT at 1 Hz; asks for the streams it
+needs with MAV_CMD_SET_MESSAGE_INTERVAL and reads COMMAND_ACK (refused: the autopilot's
+SRx_/MAVn_ stream rates must deliver; unanswered: resent 3 times); asks for HOME_POSITION
+(MAV_CMD_REQUEST_MESSAGE); reads the mount parameters by name (PARAM_REQUEST_READ), and takes
+any PARAM_VALUE of them that passes; and does it all again after the autopilot reboots
+(its time_boot_ms falls back: samples.BootClock).
+
+It never sends anything that moves the aircraft: only HEARTBEAT, COMMAND_LONG with
+SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, STATUSTEXT
+(``ALLOWED_COMMANDS`` / ``ALLOWED_MESSAGES``, checked in ``_out``).
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from pdcov.telemetry.samples import (
+    MAV_AUTOPILOT_INVALID,
+    BootClock,
+    HeartbeatSample,
+    ParamSample,
+    Sample,
+    mavlink_boot_time_s,
+    sample_from_mavlink,
+)
+
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+MAV_TYPE_GCS = 6
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_STATE_ACTIVE = 4
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_IN_PROGRESS = 5
+MAV_SEVERITY_INFO = 6
+# Message ids (common.xml).
+ATTITUDE, GLOBAL_POSITION_INT, HOME_POSITION = 30, 33, 242
+GIMBAL_DEVICE_ATTITUDE_STATUS = 285
+ALLOWED_COMMANDS = frozenset({MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE})
+ALLOWED_MESSAGES = frozenset({"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
+                              "NAMED_VALUE_FLOAT", "STATUSTEXT"})
+HEARTBEAT_PERIOD_S = 1.0
+RETRY_S = 1.0
+MAX_TRIES = 4
+OFFSET_PAIRS = 200
+
+
+@dataclass(slots=True)
+class _Request:
+    """A command or parameter read awaiting its answer."""
+
+    tries: int = 0
+    next_s: float = 0.0
+    result: str = "pending"  # pending | acked | refused | unanswered
+
+
+@dataclass(slots=True)
+class LinkStats:
+    messages: int = 0
+    other_systems: int = 0
+    reboots: int = 0
+    last_message_s: float | None = None  # wall clock (the caller's now_s)
+
+
+@dataclass(slots=True)
+class _Component:
+    clock: BootClock = field(default_factory=BootClock)
+    offsets: deque = field(default_factory=lambda: deque(maxlen=OFFSET_PAIRS))
+
+
+class LinkProtocol:
+    """One autopilot's link, as decisions. ``mav`` is a pymavlink MAVLink object used only
+    to encode messages (its srcSystem is set to the vehicle's when the autopilot is known).
+    intervals: {message id: rate Hz} to ask for. param_names: the mount parameters to read
+    (empty for a fixed mount)."""
+
+    def __init__(self, mav: Any, *, system_id: int | None, intervals: dict[int, float],
+                 param_names: tuple[str, ...], param_timeout_s: float) -> None:
+        self.mav = mav
+        self.mav.srcComponent = MAV_COMP_ID_ONBOARD_COMPUTER
+        self.system_id = system_id
+        self.autopilot_component: int | None = None
+        self.autopilot_type: int | None = None
+        self._intervals = dict(intervals)
+        self._param_names = tuple(param_names)
+        self._param_timeout_s = param_timeout_s
+        self._comps: dict[int, _Component] = {}
+        self.stats = LinkStats()
+        self.params: dict[str, float] = {}
+        self._reset_requests(0.0)
+        self._next_heartbeat_s = 0.0
+        self._armed = False
+        self._primed: tuple[float, float] | None = None
+
+    def _reset_requests(self, now_s: float) -> None:
+        self.interval_requests = {mid: _Request(next_s=now_s) for mid in self._intervals}
+        self.home_request = _Request(next_s=now_s)
+        self.param_request = _Request(next_s=now_s)
+        self._params_deadline_s: float | None = None
+
+    # --- state ----------------------------------------------------------------------------
+
+    @property
+    def autopilot_known(self) -> bool:
+        return self.autopilot_component is not None
+
+    @property
+    def params_done(self) -> bool:
+        """All mount parameters answered, or their time is up (resolve without the rest)."""
+        return self.param_request.result != "pending"
+
+    @property
+    def reboots(self) -> int:
+        comp = self._comps.get(self.autopilot_component or -1)
+        return len(comp.clock.restarts_t_s) if comp else 0
+
+    def clock_state(self) -> tuple[float, float]:
+        """(offset_s, latest boot s) of the autopilot's clock, for a checkpoint."""
+        comp = self._comps.get(self.autopilot_component or -1)
+        if comp is None or comp.clock.now_s != comp.clock.now_s:
+            return 0.0, float("nan")
+        return comp.clock.offset_s, comp.clock.now_s - comp.clock.offset_s
+
+    def prime_clock(self, offset_s: float, boot_s: float) -> None:
+        """Continue a checkpointed clock: times after a daemon restart never go back (an
+        autopilot that rebooted meanwhile is placed after the old times, as BootClock
+        does)."""
+        self._primed = (offset_s, boot_s)
+
+    def describe(self) -> dict[str, Any]:
+        def results(reqs: dict[int, _Request]) -> dict[str, list[int]]:
+            out: dict[str, list[int]] = {}
+            for mid, r in reqs.items():
+                out.setdefault(r.result, []).append(mid)
+            return out
+        return {"system_id": self.system_id, "component_id": self.autopilot_component,
+                "autopilot": self.autopilot_type, "messages": self.stats.messages,
+                "reboots": self.reboots, "intervals": results(self.interval_requests),
+                "home_request": self.home_request.result,
+                "params": dict(sorted(self.params.items()))}
+
+    # --- input ----------------------------------------------------------------------------
+
+    def receive(self, msg: Any, now_s: float) -> list[Sample]:
+        """The samples in ``msg`` (autopilot clock); updates what the link knows."""
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA" or mtype.startswith("UNKNOWN"):
+            return []
+        src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if mtype == "HEARTBEAT" and not self.autopilot_known:
+            if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type != MAV_TYPE_GCS
+                    and (self.system_id is None or src_sys == self.system_id)):
+                self.system_id, self.autopilot_component = src_sys, src_comp
+                self.autopilot_type = int(msg.autopilot)
+                self.mav.srcSystem = src_sys
+                self._reset_requests(now_s)
+        if self.system_id is None or src_sys != self.system_id:
+            self.stats.other_systems += 1
+            return []
+        self.stats.messages += 1
+        self.stats.last_message_s = now_s
+        t_s = self._time_s(msg, src_comp)
+        if mtype == "COMMAND_ACK":
+            self._ack(msg)
+            return []
+        sample = sample_from_mavlink(msg, t_s)
+        if isinstance(sample, ParamSample) and sample.name in self._param_names:
+            self.params[sample.name] = sample.value
+            if all(n in self.params for n in self._param_names):
+                self.param_request.result = "acked"
+        if isinstance(sample, HeartbeatSample):
+            if src_comp != self.autopilot_component:
+                return []
+            if sample.armed and not self._armed:
+                self.home_request = _Request(next_s=now_s)  # home is set at arming
+            self._armed = sample.armed
+        return [] if sample is None else [sample]
+
+    def _time_s(self, msg: Any, src_comp: int) -> float:
+        """The message's time in the autopilot clock; components other than the autopilot
+        are mapped by the median offset between their clock and the autopilot's."""
+        ap = self.autopilot_component if self.autopilot_component is not None else src_comp
+        comp = self._comps.get(src_comp)
+        if comp is None:
+            comp = self._comps[src_comp] = _Component()
+            if src_comp == ap and self._primed is not None:
+                comp.clock.offset_s = self._primed[0]
+                comp.clock.to_s(self._primed[1])
+        ap_comp = self._comps.get(ap)
+        boot_s = mavlink_boot_time_s(msg)
+        if boot_s is None:
+            return ap_comp.clock.now_s if ap_comp else float("nan")
+        before = len(comp.clock.restarts_t_s)
+        t_s = comp.clock.to_s(boot_s)
+        if src_comp == ap:
+            if len(comp.clock.restarts_t_s) > before:
+                self.stats.reboots += 1
+                self._reset_requests(self.stats.last_message_s or 0.0)
+            return t_s
+        if ap_comp is not None and ap_comp.clock.now_s == ap_comp.clock.now_s:
+            comp.offsets.append(ap_comp.clock.now_s - t_s)
+        if not comp.offsets:
+            return float("nan")
+        return t_s + statistics.median(comp.offsets)
+
+    def _ack(self, msg: Any) -> None:
+        if msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+            # COMMAND_ACK carries no message id: the oldest pending request takes it.
+            pending = [r for r in self.interval_requests.values()
+                       if r.result == "pending" and r.tries]
+            req = pending[0] if pending else None
+        elif msg.command == MAV_CMD_REQUEST_MESSAGE:
+            req = self.home_request
+        else:
+            return
+        if req is None or msg.result == MAV_RESULT_IN_PROGRESS:
+            return
+        req.result = "acked" if msg.result == MAV_RESULT_ACCEPTED else "refused"
+
+    # --- output ---------------------------------------------------------------------------
+
+    def poll(self, now_s: float) -> list[Any]:
+        """Messages due at ``now_s`` (wall clock, s): heartbeat, retries, parameter reads."""
+        if not self.autopilot_known:
+            return []
+        out = []
+        if now_s >= self._next_heartbeat_s:
+            self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
+            out.append(self.mav.heartbeat_encode(MAV_TYPE_ONBOARD_CONTROLLER,
+                                                 MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE))
+        target = (self.system_id, self.autopilot_component)
+        for mid, req in self.interval_requests.items():
+            if self._due(req, now_s):
+                out.append(self.mav.command_long_encode(
+                    *target, MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid,
+                    round(1e6 / self._intervals[mid]), 0, 0, 0, 0, 0))
+        if self._due(self.home_request, now_s):
+            out.append(self.mav.command_long_encode(*target, MAV_CMD_REQUEST_MESSAGE, 0,
+                                                    HOME_POSITION, 0, 0, 0, 0, 0, 0))
+        if self._param_names and self.param_request.result == "pending":
+            if self._params_deadline_s is None:
+                self._params_deadline_s = now_s + self._param_timeout_s
+            if now_s >= self._params_deadline_s:
+                self.param_request.result = "unanswered"
+            elif now_s >= self.param_request.next_s:
+                self.param_request.next_s = now_s + RETRY_S
+                out += [self.mav.param_request_read_encode(*target, n.encode("ascii"), -1)
+                        for n in self._param_names if n not in self.params]
+        elif not self._param_names:
+            self.param_request.result = "acked"
+        return [self._out(m) for m in out]
+
+    @staticmethod
+    def _due(req: _Request, now_s: float) -> bool:
+        if req.result != "pending" or now_s < req.next_s:
+            return False
+        if req.tries >= MAX_TRIES:
+            req.result = "unanswered"
+            return False
+        req.tries += 1
+        req.next_s = now_s + RETRY_S
+        return True
+
+    def coverage_messages(self, value: float | None, text: str | None, t_boot_ms: int
+                          ) -> list[Any]:
+        """NAMED_VALUE_FLOAT 'PDCOV' with ``value`` and/or a STATUSTEXT (INFO) ``text``."""
+        if not self.autopilot_known:
+            return []
+        out = []
+        if value is not None:
+            out.append(self.mav.named_value_float_encode(t_boot_ms & 0xFFFFFFFF, b"PDCOV",
+                                                         float(value)))
+        if text is not None:
+            out.append(self.mav.statustext_encode(MAV_SEVERITY_INFO, text.encode()[:50]))
+        return [self._out(m) for m in out]
+
+    @staticmethod
+    def _out(msg: Any) -> Any:
+        """Refuse, as a bug, anything but the messages the daemon may send."""
+        name = msg.get_type()
+        if name not in ALLOWED_MESSAGES or (name == "COMMAND_LONG"
+                                            and msg.command not in ALLOWED_COMMANDS):
+            raise RuntimeError(f"the daemon never sends {name}")
+        return msg
