@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 import pytest
-from shapely.geometry import LineString, Polygon, box
+from shapely.geometry import LineString, Point, Polygon, box
 
-from pdcov.planning import patterns as P
 from pdcov.core.domain import Domain
 from pdcov.errors import ConfigError
+from pdcov.planning import patterns as P
 from pdcov.planning.decomposition import boustrophedon_decomposition
 
 OUTER = [(0, 0), (30, 0), (30, 10), (45, 5), (60, 12), (60, 40), (40, 45), (35, 30),
@@ -139,3 +139,31 @@ def test_pattern_outside_free_space_is_refused():
     with pytest.raises(ConfigError, match="free space"):
         P.sector_search(SQUARE, 10.0, 5.0, datum_enu_m=np.array([500.0, 500.0]),
                         radius_m=10.0)
+
+
+L_SHAPE = Polygon([(0, 0), (100, 0), (100, 30), (30, 30), (30, 100), (0, 100)])
+
+
+def test_default_datum_of_an_l_shaped_domain_is_inside_it():
+    # The smallest circle around the L is centred in its notch, outside the L.
+    c = P.auto_centre_enu_m(L_SHAPE)
+    assert not L_SHAPE.contains(Point(c))
+    d = P.default_datum_enu_m(L_SHAPE)
+    assert L_SHAPE.contains(Point(d))
+    assert np.linalg.norm(d - c) < 30.0  # the free point nearest the circle's centre
+    for plan in (P.expanding_square(L_SHAPE, 10.0, 10.0, 5.0),
+                 P.sector_search(L_SHAPE, 10.0, 5.0)):
+        assert np.allclose(plan.xy_enu_m[0], d)  # the pattern starts at the datum it names
+        assert f"datum ({d[0]:.1f}, {d[1]:.1f}) m" in plan.description
+
+
+def test_datum_outside_the_free_space_is_refused_naming_the_nearest_free_point():
+    for build in (lambda d: P.expanding_square(L_SHAPE, 10.0, 10.0, 5.0, datum_enu_m=d),
+                  lambda d: P.sector_search(L_SHAPE, 10.0, 5.0, datum_enu_m=d,
+                                            radius_m=20.0)):
+        with pytest.raises(ConfigError, match=r"datum \(60, 50\) m .* outside the free "
+                                              r"space.* nearest free point is \(60\.0, 29\.9\)"):
+            build(np.array([60.0, 50.0]))
+    # On the boundary is inside.
+    assert np.allclose(P.sector_search(L_SHAPE, 10.0, 5.0, datum_enu_m=np.array([30.0, 30.0]),
+                                       radius_m=5.0).xy_enu_m[0], [30, 30])

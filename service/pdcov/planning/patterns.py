@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 import shapely
+import shapely.ops
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from shapely.geometry import LinearRing, LineString, MultiPolygon, Point, Polygon
@@ -314,6 +315,40 @@ def auto_centre_enu_m(free_enu: Polygon | MultiPolygon) -> np.ndarray:
     return np.array([c.x, c.y])
 
 
+def default_datum_enu_m(free_enu: Polygon | MultiPolygon) -> np.ndarray:
+    """A datum inside the free space (ENU metres): the centre of the smallest enclosing
+    circle when it lies in the free space, else the free point nearest to it (an L-shaped
+    domain's circle centre lies in its notch, outside the L)."""
+    c = auto_centre_enu_m(free_enu)
+    if shapely.covers(free_enu, Point(c)):
+        return c
+    return _nearest_free_point(free_enu, c)
+
+
+def _nearest_free_point(free_enu: Polygon | MultiPolygon, p_enu_m: np.ndarray) -> np.ndarray:
+    # A little inside the boundary, so that the point is in the free space, not on its edge.
+    minx, miny, maxx, maxy = free_enu.bounds
+    inner = free_enu.buffer(-1e-3 * max(maxx - minx, maxy - miny))
+    target = inner if not inner.is_empty else free_enu
+    q = shapely.ops.nearest_points(target, Point(p_enu_m))[0]
+    return np.array([q.x, q.y])
+
+
+def datum_in_free_space(free_enu: Polygon | MultiPolygon,
+                        datum_enu_m: np.ndarray | None) -> np.ndarray:
+    """The IAMSAR datum (ENU metres): the given one, refused when outside the free space
+    (the pattern would start elsewhere), or ``default_datum_enu_m``."""
+    if datum_enu_m is None:
+        return default_datum_enu_m(free_enu)
+    d = np.asarray(datum_enu_m, dtype=float)
+    if not shapely.covers(free_enu.buffer(_COVER_TOL_M), Point(d)):
+        q = _nearest_free_point(free_enu, d)
+        raise ConfigError(f"datum ({d[0]:g}, {d[1]:g}) m (ENU) lies outside the free space "
+                          f"(the domain minus its obstacles); the nearest free point is "
+                          f"({q[0]:.1f}, {q[1]:.1f}) m")
+    return d
+
+
 def _reach_m(free_enu: Polygon | MultiPolygon, centre: np.ndarray) -> float:
     return float(np.linalg.norm(shapely.get_coordinates(free_enu) - centre, axis=1).max())
 
@@ -340,11 +375,12 @@ def spiral(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
 def expanding_square(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
                      speed_mps: float, datum_enu_m: np.ndarray | None = None,
                      heading_rad: float = 0.0) -> Plan:
-    """IAMSAR expanding square (SS): from the datum, legs of 1, 1, 2, 2, 3, 3, ... spacings,
+    """IAMSAR expanding square (SS): from the datum (inside the free space; default
+    ``default_datum_enu_m``), legs of 1, 1, 2, 2, 3, 3, ... spacings,
     turning right 90 deg after each, first leg along ``heading_rad``, until the square
     contains the free space; clipped to it."""
     _check_spacing(spacing_m)
-    d = auto_centre_enu_m(free_enu) if datum_enu_m is None else np.asarray(datum_enu_m, float)
+    d = datum_in_free_space(free_enu, datum_enu_m)
     reach = _reach_m(free_enu, d)
     pts = [d]
     k = 0
@@ -361,9 +397,10 @@ def sector_search(free_enu: Polygon | MultiPolygon, alt_agl_m: float, speed_mps:
                   datum_enu_m: np.ndarray | None = None, heading_rad: float = 0.0,
                   radius_m: float | None = None) -> Plan:
     """IAMSAR sector search (VS): three equilateral triangles through the datum, right turns
-    of 120 deg, first leg along ``heading_rad``; radius defaults to the free space's reach
+    of 120 deg, first leg along ``heading_rad``, datum as for ``expanding_square``; radius
+    defaults to the free space's reach
     from the datum. Points at bearings h + (0, 60, 240, 300, 120, 180) deg."""
-    d = auto_centre_enu_m(free_enu) if datum_enu_m is None else np.asarray(datum_enu_m, float)
+    d = datum_in_free_space(free_enu, datum_enu_m)
     radius = _reach_m(free_enu, d) if radius_m is None else radius_m
     if not (radius > 0 and math.isfinite(radius)):
         raise ConfigError(f"sector search radius: expected a positive number of metres, "
