@@ -141,6 +141,12 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     dom = _mapping(doc, "domain", src)
     cell = _number(dom, "cell_size_m", src, "domain", default=1.0, positive=True)
     domain = _domain(dom, src, base, origin_value)
+    if not domain.has_free_cell(domain.grid_geometry(cell)):
+        raise ConfigError(
+            f"{where(src, 'domain')}: no free cell to cover: no centre of a {cell:g} m cell "
+            f"lies in the free space ({domain.free_space.area:.3g} m^2 of the polygon's "
+            f"{domain.boundary.area:.3g} m^2); the obstacles cover the polygon, or it is "
+            "narrower than a cell (domain.cell_size_m)")
 
     camera, rate = _camera(doc, src, base)
     mount = _mount(doc.get("mount", {"type": "fixed"}), src)

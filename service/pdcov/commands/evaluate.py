@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -14,6 +15,8 @@ from pdcov.config import load_mission
 from pdcov.errors import InputFileError, PdcovError
 
 if TYPE_CHECKING:
+    from pdcov.config import Mission
+    from pdcov.core.grid import CoverageGrid
     from pdcov.core.pose import CameraPose
 
 
@@ -104,13 +107,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)
     _check_near_origin(poses, args.poses or args.log, mission.source)
+    n_read = len(poses)
+    top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
     low = sum(1 for p in poses if p.r_cam_enu[2] < mission.min_height_m)
     if low:
         poses = [p for p in poses if p.r_cam_enu[2] >= mission.min_height_m]
         lines.append(f"{low} frames with the camera below coverage.min_height_m = "
                      f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:
-        raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate")
+        print("\n".join(lines))
+        raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate: "
+                             + _why_no_frame(n_read, top_m, mission.min_height_m))
     plan_enu = None
     if args.plan is not None:
         from pdcov.planning.plan import read_plan
@@ -120,6 +127,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
     prior = (load_prior(args.prior, grid.geometry, grid.mask, origin)
              if args.prior is not None else None)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
+    warnings = _unseen_domain_warnings(grid, mission, poses)
+    for w in warnings:
+        print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
     if log_poses is not None and args.export_poses:
         write_pose_csv(args.export_poses, log_poses)
         lines.append(f"camera poses written to {args.export_poses}")
@@ -129,9 +139,40 @@ def run_evaluate(args: argparse.Namespace) -> int:
     run = write_outputs(args.out, mission, grid, origin,
                         title=f"{mission.vehicle_id}: {source}", track_enu=finite_track(track),
                         plan_enu=plan_enu, outline_threshold=args.outline_threshold,
-                        prior=prior)
-    print(summary_text(run, lines))
+                        prior=prior, extra_metrics={"warnings": warnings} if warnings else None)
+    print(summary_text(run, lines + [f"WARNING: {w}" for w in warnings]))
     return 0
+
+
+def _why_no_frame(n_read: int, top_m: float, min_height_m: float) -> str:
+    """Why no frame is left to evaluate, in words."""
+    if n_read == 0:
+        return "the input gave no camera pose (see the frames line above for what was skipped)"
+    return (f"all {n_read} frames below coverage.min_height_m = {min_height_m:g} m (the "
+            f"highest camera was {top_m:.2f} m above the ground; check "
+            "origin.ground_alt_msl_m, or lower coverage.min_height_m)")
+
+
+def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
+                            poses: Sequence[CameraPose]) -> list[str]:
+    """A warning when no frame saw a free cell of the domain, with the horizontal distance
+    from the camera track to the domain (the usual cause: a wrong origin)."""
+    if grid.n_obs[grid.mask].any():
+        return []
+    import shapely
+
+    track = shapely.MultiPoint([p.r_cam_enu[:2] for p in poses])
+    dist_m = float(shapely.distance(mission.domain.free_space, track))
+    if dist_m > 0:
+        where_ = (f"the camera came no closer than {dist_m:,.0f} m (horizontally) to the "
+                  f"domain; check origin.lat_deg / origin.lon_deg in {mission.source} and "
+                  "the input's positions")
+    else:
+        where_ = ("the camera passed over the domain but saw none of it: check the camera "
+                  "attitude (mount), the heights, and coverage.max_range_m "
+                  f"({grid.max_range_m:.0f} m)")
+    return [f"no frame observed any of the {int(grid.mask.sum())} free cells of the domain: "
+            f"{where_}"]
 
 
 def _check_near_origin(poses, source: Path, config: str | None) -> None:

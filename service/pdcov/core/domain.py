@@ -102,6 +102,20 @@ class Domain:
         shapely.prepare(free)
         return shapely.contains_xy(free, X, Y)
 
+    def has_free_cell(self, geometry: GridGeometry, rows_per_chunk: int = 256) -> bool:
+        """True if some cell centre lies in the free space; scans the rows in chunks and
+        stops at the first free cell, so it costs little on any usable domain."""
+        xs, ys = geometry.centres_enu()
+        free = self.free_space
+        if free.is_empty:
+            return False
+        shapely.prepare(free)
+        for r0 in range(0, geometry.n_rows, rows_per_chunk):
+            X, Y = np.meshgrid(xs, ys[r0:r0 + rows_per_chunk])
+            if shapely.contains_xy(free, X, Y).any():
+                return True
+        return False
+
     @classmethod
     def from_enu(cls, polygon_enu_m: Any, obstacles_enu_m: Any = (),
                  source: str | None = None) -> Domain:
