@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from watch_fixtures import TinyPublisher
 
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
 from pdcov.ground.watcher import QuerySnapshot, Watcher
-
-from watch_fixtures import TinyPublisher
 
 
 class Link:

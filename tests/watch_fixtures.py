@@ -85,3 +85,79 @@ class TinyPublisher:
     def n_tiles(self) -> int:
         r, c = tile_grid_shape(self.tile_size, *self.grid.geometry.shape)
         return r * c
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def zenoh_conf(mode: str, connect: str | None = None, listen: str | None = None):
+    """A loopback-only Zenoh config (no multicast scouting)."""
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps([listen]))
+    return conf
+
+
+class ZenohTinyDaemon:
+    """TinyPublisher on Zenoh as docs/protocol.md says: liveliness token, status, tiles,
+    snapshot and footprint queryables; ``publish_step`` adds frames and publishes (tiles
+    whose seq is in ``drop`` are not sent)."""
+
+    def __init__(self, pub: TinyPublisher, router: str, drop=()) -> None:
+        import threading
+
+        import zenoh
+
+        from pdcov.bus.footprint import encode_footprint
+        from pdcov.bus.keys import VehicleKeys
+
+        self.pub = pub
+        self.drop = set(drop)
+        self.lock = threading.Lock()
+        self.keys = VehicleKeys(pub.vehicle_id)
+        self.session = zenoh.open(zenoh_conf("client", connect=router))
+        self.token = self.session.liveliness().declare_token(self.keys.alive)
+
+        def snapshot(query):
+            with self.lock:
+                payload = self.pub.snapshot()
+            query.reply(self.keys.snapshot, payload)
+
+        def footprint(query):
+            o = self.pub.mission.origin()
+            ring = np.array([[o.lon_deg, o.lat_deg], [o.lon_deg + 1e-4, o.lat_deg],
+                             [o.lon_deg, o.lat_deg + 1e-4]])
+            query.reply(self.keys.footprint, encode_footprint(self.pub.vehicle_id, 0.0, ring))
+
+        self.queryables = [self.session.declare_queryable(self.keys.snapshot, snapshot),
+                           self.session.declare_queryable(self.keys.footprint, footprint)]
+
+    def publish_step(self, frames: int = 1, status: bool = True) -> None:
+        with self.lock:
+            self.pub.step(frames)
+            payload = self.pub.tiles()
+            seq = self.pub.seq
+            st = self.pub.status()
+        if payload is not None and seq not in self.drop:
+            self.session.put(self.keys.tiles, payload)
+        if status:
+            self.session.put(self.keys.status, st)
+
+    def close(self) -> None:
+        for q in self.queryables:
+            q.undeclare()
+        self.token.undeclare()
+        self.session.close()

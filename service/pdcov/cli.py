@@ -26,6 +26,8 @@ COMMANDS = {
     "refly": "pdcov.commands.plan",
     "upload": "pdcov.commands.plan",
     "mount-check": "pdcov.commands.mount",
+    "serve": "pdcov.commands.serve",
+    "watch": "pdcov.commands.watch",
 }
 
 

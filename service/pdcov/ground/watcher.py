@@ -102,14 +102,17 @@ class VehicleFeed:
 class Watcher:
     """Per-vehicle grids rebuilt from status, tiles and snapshot replies, and the fleet.
 
-    vehicle: the one vehicle id to follow, or None for all. snapshot_timeout_s: ask again
+    vehicle: the one vehicle id to follow, or None for all. thresholds: shown until a
+    vehicle's status gives its own (the mission config's). snapshot_timeout_s: ask again
     when a snapshot reply has not come in this long. trailing_gap_s: how long a status may
     announce a tiles sequence number not yet received before the snapshot is asked again.
     """
 
-    def __init__(self, vehicle: str | None = None, *, snapshot_timeout_s: float = 5.0,
-                 trailing_gap_s: float = 3.0, max_track_points: int = 20_000) -> None:
+    def __init__(self, vehicle: str | None = None, *, thresholds: tuple[float, ...] = (),
+                 snapshot_timeout_s: float = 5.0, trailing_gap_s: float = 3.0,
+                 max_track_points: int = 20_000) -> None:
         self.vehicle = vehicle
+        self.thresholds = tuple(thresholds)
         self.snapshot_timeout_s = snapshot_timeout_s
         self.trailing_gap_s = trailing_gap_s
         self.max_track_points = max_track_points
@@ -337,7 +340,7 @@ class Watcher:
 
     def _vehicle_report(self, feed: VehicleFeed, now_s: float) -> VehicleReport:
         status = feed.status or {}
-        thresholds = tuple(float(t) for t in status.get("thresholds", ()))
+        thresholds = tuple(float(t) for t in status.get("thresholds", self.thresholds))
         status_props = {float(k): float(v)
                         for k, v in (status.get("proportion_at_or_above") or {}).items()}
         ready = feed.state is not None and feed.awaiting_since_s is None

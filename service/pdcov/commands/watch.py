@@ -1,0 +1,83 @@
+"""``pdcov watch``: follow one vehicle or the fleet over Zenoh (terminal, web map, record)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pdcov.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "watch", help="follow the vehicles' coverage live (terminal, web map)",
+        description="Subscribe over Zenoh to the daemons (`pdcov serve`) of one vehicle or "
+                    "every vehicle, rebuild their grids exactly (snapshot, then tiles) and "
+                    "show the coverage: per vehicle and merged for the fleet "
+                    "(docs/ground-station.md).")
+    p.add_argument("--vehicle", default="all", metavar="ID",
+                   help="vehicle id to follow, or 'all' (default)")
+    p.add_argument("--config", type=Path,
+                   help="mission config YAML: its bus section (mode, endpoints, TLS) and "
+                        "domain (drawn on the web map, report figures with --record)")
+    p.add_argument("--mode", choices=("peer", "client"),
+                   help="Zenoh session mode (default: the config's bus.mode, else peer)")
+    p.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to, e.g. tcp/192.168.10.1:7447 "
+                        "(repeatable; replaces the config's)")
+    p.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to listen on (repeatable; replaces the config's)")
+    p.add_argument("--no-multicast-scouting", action="store_true",
+                   help="do not look for peers and routers by multicast")
+    p.add_argument("--web", metavar="HOST:PORT",
+                   help="serve the live map, e.g. 127.0.0.1:8080")
+    p.add_argument("--basemap", type=Path, metavar="DIR",
+                   help="XYZ tile folder ({z}/{x}/{y}.png) drawn under the web map")
+    p.add_argument("--record", type=Path, metavar="DIR",
+                   help="write what is received, and at the end the grids and the report")
+    p.add_argument("--once", action="store_true",
+                   help="print one report when the grids are in (or after --wait-s) and exit")
+    p.add_argument("--wait-s", type=float, default=10.0,
+                   help="with --once: longest wait for the vehicles (default 10 s)")
+    p.add_argument("--plain", action="store_true",
+                   help="print a line when the coverage changes instead of the live table "
+                        "(the default when the output is not a terminal)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from pdcov.bus.keys import valid_vehicle_id
+    from pdcov.bus.session import BusConfig, bus_config_from_dict
+    from pdcov.config import load_mission
+    from pdcov.ground.app import WatchOptions, parse_host_port, run_watch, stdout_is_terminal
+
+    vehicle = None if args.vehicle == "all" else args.vehicle
+    if vehicle is not None and not valid_vehicle_id(vehicle):
+        raise ConfigError(f"--vehicle {args.vehicle!r}: expected letters, digits, - and _, "
+                          "or 'all'")
+    mission = load_mission(args.config) if args.config else None
+    bus = (bus_config_from_dict(mission.raw.get("bus"), mission.source) if mission
+           else BusConfig())
+    bus = bus.with_endpoints(args.zenoh_connect, args.zenoh_listen)
+    if args.mode:
+        bus = replace(bus, mode=args.mode)
+    if bus.mode == "router":
+        bus = replace(bus, mode="peer")  # the daemon's config may say router; we follow
+    if args.no_multicast_scouting:
+        bus = replace(bus, multicast_scouting=False)
+    web = None
+    if args.web:
+        try:
+            web = parse_host_port(args.web)
+        except ValueError as exc:
+            raise ConfigError(f"--web {exc}") from None
+    if args.basemap is not None and not args.basemap.is_dir():
+        raise ConfigError(f"--basemap {args.basemap}: not a folder of XYZ tiles")
+    if not args.wait_s > 0:
+        raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
+    return run_watch(WatchOptions(
+        bus=bus, vehicle=vehicle, mission=mission, web=web, basemap=args.basemap,
+        record=args.record, once=args.once, wait_s=args.wait_s,
+        plain=args.plain or not stdout_is_terminal()))

@@ -1,0 +1,151 @@
+"""``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map and the
+recording, run until Ctrl-C / SIGTERM (or, with ``once``, until one report is printed)."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pdcov.bus.session import BusConfig
+from pdcov.config import DEFAULT_THRESHOLDS, Mission
+from pdcov.ground.live import WatchShell
+from pdcov.ground.record import Recording
+from pdcov.ground.terminal import headline, plain_lines, render
+from pdcov.ground.watcher import FleetReport, Watcher
+
+
+@dataclass(frozen=True, slots=True)
+class WatchOptions:
+    """vehicle: one id or None (all). web: (host, port) or None. once: print one report
+    when every vehicle seen has its grid (or after wait_s) and exit. plain: one headline
+    line per change instead of the live table (set when stdout is not a terminal)."""
+
+    bus: BusConfig
+    vehicle: str | None = None
+    mission: Mission | None = None
+    web: tuple[str, int] | None = None
+    basemap: Path | None = None
+    record: Path | None = None
+    once: bool = False
+    wait_s: float = 10.0
+    plain: bool = False
+    refresh_s: float = 0.5
+
+
+def run_watch(opts: WatchOptions) -> int:
+    """Run until interrupted; returns the exit status."""
+    return asyncio.run(_main(opts))
+
+
+async def _main(opts: WatchOptions) -> int:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    watcher = Watcher(opts.vehicle, thresholds=(
+        opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS))
+    recording = Recording(opts.record) if opts.record else None
+    shell = WatchShell(watcher, opts.bus, record=recording)
+    web = None
+    if opts.web is not None:
+        from pdcov.ground.web import WebMap, basemap_info, map_state
+
+        basemap = basemap_info(opts.basemap)
+        web = WebMap(opts.web[0], opts.web[1],
+                     lambda: map_state(watcher, watcher.report(shell.now_s()), opts.mission,
+                                       shell.version, basemap),
+                     lambda: shell.version, opts.basemap)
+        await web.start()
+        print(f"pdcov watch: web map at {web.url}", flush=True)
+    runner = asyncio.create_task(shell.run(stop))
+    status = 0
+    try:
+        connected = asyncio.create_task(shell.connected.wait())
+        await asyncio.wait({runner, connected}, return_when=asyncio.FIRST_COMPLETED)
+        connected.cancel()
+        if runner.done():
+            runner.result()  # the session's error (ConfigError: cannot open ...)
+        if opts.plain and not opts.once:
+            print(f"pdcov watch: following pdcov/{opts.vehicle or '*'}/ "
+                  f"({opts.bus.mode}, connect {list(opts.bus.connect)})", flush=True)
+        if opts.once:
+            status = await _once(shell, watcher, opts, stop, runner)
+        else:
+            await _view(shell, watcher, opts, stop, runner)
+    finally:
+        stop.set()
+        try:
+            await runner
+        finally:
+            if web is not None:
+                await web.stop()
+            if recording is not None:
+                recording.close()
+                for line in recording.finish(watcher, opts.mission):
+                    print(line, flush=True)
+    return status
+
+
+async def _once(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
+                stop: asyncio.Event, runner: asyncio.Task[None]) -> int:
+    deadline = time.monotonic() + opts.wait_s
+    while time.monotonic() < deadline and not stop.is_set() and not runner.done():
+        feeds = list(watcher.feeds.values())
+        if feeds and all(f.state is not None and f.awaiting_since_s is None
+                         and f.status is not None for f in feeds):
+            break
+        await asyncio.sleep(0.1)
+    if runner.done():
+        runner.result()  # raises the session's error
+    report = watcher.report(shell.now_s())
+    print("\n".join(plain_lines(report)), flush=True)
+    return 0 if report.vehicles else 1
+
+
+async def _view(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
+                stop: asyncio.Event, runner: asyncio.Task[None]) -> None:
+    live: Any = None
+    if not opts.plain:
+        from rich.console import Console
+        from rich.live import Live
+
+        live = Live(render(watcher.report(shell.now_s())), console=Console(),
+                    auto_refresh=False, transient=False)
+        live.start()
+    last_line = ""
+    try:
+        while not stop.is_set() and not runner.done():
+            report: FleetReport = watcher.report(shell.now_s())
+            if live is not None:
+                live.update(render(report), refresh=True)
+            else:
+                line = headline(report)
+                if line != last_line:
+                    print(f"pdcov watch: {line}", flush=True)
+                    last_line = line
+            try:
+                await asyncio.wait_for(stop.wait(), opts.refresh_s)
+            except asyncio.TimeoutError:
+                pass
+        if runner.done():
+            runner.result()
+    finally:
+        if live is not None:
+            live.stop()
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """'HOST:PORT' (PORT 0 picks a free one) -> (host, port); ValueError with the reason."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"{text!r}: expected HOST:PORT such as 127.0.0.1:8080")
+    return host.strip("[]"), int(port)
+
+
+def stdout_is_terminal() -> bool:
+    return sys.stdout.isatty()

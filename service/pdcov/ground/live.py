@@ -1,0 +1,191 @@
+"""The watcher's asyncio/Zenoh shell: subscribes, queries, times, and feeds the Watcher.
+
+Zenoh calls back on its own threads; every callback only hands the raw payload to the
+event loop (``call_soon_threadsafe``), where it is decoded and given to the Watcher, so the
+Watcher is only ever touched by one thread. Queries (``get``) block until their replies
+or timeout, so they run in the loop's default thread pool.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.footprint import decode_footprint
+from pdcov.bus.grid_state import decode_snapshot
+from pdcov.bus.keys import VehicleKeys, parse_key
+from pdcov.bus.session import BusConfig, open_session
+from pdcov.bus.status import decode_status
+from pdcov.bus.tiles import decode_tiles
+from pdcov.ground.watcher import QuerySnapshot, Watcher
+
+log = logging.getLogger("pdcov.watch")
+
+Recorder = Callable[[str, str, bytes], None]
+"""Called with (vehicle_id, kind, payload) for every status, tiles and snapshot received."""
+
+
+class WatchShell:
+    """Runs a Watcher on a Zenoh session until ``stop`` is set.
+
+    vehicle: one vehicle id, or None for every vehicle. record: called with each raw
+    payload received (see Recorder). ``version`` grows with every input the watcher took,
+    so views redraw only when something changed.
+    """
+
+    def __init__(self, watcher: Watcher, bus: BusConfig, *, record: Recorder | None = None,
+                 query_timeout_s: float = 5.0, footprint_period_s: float = 1.0,
+                 poll_period_s: float = 0.2) -> None:
+        self.watcher = watcher
+        self.bus = bus
+        self.record = record
+        self.query_timeout_s = query_timeout_s
+        self.footprint_period_s = footprint_period_s
+        self.poll_period_s = poll_period_s
+        self.version = 0
+        self.connected = asyncio.Event()
+        self._session: Any = None
+        self._queries: dict[tuple[str, str], asyncio.Task[None]] = {}
+
+    @staticmethod
+    def now_s() -> float:
+        return time.monotonic()
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Open the session, follow the vehicles until ``stop``, close everything."""
+        import zenoh
+
+        loop = asyncio.get_running_loop()
+        sel = self.watcher.vehicle or "*"
+        self._session = session = await loop.run_in_executor(None, open_session, self.bus)
+        entities = []
+        try:
+            def on_sample(sample: Any) -> None:
+                loop.call_soon_threadsafe(self._received, str(sample.key_expr),
+                                          sample.payload.to_bytes())
+
+            def on_alive(sample: Any) -> None:
+                loop.call_soon_threadsafe(self._alive, str(sample.key_expr),
+                                          sample.kind == zenoh.SampleKind.PUT)
+
+            # Tiles first: whatever is published after the snapshot query must reach us.
+            entities.append(session.declare_subscriber(f"pdcov/{sel}/tiles", on_sample))
+            entities.append(session.declare_subscriber(f"pdcov/{sel}/status", on_sample))
+            entities.append(session.liveliness().declare_subscriber(
+                f"pdcov/{sel}/alive", on_alive, history=True))
+            self.connected.set()
+            next_footprint = 0.0
+            while not stop.is_set():
+                now = self.now_s()
+                self._do(self.watcher.poll(now))
+                if now >= next_footprint:
+                    next_footprint = now + self.footprint_period_s
+                    for vid, feed in self.watcher.feeds.items():
+                        if feed.alive:
+                            self._start_query(vid, "footprint")
+                try:
+                    await asyncio.wait_for(stop.wait(), self.poll_period_s)
+                except asyncio.TimeoutError:
+                    pass
+        finally:
+            for task in self._queries.values():
+                task.cancel()
+            for e in entities:
+                e.undeclare()
+            await asyncio.gather(*self._queries.values(), return_exceptions=True)
+            await loop.run_in_executor(None, session.close)
+
+    async def refresh_snapshots(self) -> None:
+        """Query every known vehicle's snapshot now and wait for the replies."""
+        for vid in list(self.watcher.feeds):
+            self._start_query(vid, "snapshot")
+        await asyncio.gather(*self._queries.values(), return_exceptions=True)
+
+    # -- inputs (event loop thread) -----------------------------------------------------
+
+    def _received(self, key: str, payload: bytes) -> None:
+        now = self.now_s()
+        try:
+            vid, kind = parse_key(key)
+        except BusPayloadError as exc:
+            log.warning("%s", exc)
+            return
+        if self.record is not None:
+            self.record(vid, kind, payload)
+        try:
+            if kind == "status":
+                actions = self.watcher.on_status(vid, decode_status(payload, key), now)
+            elif kind == "tiles":
+                actions = self.watcher.on_tiles(vid, decode_tiles(payload, key), now)
+            else:
+                return
+        except BusPayloadError as exc:
+            self.watcher.on_bad_payload(vid, exc)
+            log.warning("%s", exc)
+            return
+        self.version += 1
+        self._do(actions)
+
+    def _alive(self, key: str, alive: bool) -> None:
+        try:
+            vid, _ = parse_key(key)
+        except BusPayloadError as exc:
+            log.warning("%s", exc)
+            return
+        self.version += 1
+        self._do(self.watcher.on_alive(vid, alive, self.now_s()))
+
+    def _do(self, actions: list[QuerySnapshot]) -> None:
+        for a in actions:
+            self._start_query(a.vehicle_id, "snapshot")
+
+    # -- queries ------------------------------------------------------------------------
+
+    def _start_query(self, vehicle_id: str, kind: str) -> None:
+        task = self._queries.get((vehicle_id, kind))
+        if task is not None and not task.done():
+            return
+        self._queries[(vehicle_id, kind)] = asyncio.get_running_loop().create_task(
+            self._query(vehicle_id, kind))
+
+    def _get(self, key: str) -> list[bytes]:
+        """Blocking: the ok replies' payloads of ``get key`` (worker thread)."""
+        out = []
+        for reply in self._session.get(key, timeout=self.query_timeout_s):
+            if reply.ok is not None:
+                out.append(reply.ok.payload.to_bytes())
+        return out
+
+    async def _query(self, vehicle_id: str, kind: str) -> None:
+        key = VehicleKeys(vehicle_id).key(kind)
+        try:
+            payloads = await asyncio.get_running_loop().run_in_executor(None, self._get, key)
+        except Exception as exc:  # noqa: BLE001 - Zenoh raises ZError for a closed session
+            log.warning("%s: query failed: %s", key, exc)
+            payloads = []
+        now = self.now_s()
+        if kind == "footprint":
+            for p in payloads[:1]:
+                try:
+                    self.watcher.on_footprint(vehicle_id, decode_footprint(p, key), now)
+                    self.version += 1
+                except BusPayloadError as exc:
+                    self.watcher.on_bad_payload(vehicle_id, exc)
+            return
+        for p in payloads[:1]:
+            if self.record is not None:
+                self.record(vehicle_id, "snapshot", p)
+            try:
+                state = decode_snapshot(p, key)
+            except BusPayloadError as exc:
+                self.watcher.on_bad_payload(vehicle_id, exc)
+                log.warning("%s", exc)
+                break
+            self.version += 1
+            self._do(self.watcher.on_snapshot(vehicle_id, state, now))
+            return
+        self.watcher.on_snapshot_failed(vehicle_id, now)

@@ -1,0 +1,107 @@
+"""The terminal view of a FleetReport (rich): the fleet's coverage at the target threshold
+in large type, then one row per vehicle. ASCII only (box and large digits), so that it
+reads the same in a plain 80-column terminal, over SSH and in a log file."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pdcov.ground.watcher import FleetReport, VehicleReport
+
+# 5-row glyphs for the large coverage figure, '#' on ' '.
+_BIG = {
+    "0": ("###", "# #", "# #", "# #", "###"), "1": (" # ", "## ", " # ", " # ", "###"),
+    "2": ("###", "  #", "###", "#  ", "###"), "3": ("###", "  #", "###", "  #", "###"),
+    "4": ("# #", "# #", "###", "  #", "  #"), "5": ("###", "#  ", "###", "  #", "###"),
+    "6": ("###", "#  ", "###", "# #", "###"), "7": ("###", "  #", "  #", "  #", "  #"),
+    "8": ("###", "# #", "###", "# #", "###"), "9": ("###", "# #", "###", "  #", "###"),
+    ".": ("   ", "   ", "   ", "   ", " # "), "%": ("# #", "  #", " # ", "#  ", "# #"),
+    "-": ("   ", "   ", "###", "   ", "   "), " ": ("   ",) * 5,
+}
+
+
+def big_text(text: str) -> str:
+    """``text`` (digits, '.', '%', '-', ' ') in 5-row ASCII glyphs."""
+    return "\n".join(" ".join(_BIG.get(ch, _BIG[" "])[row] for ch in text)
+                     for row in range(5))
+
+
+def percent(share: float | None) -> str:
+    return "-" if share is None else f"{100.0 * share:.1f}%"
+
+
+def _age(age_s: float | None) -> str:
+    if age_s is None:
+        return "-"
+    return f"{age_s:.1f} s" if age_s < 60 else f"{age_s / 60:.0f} min"
+
+
+def _link(v: VehicleReport) -> str:
+    if v.alive is False:
+        return "GONE"
+    return v.link or ("alive" if v.alive else "?")
+
+
+def headline(report: FleetReport) -> str:
+    """One line: the fleet's share of free cells at or above the target P_D."""
+    t = report.target
+    if t is None or not report.merged:
+        return "waiting for a vehicle's status and grid ..."
+    share = report.proportion_at_or_above.get(t)
+    who = ", ".join(report.merged)
+    return (f"coverage {percent(share)} of free cells at P_D >= {t:g} "
+            f"({len(report.merged)} vehicle{'s' if len(report.merged) > 1 else ''}: {who})")
+
+
+def render(report: FleetReport) -> Any:
+    """A rich renderable of the whole report."""
+    from rich import box
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    parts: list[Any] = [Text(headline(report), style="bold")]
+    t = report.target
+    if t is not None and report.merged:
+        parts.append(Text(big_text(percent(report.proportion_at_or_above.get(t))),
+                          style="bold green"))
+        parts.append(Text("fleet: " + "  ".join(
+            f">={th:g} {percent(p)}" for th, p in report.proportion_at_or_above.items())
+            + (f"  mean P_D {report.mean_pd:.3f}" if report.mean_pd is not None else "")
+            + f"  free cells {report.cells_free}"))
+    table = Table(box=box.ASCII, show_edge=True, pad_edge=False, expand=False)
+    table.add_column("vehicle", no_wrap=True, max_width=12)
+    for th in report.thresholds:
+        table.add_column(f">={th:g}", justify="right", style="bold" if th == t else "")
+    for name in ("mean P_D", "frames", "skip", "link", "age"):
+        table.add_column(name, justify="right" if name != "link" else "left", no_wrap=True)
+    for v in report.vehicles:
+        table.add_row(
+            v.vehicle_id + ("" if v.grid_ready else "*"),
+            *(percent(v.proportion_at_or_above.get(th)) for th in report.thresholds),
+            "-" if v.mean_pd is None else f"{v.mean_pd:.3f}",
+            "-" if v.frames_used is None else str(v.frames_used),
+            "-" if v.frames_skipped is None else str(v.frames_skipped),
+            _link(v), _age(v.age_s))
+    parts.append(table)
+    if any(not v.grid_ready for v in report.vehicles):
+        parts.append(Text("* grid not yet received: figures from its status"))
+    return Group(*parts)
+
+
+def plain_lines(report: FleetReport) -> list[str]:
+    """The report as plain text lines (for --once and non-terminal output)."""
+    from rich.console import Console
+
+    console = Console(width=80, no_color=True, force_terminal=False, record=True,
+                      file=_Null())
+    console.print(render(report))
+    return console.export_text().rstrip("\n").split("\n")
+
+
+class _Null:
+    def write(self, _s: str) -> int:
+        return 0
+
+    def flush(self) -> None:
+        pass

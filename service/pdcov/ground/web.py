@@ -1,0 +1,226 @@
+"""The live web map (``pdcov watch --web HOST:PORT``): an aiohttp server that serves the page
+and its script from the installed package (ground/web/, no CDN) and pushes the map's state
+as server-sent events (``/events``; ``/state.json`` for one copy).
+
+aiohttp earns its place: HTTP/1.1 parsing, streaming responses and clean shutdown are its
+job, and a hand-written server on a ground-station laptop would be one more thing to get
+wrong. The state holds the fleet's P_D grid (quantised to 0..255, down-sampled to at most
+MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles (from the
+mission config when given), each vehicle's track and current footprint in ENU metres, and
+the figures of the terminal view.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import math
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pdcov.config import Mission
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.ground.watcher import FleetReport, VehicleFeed, Watcher
+
+MAX_SIDE = 400
+ASSETS = {"/": ("index.html", "text/html"), "/app.js": ("app.js", "text/javascript"),
+          "/style.css": ("style.css", "text/css")}
+COLORS = ("#e6194b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#3cb44b",
+          "#9a6324")
+
+
+def asset(name: str) -> bytes:
+    """An asset of the page, read from the installed package."""
+    return (resources.files("pdcov.ground") / "web" / name).read_bytes()
+
+
+def _origin(feed: VehicleFeed) -> Origin | None:
+    o = ((feed.status or {}).get("grid") or {}).get("origin") or {}
+    try:
+        return Origin(float(o["lat_deg"]), float(o["lon_deg"]),
+                      float(o.get("ground_alt_msl_m") or 0.0))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _enu_xy(lat_lon: list[tuple[float, float]], origin: Origin) -> list[list[float]]:
+    if not lat_lon:
+        return []
+    a = np.asarray(lat_lon, dtype=float)
+    r = geodetic_to_enu(a[:, 0], a[:, 1], origin.ground_alt_msl_m, origin)
+    return [[round(float(x), 2), round(float(y), 2)] for x, y in r[:, :2]]
+
+
+def _ring_xy(ring: Any) -> list[list[float]]:
+    return [[round(float(x), 2), round(float(y), 2)] for x, y in list(ring)]
+
+
+def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any) -> dict[str, Any]:
+    """The heat map: P_D quantised to 0..254 per (block of) cells, 255 outside free space;
+    rows from south (row 0) to north; ``stride`` cells per shown cell."""
+    n_rows, n_cols = mask.shape
+    stride = max(1, math.ceil(max(n_rows, n_cols) / MAX_SIDE))
+    h, w = math.ceil(n_rows / stride), math.ceil(n_cols / stride)
+    q = np.where(mask, np.rint(np.clip(pd, 0.0, 1.0) * 254.0), -1.0)
+    padded = np.full((h * stride, w * stride), -1.0)
+    padded[:n_rows, :n_cols] = q
+    blocks = padded.reshape(h, stride, w, stride).max(axis=(1, 3))
+    data = np.where(blocks < 0, 255, blocks).astype(np.uint8)
+    return {"x0_m": geometry.x0_m, "y0_m": geometry.y0_m,
+            "cell_size_m": geometry.cell_size_m * stride, "w": w, "h": h, "stride": stride,
+            "pd_b64": base64.b64encode(data.tobytes()).decode()}
+
+
+def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
+              version: int, basemap: dict[str, Any] | None) -> dict[str, Any]:
+    """Everything the page draws, as JSON-ready values."""
+    merged, _ = watcher.fleet_state()
+    vehicles = []
+    origin = None
+    for k, v in enumerate(report.vehicles):
+        feed = watcher.feeds[v.vehicle_id]
+        o = _origin(feed)
+        origin = origin or o
+        footprint = None
+        geom = (feed.footprint or {}).get("geometry")
+        if o is not None and isinstance(geom, dict):
+            footprint = _enu_xy([(lat, lon) for lon, lat in geom["coordinates"][0]], o)
+        track = _enu_xy([(lat, lon) for lat, lon, _ in feed.track_lat_lon_alt], o) if o \
+            else []
+        vehicles.append({
+            "id": v.vehicle_id, "color": COLORS[k % len(COLORS)], "alive": v.alive,
+            "grid_ready": v.grid_ready, "link": v.link, "age_s": v.age_s,
+            "frames_used": v.frames_used, "frames_skipped": v.frames_skipped,
+            "proportion": {str(t): p for t, p in v.proportion_at_or_above.items()},
+            "status_proportion": {str(t): p
+                                  for t, p in v.status_proportion_at_or_above.items()},
+            "mean_pd": v.mean_pd, "track": track, "footprint": footprint})
+    domain = None
+    if mission is not None:
+        d = mission.domain
+        domain = {"boundary": _ring_xy(d.boundary.exterior.coords),
+                  "obstacles": [_ring_xy(p.exterior.coords) for p in d.obstacles]}
+        origin = origin or mission.origin()
+    return {
+        "version": version,
+        "fleet": {"target": report.target, "thresholds": list(report.thresholds),
+                  "proportion": {str(t): p for t, p in report.proportion_at_or_above.items()},
+                  "mean_pd": report.mean_pd, "merged": list(report.merged),
+                  "cells_free": report.cells_free},
+        "grid": None if merged is None else grid_payload(merged.pd, merged.mask,
+                                                         merged.geometry),
+        "domain": domain,
+        "vehicles": vehicles,
+        "origin": None if origin is None else {"lat_deg": origin.lat_deg,
+                                               "lon_deg": origin.lon_deg},
+        "basemap": basemap,
+    }
+
+
+def basemap_info(folder: Path | None) -> dict[str, Any] | None:
+    """The zoom levels and image type of an XYZ tile folder ({z}/{x}/{y}.png|jpg)."""
+    if folder is None:
+        return None
+    zooms = sorted(int(p.name) for p in folder.iterdir() if p.is_dir() and p.name.isdigit())
+    ext = "png"
+    for z in zooms:
+        found = next(iter(sorted((folder / str(z)).glob("*/*.*"))), None)
+        if found is not None:
+            ext = found.suffix.lstrip(".")
+            break
+    return {"zooms": zooms, "ext": ext}
+
+
+class WebMap:
+    """The HTTP server. ``state`` returns the current map state (called on the event loop);
+    ``version`` tells whether it changed."""
+
+    def __init__(self, host: str, port: int, state: Callable[[], dict[str, Any]],
+                 version: Callable[[], int], basemap_dir: Path | None = None,
+                 period_s: float = 0.5) -> None:
+        self.host, self.port = host, port
+        self.state, self.version = state, version
+        self.basemap_dir = basemap_dir
+        self.period_s = period_s
+        self._runner: Any = None
+        self._closing = asyncio.Event()
+
+    async def start(self) -> None:
+        from aiohttp import web
+
+        app = web.Application()
+        for path in ASSETS:
+            app.router.add_get(path, self._asset)
+        app.router.add_get("/state.json", self._state)
+        app.router.add_get("/events", self._events)
+        app.router.add_get("/basemap/{z}/{x}/{y}", self._basemap)
+        self._runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=1.0)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, self.host, self.port)
+        await site.start()
+        sockets = getattr(site._server, "sockets", None) or []  # the bound port when 0
+        if sockets:
+            self.port = sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        self._closing.set()
+        if self._runner is not None:
+            await self._runner.cleanup()
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    async def _asset(self, request: Any) -> Any:
+        from aiohttp import web
+
+        name, ctype = ASSETS[request.path]
+        return web.Response(body=asset(name), content_type=ctype,
+                            headers={"Cache-Control": "no-cache"})
+
+    async def _state(self, request: Any) -> Any:
+        from aiohttp import web
+
+        return web.json_response(self.state())
+
+    async def _events(self, request: Any) -> Any:
+        from aiohttp import web
+
+        resp = web.StreamResponse(headers={"Content-Type": "text/event-stream",
+                                           "Cache-Control": "no-cache"})
+        await resp.prepare(request)
+        sent = -1
+        idle = 0.0
+        try:
+            while not self._closing.is_set():
+                v = self.version()
+                # A change, or once every 2 s for the ages of the last messages.
+                if v != sent or idle >= 2.0:
+                    data = json.dumps(self.state(), separators=(",", ":"))
+                    await resp.write(f"data: {data}\n\n".encode())
+                    sent, idle = v, 0.0
+                try:
+                    await asyncio.wait_for(self._closing.wait(), self.period_s)
+                except asyncio.TimeoutError:
+                    idle += self.period_s
+        except (ConnectionResetError, asyncio.CancelledError):
+            pass
+        return resp
+
+    async def _basemap(self, request: Any) -> Any:
+        from aiohttp import web
+
+        z, x, y = (request.match_info[k] for k in ("z", "x", "y"))
+        stem, _, ext = y.partition(".")
+        if self.basemap_dir is None or not all(s.isdigit() for s in (z, x, stem)) \
+                or ext not in ("png", "jpg", "jpeg", "webp"):
+            raise web.HTTPNotFound()
+        path = self.basemap_dir / z / x / f"{stem}.{ext}"
+        if not path.is_file():
+            raise web.HTTPNotFound()
+        return web.FileResponse(path)
