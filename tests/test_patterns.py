@@ -167,3 +167,29 @@ def test_datum_outside_the_free_space_is_refused_naming_the_nearest_free_point()
     # On the boundary is inside.
     assert np.allclose(P.sector_search(L_SHAPE, 10.0, 5.0, datum_enu_m=np.array([30.0, 30.0]),
                                        radius_m=5.0).xy_enu_m[0], [30, 30])
+
+
+def turns_deg(xy):
+    d = np.diff(xy, axis=0)
+    h = np.degrees(np.arctan2(d[:, 0], d[:, 1]))
+    return (np.diff(h) + 180) % 360 - 180  # > 0: right turn
+
+
+def test_expanding_square_off_centre_keeps_its_shape_and_reports_coverage():
+    free = box(0, 0, 400, 400)
+    plan = P.expanding_square(free, 20.0, 10.0, 5.0, datum_enu_m=np.array([60.0, 200.0]))
+    xy = plan.xy_enu_m
+    # Right turns of 90 deg only (clipping used to fly the west edge back and forth with
+    # left turns and reversals, 13.7 km); legs 1, 1, 2, 2, ... spacings, the last one
+    # ending on the boundary, where the pattern ends.
+    assert np.allclose(turns_deg(xy), 90.0)
+    legs = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    assert np.allclose(legs[:-1], 20.0 * (np.arange(len(legs) - 1) // 2 + 1))
+    assert legs[-1] <= 20.0 * ((len(legs) - 1) // 2 + 1) + 1e-9
+    assert xy[-1][0] == pytest.approx(0.0)  # stopped at the west edge
+    assert in_free_space(plan, free)
+    # The square stops growing at the west edge, 60 m from the datum: it covers a small
+    # part of the domain, and says so (half a spacing around the legs).
+    share = LineString(xy).buffer(10.0, join_style="mitre").intersection(free).area / free.area
+    assert 0.10 < share < 0.20
+    assert plan.description.endswith(f"covers {share:.0%} of the free space")

@@ -372,13 +372,39 @@ def spiral(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
                         f"spiral spacing {spacing_m:g} m centre ({c[0]:.1f}, {c[1]:.1f}) m")
 
 
+def _until_it_leaves(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon) -> np.ndarray:
+    """The polyline from its first point (in the free space) up to where it first leaves
+    the free space: the leg that leaves is flown to the boundary and the pattern ends there,
+    so that it keeps its shape (clipping and joining the pieces along the boundary flew one
+    edge again and again with left turns)."""
+    free = free_enu.buffer(_COVER_TOL_M)
+    shapely.prepare(free)
+    pts = np.asarray(xy_enu_m, dtype=float)
+    out = [pts[0]]
+    for p, q in zip(pts[:-1], pts[1:], strict=True):
+        if shapely.covers(free, LineString([p, q])):
+            out.append(q)
+            continue
+        pieces = clip_polyline(np.array([p, q]), free_enu)
+        if pieces and np.linalg.norm(pieces[0][0] - p) < 1e-6:
+            out.append(pieces[0][-1])
+        break
+    return np.array(out)
+
+
+def _share_of(free_enu: Polygon | MultiPolygon, region: Polygon | MultiPolygon) -> float:
+    """Share of the free space's area inside ``region``, in [0, 1]."""
+    return float(region.intersection(free_enu).area / free_enu.area) if free_enu.area else 0.0
+
+
 def expanding_square(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
                      speed_mps: float, datum_enu_m: np.ndarray | None = None,
                      heading_rad: float = 0.0) -> Plan:
     """IAMSAR expanding square (SS): from the datum (inside the free space; default
-    ``default_datum_enu_m``), legs of 1, 1, 2, 2, 3, 3, ... spacings,
-    turning right 90 deg after each, first leg along ``heading_rad``, until the square
-    contains the free space; clipped to it."""
+    ``default_datum_enu_m``), legs of 1, 1, 2, 2, 3, 3, ... spacings, turning right 90 deg
+    after each, first leg along ``heading_rad``, until the square contains the free space or
+    a leg would leave it (that leg is flown to the boundary, and the pattern ends). The
+    description gives the share of the free space within half a spacing of the legs."""
     _check_spacing(spacing_m)
     d = datum_in_free_space(free_enu, datum_enu_m)
     reach = _reach_m(free_enu, d)
@@ -388,9 +414,11 @@ def expanding_square(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl
         leg = (k // 2 + 1) * spacing_m
         pts.append(pts[-1] + leg * unit_of_heading(heading_rad + k * math.pi / 2))
         k += 1
-    return Plan.from_xy(_clip_and_join(np.array(pts), free_enu), alt_agl_m, speed_mps,
+    xy = _until_it_leaves(np.array(pts), free_enu)
+    share = _share_of(free_enu, LineString(xy).buffer(spacing_m / 2, join_style="mitre"))
+    return Plan.from_xy(xy, alt_agl_m, speed_mps,
                         f"expanding square spacing {spacing_m:g} m datum "
-                        f"({d[0]:.1f}, {d[1]:.1f}) m")
+                        f"({d[0]:.1f}, {d[1]:.1f}) m; covers {share:.0%} of the free space")
 
 
 def sector_search(free_enu: Polygon | MultiPolygon, alt_agl_m: float, speed_mps: float,
