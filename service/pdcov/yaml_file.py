@@ -1,4 +1,9 @@
-"""Reading YAML files with errors that name the file."""
+"""Reading the user's text files (YAML, CSV) with errors that name the file.
+
+Text is UTF-8; a leading byte-order mark (spreadsheet programs and Windows editors write one)
+is accepted and dropped. A byte that is not UTF-8 is an error naming the file, the line and
+the byte offset, never a traceback.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +12,28 @@ from typing import Any
 
 import yaml
 
-from pdcov.errors import ConfigError
+from pdcov.errors import ConfigError, PdcovError
+
+
+def read_text(path: str | Path, what: str, error: type[PdcovError] = ConfigError) -> str:
+    """The text of a UTF-8 file (BOM dropped, newlines as written); ``error`` names the
+    file, what it should be and, for a byte that is not UTF-8, where it is."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise error(f"{path}:{line}: byte 0x{data[exc.start]:02x} at byte offset {exc.start} "
+                    f"is not UTF-8; save the {what} as UTF-8 text") from None
 
 
 def load_yaml(path: str | Path, what: str, error: type[ConfigError] = ConfigError) -> Any:
     """The parsed document of a YAML file; ``error`` names the file and what it should be."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise error(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    text = read_text(path, what, error)
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:

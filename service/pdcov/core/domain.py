@@ -20,6 +20,7 @@ from shapely.validation import explain_validity
 
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import DomainError, where
+from pdcov.yaml_file import read_text
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,10 +141,9 @@ class Domain:
         """From a GeoJSON file (WGS84 lon/lat): the largest polygon is the boundary; its holes
         and every other polygon inside it are obstacles."""
         path = Path(path)
+        text = read_text(path, "GeoJSON", DomainError)
         try:
-            doc = json.loads(path.read_text())
-        except OSError as exc:
-            raise DomainError(f"{path}: cannot read GeoJSON ({exc.strerror})") from None
+            doc = json.loads(text)
         except json.JSONDecodeError as exc:
             raise DomainError(f"{path}: not valid JSON ({exc})") from None
         geoms: list[Any] = []  # shapely geometries (shapely ships no type hints)

@@ -42,6 +42,7 @@ from pdcov.core.mission import (
     MissionItem,
 )
 from pdcov.errors import InputFileError
+from pdcov.yaml_file import read_text
 
 _SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
 _FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
@@ -318,10 +319,7 @@ def write_plan(path: str | Path, plan: Plan, origin: Origin) -> Path:
 def read_mission(path: str | Path) -> MissionFile:
     """The mission in a ``.plan`` (JSON) or WPL 110 file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputFileError(f"{path}: cannot read plan ({exc.strerror or exc})") from None
+    text = read_text(path, "plan", InputFileError)
     if text.lstrip().startswith("{"):
         try:
             doc = json.loads(text)

@@ -14,6 +14,7 @@ reason. Times are seconds in the autopilot clock (logs.py).
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections import Counter
 from collections.abc import Iterable
@@ -54,6 +55,7 @@ from pdcov.telemetry.samples import (
     PositionSample,
     PositionSeries,
 )
+from pdcov.yaml_file import read_text
 
 POSE_CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
 EXPORT_EXTRA_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "gimbal_qw", "gimbal_qx",
@@ -552,35 +554,29 @@ def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
     of R_enu_cam. The poses come sorted by time, whatever the order of the rows. Raises
     InputFileError naming the file and line."""
     path = Path(path)
-    try:
-        f = path.open(newline="")
-    except OSError as exc:
-        raise InputFileError(f"{path}: cannot open pose CSV: {exc.strerror or exc}") from None
+    text = read_text(path, "pose CSV", InputFileError)
     rows: list[list[float]] = []
     lines: list[int] = []
-    with f:
-        reader = csv.reader(f)
-        try:
-            header = [h.strip() for h in next(reader, [])]
-            if tuple(header[:8]) != POSE_CSV_COLUMNS:
-                raise InputFileError(f"{path}:1: expected the header "
-                                     f"{','.join(POSE_CSV_COLUMNS)}, got {','.join(header)!r}")
-            for row in reader:
-                line = reader.line_num
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if len(row) < 8:
-                    raise InputFileError(f"{path}:{line}: expected 8 columns, got {len(row)}")
-                try:
-                    rows.append([float(c) for c in row[:8]])
-                except ValueError:
-                    raise InputFileError(f"{path}:{line}: expected 8 numbers, got {row[:8]!r}"
-                                         ) from None
-                lines.append(line)
-        except UnicodeDecodeError:
-            raise InputFileError(f"{path}: not a text CSV file") from None
-        except csv.Error as exc:
-            raise InputFileError(f"{path}:{reader.line_num}: {exc}") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = [h.strip() for h in next(reader, [])]
+        if tuple(header[:8]) != POSE_CSV_COLUMNS:
+            raise InputFileError(f"{path}:1: expected the header "
+                                 f"{','.join(POSE_CSV_COLUMNS)}, got {','.join(header)!r}")
+        for row in reader:
+            line = reader.line_num
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) < 8:
+                raise InputFileError(f"{path}:{line}: expected 8 columns, got {len(row)}")
+            try:
+                rows.append([float(c) for c in row[:8]])
+            except ValueError:
+                raise InputFileError(f"{path}:{line}: expected 8 numbers, got {row[:8]!r}"
+                                     ) from None
+            lines.append(line)
+    except csv.Error as exc:
+        raise InputFileError(f"{path}:{reader.line_num}: {exc}") from None
     values = np.array(rows, dtype=float).reshape(-1, 8)
     finite = np.isfinite(values)
     if not finite.all():
