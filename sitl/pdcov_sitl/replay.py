@@ -7,7 +7,8 @@ Unix epoch) followed by one MAVLink 1 or 2 packet (pymavlink's mavlogfile format
 ``scan_tlog`` finds the records in bytes, skipping damaged ones (junk such as console text,
 a broken timestamp, a packet whose checksum fails); ``replay_schedule`` says when each
 record is due; ``replay`` is the I/O around them. Packets are sent as recorded, byte for
-byte: sources, sequence numbers and signatures are the log's.
+byte: sources, sequence numbers and signatures are the log's (packets due together may
+share a UDP datagram).
 """
 
 from __future__ import annotations
@@ -27,10 +28,16 @@ from .link import DEFAULT_URL, Link, LinkError, open_link
 TLOG_MIN_US = 978_307_200_000_000  # 2001-01-01: earlier stamps are taken for junk
 TLOG_MAX_US = 4_102_444_800_000_000  # 2100-01-01
 BURST_PACKETS = 20
-"""At --speed 0, packets sent back to back before a pause of BURST_PAUSE_S: a Python
+"""Packets sent back to back (at --speed 0, or where a log is denser than the receiver can
+take: stamps that repeat, a log recorded faster than real time) before a pause of
+BURST_PAUSE_S, so at most about 10 000 packets/s: a Python
 MAVLink receiver on this machine parses about 20 000 packets/s, and a UDP receiver that
 falls behind by more than its socket buffer (about 200 kB) loses datagrams."""
 BURST_PAUSE_S = 0.002
+MAX_DATAGRAM_BYTES = 1400
+"""Packets sent back to back share a datagram up to this size (below a 1500-byte MTU), as
+MAVLink over UDP allows: a receiver's socket buffer is counted per datagram (about 1 kB of
+kernel overhead each), so one datagram per 40-byte packet would fill it after ~300."""
 TCP_MAX_PENDING_BYTES = 65536
 DRAIN_S = 5.0
 """How long the bytes still queued for a TCP client may take at the end."""
@@ -157,18 +164,33 @@ def replay(scan: TlogScan, link: Link, speed: float) -> ReplayResult:
     """Send the records over ``link`` at ``speed`` (see ``replay_schedule``)."""
     due_s = replay_schedule([t for t, _ in scan.records], speed)
     t0 = time.monotonic()
+    batch = bytearray()
+    back_to_back = 0
+
+    def flush() -> None:
+        if batch:
+            link.write(bytes(batch))
+            batch.clear()
+
     for n, ((_, packet), due) in enumerate(zip(scan.records, due_s, strict=True)):
-        if speed > 0:
-            wait = t0 + due - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-        elif n % BURST_PACKETS == BURST_PACKETS - 1:
+        wait = t0 + due - time.monotonic()
+        if wait > 0:
+            flush()
+            time.sleep(wait)
+            back_to_back = 0
+        elif back_to_back >= BURST_PACKETS:  # behind the log's pace, or --speed 0
+            flush()
             time.sleep(BURST_PAUSE_S)
+            back_to_back = 0
             while link.pending_bytes() > TCP_MAX_PENDING_BYTES:
                 time.sleep(BURST_PAUSE_S)
-        link.write(packet)
+        if len(batch) + len(packet) > MAX_DATAGRAM_BYTES:
+            flush()
+        batch += packet
+        back_to_back += 1
         if n % 256 == 0:
             link.read()  # what ground stations send us is dropped, unread buffers full
+    flush()
     drain_end = time.monotonic() + DRAIN_S
     while link.pending_bytes() and link.ready() and time.monotonic() < drain_end:
         time.sleep(BURST_PAUSE_S)
