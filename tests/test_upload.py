@@ -121,13 +121,23 @@ def test_px4_accepts_every_item(vehicle_factory):
 
 
 def test_ardupilot_gets_home_at_seq_0_and_legacy_requests(vehicle_factory):
+    """ArduCopter 4.7 asks with MISSION_REQUEST; the answer is still MISSION_ITEM_INT, so
+    every coordinate arrives to 1e-7 deg (float32 MISSION_ITEM moved them by ~0.5 m)."""
+    origin = Origin(-35.36308075, 149.16523412, 584.0)  # not representable in float32
+    items = mission_items(PLAN, origin)
     v = vehicle_factory(autopilot=mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, legacy_requests=True)
-    result = upload_mission(ITEMS, url(v), home_item(ORIGIN), timeout_s=5)
-    assert result.accepted and result.n_items == len(ITEMS) + 1
+    result = upload_mission(items, url(v), home_item(origin), timeout_s=5)
+    assert result.accepted and result.n_items == len(items) + 1
     home = v.received[0]
-    assert home.get_type() == "MISSION_ITEM" and home.frame == 0
-    assert home.x == pytest.approx(ORIGIN.lat_deg) and home.z == pytest.approx(12.5)
-    assert v.received[1].command == ITEMS[0].command
+    assert home.get_type() == "MISSION_ITEM_INT" and home.frame == 0
+    assert home.z == pytest.approx(584.0)
+    sent = (home_item(origin), *items)
+    for seq, it in enumerate(sent):
+        got = v.received[seq]
+        assert got.get_type() == "MISSION_ITEM_INT" and got.command == it.command
+        if it.lat_deg or it.lon_deg:
+            assert abs(got.x * 1e-7 - it.lat_deg) <= 1e-7
+            assert abs(got.y * 1e-7 - it.lon_deg) <= 1e-7
 
 
 def test_refused_frame_is_reported_with_the_item(vehicle_factory):

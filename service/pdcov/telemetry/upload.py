@@ -1,6 +1,11 @@
 """Mission upload to a vehicle over the MAVLink mission protocol (mavlink.io/en/services/
-mission.html): MISSION_COUNT, then one MISSION_ITEM_INT per MISSION_REQUEST_INT (or
-MISSION_ITEM per the older MISSION_REQUEST), until the vehicle's MISSION_ACK.
+mission.html): MISSION_COUNT, then one MISSION_ITEM_INT per MISSION_REQUEST_INT or older
+MISSION_REQUEST, until the vehicle's MISSION_ACK.
+
+Items are always MISSION_ITEM_INT (latitude and longitude in degE7), as QGroundControl
+sends them: the float MISSION_ITEM carries float32 degrees, which moves a waypoint by up to
+half a metre (-35.36308075 becomes -35.3630784). ArduCopter 4.7 asks with MISSION_REQUEST
+and accepts MISSION_ITEM_INT in answer.
 
 ``MissionUpload`` is the ground-station side as a state machine with no I/O: messages and
 the time come in, messages to send go out (as pymavlink message objects). ``upload_mission``
@@ -87,16 +92,13 @@ class MissionUpload:
         return self._send([self._mav.mission_count_encode(
             *self.target, len(self.items), MAV_MISSION_TYPE_MISSION)], now_s)
 
-    def _item(self, seq: int, as_int: bool) -> mavlink2.MAVLink_message:
+    def _item(self, seq: int) -> mavlink2.MAVLink_message:
+        """MISSION_ITEM_INT ``seq``, whichever request asked for it (module docstring)."""
         it = self.items[seq]
-        args = (*self.target, seq, it.frame, it.command, 0, int(it.autocontinue), it.param1,
-                it.param2, it.param3, it.param4)
-        if as_int:
-            return self._mav.mission_item_int_encode(
-                *args, round(it.lat_deg * 1e7), round(it.lon_deg * 1e7), it.z_m,
-                MAV_MISSION_TYPE_MISSION)
-        return self._mav.mission_item_encode(*args, it.lat_deg, it.lon_deg, it.z_m,
-                                             MAV_MISSION_TYPE_MISSION)
+        return self._mav.mission_item_int_encode(
+            *self.target, seq, it.frame, it.command, 0, int(it.autocontinue), it.param1,
+            it.param2, it.param3, it.param4, round(it.lat_deg * 1e7), round(it.lon_deg * 1e7),
+            it.z_m, MAV_MISSION_TYPE_MISSION)
 
     def _fail(self, result: str, detail: str) -> list[mavlink2.MAVLink_message]:
         seq = self._last_seq
@@ -116,7 +118,7 @@ class MissionUpload:
                 return self._fail("MAV_MISSION_INVALID_SEQUENCE",
                                   f"vehicle asked for item {msg.seq} of {len(self.items)}")
             self._last_seq = msg.seq
-            return self._send([self._item(msg.seq, kind == "MISSION_REQUEST_INT")], now_s)
+            return self._send([self._item(msg.seq)], now_s)
         if kind == "MISSION_ACK":
             name, description = _result_text(msg.type)
             if msg.type == mavlink2.MAV_MISSION_ACCEPTED:
