@@ -1,0 +1,93 @@
+"""Checkpoints: the grid and what is needed to continue it, in one atomically written file.
+
+The file is the grid.npz that ``CoverageGrid.save_npz`` writes (``pdcov evaluate`` and
+``np.load`` read it as it is) with one more zip member, ``pdcov_checkpoint.json``: the
+mission hash (settings.mission_hash), the frame lattice's anchor ``t0_s`` and the last
+frame time (autopilot clock, s), the autopilot clock's offset and boot time (so that a
+restarted daemon continues the clock), the tiles sequence number and counters. It is
+written to a temporary file, fsynced and renamed (atomic.atomic_write): a kill -9 at any
+moment leaves the previous checkpoint or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pdcov.atomic import atomic_write
+from pdcov.core.grid import CoverageGrid
+from pdcov.errors import InputFileError
+
+META_MEMBER = "pdcov_checkpoint.json"
+META_VERSION = 1
+CHECKPOINT_NAME = "checkpoint.npz"
+
+
+@dataclass(frozen=True, slots=True)
+class Resumed:
+    """The outcome of looking for a checkpoint: the grid to continue (None: start fresh),
+    its metadata, and what was done, in words (the daemon logs it)."""
+
+    grid: CoverageGrid | None
+    meta: dict[str, Any]
+    message: str
+    set_aside: Path | None = None
+
+
+def write_checkpoint(path: Path, grid: CoverageGrid, meta: dict[str, Any]) -> None:
+    """Write the grid and ``meta`` (JSON-able) atomically to ``path``."""
+    buf = io.BytesIO()
+    grid.write_npz(buf)
+    with zipfile.ZipFile(buf, "a") as zf:
+        zf.writestr(META_MEMBER, json.dumps({"version": META_VERSION, **meta}))
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
+
+
+def read_meta(path: Path) -> dict[str, Any]:
+    """The metadata of a checkpoint file; InputFileError when it has none or is corrupt."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            meta = json.loads(zf.read(META_MEMBER))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise InputFileError(f"{path}: not a pdcov checkpoint ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("version") != META_VERSION:
+        raise InputFileError(f"{path}: checkpoint metadata version "
+                             f"{meta.get('version') if isinstance(meta, dict) else '?'}, "
+                             f"expected {META_VERSION}")
+    return meta
+
+
+def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resumed:
+    """The checkpoint in ``state_dir`` if it belongs to this mission (same hash); otherwise
+    (another mission, or unreadable) it is renamed aside with a time stamp and the daemon
+    starts fresh."""
+    path = state_dir / CHECKPOINT_NAME
+    if not path.exists():
+        return Resumed(None, {}, f"no checkpoint in {state_dir}: starting a new grid")
+    try:
+        meta = read_meta(path)
+        if meta.get("mission_hash") != mission_hash:
+            why = (f"it belongs to another mission (hash {meta.get('mission_hash')}, this "
+                   f"mission {mission_hash}: domain, camera, detector or grid settings "
+                   "changed)")
+        else:
+            grid = CoverageGrid.load_npz(path, new_grid.camera, new_grid.detector,
+                                         max_range_m=new_grid.max_range_m,
+                                         min_revisit_s=new_grid.min_revisit_s)
+            if grid.geometry != new_grid.geometry or not (grid.mask == new_grid.mask).all():
+                why = "its grid geometry differs from this mission's"
+            else:
+                return Resumed(grid, meta, f"resumed from {path}: {grid.frames} frames, "
+                                           f"last frame at t = {meta.get('last_frame_t_s')} s")
+    except InputFileError as exc:
+        why = f"it cannot be read ({exc})"
+    aside = path.with_name(f"checkpoint-{time.strftime('%Y%m%dT%H%M%S')}.set-aside.npz")
+    path.replace(aside)
+    return Resumed(None, {}, f"checkpoint {path} set aside as {aside.name}: {why}; "
+                             "starting a new grid", aside)

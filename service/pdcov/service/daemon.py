@@ -1,0 +1,341 @@
+"""The asyncio shell of ``pdcov serve``: it owns the MAVLink links, the Zenoh session, the
+timers, the signals and the files, and does what ``LiveCoverage`` and ``LinkProtocol``
+decide (docs/service.md).
+
+Threads: everything runs on the event loop's thread. MAVLink is read with
+``loop.add_reader`` (mavlink_io); Zenoh calls its callbacks on its own threads, which hand
+the payload over with ``loop.call_soon_threadsafe`` (frames) or wait for the loop to answer
+(``run_coroutine_threadsafe``: the snapshot and footprint queryables), so no grid is ever
+touched off the loop. Checkpoints and snapshots are encoded on the loop (milliseconds for
+a mission-sized grid).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.footprint import decode_frames, encode_footprint
+from pdcov.bus.grid_state import encode_snapshot
+from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.session import open_session
+from pdcov.bus.status import encode_status
+from pdcov.core.mount import GimbalMount
+from pdcov.errors import ConfigError
+from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
+from pdcov.service.coverage import LiveCoverage
+from pdcov.service.link_protocol import (
+    ATTITUDE,
+    GIMBAL_DEVICE_ATTITUDE_STATUS,
+    GLOBAL_POSITION_INT,
+    HOME_POSITION,
+    MAV_COMP_ID_ONBOARD_COMPUTER,
+    LinkProtocol,
+)
+from pdcov.service.mavlink_io import Connection, mavlink
+from pdcov.service.recorder import TlogRecorder
+from pdcov.service.settings import ServeConfig, mission_hash
+from pdcov.service.systemd_notify import SystemdNotifier
+from pdcov.telemetry.gimbal import mount_param_names
+from pdcov.telemetry.link_params import MOUNT_TYPE_PARAMS
+
+log = logging.getLogger("pdcov.serve")
+TICK_S = 0.05
+QUERY_TIMEOUT_S = 5.0
+
+
+class JournalFormatter(logging.Formatter):
+    """``<N>message``: the syslog level as journald reads it from stderr; no time stamp
+    (journald adds its own)."""
+
+    LEVELS = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
+              logging.CRITICAL: 2}
+
+    def format(self, record: logging.LogRecord) -> str:
+        level = self.LEVELS.get(record.levelno, 6)
+        return f"<{level}>{record.name}: {super().format(record)}"
+
+
+def setup_logging(level: int = logging.INFO) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(JournalFormatter("%(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+
+
+class Daemon:
+    """``pdcov serve`` once the config is checked: ``await run()`` until SIGTERM/SIGINT."""
+
+    def __init__(self, cfg: ServeConfig) -> None:
+        self.cfg = cfg
+        m = cfg.mission
+        self.keys = VehicleKeys(m.vehicle_id)
+        self.state_dir = Path(cfg.service.state_dir)
+        self.started_s = time.monotonic()
+        self.stop_event: asyncio.Event | None = None
+        self.links: list[Connection] = []
+        self.session: Any = None
+        self._zenoh_entities: list[Any] = []
+        self._status_seq = 0
+        self._checkpoint_info: dict[str, Any] = {"path": str(self.state_dir / CHECKPOINT_NAME),
+                                                 "last_t_s": None, "resumed": False,
+                                                 "set_aside": None}
+        self.notifier = SystemdNotifier()
+        self._next_watchdog_s = 0.0
+        self.recorder: TlogRecorder | None = None
+        mount = m.mount
+        names = (tuple(dict.fromkeys((*mount_param_names(mount.instance), *MOUNT_TYPE_PARAMS)))
+                 if isinstance(mount, GimbalMount) else ())
+        intervals = {ATTITUDE: cfg.link.attitude_hz, GLOBAL_POSITION_INT: cfg.link.position_hz,
+                     HOME_POSITION: 0.2}
+        if isinstance(mount, GimbalMount):
+            intervals[GIMBAL_DEVICE_ATTITUDE_STATUS] = cfg.link.gimbal_hz
+        self.protocol = LinkProtocol(mavlink.MAVLink(None, srcSystem=cfg.link.system_id or 1),
+                                     system_id=cfg.link.system_id or m.system_id,
+                                     intervals=intervals, param_names=names,
+                                     param_timeout_s=cfg.link.param_timeout_s)
+        self.live: LiveCoverage | None = None
+
+    # --- start ----------------------------------------------------------------------------
+
+    def _start_grid(self) -> None:
+        m = self.cfg.mission
+        grid = m.new_grid()
+        mhash = mission_hash(m, grid)
+        self.mission_hash = mhash
+        r = resume(self.state_dir, mhash, grid)
+        (log.warning if r.set_aside else log.info)("%s", r.message)
+        meta = r.meta
+        self.live = LiveCoverage(self.cfg, r.grid or grid, time.monotonic(),
+                                 tiles_seq=int(meta.get("tiles_seq", -1)) + 1)
+        if r.grid is not None:
+            last = meta.get("last_frame_t_s")
+            if isinstance(last, (int, float)):
+                self.live.resume_lattice(meta.get("t0_s"), float(last))
+            clock = meta.get("clock")
+            if isinstance(clock, list) and len(clock) == 2 and all(
+                    isinstance(v, (int, float)) and math.isfinite(v) for v in clock):
+                self.protocol.prime_clock(float(clock[0]), float(clock[1]))
+            self.live.counters.used = int(meta.get("frames_used", 0))
+        self._checkpoint_info.update(resumed=r.grid is not None,
+                                     set_aside=str(r.set_aside) if r.set_aside else None)
+
+    def _ids(self) -> tuple[int, int]:
+        return (self.protocol.system_id or self.cfg.link.system_id or 1,
+                MAV_COMP_ID_ONBOARD_COMPUTER)
+
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        self.stop_event = asyncio.Event()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, self.stop_event.set)
+        self.state_dir.mkdir(parents=True, exist_ok=True)
+        self._start_grid()
+        if self.cfg.service.record:
+            self.recorder = TlogRecorder(self.state_dir / "recordings",
+                                         self.cfg.service.record_max_bytes,
+                                         self.cfg.service.record_keep_bytes)
+        key = self.cfg.link.signing_key_bytes(self.cfg.base_dir)
+        if (self.cfg.link.signing_key or self.cfg.link.signing_key_file) and key is None:
+            raise ConfigError("link.signing_key_file: cannot read 64 hex digits from "
+                              f"{self.cfg.link.signing_key_file}")
+        for url in self.cfg.link.connect:
+            c = Connection(url, on_messages=self._on_messages, ids=self._ids,
+                           signing_key=key, timeout_s=self.cfg.link.timeout_s,
+                           reconnect_max_s=self.cfg.link.reconnect_max_s)
+            c.start()
+            self.links.append(c)
+        try:
+            self.session = await loop.run_in_executor(None, open_session, self.cfg.bus)
+            self._declare(loop)
+            log.info("zenoh %s session open (connect %s, listen %s); publishing under "
+                     "pdcov/%s/", self.cfg.bus.mode, list(self.cfg.bus.connect),
+                     list(self.cfg.bus.listen), self.cfg.mission.vehicle_id)
+            self.notifier.ready("pdcov serve: running")
+            while not self.stop_event.is_set():
+                self._tick()
+                try:
+                    await asyncio.wait_for(self.stop_event.wait(), TICK_S)
+                except asyncio.TimeoutError:
+                    pass
+            log.info("stopping: writing the checkpoint")
+            self.notifier.stopping("pdcov serve: stopping")
+        finally:
+            self._shutdown()
+        return 0
+
+    def _declare(self, loop: asyncio.AbstractEventLoop) -> None:
+        s = self.session
+        self.pub_status = s.declare_publisher(self.keys.status)
+        self.pub_tiles = s.declare_publisher(self.keys.tiles)
+        self._zenoh_entities += [
+            self.pub_status, self.pub_tiles,
+            s.declare_queryable(self.keys.snapshot,
+                                lambda q: self._answer(loop, q, self._snapshot_bytes)),
+            s.declare_queryable(self.keys.footprint,
+                                lambda q: self._answer(loop, q, self._footprint_bytes)),
+            s.liveliness().declare_token(self.keys.alive),
+        ]
+        if self.cfg.frame_source == "zenoh":
+            self._zenoh_entities.append(s.declare_subscriber(
+                self.keys.frames, lambda sample: loop.call_soon_threadsafe(
+                    self._on_frames, sample.payload.to_bytes())))
+
+    # --- Zenoh thread -> loop ---------------------------------------------------------------
+
+    @staticmethod
+    def _answer(loop: asyncio.AbstractEventLoop, query: Any, make) -> None:
+        """On a Zenoh thread: let the loop build the reply, then send it."""
+        async def build() -> bytes:
+            return make()
+        try:
+            payload = asyncio.run_coroutine_threadsafe(build(), loop).result(QUERY_TIMEOUT_S)
+            query.reply(query.key_expr, payload)
+        except Exception as exc:  # noqa: BLE001 - a failed reply must not kill Zenoh's thread
+            log.warning("query %s not answered: %s", query.key_expr, exc)
+
+    def _snapshot_bytes(self) -> bytes:
+        return encode_snapshot(self.live.grid)
+
+    def _footprint_bytes(self) -> bytes:
+        t = self.live.last_pose.t_s if self.live.last_pose is not None else math.nan
+        return encode_footprint(self.cfg.mission.vehicle_id, t, self.live.footprint_lonlat())
+
+    def _on_frames(self, payload: bytes) -> None:
+        try:
+            t_boot = decode_frames(payload, self.keys.frames)
+        except BusPayloadError as exc:
+            self.live.counters.faults["bad_frames_messages"] += 1
+            log.warning("%s", exc)
+            return
+        offset, _ = self.protocol.clock_state()
+        self.live.add_frame_times([t + offset for t in t_boot])
+
+    # --- MAVLink -----------------------------------------------------------------------------
+
+    def _on_messages(self, conn: Connection, msgs: list) -> None:
+        now = time.monotonic()
+        live, proto = self.live, self.protocol
+        for msg in msgs:
+            if msg.get_type() == "BAD_DATA":
+                live.counters.faults["bad_messages"] += 1
+                continue
+            for sample in proto.receive(msg, now):
+                live.add_sample(sample)
+            if self.recorder is not None and msg.get_srcSystem() == proto.system_id:
+                self.recorder.write(msg.get_msgbuf(), time.time())
+        live.set_params(proto.params, proto.params_done)
+        live.process()
+
+    def _send(self, msgs: list) -> None:
+        for msg in msgs:
+            for c in self.links:
+                c.send(msg)
+
+    # --- timers -----------------------------------------------------------------------------
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        live, proto = self.live, self.protocol
+        for c in self.links:
+            c.check_silence(asyncio.get_running_loop().time())
+        self._send(proto.poll(now))
+        live.set_params(proto.params, proto.params_done)
+        live.process()
+        due = live.poll(now)
+        if due.tiles is not None:
+            self._put(self.pub_tiles, due.tiles)
+        if due.status:
+            self._publish_status(now)
+            if self.recorder is not None:
+                self.recorder.flush()
+        if due.checkpoint:
+            self._checkpoint()
+        if due.named_value is not None or due.statustext is not None:
+            t_ms = int(max(live.last_frame_t_s, 0.0) * 1000)
+            self._send(proto.coverage_messages(due.named_value, due.statustext, t_ms))
+            if due.statustext:
+                log.info("%s", due.statustext)
+        if self.notifier.watchdog_interval_s and now >= self._next_watchdog_s:
+            self.notifier.watchdog()
+            self._next_watchdog_s = now + self.notifier.watchdog_interval_s
+
+    def _put(self, pub: Any, payload: bytes) -> None:
+        try:
+            pub.put(payload)
+        except Exception as exc:  # noqa: BLE001 - no peer or a closing session: keep going
+            self.live.counters.faults["zenoh_put_errors"] += 1
+            log.debug("zenoh put failed: %s", exc)
+
+    def link_description(self, now: float) -> dict[str, Any]:
+        loop_now = asyncio.get_running_loop().time()
+        links = [c.describe(loop_now) for c in self.links]
+        states = [c.state for c in self.links]
+        state = ("connected" if "connected" in states and self.protocol.autopilot_known
+                 else "waiting" if "connected" in states or "waiting" in states
+                 else states[0] if states else "none")
+        ages = [d["last_message_age_s"] for d in links if d["last_message_age_s"] is not None]
+        return {"state": state, "url": ", ".join(c.url for c in self.links),
+                "last_message_age_s": min(ages) if ages else None,
+                "bad_messages": self.live.counters.faults.get("bad_messages", 0),
+                "links": links, **self.protocol.describe()}
+
+    def _publish_status(self, now: float) -> None:
+        live = self.live
+        faults = live.counters.faults
+        faults["reboots"] = self.protocol.reboots
+        faults["link_losses"] = sum(c.losses for c in self.links)
+        fields = live.status_fields(uptime_s=round(now - self.started_s, 3),
+                                    seq=self._status_seq, link=self.link_description(now),
+                                    checkpoint=self._checkpoint_info)
+        self._status_seq += 1
+        self._put(self.pub_status, encode_status(fields))
+        share = live.share_at_target()
+        self.notifier.status(f"coverage {share:.1%} at P_D>={live.target_pd:g}, "
+                             f"{live.counters.used} frames, link {fields['link']['state']}")
+
+    def _checkpoint(self) -> None:
+        live = self.live
+        offset, boot = self.protocol.clock_state()
+        meta = {"mission_hash": self.mission_hash, "t0_s": live.t0_s,
+                "last_frame_t_s": live.last_frame_t_s if math.isfinite(live.last_frame_t_s)
+                else None,
+                "clock": [offset, boot] if math.isfinite(boot) else None,
+                "tiles_seq": live.tiles_seq - 1, "frames_used": live.counters.used,
+                "written_unix_s": time.time()}
+        try:
+            write_checkpoint(self.state_dir / CHECKPOINT_NAME, live.grid, meta)
+        except OSError as exc:
+            live.counters.faults["checkpoint_errors"] += 1
+            log.error("checkpoint not written: %s", exc)
+            return
+        live.checkpointed()
+        self._checkpoint_info["last_t_s"] = meta["last_frame_t_s"]
+
+    def _shutdown(self) -> None:
+        if self.live is not None:
+            try:
+                self.live.process()
+                self._checkpoint()
+            except Exception as exc:  # noqa: BLE001 - still close everything below
+                log.error("final checkpoint failed: %s", exc)
+        for c in self.links:
+            c.close()
+        if self.recorder is not None:
+            self.recorder.close()
+        for e in reversed(self._zenoh_entities):
+            try:
+                e.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        if self.session is not None:
+            self.session.close()
+        self.notifier.close()

@@ -1,0 +1,200 @@
+"""One MAVLink connection of the daemon: opened (and reopened, forever, with backoff) by
+URL, read from the event loop with ``loop.add_reader`` on its file descriptor.
+
+Why add_reader and not a reader thread: every message then reaches the decisions on the
+event loop's own thread, in order, with no locks and no hand-over; reading is
+non-blocking (pymavlink opens UDP and TCP sockets non-blocking and serial ports with
+timeout 0), so one readable event drains what has arrived in one ``recv``. Only opening a
+link blocks (a TCP connect, a serial device that is not there yet): that runs in the
+default executor, off the loop.
+
+URLs as pymavlink and MAVProxy write them: ``udpin:0.0.0.0:14550``, ``udpout:HOST:PORT``,
+``tcp:HOST:PORT``, ``/dev/ttyAMA0,921600``, and ``serial:/dev/ttyAMA0:921600``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+from collections.abc import Callable
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: speak MAVLink 2
+
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+log = logging.getLogger(__name__)
+READ_BYTES = 65536
+BACKOFF_START_S = 0.5
+
+
+def pymavlink_url(url: str) -> tuple[str, int | None]:
+    """(device or URL for mavutil, baud or None): ``serial:/dev/x:921600`` and
+    ``/dev/x,921600`` name a serial device and its baud rate."""
+    if url.startswith("serial:"):
+        dev, _, baud = url[len("serial:"):].rpartition(":")
+        if dev and baud.isdigit():
+            return dev, int(baud)
+        return url[len("serial:"):], None
+    if "," in url and url.split(":", 1)[0] not in ("udpin", "udpout", "tcp", "tcpin", "udp"):
+        dev, _, baud = url.rpartition(",")
+        if baud.isdigit():
+            return dev, int(baud)
+    return url, None
+
+
+def open_connection(url: str, system_id: int, component_id: int,
+                    signing_key: bytes | None) -> Any:
+    """A pymavlink connection speaking MAVLink 2 (ardupilotmega dialect, which reads
+    MAVLink 1 too), as (system_id, component_id); blocking (run it in an executor)."""
+    device, baud = pymavlink_url(url)
+    kwargs = {"baud": baud} if baud else {}
+    conn = mavutil.mavlink_connection(device, source_system=system_id,
+                                      source_component=component_id, autoreconnect=False,
+                                      **kwargs)
+    conn.mav = mavlink.MAVLink(conn, srcSystem=system_id, srcComponent=component_id)
+    conn.mav.robust_parsing = True
+    conn.WIRE_PROTOCOL_VERSION = "2.0"
+    conn.first_byte = False
+    if signing_key is not None:
+        conn.setup_signing(signing_key, sign_outgoing=True)
+    return conn
+
+
+class Connection:
+    """A link URL kept open: ``on_messages(conn, msgs, frames)`` gets each batch of parsed
+    messages with their raw frames; ``send`` writes to it when open."""
+
+    def __init__(self, url: str, *, on_messages: Callable[[Connection, list], None],
+                 ids: Callable[[], tuple[int, int]], signing_key: bytes | None,
+                 timeout_s: float, reconnect_max_s: float) -> None:
+        self.url = url
+        self._on_messages = on_messages
+        self._ids = ids
+        self._signing_key = signing_key
+        self.timeout_s = timeout_s
+        self.reconnect_max_s = reconnect_max_s
+        self.conn: Any = None
+        self.state = "connecting"
+        self.last_rx_s: float | None = None
+        self.opens = 0
+        self.losses = 0
+        self.bad = 0
+        self._fd: int | None = None
+        self._task: asyncio.Task | None = None
+        self._closing = False
+        self._stream = url.startswith(("tcp:", "serial:", "/dev/")) or "," in url
+
+    def start(self) -> None:
+        self._task = asyncio.get_running_loop().create_task(self._open_forever())
+
+    async def _open_forever(self) -> None:
+        loop = asyncio.get_running_loop()
+        delay = BACKOFF_START_S
+        while not self._closing:
+            sysid, compid = self._ids()
+            try:
+                conn = await loop.run_in_executor(None, open_connection, self.url, sysid,
+                                                  compid, self._signing_key)
+            except Exception as exc:  # noqa: BLE001 - any failure to open: retry later
+                self.state = "connecting"
+                log.warning("link %s: cannot open (%s); retrying in %.1f s", self.url, exc,
+                            delay)
+                await asyncio.sleep(delay)
+                delay = min(2 * delay, self.reconnect_max_s)
+                continue
+            if self._closing:
+                conn.close()
+                return
+            self.conn, self.opens = conn, self.opens + 1
+            self._fd = conn.port.fileno()
+            self.state = "connected"
+            self.last_rx_s = loop.time()
+            loop.add_reader(self._fd, self._readable)
+            log.info("link %s: open", self.url)
+            return
+
+    def _readable(self) -> None:
+        try:
+            if hasattr(self.conn.port, "recvfrom") and self.url.startswith("udp"):
+                data = self.conn.recv()          # records the peer address for replies
+            elif hasattr(self.conn.port, "recv"):
+                data = self.conn.port.recv(READ_BYTES)
+                if not data:
+                    raise ConnectionError("closed by the peer")
+            else:
+                data = self.conn.port.read(READ_BYTES)
+        except (OSError, ConnectionError, Exception) as exc:  # noqa: BLE001 - serial errors
+            self._lost(f"read failed: {exc}")
+            return
+        if not data:
+            return
+        self.last_rx_s = asyncio.get_running_loop().time()
+        if self.state != "connected":
+            self.state = "connected"
+        try:
+            msgs = self.conn.mav.parse_buffer(bytes(data)) or []
+        except Exception:  # noqa: BLE001 - robust_parsing should not raise; count if it does
+            self.bad += 1
+            return
+        if msgs:
+            self._on_messages(self, msgs)
+
+    def _lost(self, why: str) -> None:
+        log.warning("link %s: lost (%s); reopening", self.url, why)
+        self.losses += 1
+        self._close_conn()
+        self.state = "lost"
+        if not self._closing:
+            self.start()
+
+    def check_silence(self, now_s: float) -> None:
+        """Called periodically: a stream link silent for timeout_s is reopened; a UDP link
+        just reports 'waiting'."""
+        if self.conn is None or self.last_rx_s is None:
+            return
+        if now_s - self.last_rx_s > self.timeout_s:
+            if self._stream:
+                self._lost(f"nothing received for {self.timeout_s:g} s")
+            else:
+                self.state = "waiting"
+
+    def send(self, msg: Any) -> None:
+        if self.conn is None:
+            return
+        sysid, compid = self._ids()
+        self.conn.mav.srcSystem, self.conn.mav.srcComponent = sysid, compid
+        try:
+            self.conn.mav.send(msg)
+        except OSError as exc:
+            if self._stream:
+                self._lost(f"write failed: {exc}")
+
+    def _close_conn(self) -> None:
+        if self._fd is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._fd)
+            except (RuntimeError, ValueError):
+                pass
+            self._fd = None
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except Exception:  # noqa: BLE001
+                pass
+            self.conn = None
+
+    def close(self) -> None:
+        self._closing = True
+        if self._task is not None:
+            self._task.cancel()
+        self._close_conn()
+        self.state = "closed"
+
+    def describe(self, now_s: float) -> dict[str, Any]:
+        return {"url": self.url, "state": self.state, "opens": self.opens,
+                "losses": self.losses,
+                "last_message_age_s": None if self.last_rx_s is None
+                else round(now_s - self.last_rx_s, 3)}

@@ -1,0 +1,156 @@
+"""End-to-end helpers for ``pdcov serve`` tests: free ports, an in-process Zenoh router
+(multicast scouting off, loopback only), a subscriber that rebuilds the grid from tiles and
+snapshots exactly as docs/protocol.md says, and processes that are always killed."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import yaml
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.grid_state import GridState, decode_snapshot
+from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.session import BusConfig, open_session
+from pdcov.bus.status import decode_status
+from pdcov.bus.tiles import apply_tiles, decode_tiles
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "real-logs"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def router(port: int):
+    return open_session(BusConfig(mode="router", listen=(f"tcp/127.0.0.1:{port}",),
+                                  multicast_scouting=False))
+
+
+def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
+                 **service) -> Path:
+    doc = dict(base)
+    doc["bus"] = {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
+                  "listen": ["tcp/127.0.0.1:0"], "multicast_scouting": False,
+                  "status_period_s": 0.2, "tiles_period_s": 0.1,
+                  "tiles_max_bytes_per_s": 1 << 20}
+    doc["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 1.0, **service}
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+class Subscriber:
+    """A client session following one vehicle: the latest status, the grid rebuilt from
+    tiles (after a snapshot when a gap is seen), errors from decoders."""
+
+    def __init__(self, zenoh_port: int, vehicle_id: str) -> None:
+        self.keys = VehicleKeys(vehicle_id)
+        self.session = open_session(BusConfig(mode="client",
+                                              connect=(f"tcp/127.0.0.1:{zenoh_port}",),
+                                              multicast_scouting=False))
+        self.lock = threading.Lock()
+        self.status: dict | None = None
+        self.statuses = 0
+        self.grid: GridState | None = None
+        self.last_seq: int | None = None
+        self.gaps = 0
+        self.errors: list[str] = []
+        self.tile_bytes = 0
+        self._subs = [self.session.declare_subscriber(self.keys.status, self._on_status),
+                      self.session.declare_subscriber(self.keys.tiles, self._on_tiles)]
+
+    def _on_status(self, sample) -> None:
+        try:
+            doc = decode_status(sample.payload.to_bytes())
+        except BusPayloadError as exc:
+            self.errors.append(str(exc))
+            return
+        with self.lock:
+            self.status, self.statuses = doc, self.statuses + 1
+
+    def _on_tiles(self, sample) -> None:
+        payload = sample.payload.to_bytes()
+        try:
+            update = decode_tiles(payload)
+        except BusPayloadError as exc:
+            self.errors.append(str(exc))
+            return
+        with self.lock:
+            self.tile_bytes += len(payload)
+            gap = self.last_seq is not None and update.seq != self.last_seq + 1
+            self.last_seq = update.seq
+            if self.grid is None or gap or update.grid_hash != self.grid.hash:
+                self.gaps += gap
+                self.grid = None
+                snap = self.snapshot()
+                if snap is None:
+                    return
+                self.grid = snap
+            apply_tiles(self.grid, update)
+
+    def snapshot(self) -> GridState | None:
+        for reply in self.session.get(self.keys.snapshot, timeout=5.0):
+            if reply.ok is not None:
+                return decode_snapshot(reply.ok.payload.to_bytes())
+        return None
+
+    def footprint(self) -> bytes | None:
+        for reply in self.session.get(self.keys.footprint, timeout=5.0):
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+        return None
+
+    def wait(self, predicate, timeout_s: float, what: str) -> dict:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            with self.lock:
+                st = self.status
+            if st is not None and predicate(st):
+                return st
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; last "
+                             f"status {self.status}")
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self.session.close()
+
+
+@contextlib.contextmanager
+def process(args: list[str], log_path: Path) -> Iterator[subprocess.Popen]:
+    """A child process with stdout/stderr in ``log_path``, killed (group) on exit."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "sitl") + os.pathsep
+               + os.environ.get("PYTHONPATH", ""))
+    with log_path.open("wb") as out:
+        p = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env,
+                             start_new_session=True)
+        try:
+            yield p
+        finally:
+            if p.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
+            p.wait(timeout=10)
+
+
+def serve_args(config: Path, *more: str) -> list[str]:
+    return [sys.executable, "-m", "pdcov.cli", "serve", "--config", str(config), *more]
+
+
+def stop(p: subprocess.Popen, timeout_s: float = 20.0) -> int:
+    """SIGTERM and wait: the daemon writes its checkpoint and exits 0."""
+    p.send_signal(signal.SIGTERM)
+    return p.wait(timeout=timeout_s)
