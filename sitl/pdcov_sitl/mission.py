@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import MissionItem, plan_from_mission_items, read_mission
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MissionItem
+from pdcov.planning.plan import plan_from_mission_items, read_mission
 
 from .control import Setpoint
 
@@ -67,22 +68,30 @@ def _gimbal_commands(items: tuple[MissionItem, ...]) -> list[tuple[float, float]
             pending = (math.radians(it.param1), math.radians(it.param3 or 0.0))
         elif it.command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:  # param1 pitch, param2 yaw
             pending = (math.radians(it.param1), math.radians(it.param2 or 0.0))
-        elif it.command == 16:
+        elif it.command == MAV_CMD_NAV_WAYPOINT:
             out.append(pending)
             pending = None
     return out
 
 
-def load_flight_plan(path: str | Path, origin: Origin, *, takeoff_speed_mps: float = 1.5,
-                     land_speed_mps: float = 0.7, default_speed_mps: float = 5.0
+def load_flight_plan(path: str | Path, origin: Origin, default_speed_mps: float = 5.0
                      ) -> FlightPlan:
-    """The legs of a plan file, home at ``origin`` (the take-off point on the ground).
-    Raises pdcov's InputFileError naming the file for a plan it cannot fly."""
+    """The legs of a plan file (.plan or WPL 110), home at ``origin`` (the take-off point on
+    the ground). Raises pdcov's InputFileError naming the file for a plan it cannot fly."""
     mission = read_mission(path)
     speed = (default_speed_mps if math.isnan(mission.default_speed_mps)
              else mission.default_speed_mps)
-    plan = plan_from_mission_items(mission.items, origin, str(path), speed)
-    gimbal = _gimbal_commands(mission.items)
+    return flight_plan_from_items(mission.items, origin, str(path), speed)
+
+
+def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], origin: Origin,
+                           source: str, default_speed_mps: float = 5.0, *,
+                           takeoff_speed_mps: float = 1.5, land_speed_mps: float = 0.7
+                           ) -> FlightPlan:
+    """The legs of mission items (no home item), home at ``origin``."""
+    items = tuple(items)
+    plan = plan_from_mission_items(items, origin, source, default_speed_mps)
+    gimbal = _gimbal_commands(items)
     legs: list[Leg] = []
     alt0 = plan.waypoints[0].alt_agl_m
     legs.append(Leg((0.0, 0.0, 0.0), (0.0, 0.0, -alt0), takeoff_speed_mps, 1.0, kind="takeoff"))

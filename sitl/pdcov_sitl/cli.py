@@ -1,0 +1,129 @@
+"""The ``pdcov-sitl`` console script: ``fly`` and ``replay``. Parses arguments only; bad
+input prints one line naming what is wrong and exits with status 2."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from . import __version__
+from .messages import GIMBAL_MODES
+
+
+class UsageError(Exception):
+    """Bad input on the command line or in a file it names; exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import replay
+
+    parser = argparse.ArgumentParser(
+        prog="pdcov-sitl", description="A JSBSim quadcopter that flies pdcov plans and "
+                                       "speaks MAVLink like a real autopilot.")
+    parser.add_argument("--version", action="version", version=f"pdcov-sitl {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    f = sub.add_parser("fly", help="fly a plan, sending MAVLink; write flight.tlog and "
+                                   "truth.csv", description="Fly a plan from take-off to "
+                       "landing while sending MAVLink like an ArduPilot or PX4 autopilot.")
+    f.add_argument("--config", required=True, type=Path, help="mission config YAML")
+    f.add_argument("--plan", type=Path, help="QGC .plan or WPL 110 file (as `pdcov plan` "
+                                             "writes); not needed with --wait-mission")
+    f.add_argument("--out", required=True, type=Path, help="folder for flight.tlog, truth.csv")
+    f.add_argument("--connect", default="udpout:127.0.0.1:14550", metavar="URL",
+                   help="udpout:HOST:PORT (default udpout:127.0.0.1:14550), udpin:HOST:PORT, "
+                        "tcp:HOST:PORT (server), tcpin:HOST:PORT, pty: (serial pseudo-"
+                        "terminal)")
+    f.add_argument("--speed", type=float, default=1.0, metavar="N",
+                   help="1 real time (default), N times faster, 0 as fast as possible")
+    f.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    f.add_argument("--gimbal", choices=GIMBAL_MODES,
+                   help="gimbal and what it reports (default: fixed for a fixed mount in the "
+                        "config, ardupilot-servo for attitude_frame body, else "
+                        "ardupilot-device)")
+    f.add_argument("--gimbal-axes", type=int, choices=(2, 3), default=3,
+                   help="stabilised gimbal axes (2: no yaw motor)")
+    f.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    f.add_argument("--system-id", type=int,
+                   help="MAVLink system id (default: the config's log.system_id, else 1)")
+    f.add_argument("--faults", metavar="SPEC", help="faults to inject (docs/simulator.md)")
+    f.add_argument("--wind-mps", type=float, default=0.0,
+                   help="steady wind and MIL-spec turbulence of this speed (default 0)")
+    f.add_argument("--wind-from-deg", type=float, default=270.0,
+                   help="direction the wind comes from, clockwise from north (default 270)")
+    f.add_argument("--wait-mission", action="store_true",
+                   help="wait on the ground for a mission uploaded over MAVLink")
+    f.add_argument("--camera-trigger", action="store_true",
+                   help="send CAMERA_IMAGE_CAPTURED per frame (also when the config's "
+                        "log.frame_source is capture)")
+    f.set_defaults(func=run_fly)
+    r = sub.add_parser("replay", help="send a recorded tlog over a link",
+                       description="Send a recorded tlog over a link at its pace or faster.")
+    replay.add_arguments(r)
+    r.set_defaults(func=replay.main)
+    return parser
+
+
+def _default_gimbal(mount: object) -> str:
+    from pdcov.core.pose import FixedMount
+
+    if isinstance(mount, FixedMount):
+        return "fixed"
+    return "ardupilot-servo" if getattr(mount, "attitude_frame", "") == "body" \
+        else "ardupilot-device"
+
+
+def run_fly(args: argparse.Namespace) -> int:
+    from pdcov.config import load_mission
+    from pdcov.errors import PdcovError
+
+    from .faults import FaultSpec, FaultSpecError
+    from .fly import FlyOptions, fly
+    from .link import LinkError
+
+    if not args.speed >= 0:
+        raise UsageError(f"--speed {args.speed}: expected a number >= 0")
+    if args.plan is None and not args.wait_mission:
+        raise UsageError("--plan: required unless --wait-mission")
+    if not (args.wind_mps >= 0 and args.wind_mps < 30):
+        raise UsageError(f"--wind-mps {args.wind_mps}: expected 0 <= W < 30 m/s")
+    try:
+        mission = load_mission(args.config)
+        faults = FaultSpec.parse(args.faults) if args.faults else None
+        system_id = args.system_id or mission.system_id or 1
+        if not 1 <= system_id <= 255:
+            raise UsageError(f"--system-id {system_id}: expected 1..255")
+        opts = FlyOptions(mission=mission, plan_path=args.plan, out_dir=args.out,
+                          connect=args.connect, speed=args.speed, seed=args.seed,
+                          gimbal_mode=args.gimbal or _default_gimbal(mission.mount),
+                          gimbal_axes=args.gimbal_axes, faults=faults,
+                          wind_mps=args.wind_mps, wind_from_deg=args.wind_from_deg,
+                          autopilot=args.autopilot, system_id=system_id,
+                          wait_mission=args.wait_mission, camera_trigger=args.camera_trigger)
+        result = fly(opts)
+    except (PdcovError, FaultSpecError, LinkError) as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"{exc.filename or ''}: {exc.strerror or exc}") from None
+    print(f"flew {result.sim_s:.1f} s in {result.wall_s:.1f} s; {result.messages} messages; "
+          f"{result.frames} camera frames; wrote {result.tlog} and {result.truth}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    os.environ.setdefault("MAVLINK20", "1")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except UsageError as exc:
+        print(f"pdcov-sitl {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

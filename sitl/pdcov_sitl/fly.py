@@ -1,0 +1,349 @@
+"""``pdcov-sitl fly``: the simulation loop.
+
+Every 1/120 s step: guidance setpoint -> controller -> JSBSim F450 step; the gimbal follows;
+the endpoint sends the telemetry streams that are due (built from the true state at that
+step, stamped with the autopilot's time_boot_ms) and answers ground stations; at each camera
+frame the true camera pose is kept for ``truth.csv``. Simulated time is the only clock the
+flight depends on, so a seed gives the same tlog and truth (no ground station talking);
+``speed`` only paces the loop against the wall clock (0: as fast as possible).
+
+Camera frames: every 1/frame_rate_hz s from the moment the attitude, position and (for a
+gimbal) gimbal streams have all been sent once, which is where ``pdcov evaluate --log``
+places its frames too; with a camera trigger (config ``log.frame_source: capture`` or
+``camera_trigger``) a CAMERA_IMAGE_CAPTURED is sent per frame and its time_boot_ms is the
+frame time.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pdcov.atomic import atomic_write
+from pdcov.config import Mission
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
+from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, FixedMount
+from pdcov.core.rotations import quat_wxyz_from_R, slerp_quat_wxyz
+from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
+
+from .control import Controller
+from .dynamics import F450, VehicleState
+from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz
+from .messages import (
+    GIMBAL_CLOCK_OFFSET_S,
+    GIMBAL_COMPONENT,
+    GIMBAL_DEVICE_STREAMS_HZ,
+    GIMBAL_FAILED_FLAGS,
+    STREAMS_HZ,
+    MessageBuilder,
+    Snapshot,
+    autopilot_params,
+    camera_image_captured,
+    gimbal_device_messages,
+    gimbal_report,
+)
+from .mission import FlightPlan, Guidance, flight_plan_from_items, load_flight_plan
+
+POLL_EVERY_STEPS = 4
+MAX_FLIGHT_S = 3 * 3600.0
+
+
+@dataclass(frozen=True, slots=True)
+class FlyOptions:
+    """What ``pdcov-sitl fly`` was asked (cli.py validates and builds it)."""
+
+    mission: Mission
+    plan_path: Path | None
+    out_dir: Path
+    connect: str = "udpout:127.0.0.1:14550"
+    speed: float = 1.0
+    seed: int = 0
+    gimbal_mode: str = "ardupilot-device"
+    gimbal_axes: int = 3
+    faults: object | None = None
+    wind_mps: float = 0.0
+    wind_from_deg: float = 270.0
+    autopilot: str = "ardupilot"
+    system_id: int = 1
+    wait_mission: bool = False
+    camera_trigger: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class FlightResult:
+    """What a flight did: simulated and wall seconds, frames, messages sent, paths."""
+
+    sim_s: float
+    wall_s: float
+    frames: int
+    messages: int
+    tlog: Path
+    truth: Path
+
+
+def _gimbal_config(mode: str, axes: int, mount: FixedMount | object) -> GimbalConfig:
+    """The simulated mount for a gimbal mode; a servo mount takes its limits from the
+    config's gimbal mount where given (else ArduPilot's defaults) and reports them as
+    MNT1_*_MIN/MAX."""
+    if mode == "fixed":
+        R = (mount.R_body_gimbal if isinstance(mount, FixedMount)
+             else FixedMount().R_body_gimbal)
+        return GimbalConfig(mode="fixed", R_body_gimbal=R)
+    if mode == "ardupilot-servo":
+        limits = GimbalConfig().limits_rad
+        limits = tuple(
+            (math.radians(conf[0]), math.radians(conf[1])) if conf is not None else default
+            for conf, default in zip((getattr(mount, "roll_limits_deg", None),
+                                      getattr(mount, "pitch_limits_deg", None),
+                                      getattr(mount, "yaw_limits_deg", None)), limits,
+                                     strict=True))
+        # A digital servo: ~0.1 s per 60 deg, a small lag behind the demand.
+        return GimbalConfig(mode="servo", tau_s=0.02, rate_limit_rps=math.radians(360),
+                            limits_rad=limits)
+    return GimbalConfig(mode="stabilised", axes=axes)
+
+
+def _R_ned_body(s: VehicleState) -> np.ndarray:
+    return _Rz(s.yaw_rad) @ _Ry(s.pitch_rad) @ _Rx(s.roll_rad)
+
+
+@dataclass(frozen=True, slots=True)
+class _Sample:
+    """The true pose at one step: time, position (lat, lon, alt), attitudes."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_msl_m: float
+    q_ned_body: np.ndarray
+    q_ned_gimbal: np.ndarray
+
+
+def _sample(s: VehicleState, gimbal: GimbalModel) -> _Sample:
+    R_body = _R_ned_body(s)
+    return _Sample(s.t_s, s.lat_deg, s.lon_deg, s.alt_msl_m, quat_wxyz_from_R(R_body),
+                   quat_wxyz_from_R(gimbal.R_ned_gimbal(R_body)))
+
+
+def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, speed: float,
+                      origin: Origin) -> FlightPlan:
+    """Sit on the ground, sending telemetry, until a mission is uploaded over MAVLink."""
+    wall0 = time.monotonic()
+    while endpoint.mission is None:
+        s = vehicle.state()
+        endpoint.poll(s.t_s)
+        send_due(s, None)
+        vehicle.set_motors(0.0, 0.0, 0.0, 0.0)
+        gimbal.step(vehicle.dt_s, s.roll_rad, s.pitch_rad, s.yaw_rad)
+        vehicle.step()
+        lag = s.t_s / max(speed, 1.0) - (time.monotonic() - wall0)
+        if lag > 0:
+            time.sleep(lag)
+    items = list(endpoint.mission)
+    if items and items[0].command == MAV_CMD_NAV_WAYPOINT and items[0].frame == MAV_FRAME_GLOBAL:
+        items = items[1:]  # ArduPilot-style: item 0 is home
+    return flight_plan_from_items(items, origin, "the uploaded mission")
+
+
+def fly(opts: FlyOptions) -> FlightResult:
+    """Fly the plan from take-off to landing; write DIR/flight.tlog and DIR/truth.csv."""
+    from .protocol import AutopilotEndpoint
+
+    m = opts.mission
+    home_alt = m.ground_alt_msl_m if m.ground_alt_msl_m is not None else 0.0
+    origin = Origin(m.origin_lat_deg, m.origin_lon_deg, home_alt)
+    plan = load_flight_plan(opts.plan_path, origin) if opts.plan_path is not None else None
+    opts.out_dir.mkdir(parents=True, exist_ok=True)
+    tlog, truth = opts.out_dir / "flight.tlog", opts.out_dir / "truth.csv"
+
+    rng = random.Random(f"{opts.seed}:wind")
+    wind_to = math.radians(opts.wind_from_deg + 180.0)
+    wind = (opts.wind_mps * math.cos(wind_to), opts.wind_mps * math.sin(wind_to), 0.0)
+    vehicle = F450(origin.lat_deg, origin.lon_deg, home_alt, heading_rad=0.0,
+                   wind_ned_mps=wind, turbulence_mps=opts.wind_mps,
+                   seed=rng.randrange(2**31))
+    controller = Controller(vehicle.dt_s)
+    gcfg = _gimbal_config(opts.gimbal_mode, opts.gimbal_axes, m.mount)
+    gimbal = GimbalModel(gcfg, seed=opts.seed)
+    lever = np.asarray(getattr(m.mount, "lever_arm_frd_m", (0.0, 0.0, 0.0)), float)
+    limits_deg = tuple((math.degrees(lo), math.degrees(hi)) for lo, hi in gcfg.limits_rad)
+    has_gimbal = opts.gimbal_mode != "fixed"
+    device = opts.gimbal_mode == "device-earth"
+    streams = dict(STREAMS_HZ[opts.autopilot])
+    if not has_gimbal or device:
+        streams.pop("GIMBAL_DEVICE_ATTITUDE_STATUS")
+    endpoint = AutopilotEndpoint(
+        opts.connect, system_id=opts.system_id, autopilot=opts.autopilot,
+        params=autopilot_params(opts.autopilot, opts.gimbal_mode, opts.system_id, limits_deg),
+        streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog)
+    try:
+        return _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever,
+                    has_gimbal, device, tlog, truth)
+    finally:
+        endpoint.close()
+
+
+def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_gimbal,
+         device, tlog, truth) -> FlightResult:
+    from .protocol import StreamSchedule
+
+    mode = opts.gimbal_mode
+    builder = MessageBuilder(endpoint.mav, opts.autopilot,
+                             (origin.lat_deg, origin.lon_deg, origin.ground_alt_msl_m),
+                             opts.seed)
+    device_schedule = (StreamSchedule(GIMBAL_DEVICE_STREAMS_HZ,
+                                      random.Random(f"{opts.seed}:gimbal-device"))
+                       if device else None)
+    need = {"ATTITUDE", "GLOBAL_POSITION_INT"} | ({"GIMBAL_DEVICE_ATTITUDE_STATUS"}
+                                                   if has_gimbal else set())
+    frame_rate_hz = opts.mission.frame_rate_hz
+    first_sent: dict[str, float] = {}
+    trigger = opts.camera_trigger or opts.mission.frame_source == "capture"
+    guidance_box: list[Guidance | None] = [None]
+
+    def phase_armed(t_s: float) -> tuple[str, bool]:
+        g = guidance_box[0]
+        if g is None or g.leg is None or g.done:
+            return "ground", False
+        return g.leg.kind, True
+
+    def send_due(s: VehicleState, _unused) -> None:
+        t = s.t_s
+        # A MAVLink gimbal boots faster than the autopilot: its reports start first (and
+        # the first frame then waits for the autopilot's attitude and position only).
+        gimbal_up = device_schedule is None or "GIMBAL_DEVICE_ATTITUDE_STATUS" in first_sent
+        names = endpoint.due(t) if gimbal_up else []
+        if not names and device_schedule is None:
+            return
+        health = endpoint.gimbal_health(t)
+        report = None
+        if has_gimbal and health.value != "silent":
+            report = gimbal_report(mode, gimbal.R_ned_gimbal(_R_ned_body(s)), gimbal.demand,
+                                   gimbal.angles)
+        failure = GIMBAL_FAILED_FLAGS if health.value == "failed" else 0
+        boot_ms = endpoint.time_boot_ms(t)
+        if names:
+            phase, armed = phase_armed(t)
+            snap = Snapshot(s, boot_ms, endpoint.unix_time_us(t), endpoint.gps_offset_ned_m(t),
+                            phase, armed, report[0] if report and not device else None,
+                            report[1] if report else 0, failure,
+                            report[2] if report else 0.0, 1.0 - t / 1500.0)
+            for name in names:
+                msg = builder.build(name, snap)
+                if msg is not None:
+                    endpoint.send(msg, t)
+                    if name in need and name not in first_sent and not endpoint.is_down(t):
+                        first_sent[name] = boot_ms / 1000.0
+        if device_schedule is not None and not endpoint.is_down(t):
+            dev_ms = int((t + GIMBAL_CLOCK_OFFSET_S) * 1000)
+            for name in device_schedule.due(t):
+                if name != "HEARTBEAT" and report is None:
+                    continue
+                q = report[0] if report else (1.0, 0.0, 0.0, 0.0)
+                msg = gimbal_device_messages(endpoint.mav, name, dev_ms, q, failure,
+                                             report[2] if report else 0.0)
+                endpoint.send(msg, t, component_id=GIMBAL_COMPONENT)
+                if name != "HEARTBEAT" and name not in first_sent:
+                    first_sent[name] = boot_ms / 1000.0
+
+    wall0 = time.monotonic()
+    if plan is None:
+        plan = _wait_for_mission(endpoint, vehicle, gimbal, send_due, opts.speed, origin)
+    guidance = Guidance(plan, start_s=vehicle.t_s + 1.0)
+    guidance_box[0] = guidance
+    dt = vehicle.dt_s
+    frames: list[tuple[float, _Sample, _Sample]] = []
+    next_frame_s = first_frame_s = math.inf
+    before: _Sample | None = None
+    frame_index = 0
+    k = 0
+    landed_s = math.inf
+    while True:
+        s = vehicle.state()
+        t = s.t_s
+        sp = guidance.setpoint(t)
+        if guidance.done and landed_s == math.inf:
+            landed_s = t
+        if t > landed_s + 2.0 or t > MAX_FLIGHT_S:
+            break
+        if k % POLL_EVERY_STEPS == 0:
+            endpoint.poll(t)
+        send_due(s, None)
+        if next_frame_s == math.inf and need <= first_sent.keys():
+            # As pdcov evaluate places them: t0 + k / rate from where all streams cover.
+            next_frame_s = first_frame_s = max(first_sent[n] for n in need)
+        # Camera frames in (t - dt, t]: interpolate the true pose from the previous step.
+        if before is not None and next_frame_s <= t + 1e-9:
+            after = _sample(s, gimbal)
+            while next_frame_s <= t + 1e-9:
+                frames.append((next_frame_s, before, after))
+                if trigger:
+                    _send_capture(endpoint, builder, before, after, next_frame_s, frame_index,
+                                  origin, t)
+                frame_index += 1
+                next_frame_s = first_frame_s + frame_index / frame_rate_hz
+            before = None
+        if next_frame_s <= t + dt + 1e-9:
+            before = _sample(s, gimbal)
+        vehicle.set_motors(*controller.update(sp, s.r_ned_m, s.v_ned_mps, s.roll_rad,
+                                              s.pitch_rad, s.yaw_rad, s.p_rps, s.q_rps,
+                                              s.r_rps))
+        gimbal.step(dt, s.roll_rad, s.pitch_rad, s.yaw_rad)
+        if guidance.leg is not None:
+            gimbal.command(guidance.leg.gimbal_pitch_rad, guidance.leg.gimbal_yaw_rad)
+        vehicle.step()
+        k += 1
+        if opts.speed > 0:
+            lag = t / opts.speed - (time.monotonic() - wall0)
+            if lag > 0.002:
+                time.sleep(lag)
+    n = _write_truth(truth, frames, origin, lever)
+    return FlightResult(vehicle.t_s, time.monotonic() - wall0, n, endpoint.n_sent, tlog, truth)
+
+
+def _interpolate(t_s: float, a: _Sample, b: _Sample
+                 ) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+    w = 0.0 if b.t_s == a.t_s else (t_s - a.t_s) / (b.t_s - a.t_s)
+    lat = a.lat_deg + w * (b.lat_deg - a.lat_deg)
+    lon = a.lon_deg + w * (b.lon_deg - a.lon_deg)
+    alt = a.alt_msl_m + w * (b.alt_msl_m - a.alt_msl_m)
+    q = slerp_quat_wxyz(np.stack([a.q_ned_body, a.q_ned_gimbal]),
+                        np.stack([b.q_ned_body, b.q_ned_gimbal]), np.array([w, w]))
+    return lat, lon, alt, q[0], q[1]
+
+
+def _send_capture(endpoint, builder: MessageBuilder, a: _Sample, b: _Sample, t_frame: float,
+                  index: int, origin: Origin, now_s: float) -> None:
+    lat, lon, alt, _qb, qg = _interpolate(t_frame, a, b)
+    ms = int(round(t_frame * 1000))
+    msg = camera_image_captured(endpoint.mav, ms, endpoint.unix_time_us(t_frame), lat, lon,
+                                alt, alt - origin.ground_alt_msl_m, tuple(qg), index)
+    endpoint.send(msg, now_s)
+
+
+def _write_truth(path: Path, frames: list[tuple[float, _Sample, _Sample]], origin: Origin,
+                 lever_frd_m: np.ndarray) -> int:
+    """truth.csv in pdcov's pose CSV format: t_s, camera centre ENU m, q of R_enu_cam."""
+    from pdcov.core.rotations import R_from_quat_wxyz
+
+    rows = []
+    for t_s, a, b in frames:
+        lat, lon, alt, q_body, q_gimbal = _interpolate(t_s, a, b)
+        R_ned_body = R_from_quat_wxyz(q_body)
+        r_body = geodetic_to_enu(np.array(lat), np.array(lon), np.array(alt), origin)
+        r_cam = r_body.reshape(3) + R_ENU_NED @ R_ned_body @ lever_frd_m
+        R_enu_cam = R_ENU_NED @ R_from_quat_wxyz(q_gimbal) @ R_GIMBAL_CAM
+        q = quat_wxyz_from_R(R_enu_cam)
+        rows.append([repr(float(t_s)), *map(repr, map(float, r_cam)), *map(repr, map(float, q))])
+    with atomic_write(path, "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(POSE_CSV_COLUMNS)
+        writer.writerows(rows)
+    return len(rows)

@@ -1,0 +1,271 @@
+"""The vehicle's telemetry as ArduPilot-like or PX4-like firmware sends it: stream tables,
+parameters, and the builders of each message from the simulated state.
+
+Units on the wire (common.xml): lat/lon degE7, altitudes mm, speeds cm/s, headings cdeg,
+attitude rad (ATTITUDE yaw in [-pi, pi]), quaternions (w, x, y, z). Frames: attitude body
+FRD -> NED; LOCAL_POSITION_NED about home; GIMBAL_DEVICE_ATTITUDE_STATUS per gimbal mode:
+
+* ``ardupilot-servo``: from the autopilot (component 1, gimbal_device_id 1), flags 44
+  (ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME) yet the quaternion is the body-frame servo
+  demand ``Quaternion::from_euler(roll, pitch, yaw)``, as ArduPilot's AP_Mount_Servo sends
+  it (docs/autopilots.md); MNT1_TYPE 1.
+* ``ardupilot-device``: from the autopilot (component 1, gimbal_device_id 1), flags 44; the
+  quaternion is what the flags say: roll/pitch against the horizon, yaw from the vehicle's
+  heading (the vehicle frame, NED turned by the heading); MNT1_TYPE 7 (BrushlessPWM).
+* ``device-earth``: from the gimbal itself (component 154, MAV_COMP_ID_GIMBAL, its own
+  HEARTBEAT and boot clock, gimbal_device_id 0), flags 76 (ROLL_LOCK | PITCH_LOCK |
+  YAW_IN_EARTH_FRAME): the quaternion is R_ned_gimbal; MNT1_TYPE 6 (a MAVLink gimbal).
+* ``fixed``: no gimbal messages; MNT1_TYPE 0.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mav
+
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx, quat_wxyz_from_R
+
+from .dynamics import VehicleState, local_scales
+from .protocol import AUTOPILOTS
+
+GIMBAL_MODES = ("ardupilot-servo", "ardupilot-device", "device-earth", "fixed")
+GIMBAL_COMPONENT = mav.MAV_COMP_ID_GIMBAL  # 154
+GIMBAL_CLOCK_OFFSET_S = 1.234
+"""The gimbal's own boot clock runs this far ahead of the autopilot's (it boots faster)."""
+
+FLAGS_AUTOPILOT = (mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mav.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+                   | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME)  # 44
+FLAGS_DEVICE_EARTH = (mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mav.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+                      | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME)  # 76
+GIMBAL_FAILED_FLAGS = mav.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+MNT1_TYPE = {"ardupilot-servo": 1, "ardupilot-device": 7, "device-earth": 6, "fixed": 0}
+
+# Default stream rates in Hz. ArduPilot: what a ground station's usual stream-rate request
+# gives (EXTRA1 20 Hz: ATTITUDE, ATTITUDE_QUATERNION; POSITION 10 Hz; EXTENDED_STATUS 2 Hz;
+# the mount's status at 20 Hz as on the real servo-gimbal log). PX4: its "onboard" link mode.
+STREAMS_HZ = {
+    "ardupilot": {"HEARTBEAT": 1.0, "SYS_STATUS": 2.0, "SYSTEM_TIME": 1.0, "ATTITUDE": 20.0,
+                  "ATTITUDE_QUATERNION": 20.0, "GLOBAL_POSITION_INT": 10.0,
+                  "LOCAL_POSITION_NED": 10.0, "GPS_RAW_INT": 5.0, "HOME_POSITION": 1.0,
+                  "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0},
+    "px4": {"HEARTBEAT": 1.0, "SYS_STATUS": 5.0, "SYSTEM_TIME": 1.0, "ATTITUDE": 50.0,
+            "ATTITUDE_QUATERNION": 50.0, "GLOBAL_POSITION_INT": 50.0,
+            "LOCAL_POSITION_NED": 30.0, "GPS_RAW_INT": 5.0, "HOME_POSITION": 0.5,
+            "GIMBAL_DEVICE_ATTITUDE_STATUS": 10.0},
+}
+GIMBAL_DEVICE_STREAMS_HZ = {"HEARTBEAT": 1.0, "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0}
+
+# ArduCopter custom modes (mode numbers) and PX4 main/sub modes, per flight phase.
+_ARDUCOPTER_MODE = {"ground": 0, "takeoff": 3, "waypoint": 3, "return": 6, "land": 9}
+_PX4_MODE = {"ground": (3, 0), "takeoff": (4, 2), "waypoint": (4, 4), "return": (4, 5),
+             "land": (4, 6)}
+
+
+def autopilot_params(autopilot: str, gimbal_mode: str, system_id: int,
+                     limits_deg: tuple[tuple[float, float], ...]) -> dict[str, float]:
+    """Parameters the endpoint answers: the mount's type and limits (ArduPilot names, which
+    pdcov reads; ArduPilot hides the limits while MNT1_TYPE is 0), and a few others."""
+    if autopilot == "px4":
+        params = {"MAV_SYS_ID": float(system_id), "MPC_XY_CRUISE": 5.0,
+                  "MNT_MODE_OUT": 2.0 if gimbal_mode != "fixed" else -1.0}
+        return params
+    params = {"SYSID_THISMAV": float(system_id), "MAV_GCS_SYSID": 255.0, "FRAME_CLASS": 1.0,
+              "FRAME_TYPE": 1.0, "WPNAV_SPEED": 500.0, "MNT1_TYPE": float(MNT1_TYPE[gimbal_mode])}
+    if gimbal_mode != "fixed":
+        for axis, (lo, hi) in zip(("ROLL", "PITCH", "YAW"), limits_deg, strict=True):
+            params[f"MNT1_{axis}_MIN"] = float(lo)
+            params[f"MNT1_{axis}_MAX"] = float(hi)
+    return params
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """What the messages of one instant are built from.
+
+    state: the true vehicle state. time_boot_ms / unix_us: the autopilot's clocks.
+    gps_offset_ned_m: a GPS glitch to add to reported positions. phase: the guidance leg kind
+    ('ground' before take-off and after landing). armed. gimbal_q_wxyz / gimbal_flags /
+    gimbal_failure: the gimbal report (None: no gimbal). battery_fraction: 0..1.
+    """
+
+    state: VehicleState
+    time_boot_ms: int
+    unix_us: int
+    gps_offset_ned_m: tuple[float, float, float]
+    phase: str
+    armed: bool
+    gimbal_q_wxyz: tuple[float, float, float, float] | None
+    gimbal_flags: int
+    gimbal_failure: int
+    gimbal_delta_yaw_rad: float
+    battery_fraction: float
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class MessageBuilder:
+    """Builds the autopilot's messages by stream name. ``mavlink`` is the endpoint's MAVLink
+    object (``.X_encode``); home: (lat_deg, lon_deg, alt_msl_m)."""
+
+    def __init__(self, mavlink: mav.MAVLink, autopilot: str,
+                 home: tuple[float, float, float], seed: int) -> None:
+        if autopilot not in AUTOPILOTS:
+            raise ValueError(f"autopilot {autopilot!r}: expected one of {AUTOPILOTS}")
+        self.m = mavlink
+        self.autopilot = autopilot
+        self.home = home
+        self._m_per_rad = local_scales(home[0])
+        self._gps_rng = random.Random(f"{seed}:gps")
+        self._gps_noise = [0.0, 0.0, 0.0]
+
+    def _reported_position(self, s: Snapshot) -> tuple[float, float, float, float, float, float]:
+        """(lat_deg, lon_deg, alt_msl_m, north, east, down m about home) with the glitch."""
+        dn, de, dd = s.gps_offset_ned_m
+        st = s.state
+        lat = st.lat_deg + math.degrees(dn / self._m_per_rad[0])
+        lon = st.lon_deg + math.degrees(de / self._m_per_rad[1])
+        n, e, d = st.r_ned_m
+        return lat, lon, st.alt_msl_m - dd, n + dn, e + de, d + dd
+
+    def build(self, name: str, s: Snapshot) -> mav.MAVLink_message | None:
+        """The message of stream ``name`` at snapshot ``s`` (None: nothing to send)."""
+        return getattr(self, "_" + name.lower())(s)
+
+    def _heartbeat(self, s: Snapshot) -> mav.MAVLink_message:
+        phase = s.phase
+        state = mav.MAV_STATE_ACTIVE if s.armed else mav.MAV_STATE_STANDBY
+        armed = mav.MAV_MODE_FLAG_SAFETY_ARMED if s.armed else 0
+        if self.autopilot == "ardupilot":
+            base = (mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_STABILIZE_ENABLED
+                    | mav.MAV_MODE_FLAG_GUIDED_ENABLED | mav.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
+            return self.m.heartbeat_encode(mav.MAV_TYPE_QUADROTOR,
+                                           mav.MAV_AUTOPILOT_ARDUPILOTMEGA, base | armed,
+                                           _ARDUCOPTER_MODE[phase], state)
+        main, sub = _PX4_MODE[phase]
+        base = (mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_STABILIZE_ENABLED
+                | (mav.MAV_MODE_FLAG_AUTO_ENABLED | mav.MAV_MODE_FLAG_GUIDED_ENABLED
+                   if main == 4 else mav.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED))
+        return self.m.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4,
+                                       base | armed, (main << 16) | (sub << 24), state)
+
+    def _system_time(self, s: Snapshot) -> mav.MAVLink_message:
+        return self.m.system_time_encode(s.unix_us, s.time_boot_ms)
+
+    def _attitude(self, s: Snapshot) -> mav.MAVLink_message:
+        st = s.state
+        return self.m.attitude_encode(s.time_boot_ms, st.roll_rad, st.pitch_rad,
+                                      _wrap(st.yaw_rad), st.p_rps, st.q_rps, st.r_rps)
+
+    def _attitude_quaternion(self, s: Snapshot) -> mav.MAVLink_message:
+        st = s.state
+        w, x, y, z = quat_wxyz_from_euler_zyx(st.roll_rad, st.pitch_rad, st.yaw_rad).tolist()
+        return self.m.attitude_quaternion_encode(s.time_boot_ms, w, x, y, z, st.p_rps,
+                                                 st.q_rps, st.r_rps)
+
+    def _global_position_int(self, s: Snapshot) -> mav.MAVLink_message:
+        lat, lon, alt, _n, _e, _d = self._reported_position(s)
+        vn, ve, vd = s.state.v_ned_mps
+        hdg = round(math.degrees(s.state.yaw_rad % (2 * math.pi)) * 100) % 36000
+        return self.m.global_position_int_encode(
+            s.time_boot_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
+            round((alt - self.home[2]) * 1000), round(vn * 100), round(ve * 100),
+            round(vd * 100), hdg)
+
+    def _local_position_ned(self, s: Snapshot) -> mav.MAVLink_message:
+        _lat, _lon, _alt, n, e, d = self._reported_position(s)
+        vn, ve, vd = s.state.v_ned_mps
+        return self.m.local_position_ned_encode(s.time_boot_ms, n, e, d, vn, ve, vd)
+
+    def _gps_raw_int(self, s: Snapshot) -> mav.MAVLink_message:
+        lat, lon, alt, _n, _e, _d = self._reported_position(s)
+        # The receiver's own error: a slow random walk of ~0.3 m (the EKF output,
+        # GLOBAL_POSITION_INT, is the truth).
+        g = self._gps_rng.gauss
+        noise = self._gps_noise
+        for i in range(3):
+            noise[i] += -0.05 * noise[i] + 0.1 * g(0.0, 1.0)
+        lat += math.degrees(noise[0] / self._m_per_rad[0])
+        lon += math.degrees(noise[1] / self._m_per_rad[1])
+        vn, ve, _vd = s.state.v_ned_mps
+        vel = math.hypot(vn, ve)
+        cog = round(math.degrees(math.atan2(ve, vn) % (2 * math.pi)) * 100) % 36000
+        return self.m.gps_raw_int_encode(
+            s.time_boot_ms * 1000, mav.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7),
+            round((alt + noise[2]) * 1000), 70, 110, round(vel * 100),
+            cog if vel > 0.5 else 65535, 14, round((alt + noise[2]) * 1000), 300, 500, 100, 0,
+            0)
+
+    def _home_position(self, s: Snapshot) -> mav.MAVLink_message:
+        lat, lon, alt = self.home
+        return self.m.home_position_encode(round(lat * 1e7), round(lon * 1e7),
+                                           round(alt * 1000), 0.0, 0.0, 0.0, [1.0, 0, 0, 0],
+                                           0.0, 0.0, 0.0, s.unix_us)
+
+    def _sys_status(self, s: Snapshot) -> mav.MAVLink_message:
+        sensors = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                   | mav.MAV_SYS_STATUS_SENSOR_3D_MAG
+                   | mav.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mav.MAV_SYS_STATUS_SENSOR_GPS
+                   | mav.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+                   | mav.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+                   | mav.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+                   | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+                   | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
+        frac = min(1.0, max(0.0, s.battery_fraction))
+        volts = 14.0 + 2.8 * frac  # 4S LiPo
+        current_ca = 1200 if s.armed else 50
+        return self.m.sys_status_encode(sensors, sensors, sensors, 250, round(volts * 1000),
+                                        current_ca, round(100 * frac), 0, 0, 0, 0, 0, 0)
+
+    def _gimbal_device_attitude_status(self, s: Snapshot) -> mav.MAVLink_message | None:
+        if s.gimbal_q_wxyz is None:
+            return None
+        return self.m.gimbal_device_attitude_status_encode(
+            0, 0, s.time_boot_ms, s.gimbal_flags, list(s.gimbal_q_wxyz), math.nan, math.nan,
+            math.nan, s.gimbal_failure, s.gimbal_delta_yaw_rad, math.nan, 1)
+
+
+def gimbal_report(mode: str, R_ned_gimbal: np.ndarray, servo_demand: tuple[float, float, float],
+                  angles: tuple[float, float, float]
+                  ) -> tuple[tuple[float, float, float, float] | None, int, float]:
+    """(quaternion w, x, y, z, flags, delta yaw rad) reported for a gimbal mode; quaternion
+    None for a fixed mount. servo_demand: (roll, pitch, yaw) body-frame demand (servo).
+    angles: the stabilised gimbal's (roll, pitch, yaw from heading)."""
+    if mode == "ardupilot-servo":
+        q = quat_wxyz_from_euler_zyx(*servo_demand)
+        return tuple(q.tolist()), FLAGS_AUTOPILOT, servo_demand[2]  # type: ignore[return-value]
+    if mode == "ardupilot-device":
+        q = quat_wxyz_from_euler_zyx(*angles)
+        return tuple(q.tolist()), FLAGS_AUTOPILOT, angles[2]  # type: ignore[return-value]
+    if mode == "device-earth":
+        q = quat_wxyz_from_R(R_ned_gimbal)
+        return tuple(q.tolist()), FLAGS_DEVICE_EARTH, angles[2]  # type: ignore[return-value]
+    return None, 0, 0.0
+
+
+def gimbal_device_messages(m: mav.MAVLink, name: str, time_boot_ms: int,
+                           q_wxyz: tuple[float, float, float, float], failure: int,
+                           delta_yaw_rad: float) -> mav.MAVLink_message:
+    """A gimbal device's own HEARTBEAT or GIMBAL_DEVICE_ATTITUDE_STATUS (device-earth)."""
+    if name == "HEARTBEAT":
+        return m.heartbeat_encode(mav.MAV_TYPE_GIMBAL, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                                  mav.MAV_STATE_ACTIVE)
+    return m.gimbal_device_attitude_status_encode(
+        0, 0, time_boot_ms, FLAGS_DEVICE_EARTH, list(q_wxyz), math.nan, math.nan, math.nan,
+        failure, delta_yaw_rad, math.nan, 0)
+
+
+def camera_image_captured(m: mav.MAVLink, time_boot_ms: int, unix_us: int,
+                          lat_deg: float, lon_deg: float, alt_msl_m: float, rel_alt_m: float,
+                          q_ned_cam_wxyz: tuple[float, float, float, float], index: int
+                          ) -> mav.MAVLink_message:
+    """CAMERA_IMAGE_CAPTURED of frame ``index`` (capture_result 1 = success); q is the
+    camera's gimbal-frame attitude in NED."""
+    return m.camera_image_captured_encode(
+        time_boot_ms, unix_us, 0, round(lat_deg * 1e7), round(lon_deg * 1e7),
+        round(alt_msl_m * 1000), round(rel_alt_m * 1000), list(q_ned_cam_wxyz), index, 1, b"")
