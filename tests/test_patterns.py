@@ -150,7 +150,10 @@ def test_default_datum_of_an_l_shaped_domain_is_inside_it():
     assert not L_SHAPE.contains(Point(c))
     d = P.default_datum_enu_m(L_SHAPE)
     assert L_SHAPE.contains(Point(d))
-    assert np.linalg.norm(d - c) < 30.0  # the free point nearest the circle's centre
+    # The point of the L farthest from its edges, on its diagonal: (a, a) as far from the
+    # outer edges as from the inner corner, a = sqrt(2) (30 - a).
+    a = 30 * math.sqrt(2) / (1 + math.sqrt(2))
+    assert np.allclose(d, [a, a], atol=0.2)
     for plan in (P.expanding_square(L_SHAPE, 10.0, 10.0, 5.0),
                  P.sector_search(L_SHAPE, 10.0, 5.0)):
         assert np.allclose(plan.xy_enu_m[0], d)  # the pattern starts at the datum it names
@@ -193,3 +196,52 @@ def test_expanding_square_off_centre_keeps_its_shape_and_reports_coverage():
     share = LineString(xy).buffer(10.0, join_style="mitre").intersection(free).area / free.area
     assert 0.10 < share < 0.20
     assert plan.description.endswith(f"covers {share:.0%} of the free space")
+
+
+def test_sector_default_radius_keeps_the_triangles_inside():
+    free = box(0, 0, 400, 400)
+    for datum in ([200.0, 200.0], [100.0, 220.0]):
+        d = np.array(datum)
+        plan = P.sector_search(free, 10.0, 5.0, datum_enu_m=d)
+        xy = plan.xy_enu_m
+        assert len(xy) == 10 and in_free_space(plan, free)
+        r = np.linalg.norm(xy - d, axis=1)
+        assert np.allclose(r[[0, 3, 6, 9]], 0.0)
+        radius = r[1]
+        assert np.allclose(r[[1, 2, 4, 5, 7, 8]], radius)
+        # Right turns of 120 deg at the vertices, straight on through the datum.
+        assert np.allclose(np.sort(np.abs(turns_deg(xy))), [0, 0] + [120] * 6, atol=1e-6)
+        # The largest such radius: 1 % more and a vertex would be outside.
+        bigger = d + 1.01 * (xy[[1, 2, 4, 5, 7, 8]] - d)
+        assert not all(free.covers(Point(p)) for p in bigger)
+        named = float(plan.description.split("radius ")[1].split(" m")[0])
+        assert named == pytest.approx(radius, abs=1e-3)
+    # Centred in the square: the vertices north and south touch the edges (radius 200).
+    centred = P.sector_search(free, 10.0, 5.0)
+    assert np.linalg.norm(centred.xy_enu_m[1] - [200, 200]) == pytest.approx(200.0, abs=0.02)
+
+
+def test_sector_second_pattern_turned_30_deg():
+    d = np.zeros(2)
+    plan = P.sector_search(box(-100, -100, 100, 100), 10.0, 5.0, datum_enu_m=d,
+                           heading_rad=0.0, radius_m=30.0, second=True)
+    xy = plan.xy_enu_m
+    assert len(xy) == 19 and "second pattern turned 30 deg" in plan.description
+    bearings = np.degrees(np.arctan2(xy[:, 0], xy[:, 1])) % 360
+    assert np.allclose(bearings[[1, 2, 4, 5, 7, 8]], [0, 60, 240, 300, 120, 180], atol=1e-9)
+    assert np.allclose(bearings[[10, 11, 13, 14, 16, 17]], [30, 90, 270, 330, 150, 210],
+                       atol=1e-9)
+    assert np.allclose(np.linalg.norm(xy[[0, 3, 6, 9, 12, 15, 18]], axis=1), 0.0)
+
+
+def test_sector_with_a_radius_past_the_boundary_ends_there_and_says_how_much_it_covers():
+    free = box(0, 0, 400, 400)
+    plan = P.sector_search(free, 10.0, 5.0, datum_enu_m=np.array([200.0, 200.0]),
+                           radius_m=250.0)
+    xy = plan.xy_enu_m
+    # First leg north to the edge, and no further: no flight along the boundary.
+    assert np.allclose(xy, [[200, 200], [200, 400]])
+    assert plan.description.endswith("covers 0% of the free space")
+    whole = P.sector_search(free, 10.0, 5.0, datum_enu_m=np.array([200.0, 200.0]))
+    hexagon = 3 * math.sqrt(3) / 2 * 200.0 ** 2 / 400.0 ** 2
+    assert whole.description.endswith(f"covers {hexagon:.0%} of the free space")

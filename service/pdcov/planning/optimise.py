@@ -32,7 +32,7 @@ from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
 from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
-PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector")
+PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector", "sector-2")
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,9 +128,10 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
         plan = patterns.spiral(free, spacing, alt, v, centre_enu_m=c)
     elif params.pattern == "expanding-square":
         plan = patterns.expanding_square(free, spacing, alt, v, datum_enu_m=c, heading_rad=h)
-    else:
+    else:  # sector-2: the IAMSAR second pattern, turned 30 deg, follows the first
         plan = patterns.sector_search(free, alt, v, datum_enu_m=c, heading_rad=h,
-                                      radius_m=params.radius_m)
+                                      radius_m=params.radius_m,
+                                      second=params.pattern == "sector-2")
     return plan, spacing
 
 

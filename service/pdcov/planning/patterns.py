@@ -14,6 +14,7 @@ ENU (sin psi, cos psi).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import shapely
@@ -317,12 +318,16 @@ def auto_centre_enu_m(free_enu: Polygon | MultiPolygon) -> np.ndarray:
 
 def default_datum_enu_m(free_enu: Polygon | MultiPolygon) -> np.ndarray:
     """A datum inside the free space (ENU metres): the centre of the smallest enclosing
-    circle when it lies in the free space, else the free point nearest to it (an L-shaped
-    domain's circle centre lies in its notch, outside the L)."""
+    circle when it lies in the free space, else the point of the largest part of the free
+    space farthest from its boundary (pole of inaccessibility), where a pattern has room.
+    An L-shaped domain's circle centre lies in its notch, outside the L."""
     c = auto_centre_enu_m(free_enu)
     if shapely.covers(free_enu, Point(c)):
         return c
-    return _nearest_free_point(free_enu, c)
+    largest = max(polygons_of(free_enu), key=lambda p: p.area)
+    minx, miny, maxx, maxy = largest.bounds
+    q = shapely.ops.polylabel(largest, tolerance=1e-3 * max(maxx - minx, maxy - miny))
+    return np.array([q.x, q.y])
 
 
 def _nearest_free_point(free_enu: Polygon | MultiPolygon, p_enu_m: np.ndarray) -> np.ndarray:
@@ -421,23 +426,71 @@ def expanding_square(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl
                         f"({d[0]:.1f}, {d[1]:.1f}) m; covers {share:.0%} of the free space")
 
 
+SECTOR_SECOND_ROTATION_RAD = math.radians(30.0)  # IAMSAR: second pattern turned 30 deg
+
+
 def sector_search(free_enu: Polygon | MultiPolygon, alt_agl_m: float, speed_mps: float,
                   datum_enu_m: np.ndarray | None = None, heading_rad: float = 0.0,
-                  radius_m: float | None = None) -> Plan:
+                  radius_m: float | None = None, second: bool = False) -> Plan:
     """IAMSAR sector search (VS): three equilateral triangles through the datum, right turns
-    of 120 deg, first leg along ``heading_rad``, datum as for ``expanding_square``; radius
-    defaults to the free space's reach
-    from the datum. Points at bearings h + (0, 60, 240, 300, 120, 180) deg."""
+    of 120 deg, first leg along ``heading_rad``, datum as for ``expanding_square``: points
+    at bearings h + (0, 60, 240, 300, 120, 180) deg. With ``second``, the IAMSAR second
+    pattern follows from the datum, turned 30 deg right so its legs fall between the first's.
+
+    Radius: by default the largest (up to the free space's reach from the datum) that keeps
+    every triangle inside the free space; a given radius whose pattern leaves the free space
+    is flown up to the boundary, where the pattern ends (as ``expanding_square``). The
+    description gives the share of the free space inside the hexagon(s) the triangles span.
+    """
     d = datum_in_free_space(free_enu, datum_enu_m)
-    radius = _reach_m(free_enu, d) if radius_m is None else radius_m
+    headings = (heading_rad, heading_rad + SECTOR_SECOND_ROTATION_RAD) if second \
+        else (heading_rad,)
+
+    def pattern(radius: float) -> np.ndarray:
+        pts = [d]
+        for h in headings:
+            for deg in (0, 60, None, 240, 300, None, 120, 180, None):
+                pts.append(d if deg is None
+                           else d + radius * unit_of_heading(h + math.radians(deg)))
+        return np.array(pts)
+
+    if radius_m is None:
+        radius = _largest_inside(pattern, free_enu, _reach_m(free_enu, d))
+        if radius < 0.5:
+            raise ConfigError(f"sector search: no triangle fits in the free space around the "
+                              f"datum ({d[0]:.1f}, {d[1]:.1f}) m (on its boundary?); move "
+                              f"the datum inside or give --radius-m")
+    else:
+        radius = radius_m
     if not (radius > 0 and math.isfinite(radius)):
         raise ConfigError(f"sector search radius: expected a positive number of metres, "
                           f"got {radius}")
+    xy = _until_it_leaves(pattern(radius), free_enu)
+    if len(xy) < 2:
+        raise ConfigError(f"sector search: its first leg from the datum ({d[0]:.1f}, "
+                          f"{d[1]:.1f}) m leaves the free space at once; change the datum "
+                          f"or --heading-deg")
+    share = _share_of(free_enu, shapely.convex_hull(shapely.multipoints(xy)))
+    what = "sector search with the second pattern turned 30 deg" if second else "sector search"
+    return Plan.from_xy(xy, alt_agl_m, speed_mps,
+                        f"{what} radius {radius:g} m datum ({d[0]:.1f}, {d[1]:.1f}) m; "
+                        f"covers {share:.0%} of the free space")
 
-    def at(deg: float) -> np.ndarray:
-        return d + radius * unit_of_heading(heading_rad + math.radians(deg))
 
-    pts = np.array([d, at(0), at(60), d, at(240), at(300), d, at(120), at(180), d])
-    return Plan.from_xy(_clip_and_join(pts, free_enu), alt_agl_m, speed_mps,
-                        f"sector search radius {radius:g} m datum ({d[0]:.1f}, {d[1]:.1f}) m")
+def _largest_inside(pattern: Callable[[float], np.ndarray],
+                    free_enu: Polygon | MultiPolygon, max_m: float) -> float:
+    """The largest size r in (0, max_m] with ``pattern(r)`` (a polyline) in the free space,
+    by bisection to 1 cm (the pattern scales about a point of the free space)."""
+    free = free_enu.buffer(_COVER_TOL_M)
+    shapely.prepare(free)
 
+    def inside(r: float) -> bool:
+        return bool(shapely.covers(free, LineString(pattern(r))))
+
+    if inside(max_m):
+        return max_m
+    lo, hi = 0.0, max_m
+    while hi - lo > 0.01:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) else (lo, mid)
+    return lo
