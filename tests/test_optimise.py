@@ -147,3 +147,42 @@ def test_cli_plan_writes_plan_and_prediction(tmp_path):
                for a, b in zip(plan.waypoints, wpl.waypoints, strict=True))
     assert all(w.speed_mps == 6.0 and w.alt_agl_m == 10.0 for w in plan.waypoints)
     assert (out / "grid.npz").exists()
+
+
+@pytest.mark.parametrize("pattern, extra, flag", [
+    ("sector", ["--spacing-m", "10"], "--spacing-m"),
+    ("sector-2", ["--overlap", "0.3"], "--overlap"),
+    ("expanding-square", ["--radius-m", "30"], "--radius-m"),
+    ("lawnmower", ["--radius-m", "30"], "--radius-m"),
+    ("lawnmower", ["--centre-enu-m", "-40", "-40"], "--centre-enu-m"),
+    ("spiral", ["--heading-deg", "45"], "--heading-deg"),
+])
+def test_cli_plan_refuses_options_the_pattern_does_not_use(tmp_path, capsys, pattern, extra,
+                                                            flag):
+    from importlib import resources
+
+    from pdcov.cli import main
+
+    cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"
+    out = tmp_path / "plan"
+    assert main(["plan", "--config", str(cfg), "--pattern", pattern, "--altitude-m", "10",
+                 *extra, "--out", str(out), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag} does not apply to the {pattern} pattern" in err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_cli_sector_plan_has_no_spacing_and_names_its_coverage(tmp_path):
+    import json
+    from importlib import resources
+
+    from pdcov.cli import main
+
+    cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"
+    out = tmp_path / "plan"
+    assert main(["plan", "--config", str(cfg), "--pattern", "sector-2", "--altitude-m", "10",
+                 "--heading-deg", "10", "--out", str(out), "--no-figures"]) == 0
+    plan = json.loads((out / "metrics.json").read_text())["plan"]
+    assert plan["spacing_m"] is None
+    assert "second pattern turned 30 deg" in plan["description"]
+    assert "of the free space" in plan["description"]

@@ -27,6 +27,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
 from pdcov.errors import ConfigError, where
 from pdcov.planning.optimise import (
+    PATTERN_OPTIONS,
     PATTERNS,
     PlanParams,
     Prediction,
@@ -37,6 +38,7 @@ from pdcov.planning.optimise import (
     candidates,
     pareto_front,
     predict,
+    refuse_options,
     sweep,
     with_spacing,
 )
@@ -56,14 +58,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--pattern", choices=PATTERNS, default="lawnmower")
     p.add_argument("--altitude-m", type=float, required=True, help="altitude above ground")
     _spacing_args(p)
-    p.add_argument("--heading-deg", type=float, default=0.0,
+    p.add_argument("--heading-deg", type=float,
                    help="track direction (lawnmower) or first leg, clockwise from north (0)")
     p.add_argument("--speed-mps", type=float, default=5.0, help="ground speed (5)")
     p.add_argument("--centre-enu-m", type=float, nargs=2, metavar=("X", "Y"),
-                   help="spiral centre or IAMSAR datum in ENU m (default: centre of the "
-                        "smallest circle around the domain)")
-    p.add_argument("--radius-m", type=float, help="sector search radius (default: reach "
-                                                  "the whole domain)")
+                   help="spiral centre or IAMSAR datum in ENU m, inside the domain "
+                        "(default: docs/planning.md)")
+    p.add_argument("--radius-m", type=float, help="sector search radius (default: the "
+                                                  "largest keeping the triangles inside)")
     p.add_argument("--out", required=True, type=Path, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     p.set_defaults(func=run_plan)
@@ -122,7 +124,11 @@ def _spacing_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--spacing-m", type=float, help="track spacing (default: from the camera "
                                                    "swath and --overlap)")
-    g.add_argument("--overlap", type=float, default=0.2, help="side overlap (0.2)")
+    g.add_argument("--overlap", type=float, help="side overlap (0.2)")
+
+
+def _overlap(args: argparse.Namespace) -> float:
+    return 0.2 if args.overlap is None else args.overlap
 
 
 def scenario_of(mission: Mission) -> Scenario:
@@ -168,16 +174,24 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    given = (("spacing", "--spacing-m", args.spacing_m), ("spacing", "--overlap", args.overlap),
+             ("heading", "--heading-deg", args.heading_deg),
+             ("centre", "--centre-enu-m", args.centre_enu_m),
+             ("radius", "--radius-m", args.radius_m))
+    refuse_options(args.pattern, {name: flag for name, flag, value in given
+                                  if value is not None})
     mission = load_mission(args.config)
     sc = scenario_of(mission)
     params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
-                        math.radians(args.heading_deg), args.spacing_m, args.overlap,
+                        math.radians(args.heading_deg or 0.0), args.spacing_m,
+                        _overlap(args),
                         tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m)
     plan, spacing = build_plan(sc, params)
     pred = predict(sc, plan, params, progress=sys.stderr.isatty())
     print(write_prediction(args.out, mission, pred, pred.grid,
                             f"predicted: {plan.description} at {args.altitude_m:g} m",
-                            spacing, figures=not args.no_figures))
+                            spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
+                            figures=not args.no_figures))
     return 0
 
 
@@ -289,7 +303,7 @@ def run_refly(args: argparse.Namespace) -> int:
                           f"{sc.geometry} (same domain and cell_size_m?)")
     spacing = args.spacing_m
     if spacing is None:
-        spacing = track_spacing_m(sc.swath_width_m(args.altitude_m), args.overlap)
+        spacing = track_spacing_m(sc.swath_width_m(args.altitude_m), _overlap(args))
     r = plan_refly(sc, flown.log_miss_d, args.target_pd, args.altitude_m, args.speed_mps,
                    spacing, tuple(math.radians(h) for h in args.headings_deg),
                    tuple(args.start_enu_m), progress=sys.stderr.isatty())

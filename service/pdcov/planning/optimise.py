@@ -90,6 +90,25 @@ class PlanParams:
             raise ConfigError(f"pattern: expected one of {PATTERNS}, got {self.pattern!r}")
 
 
+# Which plan options each pattern uses: "spacing" (track spacing or side overlap),
+# "heading", "centre" (spiral centre or IAMSAR datum), "radius" (sector).
+PATTERN_OPTIONS = {"lawnmower": ("spacing", "heading"),
+                   "spiral": ("spacing", "centre"),
+                   "expanding-square": ("spacing", "heading", "centre"),
+                   "sector": ("heading", "centre", "radius"),
+                   "sector-2": ("heading", "centre", "radius")}
+
+
+def refuse_options(pattern: str, given: dict[str, str]) -> None:
+    """Raise ConfigError when an option given (name -> how the user wrote it, e.g.
+    ``{"spacing": "--spacing-m"}``) does not apply to ``pattern``: it would be ignored."""
+    for name, flag in given.items():
+        if name not in PATTERN_OPTIONS[pattern]:
+            uses = ", ".join(PATTERN_OPTIONS[pattern])
+            raise ConfigError(f"{flag} does not apply to the {pattern} pattern (it uses "
+                              f"{uses}); leave it out")
+
+
 @dataclass(frozen=True, slots=True)
 class Prediction:
     """A plan flown through the coverage grid."""
