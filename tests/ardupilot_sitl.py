@@ -113,3 +113,64 @@ def _port_bindable(port: int) -> bool:
         except OSError:
             return False
         return True
+
+
+# ---- ground-station actions for tests that fly (the daemon never sends these) ----------------
+
+COPTER_MODES = {"AUTO": 3, "GUIDED": 4}
+
+
+def command(conn, target: tuple[int, int], cmd: int, *params: float,
+            timeout_s: float = 5.0) -> int | None:
+    """COMMAND_LONG ``cmd`` with up to 7 params; the COMMAND_ACK result (None: no answer)."""
+    p = [*params, *[0.0] * (7 - len(params))]
+    conn.mav.command_long_send(*target, cmd, 0, *p)
+    t_end = time.monotonic() + timeout_s
+    while (left := t_end - time.monotonic()) > 0:
+        ack = conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=left)
+        if ack is not None and ack.command == cmd:
+            return ack.result
+    return None
+
+
+def fly_mission(conn, target: tuple[int, int], last_seq: int, *, altitude_m: float,
+                timeout_s: float) -> None:
+    """Point the mount at nadir, arm in GUIDED (retried until the pre-arm checks pass: GPS
+    lock and EKF origin take 30-45 s of autopilot time), take off to ``altitude_m``, switch to
+    AUTO and return once mission item ``last_seq`` is reached. README facts: arming in AUTO
+    was refused, GUIDED + NAV_TAKEOFF + AUTO flies the mission."""
+    from pymavlink.dialects.v20 import common as mav
+
+    t_end = time.monotonic() + timeout_s
+
+    def left() -> float:
+        if (s := t_end - time.monotonic()) <= 0:
+            raise TimeoutError(f"mission not flown within {timeout_s:g} s")
+        return s
+
+    for msg_id, hz in ((mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 5),
+                       (mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED, 0)):
+        if hz:
+            command(conn, target, mav.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+    # DO_MOUNT_CONTROL: pitch, roll, yaw (deg), ..., mode (param7).
+    command(conn, target, mav.MAV_CMD_DO_MOUNT_CONTROL, -90, 0, 0, 0, 0, 0,
+            mav.MAV_MOUNT_MODE_MAVLINK_TARGETING)
+    command(conn, target, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            COPTER_MODES["GUIDED"])
+    while command(conn, target, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1,
+                  timeout_s=min(2.0, left())) != mav.MAV_RESULT_ACCEPTED:
+        time.sleep(min(1.0, left()))
+    if command(conn, target, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0,
+               altitude_m) != mav.MAV_RESULT_ACCEPTED:
+        raise RuntimeError("take-off refused")
+    while True:
+        pos = conn.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=left())
+        if pos is not None and pos.relative_alt >= 0.9 * altitude_m * 1000:
+            break
+    if command(conn, target, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+               COPTER_MODES["AUTO"]) != mav.MAV_RESULT_ACCEPTED:
+        raise RuntimeError("AUTO refused")
+    while True:
+        reached = conn.recv_match(type="MISSION_ITEM_REACHED", blocking=True, timeout=left())
+        if reached is not None and reached.seq >= last_seq:
+            return

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from pdcov.bus.session import bus_config_from_dict
-from pdcov.config import load_mission
+from pdcov.cli import main as pdcov_main
+from pdcov.service.settings import load_serve_config
 
 SYSTEMD_DIR = Path(__file__).resolve().parents[1] / "systemd"
 UNIT = SYSTEMD_DIR / "pdcov.service"
@@ -110,12 +110,14 @@ def test_sysusers_creates_pdcov_in_dialout(tmp_path) -> None:
     assert "pdcov" in members
 
 
-def test_example_config_loads_with_the_config_loader() -> None:
-    mission = load_mission(SYSTEMD_DIR / "pdcov.yaml")
-    assert mission.new_grid().mask.sum() > 0
-    assert mission.mount.attitude_frame == "auto"
-    bus = bus_config_from_dict(mission.raw["bus"], mission.source)
-    assert bus.mode == "peer" and not bus.multicast_scouting
+def test_example_config_loads_and_passes_serve_check(tmp_path, capsys) -> None:
+    cfg = load_serve_config(SYSTEMD_DIR / "pdcov.yaml")
+    assert cfg.mission.new_grid().mask.sum() > 0
+    assert cfg.mission.mount.attitude_frame == "auto"
+    assert cfg.bus.mode == "peer" and not cfg.bus.multicast_scouting
+    assert cfg.link.connect[0].startswith("serial:/dev/serial0:")
     # The unit's --state-dir %S/pdcov is the state_dir the config names.
-    assert mission.raw["service"]["state_dir"] == "/var/lib/pdcov"
-    assert mission.raw["link"]["connect"][0].startswith("serial:/dev/serial0:")
+    assert cfg.service.state_dir == "/var/lib/pdcov"
+    assert pdcov_main(["serve", "--config", str(SYSTEMD_DIR / "pdcov.yaml"), "--state-dir",
+                       str(tmp_path / "state"), "--check"]) == 0
+    assert "ok" in capsys.readouterr().out
