@@ -6,7 +6,7 @@ from pdcov.cli import main
 
 
 def test_demo_writes_both_runs_and_the_comparison(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path)]) == 0
+    assert main(["demo", "--offline", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "ILLUSTRATIVE" in out
     for pattern in ("lawnmower", "spiral"):

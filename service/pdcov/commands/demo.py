@@ -1,4 +1,5 @@
-"""``pdcov demo``: the paper's scene, end to end, on the bundled example mission."""
+"""``pdcov demo``: the paper's scene on the bundled example mission, live (simulator, daemon,
+watcher on loopback) or ``--offline`` (planned lawnmower and spiral compared)."""
 
 from __future__ import annotations
 
@@ -6,31 +7,101 @@ import argparse
 from importlib import resources
 from pathlib import Path
 
-from pdcov.config import load_mission
+from pdcov.config import Mission, load_mission
+from pdcov.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "demo", help="plan, fly and evaluate the paper's 40 x 40 m scene",
-        description="On the bundled example mission (the paper's 40 x 40 m square, 640 x 480 "
-                    "camera at 5 frames/s, the ILLUSTRATIVE detector model): plan a "
-                    "lawnmower and a spiral at 10 m, fly them kinematically, evaluate the "
-                    "coverage of each and compare them, as in the paper's Figs. 7 and 8.")
+        "demo", help="the whole system live on this machine (or --offline: compare plans)",
+        description="Live (default): on loopback, a Zenoh router, the simulator flying a "
+                    "spiral over the paper's 40 x 40 m scene at 10 m (5 frames/s camera, "
+                    "the ILLUSTRATIVE detector model), the onboard daemon (`pdcov serve`) "
+                    "and the watcher (`pdcov watch`) showing the coverage climbing; then "
+                    "the report. --offline: plan a lawnmower and a spiral, fly them "
+                    "kinematically, evaluate and compare them (the paper's Figs. 7 and 8).")
     p.add_argument("--out", type=Path, default=Path("pdcov-demo"), help="output folder")
     p.add_argument("--altitude-m", type=float, default=10.0, help="flight height")
     p.add_argument("--speed-mps", type=float, default=5.0, help="flight speed")
+    p.add_argument("--speed", type=float, default=8.0, metavar="N",
+                   help="live: simulate N times faster than real time (default 8: about a "
+                        "minute)")
+    p.add_argument("--vehicles", type=int, choices=(1, 2), default=1,
+                   help="live: 1 drone (spiral) or 2 (a spiral over each half)")
+    p.add_argument("--web", nargs="?", const="127.0.0.1:8080", metavar="HOST:PORT",
+                   help="live: also show the map in the browser (default 127.0.0.1:8080)")
+    p.add_argument("--plain", action="store_true",
+                   help="live: print a line per change instead of the live table")
+    p.add_argument("--offline", action="store_true",
+                   help="compare a lawnmower and a spiral without flying (no processes)")
     p.set_defaults(func=run_demo)
 
 
+def _bundled_mission() -> tuple[Mission, dict]:
+    from pdcov.yaml_file import load_yaml
+
+    ref = resources.files("pdcov") / "data" / "demo_mission.yaml"
+    with resources.as_file(ref) as path:
+        return load_mission(path), load_yaml(path, "mission config")
+
+
 def run_demo(args: argparse.Namespace) -> int:
+    if not args.speed > 0:
+        raise ConfigError(f"--speed {args.speed}: expected a speed-up > 0")
+    if not (args.altitude_m > 0 and args.speed_mps > 0):
+        raise ConfigError("--altitude-m and --speed-mps: expected positive numbers")
+    return run_offline(args) if args.offline else run_live(args)
+
+
+def run_live(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from shapely.geometry import box
+
+    from pdcov.commands.plan import scenario_of
+    from pdcov.ground.app import parse_host_port, stdout_is_terminal
+    from pdcov.ground.demo import DemoVehicle, LiveDemo, run_live_demo
+    from pdcov.planning.optimise import PlanParams, build_plan
+    from pdcov.planning.plan import write_plan
+
+    web = None
+    if args.web:
+        try:
+            web = parse_host_port(args.web)
+        except ValueError as exc:
+            raise ConfigError(f"--web {exc}") from None
+    mission, doc = _bundled_mission()
+    print(f"pdcov demo: live, {args.vehicles} vehicle(s), {args.speed:g}x real time; "
+          "detector model is ILLUSTRATIVE, not measured; Ctrl-C stops everything",
+          flush=True)
+    scenario = scenario_of(mission)
+    free = scenario.free_space
+    x0, y0, x1, y1 = free.bounds
+    if args.vehicles == 1:
+        areas = [free]
+    else:  # a west and an east half, one spiral each
+        xm = 0.5 * (x0 + x1)
+        areas = [free.intersection(box(x0, y0, xm, y1)), free.intersection(box(xm, y0, x1, y1))]
+    vehicles = []
+    for k, area in enumerate(areas, start=1):
+        plan, _ = build_plan(replace(scenario, free_space=area),
+                             PlanParams("spiral", args.altitude_m, args.speed_mps))
+        path = args.out / "plans" / f"uav{k}.plan"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_plan(path, plan, mission.origin())
+        vehicles.append(DemoVehicle(f"uav{k}", k, path))
+    run_live_demo(LiveDemo(args.out, doc, tuple(vehicles), speed=args.speed, web=web,
+                           plain=args.plain or not stdout_is_terminal()))
+    return 0
+
+
+def run_offline(args: argparse.Namespace) -> int:
     from pdcov.commands.plan import scenario_of, write_prediction
     from pdcov.planning.optimise import PlanParams, build_plan, predict
     from pdcov.report.plots import compare_figure
 
-    ref = resources.files("pdcov") / "data" / "demo_mission.yaml"
-    with resources.as_file(ref) as path:
-        mission = load_mission(path)
-    print(f"pdcov demo: mission {ref.name} ({mission.vehicle_id}); detector model is "
+    mission, _ = _bundled_mission()
+    print(f"pdcov demo: mission demo_mission.yaml ({mission.vehicle_id}); detector model is "
           "ILLUSTRATIVE, not measured")
     scenario = scenario_of(mission)
     runs = []

@@ -153,6 +153,13 @@ class Watcher:
         announced = doc["tiles_seq"]
         if feed.awaiting_since_s is not None:
             return []
+        if state is not None and announced == feed.last_seq:
+            # Caught up: frames added since the last tiles changed no cell, so the grid is
+            # the daemon's as of this status; take its frame count.
+            frames = doc["frames"]
+            n = frames.get("grid", frames.get("used"))
+            if isinstance(n, int) and n > state.frames:
+                state.frames = n
         if feed.last_seq is None and feed.seq_floor is None:
             feed.seq_floor = announced  # first status since the snapshot: no tiles owed yet
         known = feed.last_seq if feed.last_seq is not None else feed.seq_floor

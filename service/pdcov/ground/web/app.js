@@ -189,7 +189,7 @@ function colourBar() {
 }
 
 function fit() {
-  mapCanvas.width = Math.max(320, Math.min(window.innerWidth - 320, 1000));
+  mapCanvas.width = Math.max(320, Math.min(window.innerWidth - 360, 1000));
   mapCanvas.height = Math.max(240, Math.min(window.innerHeight - 120, 800));
   draw();
 }

@@ -1,0 +1,121 @@
+"""The web map in a real headless browser (Debian's chromium driven by Selenium through
+chromium-driver): the page loads from pdcov's own server, updates live, and shows the
+coverage the publisher's grid has. Skipped when chromium or its driver is absent."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from watch_fixtures import TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
+
+zenoh = pytest.importorskip("zenoh")
+webdriver = pytest.importorskip("selenium.webdriver")
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--window-size=1280,900")
+
+
+def have_browser() -> bool:
+    import os
+
+    return os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)
+
+
+@pytest.fixture
+def browser(tmp_path):
+    if not have_browser():
+        pytest.skip("chromium and chromium-driver are not installed (.ci/run installs them)")
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    opts = Options()
+    opts.binary_location = CHROMIUM
+    for f in FLAGS:
+        opts.add_argument(f)
+    opts.add_argument(f"--user-data-dir={tmp_path / 'chromium-profile'}")
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    driver.set_page_load_timeout(30)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def wait_for(predicate, timeout_s: float, what: str):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        v = predicate()
+        if v:
+            return v
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def coverage(driver) -> tuple[str, str, int]:
+    el = driver.find_element("id", "coverage")
+    return el.text, el.get_attribute("data-share"), int(el.get_attribute("data-version") or -1)
+
+
+def test_web_map_shows_live_coverage(browser, tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = zenoh.open(zenoh_conf("router", listen=endpoint))
+    daemon = None
+    watch = None
+    try:
+        daemon = ZenohTinyDaemon(TinyPublisher("uav1"), endpoint)
+        daemon.publish_step(3)
+        port = free_port()
+        watch = subprocess.Popen(
+            [sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client", "--zenoh-connect",
+             endpoint, "--no-multicast-scouting", "--plain", "--web", f"127.0.0.1:{port}",
+             "--config", "service/pdcov/data/demo_mission.yaml"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        line = watch.stdout.readline()
+        assert f"web map at http://127.0.0.1:{port}/" in line, line
+        browser.get(f"http://127.0.0.1:{port}/")
+        first = wait_for(lambda: coverage(browser)[1] and coverage(browser), 30,
+                         "the first update")
+        for _ in range(20):
+            daemon.publish_step()
+            time.sleep(0.1)
+        # A live update: the shown coverage grows without reloading the page.
+        later = wait_for(lambda: (c := coverage(browser))[2] > first[2] and
+                         float(c[1]) > float(first[1]) and c, 30, "a live update")
+        time.sleep(2.0)  # nothing new flies: the page settles on the final figures
+        text, share, _ = coverage(browser)
+        expected = daemon.pub.grid.metrics([0.8]).proportion_at_or_above[0.8]
+        assert float(share) == pytest.approx(expected, abs=1e-12)
+        assert text == f"{100 * expected:.1f} %"
+        assert re.fullmatch(r"\d+\.\d %", later[0])
+        rows = browser.find_elements("css selector", "#vehicles tr[data-vehicle]")
+        assert [r.get_attribute("data-vehicle") for r in rows] == ["uav1"]
+        # The map was drawn: the canvas has coloured (heat map) pixels.
+        coloured = browser.execute_script("""
+            const c = document.getElementById('map'), d = c.getContext('2d')
+              .getImageData(0, 0, c.width, c.height).data;
+            let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i+3] > 0) n++;
+            return n;""")
+        assert coloured > 1000
+        shot = tmp_path / "web-map.png"
+        browser.save_screenshot(str(shot))
+        assert shot.stat().st_size > 10_000
+    finally:
+        if watch is not None:
+            watch.send_signal(signal.SIGTERM)
+            try:
+                watch.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                watch.kill()
+                watch.wait(timeout=10)
+        if daemon is not None:
+            daemon.close()
+        router.close()
