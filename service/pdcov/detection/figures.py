@@ -7,6 +7,7 @@ with the non-interactive Agg canvas, so nothing here touches a display.
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,12 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
                         report: ValidationReport | None = None,
                         title: str | None = None) -> None:
     """Write the figure to ``out_path`` (format from its suffix)."""
+    detector_figure(model, report, title).savefig(out_path, dpi=150)
+
+
+def detector_figure(model: DetectorModel, report: ValidationReport | None = None,
+                    title: str | None = None) -> Any:
+    """The figure (a matplotlib Figure on the Agg canvas), drawn but not saved."""
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
@@ -28,6 +35,9 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     except ImportError:
         raise PdcovError("plotting needs matplotlib: pip install 'pdcov[plots]'") from None
     edges = np.asarray(model.bin_edges_px)
+    scale = _x_scale(edges)
+    # Bars are drawn at x positions: the edges themselves, or 0..N on an index axis.
+    x_edges = np.arange(len(edges), dtype=float) if scale == "index" else edges
     fig = Figure(figsize=(10, 6.5), layout="constrained")
     FigureCanvasAgg(fig)
     ax_d, ax_p = fig.subplots(2, 1, sharex=True)
@@ -39,19 +49,37 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
     if model.counts is not None and model.extra.get("model") != "logistic":
         no_data = (np.asarray(model.counts.n_true) == 0,
                    np.asarray(model.counts.n_detections) == 0)
-    _panel(ax_d, edges, np.asarray(model.p_detect), model.extra.get("p_detect_ci95"),
-           "P_D (recall)", "tab:blue", no_data[0], report.detect if report else None, report)
-    _panel(ax_p, edges, precision, ci_p, "precision (1 − P_FA)", "tab:orange", no_data[1],
-           report.precision if report else None, report)
-    if edges[0] > 0 and edges[-1] / edges[0] > 8:
+    # A validation report on the model's own bins is drawn at their places; on other bins
+    # only where the axis shows sizes.
+    report_x = None
+    if report is not None:
+        r_edges = np.asarray(report.bin_edges_px)
+        if scale != "index":
+            report_x = _centres(r_edges, scale)
+        elif np.array_equal(r_edges, edges):
+            report_x = _centres(x_edges, "linear")
+    _panel(ax_d, x_edges, scale, np.asarray(model.p_detect), model.extra.get("p_detect_ci95"),
+           "P_D (recall)", "tab:blue", no_data[0], report.detect if report else None,
+           report, report_x)
+    _panel(ax_p, x_edges, scale, precision, ci_p, "precision (1 − P_FA)", "tab:orange",
+           no_data[1], report.precision if report else None, report, report_x)
+    if scale == "log":
         ax_p.set_xscale("log")
         ax_p.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 3.0, 5.0)))
         ax_p.xaxis.set_major_formatter("{x:g}")
         ax_p.xaxis.set_minor_formatter("")
-    ax_p.set_xlim(edges[0], edges[-1])
+    elif scale == "index":
+        # Edges spanning many orders of magnitude (0 to 1e9): equal-width bins, labelled.
+        step = max(1, len(edges) // 16)
+        ticks = np.arange(0, len(edges), step)
+        ax_p.set_xticks(ticks, [f"{edges[i]:.4g}" for i in ticks],
+                        rotation=45 if len(ticks) > 8 else 0)
+    ax_p.set_xlim(x_edges[0], x_edges[-1])
     unit = (f"{model.input_size_px}-px detector input" if model.input_size_px
             else "image pixels")
-    ax_p.set_xlabel(f"bounding-box side length sqrt(w·h), px ({unit})")
+    ax_p.set_xlabel(f"bounding-box side length sqrt(w·h), px ({unit})"
+                    + ("; bins drawn equally wide, labelled by their edges"
+                       if scale == "index" else ""))
     thresholds = []
     if model.confidence_threshold is not None:
         thresholds.append(f"confidence ≥ {model.confidence_threshold:g}")
@@ -59,35 +87,73 @@ def plot_detector_model(model: DetectorModel, out_path: str | Path,
         thresholds.append(f"IoU ≥ {model.iou_threshold:g}")
     method = model.extra.get("interval_method")
     whiskers = f"whiskers: 95 % interval ({method})"
-    fig.suptitle(title or "Detector model: recall and precision by object size")
+    fig.suptitle(textwrap.fill(title or "Detector model: recall and precision by object "
+                               "size", 90))
     notes = thresholds + ([whiskers] if method else [])
     if report is not None:
-        split = report.model.get("ground_truth", "a second split")
-        notes.append(f"p-values: {report.test} test on {split}, red < {report.alpha:g}")
-    ax_d.set_title("   ".join(notes), fontsize=8, color="0.3", loc="left")
-    fig.savefig(out_path, dpi=150)
+        split = report.model.get("ground_truth")
+        on = _short_path(str(split)) if split else "a second split"
+        notes.append(f"p-values: {report.test} test on {on}, red < {report.alpha:g}")
+    # Wrapped so that a long line never runs past the figure's edge.
+    ax_d.set_title(textwrap.fill("   ".join(notes), 150), fontsize=8, color="0.3",
+                   loc="left")
+    return fig
 
 
-def _centres(edges: np.ndarray) -> np.ndarray:
-    """Bin centres: geometric (they sit mid-bin on a log axis) unless an edge is 0."""
+def _x_scale(edges: np.ndarray) -> str:
+    """'log', 'linear', or 'index' (equal-width bins) when the edges span so many orders of
+    magnitude that some bin would be a sliver on either axis: narrower than a quarter of
+    the mean bin width."""
     lo, hi = edges[:-1], edges[1:]
-    return np.sqrt(lo * hi) if edges[0] > 0 else (lo + hi) / 2
+    log_axis = edges[0] > 0 and edges[-1] / edges[0] > 8
+    w = np.log(hi / lo) if log_axis else hi - lo
+    if w.min() < w.sum() / (4 * len(w)):
+        return "index"
+    return "log" if log_axis else "linear"
 
 
-def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | None,
-           label: str, color: str, no_data: np.ndarray,
-           tests: tuple[BinTest, ...] | None, report: ValidationReport | None) -> None:
+def _short_path(path: str, keep: int = 60) -> str:
+    """A path shortened to its last parts, at most about ``keep`` characters."""
+    if len(path) <= keep:
+        return path
+    parts = Path(path).parts
+    out = parts[-1]
+    for part in reversed(parts[:-1]):
+        if len(out) + len(part) + 1 > keep - 2:
+            break
+        out = f"{part}/{out}"
+    return f"…/{out}"
+
+
+def _centres(edges: np.ndarray, scale: str) -> np.ndarray:
+    """Bin centres on the axis: geometric on a log axis (mid-bin there), else midpoints."""
+    lo, hi = edges[:-1], edges[1:]
+    return np.sqrt(lo * hi) if scale == "log" else (lo + hi) / 2
+
+
+def _panel(ax: Any, edges: np.ndarray, scale: str, p: np.ndarray,
+           ci: list[list[float]] | None, label: str, color: str, no_data: np.ndarray,
+           tests: tuple[BinTest, ...] | None, report: ValidationReport | None,
+           report_x: np.ndarray | None) -> None:
+    """One panel: bars over ``edges`` (axis positions), whiskers, no-data hatching, and the
+    report's p-values at ``report_x``."""
+    from matplotlib.patches import Patch
+
     lo, width = edges[:-1], np.diff(edges)
     ok = ~no_data
     ax.bar(lo[ok], p[ok], width=width[ok], align="edge", color=color, alpha=0.75,
            edgecolor="white", linewidth=0.5)
     if no_data.any():
         ax.bar(lo[no_data], np.ones(no_data.sum()), width=width[no_data], align="edge",
-               color="none", edgecolor="0.6", hatch="//", linewidth=0, label="no data")
-        ax.legend(loc="upper right", fontsize=8, frameon=False)
+               facecolor="none", edgecolor="0.6", hatch="//", linewidth=0)
+        # A legend entry of its own: the bar's zero-width edge would draw a garbled mark.
+        ax.legend(handles=[Patch(facecolor="white", edgecolor="0.6", hatch="////",
+                                 linewidth=0.8, label="no data")],
+                  loc="upper right", fontsize=8, frameon=False, handlelength=2.5,
+                  handleheight=1.2)
     if ci:
         c = np.asarray(ci, dtype=float)[ok]
-        ax.errorbar(_centres(edges)[ok], p[ok],
+        ax.errorbar(_centres(edges, scale)[ok], p[ok],
                     yerr=np.clip([p[ok] - c[:, 0], c[:, 1] - p[ok]], 0, None),
                     fmt="none", ecolor="black", elinewidth=1, capsize=2)
     ax.set_ylim(0, 1.3 if tests else 1.02)
@@ -95,8 +161,8 @@ def _panel(ax: Any, edges: np.ndarray, p: np.ndarray, ci: list[list[float]] | No
     ax.set_ylabel(label)
     ax.grid(axis="y", color="0.9")
     ax.set_axisbelow(True)
-    if tests and report is not None:
-        for x, t in zip(_centres(np.asarray(report.bin_edges_px)), tests, strict=True):
+    if tests and report is not None and report_x is not None:
+        for x, t in zip(report_x, tests, strict=True):
             if t.p_value is None:
                 continue
             bad = t.p_value < report.alpha
