@@ -144,6 +144,11 @@ def test_yolo_names_one_a_line(tmp_path):
     ("0 0.5 0.5 0.2 zero", r"a.txt:2: expected numbers"),
     ("0.5 0.5 0.5 0.2 0.1", r"a.txt:2: class must be an integer >= 0, got 0.5"),
     ("0 nan 0.5 0.2 0.1", r"a.txt:2: non-finite number"),
+    # pixel coordinates, not normalised (issue 10)
+    ("0 400 300 200 300", r"a.txt:2: cx 400, cy 300, w 200, h 300 outside \[0, 1\]: YOLO "
+                          r"boxes are normalised"),
+    ("0 0.5 0.5 1.5 0.2", r"a.txt:2: w 1.5 outside \[0, 1\]"),
+    ("0 -0.2 0.5 0.1 0.2", r"a.txt:2: cx -0.2 outside"),
 ])
 def test_yolo_malformed_lines_are_named(tmp_path, line, message):
     labels, sizes = _yolo(tmp_path)

@@ -186,11 +186,27 @@ def test_other_classes_are_left_out():
                            ["pedestrian", "car", "people"]),
                     _dets([(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10)], [0.9] * 3,
                           ["people", "car", "people"]), s)
-    # the class set is one target class: a 'people' box may detect a 'pedestrian'
-    assert m.truth_status.tolist() == [TruthStatus.DETECTED, TruthStatus.OTHER_CLASS,
+    # matched within each class (COCO), then merged: a 'people' box never detects a
+    # 'pedestrian', even when both are target classes
+    assert m.truth_status.tolist() == [TruthStatus.MISSED, TruthStatus.OTHER_CLASS,
                                        TruthStatus.DETECTED]
-    assert m.detection_status.tolist() == [DetectionStatus.TRUE, DetectionStatus.OTHER_CLASS,
+    assert m.detection_status.tolist() == [DetectionStatus.FALSE, DetectionStatus.OTHER_CLASS,
                                            DetectionStatus.TRUE]
+
+
+def test_max_detections_keeps_the_highest_scores_per_class():
+    s = MatchSettings(0.5, 0.5, None, None, max_detections=2)
+    boxes = [(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10), (60, 0, 10, 10)]
+    m = match_image(_image(boxes, ["a", "a", "a", "b"]),
+                    _dets(boxes, [0.6, 0.9, 0.8, 0.7], ["a", "a", "a", "b"]), s)
+    # class a: the 0.9 and 0.8 detections count, the 0.6 one is over the cap; b has one
+    assert m.detection_status.tolist() == [DetectionStatus.OVER_MAX_DETECTIONS,
+                                           DetectionStatus.TRUE, DetectionStatus.TRUE,
+                                           DetectionStatus.TRUE]
+    assert m.truth_status.tolist() == [TruthStatus.MISSED] + [TruthStatus.DETECTED] * 3
+    assert MatchSettings().max_detections == 100
+    with pytest.raises(ConfigError, match="--max-detections"):
+        MatchSettings(max_detections=0)
 
 
 def test_crowd_truth_absorbs_detections_without_being_counted():
@@ -324,6 +340,61 @@ def test_matching_agrees_with_cocoeval_on_overlapping_boxes_and_crowds(tmp_path)
         n_checked["ign"] += ign
         n_checked["crowd"] += int(np.sum(e["gtIgnore"]))
     assert min(n_checked.values()) >= 10, n_checked  # every case was exercised
+
+
+def test_multi_class_matching_and_max_dets_agree_with_cocoeval(tmp_path):
+    """Two target classes matched separately and merged, with COCO's per-image, per-class
+    detection cap (maxDets 3, so that many images exceed it)."""
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    truth, dets = _random_overlapping_set(seed=11, n_images=150)
+    write_coco(truth, dets, tmp_path / "gt.json", tmp_path / "dt.json")
+    conf, cap = 0.3, 3
+    results = [r for r in json.loads((tmp_path / "dt.json").read_text()) if r["score"] >= conf]
+    with contextlib.redirect_stdout(io.StringIO()):
+        gt = COCO(str(tmp_path / "gt.json"))
+        ev = COCOeval(gt, gt.loadRes(results), "bbox")
+        ev.params.catIds = [1, 2]
+        ev.params.iouThrs = np.array([0.5])
+        ev.params.maxDets = [cap]
+        ev.params.areaRng = [[0, 1e10]]
+        ev.params.areaRngLbl = ["all"]
+        ev.evaluate()
+    t = read_truth(tmp_path / "gt.json")
+    d = read_detections(tmp_path / "dt.json", t)
+    settings = MatchSettings(conf, 0.5, None, ("person", "car"), max_detections=cap)
+    ours_total = {"tp": 0, "fp": 0, "ign": 0, "capped": 0, "detected": 0}
+    theirs_total = dict.fromkeys(ours_total, 0)
+    for image_id, image in t.images.items():
+        m = match_image(image, d.get(image_id, Boxes.from_rows([], [])), settings)
+        gt_ids = sorted(gt.getAnnIds(imgIds=[int(image_id)]))
+        ours_gt = {gt_ids[i] for i, s in enumerate(m.truth_status) if s == TruthStatus.DETECTED}
+        theirs_gt = set()
+        n_results = sum(1 for r in results if r["image_id"] == int(image_id))
+        n_kept = 0
+        for e in ev.evalImgs:
+            if e is None or e["image_id"] != int(image_id):
+                continue
+            theirs_gt |= {g for g, hit, ig in zip(e["gtIds"], e["gtMatches"][0], e["gtIgnore"],
+                                                  strict=True) if hit and not ig}
+            ignored = e["dtIgnore"][0].astype(bool)
+            theirs_total["tp"] += int(np.sum((e["dtMatches"][0] > 0) & ~ignored))
+            theirs_total["fp"] += int(np.sum((e["dtMatches"][0] == 0) & ~ignored))
+            theirs_total["ign"] += int(np.sum(ignored))
+            n_kept += len(e["dtIds"])
+        assert ours_gt == theirs_gt, image_id
+        theirs_total["capped"] += n_results - n_kept
+        theirs_total["detected"] += len(theirs_gt)
+        ds = m.detection_status
+        above = d[image_id].scores >= conf if image_id in d else np.zeros(0, bool)
+        ours_total["tp"] += int(np.sum(ds == DetectionStatus.TRUE))
+        ours_total["fp"] += int(np.sum(ds == DetectionStatus.FALSE))
+        ours_total["ign"] += int(np.sum(ds == DetectionStatus.ON_IGNORED_TRUTH))
+        ours_total["capped"] += int(np.sum((ds == DetectionStatus.OVER_MAX_DETECTIONS) & above))
+        ours_total["detected"] += len(ours_gt)
+    assert ours_total == theirs_total
+    assert min(ours_total.values()) >= 10, ours_total  # every case was exercised
 
 
 def Counter_of(status: np.ndarray) -> dict[int, int]:

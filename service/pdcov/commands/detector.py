@@ -19,6 +19,7 @@ from tqdm import tqdm
 from pdcov.atomic import write_text_atomic
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import (
+    BOX_FORMATS,
     FORMATS,
     NO_BOXES,
     Boxes,
@@ -28,6 +29,7 @@ from pdcov.detection.annotations import (
 )
 from pdcov.detection.statistics import (
     BIN_RULES,
+    DEFAULT_MAX_DETECTIONS,
     INTERVAL_METHODS,
     VALIDATION_TESTS,
     Matches,
@@ -59,8 +61,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           f"(default {DEFAULT_BINS})")
     fit.add_argument("--conf", type=float, default=0.5, help="confidence threshold (0.5)")
     fit.add_argument("--iou", type=float, default=0.5, help="IoU threshold (0.5)")
-    fit.add_argument("--classes", help="comma-separated class names, merged into one target "
-                                       "class (default: every class)")
+    fit.add_argument("--classes", help="comma-separated class names, each matched within its "
+                                       "class (COCO) and then merged into one target class "
+                                       "(default: every class)")
+    fit.add_argument("--max-detections", default=str(DEFAULT_MAX_DETECTIONS),
+                     help="per image and class, evaluate only this many detections of highest "
+                          "confidence, as COCO's maxDets ('none': all; default 100)")
     fit.add_argument("--input-size", default="640",
                      help="detector input size in px; box sizes are scaled by it over the "
                           "image's longest side ('none': image pixels; default 640)")
@@ -101,12 +107,18 @@ def _data_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detections", required=True, type=Path,
                    help="COCO results JSON, or a directory of YOLO / VisDrone txt files")
     p.add_argument("--format", choices=FORMATS,
-                   help="format of both (default: .json is COCO, else guessed from the text)")
+                   help="format of both: coco, yolo, visdrone, or odm (Object-Detection-Metrics "
+                        "'class [confidence] left top width height' per image; default: .json "
+                        "is COCO, else guessed from the text)")
     p.add_argument("--detections-format", choices=FORMATS,
                    help="format of the detections if it differs from the ground truth's")
     p.add_argument("--images", type=Path, help="image directory, for image sizes")
     p.add_argument("--sizes", type=Path, help="file of lines 'image width height'")
     p.add_argument("--names", type=Path, help="YOLO class names (data YAML or one a line)")
+    p.add_argument("--box-format", choices=BOX_FORMATS, default="xywh",
+                   help="boxes of the odm format (Object-Detection-Metrics text files): "
+                        "'xywh' left top width height, or 'xyrb' left top right bottom "
+                        "(default xywh)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -137,14 +149,14 @@ def _edges(spec: str, matches: Matches) -> tuple[float, ...]:
     return tuple(float(v) for v in bins)
 
 
-def _input_size(text: str) -> int | None:
+def _int_or_none(text: str, option: str, what: str) -> int | None:
+    """An integer option that also takes 'none'."""
     if text.lower() == "none":
         return None
     try:
         return int(text)
     except ValueError:
-        raise ConfigError(f"--input-size: expected a number of pixels or 'none', "
-                          f"got {text!r}") from None
+        raise ConfigError(f"{option}: expected {what} or 'none', got {text!r}") from None
 
 
 def _classes(text: str | None) -> tuple[str, ...] | None:
@@ -152,8 +164,10 @@ def _classes(text: str | None) -> tuple[str, ...] | None:
 
 
 def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
-    truth = read_truth(args.ground_truth, args.format, args.images, args.sizes, args.names)
-    detections = read_detections(args.detections, truth, args.detections_format or args.format)
+    truth = read_truth(args.ground_truth, args.format, args.images, args.sizes, args.names,
+                       args.box_format)
+    detections = read_detections(args.detections, truth, args.detections_format or args.format,
+                                 args.box_format)
     if settings.classes is not None:
         truth.check_classes(settings.classes)
     if settings.input_size_px is not None:
@@ -174,8 +188,10 @@ def _dump(model: DetectorModel) -> str:
 
 
 def run_fit(args: argparse.Namespace) -> int:
-    settings = MatchSettings(args.conf, args.iou, _input_size(args.input_size),
-                             _classes(args.classes))
+    settings = MatchSettings(
+        args.conf, args.iou, _int_or_none(args.input_size, "--input-size", "a number of pixels"),
+        _classes(args.classes),
+        _int_or_none(args.max_detections, "--max-detections", "a number of detections"))
     matches = _match(args, settings)
     edges = _edges(args.bins, matches)
     if args.model == "logistic":
@@ -228,10 +244,12 @@ def run_validate(args: argparse.Namespace) -> int:
     fit = model.extra.get("fit")
     fitted = fit.get("classes") if isinstance(fit, dict) else None
     classes = _classes(args.classes) or (tuple(fitted) if fitted else None)
+    # The fit's detection cap; fits written before it was recorded had none.
+    cap = fit.get("max_detections") if isinstance(fit, dict) else DEFAULT_MAX_DETECTIONS
     settings = MatchSettings(
         model.confidence_threshold if model.confidence_threshold is not None else 0.5,
         model.iou_threshold if model.iou_threshold is not None else 0.5,
-        model.input_size_px, classes)
+        model.input_size_px, classes, cap)
     matches = _match(args, settings)
     edges = _edges(args.bins, matches) if args.bins else None
     report = validate(model, matches, edges, args.test, args.alpha)

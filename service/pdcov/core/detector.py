@@ -98,6 +98,12 @@ class DetectorModel:
             raise DetectorModelError(
                 f"{where(src, 'input_size_px')}: expected a positive integer or null, "
                 f"got {self.input_size_px}")
+        for key, lo_open in (("confidence_threshold", False), ("iou_threshold", True)):
+            v = getattr(self, key)
+            if v is not None and not ((0 < v if lo_open else 0 <= v) and v <= 1):
+                raise DetectorModelError(
+                    f"{where(src, key)}: expected a value in {'(0' if lo_open else '[0'}, 1] "
+                    f"or null, got {v}")
         if self.counts is not None:
             for key in ("n_true", "n_detected", "n_detections"):
                 c = getattr(self.counts, key)

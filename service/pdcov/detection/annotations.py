@@ -1,4 +1,5 @@
-"""Labelled test sets and detector outputs: COCO JSON, YOLO txt and VisDrone txt.
+"""Labelled test sets and detector outputs: COCO JSON, YOLO txt, VisDrone txt and the
+plain-text boxes of Object-Detection-Metrics.
 
 Every format becomes the same structure: a ``TruthSet`` (per image, its size, its ground-truth
 boxes and any ignored regions) and, per image, the detector's ``Boxes`` with their confidences.
@@ -12,11 +13,19 @@ Boxes are top-left (x, y, width, height) in image pixels. Errors name the file a
 * YOLO: one ``<image stem>.txt`` per image, lines ``class cx cy w h`` normalised to the image
   (detections add a confidence column). Image sizes come from the images or a sizes file; an
   image without a label file has no objects. Class names from a ``names`` file (data YAML or
-  one name a line), else the class ids as text.
+  one name a line), else the class ids as text. A coordinate above 1 (pixels, not
+  normalised) is refused naming the file and line.
 * VisDrone-DET: one ``<image stem>.txt`` per image, lines ``x,y,w,h,score,category,truncation,
   occlusion``. Category 0 ("ignored regions") boxes are regions: objects and detections lying
   at least half inside them are dropped, as the VisDrone-DET toolkit does; ground truth with
   score 0 is ignored like a COCO crowd box.
+* Object-Detection-Metrics (rafaelpadilla; format ``odm``): one ``<image stem>.txt`` per
+  image, lines ``class left top width height`` (ground truth) or ``class confidence left top
+  width height`` (detections) in image pixels, the class a name; ``box_format`` ``xyrb``
+  reads ``left top right bottom`` instead (the tools' ``-gtformat`` / ``-detformat``).
+
+Detection confidences must lie in [0, 1]; a score outside is refused naming the file and the
+line or record.
 """
 
 from __future__ import annotations
@@ -33,7 +42,9 @@ import yaml
 
 from pdcov.errors import ConfigError, InputFileError
 
-FORMATS = ("coco", "yolo", "visdrone")
+FORMATS = ("coco", "yolo", "visdrone", "odm")
+BOX_FORMATS = ("xywh", "xyrb")  # Object-Detection-Metrics: width/height or right/bottom
+_NORMALISED_TOL = 1e-6  # YOLO coordinates printed with rounding may pass 1 by this much
 VISDRONE_CLASSES = ("ignored regions", "pedestrian", "people", "bicycle", "car", "van", "truck",
                     "tricycle", "awning-tricycle", "bus", "motor", "others")
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -137,14 +148,17 @@ class TruthSet:
 
 def detect_format(path: Path) -> str:
     """Guess the format: a ``.json`` file is COCO; a directory of txt files is VisDrone when its
-    first non-empty line is comma-separated, YOLO otherwise."""
+    first non-empty line is comma-separated, Object-Detection-Metrics when it starts with a
+    class name (not a number), YOLO otherwise."""
     if path.is_file() and path.suffix.lower() == ".json":
         return "coco"
     if path.is_dir():
         for txt in sorted(_labels_dir(path).glob("*.txt")):
             for line in txt.read_text(errors="replace").splitlines():
                 if line.strip():
-                    return "visdrone" if "," in line else "yolo"
+                    if "," in line:
+                        return "visdrone"
+                    return "yolo" if _is_number(line.split()[0]) else "odm"
         raise InputFileError(f"{path}: no non-empty .txt file to tell the format from; "
                              f"pass --format")
     raise InputFileError(f"{path}: expected a COCO .json file or a directory of .txt files")
@@ -152,10 +166,11 @@ def detect_format(path: Path) -> str:
 
 def read_truth(path: str | Path, fmt: str | None = None, images_dir: str | Path | None = None,
                sizes_path: str | Path | None = None,
-               names_path: str | Path | None = None) -> TruthSet:
-    """Read a labelled test set. Image sizes for YOLO and VisDrone come from ``sizes_path``
+               names_path: str | Path | None = None, box_format: str = "xywh") -> TruthSet:
+    """Read a labelled test set. Image sizes for the text formats come from ``sizes_path``
     (lines ``image width height``) or the images in ``images_dir`` (default: an ``images``
-    directory beside the labels); YOLO class names from ``names_path``."""
+    directory beside the labels); YOLO class names from ``names_path``; ``box_format``
+    (``xywh`` or ``xyrb``) applies to the ``odm`` format."""
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path}: no such file or directory")
@@ -168,14 +183,17 @@ def read_truth(path: str | Path, fmt: str | None = None, images_dir: str | Path 
         return _read_yolo_truth(labels, sizes, _class_names(names_path))
     if fmt == "visdrone":
         return _read_visdrone_truth(labels, sizes)
+    if fmt == "odm":
+        return _read_odm_truth(labels, sizes, _box_format(box_format))
     raise ConfigError(f"--format: expected one of {FORMATS}, got {fmt!r}")
 
 
-def read_detections(path: str | Path, truth: TruthSet,
-                    fmt: str | None = None) -> dict[str, Boxes]:
+def read_detections(path: str | Path, truth: TruthSet, fmt: str | None = None,
+                    box_format: str = "xywh") -> dict[str, Boxes]:
     """Read detector outputs for the images of ``truth`` (whose class ids name the classes);
     images without any have none. A detection on an image not in ``truth`` is an error.
-    ``fmt`` None: a directory is in the ground truth's text format, else as detected."""
+    ``fmt`` None: a directory is in the ground truth's text format, else as detected.
+    ``box_format``: of the ``odm`` format."""
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path}: no such file or directory")
@@ -183,8 +201,9 @@ def read_detections(path: str | Path, truth: TruthSet,
         fmt = truth.format if path.is_dir() and truth.format != "coco" else detect_format(path)
     if fmt == "coco":
         return _read_coco_detections(path, truth)
-    if fmt not in ("yolo", "visdrone"):
+    if fmt not in ("yolo", "visdrone", "odm"):
         raise ConfigError(f"--format: expected one of {FORMATS}, got {fmt!r}")
+    box = _box_format(box_format)
     if not path.is_dir():
         raise InputFileError(f"{path}: expected a directory of per-image .txt detection files")
     out = {}
@@ -195,6 +214,8 @@ def read_detections(path: str | Path, truth: TruthSet,
                                  f"{truth.source}")
         if fmt == "visdrone":
             out[image_id] = _visdrone_detections(txt, truth)
+        elif fmt == "odm":
+            out[image_id] = _read_odm_file(txt, box, True)
         else:
             image = truth.images[image_id]
             if image.width_px is None or image.height_px is None:
@@ -282,7 +303,7 @@ def _read_coco_detections(path: Path, truth: TruthSet) -> dict[str, Boxes]:
             raise InputFileError(f"{where}: image_id {ref} is not in the ground truth "
                                  f"{truth.source}")
         name = truth.class_name(where, _field(rec, "category_id", where, int))
-        score = float(_field(rec, "score", where, (int, float)))
+        score = _score(where, float(_field(rec, "score", where, (int, float))))
         rows.setdefault(image_id, []).append((_bbox(rec, where), name, score))
     return {k: Boxes.from_rows([r[0] for r in v], [r[1] for r in v], [r[2] for r in v])
             for k, v in rows.items()}
@@ -296,16 +317,17 @@ def _labels_dir(path: Path) -> Path:
     return path / "annotations" if (path / "annotations").is_dir() else path
 
 
-def _lines(path: Path) -> Iterator[tuple[str, list[str]]]:
-    """(``file:line``, fields) of each non-empty line; fields split at blanks or commas."""
+def _lines(path: Path, commas: bool = True) -> Iterator[tuple[str, list[str]]]:
+    """(``file:line``, fields) of each non-empty line; fields split at blanks (and commas,
+    unless ``commas`` is False)."""
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(f"{path}: cannot read ({exc})") from None
     for n, line in enumerate(text.splitlines(), start=1):
-        line = line.strip().rstrip(",")
+        line = line.strip().rstrip(",") if commas else line.strip()
         if line:
-            yield f"{path}:{n}", line.replace(",", " ").split()
+            yield f"{path}:{n}", (line.replace(",", " ") if commas else line).split()
 
 
 def _numbers(where: str, fields: list[str], counts: tuple[int, ...], layout: str) -> list[float]:
@@ -319,6 +341,29 @@ def _numbers(where: str, fields: list[str], counts: tuple[int, ...], layout: str
     if not all(math.isfinite(v) for v in values):
         raise InputFileError(f"{where}: non-finite number in {' '.join(fields)!r}")
     return values
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _score(where: str, value: float) -> float:
+    """A detection's confidence, which must be a probability."""
+    if not 0 <= value <= 1:
+        raise InputFileError(f"{where}: detection score {value:g} outside [0, 1] (a "
+                             "confidence is a probability; logits or percentages must be "
+                             "converted)")
+    return value
+
+
+def _box_format(box_format: str) -> str:
+    if box_format not in BOX_FORMATS:
+        raise ConfigError(f"--box-format: expected one of {BOX_FORMATS}, got {box_format!r}")
+    return box_format
 
 
 def _class_id(where: str, value: float) -> int:
@@ -410,9 +455,16 @@ def _read_yolo_file(txt: Path, truth: TruthSet, width: int, height: int,
     for where, fields in _lines(txt):
         v = _numbers(where, fields, (6,) if detection else (5,), layout)
         labels.append(truth.class_name(where, _class_id(where, v[0])))
+        pixels = [f"{name} {x:g}" for name, x in zip(("cx", "cy", "w", "h"), v[1:5],
+                                                      strict=True)
+                  if not -_NORMALISED_TOL <= x <= 1 + _NORMALISED_TOL]
+        if pixels:
+            raise InputFileError(f"{where}: {', '.join(pixels)} outside [0, 1]: YOLO boxes are "
+                                 "normalised to the image size (pixel coordinates? use "
+                                 "--format odm or divide by the image width and height)")
         cx, cy, w, h = v[1] * width, v[2] * height, v[3] * width, v[4] * height
         xywh.append((cx - w / 2, cy - h / 2, w, h))
-        scores.append(v[5] if detection else math.nan)
+        scores.append(_score(where, v[5]) if detection else math.nan)
     return Boxes.from_rows(xywh, labels, scores)
 
 
@@ -471,5 +523,40 @@ def _visdrone_detections(txt: Path, truth: TruthSet) -> Boxes:
         v = _numbers(where, fields, (6, 8), "'x,y,w,h,score,category[,truncation,occlusion]'")
         xywh.append(tuple(v[:4]))
         labels.append(truth.class_name(where, _class_id(where, v[5])))
-        scores.append(v[4])
+        scores.append(_score(where, v[4]))
     return Boxes.from_rows(xywh, labels, scores)
+
+
+# -- Object-Detection-Metrics ----------------------------------------------------------------
+
+
+def _read_odm_file(txt: Path, box_format: str, detection: bool) -> Boxes:
+    """Lines ``class [confidence] left top width height`` (``xyrb``: ``... right bottom``) in
+    image pixels; the class is a name (no blanks)."""
+    corners = "right bottom" if box_format == "xyrb" else "width height"
+    layout = f"'class {'confidence ' if detection else ''}left top {corners}'"
+    xywh, labels, scores = [], [], []
+    for where, fields in _lines(txt, commas=False):
+        n = 6 if detection else 5
+        if len(fields) != n:
+            raise InputFileError(f"{where}: expected {layout}, got {len(fields)} fields")
+        v = _numbers(where, fields[1:], (n - 1,), layout)
+        x0, y0, a, b = v[-4:]
+        xywh.append((x0, y0, a - x0, b - y0) if box_format == "xyrb" else (x0, y0, a, b))
+        labels.append(fields[0])
+        scores.append(_score(where, v[0]) if detection else math.nan)
+    return Boxes.from_rows(xywh, labels, scores)
+
+
+def _read_odm_truth(labels: Path, sizes: dict[str, tuple[int, int]] | None,
+                    box_format: str) -> TruthSet:
+    images = {}
+    for txt in sorted(labels.glob("*.txt")):
+        if sizes is not None and txt.stem not in sizes:
+            raise InputFileError(f"{txt}: no image {txt.stem!r} among the image sizes")
+        w, h = sizes[txt.stem] if sizes is not None else (None, None)
+        images[txt.stem] = ImageTruth(txt.stem, w, h, _read_odm_file(txt, box_format, False))
+    if not images:
+        raise InputFileError(f"{labels}: no Object-Detection-Metrics ground-truth (.txt) files")
+    names = sorted({lab for image in images.values() for lab in image.boxes.labels})
+    return TruthSet(images, tuple(names), str(labels), "odm")

@@ -2,12 +2,14 @@
 
 Pure: boxes in, counts, models and test results out. Steps:
 
-1. ``match_image`` / ``match_images``: per image, keep the ground truth and the detections of
-   the class set (merged into one target class), drop degenerate boxes and boxes at least half
-   inside ignored regions, and match detections at or above the confidence threshold, highest
-   confidence first, each to the unmatched ground truth of highest IoU at or above the IoU
-   threshold (the COCO rule, crowd/ignored ground truth last, matched by intersection over the
-   detection's area and never consumed).
+1. ``match_image`` / ``match_images``: per image and per class (COCO never matches a
+   detection to an object of another class), keep at most ``max_detections`` detections of
+   highest confidence (COCO's maxDets), drop degenerate boxes and boxes at least half inside
+   ignored regions, and match detections at or above the confidence threshold, highest
+   confidence first, each to the unmatched ground truth of its class of highest IoU at or
+   above the IoU threshold (the COCO rule, crowd/ignored ground truth last, matched by
+   intersection over the detection's area and never consumed). The counts of the classes of
+   the class set are then merged into one target class.
 2. Object size s = sqrt(w h) in detector-input pixels (image pixels times
    input_size_px / max(image width, height)).
 3. ``count_in_bins``: N_true and N_det by ground-truth size, N_total and N_TP by detection size;
@@ -37,6 +39,7 @@ CONFIDENCE_LEVEL = 0.95
 INTERVAL_METHODS = {"wilson": "wilson", "clopper-pearson": "exact"}  # ours -> scipy's name
 BIN_RULES = ("quantile", "log")
 VALIDATION_TESTS = ("binomial", "chi2", "fisher")
+DEFAULT_MAX_DETECTIONS = 100  # COCO's maxDets for AP and recall at 100
 _Z95 = float(stats.norm.ppf(0.5 + CONFIDENCE_LEVEL / 2))
 
 
@@ -61,18 +64,25 @@ class DetectionStatus(IntEnum):
     DEGENERATE = 4
     IN_IGNORED_REGION = 5
     ON_IGNORED_TRUTH = 6
+    OVER_MAX_DETECTIONS = 7  # beyond the image's max_detections of its class (COCO maxDets)
 
 
 @dataclass(frozen=True, slots=True)
 class MatchSettings:
-    """Thresholds and the class set of a fit. classes None: every class, merged."""
+    """Thresholds and the class set of a fit. classes None: every class, merged.
+    max_detections: per image and class, only this many detections of highest confidence
+    are evaluated (COCO's maxDets, 100); None: all."""
 
     confidence_threshold: float = 0.5
     iou_threshold: float = 0.5
     input_size_px: int | None = 640
     classes: tuple[str, ...] | None = None
+    max_detections: int | None = DEFAULT_MAX_DETECTIONS
 
     def __post_init__(self) -> None:
+        if self.max_detections is not None and not self.max_detections >= 1:
+            raise ConfigError(f"--max-detections: expected a number of detections >= 1 or "
+                              f"'none', got {self.max_detections}")
         if not 0 <= self.confidence_threshold <= 1:
             raise ConfigError(f"--conf: expected a confidence in [0, 1], got "
                               f"{self.confidence_threshold}")
@@ -158,30 +168,46 @@ def match_image(truth: ImageTruth, detections: Boxes, settings: MatchSettings) -
     ds[degenerate] = DetectionStatus.DEGENERATE
     ds[~degenerate & _in_regions(dt.xywh, truth.ignore_regions_xywh)] = \
         DetectionStatus.IN_IGNORED_REGION
-    ds[~_in_class_set(dt.labels, settings.classes)] = DetectionStatus.OTHER_CLASS
+    in_set = _in_class_set(dt.labels, settings.classes)
+    ds[~in_set] = DetectionStatus.OTHER_CLASS
 
-    real = np.flatnonzero(ts == TruthStatus.MISSED)
-    crowd = np.flatnonzero(ts == TruthStatus.IGNORED)
-    cand = np.flatnonzero(ds == DetectionStatus.FALSE)
-    cand = cand[np.argsort(-dt.scores[cand], kind="mergesort")]
-    if len(cand) and len(real) + len(crowd):
-        cols = np.concatenate([real, crowd])
-        ious = iou_matrix(dt.xywh[cand], gt.xywh[cols],
-                          np.arange(len(cols)) >= len(real))
-        thr = min(settings.iou_threshold, 1 - 1e-10)  # as COCOeval, so that IoU 1 can match
-        free = np.ones(len(real), bool)
-        for row, d in zip(ious, cand, strict=True):
-            ok = free & (row[:len(real)] >= thr)
-            if ok.any():
-                # COCOeval keeps the last of equal best IoUs
-                best = np.where(ok, row[:len(real)], -1.0)
-                g = len(best) - 1 - int(np.argmax(best[::-1]))
-                free[g] = False
-                ts[real[g]] = TruthStatus.DETECTED
-                ds[d] = DetectionStatus.TRUE
-            elif (row[len(real):] >= thr).any():
-                ds[d] = DetectionStatus.ON_IGNORED_TRUTH
+    gt_labels, dt_labels = np.asarray(gt.labels, dtype=object), np.asarray(dt.labels, dtype=object)
+    for label in sorted(set(dt.labels[i] for i in np.flatnonzero(in_set))):
+        of_class = np.flatnonzero(dt_labels == label)
+        if settings.max_detections is not None and len(of_class) > settings.max_detections:
+            # COCOeval: the maxDets of highest score, ties in input order.
+            order = np.argsort(-dt.scores[of_class], kind="mergesort")
+            ds[of_class[order[settings.max_detections:]]] = DetectionStatus.OVER_MAX_DETECTIONS
+        _match_class(gt, dt, ts, ds, np.flatnonzero(gt_labels == label), of_class,
+                     settings.iou_threshold)
     return ImageMatch(ts, ds)
+
+
+def _match_class(gt: Boxes, dt: Boxes, ts: np.ndarray, ds: np.ndarray, gt_idx: np.ndarray,
+                 dt_idx: np.ndarray, iou_threshold: float) -> None:
+    """Greedy COCO matching of the detections ``dt_idx`` to the ground truth ``gt_idx`` of
+    one class, updating the statuses ``ts`` and ``ds`` in place."""
+    real = gt_idx[ts[gt_idx] == TruthStatus.MISSED]
+    crowd = gt_idx[ts[gt_idx] == TruthStatus.IGNORED]
+    cand = dt_idx[ds[dt_idx] == DetectionStatus.FALSE]
+    cand = cand[np.argsort(-dt.scores[cand], kind="mergesort")]
+    if not (len(cand) and len(real) + len(crowd)):
+        return
+    cols = np.concatenate([real, crowd])
+    ious = iou_matrix(dt.xywh[cand], gt.xywh[cols], np.arange(len(cols)) >= len(real))
+    thr = min(iou_threshold, 1 - 1e-10)  # as COCOeval, so that IoU 1 can match
+    free = np.ones(len(real), bool)
+    for row, d in zip(ious, cand, strict=True):
+        ok = free & (row[:len(real)] >= thr)
+        if ok.any():
+            # COCOeval keeps the last of equal best IoUs
+            best = np.where(ok, row[:len(real)], -1.0)
+            g = len(best) - 1 - int(np.argmax(best[::-1]))
+            free[g] = False
+            ts[real[g]] = TruthStatus.DETECTED
+            ds[d] = DetectionStatus.TRUE
+        elif (row[len(real):] >= thr).any():
+            ds[d] = DetectionStatus.ON_IGNORED_TRUTH
 
 
 def _sqrt_area(xywh: np.ndarray) -> np.ndarray:
@@ -306,6 +332,7 @@ def _fit_record(matches: Matches, c: BinnedCounts) -> dict[str, Any]:
     s = matches.settings
     return {"classes": list(s.classes) if s.classes is not None else None,
             "n_images": matches.n_images,
+            "max_detections": s.max_detections,
             "truth_outside_bins": c.truth_outside,
             "detections_outside_bins": c.detections_outside,
             "status_counts": matches.status_counts}
