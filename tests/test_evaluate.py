@@ -357,3 +357,51 @@ def test_prior_summing_above_one_is_rejected(tmp_path):
         load_prior(tmp_path / "weights.npy", g, mask, ORIGIN)
     np.save(tmp_path / "prior.npy", np.full(g.shape, 1.0 / g.n_rows / g.n_cols))
     assert load_prior(tmp_path / "prior.npy", g, mask, ORIGIN).sum() == pytest.approx(1.0)
+
+
+def test_prior_segments_with_holes_multipolygons_and_parts_outside_the_grid(tmp_path):
+    # A segment's POA used to be spread over its holes too, and a segment reaching past the
+    # domain poured all of its POA into the grid.
+    from pdcov.core.geodesy import enu_to_geodetic
+    from pdcov.core.search_theory import search_outcome
+    from pdcov.report.outputs import read_prior
+
+    mission = load_mission(write_config(tmp_path, mission_doc()))
+    g = mission.domain.grid_geometry(1.0)
+    mask = mission.domain.free_mask(g)
+    assert (g.x0_m, g.y0_m) == (0.0, 0.0)
+
+    def ring(x0, y0, x1, y1):
+        enu = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0], [x0, y0, 0]])
+        return [[lon, lat] for lat, lon, _ in enu_to_geodetic(enu, ORIGIN)]
+
+    doc = {"type": "FeatureCollection", "features": [
+        # 20 x 20 m with a 10 x 10 m hole: 300 m^2.
+        {"type": "Feature", "properties": {"poa": 0.3},
+         "geometry": {"type": "Polygon", "coordinates": [ring(0, 0, 20, 20),
+                                                         ring(5, 5, 15, 15)]}},
+        # Two 10 x 10 m squares.
+        {"type": "Feature", "properties": {"poa": 0.4},
+         "geometry": {"type": "MultiPolygon", "coordinates": [[ring(25, 0, 35, 10)],
+                                                              [ring(25, 30, 35, 40)]]}},
+        # Half of it west of the grid.
+        {"type": "Feature", "properties": {"poa": 0.2},
+         "geometry": {"type": "Polygon", "coordinates": [ring(-10, 30, 10, 40)]}}]}
+    (tmp_path / "segments.geojson").write_text(json.dumps(doc))
+    prior = read_prior(tmp_path / "segments.geojson", g, mask, ORIGIN)
+    poa = prior.poa
+    assert poa[2, 2] == pytest.approx(0.3 / 300) and poa[10, 10] == pytest.approx(0, abs=1e-9)
+    assert poa[5, 30] == pytest.approx(0.4 / 200) and poa[35, 30] == pytest.approx(0.4 / 200)
+    assert poa[35, 5] == pytest.approx(0.2 / 200)
+    assert poa.sum() == pytest.approx(0.3 + 0.4 + 0.1)
+    first, third = prior.notes  # the obstacle (18..22 m) takes 4 m^2 of the first
+    assert first.startswith("segments.geojson: segment 0 (poa 0.3): 0.0% of it (POA 0) lies "
+                            "outside the grid and 1.3% (POA 0.004) on cells that are not free")
+    assert third.startswith("segments.geojson: segment 2 (poa 0.2): 50.0% of it (POA 0.1) "
+                            "lies outside the grid")
+    # POS against an independent count: P_D 1 over the hole only finds nothing there.
+    pd = np.zeros(g.shape)
+    pd[5:15, 5:15] = 1.0
+    pd[0:5, 0:20] = 0.5
+    expected = 0.5 * 0.3 * (5 * 20) / 300
+    assert search_outcome(poa, pd, mask).probability_of_success == pytest.approx(expected)

@@ -63,15 +63,33 @@ def metrics_document(metrics: Metrics, outcome: SearchOutcome | None = None) -> 
     return doc
 
 
+@dataclass(frozen=True, slots=True)
+class Prior:
+    """Probability of area per grid cell, and notes for the summary (e.g. the share of a
+    segment's POA that lies outside the grid)."""
+
+    poa: np.ndarray
+    notes: tuple[str, ...] = ()
+
+
 def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
                origin: Origin) -> np.ndarray:
+    """``read_prior(...).poa``."""
+    return read_prior(path, geometry, mask, origin).poa
+
+
+def read_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
+               origin: Origin) -> Prior:
     """Probability of area per cell from a .npy or GeoTIFF aligned with the grid, or a
-    GeoJSON of segments (polygons, WGS84) each with a ``poa`` property, spread evenly over
-    the free cells whose centres it contains. Raises InputFileError naming the file."""
+    GeoJSON of segments (Polygon or MultiPolygon, holes allowed, WGS84) each with a ``poa``
+    property, spread over the segment's area: each cell gets the share of the segment's
+    area inside it. The share of a segment outside the grid stays outside (named in the
+    notes). Raises InputFileError naming the file."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: prior file not found")
     suffix = path.suffix.lower()
+    notes: tuple[str, ...] = ()
     try:
         if suffix == ".npy":
             poa = np.load(path, allow_pickle=False).astype(float)
@@ -82,10 +100,11 @@ def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
             from pdcov.report.gis import read_geotiff_band
             poa = np.nan_to_num(read_geotiff_band(path, geometry), nan=0.0)
         elif suffix in (".geojson", ".json"):
-            poa = _prior_from_segments(json.loads(path.read_text()), geometry, mask, origin)
+            poa, notes = _prior_from_segments(json.loads(path.read_text()), geometry, mask,
+                                              origin)
         else:
             raise ValueError("expected a .npy, .tif or .geojson prior")
-    except (ValueError, OSError, KeyError, TypeError) as exc:
+    except (ValueError, OSError, KeyError, TypeError, shapely.errors.GEOSException) as exc:
         raise InputFileError(f"{path}: cannot use as a prior: {exc}") from None
     if not np.all(np.isfinite(poa)) or np.any(poa < 0) or poa.sum() <= 0:
         raise InputFileError(f"{path}: prior probabilities must be finite, >= 0, and not all 0")
@@ -94,33 +113,63 @@ def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
     if poa.sum() > 1.0 + _PRIOR_SUM_TOL:
         raise InputFileError(f"{path}: prior probabilities sum to {poa.sum():.6g} over the "
                              f"grid; a probability of area sums to at most 1 (normalise it)")
-    return poa
+    return Prior(poa, tuple(f"{path.name}: {n}" for n in notes))
+
+
+def _segment_enu(geometry_doc: Any, origin: Origin) -> shapely.Geometry:
+    """A GeoJSON Polygon / MultiPolygon (lon, lat) as one ENU area, holes kept."""
+    geom = shapely.geometry.shape(geometry_doc)
+    parts = []
+    for part in getattr(geom, "geoms", [geom]):
+        if not isinstance(part, shapely.Polygon):
+            raise ValueError(f"expected Polygon or MultiPolygon, got {part.geom_type}")
+
+        def enu(ring: Any) -> np.ndarray:
+            ll = np.asarray(ring.coords)
+            return geodetic_to_enu(ll[:, 1], ll[:, 0], origin.ground_alt_msl_m, origin)[:, :2]
+
+        parts.append(shapely.Polygon(enu(part.exterior), [enu(r) for r in part.interiors]))
+    return shapely.make_valid(shapely.union_all(parts))
 
 
 def _prior_from_segments(doc: Any, geometry: GridGeometry, mask: np.ndarray,
-                         origin: Origin) -> np.ndarray:
+                         origin: Origin) -> tuple[np.ndarray, tuple[str, ...]]:
     features = doc.get("features") if isinstance(doc, dict) else None
     if not features:
         raise ValueError("expected a FeatureCollection of segments")
-    xs, ys = geometry.centres_enu()
-    X, Y = np.meshgrid(xs, ys)
+    c = geometry.cell_size_m
     poa = np.zeros(geometry.shape)
+    notes = []
     for k, feature in enumerate(features):
         props = feature.get("properties") or {}
         if "poa" not in props:
             raise ValueError(f"feature {k}: missing property 'poa'")
         p = float(props["poa"])
-        geom = shapely.geometry.shape(feature["geometry"])
-        rings = []
-        for part in getattr(geom, "geoms", [geom]):
-            ll = np.asarray(part.exterior.coords)
-            enu = geodetic_to_enu(ll[:, 1], ll[:, 0], origin.ground_alt_msl_m, origin)
-            rings.append(shapely.Polygon(enu[:, :2]))
-        inside = shapely.contains_xy(shapely.union_all(rings), X, Y) & mask
-        if not inside.any():
-            raise ValueError(f"feature {k}: segment contains no free cell of the grid")
-        poa[inside] += p / inside.sum()
-    return poa
+        seg = _segment_enu(feature["geometry"], origin)
+        if not seg.area > 0:
+            raise ValueError(f"feature {k}: segment has no area")
+        # Cells under the segment's bounding box, and the area of the segment in each.
+        x0, y0, x1, y1 = seg.bounds
+        c0 = max(0, int(np.floor((x0 - geometry.x0_m) / c)))
+        c1 = min(geometry.n_cols, int(np.ceil((x1 - geometry.x0_m) / c)))
+        r0 = max(0, int(np.floor((y0 - geometry.y0_m) / c)))
+        r1 = min(geometry.n_rows, int(np.ceil((y1 - geometry.y0_m) / c)))
+        share = np.zeros(geometry.shape)
+        if c1 > c0 and r1 > r0:
+            rows, cols = np.mgrid[r0:r1, c0:c1]
+            boxes = shapely.box(geometry.x0_m + cols * c, geometry.y0_m + rows * c,
+                                geometry.x0_m + (cols + 1) * c, geometry.y0_m + (rows + 1) * c)
+            share[r0:r1, c0:c1] = shapely.area(shapely.intersection(boxes, seg)) / seg.area
+        if not np.any(share[mask] > 1e-9):
+            raise ValueError(f"feature {k}: segment covers no free cell of the grid")
+        poa += p * share
+        outside, unfree = 1.0 - float(share.sum()), float(share[~mask].sum())
+        if outside > 1e-6 or unfree > 1e-6:
+            notes.append(f"segment {k} (poa {p:g}): {outside:.1%} of it (POA "
+                         f"{p * outside:.4g}) lies outside the grid and {unfree:.1%} (POA "
+                         f"{p * unfree:.4g}) on cells that are not free (outside the domain "
+                         f"or in obstacles); neither can be searched")
+    return poa, tuple(notes)
 
 
 @dataclass(frozen=True, slots=True)
