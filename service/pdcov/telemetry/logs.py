@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import statistics
+import struct
 import sys
 from collections import Counter, defaultdict
 from collections.abc import Iterator, Mapping
@@ -396,8 +397,50 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
 
 # --- PX4 ULog ------------------------------------------------------------------------------
 
-_ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", "gimbal_device_attitude_status",
-                "home_position", "camera_capture", "camera_trigger"]
+_ULOG_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
+_ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", *_ULOG_GPS_TOPICS,
+                "gimbal_device_attitude_status", "home_position", "camera_capture",
+                "camera_trigger"]
+_GPS_FIX_3D = 3  # fix_type: 0-1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
+
+
+def _ulog_damage(path: Path, pyulog_saw_corruption: bool) -> tuple[str, ...]:
+    """Summary lines for a damaged ULog: a last message running past the end of the file
+    (a log cut short, e.g. by a power loss; pyulog stops there without a word), found by
+    walking the message headers (uint16 size, uint8 type) after the 16-byte file header;
+    and pyulog's own corruption flag (data it skipped)."""
+    data = path.read_bytes()
+    damage = LogDamage(size=len(data), kind="ULog messages")
+    offset = 16
+    while offset + 3 <= len(data):
+        (size,) = struct.unpack_from("<H", data, offset)
+        if offset + 3 + size > len(data):
+            break
+        offset += 3 + size
+    if offset != len(data):
+        damage.cut_at = offset
+    lines = damage.describe()
+    if pyulog_saw_corruption:
+        lines.append("pyulog skipped corrupt data inside the log; the messages it could read "
+                     "are used")
+    return tuple(lines)
+
+
+def _ulog_gps_positions(t_s: np.ndarray, fields: Mapping[str, np.ndarray]
+                        ) -> tuple[list[PositionSample], int]:
+    """Positions (lat/lon deg, alt m AMSL) of a PX4 GPS topic's samples with a 3D fix or
+    better, and the number of samples without one. Fields: ``latitude_deg``,
+    ``longitude_deg``, ``altitude_msl_m`` (PX4 1.14+), else ``lat``/``lon`` (1e-7 deg) and
+    ``alt`` (mm)."""
+    if "latitude_deg" in fields:
+        lat, lon, alt = (np.asarray(fields[k], float) for k in
+                         ("latitude_deg", "longitude_deg", "altitude_msl_m"))
+    else:
+        lat, lon = (np.asarray(fields[k], float) * 1e-7 for k in ("lat", "lon"))
+        alt = np.asarray(fields["alt"], float) * 1e-3
+    fix = np.asarray(fields["fix_type"]) >= _GPS_FIX_3D
+    return ([PositionSample(*row) for row in zip(t_s[fix], lat[fix], lon[fix], alt[fix],
+                                                 strict=True)], int(np.count_nonzero(~fix)))
 
 
 def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
@@ -430,10 +473,18 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
         att = AttitudeSeries.from_samples([AttitudeSample(t, tuple(q)) for t, q in zip(
             t_of("vehicle_attitude"), quat("vehicle_attitude"), strict=True)])
     pos_samples: list[PositionSample] = []
+    pos_note = ""
     if "vehicle_global_position" in topics:  # lat/lon deg, alt m AMSL
         g = "vehicle_global_position"
         pos_samples = [PositionSample(*row) for row in zip(
             t_of(g), col(g, "lat"), col(g, "lon"), col(g, "alt"), strict=True)]
+    for g in _ULOG_GPS_TOPICS:  # as the DataFlash reader falls back to GPS
+        if pos_samples or g not in topics:
+            continue
+        pos_samples, n_no_fix = _ulog_gps_positions(t_of(g), topics[g])
+        pos_note = (f"no vehicle_global_position: positions from {g} (3D fix or better; "
+                    f"{len(pos_samples)} samples used, {n_no_fix} without a fix skipped); "
+                    "GPS altitude is coarser than the estimator's")
     gimbal_samples: list[GimbalSample] = []
     g = "gimbal_device_attitude_status"
     if g in topics:
@@ -457,7 +508,9 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     for _t, name, value in ulog.changed_parameters:
         params[name] = value
     gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1, gimbal_instance)
-    notes = ["clock: ULog timestamps (PX4 boot time)"] + ([gnote] if gnote else [])
+    damage = _ulog_damage(path, ulog.file_corruption)
+    notes = [*damage, "clock: ULog timestamps (PX4 boot time)"]
+    notes += [n for n in (pos_note, gnote) if n]
     return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
                      gimbal, source, homes, tuple(captures), params,
-                     MountTargetSeries.from_samples([]), (), tuple(notes))
+                     MountTargetSeries.from_samples([]), (), tuple(notes), damage)
