@@ -59,17 +59,12 @@ def run_live(args: argparse.Namespace) -> int:
     from shapely.geometry import box
 
     from pdcov.commands.plan import scenario_of
-    from pdcov.ground.app import parse_host_port, stdout_is_terminal
+    from pdcov.ground.app import parse_web_address, stdout_is_terminal
     from pdcov.ground.demo import DemoVehicle, LiveDemo, run_live_demo
     from pdcov.planning.optimise import PlanParams, build_plan
     from pdcov.planning.plan import write_plan
 
-    web = None
-    if args.web:
-        try:
-            web = parse_host_port(args.web)
-        except ValueError as exc:
-            raise ConfigError(f"--web {exc}") from None
+    web = parse_web_address(args.web) if args.web else None
     mission, doc = _bundled_mission()
     print(f"pdcov demo: live, {args.vehicles} vehicle(s), {args.speed:g}x real time; "
           "detector model is ILLUSTRATIVE, not measured; Ctrl-C stops everything",

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from pdcov.bus.keys import valid_vehicle_id
     from pdcov.bus.session import BusConfig, bus_config_from_dict
     from pdcov.config import load_mission
-    from pdcov.ground.app import WatchOptions, parse_host_port, run_watch, stdout_is_terminal
+    from pdcov.ground.app import WatchOptions, parse_web_address, run_watch, stdout_is_terminal
 
     vehicle = None if args.vehicle == "all" else args.vehicle
     if vehicle is not None and not valid_vehicle_id(vehicle):
@@ -67,12 +67,7 @@ def run(args: argparse.Namespace) -> int:
         bus = replace(bus, mode="peer")  # the daemon's config may say router; we follow
     if args.no_multicast_scouting:
         bus = replace(bus, multicast_scouting=False)
-    web = None
-    if args.web:
-        try:
-            web = parse_host_port(args.web)
-        except ValueError as exc:
-            raise ConfigError(f"--web {exc}") from None
+    web = parse_web_address(args.web) if args.web else None
     if args.basemap is not None and not args.basemap.is_dir():
         raise ConfigError(f"--basemap {args.basemap}: not a folder of XYZ tiles")
     if not args.wait_s > 0:

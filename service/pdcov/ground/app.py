@@ -13,6 +13,7 @@ from typing import Any
 
 from pdcov.bus.session import BusConfig
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
+from pdcov.errors import ConfigError
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
 from pdcov.ground.terminal import headline, plain_lines, render
@@ -139,11 +140,12 @@ async def _view(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
             live.stop()
 
 
-def parse_host_port(text: str) -> tuple[str, int]:
-    """'HOST:PORT' (PORT 0 picks a free one) -> (host, port); ValueError with the reason."""
+def parse_web_address(text: str) -> tuple[str, int]:
+    """``--web HOST:PORT`` (PORT 0 picks a free one) -> (host, port); ConfigError naming
+    the option otherwise."""
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ValueError(f"{text!r}: expected HOST:PORT such as 127.0.0.1:8080")
+        raise ConfigError(f"--web {text!r}: expected HOST:PORT such as 127.0.0.1:8080")
     return host.strip("[]"), int(port)
 
 

@@ -173,6 +173,7 @@ function show(s) {
   cov.textContent = pct(share);
   cov.dataset.share = share === undefined || share === null ? "" : String(share);
   cov.dataset.version = String(s.version);
+  cov.dataset.meanPd = f.mean_pd === null ? "" : String(f.mean_pd);
   document.getElementById("target").textContent = f.target ?? "-";
   document.getElementById("status-line").textContent =
     `${s.vehicles.length} vehicle(s); update ${s.version}; ${new Date().toLocaleTimeString()}`;
@@ -189,7 +190,7 @@ function colourBar() {
 }
 
 function fit() {
-  mapCanvas.width = Math.max(320, Math.min(window.innerWidth - 360, 1000));
+  mapCanvas.width = Math.max(320, Math.min(window.innerWidth - 440, 1000));
   mapCanvas.height = Math.max(240, Math.min(window.innerHeight - 120, 800));
   draw();
 }
