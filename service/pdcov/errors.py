@@ -31,6 +31,10 @@ class InputFileError(PdcovError):
     """An input data file (CSV, grid, prior) is missing or malformed."""
 
 
+class OutputError(PdcovError):
+    """An output file or folder cannot be written there (names the path and why)."""
+
+
 def where(source: str | None, key: str) -> str:
     """Format a location such as ``mission.yaml: camera.K`` for error messages."""
     return f"{source}: {key}" if source else key

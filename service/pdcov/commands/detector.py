@@ -17,6 +17,7 @@ import yaml
 from tqdm import tqdm
 
 from pdcov.atomic import write_text_atomic
+from pdcov.commands.args import output_file
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import (
     BOX_FORMATS,
@@ -54,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     fit = sub.add_parser("fit", help="fit P_D(size) and P_FA(size) from a labelled test set")
     _data_args(fit)
-    fit.add_argument("--out", required=True, type=Path, help="detector model YAML to write")
+    fit.add_argument("--out", required=True, type=output_file, help="detector model YAML to write")
     fit.add_argument("--bins", default=DEFAULT_BINS,
                      help="edges '4,8,16,...' (px) or a rule 'quantile:N' (equal counts) or "
                           f"'log:N' (log-spaced) on the ground-truth sizes "
@@ -90,13 +91,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "chi-square; or Fisher's exact test against the fit's counts "
                           "(binomial)")
     val.add_argument("--alpha", type=float, default=0.05, help="significance level (0.05)")
-    val.add_argument("--report", type=Path, help="write the per-bin report as JSON")
+    val.add_argument("--report", type=output_file, help="write the per-bin report as JSON")
     val.set_defaults(func=run_validate)
 
     plot = sub.add_parser("plot", help="draw the paper's Fig. 6: P_D and precision by size")
     plot.add_argument("model", type=Path, help="detector model YAML")
     plot.add_argument("--validation", type=Path, help="report JSON of 'detector validate'")
-    plot.add_argument("--out", required=True, type=Path, help="image to write (.png, .pdf)")
+    plot.add_argument("--out", required=True, type=output_file, help="image to write (.png, .pdf)")
     plot.add_argument("--title", help="figure title")
     plot.set_defaults(func=run_plot)
 

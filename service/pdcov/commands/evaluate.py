@@ -11,6 +11,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pdcov.atomic import replacing_dir
+from pdcov.commands.args import (
+    finite,
+    output_dir,
+    output_file,
+    positive,
+    positive_int,
+    probability,
+)
 from pdcov.config import load_mission
 from pdcov.errors import InputFileError, PdcovError
 
@@ -30,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="pose CSV: t_s,x_m,y_m,z_m,qw,qx,qy,qz (camera centre ENU m, "
                           "R_enu_cam quaternion)")
     src.add_argument("--log", type=Path, help="flight log: .tlog, DataFlash .bin, PX4 .ulg")
-    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--out", required=True, type=output_dir, help="output folder")
     p.add_argument("--plan", type=Path, help="planned mission (.plan or WPL) to draw")
     p.add_argument("--prior", type=Path,
                    help="probability of area: .npy or GeoTIFF aligned with the grid, or a "
@@ -38,8 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frame-source", choices=("rate", "capture"),
                    help="frames at the camera rate or at the log's capture events "
                         "(default: the config's log.frame_source)")
-    p.add_argument("--export-poses", type=Path, help="write the camera poses used (CSV)")
-    p.add_argument("--outline-threshold", type=float,
+    p.add_argument("--export-poses", type=output_file, help="write the camera poses used (CSV)")
+    p.add_argument("--outline-threshold", type=probability,
                    help="P_D threshold outlined in the heat map and GeoJSON (default: the "
                         "largest configured threshold)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -49,7 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Compare the proportions of cells reaching each threshold "
                                    "across runs of `pdcov evaluate` or `pdcov plan`.")
     c.add_argument("runs", nargs="+", type=Path, help="run folders")
-    c.add_argument("--out", type=Path, default=Path("compare.png"), help="figure to write")
+    c.add_argument("--out", type=output_file, default=Path("compare.png"),
+                   help="figure to write")
     c.add_argument("--names", help="comma-separated labels (default: folder names)")
     c.set_defaults(func=run_compare)
 
@@ -57,16 +67,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Draw the per-pixel ray count of the configured camera "
                                    "for a vehicle pose given on the command line.")
     f.add_argument("--config", required=True, type=Path, help="mission config YAML")
-    f.add_argument("--altitude-m", type=float, required=True, help="height above ground")
-    f.add_argument("--roll-deg", type=float, default=0.0, help="vehicle roll")
-    f.add_argument("--pitch-deg", type=float, default=0.0, help="vehicle pitch")
-    f.add_argument("--yaw-deg", type=float, default=0.0, help="vehicle heading")
-    f.add_argument("--camera-pitch-deg", type=float,
+    f.add_argument("--altitude-m", type=positive, required=True, help="height above ground")
+    f.add_argument("--roll-deg", type=finite, default=0.0, help="vehicle roll")
+    f.add_argument("--pitch-deg", type=finite, default=0.0, help="vehicle pitch")
+    f.add_argument("--yaw-deg", type=finite, default=0.0, help="vehicle heading")
+    f.add_argument("--camera-pitch-deg", type=finite,
                    help="camera pitch against the horizon for a gimbal (default -90: nadir); "
                         "a fixed mount uses the config's angles")
-    f.add_argument("--cell-size-m", type=float, help="cell size (default: the config's)")
-    f.add_argument("--pixel-step", type=int, default=1, help="use every n-th pixel")
-    f.add_argument("--out", type=Path, default=Path("footprint.png"), help="figure to write")
+    f.add_argument("--cell-size-m", type=positive, help="cell size (default: the config's)")
+    f.add_argument("--pixel-step", type=positive_int, default=1, help="use every n-th pixel")
+    f.add_argument("--out", type=output_file, default=Path("footprint.png"),
+                   help="figure to write")
     f.set_defaults(func=run_footprint)
 
 
@@ -81,9 +92,6 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.telemetry.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
 
     mission = load_mission(args.config)
-    if args.outline_threshold is not None and not 0 <= args.outline_threshold <= 1:
-        raise PdcovError(f"--outline-threshold: expected a probability in [0, 1], got "
-                         f"{args.outline_threshold}")
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
     if args.poses is not None:
@@ -130,16 +138,20 @@ def run_evaluate(args: argparse.Namespace) -> int:
     warnings = _unseen_domain_warnings(grid, mission, poses)
     for w in warnings:
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
+    # The per-frame poses are done with: free them before writing the outputs (the peak).
+    del poses
+    source = (args.poses or args.log).name
+    with replacing_dir(args.out) as replaced:
+        run = write_outputs(args.out, mission, grid, origin,
+                            title=f"{mission.vehicle_id}: {source}",
+                            track_enu=finite_track(track), plan_enu=plan_enu,
+                            outline_threshold=args.outline_threshold, prior=prior,
+                            extra_metrics={"warnings": warnings} if warnings else None)
+    if replaced:
+        lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:
         write_pose_csv(args.export_poses, log_poses)
         lines.append(f"camera poses written to {args.export_poses}")
-    # The per-frame poses are done with: free them before writing the outputs (the peak).
-    del poses, log_poses
-    source = (args.poses or args.log).name
-    run = write_outputs(args.out, mission, grid, origin,
-                        title=f"{mission.vehicle_id}: {source}", track_enu=finite_track(track),
-                        plan_enu=plan_enu, outline_threshold=args.outline_threshold,
-                        prior=prior, extra_metrics={"warnings": warnings} if warnings else None)
     print(summary_text(run, lines + [f"WARNING: {w}" for w in warnings]))
     return 0
 
@@ -225,14 +237,6 @@ def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.report.plots import ray_count_figure
 
     mission = load_mission(args.config)
-    for name in ("altitude_m", "roll_deg", "pitch_deg", "yaw_deg"):
-        if not math.isfinite(getattr(args, name)):
-            raise PdcovError(f"--{name.replace('_', '-')}: expected a finite number")
-    if args.altitude_m <= 0:
-        raise PdcovError(f"--altitude-m: expected a height above ground > 0, got "
-                         f"{args.altitude_m}")
-    if args.pixel_step < 1:
-        raise PdcovError("--pixel-step: expected an integer >= 1")
     R_ned_body = R_from_euler_zyx(*np.radians([args.roll_deg, args.pitch_deg, args.yaw_deg]))
     r = np.array([0.0, 0.0, args.altitude_m])
     if isinstance(mission.mount, FixedMount) and args.camera_pitch_deg is None:

@@ -21,7 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from pdcov.atomic import atomic_write, write_text_atomic
+from pdcov.atomic import atomic_write, replacing_dir, write_text_atomic
+from pdcov.commands.args import (
+    finite,
+    mavlink_url,
+    output_dir,
+    overlap,
+    positive,
+    positive_int,
+    probability,
+)
 from pdcov.config import Mission, load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
@@ -56,17 +65,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "predicted evaluation of flying it.")
     p.add_argument("--config", required=True, type=Path, help="mission config YAML")
     p.add_argument("--pattern", choices=PATTERNS, default="lawnmower")
-    p.add_argument("--altitude-m", type=float, required=True, help="altitude above ground")
+    p.add_argument("--altitude-m", type=positive, required=True, help="altitude above ground")
     _spacing_args(p)
-    p.add_argument("--heading-deg", type=float,
+    p.add_argument("--heading-deg", type=finite,
                    help="track direction (lawnmower) or first leg, clockwise from north (0)")
-    p.add_argument("--speed-mps", type=float, default=5.0, help="ground speed (5)")
-    p.add_argument("--centre-enu-m", type=float, nargs=2, metavar=("X", "Y"),
+    p.add_argument("--speed-mps", type=positive, default=5.0, help="ground speed (5)")
+    p.add_argument("--centre-enu-m", type=finite, nargs=2, metavar=("X", "Y"),
                    help="spiral centre or IAMSAR datum in ENU m, inside the domain "
                         "(default: docs/planning.md)")
-    p.add_argument("--radius-m", type=float, help="sector search radius (default: the "
+    p.add_argument("--radius-m", type=positive, help="sector search radius (default: the "
                                                   "largest keeping the triangles inside)")
-    p.add_argument("--out", required=True, type=Path, help="folder to write")
+    p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     p.set_defaults(func=run_plan)
 
@@ -76,20 +85,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "report the plans on the Pareto front of the proportion of cells at or "
                     "above the target P_D against flight time.")
     o.add_argument("--config", required=True, type=Path, help="mission config YAML")
-    o.add_argument("--target-pd", type=float, required=True, help="P_D target per cell")
-    o.add_argument("--min-proportion", type=float, default=0.95,
+    o.add_argument("--target-pd", type=probability, required=True, help="P_D target per cell")
+    o.add_argument("--min-proportion", type=probability, default=0.95,
                    help="proportion of cells that must reach the target (0.95); the best "
                         "plan is the shortest flight reaching it")
     o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"])
-    o.add_argument("--altitudes-m", nargs="+", type=float, default=[8.0, 10.0, 12.0])
-    o.add_argument("--speeds-mps", nargs="+", type=float, default=[3.0, 5.0])
-    o.add_argument("--headings-deg", nargs="+", type=float, default=[0.0, 90.0])
-    o.add_argument("--spacings-m", nargs="+", type=float,
+    o.add_argument("--altitudes-m", nargs="+", type=positive, default=[8.0, 10.0, 12.0])
+    o.add_argument("--speeds-mps", nargs="+", type=positive, default=[3.0, 5.0])
+    o.add_argument("--headings-deg", nargs="+", type=finite, default=[0.0, 90.0])
+    o.add_argument("--spacings-m", nargs="+", type=positive,
                    help="track spacings (default: from the swath and --overlaps)")
-    o.add_argument("--overlaps", nargs="+", type=float, default=[0.0, 0.2, 0.4],
+    o.add_argument("--overlaps", nargs="+", type=overlap, default=[0.0, 0.2, 0.4],
                    help="side overlaps of the swath (0 0.2 0.4)")
-    o.add_argument("--processes", type=int, help="worker processes (default: all cores)")
-    o.add_argument("--out", required=True, type=Path, help="folder to write")
+    o.add_argument("--processes", type=positive_int, help="worker processes (default: all cores)")
+    o.add_argument("--out", required=True, type=output_dir, help="folder to write")
     o.set_defaults(func=run_optimise)
 
     r = subparsers.add_parser("refly", help="find cells below the target after a flight "
@@ -97,34 +106,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description="Gap finder and follow-up flight.")
     r.add_argument("--config", required=True, type=Path, help="mission config YAML")
     r.add_argument("--grid", required=True, type=Path, help="grid.npz of the flight so far")
-    r.add_argument("--target-pd", type=float, required=True)
-    r.add_argument("--altitude-m", type=float, default=10.0, help="altitude above ground (10)")
-    r.add_argument("--speed-mps", type=float, default=3.0, help="ground speed (3)")
+    r.add_argument("--target-pd", type=probability, required=True)
+    r.add_argument("--altitude-m", type=positive, default=10.0, help="altitude above ground (10)")
+    r.add_argument("--speed-mps", type=positive, default=3.0, help="ground speed (3)")
     _spacing_args(r)
-    r.add_argument("--headings-deg", nargs="+", type=float, default=[0.0, 90.0],
+    r.add_argument("--headings-deg", nargs="+", type=finite, default=[0.0, 90.0],
                    help="track directions to try (0 90)")
-    r.add_argument("--start-enu-m", type=float, nargs=2, default=[0.0, 0.0],
+    r.add_argument("--start-enu-m", type=finite, nargs=2, default=[0.0, 0.0],
                    metavar=("X", "Y"), help="where the follow-up starts (home: 0 0)")
-    r.add_argument("--out", required=True, type=Path, help="folder to write")
+    r.add_argument("--out", required=True, type=output_dir, help="folder to write")
     r.set_defaults(func=run_refly)
 
     u = subparsers.add_parser("upload", help="upload a plan to a vehicle (MAVLink mission)",
                               description="Upload a .plan or WPL file with the MAVLink "
                                           "mission protocol and report what the vehicle said.")
     u.add_argument("plan", type=Path, help=".plan or WPL 110 file")
-    u.add_argument("--connect", required=True,
+    u.add_argument("--connect", required=True, type=mavlink_url,
                    help="pymavlink URL, e.g. udpin:0.0.0.0:14550, udpout:192.168.1.10:14555, "
                         "tcp:127.0.0.1:5760, /dev/ttyUSB0")
-    u.add_argument("--timeout-s", type=float, default=10.0,
+    u.add_argument("--timeout-s", type=positive, default=10.0,
                    help="wait this long for the vehicle's heartbeat (10)")
     u.set_defaults(func=run_upload)
 
 
 def _spacing_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--spacing-m", type=float, help="track spacing (default: from the camera "
+    g.add_argument("--spacing-m", type=positive, help="track spacing (default: from the camera "
                                                    "swath and --overlap)")
-    g.add_argument("--overlap", type=float, help="side overlap (0.2)")
+    g.add_argument("--overlap", type=overlap, help="side overlap (0.2)")
 
 
 def _overlap(args: argparse.Namespace) -> float:
@@ -186,13 +195,47 @@ def run_plan(args: argparse.Namespace) -> int:
                         math.radians(args.heading_deg or 0.0), args.spacing_m,
                         _overlap(args),
                         tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m)
+    if "spacing" in PATTERN_OPTIONS[args.pattern]:
+        spacing_m = args.spacing_m or track_spacing_m(sc.swath_width_m(args.altitude_m),
+                                                      _overlap(args))
+        check_plan_size(sc, spacing_m, args.speed_mps)
     plan, spacing = build_plan(sc, params)
     pred = predict(sc, plan, params, progress=sys.stderr.isatty())
-    print(write_prediction(args.out, mission, pred, pred.grid,
-                            f"predicted: {plan.description} at {args.altitude_m:g} m",
-                            spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
-                            figures=not args.no_figures))
+    with replacing_dir(args.out) as replaced:
+        summary = write_prediction(
+            args.out, mission, pred, pred.grid,
+            f"predicted: {plan.description} at {args.altitude_m:g} m",
+            spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
+            figures=not args.no_figures)
+    print(summary + _replaced_note(replaced, args.out))
     return 0
+
+
+# Refused above this many predicted camera frames (the flight is sampled at the camera's
+# frame rate); warned above this flight time.
+MAX_PLAN_FRAMES = 20_000_000
+LONG_FLIGHT_S = 4 * 3600.0
+
+
+def check_plan_size(sc: Scenario, spacing_m: float, speed_mps: float) -> None:
+    """Estimate a sweep's path (free area / spacing) before building it: refuse a plan of
+    more than MAX_PLAN_FRAMES frames with the figures, warn about one over LONG_FLIGHT_S."""
+    path_m = sc.free_space.area / spacing_m
+    flight_s = path_m / speed_mps
+    frames = flight_s * sc.frame_rate_hz
+    what = (f"track spacing {spacing_m:g} m over {sc.free_space.area:,.0f} m^2 gives about "
+            f"{path_m / 1000:,.1f} km of track, {flight_s / 3600:,.1f} h of flight at "
+            f"{speed_mps:g} m/s and {frames:,.0f} camera frames")
+    if frames > MAX_PLAN_FRAMES:
+        raise ConfigError(f"{what}; at most {MAX_PLAN_FRAMES:,} frames are predicted: "
+                          "widen --spacing-m (or lower --overlap) or split the domain")
+    if flight_s > LONG_FLIGHT_S:
+        print(f"WARNING: {what}: far beyond one battery; check --spacing-m, --overlap and "
+              "--speed-mps", file=sys.stderr)
+
+
+def _replaced_note(replaced: bool, out: Path) -> str:
+    return f"\nreplaced the previous outputs in {out}" if replaced else ""
 
 
 def _score_row(s: Score) -> dict[str, Any]:
@@ -231,25 +274,25 @@ def run_optimise(args: argparse.Namespace) -> int:
     front = pareto_front(scores)
     best = best_index(scores, args.min_proportion)
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    rows = [_score_row(s) for s in scores]
-    for name, idx in (("candidates.csv", range(len(scores))), ("front.csv", front)):
-        with atomic_write(out / name, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["on_front"])
-            w.writeheader()
-            for i in idx:
-                w.writerow({**rows[i], "on_front": i in front})
-    _front_figure(out / "pareto.png", scores, front, best, args.target_pd)
-    s = scores[best]
-    plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
-    pred = predict(sc, plan, s.params)
-    summary = write_prediction(out / "best", mission, pred, pred.grid,
-                                f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                spacing)
-    write_text_atomic(out / "optimise.json", json.dumps({
-        "target_pd": args.target_pd, "min_proportion": args.min_proportion,
-        "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
-        "front": [rows[i] for i in front], "best": rows[best]}, indent=2) + "\n")
+    with replacing_dir(out) as replaced:
+        rows = [_score_row(s) for s in scores]
+        for name, idx in (("candidates.csv", range(len(scores))), ("front.csv", front)):
+            with atomic_write(out / name, "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=list(rows[0]) + ["on_front"])
+                w.writeheader()
+                for i in idx:
+                    w.writerow({**rows[i], "on_front": i in front})
+        _front_figure(out / "pareto.png", scores, front, best, args.target_pd)
+        s = scores[best]
+        plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
+        pred = predict(sc, plan, s.params)
+        summary = write_prediction(out / "best", mission, pred, pred.grid,
+                                    f"best: {plan.description} at {s.params.alt_agl_m:g} m",
+                                    spacing)
+        write_text_atomic(out / "optimise.json", json.dumps({
+            "target_pd": args.target_pd, "min_proportion": args.min_proportion,
+            "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
+            "front": [rows[i] for i in front], "best": rows[best]}, indent=2) + "\n")
     print(f"{len(scores)} plans in {elapsed:.1f} s "
           f"({60 * len(scores) / max(elapsed, 1e-9):.0f} plans/min); Pareto front of the "
           f"proportion of cells with P_D >= {args.target_pd:g} vs flight time:")
@@ -259,7 +302,7 @@ def run_optimise(args: argparse.Namespace) -> int:
           f"{args.min_proportion:g}): {plan.description}, {s.params.alt_agl_m:g} m, "
           f"{s.params.speed_mps:g} m/s -> proportion {s.proportion:.3f}, "
           f"{s.flight_time_s:.0f} s")
-    print(summary)
+    print(summary + _replaced_note(replaced, out))
     return 0
 
 
@@ -304,24 +347,26 @@ def run_refly(args: argparse.Namespace) -> int:
     spacing = args.spacing_m
     if spacing is None:
         spacing = track_spacing_m(sc.swath_width_m(args.altitude_m), _overlap(args))
+    check_plan_size(sc, spacing, args.speed_mps)
     r = plan_refly(sc, flown.log_miss_d, args.target_pd, args.altitude_m, args.speed_mps,
                    spacing, tuple(math.radians(h) for h in args.headings_deg),
                    tuple(args.start_enu_m), progress=sys.stderr.isatty())
     flown.merge(r.prediction.grid)
     out: Path = args.out
-    summary = write_prediction(out, mission, r.prediction, flown,
-                                f"after the follow-up: {r.plan.description}", spacing)
-    write_text_atomic(out / "gaps.json", json.dumps({
-        "target_pd": args.target_pd,
-        "before": {"cells": r.gaps_before.n_cells,
-                   "proportion": round(r.gaps_before.proportion, 4)},
-        "after": {"cells": r.gaps_after.n_cells,
-                  "proportion": round(r.gaps_after.proportion, 4)},
-        "regions_enu_m": [np.round(np.asarray(p.exterior.coords), 2).tolist()
-                          for p in r.gaps_before.regions],
-        "compared": [{"description": o.description, "flight_time_s": round(o.flight_time_s, 1),
-                      "path_length_m": round(o.path_length_m, 1), "gaps_after": o.gaps_after}
-                     for o in r.compared]}, indent=2) + "\n")
+    with replacing_dir(out) as replaced:
+        summary = write_prediction(out, mission, r.prediction, flown,
+                                    f"after the follow-up: {r.plan.description}", spacing)
+        write_text_atomic(out / "gaps.json", json.dumps({
+            "target_pd": args.target_pd,
+            "before": {"cells": r.gaps_before.n_cells,
+                       "proportion": round(r.gaps_before.proportion, 4)},
+            "after": {"cells": r.gaps_after.n_cells,
+                      "proportion": round(r.gaps_after.proportion, 4)},
+            "regions_enu_m": [np.round(np.asarray(p.exterior.coords), 2).tolist()
+                              for p in r.gaps_before.regions],
+            "compared": [{"description": o.description, "flight_time_s": round(o.flight_time_s, 1),
+                          "path_length_m": round(o.path_length_m, 1), "gaps_after": o.gaps_after}
+                         for o in r.compared]}, indent=2) + "\n")
     print(f"gaps below P_D {args.target_pd:g}: {r.gaps_before.n_cells} cells "
           f"({r.gaps_before.proportion:.1%}) before, {r.gaps_after.n_cells} "
           f"({r.gaps_after.proportion:.1%}) predicted after the follow-up")
@@ -330,7 +375,7 @@ def run_refly(args: argparse.Namespace) -> int:
         mark = "*" if o.description == r.plan.description else " "
         print(f" {mark} {o.flight_time_s:7.1f} s {o.path_length_m:8.1f} m  "
               f"{o.gaps_after:6d} gap cells after  {o.description}")
-    print(summary)
+    print(summary + _replaced_note(replaced, out))
     return 0
 
 

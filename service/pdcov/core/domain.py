@@ -22,6 +22,12 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import DomainError, where
 from pdcov.yaml_file import read_text
 
+# Bytes a coverage grid needs per cell while it is built and written: float32 log-miss sums
+# (2), int32 looks, bool mask, float64 revisit clock, float64 P_D / P_FA and cell-centre
+# coordinates at output. 2**28 cells (about 16 km x 16 km of 1 m cells) is ~13 GiB.
+GRID_BYTES_PER_CELL = 52
+MAX_GRID_CELLS = 2**28
+
 
 @dataclass(frozen=True, slots=True)
 class GridGeometry:
@@ -39,6 +45,16 @@ class GridGeometry:
         if self.n_rows < 1 or self.n_cols < 1:
             raise DomainError(f"grid must have at least one cell, got {self.n_rows} x "
                               f"{self.n_cols}")
+        n_cells = self.n_rows * self.n_cols
+        if n_cells > MAX_GRID_CELLS:
+            # Refused here, before any array is allocated: a mistyped cell size otherwise
+            # fails with MemoryError (or swaps) after minutes.
+            side_m = self.cell_size_m * math.sqrt(n_cells / MAX_GRID_CELLS)
+            raise DomainError(
+                f"cell_size_m = {self.cell_size_m:g} m gives {self.n_rows:,} x {self.n_cols:,} "
+                f"= {n_cells:,} cells, about {n_cells * GRID_BYTES_PER_CELL / 2**30:,.1f} GiB "
+                f"of memory; at most {MAX_GRID_CELLS:,} cells are allowed: use cells of at "
+                f"least {side_m:.3g} m")
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -1,0 +1,151 @@
+"""Bad command-line values and output paths are one-line errors (exit 2) found before any
+work is done: shared argparse types (commands/args.py) and output checks (atomic.py)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from pdcov import cli
+from pdcov.commands.plan import check_plan_size, scenario_of
+from pdcov.config import load_mission
+from pdcov.errors import ConfigError, DomainError
+
+DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
+POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,-40.0,-40.0,10.0,0.0,1.0,0.0,0.0\n"
+
+
+def usage_error(argv: list[str], capsys) -> str:
+    """argparse's usage error: exit 2, one message, no traceback."""
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "error:" in err
+    return err
+
+
+@pytest.fixture
+def poses(tmp_path: Path) -> Path:
+    path = tmp_path / "poses.csv"
+    path.write_text(POSES)
+    return path
+
+
+def evaluate(out: str, poses: Path, *extra: str) -> list[str]:
+    return ["evaluate", "--config", str(DEMO), "--poses", str(poses), "--out", out, *extra]
+
+
+def test_out_is_a_file_or_under_one(tmp_path: Path, poses: Path, capsys) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("mine")
+    assert "is a file" in usage_error(evaluate(str(blocker), poses), capsys)
+    assert "is a file" in usage_error(evaluate(str(blocker / "run"), poses), capsys)
+    assert blocker.read_text() == "mine"
+
+
+def test_out_folder_of_the_users_files_is_not_replaced(tmp_path: Path, poses: Path,
+                                                        capsys) -> None:
+    mine = tmp_path / "documents"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("x")
+    assert "files pdcov did not write" in usage_error(evaluate(str(mine), poses), capsys)
+
+
+def test_output_files_in_missing_folders(tmp_path: Path, poses: Path, capsys) -> None:
+    missing = tmp_path / "nope"
+    err = usage_error(evaluate(str(tmp_path / "run"), poses, "--export-poses",
+                               str(missing / "p.csv")), capsys)
+    assert "--export-poses" in err and "does not exist" in err
+    run = tmp_path / "run"
+    assert not run.exists()
+    assert "does not exist" in usage_error(
+        ["footprint", "--config", str(DEMO), "--altitude-m", "10", "--out",
+         str(missing / "f.png")], capsys)
+    assert "is a folder" in usage_error(["compare", str(tmp_path), "--out", str(tmp_path)],
+                                        capsys)
+    assert "does not exist" in usage_error(
+        ["detector", "plot", str(DEMO), "--out", str(missing / "d.png")], capsys)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["--altitude-m", "nan"], "--altitude-m"),
+    (["--altitude-m", "inf"], "--altitude-m"),
+    (["--altitude-m", "0"], "--altitude-m"),
+    (["--altitude-m", "-10"], "--altitude-m"),
+    (["--altitude-m", "10", "--speed-mps", "0"], "--speed-mps"),
+    (["--altitude-m", "10", "--spacing-m", "-3"], "--spacing-m"),
+    (["--altitude-m", "10", "--heading-deg", "nan"], "--heading-deg"),
+    (["--altitude-m", "10", "--overlap", "1"], "--overlap"),
+])
+def test_numbers_are_checked_by_argparse(tmp_path: Path, capsys, argv: list[str],
+                                         option: str) -> None:
+    err = usage_error(["plan", "--config", str(DEMO), "--out", str(tmp_path / "p"), *argv],
+                      capsys)
+    assert f"argument {option}" in err
+    assert not (tmp_path / "p").exists()
+
+
+def test_other_commands_share_the_number_types(tmp_path: Path, capsys) -> None:
+    assert "argument --altitude-m" in usage_error(
+        ["footprint", "--config", str(DEMO), "--altitude-m", "-1"], capsys)
+    assert "argument --target-pd" in usage_error(
+        ["optimise", "--config", str(DEMO), "--target-pd", "1.5", "--out",
+         str(tmp_path / "o")], capsys)
+    assert "argument --speeds-mps" in usage_error(
+        ["optimise", "--config", str(DEMO), "--target-pd", "0.8", "--speeds-mps", "3", "nan",
+         "--out", str(tmp_path / "o")], capsys)
+
+
+def test_upload_unknown_connection_scheme(tmp_path: Path, capsys) -> None:
+    err = usage_error(["upload", str(tmp_path / "m.plan"), "--connect", "tpc:127.0.0.1:5760"],
+                      capsys)
+    assert "unknown connection 'tpc:127.0.0.1:5760'" in err and "udpin:" in err
+
+
+def test_huge_grid_is_refused_with_the_figure(tmp_path: Path, capsys) -> None:
+    config = tmp_path / "m.yaml"
+    config.write_text(DEMO.read_text().replace("cell_size_m: 1.0", "cell_size_m: 0.0001"))
+    with pytest.raises(DomainError, match=r"160,000,000,000 cells, about [\d,.]+ GiB"):
+        load_mission(config).new_grid()
+    assert cli.main(["plan", "--config", str(config), "--altitude-m", "10", "--out",
+                     str(tmp_path / "p")]) == 2
+    assert "use cells of at least" in capsys.readouterr().err
+
+
+def test_absurd_plans_refused_or_warned(capsys) -> None:
+    sc = scenario_of(load_mission(DEMO))
+    with pytest.raises(ConfigError, match=r"camera frames; at most 20,000,000"):
+        check_plan_size(sc, 1e-6, 5.0)
+    check_plan_size(sc, 0.01, 0.5)  # 160 km of track at 0.5 m/s: 89 h
+    assert "WARNING" in capsys.readouterr().err
+    check_plan_size(sc, 8.0, 5.0)
+    assert capsys.readouterr().err == ""
+
+
+def mount_tmpfs(where: Path, options: str) -> None:
+    where.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
+                          capture_output=True, timeout=10)
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+
+
+def test_full_disk_and_read_only_are_one_line_errors(tmp_path: Path, poses: Path,
+                                                     capsys) -> None:
+    full, ro = tmp_path / "full", tmp_path / "ro"
+    mount_tmpfs(full, "size=48k")
+    try:
+        mount_tmpfs(ro, "ro,size=64k")
+        try:
+            assert "not writable" in usage_error(evaluate(str(ro / "run"), poses), capsys)
+        finally:
+            subprocess.run(["umount", str(ro)], timeout=10, check=False)
+        assert cli.main(evaluate(str(full / "run"), poses)) == 2
+        err = capsys.readouterr().err
+        assert "No space left on device" in err and "Traceback" not in err
+        assert not (full / "run").exists()  # a failed run writes nothing
+    finally:
+        subprocess.run(["umount", str(full)], timeout=10, check=False)
