@@ -31,6 +31,29 @@ COMMANDS = {
 }
 
 
+class _DefaultsFormatter(argparse.RawDescriptionHelpFormatter):
+    """Appends "(default: X)" to an option's help when it has a default and the help does
+    not already give it; None and False (flags) are no defaults worth showing."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if (action.option_strings and action.default not in (None, False, argparse.SUPPRESS)
+                and "default" not in text and "%(default)" not in text):
+            default = action.default
+            shown = (" ".join(str(v) for v in default) if isinstance(default, (list, tuple))
+                     else str(default))
+            text += f" (default: {shown.replace('%', '%%')})"
+        return text
+
+
+class _Parser(argparse.ArgumentParser):
+    """Every command's parser: help shows the defaults (_DefaultsFormatter)."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        kwargs.setdefault("formatter_class", _DefaultsFormatter)
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser with ``command``'s module registered, or every module when it is None or
     not a known command (for ``--help`` and the usage error)."""
@@ -38,7 +61,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         prog="pdcov",
         description="Probability-of-detection coverage maps for search-and-rescue UAVs.")
     parser.add_argument("--version", action="version", version=f"pdcov {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     modules = ([COMMANDS[command]] if command in COMMANDS
                else list(dict.fromkeys(COMMANDS.values())))
     for name in modules:

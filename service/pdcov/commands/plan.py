@@ -64,12 +64,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description="Write a plan (.plan and .waypoints) and the "
                                           "predicted evaluation of flying it.")
     p.add_argument("--config", required=True, type=Path, help="mission config YAML")
-    p.add_argument("--pattern", choices=PATTERNS, default="lawnmower")
+    p.add_argument("--pattern", choices=PATTERNS, default="lawnmower",
+                   help="coverage pattern (docs/planning.md)")
     p.add_argument("--altitude-m", type=positive, required=True, help="altitude above ground")
     _spacing_args(p)
     p.add_argument("--heading-deg", type=finite,
-                   help="track direction (lawnmower) or first leg, clockwise from north (0)")
-    p.add_argument("--speed-mps", type=positive, default=5.0, help="ground speed (5)")
+                   help="track direction (lawnmower) or first leg, deg clockwise from "
+                        "north (default 0)")
+    p.add_argument("--speed-mps", type=positive, default=5.0, help="ground speed, m/s")
     p.add_argument("--centre-enu-m", type=finite, nargs=2, metavar=("X", "Y"),
                    help="spiral centre or IAMSAR datum in ENU m, inside the domain "
                         "(default: docs/planning.md)")
@@ -89,14 +91,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     o.add_argument("--min-proportion", type=probability, default=0.95,
                    help="proportion of cells that must reach the target (0.95); the best "
                         "plan is the shortest flight reaching it")
-    o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"])
-    o.add_argument("--altitudes-m", nargs="+", type=positive, default=[8.0, 10.0, 12.0])
-    o.add_argument("--speeds-mps", nargs="+", type=positive, default=[3.0, 5.0])
-    o.add_argument("--headings-deg", nargs="+", type=finite, default=[0.0, 90.0])
+    o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"],
+                   help="patterns to try")
+    o.add_argument("--altitudes-m", nargs="+", type=positive, default=[8.0, 10.0, 12.0],
+                   help="altitudes above ground to try, m")
+    o.add_argument("--speeds-mps", nargs="+", type=positive, default=[3.0, 5.0],
+                   help="ground speeds to try, m/s")
+    o.add_argument("--headings-deg", nargs="+", type=finite, default=[0.0, 90.0],
+                   help="track directions to try, deg clockwise from north")
     o.add_argument("--spacings-m", nargs="+", type=positive,
                    help="track spacings (default: from the swath and --overlaps)")
     o.add_argument("--overlaps", nargs="+", type=overlap, default=[0.0, 0.2, 0.4],
-                   help="side overlaps of the swath (0 0.2 0.4)")
+                   help="side overlaps of the swath to try")
     o.add_argument("--processes", type=positive_int, help="worker processes (default: all cores)")
     o.add_argument("--out", required=True, type=output_dir, help="folder to write")
     o.set_defaults(func=run_optimise)
@@ -106,12 +112,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description="Gap finder and follow-up flight.")
     r.add_argument("--config", required=True, type=Path, help="mission config YAML")
     r.add_argument("--grid", required=True, type=Path, help="grid.npz of the flight so far")
-    r.add_argument("--target-pd", type=probability, required=True)
-    r.add_argument("--altitude-m", type=positive, default=10.0, help="altitude above ground (10)")
-    r.add_argument("--speed-mps", type=positive, default=3.0, help="ground speed (3)")
+    r.add_argument("--target-pd", type=probability, required=True,
+                   help="P_D every free cell should reach; cells below it are gaps")
+    r.add_argument("--altitude-m", type=positive, default=10.0, help="altitude above ground, m")
+    r.add_argument("--speed-mps", type=positive, default=3.0, help="ground speed, m/s")
     _spacing_args(r)
     r.add_argument("--headings-deg", nargs="+", type=finite, default=[0.0, 90.0],
-                   help="track directions to try (0 90)")
+                   help="track directions to try, deg clockwise from north")
     r.add_argument("--start-enu-m", type=finite, nargs=2, default=[0.0, 0.0],
                    metavar=("X", "Y"), help="where the follow-up starts (home: 0 0)")
     r.add_argument("--out", required=True, type=output_dir, help="folder to write")
@@ -125,7 +132,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="pymavlink URL, e.g. udpin:0.0.0.0:14550, udpout:192.168.1.10:14555, "
                         "tcp:127.0.0.1:5760, /dev/ttyUSB0")
     u.add_argument("--timeout-s", type=positive, default=10.0,
-                   help="wait this long for the vehicle's heartbeat (10)")
+                   help="wait this long for the vehicle's heartbeat, s")
     u.set_defaults(func=run_upload)
 
 
@@ -133,7 +140,7 @@ def _spacing_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--spacing-m", type=positive, help="track spacing (default: from the camera "
                                                    "swath and --overlap)")
-    g.add_argument("--overlap", type=overlap, help="side overlap (0.2)")
+    g.add_argument("--overlap", type=overlap, help="side overlap of the swath (default 0.2)")
 
 
 def _overlap(args: argparse.Namespace) -> float:
