@@ -31,7 +31,7 @@ COMMANDS = {
 }
 
 
-class _DefaultsFormatter(argparse.RawDescriptionHelpFormatter):
+class _DefaultsFormatter(argparse.HelpFormatter):
     """Appends "(default: X)" to an option's help when it has a default and the help does
     not already give it; None and False (flags) are no defaults worth showing."""
 
