@@ -174,3 +174,31 @@ def test_live_demo_in_a_headless_browser(tmp_path):
     assert text == f"{100 * expected:.1f} %"
     assert float(mean_pd) == pytest.approx(status["mean_pd"], rel=1e-12)
     assert mid_shot.stat().st_size > 10_000
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Pids of live processes whose command line contains ``text``."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            with contextlib.suppress(OSError):
+                cmd = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                state = (proc / "stat").read_text().split(") ")[-1][:1]
+                if text in cmd and state != "Z":
+                    pids.append(int(proc.name))
+    return pids
+
+
+def test_ctrl_c_stops_every_child(tmp_path):
+    out = tmp_path / "demo-interrupted"
+    demo = Run(demo_args(out), tmp_path)
+    try:
+        demo.wait_line(r"coverage \d+\.\d%", 120)  # router, simulator, daemon, watcher up
+        children = [p for p in processes_mentioning(str(out)) if p != demo.p.pid]
+        assert len(children) == 3, children  # watcher, simulator, daemon
+        demo.p.send_signal(signal.SIGINT)
+        assert demo.wait(60) == 130
+        assert processes_mentioning(str(out)) == []
+        assert "pdcov demo: interrupted" in demo.lines[-1]
+    finally:
+        demo.close()

@@ -162,6 +162,7 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
     report = out / "report"
     router_ep = f"tcp/127.0.0.1:{free_port()}"
     t0 = time.monotonic()
+    previous = _interrupt_on_signals()
     router = open_session(BusConfig(mode="router", listen=(router_ep,),
                                     multicast_scouting=False))
     children = Children()
@@ -240,6 +241,23 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
         if sub is not None:
             sub.undeclare()
         router.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _interrupt(signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _interrupt_on_signals() -> dict[int, Any]:
+    """SIGINT (even when inherited as ignored), SIGTERM and SIGHUP raise KeyboardInterrupt,
+    so that the children are stopped however the demo is stopped; returns the handlers
+    to restore."""
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        previous[sig] = signal.getsignal(sig)
+        signal.signal(sig, _interrupt)
+    return previous
 
 
 def _check_alive(children: Children, out: Path, skip: set[Any] | frozenset = frozenset()
