@@ -42,6 +42,8 @@ _MESSAGE_IDS = {cls.msgname: msg_id for msg_id, cls in mavlink2.mavlink_map.item
 _JITTER_SIGMA_S = 0.002
 _LATE_PROBABILITY = 0.02
 _LATE_MAX_S = 0.02
+READ_PERIOD_S = 0.002
+"""``poll`` reads the link at most this often (wall clock): answers wait at most 2 ms."""
 
 
 def message_id(name: str) -> int:
@@ -70,6 +72,7 @@ class StreamSchedule:
         self._next_s: dict[str, float] = {}
         self._once: list[str] = []
         self._start_s: float | None = None
+        self._earliest_s = -math.inf  # no stream is due before this
 
     def rate_hz(self, name: str) -> float:
         return self._hz.get(name, 0.0)
@@ -88,6 +91,7 @@ class StreamSchedule:
     def _start(self, t_s: float) -> None:
         """Streams start at random phases within their first period."""
         self._start_s = t_s
+        self._earliest_s = -math.inf
         self._nominal_s.clear()
         self._next_s.clear()
         for name, hz in self._hz.items():
@@ -98,6 +102,8 @@ class StreamSchedule:
         """Stream names to send now (each at most once per call), one-shot requests first."""
         if self._start_s is None:
             self._start(t_s)
+        if t_s < self._earliest_s and not self._once:
+            return []
         out, self._once = self._once, []
         for name, next_s in self._next_s.items():
             if t_s < next_s:
@@ -110,6 +116,7 @@ class StreamSchedule:
                 nominal_s = t_s
             self._plan(name, nominal_s)
             self._next_s[name] = max(self._next_s[name], next_s)
+        self._earliest_s = min(self._next_s.values(), default=math.inf)
         return out
 
     def set_rate(self, name: str, hz: float | None, t_s: float) -> None:
@@ -119,6 +126,7 @@ class StreamSchedule:
         self._next_s.pop(name, None)
         if self._hz[name] > 0 and self._start_s is not None:
             self._plan(name, t_s)
+        self._earliest_s = -math.inf
 
     def request_once(self, name: str) -> None:
         """Send ``name`` once at the next ``due`` (MAV_CMD_REQUEST_MESSAGE)."""
@@ -309,6 +317,7 @@ class AutopilotEndpoint:
         self._down_until_s = -math.inf
         self.n_sent = 0
         self.n_received = 0
+        self._next_read_wall_s = -math.inf
         self._tlog: BinaryIO | None = None
         self.link = open_link(url)
         try:
@@ -383,9 +392,12 @@ class AutopilotEndpoint:
 
     def poll(self, now_s: float) -> None:
         """Read what ground stations sent and answer it (commands, parameters, missions)."""
-        data = self.link.read()
-        down = self.is_down(now_s)
         wall_s = time.monotonic()
+        down = self.is_down(now_s)
+        data = b""
+        if wall_s >= self._next_read_wall_s:  # at --speed 0 steps come every few µs
+            self._next_read_wall_s = wall_s + READ_PERIOD_S
+            data = self.link.read()
         if data and not down:
             for msg in self._parser.parse_buffer(data) or []:
                 if msg.get_type() == "BAD_DATA" or not self._injector.receive_ok(now_s):
