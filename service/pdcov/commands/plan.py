@@ -207,7 +207,7 @@ def run_plan(args: argparse.Namespace) -> int:
                                                       _overlap(args))
         check_plan_size(sc, spacing_m, args.speed_mps)
     plan, spacing = build_plan(sc, params)
-    pred = predict(sc, plan, params, progress=sys.stderr.isatty())
+    pred = predict(sc, plan, params, progress=True)
     with replacing_dir(args.out) as replaced:
         summary = write_prediction(
             args.out, mission, pred, pred.grid,
@@ -357,7 +357,7 @@ def run_refly(args: argparse.Namespace) -> int:
     check_plan_size(sc, spacing, args.speed_mps)
     r = plan_refly(sc, flown.log_miss_d, args.target_pd, args.altitude_m, args.speed_mps,
                    spacing, tuple(math.radians(h) for h in args.headings_deg),
-                   tuple(args.start_enu_m), progress=sys.stderr.isatty())
+                   tuple(args.start_enu_m), progress=True)
     flown.merge(r.prediction.grid)
     out: Path = args.out
     with replacing_dir(out) as replaced:

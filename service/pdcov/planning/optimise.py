@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 from shapely.geometry import MultiPolygon, Polygon
-from tqdm import tqdm
 
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -30,6 +29,7 @@ from pdcov.core.rotations import Rz
 from pdcov.errors import ConfigError
 from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
+from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
 PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector", "sector-2")
@@ -160,7 +160,7 @@ def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
     flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
     grid = scenario.new_grid()
     poses = camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad)
-    for pose in tqdm(poses, desc="frames", unit="frame", disable=not progress):
+    for pose in show_progress(poses, desc="frames", unit="frame", enabled=progress):
         grid.update(pose)
     return Prediction(params or PlanParams("lawnmower", plan.waypoints[0].alt_agl_m,
                                            plan.waypoints[0].speed_mps), plan, flight, grid)
@@ -234,15 +234,15 @@ def sweep(scenario: Scenario, params: Sequence[PlanParams], target_pd: float,
     results: list[Score | str]
     if n_proc == 1:
         _init_worker(scenario, target_pd)
-        results = [_score_in_worker(p) for p in tqdm(params, desc="plans", unit="plan",
-                                                     disable=not progress)]
+        results = [_score_in_worker(p) for p in show_progress(params, desc="plans", unit="plan",
+                                                              enabled=progress)]
     else:
         ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
         with ctx.Pool(n_proc, initializer=_init_worker,
                       initargs=(scenario, target_pd)) as pool:
             it: Iterator[Score | str] = pool.imap(_score_in_worker, params, chunksize=1)
-            results = list(tqdm(it, total=len(params), desc="plans", unit="plan",
-                                disable=not progress))
+            results = list(show_progress(it, total=len(params), desc="plans", unit="plan",
+                                         enabled=progress))
     return ([r for r in results if isinstance(r, Score)],
             [r for r in results if isinstance(r, str)])
 

@@ -26,13 +26,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
-from tqdm import tqdm
 
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of
 from pdcov.planning.optimise import Prediction, Scenario, predict
 from pdcov.planning.patterns import FreeSpaceRouter, PathBuilder, clip_polyline, lawnmower
 from pdcov.planning.plan import Plan
+from pdcov.planning.progress import progress as show_progress
 
 
 @dataclass(frozen=True, slots=True)
@@ -220,7 +220,7 @@ def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
     L_target = math.log1p(-target_pd)
     deficit = (L_now - L_target)[gaps.mask]  # > 0 where needed
     gain, cost = [], []
-    for t in tqdm(tracks, desc="candidate tracks", unit="track", disable=not progress):
+    for t in show_progress(tracks, desc="candidate tracks", unit="track", enabled=progress):
         p = predict(scenario, Plan.from_xy(t.seg_enu_m, alt_agl_m, speed_mps))
         gain.append(-p.grid.log_miss_d.astype(np.float64)[gaps.mask])
         cost.append(p.flight.duration_s)
