@@ -226,20 +226,20 @@ def rows(r: DaemonRun, sc: Scenario) -> list[Row]:
     reasons = ", ".join(f"{k}: {v}" for k, v in sorted(r.skipped.items())) or "none"
     p99 = max(r.latency_ms["status"][1], r.latency_ms["tiles"][1])
     rss = r.memory.get("VmHWM", 0) / 2**20
-    cpu_flight = r.cpu_share * r.window_s / r.autopilot_s
+    pace = r.autopilot_s / r.window_s
     return [
         Row("S1 live", "setup", f"{sc.describe().rsplit(', ', 1)[0]}; pdcov-sitl fly in "
             f"real time, measured over {r.window_s:.0f} s"),
-        # Judged per second of autopilot clock: a loaded machine slows the simulator, and
-        # with it the frames the daemon has to count per wall second.
-        Row("S1 live", "daemon CPU (share of one core)",
-            f"{cpu_flight:.1%} per second of flight ({r.cpu_share:.1%} of wall time; the "
-            f"simulator ran at {r.autopilot_s / r.window_s:.2f}x real time)", "<= 25 %",
-            cpu_flight <= 0.25),
+        # The simulator must keep real time, or the daemon gets fewer frames per second
+        # than the flight has and every figure below is too kind.
+        Row("S1 live", "simulator pace", f"{pace:.2f}x real time (autopilot clock "
+            f"{r.autopilot_s:.1f} s in {r.window_s:.1f} s)", ">= 0.95x (else the machine is "
+            "too loaded to judge the rest)", pace >= 0.95),
+        Row("S1 live", "daemon CPU (share of one core)", f"{r.cpu_share:.1%}", "<= 25 %",
+            r.cpu_share <= 0.25),
         Row("S1 live", "frames skipped", f"{skipped} of {r.frames_used + skipped} "
             f"({reasons}); {r.frames_expected:.0f} frame times in the window, "
-            f"{r.pending} pending at its end; the autopilot clock advanced "
-            f"{r.autopilot_s:.1f} s", "0", skipped == 0),
+            f"{r.pending} pending at its end", "0", skipped == 0),
         Row("S1 live", "publish -> receive latency p50 / p99",
             f"status {r.latency_ms['status'][0]:.1f} / {r.latency_ms['status'][1]:.1f} ms, "
             f"tiles {r.latency_ms['tiles'][0]:.1f} / {r.latency_ms['tiles'][1]:.1f} ms",

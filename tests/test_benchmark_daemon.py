@@ -16,4 +16,4 @@ def test_daemon_benchmark_smoke_measures_every_figure(tmp_path):
     assert 0 < r.cpu_share < 2.0
     assert r.memory["VmHWM"] >= r.memory["VmRSS"] > 0
     table = rows(r, sc)
-    assert [row.ok is None for row in table] == [True] + [False] * 6
+    assert [row.ok is None for row in table] == [True] + [False] * 7
