@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import socket
 import struct
 import time
 from collections import Counter
@@ -304,3 +305,22 @@ def test_autopilot_faults_as_a_receiver_sees_them(tmp_path):
         if 1.1 < msg._timestamp - TLOG_EPOCH_UNIX_S < 1.9:
             in_outage += 1
     assert in_outage > 20
+
+
+def test_tcpout_client_connects_once_the_ground_station_listens():
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    feed = start_vehicle(f"tcpout:127.0.0.1:{port}")  # nobody listens yet: it retries
+    try:
+        time.sleep(0.5)
+        conn = mavlink2_connection(f"tcpin:127.0.0.1:{port}", 255, 190)
+        try:
+            assert wait_for(conn, "HEARTBEAT", timeout_s=5.0).get_srcSystem() == 1
+            ack = command_ack(conn, mavlink2.MAV_CMD_REQUEST_MESSAGE, 60_000)
+            assert ack.result == mavlink2.MAV_RESULT_DENIED
+        finally:
+            conn.close()
+    finally:
+        feed.stop()
