@@ -7,8 +7,9 @@ import argparse
 from importlib import resources
 from pathlib import Path
 
+from pdcov.atomic import replacing_dir
+from pdcov.commands.args import positive
 from pdcov.config import Mission, load_mission
-from pdcov.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,9 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "the report. --offline: plan a lawnmower and a spiral, fly them "
                     "kinematically, evaluate and compare them (the paper's Figs. 7 and 8).")
     p.add_argument("--out", type=Path, default=Path("pdcov-demo"), help="output folder")
-    p.add_argument("--altitude-m", type=float, default=10.0, help="flight height")
-    p.add_argument("--speed-mps", type=float, default=5.0, help="flight speed")
-    p.add_argument("--speed", type=float, default=8.0, metavar="N",
+    p.add_argument("--altitude-m", type=positive, default=10.0, help="flight height")
+    p.add_argument("--speed-mps", type=positive, default=5.0, help="flight speed")
+    p.add_argument("--speed", type=positive, default=8.0, metavar="N",
                    help="live: simulate N times faster than real time (default 8: about a "
                         "minute)")
     p.add_argument("--vehicles", type=int, choices=(1, 2), default=1,
@@ -46,10 +47,6 @@ def _bundled_mission() -> tuple[Mission, dict]:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    if not args.speed > 0:
-        raise ConfigError(f"--speed {args.speed}: expected a speed-up > 0")
-    if not (args.altitude_m > 0 and args.speed_mps > 0):
-        raise ConfigError("--altitude-m and --speed-mps: expected positive numbers")
     return run_offline(args) if args.offline else run_live(args)
 
 
@@ -100,15 +97,18 @@ def run_offline(args: argparse.Namespace) -> int:
           "ILLUSTRATIVE, not measured")
     scenario = scenario_of(mission)
     runs = []
-    for pattern in ("lawnmower", "spiral"):
-        params = PlanParams(pattern, args.altitude_m, args.speed_mps)
-        plan, spacing = build_plan(scenario, params)
-        pred = predict(scenario, plan, params)
-        print()
-        print(write_prediction(args.out / pattern, mission, pred, pred.grid,
-                               f"{pattern} at {args.altitude_m:g} m, {args.speed_mps:g} m/s "
-                               "(predicted)", spacing))
-        runs.append((pattern, pred.grid.pd, pred.grid.mask))
-    compare_figure(args.out / "compare.png", runs, mission.thresholds)
+    with replacing_dir(args.out) as replaced:
+        for pattern in ("lawnmower", "spiral"):
+            params = PlanParams(pattern, args.altitude_m, args.speed_mps)
+            plan, spacing = build_plan(scenario, params)
+            pred = predict(scenario, plan, params)
+            print()
+            print(write_prediction(args.out / pattern, mission, pred, pred.grid,
+                                   f"{pattern} at {args.altitude_m:g} m, {args.speed_mps:g} "
+                                   "m/s (predicted)", spacing))
+            runs.append((pattern, pred.grid.pd, pred.grid.mask))
+        compare_figure(args.out / "compare.png", runs, mission.thresholds)
     print(f"\ncompare: {args.out / 'compare.png'}")
+    if replaced:
+        print(f"replaced the previous outputs in {args.out}")
     return 0
