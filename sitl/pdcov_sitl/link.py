@@ -118,6 +118,7 @@ class UdpLink(Link):
             self._peer = (socket.gethostbyname(u.host), u.port)
             self._sock.bind(("0.0.0.0", 0))
         self._listening = u.scheme == "udpin"
+        self._url = u
         self.local_address = self._sock.getsockname()
 
     def write(self, data: bytes) -> None:
@@ -148,8 +149,9 @@ class UdpLink(Link):
         return self._peer is not None
 
     def describe(self) -> str:
-        side = "listening on" if self._listening else "sending to"
-        return f"UDP {side} {self._peer if not self._listening else self.local_address}"
+        if self._listening:
+            return f"UDP, listening on {self.local_address[0]}:{self.local_address[1]}"
+        return f"UDP, sending to {self._url.host}:{self._url.port}"
 
     def close(self) -> None:
         self._sock.close()
@@ -358,7 +360,8 @@ class PtyLink(Link):
         return b"".join(chunks)
 
     def describe(self) -> str:
-        return f"serial pseudo-terminal {self._symlink or self.slave_path}"
+        link = f" (link {self._symlink})" if self._symlink else ""
+        return f"serial pseudo-terminal {self.slave_path}{link}"
 
     def close(self) -> None:
         if self._symlink and os.path.islink(self._symlink):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import random
 import struct
+import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -320,6 +321,9 @@ class AutopilotEndpoint:
         self._next_read_wall_s = -math.inf
         self._tlog: BinaryIO | None = None
         self.link = open_link(url)
+        if url.startswith("pty") or url.endswith(":0"):  # where to connect is ours to say
+            print(f"pdcov-sitl: MAVLink on {self.link.describe()}", file=sys.stderr,
+                  flush=True)
         try:
             self._tlog = open(tlog_path, "wb") if tlog_path is not None else None
         except OSError:
