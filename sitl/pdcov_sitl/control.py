@@ -13,6 +13,7 @@ The loops (gains tuned on the JSBSim F450, whose hover throttle is ~0.47):
   ``max_accel_mps2`` (the tilt limit);
 * acceleration -> roll/pitch for the heading (thrust along body -z) and collective thrust,
   throttle ~ sqrt(thrust) (propeller thrust grows with the square of its speed);
+* lean-angle input shaping (a 0.15 s first-order lag, as ArduPilot's ATC_INPUT_TC);
 * attitude P -> body rates; rate PID -> normalised torques -> mixer.
 """
 
@@ -57,6 +58,7 @@ class Gains:
     max_vel_correction_mps: float = 3.0
     max_yaw_rate_rps: float = math.radians(90)
     hover_throttle: float = 0.47
+    input_tc_s: float = 0.15
 
 
 def _wrap(a: float) -> float:
@@ -79,6 +81,7 @@ class Controller:
         self._i_vel = [0.0, 0.0, 0.0]
         self._i_rate = [0.0, 0.0, 0.0]
         self._prev_rate = (0.0, 0.0, 0.0)
+        self._att_d = (0.0, 0.0)
 
     def update(self, sp: Setpoint, r_ned_m: tuple[float, float, float],
                v_ned_mps: tuple[float, float, float], roll_rad: float, pitch_rad: float,
@@ -114,6 +117,12 @@ class Controller:
         fz = G_MPS2 - ad
         pitch_d = math.atan2(-a_fwd, fz)
         roll_d = math.atan2(a_right * math.cos(pitch_d), fz)
+        # Input shaping (ArduPilot's ATC_INPUT_TC): the lean angles follow their demand
+        # with a first-order lag, so the attitude changes smoothly.
+        k = min(1.0, dt / g.input_tc_s)
+        roll_d = self._att_d[0] + k * (roll_d - self._att_d[0])
+        pitch_d = self._att_d[1] + k * (pitch_d - self._att_d[1])
+        self._att_d = (roll_d, pitch_d)
         thrust = math.sqrt(an * an + ae * ae + fz * fz) / G_MPS2  # in units of hover thrust
         collective = g.hover_throttle * math.sqrt(thrust)
         # Attitude -> body rates (Euler-rate demand mapped to FRD rates).
