@@ -151,11 +151,12 @@ def child(args: list[str], log: Path) -> Iterator[subprocess.Popen]:
 
 
 def wait_status(rx: Received, predicate, timeout_s: float, what: str,
-                daemon: subprocess.Popen) -> dict:
+                daemon: subprocess.Popen, log: Path) -> dict:
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
         if daemon.poll() is not None:
-            raise RuntimeError(f"pdcov serve exited with {daemon.returncode}")
+            tail = log.read_text(errors="replace")[-2000:]
+            raise RuntimeError(f"pdcov serve exited with {daemon.returncode}:\n{tail}")
         st = rx.last_status()
         if st is not None and predicate(st):
             return st
@@ -195,7 +196,7 @@ def run(folder: Path, sc: Scenario, window_s: float, start_timeout_s: float) -> 
                     "--plan", str(plan), "--out", str(folder / "sim"), "--connect",
                     f"udpout:127.0.0.1:{mav_port}", "--speed", "1"], folder / "sim.log"):
             first = wait_status(rx, lambda s: s["frames"]["used"] > 0, start_timeout_s,
-                                "frames counted", daemon)
+                                "frames counted", daemon, folder / "serve.log")
             cpu0, t0 = cpu_s(daemon.pid), time.time()
             time.sleep(window_s)
             cpu1, t1 = cpu_s(daemon.pid), time.time()
