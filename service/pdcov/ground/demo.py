@@ -157,8 +157,8 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
     Raises PdcovError when a process fails (naming its log)."""
     say = stdout or sys.stdout
     out = demo.out
-    for sub in ("configs", "logs", "sim", "state"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
+    for folder in ("configs", "logs", "sim", "state"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
     report = out / "report"
     router_ep = f"tcp/127.0.0.1:{free_port()}"
     t0 = time.monotonic()
@@ -253,7 +253,7 @@ def _interrupt_on_signals() -> dict[int, Any]:
     """SIGINT (even when inherited as ignored), SIGTERM and SIGHUP raise KeyboardInterrupt,
     so that the children are stopped however the demo is stopped; returns the handlers
     to restore."""
-    previous = {}
+    previous: dict[int, Any] = {}
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         previous[sig] = signal.getsignal(sig)
         signal.signal(sig, _interrupt)

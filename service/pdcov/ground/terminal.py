@@ -4,6 +4,7 @@ reads the same in a plain 80-column terminal, over SSH and in a log file."""
 
 from __future__ import annotations
 
+import io
 from typing import Any
 
 from pdcov.ground.watcher import FleetReport, VehicleReport
@@ -94,14 +95,6 @@ def plain_lines(report: FleetReport) -> list[str]:
     from rich.console import Console
 
     console = Console(width=80, no_color=True, force_terminal=False, record=True,
-                      file=_Null())
+                      file=io.StringIO())
     console.print(render(report))
     return console.export_text().rstrip("\n").split("\n")
-
-
-class _Null:
-    def write(self, _s: str) -> int:
-        return 0
-
-    def flush(self) -> None:
-        pass
