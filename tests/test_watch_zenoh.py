@@ -155,7 +155,11 @@ def test_once_prints_one_report(router, daemons):
     assert any(line.startswith("|uav7 ") for line in lines)
 
 
-def test_watch_refuses_bad_arguments():
+def test_watch_refuses_bad_arguments(tmp_path):
+    (tmp_path / "old.txt").write_text("another run")
+    out = subprocess.run([sys.executable, "-m", "pdcov.cli", "watch", "--record",
+                          str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "not empty" in out.stderr, out.stderr
     out = subprocess.run([sys.executable, "-m", "pdcov.cli", "watch", "--vehicle", "a/b"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "--vehicle 'a/b'" in out.stderr

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -157,6 +158,10 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
     Raises PdcovError when a process fails (naming its log)."""
     say = stdout or sys.stdout
     out = demo.out
+    # A previous run's checkpoints would be resumed by the daemons (same mission), and its
+    # recording mixed with this one: start these folders afresh.
+    for folder in ("configs", "logs", "sim", "state", "report"):
+        shutil.rmtree(out / folder, ignore_errors=True)
     for folder in ("configs", "logs", "sim", "state"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     report = out / "report"

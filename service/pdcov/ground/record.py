@@ -54,9 +54,12 @@ class Recording:
         self.out = Path(out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
+            used = any(self.out.iterdir())
         except OSError as exc:
             raise PdcovError(f"--record {out}: cannot create the folder "
                              f"({exc.strerror or exc})") from None
+        if used:  # appending to another run's files would mix two recordings
+            raise PdcovError(f"--record {out}: the folder is not empty; give a new one")
         self._files: dict[tuple[str, str], IO[Any]] = {}
         self._snapshots: dict[str, int] = {}
 
