@@ -4,6 +4,7 @@ pymavlink listener on 127.0.0.1, arriving complete and in order."""
 from __future__ import annotations
 
 import os
+import socket
 import struct
 import threading
 import time
@@ -158,3 +159,31 @@ def test_bad_input_exits_2_with_a_message(tmp_path, capsys, args, says):
             for a in args]
     assert main(args) == 2
     assert says in capsys.readouterr().err
+
+
+def test_replay_as_a_tcp_server_waits_for_its_client(tmp_path):
+    path = tmp_path / "tcp.tlog"
+    pkts = packets(2000)
+    path.write_bytes(tlog_bytes(pkts, step_us=1000))
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    rc: list[int] = []
+    sender = threading.Thread(target=lambda: rc.append(main(
+        [str(path), "--connect", f"tcp:127.0.0.1:{port}", "--speed", "0"])), daemon=True)
+    sender.start()
+    time.sleep(0.3)
+    conn = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}")
+    got = []
+    try:
+        t_end = time.monotonic() + 20
+        while len(got) < len(pkts) and time.monotonic() < t_end:
+            msg = conn.recv_match(blocking=True, timeout=0.2)
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                got.append(bytes(msg.get_msgbuf()))
+    finally:
+        conn.close()
+        sender.join(timeout=10)
+    assert rc == [0]
+    assert got == pkts

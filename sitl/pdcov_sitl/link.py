@@ -223,8 +223,7 @@ class TcpServerLink(Link):
             c.close()
             self._clients.remove(c)
 
-    def write(self, data: bytes) -> None:
-        self._accept()
+    def write(self, data: bytes) -> None:  # new clients are accepted by read()
         for c in self._clients:
             c.out += data
             c.flush()
