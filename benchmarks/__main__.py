@@ -146,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
                         choices=["S1", "S2", "S3", "S4"])
     parser.add_argument("--no-offline", action="store_true",
                         help="skip pdcov evaluate (S1) and pdcov optimise (S2)")
+    parser.add_argument("--sitl", action="store_true",
+                        help="also time pdcov-sitl fly --speed 0 over a 10-minute survey")
     parser.add_argument("--write-readme", action="store_true",
                         help="write the table into README.md between the benchmark markers")
     args = parser.parse_args(argv)
@@ -160,7 +162,11 @@ def main(argv: list[str] | None = None) -> int:
             rows += offline_rows(sc)
         if not args.no_offline and name == "S2":
             rows += planner_rows(sc, sizes)
-    command = "python -m benchmarks" + (" --smoke" if args.smoke else "") + " --write-readme"
+    if args.sitl:
+        from .sitl import sitl_rows
+        rows += sitl_rows(args.smoke)
+    command = ("python -m benchmarks" + (" --smoke" if args.smoke else "")
+               + (" --sitl" if args.sitl else "") + " --write-readme")
     table = markdown(rows, machine(), command)
     print(table)
     if args.write_readme:

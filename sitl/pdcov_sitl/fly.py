@@ -35,7 +35,7 @@ from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
 
 from .control import Controller
 from .dynamics import F450, VehicleState
-from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz
+from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz, quat_from_euler_zyx, quat_from_R
 from .messages import (
     GIMBAL_CLOCK_OFFSET_S,
     GIMBAL_COMPONENT,
@@ -128,8 +128,9 @@ class _Sample:
 
 def _sample(s: VehicleState, gimbal: GimbalModel) -> _Sample:
     R_body = _R_ned_body(s)
-    return _Sample(s.t_s, s.lat_deg, s.lon_deg, s.alt_msl_m, quat_wxyz_from_R(R_body),
-                   quat_wxyz_from_R(gimbal.R_ned_gimbal(R_body)))
+    return _Sample(s.t_s, s.lat_deg, s.lon_deg, s.alt_msl_m,
+                   np.array(quat_from_euler_zyx(s.roll_rad, s.pitch_rad, s.yaw_rad)),
+                   np.array(quat_from_R(gimbal.R_ned_gimbal(R_body))))
 
 
 def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, speed: float,
@@ -220,11 +221,14 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
         # the first frame then waits for the autopilot's attitude and position only).
         gimbal_up = device_schedule is None or "GIMBAL_DEVICE_ATTITUDE_STATUS" in first_sent
         names = endpoint.due(t) if gimbal_up else []
-        if not names and device_schedule is None:
+        device_names = (device_schedule.due(t)
+                        if device_schedule is not None and not endpoint.is_down(t) else [])
+        if not names and not device_names:
             return
         health = endpoint.gimbal_health(t)
         report = None
-        if has_gimbal and health.value != "silent":
+        wanted = "GIMBAL_DEVICE_ATTITUDE_STATUS" in names + device_names
+        if has_gimbal and wanted and health.value != "silent":
             report = gimbal_report(mode, gimbal.R_ned_gimbal(_R_ned_body(s)), gimbal.demand,
                                    gimbal.angles)
         failure = GIMBAL_FAILED_FLAGS if health.value == "failed" else 0
@@ -241,17 +245,16 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
                     endpoint.send(msg, t)
                     if name in need and name not in first_sent and not endpoint.is_down(t):
                         first_sent[name] = boot_ms / 1000.0
-        if device_schedule is not None and not endpoint.is_down(t):
-            dev_ms = int((t + GIMBAL_CLOCK_OFFSET_S) * 1000)
-            for name in device_schedule.due(t):
-                if name != "HEARTBEAT" and report is None:
-                    continue
-                q = report[0] if report else (1.0, 0.0, 0.0, 0.0)
-                msg = gimbal_device_messages(endpoint.mav, name, dev_ms, q, failure,
-                                             report[2] if report else 0.0)
-                endpoint.send(msg, t, component_id=GIMBAL_COMPONENT)
-                if name != "HEARTBEAT" and name not in first_sent:
-                    first_sent[name] = boot_ms / 1000.0
+        dev_ms = int((t + GIMBAL_CLOCK_OFFSET_S) * 1000)
+        for name in device_names:
+            if name != "HEARTBEAT" and report is None:
+                continue
+            q = report[0] if report else (1.0, 0.0, 0.0, 0.0)
+            msg = gimbal_device_messages(endpoint.mav, name, dev_ms, q, failure,
+                                         report[2] if report else 0.0)
+            endpoint.send(msg, t, component_id=GIMBAL_COMPONENT)
+            if name != "HEARTBEAT" and name not in first_sent:
+                first_sent[name] = boot_ms / 1000.0
 
     wall0 = time.monotonic()
     if plan is None:

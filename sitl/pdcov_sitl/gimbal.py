@@ -76,6 +76,35 @@ def _Ry(a: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def quat_from_euler_zyx(roll: float, pitch: float, yaw: float
+                        ) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of Rz(yaw) Ry(pitch) Rx(roll), in plain floats (per-message use)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+def quat_from_R(R: np.ndarray) -> tuple[float, float, float, float]:
+    """(w, x, y, z) with w >= 0 of a rotation matrix (Shepperd's method), plain floats."""
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    tr = a + e + i
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        q = (0.25 * s, (h - f) / s, (c - g) / s, (d - b) / s)
+    elif a > e and a > i:
+        s = math.sqrt(1.0 + a - e - i) * 2
+        q = ((h - f) / s, 0.25 * s, (b + d) / s, (c + g) / s)
+    elif e > i:
+        s = math.sqrt(1.0 + e - a - i) * 2
+        q = ((c - g) / s, (b + d) / s, 0.25 * s, (f + h) / s)
+    else:
+        s = math.sqrt(1.0 + i - a - e) * 2
+        q = ((d - b) / s, (c + g) / s, (f + h) / s, 0.25 * s)
+    return q if q[0] >= 0 else (-q[0], -q[1], -q[2], -q[3])
+
+
 def servo_angles_yrp(R_body_gimbal: np.ndarray) -> tuple[float, float, float]:
     """(roll, pitch, yaw) rad of R = Rz(yaw) Rx(roll) Ry(pitch), the servo chain yaw ->
     roll -> pitch from the body outwards (roll in [-pi/2, pi/2])."""

@@ -27,9 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
-from pdcov.core.rotations import quat_wxyz_from_euler_zyx, quat_wxyz_from_R
-
 from .dynamics import VehicleState, local_scales
+from .gimbal import quat_from_euler_zyx, quat_from_R
 from .protocol import AUTOPILOTS
 
 GIMBAL_MODES = ("ardupilot-servo", "ardupilot-device", "device-earth", "fixed")
@@ -164,7 +163,7 @@ class MessageBuilder:
 
     def _attitude_quaternion(self, s: Snapshot) -> mav.MAVLink_message:
         st = s.state
-        w, x, y, z = quat_wxyz_from_euler_zyx(st.roll_rad, st.pitch_rad, st.yaw_rad).tolist()
+        w, x, y, z = quat_from_euler_zyx(st.roll_rad, st.pitch_rad, st.yaw_rad)
         return self.m.attitude_quaternion_encode(s.time_boot_ms, w, x, y, z, st.p_rps,
                                                  st.q_rps, st.r_rps)
 
@@ -237,14 +236,11 @@ def gimbal_report(mode: str, R_ned_gimbal: np.ndarray, servo_demand: tuple[float
     None for a fixed mount. servo_demand: (roll, pitch, yaw) body-frame demand (servo).
     angles: the stabilised gimbal's (roll, pitch, yaw from heading)."""
     if mode == "ardupilot-servo":
-        q = quat_wxyz_from_euler_zyx(*servo_demand)
-        return tuple(q.tolist()), FLAGS_AUTOPILOT, servo_demand[2]  # type: ignore[return-value]
+        return quat_from_euler_zyx(*servo_demand), FLAGS_AUTOPILOT, servo_demand[2]
     if mode == "ardupilot-device":
-        q = quat_wxyz_from_euler_zyx(*angles)
-        return tuple(q.tolist()), FLAGS_AUTOPILOT, angles[2]  # type: ignore[return-value]
+        return quat_from_euler_zyx(*angles), FLAGS_AUTOPILOT, angles[2]
     if mode == "device-earth":
-        q = quat_wxyz_from_R(R_ned_gimbal)
-        return tuple(q.tolist()), FLAGS_DEVICE_EARTH, angles[2]  # type: ignore[return-value]
+        return quat_from_R(R_ned_gimbal), FLAGS_DEVICE_EARTH, angles[2]
     return None, 0, 0.0
 
 
