@@ -49,6 +49,7 @@ from pdcov.telemetry.samples import (
     HomeSample,
     PositionSample,
     Sample,
+    usable_quaternion,
 )
 
 MILESTONES = (0.25, 0.5, 0.75, 0.9, 1.0)
@@ -137,6 +138,10 @@ class LiveCoverage:
             self.counters.faults["untimed_samples"] += 1
             return
         if isinstance(sample, HomeSample):
+            if not (math.isfinite(sample.alt_msl_m) and abs(sample.lat_deg) <= 90
+                    and abs(sample.lon_deg) <= 180):
+                self.counters.faults["invalid_samples"] += 1
+                return
             self._homes.append(sample)
             return
         if isinstance(sample, HeartbeatSample):
@@ -148,14 +153,17 @@ class LiveCoverage:
             if self.frame_source == "capture":
                 self.add_frame_times([sample.t_s])
             return
-        if isinstance(sample, AttitudeSample) and not all(
-                math.isfinite(v) for v in sample.q_ned_body_wxyz):
+        if isinstance(sample, AttitudeSample) and not usable_quaternion(
+                sample.q_ned_body_wxyz):
             self.counters.faults["nan_samples"] += 1
             return
         if isinstance(sample, PositionSample):
             if not (math.isfinite(sample.lat_deg) and math.isfinite(sample.lon_deg)
                     and math.isfinite(sample.alt_msl_m)):
                 self.counters.faults["nan_samples"] += 1
+                return
+            if abs(sample.lat_deg) > 90 or abs(sample.lon_deg) > 180:
+                self.counters.faults["invalid_samples"] += 1
                 return
             if self._first_position is None and math.isfinite(sample.relative_alt_m):
                 self._first_position = sample
@@ -302,8 +310,32 @@ class LiveCoverage:
                     self._queue.pop(0)
                 t = self._next_frame_t()
             if not batch:
-                return added
+                if not self._skip_hole(t):
+                    return added
+                continue
             added += self._evaluate(np.array(batch))
+
+    def _skip_hole(self, t: float) -> bool:
+        """Skip at once, as 'attitude gap' (what offline says of them), the frames from
+        ``t`` on that lie in a hole of the telemetry: after every sample given to the
+        tracker and more than max_gap_s + reorder_s before every waiting sample (a link
+        outage or an autopilot reboot longer than half the history, a time jump). True when
+        some were skipped. Without this the loop would wait for samples it never feeds."""
+        if not self._waiting or t <= self._latest_all():
+            return False
+        end = min(s.t_s for s in self._waiting) - self.max_gap_s - self.cfg.service.reorder_s
+        if t >= end:
+            return False
+        if self.frame_source == "rate":
+            k_end = max(self._k_next + 1, math.ceil((end - self.t0_s) * self.rate_hz))
+            n, self._k_next = k_end - self._k_next, k_end
+            self.last_frame_t_s = self.t0_s + (k_end - 1) / self.rate_hz
+        else:
+            n = max(1, bisect.bisect_left(self._queue, end))
+            self.last_frame_t_s = self._queue[n - 1]
+            del self._queue[:n]
+        self.counters.skipped["attitude gap"] += n
+        return True
 
     def resume_lattice(self, t0_s: float | None, last_frame_t_s: float) -> None:
         """Continue a checkpointed run: the frame lattice anchored at ``t0_s`` (rate mode),

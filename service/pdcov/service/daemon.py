@@ -293,6 +293,8 @@ class Daemon:
         faults = live.counters.faults
         faults["reboots"] = self.protocol.reboots
         faults["link_losses"] = sum(c.losses for c in self.links)
+        faults["rejected_messages"] = sum(self.protocol.stats.rejected.values())
+        faults["other_systems_messages"] = self.protocol.stats.other_systems
         fields = live.status_fields(uptime_s=round(now - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(now),
                                     checkpoint=self._checkpoint_info)

@@ -20,12 +20,13 @@ SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, 
 from __future__ import annotations
 
 import statistics
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
+    MAVLINK_TYPES,
     BootClock,
     HeartbeatSample,
     ParamSample,
@@ -68,6 +69,7 @@ class _Request:
 class LinkStats:
     messages: int = 0
     other_systems: int = 0
+    rejected: Counter = field(default_factory=Counter)  # message type -> refused values
     reboots: int = 0
     last_message_s: float | None = None  # wall clock (the caller's now_s)
 
@@ -145,6 +147,8 @@ class LinkProtocol:
             return out
         return {"system_id": self.system_id, "component_id": self.autopilot_component,
                 "autopilot": self.autopilot_type, "messages": self.stats.messages,
+                "other_systems": self.stats.other_systems,
+                "rejected": dict(self.stats.rejected),
                 "reboots": self.reboots, "intervals": results(self.interval_requests),
                 "home_request": self.home_request.result,
                 "params": dict(sorted(self.params.items()))}
@@ -174,6 +178,8 @@ class LinkProtocol:
             self._ack(msg)
             return []
         sample = sample_from_mavlink(msg, t_s)
+        if sample is None and mtype in MAVLINK_TYPES and not _no_value_yet(msg):
+            self.stats.rejected[mtype] += 1  # NaN, out of range: samples.py's adapters
         if isinstance(sample, ParamSample) and sample.name in self._param_names:
             self.params[sample.name] = sample.value
             if all(n in self.params for n in self._param_names):
@@ -292,3 +298,11 @@ class LinkProtocol:
                                             and msg.command not in ALLOWED_COMMANDS):
             raise RuntimeError(f"the daemon never sends {name}")
         return msg
+
+
+def _no_value_yet(msg: Any) -> bool:
+    """Messages that carry no value by design, not by damage: GLOBAL_POSITION_INT all zero
+    (ArduPilot before its first position estimate), a failed CAMERA_IMAGE_CAPTURED."""
+    mtype = msg.get_type()
+    return ((mtype == "GLOBAL_POSITION_INT" and msg.lat == 0 and msg.lon == 0)
+            or (mtype == "CAMERA_IMAGE_CAPTURED" and msg.capture_result != 1))

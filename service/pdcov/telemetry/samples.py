@@ -165,6 +165,26 @@ class BootClock:
 
 # --- MAVLink -------------------------------------------------------------------------------
 
+MAX_ANGLE_RAD = 2.0 * math.pi + 0.01
+"""Largest Euler angle magnitude accepted from ATTITUDE (rad); beyond it the message is
+corrupt, whatever rotation the number would give."""
+MIN_QUAT_NORM = 0.5
+"""A quaternion shorter than this (zero, or nearly) gives no rotation: refused."""
+
+
+def usable_quaternion(q: Sequence[float]) -> bool:
+    """Finite and not (nearly) zero, so that normalising it gives a rotation."""
+    if not all(math.isfinite(v) for v in q):
+        return False
+    norm = math.sqrt(sum(float(v) * float(v) for v in q))
+    return math.isfinite(norm) and norm > MIN_QUAT_NORM
+
+
+def valid_lat_lon_e7(lat_e7: int, lon_e7: int) -> bool:
+    """WGS84 latitude within +-90 deg and longitude within +-180 deg (degE7 integers)."""
+    return abs(lat_e7) <= 900_000_000 and abs(lon_e7) <= 1_800_000_000
+
+
 def mavlink_boot_time_s(msg: Any) -> float | None:
     """The sender's boot time of a MAVLink message in seconds, if it carries time_boot_ms."""
     ms = getattr(msg, "time_boot_ms", None)
@@ -178,14 +198,14 @@ def _quat(q: Sequence[float] | np.ndarray) -> tuple[float, float, float, float]:
 def _attitude(msg: Any, t_s: float) -> AttitudeSample | None:
     # ATTITUDE: roll, pitch, yaw in rad, body FRD -> NED (common.xml), z-y-x Euler.
     angles = (msg.roll, msg.pitch, msg.yaw)
-    if not all(math.isfinite(a) for a in angles):
-        return None
+    if not all(math.isfinite(a) and abs(a) <= MAX_ANGLE_RAD for a in angles):
+        return None  # common.xml: -pi..pi (yaw 0..2pi by some autopilots); else corrupt
     return AttitudeSample(t_s, _quat(quat_wxyz_from_euler_zyx(*angles)))
 
 
 def _attitude_quaternion(msg: Any, t_s: float) -> AttitudeSample | None:
     q = (msg.q1, msg.q2, msg.q3, msg.q4)  # ATTITUDE_QUATERNION: w, x, y, z
-    if not all(math.isfinite(v) for v in q):
+    if not usable_quaternion(q):
         return None
     return AttitudeSample(t_s, _quat(q))
 
@@ -193,7 +213,7 @@ def _attitude_quaternion(msg: Any, t_s: float) -> AttitudeSample | None:
 def _global_position_int(msg: Any, t_s: float) -> PositionSample | None:
     # lat/lon degE7, alt mm MSL, relative_alt mm above home (common.xml). ArduPilot sends
     # all zeros before it has a position estimate: not a position.
-    if msg.lat == 0 and msg.lon == 0:
+    if msg.lat == 0 and msg.lon == 0 or not valid_lat_lon_e7(msg.lat, msg.lon):
         return None
     return PositionSample(t_s, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
                           msg.relative_alt * 1e-3)
@@ -205,8 +225,10 @@ def _gimbal_status(msg: Any, t_s: float) -> GimbalSample:
                         src_sys, src_comp, int(getattr(msg, "gimbal_device_id", 0) or 0))
 
 
-def _home_position(msg: Any, t_s: float) -> HomeSample:
+def _home_position(msg: Any, t_s: float) -> HomeSample | None:
     # latitude/longitude degE7, altitude mm MSL (common.xml HOME_POSITION).
+    if not valid_lat_lon_e7(msg.latitude, msg.longitude):
+        return None
     return HomeSample(t_s, msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
                       "HOME_POSITION")
 
@@ -371,8 +393,10 @@ class AttitudeSeries:
     def from_samples(cls, samples: Sequence[AttitudeSample]) -> AttitudeSeries:
         t = np.array([s.t_s for s in samples], float)
         q = np.array([s.q_ned_body_wxyz for s in samples], float).reshape(-1, 4)
-        ok = np.isfinite(t) & np.all(np.isfinite(q), axis=1)
-        t, q = t[ok], q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", over="ignore"):
+            norm = np.linalg.norm(q, axis=1)
+        ok = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (norm > MIN_QUAT_NORM)
+        t, q = t[ok], q[ok] / norm[ok, None]
         idx = _sort_unique(t)
         return cls(t[idx], q[idx])
 

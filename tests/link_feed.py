@@ -1,0 +1,143 @@
+"""The daemon's MAVLink read path in memory, for fuzzing: bytes -> pymavlink's parser (robust
+parsing, as mavlink_io opens links) -> LinkProtocol -> LiveCoverage, exactly as
+``Daemon._on_messages`` and ``Daemon._tick`` chain them, with no socket, Zenoh or clock;
+and a hovering vehicle's messages to mutate."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+from pdcov.service.coverage import LiveCoverage  # noqa: E402
+from pdcov.service.daemon import Daemon  # noqa: E402
+from pdcov.service.settings import ServeConfig, load_serve_config  # noqa: E402
+
+LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
+MISSION = {
+    "vehicle_id": "fuzz",
+    "origin": {"lat_deg": LAT_DEG, "lon_deg": LON_DEG, "ground_alt_msl_m": GROUND_M},
+    "domain": {"polygon_enu_m": [[0, 0], [30, 0], [30, 30], [0, 30]], "cell_size_m": 1.0},
+    "camera": {"width_px": 640, "height_px": 480,
+               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
+               "distortion_model": "plumb_bob",
+               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
+    "mount": {"type": "gimbal", "attitude_frame": "flags"},
+    "detector": "illustrative",
+    "coverage": {"min_revisit_s": 1.0},
+}
+FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
+
+
+def serve_config(tmp: Path, *, gimbal: bool = True) -> ServeConfig:
+    doc = dict(MISSION, mount=MISSION["mount"] if gimbal else FIXED)
+    doc["service"] = {"state_dir": str(tmp / "state"), "record": False}
+    path = tmp / ("gimbal.yaml" if gimbal else "fixed.yaml")
+    path.write_text(yaml.safe_dump(doc))
+    return load_serve_config(path)
+
+
+class LinkFeed:
+    """One daemon's decisions fed raw bytes. ``feed`` parses them (pymavlink, robust) and
+    hands every message to the daemon's own ``_on_messages`` and every tick to ``_tick``'s
+    decision steps; ``now_s`` is stepped by the caller."""
+
+    def __init__(self, cfg: ServeConfig) -> None:
+        self.daemon = Daemon(cfg)
+        d = self.daemon
+        d.mission_hash = "fuzz"
+        d.live = LiveCoverage(cfg, cfg.mission.new_grid(), 0.0)
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.messages = 0
+
+    @property
+    def live(self) -> LiveCoverage:
+        return self.daemon.live
+
+    def feed(self, data: bytes, now_s: float) -> None:
+        msgs = self.parser.parse_buffer(data) or []
+        self.messages += len(msgs)
+        d, live = self.daemon, self.daemon.live
+        # Daemon._on_messages without the recorder and the loop's call_soon:
+        for msg in msgs:
+            if msg.get_type() == "BAD_DATA":
+                live.counters.faults["bad_messages"] += 1
+                continue
+            for sample in d.protocol.receive(msg, now_s):
+                live.add_sample(sample)
+        self.tick(now_s)
+
+    def tick(self, now_s: float) -> None:
+        """Daemon._tick's decisions (no links, Zenoh or files)."""
+        d, live = self.daemon, self.daemon.live
+        d.protocol.poll(now_s)
+        live.set_params(d.protocol.params, d.protocol.params_done)
+        live.process()
+        live.poll(now_s)
+
+    def status(self) -> dict:
+        return self.live.status_fields(uptime_s=0.0, seq=0, link=d_describe(self.daemon),
+                                       checkpoint={})
+
+
+def d_describe(d: Daemon) -> dict:
+    return {"bad_messages": d.live.counters.faults.get("bad_messages", 0),
+            **d.protocol.describe()}
+
+
+@dataclass(frozen=True, slots=True)
+class Hover:
+    """A vehicle hovering 12 m over the middle of the domain: which messages at which
+    autopilot time (ms) from system 1, component 1 (the gimbal too, as ArduPilot sends)."""
+
+    seconds: float = 4.0
+    rate_hz: float = 10.0
+
+    def messages(self) -> list[mavlink.MAVLink_message]:
+        mav = mavlink.MAVLink(None)  # encodes fields only; link_feed.pack sets the ids
+        lat_e7 = round((LAT_DEG + 15 / 111_320.0) * 1e7)
+        lon_e7 = round((LON_DEG + 15 / (111_320.0 * math.cos(math.radians(LAT_DEG)))) * 1e7)
+        out = [mav.heartbeat_encode(2, 3, 128 | 1, 4, 4),
+               mav.home_position_encode(round(LAT_DEG * 1e7), round(LON_DEG * 1e7),
+                                        round(GROUND_M * 1000), 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)]
+        for k in range(int(self.seconds * self.rate_hz)):
+            ms = 1000 + round(k * 1000 / self.rate_hz)
+            if k % 10 == 0:
+                out.append(mav.heartbeat_encode(2, 3, 128 | 1, 4, 4))
+            out.append(mav.attitude_encode(ms, 0.01, -0.02, 0.3, 0, 0, 0))
+            out.append(mav.global_position_int_encode(ms, lat_e7, lon_e7,
+                                                      round((GROUND_M + 12) * 1000), 12_000,
+                                                      0, 0, 0, 0))
+            # Pitch -90 deg (camera down), earth frame: flags ROLL_LOCK|PITCH_LOCK|YAW_LOCK.
+            c = math.sqrt(0.5)
+            out.append(mav.gimbal_device_attitude_status_encode(0, 0, ms, 4 | 8 | 16,
+                                                                [c, 0.0, -c, 0.0], 0, 0, 0, 0))
+        return out
+
+
+def pack(msg: mavlink.MAVLink_message, system_id: int = 1, component_id: int = 1,
+         seq: int = 0) -> bytes:
+    """The MAVLink 2 frame of ``msg`` sent by (system_id, component_id): the autopilot's
+    own ids by default."""
+    mav = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+    mav.seq = seq & 0xFF
+    return bytes(msg.pack(mav, force_mavlink1=False))
+
+
+def grid_is_sane(live: LiveCoverage) -> None:
+    """No NaN, +inf or positive log-miss sum, no negative count: what a fuzzed link must
+    never write into the grid."""
+    g = live.grid
+    for name in ("log_miss_d", "log_miss_fa"):
+        a = getattr(g, name)
+        assert np.isfinite(a).all(), f"{name}: non-finite values"
+        assert (a <= 0).all(), f"{name}: positive values"
+    assert (g.n_obs >= 0).all()
