@@ -21,7 +21,7 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
-from pdcov.bus.status import decode_status
+from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ class Subscriber:
             self.errors.append(str(exc))
             return
         with self.lock:
-            self.status, self.statuses = doc, self.statuses + 1
+            self.status, self.statuses = merge_status(self.status, doc), self.statuses + 1
 
     def _on_tiles(self, sample) -> None:
         payload = sample.payload.to_bytes()

@@ -31,7 +31,7 @@ import yaml
 from pdcov.atomic import write_text_atomic
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.session import BusConfig, open_session
-from pdcov.bus.status import decode_status
+from pdcov.bus.status import decode_status, merge_status
 from pdcov.errors import PdcovError
 
 SETTLE_S = 2.0  # the daemons' frame counts unchanged this long: the flight is evaluated
@@ -126,7 +126,7 @@ class FleetStatus:
             key = (doc["frames"].get("used"), doc["tiles_seq"])
             if old is None or (old["frames"].get("used"), old["tiles_seq"]) != key:
                 self.changed_s[vid] = time.monotonic()
-            self.status[vid] = doc
+            self.status[vid] = merge_status(old, doc)
 
     def settled(self, ids: Sequence[str], quiet_s: float) -> bool:
         now = time.monotonic()

@@ -27,6 +27,7 @@ from typing import Any
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
+from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
 
 __all__ = ["FleetReport", "QuerySnapshot", "VehicleFeed", "VehicleReport", "Watcher"]
@@ -138,7 +139,7 @@ class Watcher:
             return []
         feed = self._touch(vehicle_id, "status", now_s)
         previous = feed.status
-        feed.status = doc
+        feed.status = doc = merge_status(previous, doc)
         pose = doc.get("pose")
         if isinstance(pose, dict):
             self._add_track_point(feed, pose)

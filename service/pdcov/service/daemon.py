@@ -26,7 +26,7 @@ from pdcov.bus.footprint import decode_frames, encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import open_session
-from pdcov.bus.status import encode_status
+from pdcov.bus.status import StatusEncoder
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
@@ -85,6 +85,7 @@ class Daemon:
         self.session: Any = None
         self._zenoh_entities: list[Any] = []
         self._status_seq = 0
+        self._status_encoder = StatusEncoder()
         self._checkpoint_info: dict[str, Any] = {"path": str(self.state_dir / CHECKPOINT_NAME),
                                                  "last_t_s": None, "resumed": False,
                                                  "set_aside": None}
@@ -299,7 +300,7 @@ class Daemon:
                                     seq=self._status_seq, link=self.link_description(now),
                                     checkpoint=self._checkpoint_info)
         self._status_seq += 1
-        self._put(self.pub_status, encode_status(fields))
+        self._put(self.pub_status, self._status_encoder.encode(fields))
         share = live.share_at_target()
         self.notifier.status(f"coverage {share:.1%} at P_D>={live.target_pd:g}, "
                              f"{live.counters.used} frames, link {fields['link']['state']}")
