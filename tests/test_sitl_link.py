@@ -12,7 +12,6 @@ import struct
 import time
 from collections import Counter
 
-import numpy as np
 import pytest
 
 os.environ["MAVLINK20"] = "1"
@@ -192,15 +191,12 @@ def test_mission_upload_with_pdcov_upload_and_read_back(autopilot):
             got = read_back(conn, len(sent))
         finally:
             conn.close()
-        # ArduPilot-like asks with MISSION_REQUEST, which pdcov's uploader answers with the
-        # float MISSION_ITEM: float32 degrees, half a float32 step (7.6e-6 deg at 149 deg)
-        def tol_e7(deg):
-            half_step_deg = float(np.spacing(np.float32(abs(deg)))) / 2
-            return 0 if autopilot == "px4" else half_step_deg * 1e7 + 1
+        # ArduPilot-like asks with MISSION_REQUEST, PX4-like with MISSION_REQUEST_INT; pdcov's
+        # uploader answers both with MISSION_ITEM_INT: integer degE7, exact
         for g, i in zip(got, sent, strict=True):
             assert (g.command, g.frame) == (i.command, i.frame)
-            assert abs(g.x - round(i.lat_deg * 1e7)) <= tol_e7(i.lat_deg)
-            assert abs(g.y - round(i.lon_deg * 1e7)) <= tol_e7(i.lon_deg)
+            assert g.x == round(i.lat_deg * 1e7)
+            assert g.y == round(i.lon_deg * 1e7)
             assert g.z == pytest.approx(i.z_m, abs=1e-4)
     finally:
         feed.stop()

@@ -206,9 +206,9 @@ def test_mission_upload_with_pdcov_uploader(autopilot, feed):
     assert result is not None and result.accepted, result
     got = proto.missions.mission
     assert [(g.command, g.frame) for g in got] == [(i.command, i.frame) for i in items]
-    # PX4 asks with MISSION_REQUEST_INT: integer degE7; ArduPilot with MISSION_REQUEST, which
-    # pdcov's uploader answers with the float MISSION_ITEM (float32 lat/lon)
-    tol = 1e-7 if autopilot == "px4" else 5e-6
+    # PX4 asks with MISSION_REQUEST_INT, ArduPilot with MISSION_REQUEST; pdcov's uploader
+    # answers both with MISSION_ITEM_INT (integer degE7): to 1e-7 deg
+    tol = 1e-7
     for g, i in zip(got, items, strict=True):
         assert g.lat_deg == pytest.approx(i.lat_deg, abs=tol)
         assert g.lon_deg == pytest.approx(i.lon_deg, abs=tol)
