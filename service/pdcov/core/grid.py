@@ -13,6 +13,8 @@ picture, scaled to detector-input pixels.
 from __future__ import annotations
 
 import math
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -328,9 +330,10 @@ class CoverageGrid:
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
         path = Path(path)
         try:
-            with np.load(path) as z:
+            with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile,
+                zlib.error) as exc:  # a damaged zip member fails in zipfile or zlib
             raise InputFileError(f"{path}: cannot read grid snapshot ({exc})") from None
         missing = {"mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m",
                    "cell_size_m"} - set(data)
@@ -341,11 +344,8 @@ class CoverageGrid:
         if version not in _READABLE_VERSIONS:
             raise InputFileError(f"{path}: grid snapshot version {version}, expected "
                                  f"{' or '.join(map(str, _READABLE_VERSIONS))}")
+        _check_snapshot_values(path, data)
         mask = data["mask"].astype(bool)
-        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
-            if data[key].shape != mask.shape:
-                raise InputFileError(f"{path}: {key} has shape {data[key].shape}, the mask "
-                                     f"{mask.shape}")
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
         grid = cls(geometry, mask, camera, detector, **kwargs)
@@ -369,6 +369,43 @@ class CoverageGrid:
             grid.last_obs_s[:] = last
             grid.latest_frame_t_s = float(data.get("latest_frame_t_s", latest))
         return grid
+
+
+def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
+    """Refuse (InputFileError) a snapshot whose arrays could not have been written by
+    ``save_npz``: shapes other than the mask's, non-numeric arrays, NaN or positive log-miss
+    sums, counts outside 0..2^31-1, a non-finite geometry, a negative frame count, a NaN
+    revisit clock. So a damaged file is never half loaded into a grid."""
+    def bad(why: str) -> InputFileError:
+        return InputFileError(f"{path}: not a usable grid snapshot: {why}")
+
+    mask = data["mask"]
+    if mask.ndim != 2 or mask.dtype.kind not in "bui":
+        raise bad(f"mask: expected a 2-D boolean array, got {mask.dtype} {mask.shape}")
+    for key, kinds in (("log_miss_d", "f"), ("log_miss_fa", "f"), ("n_obs", "iu"),
+                       ("last_obs_s", "f")):
+        a = data.get(key)
+        if a is None:
+            continue
+        if a.shape != mask.shape:
+            raise InputFileError(f"{path}: {key} has shape {a.shape}, the mask {mask.shape}")
+        if a.dtype.kind not in kinds:
+            raise bad(f"{key}: expected numbers, got {a.dtype}")
+        if np.isnan(a).any():
+            raise bad(f"{key}: NaN values")
+    for key in ("log_miss_d", "log_miss_fa"):
+        if (data[key] > 0).any():
+            raise bad(f"{key}: positive values (log-miss sums are <= 0)")
+    n_obs = data["n_obs"]
+    if n_obs.size and (int(n_obs.min()) < 0 or int(n_obs.max()) > 2**31 - 1):
+        raise bad("n_obs: counts outside 0..2^31-1")
+    for key in ("x0_m", "y0_m", "cell_size_m", "frames", "version"):
+        a = data.get(key)
+        if a is not None and (a.size != 1 or a.dtype.kind not in "fiu"
+                              or not math.isfinite(float(a))):
+            raise bad(f"{key}: expected one finite number")
+    if int(data.get("frames", 0)) < 0:
+        raise bad("frames: negative")
 
 
 def _clipped_quad_area(q: np.ndarray, width_px: int, height_px: int) -> np.ndarray:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import time
 import zipfile
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ from typing import Any
 
 from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
-from pdcov.errors import InputFileError
+from pdcov.errors import InputFileError, PdcovError
 
 META_MEMBER = "pdcov_checkpoint.json"
 META_VERSION = 1
@@ -60,7 +61,28 @@ def read_meta(path: Path) -> dict[str, Any]:
         raise InputFileError(f"{path}: checkpoint metadata version "
                              f"{meta.get('version') if isinstance(meta, dict) else '?'}, "
                              f"expected {META_VERSION}")
+    _check_meta(path, meta)
     return meta
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_meta(path: Path, meta: dict[str, Any]) -> None:
+    """The fields the daemon resumes from have the types it wrote (a damaged or foreign
+    file is set aside, never half used)."""
+    ok = {"mission_hash": lambda v: isinstance(v, str),
+          "t0_s": lambda v: v is None or _finite(v),
+          "last_frame_t_s": lambda v: v is None or _finite(v),
+          "clock": lambda v: v is None or (isinstance(v, list) and len(v) == 2
+                                           and all(_finite(x) for x in v)),
+          "tiles_seq": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= -1,
+          "frames_used": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+    for name, check in ok.items():
+        if name in meta and not check(meta[name]):
+            raise InputFileError(f"{path}: checkpoint metadata {name} = {meta[name]!r} is "
+                                 "not what pdcov writes")
 
 
 def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resumed:
@@ -85,7 +107,7 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
             else:
                 return Resumed(grid, meta, f"resumed from {path}: {grid.frames} frames, "
                                            f"last frame at t = {meta.get('last_frame_t_s')} s")
-    except InputFileError as exc:
+    except PdcovError as exc:  # InputFileError, or a DomainError from its geometry
         why = f"it cannot be read ({exc})"
     aside = path.with_name(f"checkpoint-{time.strftime('%Y%m%dT%H%M%S')}.set-aside.npz")
     path.replace(aside)
