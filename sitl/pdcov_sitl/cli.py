@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--camera-trigger", action="store_true",
                    help="send CAMERA_IMAGE_CAPTURED per frame (also when the config's "
                         "log.frame_source is capture)")
+    f.add_argument("--signing-key", metavar="HEX",
+                   help="MAVLink 2 signing key, 64 hex digits: sign every message and ignore "
+                        "unsigned or wrongly signed ones (as the daemon's link.signing_key)")
     f.set_defaults(func=run_fly)
     r = sub.add_parser("replay", help="send a recorded tlog over a link",
                        description="Send a recorded tlog over a link at its pace or faster.")
@@ -89,6 +92,14 @@ def run_fly(args: argparse.Namespace) -> int:
         raise UsageError("--plan: required unless --wait-mission")
     if not (args.wind_mps >= 0 and args.wind_mps < 30):
         raise UsageError(f"--wind-mps {args.wind_mps}: expected 0 <= W < 30 m/s")
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = bytes.fromhex(args.signing_key)
+        except ValueError:
+            key = b""
+        if len(key) != 32:
+            raise UsageError("--signing-key: expected 64 hex digits (32 bytes)")
     try:
         mission = load_mission(args.config)
         faults = FaultSpec.parse(args.faults) if args.faults else None
@@ -101,7 +112,8 @@ def run_fly(args: argparse.Namespace) -> int:
                           gimbal_axes=args.gimbal_axes, faults=faults,
                           wind_mps=args.wind_mps, wind_from_deg=args.wind_from_deg,
                           autopilot=args.autopilot, system_id=system_id,
-                          wait_mission=args.wait_mission, camera_trigger=args.camera_trigger)
+                          wait_mission=args.wait_mission, camera_trigger=args.camera_trigger,
+                          signing_key=key)
         result = fly(opts)
     except (PdcovError, FaultSpecError, LinkError) as exc:
         raise UsageError(str(exc)) from None

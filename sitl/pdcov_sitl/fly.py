@@ -74,6 +74,7 @@ class FlyOptions:
     system_id: int = 1
     wait_mission: bool = False
     camera_trigger: bool = False
+    signing_key: bytes | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,7 +184,8 @@ def fly(opts: FlyOptions) -> FlightResult:
     endpoint = AutopilotEndpoint(
         opts.connect, system_id=opts.system_id, autopilot=opts.autopilot,
         params=autopilot_params(opts.autopilot, opts.gimbal_mode, opts.system_id, limits_deg),
-        streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog)
+        streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog,
+        signing_key=opts.signing_key)
     try:
         return _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever,
                     has_gimbal, device, tlog, truth)

@@ -45,6 +45,20 @@ _LATE_PROBABILITY = 0.02
 _LATE_MAX_S = 0.02
 READ_PERIOD_S = 0.002
 """``poll`` reads the link at most this often (wall clock): answers wait at most 2 ms."""
+SIGNING_EPOCH_UNIX_S = 1_420_070_400
+"""MAVLink 2 signing timestamps count 10 us units from 2015-01-01T00:00:00Z."""
+
+
+def sign_with(mav: mavlink2.MAVLink, key: bytes) -> None:
+    """Sign what ``mav`` packs and check what it parses with ``key`` (32 bytes): unsigned
+    and wrongly signed messages then parse as BAD_DATA. The first timestamp is the wall
+    clock's, as an autopilot with a GPS time does: a receiver refuses a stream whose
+    timestamps lie more than a minute behind its own (replay protection)."""
+    mav.signing.secret_key = key
+    mav.signing.sign_outgoing = True
+    mav.signing.allow_unsigned_callback = None
+    mav.signing.timestamp = int((max(time.time(), SIGNING_EPOCH_UNIX_S)
+                                 - SIGNING_EPOCH_UNIX_S) * 100_000)
 
 
 def message_id(name: str) -> int:
@@ -291,7 +305,9 @@ class AutopilotEndpoint:
     params: parameter name -> value, answered in this order. streams: message name ->
     default rate in Hz (0: off until a ground station asks); only these can be set or
     requested. faults: link and autopilot faults, or None. seed: jitter and faults.
-    tlog_path: where to record every message we send (None: no tlog).
+    tlog_path: where to record every message we send (None: no tlog). signing_key: 32
+    bytes: sign every message sent and ignore received ones not signed with it (MAVLink 2
+    signing, as ArduPilot with a key set); None: no signing.
 
     All times ``now_s`` are simulated seconds (non-decreasing). Build messages with
     ``endpoint.mav.X_encode(...)`` and pass them to ``send``; put ``time_boot_ms(now_s)`` in
@@ -302,11 +318,15 @@ class AutopilotEndpoint:
     def __init__(self, url: str, *, system_id: int, autopilot: str,
                  params: dict[str, float], streams: dict[str, float],
                  faults: FaultSpec | None, seed: int, tlog_path: Path | None,
-                 epoch_unix_s: float = TLOG_EPOCH_UNIX_S):
+                 epoch_unix_s: float = TLOG_EPOCH_UNIX_S, signing_key: bytes | None = None):
+        self._signing_key = signing_key
         self.mav = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=AUTOPILOT_COMPONENT)
         self._packers = {AUTOPILOT_COMPONENT: self.mav}
         self._parser = mavlink2.MAVLink(None, srcSystem=system_id)
         self._parser.robust_parsing = True
+        if signing_key is not None:
+            sign_with(self.mav, signing_key)
+            sign_with(self._parser, signing_key)
         self.schedule = StreamSchedule(streams, random.Random(f"{seed}:streams"))
         self.protocol = AutopilotProtocol(self.mav, system_id=system_id, autopilot=autopilot,
                                           params=params, schedule=self.schedule)
@@ -385,6 +405,8 @@ class AutopilotEndpoint:
         if packer is None:
             packer = mavlink2.MAVLink(None, srcSystem=self.mav.srcSystem,
                                       srcComponent=component_id)
+            if self._signing_key is not None:
+                sign_with(packer, self._signing_key)
             self._packers[component_id] = packer
         packet = msg.pack(packer)
         packer.seq = (packer.seq + 1) % 256

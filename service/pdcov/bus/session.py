@@ -2,11 +2,12 @@
 
 ``bus`` (docs/protocol.md "Session"): mode peer | client | router (default peer: on the
 aircraft the session opens with no router and connects in the background), connect and
-listen endpoint lists (``tcp/10.0.0.2:7447``, ``tls/...``, ``quic/...``), multicast_scouting
-(default true; false keeps a session from announcing itself on the LAN), config_file (a
-Zenoh JSON5 config read first), zenoh (a mapping of Zenoh config paths to values, inserted
-last: TLS certificates, access_control, anything Zenoh takes), and the publishing options
-status_period_s, tiles_period_s, tile_size, tiles_max_bytes_per_s.
+listen endpoint lists (``tcp/10.0.0.2:7447``, ``tls/...``, ``quic/...``; the session listens
+on the configured ones only, none by default), multicast_scouting (default true; false keeps
+a session from announcing itself on the LAN), config_file (a Zenoh JSON5 config read first,
+relative to the mission config's folder), zenoh (a mapping of Zenoh config paths to
+values, inserted last: TLS certificates, access_control, anything Zenoh takes), and the
+publishing options status_period_s, tiles_period_s, tile_size, tiles_max_bytes_per_s.
 """
 
 from __future__ import annotations
@@ -16,11 +17,15 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from pdcov.errors import ConfigError, where
 
 MODES = ("peer", "client", "router")
+_ZENOH_DEFAULT_LISTEN = '{"router":["tcp/[::]:7447"],"peer":["tcp/[::]:0"]}'
+"""zenoh.Config().get_json("listen/endpoints") of Zenoh 1.x: a config that leaves it so
+names no listen endpoint of its own."""
 BUS_KEYS = ("mode", "connect", "listen", "multicast_scouting", "config_file", "zenoh",
             "status_period_s", "tiles_period_s", "tile_size", "tiles_max_bytes_per_s")
 
@@ -102,6 +107,9 @@ def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
     if "zenoh" in kw and not isinstance(kw["zenoh"], Mapping):
         raise ConfigError(f"{where(source, 'bus.zenoh')}: expected a mapping of Zenoh config "
                           "paths (e.g. transport/link/tls/root_ca_certificate) to values")
+    if isinstance(kw.get("config_file"), str) and source is not None:
+        # As the mission's other files: relative to the config file's folder.
+        kw["config_file"] = str(Path(source).parent / kw["config_file"])
     try:
         return BusConfig(**kw)
     except ConfigError as exc:
@@ -110,7 +118,9 @@ def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
 
 def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
     """The zenoh.Config for ``bus``: the config file (if any), then mode, endpoints and
-    scouting, then each ``bus.zenoh`` path. Zenoh's own errors become ConfigError."""
+    scouting, then each ``bus.zenoh`` path. The session listens on ``bus.listen`` only
+    (or on the config file's listen endpoints when it names some and ``bus.listen`` is
+    empty): never on Zenoh's default. Zenoh's own errors become ConfigError."""
     import zenoh
 
     try:
@@ -118,7 +128,10 @@ def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
         conf.insert_json5("mode", json.dumps(bus.mode))
         if bus.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(bus.connect)))
-        if bus.listen:
+        if bus.listen or conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
+            # Only where configured: Zenoh's default listens in peer mode on a random TCP
+            # port of every interface, in plain text, where peers reach it past a
+            # router's access control (docs/protocol.md "Session").
             conf.insert_json5("listen/endpoints", json.dumps(list(bus.listen)))
         if not bus.multicast_scouting:
             conf.insert_json5("scouting/multicast/enabled", "false")

@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(repeatable; replaces the config's)")
     p.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint to listen on (repeatable; replaces the config's)")
+    p.add_argument("--zenoh-config", type=Path, metavar="FILE",
+                   help="Zenoh JSON5 config read first (TLS certificates of this ground "
+                        "station; replaces the config's bus.config_file)")
     p.add_argument("--no-multicast-scouting", action="store_true",
                    help="do not look for peers and routers by multicast")
     p.add_argument("--web", metavar="HOST:PORT",
@@ -61,6 +64,10 @@ def run(args: argparse.Namespace) -> int:
     bus = (bus_config_from_dict(mission.raw.get("bus"), mission.source) if mission
            else BusConfig())
     bus = bus.with_endpoints(args.zenoh_connect, args.zenoh_listen)
+    if args.zenoh_config is not None:
+        if not args.zenoh_config.is_file():
+            raise ConfigError(f"--zenoh-config {args.zenoh_config}: no such file")
+        bus = replace(bus, config_file=str(args.zenoh_config))
     if args.mode:
         bus = replace(bus, mode=args.mode)
     if bus.mode == "router":
