@@ -68,6 +68,8 @@ class Subscriber:
         self.gaps = 0
         self.errors: list[str] = []
         self.tile_bytes = 0
+        self.last_seq_seen: int | None = None
+        self._queue: list = []
         self._subs = [self.session.declare_subscriber(self.keys.status, self._on_status),
                       self.session.declare_subscriber(self.keys.tiles, self._on_tiles)]
 
@@ -81,6 +83,8 @@ class Subscriber:
             self.status, self.statuses = merge_status(self.status, doc), self.statuses + 1
 
     def _on_tiles(self, sample) -> None:
+        """Zenoh thread: decode and queue; never block here (a get inside a callback
+        would wait for this very thread)."""
         payload = sample.payload.to_bytes()
         try:
             update = decode_tiles(payload)
@@ -89,16 +93,25 @@ class Subscriber:
             return
         with self.lock:
             self.tile_bytes += len(payload)
+            self.last_seq_seen = update.seq
+            self._queue.append(update)
+
+    def sync(self) -> None:
+        """Apply queued tiles, first fetching the snapshot when there is no grid, a gap in
+        seq or another grid hash (docs/protocol.md, "Joining"): tiles older than the
+        snapshot (fewer frames) are dropped."""
+        with self.lock:
+            queue, self._queue = self._queue, []
+        if self.grid is None and self.status is not None:
+            self.grid = self.snapshot()  # a late joiner starts from the snapshot
+        for update in queue:
             gap = self.last_seq is not None and update.seq != self.last_seq + 1
             self.last_seq = update.seq
             if self.grid is None or gap or update.grid_hash != self.grid.hash:
                 self.gaps += gap
-                self.grid = None
-                snap = self.snapshot()
-                if snap is None:
-                    return
-                self.grid = snap
-            apply_tiles(self.grid, update)
+                self.grid = self.snapshot()
+            if self.grid is not None and update.frames >= self.grid.frames:
+                apply_tiles(self.grid, update)
 
     def snapshot(self) -> GridState | None:
         for reply in self.session.get(self.keys.snapshot, timeout=5.0):
@@ -115,6 +128,7 @@ class Subscriber:
     def wait(self, predicate, timeout_s: float, what: str) -> dict:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
+            self.sync()
             with self.lock:
                 st = self.status
             if st is not None and predicate(st):

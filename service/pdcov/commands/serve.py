@@ -71,5 +71,8 @@ def run_serve(args: argparse.Namespace) -> int:
     from pdcov.service.daemon import Daemon, setup_logging
 
     setup_logging()
+    import faulthandler
+    import signal
+    faulthandler.register(signal.SIGUSR1)  # `kill -USR1 PID`: every thread's stack to the log
     os.environ.setdefault("MAVLINK20", "1")
     return asyncio.run(Daemon(cfg).run())

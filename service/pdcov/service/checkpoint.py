@@ -90,6 +90,10 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
     (another mission, or unreadable) it is renamed aside with a time stamp and the daemon
     starts fresh."""
     path = state_dir / CHECKPOINT_NAME
+    # A kill during a write leaves atomic_write's temporary file: never read, removed here
+    # (else every crash would leave a grid-sized file behind).
+    for stale in state_dir.glob(f".{CHECKPOINT_NAME}.*.tmp"):
+        stale.unlink(missing_ok=True)
     if not path.exists():
         return Resumed(None, {}, f"no checkpoint in {state_dir}: starting a new grid")
     try:

@@ -358,7 +358,12 @@ class LiveCoverage:
         return t0
 
     def _decidable(self, t: float) -> bool:
-        newest = self._latest_all()
+        # The newest telemetry, fed or still waiting beyond the feed horizon (after an
+        # autopilot reboot the clock jumps ahead: frames in the jump are gaps).
+        newest = max(self._latest_all(), self._waiting[-1].t_s if self._waiting
+                     else -math.inf)
+        if t > newest:
+            return False  # no telemetry reaches this frame yet
         final = True
         for s in self._needed:
             last = self._latest.get(s, -math.inf)
@@ -408,7 +413,8 @@ class LiveCoverage:
             return len(self._queue)
         if self.t0_s is None or not self._latest:
             return 0
-        return max(0, int((self._latest_all() - self._next_frame_t()) * self.rate_hz) + 1)
+        return max(0, math.floor((self._latest_all() - self._next_frame_t()) * self.rate_hz)
+                   + 1)
 
     # --- output ---------------------------------------------------------------------------
 

@@ -4,10 +4,10 @@ decide (docs/service.md).
 
 Threads: everything runs on the event loop's thread. MAVLink is read with
 ``loop.add_reader`` (mavlink_io); Zenoh calls its callbacks on its own threads, which hand
-the payload over with ``loop.call_soon_threadsafe`` (frames) or wait for the loop to answer
-(``run_coroutine_threadsafe``: the snapshot and footprint queryables), so no grid is ever
-touched off the loop. Checkpoints and snapshots are encoded on the loop (milliseconds for
-a mission-sized grid).
+the payload (frames) or the query (snapshot, footprint) to the loop with
+``loop.call_soon_threadsafe`` and return at once: no grid is touched off the loop, and no
+Zenoh thread waits for the loop (which may be waiting for Zenoh in a put). Checkpoints and
+snapshots are encoded on the loop (milliseconds for a mission-sized grid).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import open_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.core.mount import GimbalMount
-from pdcov.errors import ConfigError
+from pdcov.errors import ConfigError, PdcovError
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_protocol import (
@@ -48,7 +48,6 @@ from pdcov.telemetry.link_params import MOUNT_TYPE_PARAMS
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
-QUERY_TIMEOUT_S = 5.0
 
 
 class JournalFormatter(logging.Formatter):
@@ -88,7 +87,8 @@ class Daemon:
         self._status_encoder = StatusEncoder()
         self._checkpoint_info: dict[str, Any] = {"path": str(self.state_dir / CHECKPOINT_NAME),
                                                  "last_t_s": None, "resumed": False,
-                                                 "set_aside": None}
+                                                 "set_aside": None, "error": None,
+                                                 "recording_error": None}
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
         self.recorder: TlogRecorder | None = None
@@ -104,6 +104,7 @@ class Daemon:
                                      intervals=intervals, param_names=names,
                                      param_timeout_s=cfg.link.param_timeout_s)
         self.live: LiveCoverage | None = None
+        self._process_scheduled = False
 
     # --- start ----------------------------------------------------------------------------
 
@@ -194,14 +195,19 @@ class Daemon:
 
     @staticmethod
     def _answer(loop: asyncio.AbstractEventLoop, query: Any, make) -> None:
-        """On a Zenoh thread: let the loop build the reply, then send it."""
-        async def build() -> bytes:
-            return make()
+        """On a Zenoh thread: hand the query to the loop, never wait for it there (the loop
+        may itself be waiting for Zenoh in a put: a deadlock)."""
+        loop.call_soon_threadsafe(Daemon._reply, query, make)
+
+    @staticmethod
+    def _reply(query: Any, make) -> None:
+        """On the loop: build the reply, send it, finish the query."""
         try:
-            payload = asyncio.run_coroutine_threadsafe(build(), loop).result(QUERY_TIMEOUT_S)
-            query.reply(query.key_expr, payload)
-        except Exception as exc:  # noqa: BLE001 - a failed reply must not kill Zenoh's thread
+            query.reply(query.key_expr, make())
+        except Exception as exc:  # noqa: BLE001 - a failed reply must not stop the daemon
             log.warning("query %s not answered: %s", query.key_expr, exc)
+        finally:
+            query.drop()
 
     def _snapshot_bytes(self) -> bytes:
         return encode_snapshot(self.live.grid)
@@ -231,10 +237,16 @@ class Daemon:
                 continue
             for sample in proto.receive(msg, now):
                 live.add_sample(sample)
-            if self.recorder is not None and msg.get_srcSystem() == proto.system_id:
+            if self.recorder is not None:  # all of it: even what came before a HEARTBEAT
                 self.recorder.write(msg.get_msgbuf(), time.time())
-        live.set_params(proto.params, proto.params_done)
-        live.process()
+        if not self._process_scheduled:  # once per loop pass, after every readable link
+            self._process_scheduled = True
+            asyncio.get_running_loop().call_soon(self._process)
+
+    def _process(self) -> None:
+        self._process_scheduled = False
+        self.live.set_params(self.protocol.params, self.protocol.params_done)
+        self.live.process()
 
     def _send(self, msgs: list) -> None:
         for msg in msgs:
@@ -255,9 +267,10 @@ class Daemon:
         if due.tiles is not None:
             self._put(self.pub_tiles, due.tiles)
         if due.status:
-            self._publish_status(now)
             if self.recorder is not None:
                 self.recorder.flush()
+                self._checkpoint_info["recording_error"] = self.recorder.error
+            self._publish_status(now)
         if due.checkpoint:
             self._checkpoint()
         if due.named_value is not None or due.statustext is not None:
@@ -316,12 +329,20 @@ class Daemon:
                 "written_unix_s": time.time()}
         try:
             write_checkpoint(self.state_dir / CHECKPOINT_NAME, live.grid, meta)
-        except OSError as exc:
+        except (OSError, PdcovError) as exc:  # atomic_write: OutputError (disk full, ...)
             live.counters.faults["checkpoint_errors"] += 1
-            log.error("checkpoint not written: %s", exc)
+            if self._checkpoint_info.get("error") is None:
+                log.error("checkpoint not written (computing and publishing go on; "
+                          "retrying every %g s): %s", self.cfg.service.checkpoint_period_s,
+                          exc)
+            self._checkpoint_info["error"] = str(exc)
             return
+        if self._checkpoint_info.get("error") is not None:
+            log.warning("checkpoint written again after: %s", self._checkpoint_info["error"])
         live.checkpointed()
-        self._checkpoint_info["last_t_s"] = meta["last_frame_t_s"]
+        self._checkpoint_info.update(last_t_s=meta["last_frame_t_s"], error=None,
+                                     written_unix_s=meta["written_unix_s"],
+                                     frames=live.grid.frames)
 
     def _shutdown(self) -> None:
         if self.live is not None:

@@ -54,6 +54,8 @@ HEARTBEAT_PERIOD_S = 1.0
 RETRY_S = 1.0
 MAX_TRIES = 4
 OFFSET_PAIRS = 200
+HELD_MESSAGES = 5000
+"""Messages kept from before the autopilot's first HEARTBEAT (a few seconds of streams)."""
 
 
 @dataclass(slots=True)
@@ -103,6 +105,8 @@ class LinkProtocol:
         self._next_heartbeat_s = 0.0
         self._armed = False
         self._primed: tuple[float, float] | None = None
+        self._held: deque = deque(maxlen=HELD_MESSAGES)
+        self._euler_attitude = False
 
     def _reset_requests(self, now_s: float) -> None:
         self.interval_requests = {mid: _Request(next_s=now_s) for mid in self._intervals}
@@ -161,6 +165,7 @@ class LinkProtocol:
         if mtype == "BAD_DATA" or mtype.startswith("UNKNOWN"):
             return []
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        early: list[Sample] = []
         if mtype == "HEARTBEAT" and not self.autopilot_known:
             if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type != MAV_TYPE_GCS
                     and (self.system_id is None or src_sys == self.system_id)):
@@ -168,6 +173,16 @@ class LinkProtocol:
                 self.autopilot_type = int(msg.autopilot)
                 self.mav.srcSystem = src_sys
                 self._reset_requests(now_s)
+                # What the autopilot sent before its first HEARTBEAT counts too (as
+                # offline, where the whole log is read).
+                held, self._held = self._held, deque()
+                for m, t in held:
+                    early += self.receive(m, t)
+            else:
+                self._held.append((msg, now_s))
+        elif not self.autopilot_known:
+            self._held.append((msg, now_s))
+            return []
         if self.system_id is None or src_sys != self.system_id:
             self.stats.other_systems += 1
             return []
@@ -176,7 +191,13 @@ class LinkProtocol:
         t_s = self._time_s(msg, src_comp)
         if mtype == "COMMAND_ACK":
             self._ack(msg)
-            return []
+            return early
+        if mtype == "ATTITUDE":
+            self._euler_attitude = True
+        elif mtype == "ATTITUDE_QUATERNION" and self._euler_attitude:
+            # As the log readers: ATTITUDE when the autopilot sends it, the quaternion
+            # message only otherwise (the two interleaved would interpolate between them).
+            return early
         sample = sample_from_mavlink(msg, t_s)
         if sample is None and mtype in MAVLINK_TYPES and not _no_value_yet(msg):
             self.stats.rejected[mtype] += 1  # NaN, out of range: samples.py's adapters
@@ -186,11 +207,11 @@ class LinkProtocol:
                 self.param_request.result = "acked"
         if isinstance(sample, HeartbeatSample):
             if src_comp != self.autopilot_component:
-                return []
+                return early
             if sample.armed and not self._armed:
                 self.home_request = _Request(next_s=now_s)  # home is set at arming
             self._armed = sample.armed
-        return [] if sample is None else [sample]
+        return early if sample is None else [*early, sample]
 
     def _time_s(self, msg: Any, src_comp: int) -> float:
         """The message's time in the autopilot clock; components other than the autopilot

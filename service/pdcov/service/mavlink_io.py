@@ -15,8 +15,10 @@ URLs as pymavlink and MAVProxy write them: ``udpin:0.0.0.0:14550``, ``udpout:HOS
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
+import socket
 from collections.abc import Callable
 from typing import Any
 
@@ -28,6 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 log = logging.getLogger(__name__)
 READ_BYTES = 65536
 BACKOFF_START_S = 0.5
+UDP_RCVBUF_BYTES = 4 << 20
 
 
 def pymavlink_url(url: str) -> tuple[str, int | None]:
@@ -54,6 +57,11 @@ def open_connection(url: str, system_id: int, component_id: int,
     conn = mavutil.mavlink_connection(device, source_system=system_id,
                                       source_component=component_id, autoreconnect=False,
                                       **kwargs)
+    if device.startswith("udp"):
+        # A burst (a log replayed fast, a link catching up) must not overflow the socket
+        # while the loop is busy with a frame: ask for a large receive buffer.
+        with contextlib.suppress(OSError):
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF_BYTES)
     conn.mav = mavlink.MAVLink(conn, srcSystem=system_id, srcComponent=component_id)
     conn.mav.robust_parsing = True
     conn.WIRE_PROTOCOL_VERSION = "2.0"

@@ -4,7 +4,9 @@ every flight can be evaluated again offline (``pdcov evaluate --log``).
 A tlog record is an 8-byte big-endian wall-clock stamp (microseconds since the Unix epoch)
 and the MAVLink frame as received. Files are named ``flight-<UTC start>-<n>.tlog``; a file
 is closed at ``max_bytes`` and a new one begun; the oldest are deleted while all together
-exceed ``keep_bytes``. Writes are buffered and flushed each second (``flush``).
+exceed ``keep_bytes``. Writes are buffered and flushed each second (``flush``). When a
+write fails (a full disk) the recorder says why (``error``), drops what comes for
+RETRY_S and then begins a new file.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import IO
 
 log = logging.getLogger(__name__)
 _STAMP = struct.Struct(">Q")
+RETRY_S = 10.0
 
 
 class TlogRecorder:
@@ -31,20 +34,44 @@ class TlogRecorder:
         self._n = 0
         self._stem = time.strftime("flight-%Y%m%dT%H%M%SZ", time.gmtime())
         self.path: Path | None = None
-        self.failed = False
+        self.error: str | None = None   # why the last write failed; None while recording
+        self._retry_s = 0.0             # monotonic time of the next attempt after a failure
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
 
     def write(self, frame: bytes, wall_time_s: float) -> None:
-        if self.failed:
-            return
+        if self.error is not None:
+            if time.monotonic() < self._retry_s:
+                return
+            self._abandon()  # a new file: the failed one may end in a torn record
         try:
             if self._fh is None or self._size >= self.max_bytes:
                 self._rotate()
             record = _STAMP.pack(int(wall_time_s * 1e6)) + frame
             self._fh.write(record)
             self._size += len(record)
+            if self.error is not None:
+                log.warning("recording again in %s after: %s", self.path, self.error)
+                self.error = None
         except OSError as exc:
-            self.failed = True
-            log.error("recording stopped: cannot write %s: %s", self.path, exc)
+            self._failed(exc)
+
+    def _failed(self, exc: OSError) -> None:
+        if self.error is None:
+            log.error("recording paused (retrying every %g s): cannot write %s: %s",
+                      RETRY_S, self.path, exc)
+        self.error = f"{self.path}: {exc.strerror or exc}"
+        self._retry_s = time.monotonic() + RETRY_S
+
+    def _abandon(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.close()
+            except OSError:
+                pass
+            self._fh = None
 
     def _rotate(self) -> None:
         self.close()
@@ -64,12 +91,11 @@ class TlogRecorder:
                      self.keep_bytes)
 
     def flush(self) -> None:
-        if self._fh is not None and not self.failed:
+        if self._fh is not None and self.error is None:
             try:
                 self._fh.flush()
             except OSError as exc:
-                self.failed = True
-                log.error("recording stopped: cannot write %s: %s", self.path, exc)
+                self._failed(exc)
 
     def close(self) -> None:
         if self._fh is not None:
