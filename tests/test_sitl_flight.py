@@ -86,12 +86,13 @@ def _fly(workdir: Path, mode: str, out: str, seed: int = 0, extra: tuple[str, ..
 
 
 def _survey_frames(poses, plan_xy: np.ndarray) -> np.ndarray:
-    """Indices of frames from reaching the first waypoint to leaving the last one."""
+    """Indices of frames from passing the first waypoint (closest to it: the copter rounds
+    it, within the waypoint radius) to stopping at the last one."""
     r = np.array([p.r_cam_enu for p in poses])
     d_first = np.linalg.norm(r[:, :2] - plan_xy[0], axis=1)
     d_last = np.linalg.norm(r[:, :2] - plan_xy[-1], axis=1)
-    start = int(np.argmax(d_first < 0.3))
-    end = len(r) - 1 - int(np.argmax(d_last[::-1] < 0.3))
+    start, end = int(np.argmin(d_first)), int(np.argmin(d_last))
+    assert d_first[start] < 2.0 and d_last[end] < 0.3
     assert 0 < start < end
     return np.arange(start, end + 1)
 

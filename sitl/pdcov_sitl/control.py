@@ -13,8 +13,11 @@ The loops (gains tuned on the JSBSim F450, whose hover throttle is ~0.47):
   ``max_accel_mps2`` (the tilt limit);
 * acceleration -> roll/pitch for the heading (thrust along body -z) and collective thrust,
   throttle ~ sqrt(thrust) (propeller thrust grows with the square of its speed);
-* lean-angle input shaping (a 0.15 s first-order lag, as ArduPilot's ATC_INPUT_TC);
-* attitude P -> body rates; rate PID -> normalised torques -> mixer.
+* lean-angle input shaping (ArduPilot's ATC_INPUT_TC, 0.15 s): a critically damped
+  second-order filter whose rate and angular acceleration are fed forward (ATC_RATE_FF_ENAB),
+  so the attitude follows the shaped demand instead of lagging it and then overshooting;
+* attitude P -> body rates; rate PID (+ the angular-acceleration feed-forward) ->
+  normalised torques -> mixer.
 """
 
 from __future__ import annotations
@@ -59,6 +62,9 @@ class Gains:
     max_yaw_rate_rps: float = math.radians(90)
     hover_throttle: float = 0.47
     input_tc_s: float = 0.15
+    # Normalised torque per rad/s^2 of shaped angular acceleration (the F450 gains ~5.3
+    # rad/s^2 per 0.01 of torque command, after the motors' ~60 ms lag).
+    rate_accel_ff: float = 0.0019
 
 
 def _wrap(a: float) -> float:
@@ -81,7 +87,7 @@ class Controller:
         self._i_vel = [0.0, 0.0, 0.0]
         self._i_rate = [0.0, 0.0, 0.0]
         self._prev_rate = (0.0, 0.0, 0.0)
-        self._att_d = (0.0, 0.0)
+        self._att_d = (0.0, 0.0, 0.0, 0.0)  # shaped roll, pitch and their rates
 
     def update(self, sp: Setpoint, r_ned_m: tuple[float, float, float],
                v_ned_mps: tuple[float, float, float], roll_rad: float, pitch_rad: float,
@@ -118,18 +124,25 @@ class Controller:
         pitch_d = math.atan2(-a_fwd, fz)
         roll_d = math.atan2(a_right * math.cos(pitch_d), fz)
         # Input shaping (ArduPilot's ATC_INPUT_TC): the lean angles follow their demand
-        # with a first-order lag, so the attitude changes smoothly.
-        k = min(1.0, dt / g.input_tc_s)
-        roll_d = self._att_d[0] + k * (roll_d - self._att_d[0])
-        pitch_d = self._att_d[1] + k * (pitch_d - self._att_d[1])
-        self._att_d = (roll_d, pitch_d)
+        # through a critically damped second-order filter; its rate and angular
+        # acceleration are fed forward, so the attitude follows it without overshoot.
+        w = 2.0 / g.input_tc_s
+        sh_r, sh_p, w_r, w_p = self._att_d
+        acc_r = w * w * (roll_d - sh_r) - 2.0 * w * w_r
+        acc_p = w * w * (pitch_d - sh_p) - 2.0 * w * w_p
+        w_r += acc_r * dt
+        w_p += acc_p * dt
+        sh_r += w_r * dt
+        sh_p += w_p * dt
+        self._att_d = (sh_r, sh_p, w_r, w_p)
+        roll_d, pitch_d, roll_ff, pitch_ff = sh_r, sh_p, w_r, w_p
         thrust = math.sqrt(an * an + ae * ae + fz * fz) / G_MPS2  # in units of hover thrust
         collective = g.hover_throttle * math.sqrt(thrust)
         # Attitude -> body rates (Euler-rate demand mapped to FRD rates).
         yaw_rate = _clip(g.att_yaw * _wrap(sp.yaw_rad - yaw_rad), -g.max_yaw_rate_rps,
                          g.max_yaw_rate_rps)
-        roll_rate = g.att * (roll_d - roll_rad)
-        pitch_rate = g.att * (pitch_d - pitch_rad)
+        roll_rate = roll_ff + g.att * (roll_d - roll_rad)
+        pitch_rate = pitch_ff + g.att * (pitch_d - pitch_rad)
         sphi, cphi = math.sin(roll_rad), math.cos(roll_rad)
         sth, cth = math.sin(pitch_rad), math.cos(pitch_rad)
         p_d = roll_rate - sth * yaw_rate
@@ -143,8 +156,10 @@ class Controller:
         ir[2] = _clip(ir[2] + g.rate_y_i * er * dt, -0.1, 0.1)
         pp, pq, _pr = self._prev_rate
         self._prev_rate = (p_rps, q_rps, r_rps)
-        u_roll = g.rate_rp * ep + ir[0] - g.rate_rp_d * (p_rps - pp) / dt
-        u_pitch = g.rate_rp * eq + ir[1] - g.rate_rp_d * (q_rps - pq) / dt
+        u_roll = (g.rate_rp * ep + ir[0] - g.rate_rp_d * (p_rps - pp) / dt
+                  + g.rate_accel_ff * acc_r)
+        u_pitch = (g.rate_rp * eq + ir[1] - g.rate_rp_d * (q_rps - pq) / dt
+                   + g.rate_accel_ff * acc_p)
         u_yaw = _clip(g.rate_y * er + ir[2], -0.15, 0.15)
         return mix(collective, u_roll, u_pitch, u_yaw)
 

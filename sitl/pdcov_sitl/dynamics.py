@@ -103,16 +103,17 @@ class F450:
         fdm["ic/psi-true-deg"] = math.degrees(heading_rad)
         for i in range(4):
             fdm[f"fcs/throttle-cmd-norm[{i}]"] = 0.0
+        with _quiet_stdout():
+            fdm.run_ic()
+        # After run_ic, which resets the winds (set before it, they were silently lost).
         fdm["atmosphere/wind-north-fps"] = wind_ned_mps[0] / FT_M
         fdm["atmosphere/wind-east-fps"] = wind_ned_mps[1] / FT_M
         fdm["atmosphere/wind-down-fps"] = wind_ned_mps[2] / FT_M
+        fdm["atmosphere/turb-type"] = 3 if turbulence_mps > 0 else 0  # 3: MIL-spec, Tustin
         if turbulence_mps > 0:
-            fdm["atmosphere/turb-type"] = 3  # ttMilspec: Dryden-like, Tustin discretisation
             fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = \
                 turbulence_mps / FT_M
             fdm["atmosphere/turbulence/milspec/severity"] = 3  # light to moderate
-        with _quiet_stdout():
-            fdm.run_ic()
         self._fdm = fdm
         self._get = fdm.get_property_value
         self._set = fdm.set_property_value

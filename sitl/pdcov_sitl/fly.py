@@ -36,6 +36,7 @@ from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
 from .control import Controller
 from .dynamics import F450, VehicleState
 from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz, quat_from_euler_zyx, quat_from_R
+from .guidance import Guidance
 from .messages import (
     GIMBAL_CLOCK_OFFSET_S,
     GIMBAL_COMPONENT,
@@ -49,7 +50,7 @@ from .messages import (
     gimbal_device_messages,
     gimbal_report,
 )
-from .mission import FlightPlan, Guidance, flight_plan_from_items, load_flight_plan
+from .mission import FlightPlan, flight_plan_from_items, load_flight_plan
 
 POLL_EVERY_STEPS = 4
 MAX_FLIGHT_S = 3 * 3600.0
