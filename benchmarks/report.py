@@ -58,12 +58,18 @@ def markdown(rows: list[Row], machine_text: str, command: str) -> str:
 def write_readme_block(readme: Path, block: str) -> None:
     """Replace the text between the benchmark markers of ``readme`` (appending the markers
     at its end when absent); nothing else in the file changes."""
-    text = readme.read_text() if readme.exists() else ""
-    body = f"{START_MARKER}\n{block}\n{END_MARKER}"
-    if START_MARKER in text and END_MARKER in text:
-        head, rest = text.split(START_MARKER, 1)
-        tail = rest.split(END_MARKER, 1)[1]
+    write_marked_block(readme, block, START_MARKER, END_MARKER)
+
+
+def write_marked_block(path: Path, block: str, start: str, end: str) -> None:
+    """Replace the text between the markers ``start`` and ``end`` of ``path`` (appending
+    them at its end when absent, creating the file when missing); nothing else changes."""
+    text = path.read_text() if path.exists() else ""
+    body = f"{start}\n{block}\n{end}"
+    if start in text and end in text:
+        head, rest = text.split(start, 1)
+        tail = rest.split(end, 1)[1]
         text = head + body + tail
     else:
         text = text.rstrip("\n") + ("\n\n" if text else "") + body + "\n"
-    readme.write_text(text)
+    path.write_text(text)
