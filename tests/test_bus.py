@@ -7,6 +7,7 @@ import io
 import json
 import struct
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,7 +32,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.errors import ConfigError
 
-DEMO = "service/pdcov/data/demo_mission.yaml"
+DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 
 
 @pytest.fixture(scope="module")

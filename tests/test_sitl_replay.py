@@ -151,10 +151,10 @@ def test_a_log_with_console_junk_replays_its_mavlink_part():
     (["{junk}", "--speed", "-2"], "--speed -2.0: expected a number >= 0"),
     (["{clean}", "--connect", "udp:1:2"], "link 'udp:1:2': expected"),
 ])
-def test_bad_input_exits_2_with_a_message(tmp_path, capsys, args, says):
+def test_bad_input_exits_2_with_a_message(tmp_path, capsys, monkeypatch, args, says):
     (tmp_path / "junk.tlog").write_bytes(b"not a tlog at all" * 10)
     (tmp_path / "clean.tlog").write_bytes(tlog_bytes(packets(2)))
-    os.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)
     args = [a.format(junk=tmp_path / "junk.tlog", clean=tmp_path / "clean.tlog")
             for a in args]
     assert main(args) == 2

@@ -12,7 +12,7 @@ import sys
 import time
 
 import pytest
-from watch_fixtures import TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
+from watch_fixtures import DEMO, TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
 
 zenoh = pytest.importorskip("zenoh")
 webdriver = pytest.importorskip("selenium.webdriver")
@@ -77,7 +77,7 @@ def test_web_map_shows_live_coverage(browser, tmp_path):
         watch = subprocess.Popen(
             [sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client", "--zenoh-connect",
              endpoint, "--no-multicast-scouting", "--plain", "--web", f"127.0.0.1:{port}",
-             "--config", "service/pdcov/data/demo_mission.yaml"],
+             "--config", DEMO],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         line = watch.stdout.readline()
         assert f"web map at http://127.0.0.1:{port}/" in line, line

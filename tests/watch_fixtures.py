@@ -4,6 +4,8 @@ It is not the daemon; the end-to-end tests use the real one."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
@@ -12,7 +14,7 @@ from pdcov.bus.tiles import encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
 from pdcov.core.pose import CameraPose
 
-DEMO = "service/pdcov/data/demo_mission.yaml"
+DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
 
 
