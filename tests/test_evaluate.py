@@ -3,6 +3,8 @@ are complete and readable, and bad input fails with a clear message and exit sta
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 import subprocess
@@ -315,7 +317,7 @@ def test_calibration_file_and_relative_detector_path(tmp_path):
 def test_prior_from_geojson_segments_and_geotiff(tmp_path):
     from pdcov.core.geodesy import enu_to_geodetic
     from pdcov.report.gis import write_geotiff
-    from pdcov.report.outputs import load_prior
+    from pdcov.report.outputs import read_prior
 
     mission = load_mission(write_config(tmp_path, mission_doc()))
     g = mission.domain.grid_geometry(1.0)
@@ -330,33 +332,33 @@ def test_prior_from_geojson_segments_and_geotiff(tmp_path):
         {"type": "Feature", "properties": {"poa": 0.3},
          "geometry": {"type": "Polygon", "coordinates": [ring(30, 30, 40, 40)]}}]}
     (tmp_path / "segments.geojson").write_text(json.dumps(doc))
-    poa = load_prior(tmp_path / "segments.geojson", g, mask, ORIGIN)
+    poa = read_prior(tmp_path / "segments.geojson", g, mask, ORIGIN).poa
     assert poa.sum() == pytest.approx(0.9)
     assert poa[5, 5] == pytest.approx(0.6 / 100) and poa[35, 35] == pytest.approx(0.3 / 100)
     assert poa[20, 5] == 0
     write_geotiff(tmp_path / "prior.tif", {"poa": poa}, g, ORIGIN, np.ones_like(mask))
-    np.testing.assert_allclose(load_prior(tmp_path / "prior.tif", g, mask, ORIGIN), poa,
+    np.testing.assert_allclose(read_prior(tmp_path / "prior.tif", g, mask, ORIGIN).poa, poa,
                                rtol=1e-6)
     doc["features"][0]["properties"] = {}
     (tmp_path / "bad.geojson").write_text(json.dumps(doc))
     from pdcov.errors import InputFileError
     with pytest.raises(InputFileError, match="bad.geojson.*poa"):
-        load_prior(tmp_path / "bad.geojson", g, mask, ORIGIN)
+        read_prior(tmp_path / "bad.geojson", g, mask, ORIGIN)
 
 
 def test_prior_summing_above_one_is_rejected(tmp_path):
     # A prior of weights rather than probabilities gave a probability of success above 1.
     from pdcov.errors import InputFileError
-    from pdcov.report.outputs import load_prior
+    from pdcov.report.outputs import read_prior
 
     mission = load_mission(write_config(tmp_path, mission_doc()))
     g = mission.domain.grid_geometry(1.0)
     mask = mission.domain.free_mask(g)
     np.save(tmp_path / "weights.npy", np.ones(g.shape))
     with pytest.raises(InputFileError, match=r"weights.npy.*sum to 1600"):
-        load_prior(tmp_path / "weights.npy", g, mask, ORIGIN)
+        read_prior(tmp_path / "weights.npy", g, mask, ORIGIN)
     np.save(tmp_path / "prior.npy", np.full(g.shape, 1.0 / g.n_rows / g.n_cols))
-    assert load_prior(tmp_path / "prior.npy", g, mask, ORIGIN).sum() == pytest.approx(1.0)
+    assert read_prior(tmp_path / "prior.npy", g, mask, ORIGIN).poa.sum() == pytest.approx(1.0)
 
 
 def test_prior_segments_with_holes_multipolygons_and_parts_outside_the_grid(tmp_path):
@@ -405,3 +407,12 @@ def test_prior_segments_with_holes_multipolygons_and_parts_outside_the_grid(tmp_
     pd[0:5, 0:20] = 0.5
     expected = 0.5 * 0.3 * (5 * 20) / 300
     assert search_outcome(poa, pd, mask).probability_of_success == pytest.approx(expected)
+    # pdcov evaluate prints each segment's note in its summary.
+    config = write_config(tmp_path, mission_doc())
+    csv = write_pose_csv(tmp_path / "poses.csv", expected_poses(known_flight(), None))
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+                   str(tmp_path / "run"), "--prior", str(tmp_path / "segments.geojson"),
+                   "--no-progress") == 0
+    assert first in out.getvalue() and third in out.getvalue()

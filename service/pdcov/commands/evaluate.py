@@ -85,7 +85,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.report.outputs import (
         evaluate_poses,
         finite_track,
-        load_prior,
+        read_prior,
         summary_text,
         write_outputs,
     )
@@ -132,8 +132,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
         # Only drawn: a file without a speed command still gives its waypoints.
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
     grid = mission.new_grid()
-    prior = (load_prior(args.prior, grid.geometry, grid.mask, origin)
+    prior = (read_prior(args.prior, grid.geometry, grid.mask, origin)
              if args.prior is not None else None)
+    if prior is not None:
+        lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
     warnings = _unseen_domain_warnings(grid, mission, poses)
     for w in warnings:
@@ -145,7 +147,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         run = write_outputs(args.out, mission, grid, origin,
                             title=f"{mission.vehicle_id}: {source}",
                             track_enu=finite_track(track), plan_enu=plan_enu,
-                            outline_threshold=args.outline_threshold, prior=prior,
+                            outline_threshold=args.outline_threshold,
+                            prior=None if prior is None else prior.poa,
                             extra_metrics={"warnings": warnings} if warnings else None)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")

@@ -72,12 +72,6 @@ class Prior:
     notes: tuple[str, ...] = ()
 
 
-def load_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
-               origin: Origin) -> np.ndarray:
-    """``read_prior(...).poa``."""
-    return read_prior(path, geometry, mask, origin).poa
-
-
 def read_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
                origin: Origin) -> Prior:
     """Probability of area per cell from a .npy or GeoTIFF aligned with the grid, or a
