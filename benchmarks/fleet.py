@@ -367,8 +367,8 @@ one Zenoh router in the benchmark's process (router mode, TCP on loopback, multi
 scouting off). When the flights have landed and the grids settled the watchers stop (each
 writes the grid it rebuilt per vehicle), then the daemons (each writes its checkpoint), and
 every watcher's grid of every vehicle is compared with that daemon's checkpoint cell for
-cell. Daemon CPU is user + system time from its start (Python start-up and imports, about
-4 s of it, included) over the window; bytes are Zenoh payloads as the router forwards them
+cell. Daemon CPU is user + system time from its start (its Python start-up and
+imports included) over the window; bytes are Zenoh payloads as the router forwards them
 to each watcher (Zenoh's framing not counted). Machine: 2 cores shared with other work.
 
 {fleet_md}
