@@ -208,6 +208,7 @@ def test_a_signed_flight_sends_only_allowed_messages_listens_nowhere_writes_only
            "XDG_CONFIG_HOME": str(home / ".config"), "XDG_DATA_HOME": str(home / ".local")}
     old = {k: os.environ.get(k) for k in env}
     os.environ.update(env)  # process() passes the environment on
+    start_cwd = os.getcwd()
     try:
         os.chdir(cwd)
         with process(fly_args(cfg, plan, tmp_path / "fly", f"tcp:127.0.0.1:{sim_port}",
@@ -228,7 +229,7 @@ def test_a_signed_flight_sends_only_allowed_messages_listens_nowhere_writes_only
             assert daemon.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
             assert stop(daemon) == 0
     finally:
-        os.chdir(Path(__file__).parent)
+        os.chdir(start_cwd)
         for k, v in old.items():
             if v is None:
                 os.environ.pop(k, None)
