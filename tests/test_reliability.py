@@ -1,0 +1,51 @@
+"""Faults end to end with real processes (issue 15, part A), at CI sizes: the functions of
+``benchmarks/reliability.py``, whose documented run (``python -m benchmarks.reliability
+--write-docs``: a 2-hour soak, 50 kills, a 60 s router outage) writes docs/reliability.md.
+Each starts ``pdcov-sitl fly``, ``pdcov serve`` and a Zenoh router in this process and runs
+the watcher's shell in a thread; every process is killed and every session closed at the
+end, also on failure."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.reliability import crash, disk_full, router_outage, soak
+
+
+def test_soak_15_simulated_minutes_with_faults(tmp_path):
+    r = soak(tmp_path, flight_s=900, speed=12, rss_every_s=1.0, timeout_s=240)
+    assert r.exit_code == 0 and not r.traceback
+    assert r.frames_live > 2500
+    # The final grid is pdcov evaluate of what the daemon received, and the watcher's.
+    assert r.frames_live == r.frames_recording
+    assert r.differ_recording == 0 and r.differ_watcher == 0
+    # Not asserted: frames the daemon's link did not receive outside the injected faults
+    # (r.lost). At 12x on this shared machine the daemon loses bursts of every message type
+    # (~2 s of wall time each); docs/reliability.md reports them.
+    assert r.status["faults"].get("bad_messages", 0) > 0  # corrupt bytes were counted
+    # Resident memory flat after warm-up (the grid, buffers and history are bounded).
+    assert r.rss_growth_mib < 15, r.rss
+
+
+def test_kill_9_resumes_a_recent_checkpoint(tmp_path):
+    r = crash(tmp_path, kills=5, period_s=0.25)
+    assert not r.failures, r.failures
+    assert r.resumed == 5 and r.set_aside == 0
+    assert max(r.ages_s) < 5.0, r.ages_s
+
+
+def test_the_watcher_recovers_the_grid_after_the_router_was_gone(tmp_path):
+    r = router_outage(tmp_path, outage_s=10.0)
+    assert r.exit_code == 0
+    assert r.frames_final > r.frames_after_outage >= r.frames_before
+    assert r.differ == 0
+
+
+def test_disk_full_keeps_computing_and_checkpoints_again(tmp_path):
+    r = disk_full(tmp_path, full_s=6.0)
+    if r.skipped:
+        pytest.skip(r.skipped)
+    assert r.frames_while_full > 0 and r.statuses_while_full >= 5
+    assert r.checkpoint_errors > 0 and "No space left" in (r.error_in_status or "")
+    assert r.checkpoint_again_s < 5.0 and r.recording_again
+    assert r.exit_code == 0 and r.final_frames > r.frames_when_full
