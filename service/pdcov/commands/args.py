@@ -86,9 +86,13 @@ MAVLINK_SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:", "
 def mavlink_url(text: str) -> str:
     """A MAVLink connection: scheme:host:port for the schemes above, or a serial device."""
     if text.startswith(MAVLINK_SCHEMES):
-        if text.count(":") < 2 and not text.startswith("mcast:"):
-            raise argparse.ArgumentTypeError(f"expected {text.split(':')[0]}:HOST:PORT, "
-                                             f"got {text!r}")
+        if text.startswith("mcast:"):
+            return text
+        scheme, _, address = text.partition(":")
+        host, _, port = address.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise argparse.ArgumentTypeError(f"expected {scheme}:HOST:PORT with a port in "
+                                             f"1..65535, got {text!r}")
         return text
     if text.startswith(("/dev/", "COM")) or Path(text.split(",")[0]).is_char_device():
         return text
