@@ -40,7 +40,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
 from pdcov.service.settings import ServeConfig
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
-from pdcov.telemetry.pose_tracker import PoseTracker
+from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -100,6 +100,7 @@ class LiveCoverage:
         self._waiting: deque[Sample] = deque()   # samples not yet given to the tracker
         self._homes: list[HomeSample] = []
         self._first_position: PositionSample | None = None
+        self._last_position: PositionSample | None = None
         self._armed_t_s: float | None = None
         self._heartbeats = False
         self._latest: dict[str, float] = {}       # stream -> newest sample time given
@@ -167,6 +168,11 @@ class LiveCoverage:
                 return
             if self._first_position is None and math.isfinite(sample.relative_alt_m):
                 self._first_position = sample
+            last = self._last_position
+            if last is not None and position_jump(last, sample):
+                self.counters.faults["position_jumps"] += 1
+            if last is None or sample.t_s > last.t_s:
+                self._last_position = sample
         if isinstance(sample, GimbalSample):
             if sample.failure_flags:
                 self.counters.faults["gimbal_failure_reports"] += 1

@@ -19,15 +19,14 @@ SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, 
 
 from __future__ import annotations
 
-import statistics
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from pdcov.telemetry.clocks import VehicleClock
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
-    BootClock,
     HeartbeatSample,
     ParamSample,
     Sample,
@@ -53,7 +52,6 @@ ALLOWED_MESSAGES = frozenset({"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
 HEARTBEAT_PERIOD_S = 1.0
 RETRY_S = 1.0
 MAX_TRIES = 4
-OFFSET_PAIRS = 200
 HELD_MESSAGES = 5000
 """Messages kept from before the autopilot's first HEARTBEAT (a few seconds of streams)."""
 
@@ -76,12 +74,6 @@ class LinkStats:
     last_message_s: float | None = None  # wall clock (the caller's now_s)
 
 
-@dataclass(slots=True)
-class _Component:
-    clock: BootClock = field(default_factory=BootClock)
-    offsets: deque = field(default_factory=lambda: deque(maxlen=OFFSET_PAIRS))
-
-
 class LinkProtocol:
     """One autopilot's link, as decisions. ``mav`` is a pymavlink MAVLink object used only
     to encode messages (its srcSystem is set to the vehicle's when the autopilot is known).
@@ -98,7 +90,7 @@ class LinkProtocol:
         self._intervals = dict(intervals)
         self._param_names = tuple(param_names)
         self._param_timeout_s = param_timeout_s
-        self._comps: dict[int, _Component] = {}
+        self._clock: VehicleClock | None = None
         self.stats = LinkStats()
         self.params: dict[str, float] = {}
         self._reset_requests(0.0)
@@ -127,15 +119,14 @@ class LinkProtocol:
 
     @property
     def reboots(self) -> int:
-        comp = self._comps.get(self.autopilot_component or -1)
-        return len(comp.clock.restarts_t_s) if comp else 0
+        return len(self._clock.autopilot.restarts_t_s) if self._clock else 0
 
     def clock_state(self) -> tuple[float, float]:
         """(offset_s, latest boot s) of the autopilot's clock, for a checkpoint."""
-        comp = self._comps.get(self.autopilot_component or -1)
-        if comp is None or comp.clock.now_s != comp.clock.now_s:
+        clock = self._clock.autopilot if self._clock else None
+        if clock is None or clock.now_s != clock.now_s:
             return 0.0, float("nan")
-        return comp.clock.offset_s, comp.clock.now_s - comp.clock.offset_s
+        return clock.offset_s, clock.now_s - clock.offset_s
 
     def prime_clock(self, offset_s: float, boot_s: float) -> None:
         """Continue a checkpointed clock: times after a daemon restart never go back (an
@@ -214,31 +205,19 @@ class LinkProtocol:
         return early if sample is None else [*early, sample]
 
     def _time_s(self, msg: Any, src_comp: int) -> float:
-        """The message's time in the autopilot clock; components other than the autopilot
-        are mapped by the median offset between their clock and the autopilot's."""
-        ap = self.autopilot_component if self.autopilot_component is not None else src_comp
-        comp = self._comps.get(src_comp)
-        if comp is None:
-            comp = self._comps[src_comp] = _Component()
-            if src_comp == ap and self._primed is not None:
-                comp.clock.offset_s = self._primed[0]
-                comp.clock.to_s(self._primed[1])
-        ap_comp = self._comps.get(ap)
-        boot_s = mavlink_boot_time_s(msg)
-        if boot_s is None:
-            return ap_comp.clock.now_s if ap_comp else float("nan")
-        before = len(comp.clock.restarts_t_s)
-        t_s = comp.clock.to_s(boot_s)
-        if src_comp == ap:
-            if len(comp.clock.restarts_t_s) > before:
-                self.stats.reboots += 1
-                self._reset_requests(self.stats.last_message_s or 0.0)
-            return t_s
-        if ap_comp is not None and ap_comp.clock.now_s == ap_comp.clock.now_s:
-            comp.offsets.append(ap_comp.clock.now_s - t_s)
-        if not comp.offsets:
-            return float("nan")
-        return t_s + statistics.median(comp.offsets)
+        """The message's time in the autopilot clock (clocks.VehicleClock: the rule the tlog
+        reader applies too; a component with a clock of its own is mapped causally)."""
+        if self._clock is None:
+            self._clock = VehicleClock(self.autopilot_component)
+            if self._primed is not None:
+                self._clock.autopilot.offset_s = self._primed[0]
+                self._clock.autopilot.to_s(self._primed[1])
+        before = len(self._clock.autopilot.restarts_t_s)
+        t_s = self._clock.time_s(src_comp, mavlink_boot_time_s(msg))
+        if len(self._clock.autopilot.restarts_t_s) > before:
+            self.stats.reboots += 1
+            self._reset_requests(self.stats.last_message_s or 0.0)
+        return t_s
 
     def _ack(self, msg: Any) -> None:
         if msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:

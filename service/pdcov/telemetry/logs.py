@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import math
 import os
-import statistics
 import struct
 import sys
+from array import array
 from collections import Counter, defaultdict
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
 from pdcov.telemetry.gimbal import preferred_gimbal_source
 from pdcov.telemetry.samples import (
     DATAFLASH_TYPES,
@@ -130,17 +131,45 @@ def _mostly_text(head: bytes) -> bool:
 
 @dataclass(slots=True)
 class _Component:
-    """Per (system, component): its clock, its samples, and (device time, autopilot time)
-    pairs for mapping a non-autopilot clock onto the autopilot's."""
+    """Per (system, component): its own boot clock, its samples (stamped in that clock) and
+    for each sample the index of its message in the log (``_Messages``)."""
 
     clock: BootClock = field(default_factory=BootClock)
     samples: dict[str, list] = field(default_factory=lambda: defaultdict(list))
-    clock_pairs: list[tuple[float, float]] = field(default_factory=list)
+    message_index: dict[str, list[int]] = field(default_factory=lambda: defaultdict(list))
+
+
+@dataclass(slots=True)
+class _Messages:
+    """Every message's source (system * 256 + component) and boot time (s, NaN for none),
+    in log order: what ``clocks.VehicleClock`` needs, once the autopilot is known, to stamp
+    other components' samples exactly as the daemon did on arrival."""
+
+    source: array = field(default_factory=lambda: array("l"))
+    boot_s: array = field(default_factory=lambda: array("d"))
+
+    def autopilot_times(self, system_id: int, autopilot_component: int,
+                        wanted: set[int]) -> dict[int, float]:
+        """{message index: time in the autopilot clock (s)} for the ``wanted`` messages of
+        ``system_id``, every message of that system fed to one VehicleClock in order."""
+        clock = VehicleClock(autopilot_component)
+        out: dict[int, float] = {}
+        last = max(wanted, default=-1)
+        for i, (src, boot) in enumerate(zip(self.source, self.boot_s, strict=True)):
+            if i > last:
+                break
+            if src >> 8 != system_id:
+                continue
+            t = clock.time_s(src & 0xFF, None if math.isnan(boot) else boot)
+            if i in wanted:
+                out[i] = t
+        return out
 
 
 def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> FlightLog:
     comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
     heartbeats: list[HeartbeatSample] = []
+    messages = _Messages()
     n_ok = 0
     try:
         scanner = TlogScanner(path.read_bytes())
@@ -152,18 +181,18 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         comp = comps[key]
         boot_s = mavlink_boot_time_s(msg)
-        if boot_s is not None:
-            t_s = comp.clock.to_s(boot_s)
-            if key[1] != 1:
-                comp.clock_pairs.append((t_s, comps[(key[0], 1)].clock.now_s))
-        else:
-            t_s = comp.clock.now_s
+        messages.source.append((key[0] << 8) | key[1])
+        messages.boot_s.append(math.nan if boot_s is None else boot_s)
+        # Stamped in the sender's own clock here; other components than the autopilot
+        # are restamped below, once it is known.
+        t_s = comp.clock.now_s if boot_s is None else comp.clock.to_s(boot_s)
         sample = sample_from_mavlink(msg, t_s)
         if isinstance(sample, HeartbeatSample):
             heartbeats.append(sample)
         elif sample is not None:
-            comp.samples[type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION"
-                                                  else "")].append(sample)
+            kind = type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION" else "")
+            comp.samples[kind].append(sample)
+            comp.message_index[kind].append(n_ok - 1)
     if n_ok == 0:
         raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt")
     damage = scanner.damage.describe()
@@ -177,15 +206,31 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     if restarts:
         notes.append(_restart_note(len(restarts), "time_boot_ms"))
 
+    # The autopilot's own samples are already in its clock (a BootClock, as VehicleClock
+    # keeps it); the other components' are restamped by the rule the daemon applies.
+    others = {c: comp for (s, c), comp in comps.items()
+              if s == sysid and c != ap_comp and comp.samples}
+    wanted = {i for comp in others.values() for idx in comp.message_index.values()
+              for i in idx}
+    times = messages.autopilot_times(sysid, ap_comp, wanted) if wanted else {}
+    for c, comp in sorted(others.items()):
+        n_dropped = 0
+        for kind, items in comp.samples.items():
+            mapped = [replace(smp, t_s=times[i]) for smp, i in
+                      zip(items, comp.message_index[kind], strict=True)]
+            comp.samples[kind] = [smp for smp in mapped if math.isfinite(smp.t_s)]
+            n_dropped += len(mapped) - len(comp.samples[kind])
+        notes.append(f"component {c}'s own clock mapped onto the autopilot's (clocks."
+                     f"ComponentClock: largest apparent offset over "
+                     f"{COMPONENT_CLOCK_WINDOW_S:g} s)"
+                     + (f"; {n_dropped} of its samples before the first autopilot time not "
+                        "used" if n_dropped else ""))
+
     def gather(kind: str) -> list:
         out = []
-        for (s, c), comp in comps.items():
-            if s != sysid:
-                continue
-            items = comp.samples.get(kind, [])
-            if c != ap_comp and items:
-                items = _to_autopilot_clock(items, comp.clock_pairs)
-            out.extend(items)
+        for (s, _c), comp in comps.items():
+            if s == sysid:
+                out.extend(comp.samples.get(kind, []))
         return out
 
     attitude = ap.samples.get("AttitudeSample") or ap.samples.get("AttitudeSampleQ", [])
@@ -257,16 +302,6 @@ def _choose_system(comps: Mapping[tuple[int, int], _Component],
     sysid = max(n_att, key=lambda s: (n_att[s], -s))
     return sysid, 1, (f"following system {sysid}: no autopilot HEARTBEAT, it sends the most "
                       f"attitude messages; systems seen: {seen}")
-
-
-def _to_autopilot_clock(samples: list, pairs: list[tuple[float, float]]) -> list:
-    """Restamp a component's samples from its own boot clock onto the autopilot's, by the
-    median offset between its time stamps and the autopilot time when they arrived."""
-    diffs = [ap - own for own, ap in pairs if math.isfinite(ap)]
-    if not diffs:
-        return []
-    offset = statistics.median(diffs)
-    return [replace(s, t_s=s.t_s + offset) for s in samples]
 
 
 def _choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int

@@ -62,6 +62,22 @@ EXPORT_EXTRA_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "gimbal_qw", "gimbal
                         "gimbal_qy", "gimbal_qz", "gimbal_flags", "interpretation", "trusted",
                         "untrusted_reason")
 QUAT_NORM_TOL = 1e-3
+MAX_SPEED_MPS = 60.0
+"""Faster than this between two position samples (plus POSITION_JUMP_SLACK_M) is not flight
+but a jump of the reported position (a GPS glitch, an EKF reset): a frame between the two
+is skipped as 'position jump', never interpolated across it."""
+POSITION_JUMP_SLACK_M = 2.0
+
+
+def position_jump(a: PositionSample, b: PositionSample) -> bool:
+    """True when the reported position moved faster than MAX_SPEED_MPS (+ slack) from sample
+    ``a`` to the later sample ``b``: the rule ``frames_at`` skips frames by, for counting."""
+    dt = b.t_s - a.t_s
+    if not dt > 0:
+        return False
+    step = geodetic_to_enu(b.lat_deg, b.lon_deg, b.alt_msl_m,
+                           Origin(a.lat_deg, a.lon_deg, a.alt_msl_m))
+    return float(np.linalg.norm(step)) > MAX_SPEED_MPS * dt + POSITION_JUMP_SLACK_M
 
 
 def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
@@ -295,7 +311,11 @@ class PoseTracker:
         lo, hi, w, inside, gap_ok = _bracket(self._pos_t, t, self.max_gap_s)
         check("position", inside, gap_ok)
         if len(self._pos_t):
-            r_body = self._pos_enu[lo] + w[:, None] * (self._pos_enu[hi] - self._pos_enu[lo])
+            step = self._pos_enu[hi] - self._pos_enu[lo]
+            r_body = self._pos_enu[lo] + w[:, None] * step
+            jump = np.linalg.norm(step, axis=1) > (
+                MAX_SPEED_MPS * (self._pos_t[hi] - self._pos_t[lo]) + POSITION_JUMP_SLACK_M)
+            reason[inside & jump & (reason == "")] = "position jump"
         else:
             r_body = np.zeros((n, 3))
 
