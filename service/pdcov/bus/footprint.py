@@ -20,12 +20,14 @@ from typing import Any
 import numpy as np
 
 from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.json_doc import json_object
 
 FOOTPRINT_SCHEMA = "pdcov.footprint"
 FRAMES_SCHEMA = "pdcov.frames"
 VERSION = 1
 MAX_FRAMES = 1000
 MAX_VERTICES = 10_000
+MAX_PAYLOAD_BYTES = 1 << 20
 
 
 def encode_footprint(vehicle_id: str, t_s: float, lon_lat_deg: np.ndarray | None) -> bytes:
@@ -50,7 +52,7 @@ def decode_footprint(payload: bytes, key: str = "footprint") -> dict[str, Any]:
     def bad(why: str) -> BusPayloadError:
         return BusPayloadError(f"{key}: not a usable footprint: {why}")
 
-    doc = _json_object(payload, bad)
+    doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
     props = doc.get("properties")
     if doc.get("type") != "Feature" or not isinstance(props, dict):
         raise bad("expected a GeoJSON Feature with properties")
@@ -82,7 +84,7 @@ def decode_frames(payload: bytes, key: str = "frames") -> tuple[float, ...]:
     def bad(why: str) -> BusPayloadError:
         return BusPayloadError(f"{key}: not a usable frames message: {why}")
 
-    doc = _json_object(payload, bad)
+    doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
     if doc.get("schema") != FRAMES_SCHEMA or doc.get("version") != VERSION:
         raise bad(f"schema {doc.get('schema')!r} version {doc.get('version')!r}, expected "
                   f"{FRAMES_SCHEMA!r} version {VERSION}")
@@ -92,16 +94,3 @@ def decode_frames(payload: bytes, key: str = "frames") -> tuple[float, ...]:
                        and math.isfinite(v) and v >= 0 for v in t)):
         raise bad(f"t_boot_s: expected a list of 1..{MAX_FRAMES} times >= 0 (s)")
     return tuple(float(v) for v in t)
-
-
-def _json_object(payload: bytes, bad) -> dict[str, Any]:
-    data = bytes(payload)
-    if len(data) > 1 << 20:
-        raise bad(f"{len(data)} bytes, more than 1 MiB")
-    try:
-        doc = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise bad(f"not UTF-8 JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise bad("expected a JSON object")
-    return doc

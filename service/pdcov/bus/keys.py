@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pdcov.bus.errors import BusPayloadError
 
 PREFIX = "pdcov"
-KINDS = ("status", "tiles", "snapshot", "footprint", "alive", "frames")
+KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames")
 
 
 def valid_vehicle_id(vehicle_id: str) -> bool:
@@ -47,6 +47,10 @@ class VehicleKeys:
     @property
     def footprint(self) -> str:
         return self.key("footprint")
+
+    @property
+    def mission(self) -> str:
+        return self.key("mission")
 
     @property
     def alive(self) -> str:

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.json_doc import json_object
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
@@ -157,15 +158,7 @@ def decode_status(payload: bytes, key: str = "status") -> dict[str, Any]:
     def bad(why: str) -> BusPayloadError:
         return BusPayloadError(f"{key}: not a usable status: {why}")
 
-    data = bytes(payload)
-    if len(data) > MAX_STATUS_BYTES:
-        raise bad(f"{len(data)} bytes, more than {MAX_STATUS_BYTES}")
-    try:
-        doc = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise bad(f"not UTF-8 JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise bad("expected a JSON object")
+    doc = json_object(payload, MAX_STATUS_BYTES, bad)
     if doc.get("schema") != STATUS_SCHEMA or doc.get("version") != STATUS_VERSION:
         raise bad(f"schema {doc.get('schema')!r} version {doc.get('version')!r}, expected "
                   f"{STATUS_SCHEMA!r} version {STATUS_VERSION}")

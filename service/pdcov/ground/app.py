@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pdcov.bus.grid_state import grid_hash
 from pdcov.bus.session import BusConfig
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
@@ -57,9 +58,13 @@ async def _main(opts: WatchOptions) -> int:
         from pdcov.ground.web import WebMap, basemap_info, map_state
 
         basemap = basemap_info(opts.basemap)
+        config_hash = None
+        if opts.mission is not None:
+            grid = opts.mission.new_grid()
+            config_hash = grid_hash(grid.geometry, grid.mask)
         web = WebMap(opts.web[0], opts.web[1],
                      lambda: map_state(watcher, watcher.report(shell.now_s()), opts.mission,
-                                       shell.version, basemap),
+                                       shell.version, basemap, config_hash),
                      lambda: shell.version, opts.basemap)
         await web.start()
         print(f"pdcov watch: web map at {web.url}", flush=True)

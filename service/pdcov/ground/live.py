@@ -18,15 +18,17 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_footprint
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.keys import VehicleKeys, parse_key
+from pdcov.bus.mission import decode_mission
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
-from pdcov.ground.watcher import QuerySnapshot, Watcher
+from pdcov.ground.watcher import QueryMission, QuerySnapshot, Watcher
 
 log = logging.getLogger("pdcov.watch")
 
 Recorder = Callable[[str, str, bytes], None]
-"""Called with (vehicle_id, kind, payload) for every status, tiles and snapshot received."""
+"""Called with (vehicle_id, kind, payload) for every status, tiles, snapshot and mission
+received."""
 
 
 class WatchShell:
@@ -82,6 +84,7 @@ class WatchShell:
             while not stop.is_set():
                 now = self.now_s()
                 self._do(self.watcher.poll(now))
+                self._do(self.watcher.missions_due(now))
                 if now >= next_footprint:
                     next_footprint = now + self.footprint_period_s
                     for vid, feed in self.watcher.feeds.items():
@@ -139,9 +142,10 @@ class WatchShell:
         self.version += 1
         self._do(self.watcher.on_alive(vid, alive, self.now_s()))
 
-    def _do(self, actions: list[QuerySnapshot]) -> None:
+    def _do(self, actions: list[QuerySnapshot] | list[QueryMission]) -> None:
         for a in actions:
-            self._start_query(a.vehicle_id, "snapshot")
+            self._start_query(a.vehicle_id,
+                              "mission" if isinstance(a, QueryMission) else "snapshot")
 
     # -- queries ------------------------------------------------------------------------
 
@@ -176,6 +180,9 @@ class WatchShell:
                 except BusPayloadError as exc:
                     self.watcher.on_bad_payload(vehicle_id, exc)
             return
+        if kind == "mission":
+            self._mission_reply(vehicle_id, key, payloads[:1], now)
+            return
         for p in payloads[:1]:
             if self.record is not None:
                 self.record(vehicle_id, "snapshot", p)
@@ -189,3 +196,19 @@ class WatchShell:
             self._do(self.watcher.on_snapshot(vehicle_id, state, now))
             return
         self.watcher.on_snapshot_failed(vehicle_id, now)
+
+    def _mission_reply(self, vehicle_id: str, key: str, payloads: list[bytes],
+                       now: float) -> None:
+        for p in payloads:
+            if self.record is not None:
+                self.record(vehicle_id, "mission", p)
+            try:
+                mission = decode_mission(p, key, vehicle_id)
+            except BusPayloadError as exc:
+                self.watcher.on_bad_payload(vehicle_id, exc)
+                log.warning("%s", exc)
+                break
+            self.watcher.on_mission(vehicle_id, mission, now)
+            self.version += 1
+            return
+        self.watcher.on_mission_failed(vehicle_id, now)

@@ -6,6 +6,7 @@ Layout (docs/ground-station.md):
     DIR/<vehicle_id>/tiles.bin      records: recv_unix_s f64, length u32 (little-endian),
                                     then the tiles payload as received (docs/protocol.md)
     DIR/<vehicle_id>/snapshot-N.npz each snapshot reply as received
+    DIR/<vehicle_id>/mission-N.json each mission reply as received
     DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt
     DIR/fleet/                      at the end: the merged grid.npz and, with the mission
                                     config, the report (metrics.json, heatmap.png, ...)
@@ -61,7 +62,7 @@ class Recording:
         if used:  # appending to another run's files would mix two recordings
             raise PdcovError(f"--record {out}: the folder is not empty; give a new one")
         self._files: dict[tuple[str, str], IO[Any]] = {}
-        self._snapshots: dict[str, int] = {}
+        self._replies: dict[tuple[str, str], int] = {}
 
     def _file(self, vid: str, name: str, mode: str) -> IO[Any]:
         f = self._files.get((vid, name))
@@ -84,11 +85,12 @@ class Recording:
             f = self._file(vehicle_id, "tiles.bin", "ab")
             f.write(TILE_RECORD.pack(t, len(payload)) + payload)
             f.flush()
-        elif kind == "snapshot":
-            n = self._snapshots.get(vehicle_id, 0) + 1
-            self._snapshots[vehicle_id] = n
+        elif kind in ("snapshot", "mission"):
+            n = self._replies.get((vehicle_id, kind), 0) + 1
+            self._replies[(vehicle_id, kind)] = n
             (self.out / vehicle_id).mkdir(exist_ok=True)
-            (self.out / vehicle_id / f"snapshot-{n}.npz").write_bytes(payload)
+            ext = "npz" if kind == "snapshot" else "json"
+            (self.out / vehicle_id / f"{kind}-{n}.{ext}").write_bytes(payload)
 
     def close(self) -> None:
         for f in self._files.values():

@@ -1,5 +1,5 @@
 """The watcher's decisions, with no I/O: decoded payloads and ``now_s`` in, grids and
-actions out (the asyncio/Zenoh shell in ground/shell.py does the I/O).
+actions out (the asyncio/Zenoh shell in ground/live.py does the I/O).
 
 Per vehicle it rebuilds the daemon's grid exactly (docs/protocol.md "Joining late"):
 
@@ -14,8 +14,12 @@ Per vehicle it rebuilds the daemon's grid exactly (docs/protocol.md "Joining lat
   ``tiles_seq`` stays ahead of the last applied message for ``trailing_gap_s`` (the last
   messages of a flight were lost, so no later one reveals the gap).
 
-The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIGN.md:
-grids merge by adding). ``now_s`` is the watcher's own monotonic clock in seconds.
+Each vehicle's mission geometry (docs/protocol.md "mission") is asked for once its grid
+hash is known (first status, or snapshot) and again whenever that hash changes; a failed or
+stale reply is asked again after ``mission_retry_s``.
+
+The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIGN.md: grids
+merge by adding). ``now_s`` is the watcher's own monotonic clock in seconds.
 """
 
 from __future__ import annotations
@@ -27,16 +31,26 @@ from typing import Any
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
+from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
 
-__all__ = ["FleetReport", "QuerySnapshot", "VehicleFeed", "VehicleReport", "Watcher"]
+__all__ = ["FleetReport", "QueryMission", "QuerySnapshot", "VehicleFeed", "VehicleReport",
+           "Watcher"]
 
 
 @dataclass(frozen=True, slots=True)
 class QuerySnapshot:
     """Action: query ``pdcov/<vehicle_id>/snapshot`` and hand the reply to on_snapshot
     (or on_snapshot_failed)."""
+
+    vehicle_id: str
+
+
+@dataclass(frozen=True, slots=True)
+class QueryMission:
+    """Action: query ``pdcov/<vehicle_id>/mission`` and hand the reply to on_mission (or
+    on_mission_failed)."""
 
     vehicle_id: str
 
@@ -94,6 +108,9 @@ class VehicleFeed:
     track_lat_lon_alt: list[tuple[float, float, float]] = field(default_factory=list)
     last_pose_t_s: float | None = None
     footprint: dict[str, Any] | None = None
+    mission: MissionGeometry | None = None
+    mission_asked_for: str | None = None  # the grid hash the last mission query was for
+    mission_retry_at_s: float | None = None  # None while a query is out (or none needed)
     gaps: int = 0
     snapshots: int = 0
     bad_payloads: int = 0
@@ -107,15 +124,18 @@ class Watcher:
     vehicle's status gives its own (the mission config's). snapshot_timeout_s: ask again
     when a snapshot reply has not come in this long. trailing_gap_s: how long a status may
     announce a tiles sequence number not yet received before the snapshot is asked again.
+    mission_retry_s: when to ask again for a mission that did not come or describes another
+    grid than the vehicle's.
     """
 
     def __init__(self, vehicle: str | None = None, *, thresholds: tuple[float, ...] = (),
                  snapshot_timeout_s: float = 5.0, trailing_gap_s: float = 3.0,
-                 max_track_points: int = 20_000) -> None:
+                 max_track_points: int = 20_000, mission_retry_s: float = 10.0) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.snapshot_timeout_s = snapshot_timeout_s
         self.trailing_gap_s = trailing_gap_s
+        self.mission_retry_s = mission_retry_s
         self.max_track_points = max_track_points
         self.feeds: dict[str, VehicleFeed] = {}
 
@@ -219,6 +239,46 @@ class Watcher:
         if self.wants(vehicle_id):
             self._touch(vehicle_id, "footprint", now_s).footprint = doc
 
+    def on_mission(self, vehicle_id: str, mission: MissionGeometry, now_s: float) -> None:
+        """A decoded mission reply (bus.mission.decode_mission). Kept even when it describes
+        another grid than the vehicle's (the daemon may be restarting): ``mission_for``
+        matches by grid hash, and such a reply is asked again after mission_retry_s."""
+        if not self.wants(vehicle_id):
+            return
+        feed = self._touch(vehicle_id, "mission", now_s)
+        feed.mission = mission
+        stale = mission.grid_hash != self._grid_hash(feed)
+        feed.mission_retry_at_s = now_s + self.mission_retry_s if stale else None
+
+    def on_mission_failed(self, vehicle_id: str, now_s: float) -> None:
+        """No usable mission reply (timeout, no queryable: an older daemon, bad payload):
+        ask again after mission_retry_s."""
+        if self.wants(vehicle_id):
+            self._feed(vehicle_id).mission_retry_at_s = now_s + self.mission_retry_s
+
+    def missions_due(self, now_s: float) -> list[QueryMission]:
+        """Mission queries to make now: for a vehicle whose grid hash is known and whose
+        mission does not describe it, once per hash, then every mission_retry_s."""
+        due = []
+        for feed in self.feeds.values():
+            want = self._grid_hash(feed)
+            if want is None or (feed.mission is not None and feed.mission.grid_hash == want):
+                continue
+            retry = feed.mission_retry_at_s
+            if feed.mission_asked_for != want or (retry is not None and now_s >= retry):
+                feed.mission_asked_for, feed.mission_retry_at_s = want, None
+                due.append(QueryMission(feed.vehicle_id))
+        return due
+
+    def mission_for(self, grid_hash: str | None) -> MissionGeometry | None:
+        """The mission geometry describing grid ``grid_hash`` (the first vehicle's by id),
+        or with None any vehicle's; None when no vehicle sent one."""
+        for feed in sorted(self.feeds.values(), key=lambda f: f.vehicle_id):
+            m = feed.mission
+            if m is not None and (grid_hash is None or m.grid_hash == grid_hash):
+                return m
+        return None
+
     def on_bad_payload(self, vehicle_id: str, error: BusPayloadError) -> None:
         """A payload that did not decode: counted, never applied."""
         if self.wants(vehicle_id):
@@ -290,6 +350,13 @@ class Watcher:
         feed.last_msg_s = now_s
         feed.received[kind] += 1
         return feed
+
+    @staticmethod
+    def _grid_hash(feed: VehicleFeed) -> str | None:
+        """The vehicle's grid hash as last announced (status), else of the grid held."""
+        if feed.status is not None:
+            return str(feed.status["grid"]["hash"])
+        return feed.state.hash if feed.state is not None else None
 
     def _ensure_grid(self, feed: VehicleFeed, now_s: float) -> list[QuerySnapshot]:
         if feed.state is None and feed.awaiting_since_s is None:

@@ -5,8 +5,9 @@ as server-sent events (``/events``; ``/state.json`` for one copy).
 aiohttp earns its place: HTTP/1.1 parsing, streaming responses and clean shutdown are its
 job, and a hand-written server on a ground-station laptop would be one more thing to get
 wrong. The state holds the fleet's P_D grid (quantised to 0..255, down-sampled to at most
-MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles (from the
-mission config when given), each vehicle's track and current footprint in ENU metres, and
+MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles of the grid
+shown (``domain_layer``: from the mission config when it describes that grid, else from the
+vehicles' mission replies), each vehicle's track and current footprint in ENU metres, and
 the figures of the terminal view.
 """
 
@@ -76,9 +77,38 @@ def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any) -> dict[str, A
             "pd_b64": base64.b64encode(data.tobytes()).decode()}
 
 
+def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | None,
+                 config_grid_hash: str | None) -> tuple[dict[str, Any] | None, str | None]:
+    """The domain and obstacles to draw over grid ``grid_hash`` (None: no grid yet), and a
+    note for the operator. The mission config (``--config``, whose grid hash is
+    ``config_grid_hash``) is drawn when it describes that grid (or no grid is shown yet);
+    otherwise the mission reply of a vehicle flying that grid. A config describing another
+    grid is never drawn over it: the note says so."""
+    if mission is not None and (grid_hash is None or config_grid_hash == grid_hash):
+        d = mission.domain
+        return ({"source": "--config", "grid_hash": config_grid_hash,
+                 "boundary": _ring_xy(d.boundary.exterior.coords),
+                 "obstacles": [_ring_xy(p.exterior.coords) for p in d.obstacles]}, None)
+    note = None
+    if mission is not None:
+        note = (f"--config {mission.source or ''} describes grid {config_grid_hash}, the "
+                f"vehicles fly grid {grid_hash}: it is not drawn")
+    m = watcher.mission_for(grid_hash)
+    if m is None:
+        if grid_hash is not None:
+            note = (note + "; " if note else "") + \
+                f"no vehicle has sent the mission geometry of grid {grid_hash} yet"
+        return None, note
+    return ({"source": f"vehicle {m.vehicle_id}", "grid_hash": m.grid_hash,
+             "boundary": _ring_xy(m.boundary_enu_m),
+             "obstacles": [_ring_xy(r) for r in m.obstacles_enu_m]}, note)
+
+
 def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
-              version: int, basemap: dict[str, Any] | None) -> dict[str, Any]:
-    """Everything the page draws, as JSON-ready values."""
+              version: int, basemap: dict[str, Any] | None,
+              config_grid_hash: str | None = None) -> dict[str, Any]:
+    """Everything the page draws, as JSON-ready values. config_grid_hash: the grid hash
+    of ``mission``'s grid (see domain_layer)."""
     merged, _ = watcher.fleet_state()
     vehicles = []
     origin = None
@@ -100,12 +130,11 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
             "status_proportion": {str(t): p
                                   for t, p in v.status_proportion_at_or_above.items()},
             "mean_pd": v.mean_pd, "track": track, "footprint": footprint})
-    domain = None
-    if mission is not None:
-        d = mission.domain
-        domain = {"boundary": _ring_xy(d.boundary.exterior.coords),
-                  "obstacles": [_ring_xy(p.exterior.coords) for p in d.obstacles]}
-        origin = origin or mission.origin()
+    domain, note = domain_layer(watcher, None if merged is None else merged.hash, mission,
+                                config_grid_hash)
+    if origin is None and domain is not None:
+        origin = (mission.origin() if domain["source"] == "--config" and mission is not None
+                  else _mission_origin(watcher, domain["grid_hash"]))
     return {
         "version": version,
         "fleet": {"target": report.target, "thresholds": list(report.thresholds),
@@ -115,11 +144,18 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
         "grid": None if merged is None else grid_payload(merged.pd, merged.mask,
                                                          merged.geometry),
         "domain": domain,
+        "domain_note": note,
         "vehicles": vehicles,
         "origin": None if origin is None else {"lat_deg": origin.lat_deg,
                                                "lon_deg": origin.lon_deg},
         "basemap": basemap,
     }
+
+
+def _mission_origin(watcher: Watcher, grid_hash: str) -> Origin | None:
+    m = watcher.mission_for(grid_hash)
+    return None if m is None else Origin(m.origin_lat_deg, m.origin_lon_deg,
+                                         m.ground_alt_msl_m or 0.0)
 
 
 def basemap_info(folder: Path | None) -> dict[str, Any] | None:

@@ -4,7 +4,7 @@ decide (docs/service.md).
 
 Threads: everything runs on the event loop's thread. MAVLink is read with
 ``loop.add_reader`` (mavlink_io); Zenoh calls its callbacks on its own threads, which hand
-the payload (frames) or the query (snapshot, footprint) to the loop with
+the payload (frames) or the query (snapshot, footprint, mission) to the loop with
 ``loop.call_soon_threadsafe`` and return at once: no grid is touched off the loop, and no
 Zenoh thread waits for the loop (which may be waiting for Zenoh in a put). Checkpoints and
 snapshots are encoded on the loop (milliseconds for a mission-sized grid).
@@ -25,6 +25,7 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_frames, encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.mission import encode_mission
 from pdcov.bus.session import open_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.core.mount import GimbalMount
@@ -105,6 +106,7 @@ class Daemon:
                                      param_timeout_s=cfg.link.param_timeout_s)
         self.live: LiveCoverage | None = None
         self._process_scheduled = False
+        self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
 
     # --- start ----------------------------------------------------------------------------
 
@@ -184,6 +186,8 @@ class Daemon:
                                 lambda q: self._answer(loop, q, self._snapshot_bytes)),
             s.declare_queryable(self.keys.footprint,
                                 lambda q: self._answer(loop, q, self._footprint_bytes)),
+            s.declare_queryable(self.keys.mission,
+                                lambda q: self._answer(loop, q, self._mission_bytes)),
             s.liveliness().declare_token(self.keys.alive),
         ]
         if self.cfg.frame_source == "zenoh":
@@ -215,6 +219,18 @@ class Daemon:
     def _footprint_bytes(self) -> bytes:
         t = self.live.last_pose.t_s if self.live.last_pose is not None else math.nan
         return encode_footprint(self.cfg.mission.vehicle_id, t, self.live.footprint_lonlat())
+
+    def _mission_bytes(self) -> bytes:
+        """The mission payload; encoded again only when the ground altitude becomes known."""
+        m, origin = self.cfg.mission, self.live.origin
+        alt = origin.ground_alt_msl_m if origin is not None else None
+        if self._mission_reply is None or self._mission_reply[0] != alt:
+            state = self.live.state
+            self._mission_reply = (alt, encode_mission(
+                m.vehicle_id, m.origin(alt), m.domain, state.geometry, state.hash,
+                ground_alt_known=alt is not None, thresholds=m.thresholds,
+                target_pd=self.cfg.target_pd))
+        return self._mission_reply[1]
 
     def _on_frames(self, payload: bytes) -> None:
         try:

@@ -112,6 +112,12 @@ function draw() {
     }
     path(state.domain.boundary, v); ctx.closePath();
     ctx.lineWidth = 2; ctx.strokeStyle = "#111"; ctx.stroke();
+    // What was drawn, for tests and the curious: the source and the outline in canvas pixels.
+    mapCanvas.dataset.domainSource = state.domain.source;
+    mapCanvas.dataset.domainPx = JSON.stringify(state.domain.boundary.map(([x, y]) => [v.px(x), v.py(y)]));
+  } else {
+    delete mapCanvas.dataset.domainSource;
+    delete mapCanvas.dataset.domainPx;
   }
   for (const veh of state.vehicles) {
     ctx.strokeStyle = veh.color;
@@ -175,6 +181,8 @@ function show(s) {
   cov.dataset.version = String(s.version);
   cov.dataset.meanPd = f.mean_pd === null ? "" : String(f.mean_pd);
   document.getElementById("target").textContent = f.target ?? "-";
+  document.getElementById("domain-source").textContent = s.domain ? s.domain.source : "not known";
+  document.getElementById("domain-note").textContent = s.domain_note || "";
   document.getElementById("status-line").textContent =
     `${s.vehicles.length} vehicle(s); update ${s.version}; ${new Date().toLocaleTimeString()}`;
   showTables();
