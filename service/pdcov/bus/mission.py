@@ -163,7 +163,7 @@ def decode_mission(payload: bytes, key: str = "mission",
     if not isinstance(thresholds, list) or not 1 <= len(thresholds) <= 100 \
             or not all(_probability(t) for t in thresholds):
         raise bad("thresholds: expected 1..100 probabilities in (0, 1]")
-    target = doc.get("target_pd")
+    target: Any = doc.get("target_pd")
     if not _probability(target):
         raise bad("target_pd: expected a probability in (0, 1]")
     return MissionGeometry(vid, ghash, origin.lat_deg, origin.lon_deg, ground_alt, geometry,
@@ -194,7 +194,9 @@ def _list(doc: dict[str, Any], name: str, most: int, bad) -> list[Any]:
 
 
 def _origin(o: dict[str, Any], bad) -> tuple[Origin, float | None]:
-    lat, lon, alt = o.get("lat_deg"), o.get("lon_deg"), o.get("ground_alt_msl_m")
+    lat: Any = o.get("lat_deg")
+    lon: Any = o.get("lon_deg")
+    alt: Any = o.get("ground_alt_msl_m")
     if not (_number(lat) and -90 <= lat <= 90 and _number(lon) and -180 <= lon <= 360):
         raise bad("origin: expected lat_deg in [-90, 90] and lon_deg in [-180, 360]")
     if alt is not None and not (_number(alt) and -1e4 <= alt <= 1e5):
@@ -204,8 +206,11 @@ def _origin(o: dict[str, Any], bad) -> tuple[Origin, float | None]:
 
 
 def _grid(g: dict[str, Any], bad) -> GridGeometry:
-    x0, y0, c = g.get("x0_m"), g.get("y0_m"), g.get("cell_size_m")
-    n_rows, n_cols = g.get("n_rows"), g.get("n_cols")
+    x0: Any = g.get("x0_m")
+    y0: Any = g.get("y0_m")
+    c: Any = g.get("cell_size_m")
+    n_rows: Any = g.get("n_rows")
+    n_cols: Any = g.get("n_cols")
     if not (_number(x0) and _number(y0) and abs(x0) <= MAX_ENU_M and abs(y0) <= MAX_ENU_M):
         raise bad(f"grid: x0_m and y0_m: expected finite metres within {MAX_ENU_M:g}")
     if not (_number(c) and c > 0):
