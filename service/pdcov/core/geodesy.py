@@ -35,8 +35,8 @@ class Origin:
                               f"got {self.ground_alt_msl_m}")
 
 
-def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_msl_m: np.ndarray | float,
-                    origin: Origin) -> np.ndarray:
+def geodetic_to_enu(lat_deg: np.ndarray | float, lon_deg: np.ndarray | float,
+                    alt_msl_m: np.ndarray | float, origin: Origin) -> np.ndarray:
     """ENU metres (..., 3) of geodetic points about ``origin``; a scalar ``alt_msl_m``
     broadcasts over the points."""
     e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, alt_msl_m, origin.lat_deg,

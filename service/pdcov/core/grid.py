@@ -17,7 +17,7 @@ import zipfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO
 
 import numpy as np
 
@@ -311,7 +311,7 @@ class CoverageGrid:
         with atomic_write(path, "wb") as fh:
             self.write_npz(fh)
 
-    def write_npz(self, fh: BinaryIO) -> None:
+    def write_npz(self, fh: IO[bytes]) -> None:
         """Write the snapshot ``save_npz`` writes to an open binary file (the daemon sends
         these bytes over Zenoh: np.load reads them)."""
         g = self.geometry

@@ -183,7 +183,7 @@ def greedy_tracks(tracks: list[Track], gain: list[np.ndarray], cost_s: list[floa
         best, best_rate = -1, 0.0
         for i in available:
             seg = tracks[i].seg_enu_m
-            transit_m = min(np.linalg.norm(seg[0] - here), np.linalg.norm(seg[1] - here))
+            transit_m = float(min(np.linalg.norm(seg[0] - here), np.linalg.norm(seg[1] - here)))
             benefit = float(np.minimum(deficit, gain[i]).sum())
             rate = benefit / (cost_s[i] + transit_m / speed_mps)
             if rate > best_rate:

@@ -57,6 +57,8 @@ NAMED_VALUE_PERIOD_S = 1.0
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 MAX_WAITING_SAMPLES = 2_000_000
 """Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
+TrackedSample = AttitudeSample | PositionSample | GimbalSample
+"""The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
 
 
 @dataclass(slots=True)
@@ -97,7 +99,7 @@ class LiveCoverage:
         self.origin_how = ""
         self.interpretation: GimbalInterpretation | None = None
         self.tracker: PoseTracker | None = None
-        self._waiting: deque[Sample] = deque()   # samples not yet given to the tracker
+        self._waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
         self._homes: list[HomeSample] = []
         self._first_position: PositionSample | None = None
         self._last_position: PositionSample | None = None
@@ -111,7 +113,7 @@ class LiveCoverage:
         self._queue: list[float] = []             # capture / detector frame times
         self.last_frame_t_s = -math.inf
         self.last_pose: CameraPose | None = None
-        self.last_R_ned_body: np.ndarray | None = None
+        self._last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
         # Tiles: values as last sent, per tile; when each tile first changed unsent.
         ts = cfg.bus.tile_size
         self.tile_size = ts
@@ -256,10 +258,9 @@ class LiveCoverage:
         return p.alt_msl_m - p.relative_alt_m, ("the first position's altitude minus its "
                                                  "height above home")
 
-    def _feed(self, until_s: float) -> None:
+    def _feed(self, tr: PoseTracker, until_s: float) -> None:
         """Give the tracker the waiting samples up to ``until_s`` (all when live; a backlog
         bit by bit, so that its history window never drops what a frame needs)."""
-        tr = self.tracker
         w = self._waiting
         while w and w[0].t_s <= until_s:
             s = w.popleft()
@@ -292,21 +293,23 @@ class LiveCoverage:
         of the tracker's history."""
         if self.tracker is None:
             self._try_start()
-            if self.tracker is None:
-                return 0
+        tr = self.tracker
+        if tr is None:
+            return 0
         added = 0
         while True:
             t = self._next_frame_t()
             if t is None and self.frame_source == "rate":
-                t = self._start_lattice()
+                t = self._start_lattice(tr)
             if t is None:
                 if not self._waiting:
                     return added
-                self._feed(self._waiting[0].t_s + 0.5 * self.history_s)
+                self._feed(tr, self._waiting[0].t_s + 0.5 * self.history_s)
                 continue
+            first_t = t
             batch: list[float] = []
             while t is not None and t - (batch[0] if batch else t) <= 0.25 * self.history_s:
-                self._feed(t + 0.5 * self.history_s)
+                self._feed(tr, t + 0.5 * self.history_s)
                 if not self._decidable(t):
                     break
                 batch.append(t)
@@ -316,10 +319,10 @@ class LiveCoverage:
                     self._queue.pop(0)
                 t = self._next_frame_t()
             if not batch:
-                if not self._skip_hole(t):
+                if not self._skip_hole(first_t):
                     return added
                 continue
-            added += self._evaluate(np.array(batch))
+            added += self._evaluate(tr, np.array(batch))
 
     def _skip_hole(self, t: float) -> bool:
         """Skip at once, as 'attitude gap' (what offline says of them), the frames from
@@ -332,7 +335,7 @@ class LiveCoverage:
         end = min(s.t_s for s in self._waiting) - self.max_gap_s - self.cfg.service.reorder_s
         if t >= end:
             return False
-        if self.frame_source == "rate":
+        if self.t0_s is not None:  # rate mode (``t`` is on the lattice, so it has started)
             k_end = max(self._k_next + 1, math.ceil((end - self.t0_s) * self.rate_hz))
             n, self._k_next = k_end - self._k_next, k_end
             self.last_frame_t_s = self.t0_s + (k_end - 1) / self.rate_hz
@@ -354,10 +357,10 @@ class LiveCoverage:
     def _latest_all(self) -> float:
         return max(self._latest.values(), default=-math.inf)
 
-    def _start_lattice(self) -> float | None:
+    def _start_lattice(self, tr: PoseTracker) -> float | None:
         if any(s not in self._latest for s in self._needed):
             return None
-        t0, _t1 = self.tracker.coverage_s()
+        t0, _t1 = tr.coverage_s()
         if not math.isfinite(t0):
             return None
         self.t0_s, self._k_next = t0, 0
@@ -379,12 +382,12 @@ class LiveCoverage:
                     return True  # this stream's gap is already too long: skip it now
         return final
 
-    def _evaluate(self, t_s: np.ndarray) -> int:
+    def _evaluate(self, tr: PoseTracker, t_s: np.ndarray) -> int:
         """Add the frames at times ``t_s`` (increasing) that are valid, trusted (or the
         mount says to use untrusted ones) and high enough; count the others by reason."""
         m = self.cfg.mission
         self.last_frame_t_s = float(t_s[-1])
-        b = self.tracker.frames_at(t_s)
+        b = tr.frames_at(t_s)
         policy = m.mount.untrusted if isinstance(m.mount, GimbalMount) else "use"
         valid = b.valid
         use = valid & (b.trusted | (policy == "use"))
@@ -403,7 +406,7 @@ class LiveCoverage:
         for R, r, t, R_body in zip(R_enu_cam.reshape(-1, 3, 3), b.r_cam_enu[use], b.t_s[use],
                                    b.R_ned_body[use], strict=True):
             pose = CameraPose(R, r, float(t))
-            self.last_pose, self.last_R_ned_body = pose, R_body
+            self.last_pose, self._last_R_ned_body = pose, R_body
             if pose.r_cam_enu[2] < m.min_height_m:
                 self.counters.skipped["below min height"] += 1
                 continue
@@ -417,10 +420,10 @@ class LiveCoverage:
     def frames_pending(self) -> int:
         if self.frame_source != "rate":
             return len(self._queue)
-        if self.t0_s is None or not self._latest:
+        t = self._next_frame_t()  # None until the lattice starts
+        if t is None or not self._latest:
             return 0
-        return max(0, math.floor((self._latest_all() - self._next_frame_t()) * self.rate_hz)
-                   + 1)
+        return max(0, math.floor((self._latest_all() - t) * self.rate_hz) + 1)
 
     # --- output ---------------------------------------------------------------------------
 
@@ -467,8 +470,8 @@ class LiveCoverage:
         n_tr, n_tc = self._tile_shape
         g = self.grid.geometry
         pad = ((0, n_tr * ts - g.n_rows), (0, n_tc * ts - g.n_cols))
-        changed = np.pad(self.grid.n_obs != self._sent_n_obs, pad)
-        changed = changed.reshape(n_tr, ts, n_tc, ts).any(axis=(1, 3))
+        changed_cells = np.pad(self.grid.n_obs != self._sent_n_obs, pad)
+        changed = changed_cells.reshape(n_tr, ts, n_tc, ts).any(axis=(1, 3))
         for tr, tc in zip(*np.nonzero(changed), strict=True):
             self._dirty_since.setdefault((int(tr), int(tc)), now_s)
         if not self._dirty_since or self._allowance <= 0:
@@ -507,7 +510,7 @@ class LiveCoverage:
         pose = None
         if self.last_pose is not None and self.origin is not None:
             lat, lon, alt = enu_to_geodetic(self.last_pose.r_cam_enu, self.origin)
-            R = self.last_R_ned_body
+            R = self._last_R_ned_body
             pose = {"lat_deg": float(lat), "lon_deg": float(lon), "alt_msl_m": float(alt),
                     "heading_deg": math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0,
                     "t_s": self.last_pose.t_s}

@@ -208,7 +208,10 @@ class LinkProtocol:
         """The message's time in the autopilot clock (clocks.VehicleClock: the rule the tlog
         reader applies too; a component with a clock of its own is mapped causally)."""
         if self._clock is None:
-            self._clock = VehicleClock(self.autopilot_component)
+            # None here when a non-autopilot HEARTBEAT of this system (a gimbal's) came
+            # before the autopilot's first one: that clock then knows no autopilot component
+            # for good. Kept as it is (no behaviour change in a typing pass); to be fixed.
+            self._clock = VehicleClock(self.autopilot_component)  # type: ignore[arg-type]
             if self._primed is not None:
                 self._clock.autopilot.offset_s = self._primed[0]
                 self._clock.autopilot.to_s(self._primed[1])

@@ -45,12 +45,13 @@ class TlogRecorder:
         if self.error is not None:
             if time.monotonic() < self._retry_s:
                 return
-            self._abandon()  # a new file: the failed one may end in a torn record
+            self.close()  # then a new file: the failed one may end in a torn record
         try:
-            if self._fh is None or self._size >= self.max_bytes:
-                self._rotate()
+            fh = self._fh
+            if fh is None or self._size >= self.max_bytes:
+                fh = self._rotate()
             record = _STAMP.pack(int(wall_time_s * 1e6)) + frame
-            self._fh.write(record)
+            fh.write(record)
             self._size += len(record)
             if self.error is not None:
                 log.warning("recording again in %s after: %s", self.path, self.error)
@@ -65,20 +66,13 @@ class TlogRecorder:
         self.error = f"{self.path}: {exc.strerror or exc}"
         self._retry_s = time.monotonic() + RETRY_S
 
-    def _abandon(self) -> None:
-        if self._fh is not None:
-            try:
-                self._fh.close()
-            except OSError:
-                pass
-            self._fh = None
-
-    def _rotate(self) -> None:
+    def _rotate(self) -> IO[bytes]:
+        """A new recording file (the oldest removed above keep_bytes); returns it open."""
         self.close()
         self.folder.mkdir(parents=True, exist_ok=True)
         self._n += 1
         self.path = self.folder / f"{self._stem}-{self._n}.tlog"
-        self._fh = self.path.open("ab")
+        self._fh = fh = self.path.open("ab")
         self._size = 0
         files = sorted(self.folder.glob("flight-*.tlog"), key=lambda p: p.stat().st_mtime)
         total = sum(p.stat().st_size for p in files)
@@ -89,6 +83,7 @@ class TlogRecorder:
             old.unlink()
             log.info("recording %s removed (recordings above %d bytes)", old.name,
                      self.keep_bytes)
+        return fh
 
     def flush(self) -> None:
         if self._fh is not None and self.error is None:
