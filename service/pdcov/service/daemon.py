@@ -104,13 +104,16 @@ class Daemon:
                                      system_id=cfg.link.system_id or m.system_id,
                                      intervals=intervals, param_names=names,
                                      param_timeout_s=cfg.link.param_timeout_s)
-        self.live: LiveCoverage | None = None
         self._process_scheduled = False
+        self.state_dir.mkdir(parents=True, exist_ok=True)
+        self.live = self._start_grid()  # a new or resumed grid: there before the loop runs
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
 
     # --- start ----------------------------------------------------------------------------
 
-    def _start_grid(self) -> None:
+    def _start_grid(self) -> LiveCoverage:
+        """The grid resumed from the state dir's checkpoint when it belongs to this mission,
+        else a new one; primes the link's clock from the checkpoint."""
         m = self.cfg.mission
         grid = m.new_grid()
         mhash = mission_hash(m, grid)
@@ -118,19 +121,20 @@ class Daemon:
         r = resume(self.state_dir, mhash, grid)
         (log.warning if r.set_aside else log.info)("%s", r.message)
         meta = r.meta
-        self.live = LiveCoverage(self.cfg, r.grid or grid, time.monotonic(),
-                                 tiles_seq=int(meta.get("tiles_seq", -1)) + 1)
+        live = LiveCoverage(self.cfg, r.grid or grid, time.monotonic(),
+                            tiles_seq=int(meta.get("tiles_seq", -1)) + 1)
         if r.grid is not None:
             last = meta.get("last_frame_t_s")
             if isinstance(last, (int, float)):
-                self.live.resume_lattice(meta.get("t0_s"), float(last))
+                live.resume_lattice(meta.get("t0_s"), float(last))
             clock = meta.get("clock")
             if isinstance(clock, list) and len(clock) == 2 and all(
                     isinstance(v, (int, float)) and math.isfinite(v) for v in clock):
                 self.protocol.prime_clock(float(clock[0]), float(clock[1]))
-            self.live.counters.used = int(meta.get("frames_used", 0))
+            live.counters.used = int(meta.get("frames_used", 0))
         self._checkpoint_info.update(resumed=r.grid is not None,
                                      set_aside=str(r.set_aside) if r.set_aside else None)
+        return live
 
     def _ids(self) -> tuple[int, int]:
         return (self.protocol.system_id or self.cfg.link.system_id or 1,
@@ -141,8 +145,6 @@ class Daemon:
         self.stop_event = asyncio.Event()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self.stop_event.set)
-        self.state_dir.mkdir(parents=True, exist_ok=True)
-        self._start_grid()
         if self.cfg.service.record:
             self.recorder = TlogRecorder(self.state_dir / "recordings",
                                          self.cfg.service.record_max_bytes,
@@ -361,12 +363,11 @@ class Daemon:
                                      frames=live.grid.frames)
 
     def _shutdown(self) -> None:
-        if self.live is not None:
-            try:
-                self.live.process()
-                self._checkpoint()
-            except Exception as exc:  # noqa: BLE001 - still close everything below
-                log.error("final checkpoint failed: %s", exc)
+        try:
+            self.live.process()
+            self._checkpoint()
+        except Exception as exc:  # noqa: BLE001 - still close everything below
+            log.error("final checkpoint failed: %s", exc)
         for c in self.links:
             c.close()
         if self.recorder is not None:
