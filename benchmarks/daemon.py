@@ -23,17 +23,14 @@ figures mean nothing).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,16 +45,11 @@ from pdcov.core.geodesy import Origin
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
 
+from .harness import child, free_port, serve_args
 from .report import Row, machine, markdown
 from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario, scenarios
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cpu_s(pid: int) -> float:
@@ -131,25 +123,6 @@ class Received:
         return size[keep], (lat[keep] if len(lat) == len(t) else lat)
 
 
-@contextlib.contextmanager
-def child(args: list[str], log: Path) -> Iterator[subprocess.Popen]:
-    """A process (own process group) with its output in ``log``; SIGTERM, then SIGKILL."""
-    with log.open("wb") as out:
-        p = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT,
-                             start_new_session=True)
-        try:
-            yield p
-        finally:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGTERM)
-                try:
-                    p.wait(timeout=20)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
-                    p.wait(timeout=10)
-
-
 def wait_status(rx: Received, predicate, timeout_s: float, what: str,
                 daemon: subprocess.Popen, log: Path) -> dict:
     end = time.monotonic() + timeout_s
@@ -190,8 +163,7 @@ def run(folder: Path, sc: Scenario, window_s: float, start_timeout_s: float) -> 
     subs = [session.declare_subscriber(keys.status, rx.callback("status")),
             session.declare_subscriber(keys.tiles, rx.callback("tiles"))]
     try:
-        with child([sys.executable, "-m", "pdcov.cli", "serve", "--config", str(config)],
-                   folder / "serve.log") as daemon, \
+        with child(serve_args(config), folder / "serve.log", grace_s=20) as daemon, \
              child([sys.executable, "-m", "pdcov_sitl.cli", "fly", "--config", str(config),
                     "--plan", str(plan), "--out", str(folder / "sim"), "--connect",
                     f"udpout:127.0.0.1:{mav_port}", "--speed", "1"], folder / "sim.log"):

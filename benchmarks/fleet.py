@@ -44,6 +44,7 @@ from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
 
 from .daemon import cpu_s, memory_bytes
+from .harness import small_mission
 from .report import write_marked_block
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -96,18 +97,8 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      'why: docs/operations.md section 4)'),
 )
 
-ORIGIN = {"lat_deg": 47.397742, "lon_deg": 8.545594, "ground_alt_msl_m": 488.0}
-MISSION = {
-    "origin": ORIGIN,
-    "domain": {"polygon_enu_m": [[0, 0], [30, 0], [30, 30], [0, 30]], "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob",
-               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-    "mount": {"type": "gimbal", "attitude_frame": "auto"},
-    "detector": "illustrative",
-    "coverage": {"min_revisit_s": 1.0},
-}
+MISSION = small_mission(coverage={"min_revisit_s": 1.0})
+ORIGIN = MISSION["origin"]
 GRID_ARRAYS = ("log_miss_d", "log_miss_fa", "n_obs")
 SETTLE_S = 3.0
 

@@ -41,7 +41,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,7 +49,7 @@ import yaml
 from shapely.geometry import box
 
 from pdcov.bus.grid_state import GridState
-from pdcov.bus.session import BusConfig, open_session
+from pdcov.bus.session import BusConfig
 from pdcov.bus.status import decode_status, merge_status
 from pdcov.core.geodesy import Origin
 from pdcov.ground.live import WatchShell
@@ -58,7 +57,8 @@ from pdcov.ground.watcher import Watcher
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
 
-from .daemon import free_port, memory_bytes
+from .daemon import memory_bytes
+from .harness import child, free_port, router, serve_args, small_mission
 from .report import write_marked_block
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -95,26 +95,18 @@ def make_rig(folder: Path, side_m: float, *, checkpoint_period_s: float = 2.0,
              state_dir: Path | None = None) -> Rig:
     folder.mkdir(parents=True, exist_ok=True)
     zport, mport = free_port(), free_port()
-    doc = {
-        "vehicle_id": VEHICLE,
-        "origin": {"lat_deg": LAT_DEG, "lon_deg": LON_DEG, "ground_alt_msl_m": GROUND_M},
-        "domain": {"polygon_enu_m": [[0, 0], [side_m, 0], [side_m, side_m], [0, side_m]],
-                   "cell_size_m": 1.0},
-        "camera": {"width_px": 640, "height_px": 480,
-                   "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-                   "distortion_model": "plumb_bob",
-                   "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-        "mount": {"type": "gimbal", "attitude_frame": "auto"},
-        "detector": "illustrative",
-        "coverage": {"min_revisit_s": 1.0},
-        "link": {"connect": [f"udpin:127.0.0.1:{mport}"]},
-        "bus": {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zport}"],
-                "listen": ["tcp/127.0.0.1:0"], "multicast_scouting": False,
-                "status_period_s": 0.5, "tiles_period_s": 0.2,
-                "tiles_max_bytes_per_s": 1 << 21},
-        "service": {"state_dir": str(state_dir or folder / "state"),
-                    "checkpoint_period_s": checkpoint_period_s},
-    }
+    doc = small_mission(
+        vehicle_id=VEHICLE,
+        domain={"polygon_enu_m": [[0, 0], [side_m, 0], [side_m, side_m], [0, side_m]],
+                "cell_size_m": 1.0},
+        coverage={"min_revisit_s": 1.0},
+        link={"connect": [f"udpin:127.0.0.1:{mport}"]},
+        bus={"mode": "peer", "connect": [f"tcp/127.0.0.1:{zport}"],
+             "listen": ["tcp/127.0.0.1:0"], "multicast_scouting": False,
+             "status_period_s": 0.5, "tiles_period_s": 0.2,
+             "tiles_max_bytes_per_s": 1 << 21},
+        service={"state_dir": str(state_dir or folder / "state"),
+                 "checkpoint_period_s": checkpoint_period_s})
     config = folder / "mission.yaml"
     config.write_text(yaml.safe_dump(doc, sort_keys=False))
     plan = lawnmower(box(0.0, 0.0, side_m, side_m), SPACING_M, 0.0, ALT_M, SPEED_MPS)
@@ -122,30 +114,8 @@ def make_rig(folder: Path, side_m: float, *, checkpoint_period_s: float = 2.0,
     return Rig(folder, config, path, zport, mport)
 
 
-def router(port: int):
-    return open_session(BusConfig(mode="router", listen=(f"tcp/127.0.0.1:{port}",),
-                                  multicast_scouting=False))
-
-
-@contextlib.contextmanager
-def child(args: list[str], log: Path, mode: str = "wb") -> Iterator[subprocess.Popen]:
-    """A process in its own group, output to ``log``; killed with its group at the end."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(ROOT / "sitl"), os.environ.get("PYTHONPATH", "")]))
-    with log.open(mode) as out:
-        p = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env,
-                             start_new_session=True)
-        try:
-            yield p
-        finally:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-            p.wait(timeout=20)
-
-
 def serve(rig: Rig) -> list[str]:
-    return [sys.executable, "-m", "pdcov.cli", "serve", "--config", str(rig.config)]
+    return serve_args(rig.config)
 
 
 def fly(rig: Rig, speed: float, faults: str | None = None, seed: int = 0) -> list[str]:

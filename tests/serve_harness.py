@@ -1,22 +1,18 @@
-"""End-to-end helpers for ``pdcov serve`` tests: free ports, an in-process Zenoh router
-(multicast scouting off, loopback only), a subscriber that rebuilds the grid from tiles and
-snapshots exactly as docs/protocol.md says, and processes that are always killed."""
+"""End-to-end helpers for ``pdcov serve`` tests: the config writer and a subscriber that
+rebuilds the grid from tiles and snapshots exactly as docs/protocol.md says. Ports, the
+in-process Zenoh router, processes that are always killed and the daemon's command line
+come from benchmarks.harness (shared with the benchmarks) and are re-exported here."""
 
 from __future__ import annotations
 
-import contextlib
-import os
-import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import yaml
 
+from benchmarks.harness import ROOT, free_port, router, serve_args, stop
+from benchmarks.harness import child as process
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot
 from pdcov.bus.keys import VehicleKeys
@@ -24,19 +20,10 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 
-ROOT = Path(__file__).resolve().parents[1]
+__all__ = ["REAL", "ROOT", "Subscriber", "free_port", "process", "router", "serve_args",
+           "serve_config", "stop"]
+
 REAL = ROOT.parent / "shared" / "real-logs"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def router(port: int):
-    return open_session(BusConfig(mode="router", listen=(f"tcp/127.0.0.1:{port}",),
-                                  multicast_scouting=False))
 
 
 def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
@@ -141,30 +128,3 @@ class Subscriber:
         for s in self._subs:
             s.undeclare()
         self.session.close()
-
-
-@contextlib.contextmanager
-def process(args: list[str], log_path: Path) -> Iterator[subprocess.Popen]:
-    """A child process with stdout/stderr in ``log_path``, killed (group) on exit."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "sitl") + os.pathsep
-               + os.environ.get("PYTHONPATH", ""))
-    with log_path.open("wb") as out:
-        p = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env,
-                             start_new_session=True)
-        try:
-            yield p
-        finally:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(p.pid, signal.SIGKILL)
-            p.wait(timeout=10)
-
-
-def serve_args(config: Path, *more: str) -> list[str]:
-    return [sys.executable, "-m", "pdcov.cli", "serve", "--config", str(config), *more]
-
-
-def stop(p: subprocess.Popen, timeout_s: float = 20.0) -> int:
-    """SIGTERM and wait: the daemon writes its checkpoint and exits 0."""
-    p.send_signal(signal.SIGTERM)
-    return p.wait(timeout=timeout_s)

@@ -27,21 +27,12 @@ from serve_harness import Subscriber, free_port, process, router, serve_args, se
 os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
+from benchmarks.harness import small_mission  # noqa: E402
 from pdcov.cli import main as pdcov_main  # noqa: E402
 
 KEY = bytes(range(32))
 WRONG_KEY = bytes(range(1, 33))
-SIM = {
-    "vehicle_id": "sec1",
-    "origin": {"lat_deg": 47.397742, "lon_deg": 8.545594, "ground_alt_msl_m": 488.0},
-    "domain": {"polygon_enu_m": [[0, 0], [30, 0], [30, 30], [0, 30]], "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob",
-               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-    "mount": {"type": "gimbal", "attitude_frame": "auto"},
-    "detector": "illustrative",
-}
+SIM = small_mission(vehicle_id="sec1")
 # What a coverage daemon may send to an autopilot: identification, stream and parameter
 # requests, and its coverage for the ground station. Nothing that arms, changes mode,
 # moves the aircraft or its gimbal, or writes parameters and missions.

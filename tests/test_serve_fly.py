@@ -34,6 +34,7 @@ from serve_harness import (
     stop,
 )
 
+from benchmarks.harness import small_mission
 from pdcov.bus.footprint import encode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
@@ -45,18 +46,7 @@ from pdcov.service.checkpoint import read_meta
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
 
-SIM = {
-    "vehicle_id": "sim1",
-    "origin": {"lat_deg": 47.397742, "lon_deg": 8.545594, "ground_alt_msl_m": 488.0},
-    "domain": {"polygon_enu_m": [[0, 0], [30, 0], [30, 30], [0, 30]], "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob",
-               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-    "mount": {"type": "gimbal", "attitude_frame": "auto"},
-    "detector": "illustrative",
-    "coverage": {"min_revisit_s": 1.0},
-}
+SIM = small_mission(vehicle_id="sim1", coverage={"min_revisit_s": 1.0})
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 SPEED = 6.0
 """Simulated seconds per wall second for the flights that need no wall-clock pacing; the

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.harness import free_port as free_port  # re-exported for the watch tests
 from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
 from pdcov.bus.status import encode_status
 from pdcov.bus.tiles import encode_tiles, tile_grid_shape
@@ -87,14 +88,6 @@ class TinyPublisher:
     def n_tiles(self) -> int:
         r, c = tile_grid_shape(self.tile_size, *self.grid.geometry.shape)
         return r * c
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def zenoh_conf(mode: str, connect: str | None = None, listen: str | None = None):
