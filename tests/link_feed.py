@@ -16,23 +16,14 @@ import yaml
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
+from benchmarks.harness import small_mission  # noqa: E402
 from pdcov.service.coverage import LiveCoverage  # noqa: E402
 from pdcov.service.daemon import Daemon  # noqa: E402
 from pdcov.service.settings import ServeConfig, load_serve_config  # noqa: E402
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
-MISSION = {
-    "vehicle_id": "fuzz",
-    "origin": {"lat_deg": LAT_DEG, "lon_deg": LON_DEG, "ground_alt_msl_m": GROUND_M},
-    "domain": {"polygon_enu_m": [[0, 0], [30, 0], [30, 30], [0, 30]], "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob",
-               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-    "mount": {"type": "gimbal", "attitude_frame": "flags"},
-    "detector": "illustrative",
-    "coverage": {"min_revisit_s": 1.0},
-}
+MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},
+                        coverage={"min_revisit_s": 1.0})
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 
 

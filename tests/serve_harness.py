@@ -19,9 +19,10 @@ from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
+from pdcov.cli import main as pdcov_main
 
 __all__ = ["REAL", "ROOT", "Subscriber", "free_port", "process", "router", "serve_args",
-           "serve_config", "stop"]
+           "serve_config", "small_plan", "stop"]
 
 REAL = ROOT.parent / "shared" / "real-logs"
 
@@ -36,6 +37,15 @@ def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
     doc["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 1.0, **service}
     path.write_text(yaml.safe_dump(doc))
     return path
+
+
+def small_plan(folder: Path, mission: dict) -> Path:
+    """``pdcov plan`` of ``mission`` (a lawnmower at 10 m height, 10 m apart) in ``folder``;
+    the .plan file's path."""
+    (folder / "m.yaml").write_text(yaml.safe_dump(mission))
+    assert pdcov_main(["plan", "--config", str(folder / "m.yaml"), "--altitude-m", "10",
+                       "--spacing-m", "10", "--out", str(folder / "plan"), "--no-figures"]) == 0
+    return folder / "plan" / "plan.plan"
 
 
 class Subscriber:

@@ -22,13 +22,21 @@ from pathlib import Path
 
 import pytest
 import yaml
-from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
+from serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+    small_plan,
+    stop,
+)
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from benchmarks.harness import small_mission  # noqa: E402
-from pdcov.cli import main as pdcov_main  # noqa: E402
 
 KEY = bytes(range(32))
 WRONG_KEY = bytes(range(1, 33))
@@ -43,11 +51,7 @@ ALLOWED_COMMANDS = {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUES
 
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
-    d = tmp_path_factory.mktemp("plan")
-    (d / "m.yaml").write_text(yaml.safe_dump(SIM))
-    assert pdcov_main(["plan", "--config", str(d / "m.yaml"), "--altitude-m", "10",
-                       "--spacing-m", "10", "--out", str(d / "plan"), "--no-figures"]) == 0
-    return d / "plan" / "plan.plan"
+    return small_plan(tmp_path_factory.mktemp("plan"), SIM)
 
 
 class Tap(threading.Thread):

@@ -31,6 +31,7 @@ from serve_harness import (
     router,
     serve_args,
     serve_config,
+    small_plan,
     stop,
 )
 
@@ -38,7 +39,6 @@ from benchmarks.harness import small_mission
 from pdcov.bus.footprint import encode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
-from pdcov.cli import main as pdcov_main
 from pdcov.config import load_mission
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
@@ -305,11 +305,7 @@ MODES = ["ardupilot-servo", "ardupilot-device", "device-earth", "fixed"]
 
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
-    d = tmp_path_factory.mktemp("plan")
-    (d / "m.yaml").write_text(yaml.safe_dump(SIM))
-    assert pdcov_main(["plan", "--config", str(d / "m.yaml"), "--altitude-m", "10",
-                       "--spacing-m", "10", "--out", str(d / "plan"), "--no-figures"]) == 0
-    return d / "plan" / "plan.plan"
+    return small_plan(tmp_path_factory.mktemp("plan"), SIM)
 
 
 @pytest.fixture(scope="module")
