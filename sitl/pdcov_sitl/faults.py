@@ -228,9 +228,9 @@ class FaultInjector:
             self._bytes_to_corruption -= len(packet)
             return packet
         buf = bytearray(packet)
-        i = int(self._bytes_to_corruption)
+        i = self._bytes_to_corruption  # a whole number of bytes, or inf: no more corruption
         while i < len(buf):
-            buf[i] ^= self._rng.randrange(1, 256)
+            buf[int(i)] ^= self._rng.randrange(1, 256)
             i += 1 + self._next_corruption_gap()
         self._bytes_to_corruption = i - len(buf)
         return bytes(buf)

@@ -35,6 +35,7 @@ from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
 
 from .control import Controller
 from .dynamics import F450, VehicleState
+from .faults import FaultSpec
 from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz, quat_from_euler_zyx, quat_from_R
 from .guidance import Guidance
 from .messages import (
@@ -68,7 +69,7 @@ class FlyOptions:
     seed: int = 0
     gimbal_mode: str = "ardupilot-device"
     gimbal_axes: int = 3
-    faults: object | None = None
+    faults: FaultSpec | None = None
     wind_mps: float = 0.0
     wind_from_deg: float = 270.0
     autopilot: str = "ardupilot"
@@ -252,7 +253,7 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
         for name in device_names:
             if name != "HEARTBEAT" and report is None:
                 continue
-            q = report[0] if report else (1.0, 0.0, 0.0, 0.0)
+            q = report[0] if report and report[0] is not None else (1.0, 0.0, 0.0, 0.0)
             msg = gimbal_device_messages(endpoint.mav, name, dev_ms, q, failure,
                                          report[2] if report else 0.0)
             endpoint.send(msg, t, component_id=GIMBAL_COMPONENT)

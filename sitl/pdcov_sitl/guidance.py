@@ -109,7 +109,8 @@ def _sample_path(plan: FlightPlan, accel: float, cut_m: float, stop_s: float):
         u, length = _unit(p1 - p0)
         a_leg = accel if leg.kind in ("waypoint", "return") else VERTICAL_ACCEL_MPS2
         v_leg = _speed_limit(leg, u)
-        d_in = corners[k - 1][0] if k > 0 and corners[k - 1] is not None else 0.0
+        into = corners[k - 1] if k > 0 else None
+        d_in = into[0] if into is not None else 0.0
         out = corners[k] if k < len(corners) else None
         d_out = out[0] if out is not None else 0.0
         a, b = p0 + d_in * u, p1 - d_out * u
