@@ -78,7 +78,7 @@ def test_random_bytes_between_and_inside_frames(configs, junk, chunks, flips, gi
     for i in flips:
         data[i % len(data)] ^= 0xA5
     f = run(configs[gimbal], [bytes(data)], chunks)
-    if junk or flips:
+    if junk or bytes(data) != b"".join(pack(m, seq=i) for i, m in enumerate(HOVER)):
         assert rejected(f) >= 1, f.status()
 
 
@@ -134,6 +134,7 @@ def _invalid(field: str, value) -> bool:
 def test_hostile_field_values_are_refused_and_counted(configs, muts, gimbal):
     msgs = list(HOVER)
     invalid: dict[int, bool] = {}
+    final: dict[tuple[int, str], object] = {}
     for i, field, value in muts:
         m = msgs[i]
         m = type(m)(*[getattr(m, n) for n in m.fieldnames])
@@ -145,6 +146,8 @@ def test_hostile_field_values_are_refused_and_counted(configs, muts, gimbal):
         if field == "lat" and m.lon == 0 and value == 0:
             continue  # lat 0, lon 0 is ArduPilot's "no position yet", not bad data
         msgs[i] = m
+        final[(i, field)] = value  # a later mutation of the same field replaces it
+    for (i, field), value in final.items():
         invalid[i] = invalid.get(i, False) or (_invalid(field, value)
                                                and (gimbal or field != "q"))
     f = run(configs[gimbal], [pack(m) for m in msgs])

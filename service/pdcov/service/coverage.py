@@ -306,6 +306,8 @@ class LiveCoverage:
                     return added
                 self._feed(tr, self._waiting[0].t_s + 0.5 * self.history_s)
                 continue
+            if self._skip_hole(t):  # before deciding a long hole batch by batch
+                continue
             first_t = t
             batch: list[float] = []
             while t is not None and t - (batch[0] if batch else t) <= 0.25 * self.history_s:
