@@ -67,9 +67,9 @@ class Run:
             self.p.wait(timeout=10)
 
 
-def demo_args(out: Path, *more: str) -> list[str]:
+def demo_args(out: Path, *more: str, speed: str = SPEED) -> list[str]:
     return [sys.executable, "-m", "pdcov.cli", "demo", "--out", str(out), "--plain",
-            "--speed", SPEED, *more]
+            "--speed", speed, *more]
 
 
 def load(path: Path) -> dict:
@@ -130,7 +130,9 @@ def test_live_demo_in_a_headless_browser(tmp_path):
 
     out = tmp_path / "demo"
     port = free_port()
-    demo = Run(demo_args(out, "--web", f"127.0.0.1:{port}"), tmp_path)
+    # Slow enough that the browser, started once the page is served, sees the whole climb
+    # (the pattern takes ~47 s of simulated flight: ~12 s of wall time at 4x).
+    demo = Run(demo_args(out, "--web", f"127.0.0.1:{port}", speed="4"), tmp_path)
     opts = Options()
     opts.binary_location = CHROMIUM
     for f in FLAGS:
