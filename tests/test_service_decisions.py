@@ -91,6 +91,24 @@ def test_link_rerequests_after_a_reboot_and_reads_params():
     assert any(m.get_type() == "COMMAND_LONG" for m in proto.poll(1.1))
 
 
+def test_a_gimbal_heartbeat_before_the_autopilots_is_held_once():
+    # A gimbal (own component, MAV_AUTOPILOT_INVALID) that speaks first: its HEARTBEAT waits
+    # for the autopilot's like every other early message, is handled once, and the clock
+    # knows the autopilot's component (it was built with None for good).
+    proto = LinkProtocol(mavlink.MAVLink(_Sink()), system_id=7, intervals={},
+                         param_names=(), param_timeout_s=2)
+    gimbal = mavlink.MAVLink(_Sink(), srcSystem=7, srcComponent=154)
+    assert proto.receive(heartbeat(gimbal, autopilot_type=8, vtype=26), 0.0) == []
+    assert proto.stats.messages == 0
+    ap = autopilot(7)
+    proto.receive(heartbeat(ap), 0.1)
+    assert proto.autopilot_component == 1 and proto.stats.messages == 2
+    samples = proto.receive(parsed(ap.attitude_encode(5_000, 0.1, 0, 0, 0, 0, 0), ap), 0.2)
+    assert [type(s) for s in samples] == [AttitudeSample]
+    assert proto._clock is not None and proto._clock.autopilot_component == 1
+    assert samples[0].t_s == pytest.approx(5.0)
+
+
 def serve_cfg(**service) -> ServeConfig:
     doc = {"origin": {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg,
                       "ground_alt_msl_m": ORIGIN.ground_alt_msl_m},

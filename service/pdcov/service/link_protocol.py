@@ -169,9 +169,8 @@ class LinkProtocol:
                 held, self._held = self._held, deque()
                 for m, t in held:
                     early += self.receive(m, t)
-            else:
-                self._held.append((msg, now_s))
-        elif not self.autopilot_known:
+        autopilot_component = self.autopilot_component
+        if autopilot_component is None:  # everything else (a gimbal's HEARTBEAT too) waits
             self._held.append((msg, now_s))
             return []
         if self.system_id is None or src_sys != self.system_id:
@@ -179,7 +178,7 @@ class LinkProtocol:
             return []
         self.stats.messages += 1
         self.stats.last_message_s = now_s
-        t_s = self._time_s(msg, src_comp)
+        t_s = self._time_s(msg, src_comp, autopilot_component)
         if mtype == "COMMAND_ACK":
             self._ack(msg)
             return early
@@ -204,14 +203,11 @@ class LinkProtocol:
             self._armed = sample.armed
         return early if sample is None else [*early, sample]
 
-    def _time_s(self, msg: Any, src_comp: int) -> float:
+    def _time_s(self, msg: Any, src_comp: int, autopilot_component: int) -> float:
         """The message's time in the autopilot clock (clocks.VehicleClock: the rule the tlog
         reader applies too; a component with a clock of its own is mapped causally)."""
         if self._clock is None:
-            # None here when a non-autopilot HEARTBEAT of this system (a gimbal's) came
-            # before the autopilot's first one: that clock then knows no autopilot component
-            # for good. Kept as it is (no behaviour change in a typing pass); to be fixed.
-            self._clock = VehicleClock(self.autopilot_component)  # type: ignore[arg-type]
+            self._clock = VehicleClock(autopilot_component)
             if self._primed is not None:
                 self._clock.autopilot.offset_s = self._primed[0]
                 self._clock.autopilot.to_s(self._primed[1])
