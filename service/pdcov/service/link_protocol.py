@@ -166,7 +166,7 @@ class LinkProtocol:
                 self._reset_requests(now_s)
                 # What the autopilot sent before its first HEARTBEAT counts too (as
                 # offline, where the whole log is read).
-                held, self._held = self._held, deque()
+                held, self._held = self._held, deque(maxlen=HELD_MESSAGES)
                 for m, t in held:
                     early += self.receive(m, t)
         autopilot_component = self.autopilot_component
