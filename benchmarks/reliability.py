@@ -352,7 +352,7 @@ def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
 
 def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[float]]:
     """Frames ``pdcov evaluate`` skips in ``tlog`` (telemetry gaps): how many lie in an
-    injected outage (its window widened by the 1 s gap rule), and the times of the others
+    injected outage or NaN window (widened by the 1 s gap rule), and the times of the others
     (frames lost to something else: the daemon not keeping up, a dropped burst)."""
     from pdcov.config import load_mission
     from pdcov.telemetry.pose_tracker import poses_from_log
@@ -363,8 +363,9 @@ def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[flo
                            origin_lon_deg=m.origin_lon_deg, ground_alt_msl_m=m.ground_alt_msl_m,
                            mount=m.mount, frame_rate_hz=m.frame_rate_hz,
                            frame_source=m.frame_source, max_gap_s=m.max_gap_s)
+    spec = FaultSpec.parse(faults)
     windows = [(w.start_s - 1.5, w.start_s + w.duration_s + m.max_gap_s + 0.5)
-               for w in FaultSpec.parse(faults).outages]
+               for w in (*spec.outages, *(n.window for n in spec.nans))]
     inside = [any(a <= t <= b for a, b in windows) for t in poses.skipped_t_s]
     return sum(inside), [float(t) for t, i in zip(poses.skipped_t_s, inside, strict=True)
                          if not i]
@@ -677,7 +678,8 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
         f"| frames of `pdcov evaluate` of the simulator's tlog (before link faults) | "
         f"{soak_r.frames_sim_tlog} |",
         f"| frames skipped live, by reason | {json.dumps(st['frames']['skipped'])} |",
-        f"| of the recording's skipped frames: inside injected outages / elsewhere (lost) | "
+        f"| of the recording's skipped frames: inside injected outages and NaN windows / "
+        f"elsewhere (lost) | "
         f"{soak_r.skipped_in_faults} / {len(soak_r.lost)} |",
         f"| faults counted | {json.dumps(st['faults'])} |",
         f"| rejected messages by type | {json.dumps(st['link'].get('rejected', {}))} |",
