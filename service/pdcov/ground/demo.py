@@ -218,7 +218,7 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
         ids = [v.vehicle_id for v in demo.vehicles]
         end = time.monotonic() + 60.0
         while not fleet.settled(ids, SETTLE_S):
-            _check_alive(children, out)
+            _check_alive(children, out, skip={p for _, p in sims})  # the sims have landed
             if time.monotonic() > end:
                 raise PdcovError("demo: the daemons' grids did not settle within 60 s; logs "
                                  f"in {out / 'logs'}")
