@@ -204,9 +204,11 @@ class WatcherThread:
 
 
 def settled(w: WatcherThread) -> bool:
-    """The daemon has decided every frame and the watcher holds its grid as of the status."""
+    """After the landing: the daemon has decided every frame it can and the watcher holds its
+    grid as of the status. The last frame may stay pending for good: no telemetry after it
+    will come to interpolate from (it is in no grid, so the comparison is unaffected)."""
     st = w.status()
-    if st is None or st["frames"]["pending"] != 0:
+    if st is None or st["frames"]["pending"] > 1:
         return False
     g = w.grid()
     return g is not None and g.frames == st["frames"]["grid"]
