@@ -8,10 +8,10 @@
   SIGTERM) equals ``pdcov evaluate`` of the daemon's own recording cell for cell, the
   watcher's grid equals it too, and the frames used are compared with ``pdcov evaluate`` of
   the simulator's own tlog (what was sent before the link faults);
-* **crash**: ``kill -9`` at random moments with a checkpoint every ``period`` s (many kills
-  land in a checkpoint write: its temporary file is left behind); every restart resumes a
-  valid checkpoint holding every frame some status had reported ``period`` + 0.5 s before
-  the kill;
+* **crash**: ``kill -9`` with a checkpoint every ``period`` s, every other kill aimed at a
+  checkpoint write (the moment its temporary file appears; the file is left behind, empty or
+  part-written) and the others at random moments; every restart resumes a valid checkpoint
+  holding every frame some status had reported ``period`` + 0.5 s before the kill;
 * **router**: the Zenoh router gone for ``outage`` s mid-flight, then back on the same port;
   the watcher (never restarted) ends with the daemon's exact final grid;
 * **disk**: the state directory on a small tmpfs, filled up mid-flight: the daemon keeps
@@ -386,12 +386,30 @@ class CrashResult:
     restarts_s: list[float] = field(default_factory=list)  # kill to first resumed status
     period_s: float = 0.0
     failures: list[str] = field(default_factory=list)
+    aimed: int = 0                                          # kills aimed at a write
+    tmp_sizes: list[int] = field(default_factory=list)     # left temporary files, bytes
+
+
+def kill_during_write(pid: int, state: Path, timeout_s: float) -> bool:
+    """``kill -9`` process group ``pid`` the moment a checkpoint's temporary file appears in
+    ``state`` (polled in a tight loop); True when it did, False (no kill) after timeout_s."""
+    from pdcov.service.checkpoint import CHECKPOINT_NAME
+
+    prefix = f".{CHECKPOINT_NAME}."
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        with os.scandir(state) as it:
+            if any(e.name.startswith(prefix) and e.name.endswith(".tmp") for e in it):
+                os.killpg(pid, signal.SIGKILL)
+                return True
+    return False
 
 
 def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
           speed: float = 2.0) -> CrashResult:
-    """``kill -9`` the daemon ``kills`` times at random moments mid-flight (checkpoints every
-    ``period_s``), restarting it each time."""
+    """``kill -9`` the daemon ``kills`` times mid-flight (checkpoints every ``period_s``),
+    restarting it each time: even kills aimed at a checkpoint write, odd ones at a random
+    moment."""
     from pdcov.config import load_mission
     from pdcov.service.checkpoint import CHECKPOINT_NAME, read_meta, resume
     from pdcov.service.settings import mission_hash
@@ -434,12 +452,19 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
                     w.wait(lambda s, f=st["frames"]["grid"]: s["frames"]["grid"] > f + 5, 60,
                            "new frames", daemon, log)
                     time.sleep(rng.uniform(0.0, 1.5))
+                    aimed = k % 2 == 0 and kill_during_write(daemon.pid, rig.state,
+                                                             10 * period_s + 2.0)
                     t_kill = time.time()
-                    os.killpg(daemon.pid, signal.SIGKILL)
+                    if aimed:
+                        res.aimed += 1
+                    else:
+                        os.killpg(daemon.pid, signal.SIGKILL)
                     daemon.wait(timeout=10)
                 # The state directory as the next start finds it (checked on a copy).
-                if list(rig.state.glob(f".{CHECKPOINT_NAME}.*.tmp")):
+                left = list(rig.state.glob(f".{CHECKPOINT_NAME}.*.tmp"))
+                if left:
                     res.during_write += 1
+                    res.tmp_sizes.extend(p.stat().st_size for p in left)
                 copy = folder / "copy"
                 shutil.rmtree(copy, ignore_errors=True)
                 shutil.copytree(rig.state, copy, ignore=shutil.ignore_patterns("recordings"))
@@ -630,6 +655,10 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
     picks = [rss[round(i * (len(rss) - 1) / 8)] for i in range(9)] if rss else []
     ages = np.array(crash_r.ages_s) if crash_r.ages_s else np.array([math.nan])
     restarts = np.array(crash_r.restarts_s) if crash_r.restarts_s else np.array([math.nan])
+    zero_tmp = sum(1 for n in crash_r.tmp_sizes if n == 0)
+    part_tmp = len(crash_r.tmp_sizes) - zero_tmp
+    tmp_span = (f"{min(crash_r.tmp_sizes):,}-{max(crash_r.tmp_sizes):,} bytes"
+                if crash_r.tmp_sizes else "none")
     st = soak_r.status
     lines = [
         "## Bad input and faults",
@@ -701,9 +730,12 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
         "",
         "## Crash consistency (kill -9)",
         "",
-        f"{crash_r.kills} `kill -9` at random moments mid-flight, checkpoints every "
-        f"{crash_r.period_s:g} s; {crash_r.during_write} kills landed during a checkpoint "
-        f"write (its temporary file was left; the next start removes it).",
+        f"{crash_r.kills} `kill -9` mid-flight, checkpoints every {crash_r.period_s:g} s: "
+        f"{crash_r.aimed} aimed at a checkpoint write (killed the moment its temporary file "
+        f"appeared), the others at random moments. {crash_r.during_write} kills landed during "
+        f"a write: their temporary file was left, {zero_tmp} of them empty, {part_tmp} "
+        f"part-written or written but not yet renamed (sizes {tmp_span}); the next start "
+        f"removes it and resumes the previous checkpoint.",
         "",
         "| figure | value |",
         "|---|---|",
