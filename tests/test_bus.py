@@ -23,6 +23,7 @@ from pdcov.bus.footprint import (
 )
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.keys import VehicleKeys, all_vehicles, parse_key
+from pdcov.bus.mission import decode_mission, encode_mission
 from pdcov.bus.session import BusConfig, bus_config_from_dict, zenoh_config
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
@@ -191,16 +192,19 @@ def test_hostile_snapshots_are_refused(grid):
         decode_snapshot(npz())
 
 
+STATUS_FIELDS = {"vehicle_id": "uav1", "seq": 3, "uptime_s": 1.5, "thresholds": [0.5],
+                 "proportion_at_or_above": {"0.5": 0.25}, "mean_pd": 0.1,
+                 "expected_false_alarms": 0.5, "cells_free": 10, "cells_observed": 4,
+                 "frames": {"used": 3, "skipped": {}}, "link": {"age_s": float("nan")},
+                 "gimbal": {},
+                 "grid": {"hash": "0123456789abcdef", "x0_m": 0.0, "y0_m": 0.0,
+                          "cell_size_m": 1.0, "n_rows": 4, "n_cols": 5, "tile_size": 32,
+                          "origin": {}},
+                 "tiles_seq": 0, "faults": {}}
+
+
 def test_status_round_trip_and_validation():
-    fields = {"vehicle_id": "uav1", "seq": 3, "uptime_s": 1.5, "thresholds": [0.5],
-              "proportion_at_or_above": {"0.5": 0.25}, "mean_pd": 0.1,
-              "expected_false_alarms": 0.5, "cells_free": 10, "cells_observed": 4,
-              "frames": {"used": 3, "skipped": {}}, "link": {"age_s": float("nan")},
-              "gimbal": {},
-              "grid": {"hash": "0123456789abcdef", "x0_m": 0.0, "y0_m": 0.0,
-                       "cell_size_m": 1.0, "n_rows": 4, "n_cols": 5, "tile_size": 32,
-                       "origin": {}},
-              "tiles_seq": 0, "faults": {}}
+    fields = STATUS_FIELDS
     doc = decode_status(encode_status(fields))
     assert doc["version"] == 1 and doc["link"]["age_s"] is None
     for change in ({"seq": "3"}, {"proportion_at_or_above": {"0.5": 2}},
@@ -224,6 +228,53 @@ def test_footprint_and_frames():
         with pytest.raises(BusPayloadError, match="frames"):
             decode_frames(json.dumps({"schema": "pdcov.frames", "version": 1,
                                       "t_boot_s": bad}).encode())
+
+
+def json_payloads() -> dict[str, tuple]:
+    """Each JSON payload kind: its decoder and a good payload."""
+    mission = load_mission(DEMO)
+    g = mission.new_grid()
+    ring = np.array([[149.1, -35.3], [149.2, -35.3], [149.2, -35.2]])
+    return {
+        "status": (decode_status, encode_status(STATUS_FIELDS)),
+        "footprint": (decode_footprint, encode_footprint("uav1", 1.0, ring)),
+        "frames": (decode_frames, encode_frames([1.0])),
+        "mission": (decode_mission, encode_mission(
+            "uav1", mission.origin(), mission.domain, g.geometry,
+            grid_hash(g.geometry, g.mask), ground_alt_known=True,
+            thresholds=mission.thresholds, target_pd=0.9)),
+    }
+
+
+@pytest.mark.parametrize("kind", ["status", "footprint", "frames", "mission"])
+def test_schema_and_version_checked_alike(kind):
+    """One check for every JSON payload (bus.json_doc.check_schema); the footprint's schema
+    and version live in its GeoJSON properties. The message names the key, the payload
+    kind, the field, what came and what was expected; the version is the integer itself."""
+    decode, payload = json_payloads()[kind]
+    key = f"pdcov/uav1/{kind}"
+    decode(payload, key)
+    where = "properties." if kind == "footprint" else ""
+    cases = {"schema 'pdcov.other', expected 'pdcov.": ("schema", "pdcov.other"),
+             "schema missing, expected": ("schema", KeyError),
+             "schema 'xxxxx": ("schema", "x" * 10_000),
+             "version 2, expected 1": ("version", 2),
+             "version True, expected 1": ("version", True),
+             "version 1.0, expected 1": ("version", 1.0),
+             "version '1', expected 1": ("version", "1"),
+             "version missing, expected 1": ("version", KeyError)}
+    for why, (name, value) in cases.items():
+        doc = json.loads(payload)
+        holder = doc["properties"] if kind == "footprint" else doc
+        if value is KeyError:
+            del holder[name]
+        else:
+            holder[name] = value
+        with pytest.raises(BusPayloadError) as err:
+            decode(json.dumps(doc).encode(), key)
+        msg = str(err.value)
+        assert msg.startswith(f"{key}: not a usable {kind}") and f": {where}{why}" in msg, msg
+        assert len(msg) < 200, msg
 
 
 def test_bus_config():

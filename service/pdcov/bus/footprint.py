@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.json_doc import json_object
+from pdcov.bus.json_doc import check_schema, json_object
 
 FOOTPRINT_SCHEMA = "pdcov.footprint"
 FRAMES_SCHEMA = "pdcov.frames"
@@ -56,8 +56,7 @@ def decode_footprint(payload: bytes, key: str = "footprint") -> dict[str, Any]:
     props = doc.get("properties")
     if doc.get("type") != "Feature" or not isinstance(props, dict):
         raise bad("expected a GeoJSON Feature with properties")
-    if props.get("schema") != FOOTPRINT_SCHEMA or props.get("version") != VERSION:
-        raise bad(f"schema {props.get('schema')!r} version {props.get('version')!r}")
+    check_schema(props, FOOTPRINT_SCHEMA, VERSION, bad, "properties.")
     geom = doc.get("geometry")
     if geom is None:
         return doc
@@ -85,9 +84,7 @@ def decode_frames(payload: bytes, key: str = "frames") -> tuple[float, ...]:
         return BusPayloadError(f"{key}: not a usable frames message: {why}")
 
     doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
-    if doc.get("schema") != FRAMES_SCHEMA or doc.get("version") != VERSION:
-        raise bad(f"schema {doc.get('schema')!r} version {doc.get('version')!r}, expected "
-                  f"{FRAMES_SCHEMA!r} version {VERSION}")
+    check_schema(doc, FRAMES_SCHEMA, VERSION, bad)
     t = doc.get("t_boot_s")
     if (not isinstance(t, list) or not 1 <= len(t) <= MAX_FRAMES
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool)

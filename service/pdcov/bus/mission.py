@@ -28,7 +28,7 @@ from shapely.validation import explain_validity
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import MAX_CELLS
-from pdcov.bus.json_doc import json_object
+from pdcov.bus.json_doc import check_schema, json_object
 from pdcov.bus.keys import valid_vehicle_id
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
@@ -117,9 +117,7 @@ def decode_mission(payload: bytes, key: str = "mission",
         return BusPayloadError(f"{key}: not a usable mission: {why}")
 
     doc = json_object(payload, MAX_MISSION_BYTES, bad)
-    if doc.get("schema") != MISSION_SCHEMA or doc.get("version") != MISSION_VERSION:
-        raise bad(f"schema {doc.get('schema')!r} version {doc.get('version')!r}, expected "
-                  f"{MISSION_SCHEMA!r} version {MISSION_VERSION}")
+    check_schema(doc, MISSION_SCHEMA, MISSION_VERSION, bad)
     vid = doc.get("vehicle_id")
     if not isinstance(vid, str) or not valid_vehicle_id(vid):
         raise bad("vehicle_id: expected letters, digits, - and _")

@@ -22,7 +22,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.json_doc import json_object
+from pdcov.bus.json_doc import check_schema, json_object
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
@@ -159,9 +159,7 @@ def decode_status(payload: bytes, key: str = "status") -> dict[str, Any]:
         return BusPayloadError(f"{key}: not a usable status: {why}")
 
     doc = json_object(payload, MAX_STATUS_BYTES, bad)
-    if doc.get("schema") != STATUS_SCHEMA or doc.get("version") != STATUS_VERSION:
-        raise bad(f"schema {doc.get('schema')!r} version {doc.get('version')!r}, expected "
-                  f"{STATUS_SCHEMA!r} version {STATUS_VERSION}")
+    check_schema(doc, STATUS_SCHEMA, STATUS_VERSION, bad)
     _check_types(doc, _REQUIRED, "", bad)
     _check_types(doc["grid"], _GRID, "grid.", bad)
     g = doc["grid"]
