@@ -5,7 +5,10 @@ file of an earlier run stays beside a new one."""
 from __future__ import annotations
 
 import os
+import shutil
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +16,7 @@ import pytest
 
 from pdcov import cli
 from pdcov.atomic import MARKER, atomic_path, replacing_dir, write_text_atomic
+from pdcov.errors import OutputError
 
 DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,-40.0,-40.0,10.0,0.0,1.0,0.0,0.0\n"
@@ -87,3 +91,108 @@ def test_evaluate_without_prior_drops_posterior_and_says_so(tmp_path: Path, umas
     assert not (out / "posterior.npy").exists() and not (out / "posterior.tif").exists()
     assert f"replaced the previous outputs in {out}" in capsys.readouterr().out
     assert {mode(p) for p in out.iterdir()} == {0o644}
+
+
+def killed_mid_run(out: Path, *, new_files: dict[str, str] | None, done: bool = False) -> Path:
+    """The state a run killed at ``replacing_dir``'s worst moment leaves, made by hand: the
+    previous folder moved aside into ``.NAME.XXXXXXXX.pdcov-old`` (``.pdcov-done`` once the
+    new folder was complete) and, unless ``new_files`` is None, the new run's folder."""
+    leftover = out.parent / f".{out.name}.k1ll3d_9.pdcov-{'done' if done else 'old'}"
+    leftover.mkdir()
+    os.replace(out, leftover / out.name)
+    if new_files is not None:
+        out.mkdir()
+        (out / MARKER).write_text("")
+        for name, text in new_files.items():
+            (out / name).write_text(text)
+    return leftover
+
+
+@pytest.mark.parametrize("new_files", [None, {}, {"metrics.json": '{"frames": 1'}])
+def test_next_run_puts_back_the_folder_a_killed_run_set_aside(tmp_path: Path,
+                                                               new_files) -> None:
+    """Killed before its body finished (no new folder yet, an empty one, a partial one):
+    the previous folder is the last complete one; the next run starts from it, so an
+    interrupted next run leaves exactly it, and a finished one replaces it."""
+    out = tmp_path / "run"
+    before = previous_run(out)
+    killed_mid_run(out, new_files=new_files)
+    with pytest.raises(KeyboardInterrupt), replacing_dir(out):
+        raise KeyboardInterrupt
+    assert snapshot(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    killed_mid_run(out, new_files=new_files)
+    with replacing_dir(out) as replaced:
+        write_text_atomic(out / "metrics.json", '{"frames": 186}')
+    assert replaced and set(snapshot(out)) == {MARKER, "metrics.json"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_done_leftover_is_deleted_and_the_new_folder_kept(tmp_path: Path) -> None:
+    """Killed while deleting the previous folder after the new one was complete."""
+    out = tmp_path / "run"
+    previous_run(out)
+    new = {"metrics.json": '{"frames": 186}'}
+    killed_mid_run(out, new_files=new, done=True)
+    with pytest.raises(KeyboardInterrupt), replacing_dir(out):
+        raise KeyboardInterrupt
+    assert snapshot(out) == {MARKER: b"", **{k: v.encode() for k, v in new.items()}}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_leftovers_that_need_a_choice_are_refused(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    before = previous_run(out)
+    leftover = killed_mid_run(out, new_files=None)
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's")
+    with pytest.raises(OutputError, match="not a pdcov folder") as err, replacing_dir(out):
+        pass
+    assert str(leftover / "run") in str(err.value)
+    assert (out / "notes.txt").exists() and snapshot(leftover / "run") == before
+    (out / "notes.txt").unlink()
+    out.rmdir()
+    second = tmp_path / ".run.s3c0nd__.pdcov-old"
+    (second / "run").mkdir(parents=True)
+    with pytest.raises(OutputError, match="several killed runs"), replacing_dir(out):
+        pass
+    assert snapshot(leftover / "run") == before and (second / "run").is_dir()
+    # Names like a leftover's of another folder are not this folder's.
+    (tmp_path / ".run2.abcdefgh.pdcov-old" / "run2").mkdir(parents=True)
+    shutil.rmtree(second)
+    with replacing_dir(out) as replaced:
+        pass
+    assert replaced and (tmp_path / ".run2.abcdefgh.pdcov-old" / "run2").is_dir()
+
+
+KILLED_RUN = """
+import sys, time
+from pathlib import Path
+from pdcov.atomic import replacing_dir, write_text_atomic
+out = Path(sys.argv[1])
+with replacing_dir(out):
+    write_text_atomic(out / "metrics.json", '{"frames": 1')
+    print("writing", flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_real_kill_9_mid_run_is_recovered_by_the_next_run(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    before = previous_run(out)
+    child = subprocess.Popen([sys.executable, "-c", KILLED_RUN, str(out)],
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "writing\n"
+        child.kill()
+        child.wait(timeout=10)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait(timeout=10)
+    assert len(list(tmp_path.glob(".run.*.pdcov-old"))) == 1  # the state to recover from
+    assert snapshot(out) != before
+    with pytest.raises(KeyboardInterrupt), replacing_dir(out):
+        raise KeyboardInterrupt
+    assert snapshot(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

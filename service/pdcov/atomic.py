@@ -10,7 +10,9 @@ An output folder (``replacing_dir``) is written whole or not at all: a previous 
 is moved aside, the new run writes a fresh folder, and the old one is deleted only when the
 new one is complete; on any failure, Ctrl-C included, the new folder is removed and the old
 one put back. So a run never leaves a mixture of old and new files, nor files of an earlier
-run that this one did not write (e.g. posterior files of an earlier ``--prior`` run).
+run that this one did not write (e.g. posterior files of an earlier ``--prior`` run). A
+run killed outright (kill -9, power loss) can leave the moved-aside folder behind; the next
+run of the same folder puts things right first (``replacing_dir``).
 
 Every failure to write (missing folder, a file in the way, no permission, a full disk) is an
 ``OutputError`` naming the path.
@@ -19,6 +21,7 @@ Every failure to write (missing folder, a file in the way, no permission, a full
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -135,15 +138,73 @@ def check_output_dir(path: str | Path) -> Path:
     return path
 
 
+_OLD, _DONE = ".pdcov-old", ".pdcov-done"
+
+
+def _leftovers(path: Path) -> list[Path]:
+    """The folders ``replacing_dir`` set aside beside ``path`` (``.NAME.XXXXXXXX.pdcov-old``
+    from mkdtemp, renamed ``.pdcov-done`` once the new folder was complete)."""
+    name = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}"
+                      rf"({re.escape(_OLD)}|{re.escape(_DONE)})")
+    if not path.parent.is_dir():
+        return []
+    return sorted(p for p in path.parent.iterdir() if name.fullmatch(p.name) and p.is_dir())
+
+
+def _recover(path: Path) -> None:
+    """Undo what a killed run (kill -9, power loss) of ``replacing_dir(path)`` left.
+
+    A ``.pdcov-done`` folder holds a previous folder whose replacement was complete: it is
+    removed. A ``.pdcov-old`` folder holding ``NAME`` is the last complete folder, moved aside
+    by a run that never finished: ``path``, if present, is that run's partial folder, so it is
+    removed and the previous folder put back (as for an interrupted run); an empty one is
+    removed. Refused (OutputError) when ``path`` is not a pdcov folder or when several
+    moved-aside folders compete: which to keep is the user's choice."""
+    held = []
+    for leftover in _leftovers(path):
+        if leftover.name.endswith(_DONE) or not (leftover / path.name).is_dir():
+            shutil.rmtree(leftover)
+        else:
+            held.append(leftover)
+    if not held:
+        return
+    if len(held) > 1:
+        raise OutputError(f"{path}: several killed runs left previous outputs beside it "
+                          f"({', '.join(str(p / path.name) for p in held)}): move the one "
+                          "to keep to this path and remove the others")
+    previous = held[0] / path.name
+    if path.is_dir() and ((path / MARKER).exists() or not any(path.iterdir())):
+        shutil.rmtree(path)
+    elif path.exists():
+        raise OutputError(f"{path}: a killed run left the previous outputs in {previous}, and "
+                          f"{path} is not a pdcov folder: move one of them away")
+    os.replace(previous, path)
+    held[0].rmdir()
+
+
 @contextmanager
 def replacing_dir(path: str | Path) -> Iterator[bool]:
     """Write an output folder whole or not at all (module docstring). Yields True when a
-    previous folder is being replaced. The body writes into ``path`` itself."""
-    path = Path(check_output_dir(path))
+    previous folder is being replaced. The body writes into ``path`` itself.
+
+    The previous folder waits in ``.NAME.XXXXXXXX.pdcov-old`` beside ``path`` until the body
+    has finished; that folder is then renamed ``.pdcov-done`` and deleted. A killed run
+    (kill -9, power loss) can leave either behind, and the next ``replacing_dir`` of the same
+    path starts by undoing it (``_recover``): a ``.pdcov-done`` one is deleted (the new
+    folder was complete); from a ``.pdcov-old`` one the previous folder is put back in place
+    of whatever the killed run had written, which may be partial: only a run whose body
+    finished replaces the previous outputs, killed or not. One run per output folder at a
+    time: a second run of the same path would take the first one's work for a killed run's."""
+    path = Path(path)
+    try:
+        _recover(path)
+    except OSError as exc:
+        raise _cannot(path, exc) from None
+    check_output_dir(path)
     old: Path | None = None
     try:
         if path.is_dir() and any(path.iterdir()):
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".pdcov-old",
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=_OLD,
                                         dir=path.parent))
             os.replace(path, old / path.name)
         path.mkdir(parents=True, exist_ok=True)  # mode 0777 less the umask
@@ -165,4 +226,9 @@ def replacing_dir(path: str | Path) -> Iterator[bool]:
             raise _cannot(path, exc) from None
         raise
     if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+        done = old.with_name(old.name[:-len(_OLD)] + _DONE)
+        try:  # from here on a killed run's leftover is deleted, never put back
+            os.replace(old, done)
+        except OSError:
+            done = old
+        shutil.rmtree(done, ignore_errors=True)
