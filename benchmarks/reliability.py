@@ -284,6 +284,7 @@ class SoakResult:
     messages_recorded_bytes: int
     exit_code: int
     traceback: bool
+    udp_drops: int | None = None   # datagrams the kernel dropped at the daemon's socket
     skipped_in_faults: int = 0     # frames of the recording skipped inside injected outages
     lost: list[float] = field(default_factory=list)  # skipped elsewhere: frame times (s)
 
@@ -292,6 +293,16 @@ class SoakResult:
         """RSS at the end minus RSS after the first quarter of the flight (warm-up)."""
         after = [m for t, m in self.rss if t >= 0.25 * self.flight_s] or [m for _, m in self.rss]
         return after[-1] - after[0] if after else math.nan
+
+
+def udp_drops(pid: int, port: int) -> int | None:
+    """Datagrams the kernel dropped at process ``pid``'s UDP socket bound to ``port`` (its
+    receive buffer was full: the reader did not keep up); None when no such socket."""
+    for line in Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if int(fields[1].rsplit(":", 1)[1], 16) == port:
+            return int(fields[-1])
+    return None
 
 
 def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
@@ -330,6 +341,7 @@ def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
             time.sleep(1.0)
             st = w.status()
             rss.append((float(st["t_s"]), memory_bytes(daemon.pid)["VmRSS"] / 2**20))
+            drops = udp_drops(daemon.pid, rig.mav_port)
             watcher_grid = w.grid()
             code = sigterm(daemon)
     finally:
@@ -342,7 +354,7 @@ def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
     sim_ref = offline(rig.config, folder / "sim" / "flight.tlog", folder / "offline-sim")
     in_faults, lost = skipped_frames(rig.config, recs[-1], faults)
     return SoakResult(
-        skipped_in_faults=in_faults, lost=lost,
+        skipped_in_faults=in_faults, lost=lost, udp_drops=drops,
         flight_s=float(st["t_s"]), wall_s=wall, faults=faults, rss=rss, status=st,
         frames_live=int(final["frames"]), frames_recording=int(ref["frames"]),
         frames_sim_tlog=int(sim_ref["frames"]), cells=int(final["mask"].sum()),
@@ -712,6 +724,8 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
         f"| of the recording's skipped frames: inside injected outages and NaN windows / "
         f"elsewhere (lost) | "
         f"{soak_r.skipped_in_faults} / {len(soak_r.lost)} |",
+        f"| datagrams the kernel dropped at the daemon's UDP socket (not read in time) | "
+        f"{soak_r.udp_drops} |",
         f"| faults counted | {json.dumps(st['faults'])} |",
         f"| rejected messages by type | {json.dumps(st['link'].get('rejected', {}))} |",
         f"| RSS growth after the first quarter | {soak_r.rss_growth_mib:+.1f} MiB |",

@@ -19,9 +19,11 @@ def test_soak_10_simulated_minutes_with_faults(tmp_path):
     # The final grid is pdcov evaluate of what the daemon received, and the watcher's.
     assert r.frames_live == r.frames_recording
     assert r.differ_recording == 0 and r.differ_watcher == 0
-    # Not asserted: frames the daemon's link did not receive outside the injected faults
-    # (r.lost). At 12x on this shared machine the daemon loses bursts of every message type
-    # (~2 s of wall time each); docs/reliability.md reports them.
+    # Frames missing from the recording outside the injected faults can only be telemetry
+    # the kernel dropped because the daemon fell behind at 12x on a loaded machine (counted
+    # at its socket), never telemetry it received and lost.
+    assert r.udp_drops is not None
+    assert not r.lost or r.udp_drops > 0, (r.lost, r.udp_drops)
     assert r.status["faults"].get("bad_messages", 0) > 0  # corrupt bytes were counted
     # Resident memory flat after warm-up (the grid, buffers and history are bounded).
     assert r.rss_growth_mib < 15, r.rss
