@@ -188,8 +188,10 @@ class LiveCoverage:
                 self.counters.faults["samples_dropped_waiting"] += 1
             self._waiting.append(sample)
 
-    def add_frame_times(self, t_s: list[float] | tuple[float, ...]) -> None:
-        """Frame times (autopilot clock, s) from capture events or the detector."""
+    def add_frame_times(self, t_s: list[float] | tuple[float, ...]) -> list[float]:
+        """Frame times (autopilot clock, s) from capture events or the detector; returns
+        those taken, in order (not: a duplicate, or one at or before a decided frame)."""
+        taken = []
         for t in t_s:
             if t <= self.last_frame_t_s:
                 if t < self.last_frame_t_s:
@@ -198,6 +200,8 @@ class LiveCoverage:
             i = bisect.bisect_left(self._queue, t)
             if i == len(self._queue) or self._queue[i] != t:
                 self._queue.insert(i, t)
+                taken.append(t)
+        return taken
 
     def set_params(self, params: dict[str, float], done: bool) -> None:
         """The mount parameters read so far; ``done`` when no more will come."""

@@ -18,6 +18,7 @@ import math
 import signal
 import sys
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -46,9 +47,12 @@ from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.gimbal import mount_param_names
 from pdcov.telemetry.link_params import MOUNT_TYPE_PARAMS
+from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
+EARLY_FRAMES = 100_000
+"""Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
 
 
 class JournalFormatter(logging.Formatter):
@@ -93,6 +97,8 @@ class Daemon:
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
         self.recorder: TlogRecorder | None = None
+        self._frame_encoder = FrameEncoder()
+        self._early_frames: deque[int] = deque()  # detector frames (boot ms) before a HEARTBEAT
         mount = m.mount
         names = (tuple(dict.fromkeys((*mount_param_names(mount.instance), *MOUNT_TYPE_PARAMS)))
                  if isinstance(mount, GimbalMount) else ())
@@ -235,14 +241,37 @@ class Daemon:
         return self._mission_reply[1]
 
     def _on_frames(self, payload: bytes) -> None:
+        """A detector's frames message: its times to the millisecond (what the recording
+        keeps), held until the autopilot is known (its system and clock)."""
         try:
             t_boot = decode_frames(payload, self.keys.frames)
         except BusPayloadError as exc:
             self.live.counters.faults["bad_frames_messages"] += 1
             log.warning("%s", exc)
             return
-        offset, _ = self.protocol.clock_state()
-        self.live.add_frame_times([t + offset for t in t_boot])
+        ms = [boot_ms(t) for t in t_boot]
+        if any(v > MAX_BOOT_MS for v in ms):
+            self.live.counters.faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v in ms)
+            ms = [v for v in ms if v <= MAX_BOOT_MS]
+        if not self.protocol.autopilot_known:
+            for v in ms:
+                if len(self._early_frames) >= EARLY_FRAMES:
+                    self._early_frames.popleft()
+                    self.live.counters.faults["frames_dropped_waiting"] += 1
+                self._early_frames.append(v)
+            return
+        self._take_frames(ms)
+
+    def _take_frames(self, t_boot_ms: list[int]) -> None:
+        """Give the grid the frames (autopilot boot ms) and record, in the order taken,
+        those it took (recorded_frames: ``pdcov evaluate`` of the recording uses them)."""
+        proto = self.protocol
+        t_s = {proto.autopilot_boot_s(boot_s(v)): v for v in t_boot_ms}
+        taken = self.live.add_frame_times(list(t_s))
+        if self.recorder is not None and proto.system_id is not None:
+            for t in taken:
+                self.recorder.write(self._frame_encoder.encode(proto.system_id, t_s[t]),
+                                    time.time())
 
     # --- MAVLink -----------------------------------------------------------------------------
 
@@ -263,6 +292,9 @@ class Daemon:
 
     def _process(self) -> None:
         self._process_scheduled = False
+        if self._early_frames and self.protocol.autopilot_known:
+            early, self._early_frames = list(self._early_frames), deque()
+            self._take_frames(early)
         self.live.set_params(self.protocol.params, self.protocol.params_done)
         self.live.process()
 

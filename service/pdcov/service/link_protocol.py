@@ -128,6 +128,13 @@ class LinkProtocol:
             return 0.0, float("nan")
         return clock.offset_s, clock.now_s - clock.offset_s
 
+    def autopilot_boot_s(self, boot_s: float) -> float:
+        """``boot_s`` (s of the autopilot's boot clock, read by another party: a detector's
+        frame time) in the autopilot clock: clocks.VehicleClock.autopilot_boot_s, the rule
+        the tlog reader applies to the frames the daemon records (offset 0 before any
+        message of the autopilot, as a reader's fresh clock)."""
+        return boot_s if self._clock is None else self._clock.autopilot_boot_s(boot_s)
+
     def prime_clock(self, offset_s: float, boot_s: float) -> None:
         """Continue a checkpointed clock: times after a daemon restart never go back (an
         autopilot that rebooted meanwhile is placed after the old times, as BootClock

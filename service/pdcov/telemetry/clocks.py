@@ -102,3 +102,10 @@ class VehicleClock:
         if clock is None:
             clock = self.components[component] = ComponentClock()
         return clock.to_autopilot_s(boot_s, self.autopilot.now_s)
+
+    def autopilot_boot_s(self, boot_s: float) -> float:
+        """A time another party read off the autopilot's boot clock (``boot_s``, s: a
+        detector's frame time, recorded_frames), placed with the current boot's offset as
+        the autopilot's own times are. The clock does not move: such a time says nothing of
+        when it was sent."""
+        return boot_s + self.autopilot.offset_s

@@ -28,6 +28,8 @@ import numpy as np
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
 from pdcov.telemetry.gimbal import preferred_gimbal_source
+from pdcov.telemetry.recorded_frames import MARK, RECORDED_FRAME_COMPONENT, is_recorded_frame
+from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.samples import (
     DATAFLASH_TYPES,
     MAV_AUTOPILOT_INVALID,
@@ -149,9 +151,12 @@ class _Messages:
     boot_s: array = field(default_factory=lambda: array("d"))
 
     def autopilot_times(self, system_id: int, autopilot_component: int,
-                        wanted: set[int]) -> dict[int, float]:
+                        wanted: set[int], read_off: frozenset[int] = frozenset()
+                        ) -> dict[int, float]:
         """{message index: time in the autopilot clock (s)} for the ``wanted`` messages of
-        ``system_id``, every message of that system fed to one VehicleClock in order."""
+        ``system_id``, every message of that system fed to one VehicleClock in order; the
+        ``read_off`` messages (frames the daemon recorded) carry a time read off the
+        autopilot's boot clock and are placed without feeding the clock, as live."""
         clock = VehicleClock(autopilot_component)
         out: dict[int, float] = {}
         last = max(wanted, default=-1)
@@ -159,6 +164,9 @@ class _Messages:
             if i > last:
                 break
             if src >> 8 != system_id:
+                continue
+            if i in read_off:
+                out[i] = clock.autopilot_boot_s(boot)
                 continue
             t = clock.time_s(src & 0xFF, None if math.isnan(boot) else boot)
             if i in wanted:
@@ -170,6 +178,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
     heartbeats: list[HeartbeatSample] = []
     messages = _Messages()
+    recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
     n_ok = 0
     try:
         scanner = TlogScanner(path.read_bytes())
@@ -183,6 +192,9 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         boot_s = mavlink_boot_time_s(msg)
         messages.source.append((key[0] << 8) | key[1])
         messages.boot_s.append(math.nan if boot_s is None else boot_s)
+        if is_recorded_frame(msg):  # placed below, once the autopilot is known
+            recorded[n_ok - 1] = (key[0], int(msg.image_index))
+            continue
         # Stamped in the sender's own clock here; other components than the autopilot
         # are restamped below, once it is known.
         t_s = comp.clock.now_s if boot_s is None else comp.clock.to_s(boot_s)
@@ -212,7 +224,9 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
               if s == sysid and c != ap_comp and comp.samples}
     wanted = {i for comp in others.values() for idx in comp.message_index.values()
               for i in idx}
-    times = messages.autopilot_times(sysid, ap_comp, wanted) if wanted else {}
+    read_off = frozenset(i for i, (s, _n) in recorded.items() if s == sysid)
+    wanted |= read_off
+    times = messages.autopilot_times(sysid, ap_comp, wanted, read_off) if wanted else {}
     for c, comp in sorted(others.items()):
         n_dropped = 0
         for kind, items in comp.samples.items():
@@ -239,12 +253,29 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     if gnote:
         notes.append(gnote)
     params = {p.name: p.value for p in ap.samples.get("ParamSample", [])}
+    captures = gather("CaptureSample")
+    if read_off:
+        notes.append(_recorded_frames_note(len(read_off), len(captures)))
+        captures = [CaptureSample(times[i], recorded[i][1], RECORDED_SOURCE)
+                    for i in sorted(read_off)]
     return _shifted(FlightLog(
         str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
         PositionSeries.from_samples(ap.samples.get("PositionSample", [])), gimbal, source,
-        tuple(gather("HomeSample")), tuple(sorted(gather("CaptureSample"), key=lambda c: c.t_s)),
+        tuple(gather("HomeSample")), tuple(sorted(captures, key=lambda c: c.t_s)),
         params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage)),
         -ap.clock.offset_s)
+
+
+def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:
+    """The summary line of a daemon recording whose frames came from its detector: the
+    capture events are those frames (what the daemon used), never the camera's."""
+    return (f"frames: the log holds {n_recorded} frame times pdcov serve took from its "
+            f"detector (CAMERA_IMAGE_CAPTURED of component {RECORDED_FRAME_COMPONENT} marked "
+            f"{MARK!r}, time_boot_ms in the autopilot's clock); frame_source 'capture' "
+            "evaluates these, as the daemon did"
+            + (f", not the camera's {n_camera} capture events" if n_camera else ""))
+
+
 
 
 def _restart_note(n: int, field_name: str) -> str:

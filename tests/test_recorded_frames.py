@@ -1,0 +1,144 @@
+"""Frames from the onboard detector (``service.frame_source: zenoh``) are written into the
+daemon's recording, so that ``pdcov evaluate`` of the recording gives the live grid cell for
+cell (telemetry.recorded_frames). In memory: the daemon's own message, frames and processing
+steps on a running event loop, a real recorder, MAVLink bytes through pymavlink; the frames
+payloads held before the autopilot is known, out of order, duplicated, late, damaged, with
+sub-millisecond times, across an autopilot reboot, and a camera's own capture events in the
+same log. The end-to-end flight with a real Zenoh publisher is tests/test_serve_fly.py."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import numpy as np
+import yaml
+from link_feed import FIXED, MISSION, Hover, pack
+
+from pdcov.bus.footprint import encode_frames
+from pdcov.cli import main as pdcov_main
+from pdcov.service.daemon import Daemon
+from pdcov.service.recorder import TlogRecorder
+from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.recorded_frames import SOURCE, FrameEncoder, is_recorded_frame
+from pdcov.telemetry.tlog import mavlink
+
+CAMERA = 100  # MAV_COMP_ID_CAMERA
+
+
+def _parse(data: bytes) -> list:
+    p = mavlink.MAVLink(None)
+    return p.parse_buffer(data) or []
+
+
+def _segment(boot_shift_ms: int = 0) -> list[bytes]:
+    """A 4 s hover (autopilot time 1.0..4.9 s, + boot_shift_ms) and a camera (component
+    100, a clock of its own) capturing every 0.5 s."""
+    out = []
+    for i, msg in enumerate(Hover(seconds=4.0).messages()):
+        if hasattr(msg, "time_boot_ms"):
+            msg.time_boot_ms += boot_shift_ms
+        out.append(pack(msg, seq=i))
+        if msg.get_type() == "ATTITUDE" and msg.time_boot_ms % 500 == 0:
+            cam = mavlink.MAVLink(None).camera_image_captured_encode(
+                msg.time_boot_ms + 77_000, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0], i, 1, b"")
+            out.append(pack(cam, component_id=CAMERA, seq=i))
+    return out
+
+
+def _config(tmp: Path):
+    doc = dict(MISSION, mount=FIXED)
+    doc["service"] = {"state_dir": str(tmp / "state"), "frame_source": "zenoh",
+                      "reorder_s": 0.0}
+    (tmp / "m.yaml").write_text(yaml.safe_dump(doc))
+    return tmp / "m.yaml"
+
+
+class Link(bytes):
+    """MAVLink bytes from the link (other steps are frames payloads)."""
+
+
+async def _fly(d: Daemon, steps: list[bytes]) -> None:
+    """Each step: Link bytes to the daemon's message handler, else a frames payload to its
+    Zenoh handler (as the loop gets it); the loop runs between steps."""
+    for step in steps:
+        if isinstance(step, Link):
+            d._on_messages(None, _parse(step))
+        else:
+            d._on_frames(step)
+        await asyncio.sleep(0)
+    d.live.process()
+
+
+def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> None:
+    cfg_path = _config(tmp_path)
+    d = Daemon(load_serve_config(cfg_path))
+    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    first, second = _segment(), _segment(boot_shift_ms=-500)  # the autopilot rebooted
+    half = len(first) // 2
+    frames = encode_frames
+    steps: list[bytes] = [
+        frames([1.05, 1.15]),                        # before any HEARTBEAT: held
+        Link(b"".join(first[:half])),
+        frames([1.45, 1.25, 1.35, 1.25]),            # out of order, a duplicate inside
+        frames([1.25]),                              # a duplicate of a queued frame
+        b"not json",                                 # refused, counted
+        frames([1.5504, 1.9996]),                    # to the millisecond: 1.550, 2.000
+        Link(b"".join(first[half:])),
+        frames([1.3]),                               # late: a later frame was decided
+        frames([4.5, 3.0, 2.2]),
+        Link(b"".join(second)),
+        frames([0.95, 2.6, 2.61]),                   # the new boot's clock
+    ]
+    asyncio.run(_fly(d, steps))
+    d.recorder.close()
+    live = d.live
+    c = live.counters
+    assert c.skipped["late frame time"] == 1, c.skipped
+    assert c.faults["bad_frames_messages"] == 1, c.faults
+    assert live.frames_pending == 0
+    assert live.grid.frames == c.used > 6, (c.used, c.skipped)
+
+    rec = next((tmp_path / "rec").glob("flight-*.tlog"))
+    log = read_flight_log(rec)
+    assert {x.source for x in log.captures} == {SOURCE}   # never the camera's captures
+    assert len(log.captures) == 13  # 2 held + 3 + 2 + 3 + 3; no duplicate, not the late one
+    # The boot clock: the second boot is placed after the first (and offline, last boot
+    # keeps its own time), so the reboot's frames come last, at their own times.
+    # The clock: offline, the last boot keeps its own time and the first is placed before
+    # it (its last sample 4.9 s + REBOOT_GAP_S 60 s); the frames with their boot's.
+    t = np.sort([x.t_s for x in log.captures])
+    np.testing.assert_allclose(t[:10] + 64.9, [1.05, 1.15, 1.25, 1.35, 1.45, 1.55, 2.0, 2.2,
+                                               3.0, 4.5], atol=1e-9)
+    np.testing.assert_allclose(t[10:], [0.95, 2.6, 2.61], atol=1e-9)
+    assert any("frame times pdcov serve took from its detector" in n
+               and "not the camera's" in n for n in log.notes), log.notes
+
+    out = tmp_path / "offline"
+    assert pdcov_main(["evaluate", "--config", str(cfg_path), "--log", str(rec), "--out",
+                       str(out), "--frame-source", "capture", "--no-progress"]) == 0
+    with np.load(out / "grid.npz") as z:
+        assert int(z["frames"]) == live.grid.frames
+        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+            assert np.array_equal(z[key], getattr(live.grid, key)), key
+    summary = capsys.readouterr().out
+    assert f"13 capture events ({SOURCE})" in summary, summary
+    assert "not the camera's 16 capture events" in summary, summary
+
+
+def test_a_recorded_frame_is_not_a_camera_capture() -> None:
+    data = FrameEncoder().encode(7, 123_456)
+    (msg,) = _parse(data)
+    assert is_recorded_frame(msg)
+    assert (msg.get_srcSystem(), msg.get_srcComponent(), msg.time_boot_ms) == (7, 191, 123_456)
+
+    def camera(url: bytes, component: int):
+        msg = mavlink.MAVLink(None).camera_image_captured_encode(
+            123_456, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0], 0, 1, url)
+        return _parse(pack(msg, 7, component))[0]
+
+    # The mark from another component, or component 191 without the mark: a camera's.
+    assert not is_recorded_frame(camera(b"pdcov:detector-frame", CAMERA))
+    assert not is_recorded_frame(camera(b"file:///img/0001.jpg", 191))
+    assert is_recorded_frame(camera(b"pdcov:detector-frame", 191))
