@@ -40,7 +40,7 @@ MISSION_CONFIG = Section.of(
                                      "gimbal": GIMBAL_MOUNT_CONFIG}),
     detector=MODEL_SCHEMA,
     coverage=Section.of("max_range_m", "min_revisit_s", "min_height_m"),
-    log=Section.of("frame_source", "max_gap_s", "system_id"),
+    log=Section.of("frame_source", "max_gap_s", "system_id", "estimator_status"),
     planning=PLANNING_CONFIG,
     **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
 
@@ -74,7 +74,8 @@ class Mission:
     options (None = its defaults). min_height_m: frames with the camera lower than this above
     the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or
     'capture'. max_gap_s: telemetry gap that skips frames. system_id: the autopilot to
-    follow (None = from its HEARTBEAT).
+    follow (None = from its HEARTBEAT). estimator_status: skip frames whose position the
+    autopilot's estimator calls bad (telemetry/estimator.py); false ignores it.
     """
 
     vehicle_id: str
@@ -94,6 +95,7 @@ class Mission:
     frame_source: str = "rate"
     max_gap_s: float = 1.0
     system_id: int | None = None
+    estimator_status: bool = True
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -169,6 +171,10 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     if system_id is not None and (not isinstance(system_id, int) or not 1 <= system_id <= 255):
         raise ConfigError(f"{where(src, 'log.system_id')}: expected a MAVLink system id "
                           f"1..255, got {system_id!r}")
+    estimator_status = log.get("estimator_status", True)
+    if not isinstance(estimator_status, bool):
+        raise ConfigError(f"{where(src, 'log.estimator_status')}: expected true or false, "
+                          f"got {estimator_status!r}")
     vehicle_id = doc.get("vehicle_id", "uav1")
     if not isinstance(vehicle_id, str) or not vehicle_id.replace("_", "").replace("-", "") \
             .isalnum():
@@ -183,7 +189,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         min_height_m=_number(cov, "min_height_m", src, "coverage", default=1.0),
         frame_source=frame_source,
         max_gap_s=_number(log, "max_gap_s", src, "log", default=1.0, positive=True),
-        system_id=system_id, source=src, raw=doc)
+        system_id=system_id, estimator_status=estimator_status, source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,

@@ -6,7 +6,8 @@ simulated seconds since the start of the flight::
 
     drop=P  corrupt=P  reorder=P  duplicate=P        probabilities in [0, 1]
     outage=START+DURATION                            no bytes either way
-    gps_glitch=START+DURATION[:JUMP_M]               reported position jumps, then recovers
+    gps_glitch=START+DURATION[:JUMP_M]               reported position jumps, then recovers;
+                                                     the estimator status says GPS glitching
     reboot=START[+DOWN_S]                            autopilot restarts (silent DOWN_S, def. 2)
     gimbal_fail=START[+STALE_S]                      failure_flags for STALE_S (def. 2), silence
     nan=MESSAGE[.FIELD]@START[+DURATION]             NaN in a float field
@@ -141,6 +142,18 @@ class FaultSpec:
         down, metres): a jump north at each glitch's start, gone at its end."""
         north_m = sum(g.jump_m for g in self.gps_glitches if g.window.contains(t_s))
         return (north_m, 0.0, 0.0)
+
+    def gps_glitching(self, t_s: float) -> bool:
+        """True during a glitch: the estimator's status reports it (EKF_STATUS_REPORT
+        EKF_GPS_GLITCHING, ESTIMATOR_STATUS ESTIMATOR_GPS_GLITCH) for the glitch's window.
+
+        What a glitch models: an EKF that took the bad GPS in (as ArduPilot's EKF3 resets
+        to the GPS when a glitch outlasts its innovation gate and EK3_GLITCH_RAD), so the
+        fused position it sends (GLOBAL_POSITION_INT) is off by JUMP_M for the whole window,
+        jumping at both ends, while it flags the GPS as glitching: the worst case for
+        coverage, wrong all along and not only across the jumps. An EKF that rejects the GPS
+        and holds its dead-reckoned position is not modelled."""
+        return any(g.window.contains(t_s) for g in self.gps_glitches)
 
     def gimbal_health(self, t_s: float) -> GimbalHealth:
         """OK until a gimbal_fail start; FAILED (report failure_flags) for its stale time;

@@ -242,7 +242,8 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
             snap = Snapshot(s, boot_ms, endpoint.unix_time_us(t), endpoint.gps_offset_ned_m(t),
                             phase, armed, report[0] if report and not device else None,
                             report[1] if report else 0, failure,
-                            report[2] if report else 0.0, 1.0 - t / 1500.0)
+                            report[2] if report else 0.0, 1.0 - t / 1500.0,
+                            endpoint.gps_glitching(t))
             for name in names:
                 msg = builder.build(name, snap)
                 if msg is not None:

@@ -25,6 +25,7 @@ import random
 from dataclasses import dataclass
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mav
 
 from .dynamics import VehicleState, local_scales
@@ -41,20 +42,25 @@ FLAGS_AUTOPILOT = (mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mav.GIMBAL_DEVICE_FLAGS_P
 FLAGS_DEVICE_EARTH = (mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mav.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
                       | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME)  # 76
 GIMBAL_FAILED_FLAGS = mav.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+ESTIMATOR_OK_FLAGS = 831
+"""Attitude, horizontal and vertical velocity, relative and absolute horizontal position,
+vertical position, predicted relative and absolute horizontal position: the same bits in
+EKF_STATUS_FLAGS and ESTIMATOR_STATUS_FLAGS."""
 MNT1_TYPE = {"ardupilot-servo": 1, "ardupilot-device": 7, "device-earth": 6, "fixed": 0}
 
 # Default stream rates in Hz. ArduPilot: what a ground station's usual stream-rate request
 # gives (EXTRA1 20 Hz: ATTITUDE, ATTITUDE_QUATERNION; POSITION 10 Hz; EXTENDED_STATUS 2 Hz;
-# the mount's status at 20 Hz as on the real servo-gimbal log). PX4: its "onboard" link mode.
+# EXTRA3 2 Hz: EKF_STATUS_REPORT; the mount's status at 20 Hz as on the real servo-gimbal
+# log). PX4: its "onboard" link mode (ESTIMATOR_STATUS 0.5 Hz, mavlink_main.cpp).
 STREAMS_HZ = {
     "ardupilot": {"HEARTBEAT": 1.0, "SYS_STATUS": 2.0, "SYSTEM_TIME": 1.0, "ATTITUDE": 20.0,
                   "ATTITUDE_QUATERNION": 20.0, "GLOBAL_POSITION_INT": 10.0,
                   "LOCAL_POSITION_NED": 10.0, "GPS_RAW_INT": 5.0, "HOME_POSITION": 1.0,
-                  "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0},
+                  "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0, "EKF_STATUS_REPORT": 2.0},
     "px4": {"HEARTBEAT": 1.0, "SYS_STATUS": 5.0, "SYSTEM_TIME": 1.0, "ATTITUDE": 50.0,
             "ATTITUDE_QUATERNION": 50.0, "GLOBAL_POSITION_INT": 50.0,
             "LOCAL_POSITION_NED": 30.0, "GPS_RAW_INT": 5.0, "HOME_POSITION": 0.5,
-            "GIMBAL_DEVICE_ATTITUDE_STATUS": 10.0},
+            "GIMBAL_DEVICE_ATTITUDE_STATUS": 10.0, "ESTIMATOR_STATUS": 0.5},
 }
 GIMBAL_DEVICE_STREAMS_HZ = {"HEARTBEAT": 1.0, "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0}
 
@@ -89,6 +95,7 @@ class Snapshot:
     gps_offset_ned_m: a GPS glitch to add to reported positions. phase: the guidance leg kind
     ('ground' before take-off and after landing). armed. gimbal_q_wxyz / gimbal_flags /
     gimbal_failure: the gimbal report (None: no gimbal). battery_fraction: 0..1.
+    gps_glitching: the estimator takes its GPS for faulty (faults.FaultSpec.gps_glitching).
     """
 
     state: VehicleState
@@ -102,6 +109,7 @@ class Snapshot:
     gimbal_failure: int
     gimbal_delta_yaw_rad: float
     battery_fraction: float
+    gps_glitching: bool = False
 
 
 def _wrap(a: float) -> float:
@@ -220,6 +228,24 @@ class MessageBuilder:
         current_ca = 1200 if s.armed else 50
         return self.m.sys_status_encode(sensors, sensors, sensors, 250, round(volts * 1000),
                                         current_ca, round(100 * frac), 0, 0, 0, 0, 0, 0)
+
+    def _ekf_status_report(self, s: Snapshot) -> mav.MAVLink_message:
+        # ArduPilot EKF3 in flight with GPS: the flags of the real servo-gimbal log (831);
+        # bit 15 (EKF_GPS_GLITCHING) while glitching. The "variances" are test ratios
+        # (sqrt of innovation / gate): above 1 the EKF rejects the measurement.
+        flags = ESTIMATOR_OK_FLAGS | (ardupilotmega.EKF_GPS_GLITCHING if s.gps_glitching
+                                      else 0)
+        pos_ratio = 1.5 if s.gps_glitching else 0.1
+        return ardupilotmega.MAVLink_ekf_status_report_message(flags, 0.1, pos_ratio, 0.1,
+                                                               0.05, 0.0, 0.0)
+
+    def _estimator_status(self, s: Snapshot) -> mav.MAVLink_message:
+        # PX4 ekf2 solution_status_flags: the same good bits (831), ESTIMATOR_GPS_GLITCH
+        # (1024) while glitching.
+        flags = ESTIMATOR_OK_FLAGS | (mav.ESTIMATOR_GPS_GLITCH if s.gps_glitching else 0)
+        pos_ratio = 1.5 if s.gps_glitching else 0.1
+        return self.m.estimator_status_encode(s.time_boot_ms * 1000, flags, 0.1, pos_ratio,
+                                              0.1, 0.05, 0.0, 0.0, 0.5, 0.8)
 
     def _gimbal_device_attitude_status(self, s: Snapshot) -> mav.MAVLink_message | None:
         if s.gimbal_q_wxyz is None:

@@ -28,6 +28,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import BinaryIO
 
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink2
 
 from .faults import FaultInjector, FaultSpec, GimbalHealth
@@ -39,7 +40,9 @@ TLOG_EPOCH_UNIX_S = 1_767_225_600.0
 so that the same seed writes the same bytes."""
 AUTOPILOTS = ("ardupilot", "px4")
 AUTOPILOT_COMPONENT = 1
-_MESSAGE_IDS = {cls.msgname: msg_id for msg_id, cls in mavlink2.mavlink_map.items()}
+# Stream names of the ArduPilot dialect (common.xml and ardupilotmega.xml: EKF_STATUS_REPORT).
+_MESSAGE_MAP = ardupilotmega.mavlink_map
+_MESSAGE_IDS = {cls.msgname: msg_id for msg_id, cls in _MESSAGE_MAP.items()}
 _JITTER_SIGMA_S = 0.002
 _LATE_PROBABILITY = 0.02
 _LATE_MAX_S = 0.02
@@ -219,7 +222,7 @@ class AutopilotProtocol:
         return [ack, *extra]
 
     def _stream_name(self, msg_id: int) -> str | None:
-        cls = mavlink2.mavlink_map.get(msg_id)
+        cls = _MESSAGE_MAP.get(msg_id)
         return cls.msgname if cls is not None else None
 
     def _set_interval(self, msg_id: int, interval_us: float, t_s: float) -> int:
@@ -369,6 +372,9 @@ class AutopilotEndpoint:
 
     def gps_offset_ned_m(self, now_s: float) -> tuple[float, float, float]:
         return self.faults.gps_offset_ned_m(now_s)
+
+    def gps_glitching(self, now_s: float) -> bool:
+        return self.faults.gps_glitching(now_s)
 
     def gimbal_health(self, now_s: float) -> GimbalHealth:
         return self.faults.gimbal_health(now_s)

@@ -109,7 +109,9 @@ class Daemon:
         self.protocol = LinkProtocol(mavlink.MAVLink(None, srcSystem=cfg.link.system_id or 1),
                                      system_id=cfg.link.system_id or m.system_id,
                                      intervals=intervals, param_names=names,
-                                     param_timeout_s=cfg.link.param_timeout_s)
+                                     param_timeout_s=cfg.link.param_timeout_s,
+                                     estimator_hz=cfg.link.estimator_hz
+                                     if m.estimator_status else None)
         self._process_scheduled = False
         self.state_dir.mkdir(parents=True, exist_ok=True)
         self.live = self._start_grid()  # a new or resumed grid: there before the loop runs

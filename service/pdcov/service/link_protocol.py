@@ -43,9 +43,11 @@ MAV_CMD_REQUEST_MESSAGE = 512
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_IN_PROGRESS = 5
 MAV_SEVERITY_INFO = 6
-# Message ids (common.xml).
+# Message ids (common.xml; EKF_STATUS_REPORT: ardupilotmega.xml).
 ATTITUDE, GLOBAL_POSITION_INT, HOME_POSITION = 30, 33, 242
 GIMBAL_DEVICE_ATTITUDE_STATUS = 285
+EKF_STATUS_REPORT, ESTIMATOR_STATUS = 193, 230
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 ALLOWED_COMMANDS = frozenset({MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE})
 ALLOWED_MESSAGES = frozenset({"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
                               "NAMED_VALUE_FLOAT", "STATUSTEXT"})
@@ -78,16 +80,19 @@ class LinkProtocol:
     """One autopilot's link, as decisions. ``mav`` is a pymavlink MAVLink object used only
     to encode messages (its srcSystem is set to the vehicle's when the autopilot is known).
     intervals: {message id: rate Hz} to ask for. param_names: the mount parameters to read
-    (empty for a fixed mount)."""
+    (empty for a fixed mount). estimator_hz: the rate to ask the position estimator's status
+    at (EKF_STATUS_REPORT from ArduPilot, ESTIMATOR_STATUS from others; None: not asked)."""
 
     def __init__(self, mav: Any, *, system_id: int | None, intervals: dict[int, float],
-                 param_names: tuple[str, ...], param_timeout_s: float) -> None:
+                 param_names: tuple[str, ...], param_timeout_s: float,
+                 estimator_hz: float | None = None) -> None:
         self.mav = mav
         self.mav.srcComponent = MAV_COMP_ID_ONBOARD_COMPUTER
         self.system_id = system_id
         self.autopilot_component: int | None = None
         self.autopilot_type: int | None = None
         self._intervals = dict(intervals)
+        self._estimator_hz = estimator_hz
         self._param_names = tuple(param_names)
         self._param_timeout_s = param_timeout_s
         self._clock: VehicleClock | None = None
@@ -170,6 +175,10 @@ class LinkProtocol:
                 self.system_id, self.autopilot_component = src_sys, src_comp
                 self.autopilot_type = int(msg.autopilot)
                 self.mav.srcSystem = src_sys
+                if self._estimator_hz:
+                    self._intervals[EKF_STATUS_REPORT if self.autopilot_type
+                                    == MAV_AUTOPILOT_ARDUPILOTMEGA
+                                    else ESTIMATOR_STATUS] = self._estimator_hz
                 self._reset_requests(now_s)
                 # What the autopilot sent before its first HEARTBEAT counts too (as
                 # offline, where the whole log is read).
@@ -308,7 +317,9 @@ class LinkProtocol:
 
 def _no_value_yet(msg: Any) -> bool:
     """Messages that carry no value by design, not by damage: GLOBAL_POSITION_INT all zero
-    (ArduPilot before its first position estimate), a failed CAMERA_IMAGE_CAPTURED."""
+    (ArduPilot before its first position estimate), a failed CAMERA_IMAGE_CAPTURED, an
+    EKF_STATUS_REPORT with no flags (ArduPilot's AHRS runs no EKF)."""
     mtype = msg.get_type()
     return ((mtype == "GLOBAL_POSITION_INT" and msg.lat == 0 and msg.lon == 0)
-            or (mtype == "CAMERA_IMAGE_CAPTURED" and msg.capture_result != 1))
+            or (mtype == "CAMERA_IMAGE_CAPTURED" and msg.capture_result != 1)
+            or (mtype == "EKF_STATUS_REPORT" and msg.flags == 0))

@@ -31,8 +31,10 @@ class LinkConfig:
     """The MAVLink link. connect: pymavlink URLs (serial:/dev/ttyAMA0:921600,
     /dev/ttyAMA0,921600, udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT), all used at
     once. system_id: the autopilot to follow (None: the first autopilot HEARTBEAT; the
-    daemon sends as this system, component 191). attitude_hz / position_hz / gimbal_hz:
-    message rates asked with MAV_CMD_SET_MESSAGE_INTERVAL. timeout_s: silence after which
+    daemon sends as this system, component 191). attitude_hz / position_hz / gimbal_hz /
+    estimator_hz: message rates asked with MAV_CMD_SET_MESSAGE_INTERVAL (estimator_hz:
+    EKF_STATUS_REPORT from ArduPilot, ESTIMATOR_STATUS from others; not asked when the
+    mission's log.estimator_status is false). timeout_s: silence after which
     the link counts as lost (and a TCP or serial link is reopened). reconnect_max_s: the
     longest wait between reopening attempts (backoff doubles from 0.5 s). signing_key: 32
     bytes as 64 hex digits, or signing_key_file: a file holding them (MAVLink 2 signing).
@@ -44,6 +46,7 @@ class LinkConfig:
     attitude_hz: float = 25.0
     position_hz: float = 10.0
     gimbal_hz: float = 20.0
+    estimator_hz: float = 5.0
     timeout_s: float = 5.0
     reconnect_max_s: float = 10.0
     signing_key: str | None = None
@@ -56,7 +59,7 @@ class LinkConfig:
         if self.system_id is not None and not (isinstance(self.system_id, int)
                                                and 1 <= self.system_id <= 254):
             raise ConfigError(f"link.system_id: expected 1..254, got {self.system_id!r}")
-        for name in ("attitude_hz", "position_hz", "gimbal_hz", "timeout_s",
+        for name in ("attitude_hz", "position_hz", "gimbal_hz", "estimator_hz", "timeout_s",
                      "reconnect_max_s", "param_timeout_s"):
             _positive(name, getattr(self, name), "link")
         if self.signing_key is not None:

@@ -31,13 +31,18 @@ from pdcov.telemetry.gimbal import preferred_gimbal_source
 from pdcov.telemetry.recorded_frames import MARK, RECORDED_FRAME_COMPONENT, is_recorded_frame
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.samples import (
+    CONST_POS_MODE,
     DATAFLASH_TYPES,
+    ESTIMATOR_GPS_GLITCH,
     MAV_AUTOPILOT_INVALID,
+    POS_HORIZ_ABS,
     REBOOT_GAP_S,
     AttitudeSample,
     AttitudeSeries,
     BootClock,
     CaptureSample,
+    EstimatorSample,
+    EstimatorSeries,
     GimbalSample,
     GimbalSeries,
     HeartbeatSample,
@@ -57,7 +62,8 @@ from pdcov.telemetry.tlog import LogDamage, TlogScanner
 DATAFLASH_MAGIC = b"\xa3\x95"
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 
-_Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries)
+_Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries,
+                   EstimatorSeries)
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,7 +74,9 @@ class FlightLog:
     holds the chosen source (``gimbal_source`` = (system, component, gimbal_device_id)) only;
     homes are in log order; params hold each parameter's last value. notes say, in words,
     which clock, sources and fallbacks were used (for summaries); damage says what was
-    skipped or cut while reading (also among the notes).
+    skipped or cut while reading (also among the notes). estimator: the position
+    estimator's verdicts (empty when the log carries none); estimator_source names the
+    messages they came from.
     """
 
     path: str
@@ -85,6 +93,9 @@ class FlightLog:
     restarts_t_s: tuple[float, ...] = ()
     notes: tuple[str, ...] = ()
     damage: tuple[str, ...] = ()
+    estimator: EstimatorSeries = field(
+        default_factory=lambda: EstimatorSeries.from_samples([]))
+    estimator_source: str = ""
 
 
 def read_flight_log(path: str | Path, *, system_id: int | None = None,
@@ -262,8 +273,14 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
         PositionSeries.from_samples(ap.samples.get("PositionSample", [])), gimbal, source,
         tuple(gather("HomeSample")), tuple(sorted(captures, key=lambda c: c.t_s)),
-        params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage)),
-        -ap.clock.offset_s)
+        params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
+        *_estimator(ap.samples.get("EstimatorSample", []), "EKF_STATUS_REPORT / "
+                    "ESTIMATOR_STATUS")), -ap.clock.offset_s)
+
+
+def _estimator(samples: list[EstimatorSample], source: str) -> tuple[EstimatorSeries, str]:
+    series = EstimatorSeries.from_samples(samples)
+    return series, source if len(series.t_s) else ""
 
 
 def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:
@@ -274,8 +291,6 @@ def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:
             f"{MARK!r}, time_boot_ms in the autopilot's clock); frame_source 'capture' "
             "evaluates these, as the daemon did"
             + (f", not the camera's {n_camera} capture events" if n_camera else ""))
-
-
 
 
 def _restart_note(n: int, field_name: str) -> str:
@@ -294,6 +309,7 @@ def _shifted(log: FlightLog, dt_s: float) -> FlightLog:
 
     return replace(log, attitude=series(log.attitude), position=series(log.position),
                    gimbal=series(log.gimbal), mount_targets=series(log.mount_targets),
+                   estimator=series(log.estimator),
                    homes=tuple(replace(h, t_s=h.t_s + dt_s) for h in log.homes),
                    captures=tuple(replace(c, t_s=c.t_s + dt_s) for c in log.captures),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))
@@ -412,6 +428,7 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     clock = BootClock()
     by_type: dict[type, list] = defaultdict(list)
     positions: dict[str, list[PositionSample]] = defaultdict(list)
+    estimators: dict[str, list[EstimatorSample]] = defaultdict(list)
     error = ""
     try:
         with _silenced_output():
@@ -432,6 +449,8 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
                 for sample in samples_from_dataflash(msg, t_s):
                     if isinstance(sample, PositionSample):
                         positions[msg.get_type()].append(sample)
+                    elif isinstance(sample, EstimatorSample):
+                        estimators[msg.get_type()].append(sample)
                     else:
                         by_type[type(sample)].append(sample)
     except Exception as exc:  # noqa: BLE001
@@ -453,12 +472,31 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     if clock.restarts_t_s:
         notes.append(_restart_note(len(clock.restarts_t_s), "TimeUS"))
     params = {p.name: p.value for p in by_type[ParamSample]}
+    estimator, est_source = _dataflash_estimator(estimators, params)
     return _shifted(FlightLog(
         str(path), "dataflash", None, AttitudeSeries.from_samples(by_type[AttitudeSample]),
         PositionSeries.from_samples(pos), gimbal, source, tuple(by_type[HomeSample]),
         tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
         MountTargetSeries.from_samples(by_type[MountTargetSample]),
-        tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines)), -clock.offset_s)
+        tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source),
+        -clock.offset_s)
+
+
+_EKF_LOGS = {3: ("XKF4", "EKF3"), 2: ("NKF4", "EKF2")}
+
+
+def _dataflash_estimator(estimators: Mapping[str, list[EstimatorSample]],
+                         params: Mapping[str, float]) -> tuple[EstimatorSeries, str]:
+    """The verdicts of the EKF the AHRS used (AHRS_EKF_TYPE 3: XKF4, 2: NKF4; without the
+    parameter XKF4, else NKF4); none when the AHRS ran no EKF (DCM 0, SIM 10, external 11)."""
+    ekf_type = params.get("AHRS_EKF_TYPE")
+    if ekf_type is not None and int(ekf_type) not in _EKF_LOGS:
+        return EstimatorSeries.from_samples([]), ""
+    order = [_EKF_LOGS[int(ekf_type)]] if ekf_type is not None else list(_EKF_LOGS.values())
+    for name, ekf in order:
+        if estimators.get(name):
+            return _estimator(estimators[name], f"{name} SS ({ekf}, primary core)")
+    return EstimatorSeries.from_samples([]), ""
 
 
 # --- PX4 ULog ------------------------------------------------------------------------------
@@ -466,7 +504,7 @@ def _read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
 _ULOG_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 _ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", *_ULOG_GPS_TOPICS,
                 "gimbal_device_attitude_status", "home_position", "camera_capture",
-                "camera_trigger"]
+                "camera_trigger", "estimator_status"]
 _GPS_FIX_3D = 3  # fix_type: 0-1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
 
 
@@ -573,10 +611,20 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     params = dict(ulog.initial_parameters)
     for _t, name, value in ulog.changed_parameters:
         params[name] = value
+    estimator: list[EstimatorSample] = []
+    e = "estimator_status"
+    if e in topics and "solution_status_flags" in topics[e]:
+        # solution_status_flags: ESTIMATOR_STATUS_FLAGS bits (PX4 sends it as the MAVLink
+        # message's flags); instance 0 only, as for the other topics.
+        estimator = [EstimatorSample(t, bool(f & POS_HORIZ_ABS), bool(f & CONST_POS_MODE),
+                                     bool(f & ESTIMATOR_GPS_GLITCH))
+                     for t, f in zip(t_of(e), topics[e]["solution_status_flags"].astype(int),
+                                     strict=True)]
     gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1, gimbal_instance)
     damage = _ulog_damage(path, ulog.file_corruption)
     notes = [*damage, "clock: ULog timestamps (PX4 boot time)"]
     notes += [n for n in (pos_note, gnote) if n]
     return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
                      gimbal, source, homes, tuple(captures), params,
-                     MountTargetSeries.from_samples([]), (), tuple(notes), damage)
+                     MountTargetSeries.from_samples([]), (), tuple(notes), damage,
+                     *_estimator(estimator, "estimator_status solution_status_flags"))

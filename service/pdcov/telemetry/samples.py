@@ -124,8 +124,22 @@ class HeartbeatSample:
     armed: bool
 
 
+@dataclass(frozen=True, slots=True)
+class EstimatorSample:
+    """What the autopilot's position estimator says of its horizontal position at ``t_s``
+    (EKF_STATUS_REPORT, ESTIMATOR_STATUS, DataFlash XKF4/NKF4 SS, ULog estimator_status),
+    as three verdicts: pos_horiz_abs (the absolute horizontal position is good),
+    const_pos_mode (no position aiding: the position is held, not measured), gps_glitch
+    (the estimator takes its GPS for faulty). pose_tracker.estimator_reason reads them."""
+
+    t_s: float
+    pos_horiz_abs: bool
+    const_pos_mode: bool
+    gps_glitch: bool
+
+
 Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
-          | ParamSample | MountTargetSample | HeartbeatSample)
+          | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample)
 
 MAV_AUTOPILOT_INVALID = 8  # common.xml MAV_AUTOPILOT: not a flight controller (GCS, gimbal)
 MAV_MODE_FLAG_SAFETY_ARMED = 128
@@ -251,6 +265,33 @@ def _camera_feedback(msg: Any, t_s: float) -> CaptureSample:
     return CaptureSample(t_s, int(msg.img_idx), "CAMERA_FEEDBACK")
 
 
+# EKF_STATUS_FLAGS (ardupilotmega.xml) and ESTIMATOR_STATUS_FLAGS (common.xml): the same
+# low bits, different high ones (1024 is EKF_UNINITIALIZED in one, ESTIMATOR_GPS_GLITCH in
+# the other). ArduPilot sets bit 15 (EKF_GPS_GLITCHING) from nav_filter_status.gps_glitching
+# (AP_NavEKF3_Outputs.cpp send_status_report); PX4 sends estimator_status.
+# solution_status_flags (mavlink streams/ESTIMATOR_STATUS.hpp). Other bits are not read.
+POS_HORIZ_ABS = 16
+CONST_POS_MODE = 128
+EKF_GPS_GLITCHING = 32768
+ESTIMATOR_GPS_GLITCH = 1024
+
+
+def _ekf_status_report(msg: Any, t_s: float) -> EstimatorSample | None:
+    # ArduPilot sends an all-zero report when its AHRS runs no EKF (DCM, or the simulator's
+    # own AHRS: AP_AHRS::send_ekf_status_report): that says nothing about the position.
+    flags = int(msg.flags)
+    if flags == 0:
+        return None
+    return EstimatorSample(t_s, bool(flags & POS_HORIZ_ABS), bool(flags & CONST_POS_MODE),
+                           bool(flags & EKF_GPS_GLITCHING))
+
+
+def _estimator_status(msg: Any, t_s: float) -> EstimatorSample:
+    flags = int(msg.flags)
+    return EstimatorSample(t_s, bool(flags & POS_HORIZ_ABS), bool(flags & CONST_POS_MODE),
+                           bool(flags & ESTIMATOR_GPS_GLITCH))
+
+
 def _heartbeat(msg: Any, t_s: float) -> HeartbeatSample:
     return HeartbeatSample(t_s, msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot),
                            int(msg.type), bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED))
@@ -266,6 +307,8 @@ _MAVLINK = {
     "CAMERA_IMAGE_CAPTURED": _image_captured,
     "CAMERA_FEEDBACK": _camera_feedback,
     "HEARTBEAT": _heartbeat,
+    "EKF_STATUS_REPORT": _ekf_status_report,
+    "ESTIMATOR_STATUS": _estimator_status,
 }
 MAVLINK_TYPES = tuple(_MAVLINK)
 
@@ -347,8 +390,29 @@ def _df_gps(msg: Any, t_s: float) -> PositionSample | None:
     return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt))
 
 
+# nav_filter_status bits (AP_NavEKF/AP_Nav_Common.h), which XKF4/NKF4 log as SS
+# (NavEKF3_core::Log_Write_XKF4: solution = filterStatus.value).
+NAV_HORIZ_POS_ABS = 1 << 4
+NAV_CONST_POS_MODE = 1 << 7
+NAV_GPS_GLITCHING = 1 << 14
+
+
+def _df_ekf_status(msg: Any, t_s: float) -> tuple[EstimatorSample, ...]:
+    # One record per EKF core (C); only the primary core's (PI) drives the vehicle. Logs
+    # without C (ArduCopter 3.4 NKF4) log core 0 here.
+    core = getattr(msg, "C", None)
+    primary = getattr(msg, "PI", None)
+    if core is not None and int(core) != (int(primary) if primary is not None
+                                          and int(primary) >= 0 else 0):
+        return ()
+    ss = int(msg.SS)
+    return (EstimatorSample(t_s, bool(ss & NAV_HORIZ_POS_ABS), bool(ss & NAV_CONST_POS_MODE),
+                            bool(ss & NAV_GPS_GLITCHING)),)
+
+
 _DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
-              "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps}
+              "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps,
+              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status}
 DATAFLASH_TYPES = tuple(_DATAFLASH)
 
 
@@ -437,6 +501,23 @@ class GimbalSeries:
         ok = np.isfinite(t)
         idx = _sort_unique(t[ok])
         return cls(t[ok][idx], q[ok][idx], flags[ok][idx], fail[ok][idx])
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorSeries:
+    """Estimator verdicts (EstimatorSample) sorted by strictly increasing t_s (s): boolean
+    arrays pos_horiz_abs, const_pos_mode, gps_glitch (N,)."""
+
+    t_s: np.ndarray
+    pos_horiz_abs: np.ndarray
+    const_pos_mode: np.ndarray
+    gps_glitch: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[EstimatorSample]) -> EstimatorSeries:
+        t, *flags = _sorted_columns([(s.t_s, s.pos_horiz_abs, s.const_pos_mode, s.gps_glitch)
+                                     for s in samples], 4, 1)
+        return cls(t, *(f.astype(bool) for f in flags))
 
 
 @dataclass(frozen=True, slots=True)
