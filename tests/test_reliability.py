@@ -33,7 +33,9 @@ def test_kill_9_resumes_a_recent_checkpoint(tmp_path):
     r = crash(tmp_path, kills=5, period_s=0.25)
     assert not r.failures, r.failures
     assert r.resumed == 5 and r.set_aside == 0
-    assert max(r.ages_s) < 5.0, r.ages_s
+    # The resumed checkpoint is at most one period old, plus a tick, a write and the
+    # loop's delays on a loaded machine.
+    assert max(r.ages_s) <= r.period_s + 0.5, r.ages_s
     # Kills 1, 3 and 5 are aimed at a checkpoint write: most leave its temporary file.
     assert r.aimed == 3 and r.during_write >= 2, (r.aimed, r.during_write, r.tmp_sizes)
 

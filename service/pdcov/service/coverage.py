@@ -447,7 +447,10 @@ class LiveCoverage:
             self._next_tiles_s = max(self._next_tiles_s + bus.tiles_period_s, now_s)
             due.tiles = self._tiles(now_s)
         if now_s >= self._next_checkpoint_s:
-            self._next_checkpoint_s = now_s + svc.checkpoint_period_s
+            # Anchored on the schedule, not on this tick: a kill loses at most one period
+            # plus one tick and one write.
+            self._next_checkpoint_s = max(self._next_checkpoint_s + svc.checkpoint_period_s,
+                                          now_s)
             due.checkpoint = self.grid.frames != self._frames_at_checkpoint
         if now_s >= self._next_value_s:
             self._next_value_s = max(self._next_value_s + NAMED_VALUE_PERIOD_S, now_s)
