@@ -18,7 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_cli_inputs import mount_tmpfs
 from watch_fixtures import free_port
+
+from pdcov.atomic import MARKER
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEED = "20"
@@ -191,8 +194,35 @@ def processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-def test_ctrl_c_stops_every_child(tmp_path):
+def previous_demo(out: Path) -> dict[str, bytes]:
+    """A folder as earlier demos left it (pdcov's marker, the summary, a checkpoint the
+    daemon would resume, an --offline demo's files the live one does not write); returns
+    its files."""
+    for name, data in {MARKER: b"", "demo.json": b'{"previous": true}\n',
+                       "state/uav1/checkpoint.npz": b"an earlier flight",
+                       "compare.png": b"an --offline figure",
+                       "spiral/metrics.json": b"{}"}.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(data)
+    return tree(out)
+
+
+def tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def stop_leftovers(out: Path) -> None:
+    """SIGKILL what a failed test left of the demo's children (their command lines name
+    ``out``, a folder of this test)."""
+    for pid in processes_mentioning(str(out)):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_ctrl_c_stops_every_child_and_keeps_the_previous_folder(tmp_path):
     out = tmp_path / "demo-interrupted"
+    before = previous_demo(out)
     demo = Run(demo_args(out), tmp_path)
     try:
         demo.wait_line(r"coverage \d+\.\d%", 120)  # router, simulator, daemon, watcher up
@@ -204,3 +234,115 @@ def test_ctrl_c_stops_every_child(tmp_path):
         assert "pdcov demo: interrupted" in demo.lines[-1]
     finally:
         demo.close()
+        stop_leftovers(out)
+    # The children wrote into a fresh folder, removed with them: the previous one is back
+    # as it was, and nothing is left beside it.
+    assert tree(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo-interrupted"]
+
+
+def test_finished_demo_replaces_the_previous_folder_whole(tmp_path):
+    out = tmp_path / "demo"
+    previous_demo(out)
+    demo = Run(demo_args(out), tmp_path)
+    try:
+        assert demo.wait(300) == 0, "\n".join(demo.lines[-30:])
+    finally:
+        demo.close()
+        stop_leftovers(out)
+    assert demo.lines[-1] == f"replaced the previous outputs in {out}"
+    files = tree(out)
+    assert "compare.png" not in files and "spiral/metrics.json" not in files
+    assert "previous" not in json.loads(files["demo.json"])
+    with np.load(out / "state" / "uav1" / "checkpoint.npz") as ck:
+        assert int(ck["frames"]) > 100  # this flight's, not resumed from the earlier one
+    assert {"plans/uav1.plan", "configs/uav1.yaml", "logs/serve-uav1.log",
+            "report/fleet/metrics.json", MARKER} <= set(files)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo"]
+
+
+def test_bad_out_is_refused_before_anything_starts(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("the user's")
+    cases = {afile: "is a file", afile / "demo": "afile is a file",
+             theirs: "files pdcov did not write"}
+    ro = tmp_path / "ro"
+    try:
+        mount_tmpfs(ro, "ro,size=64k")
+        cases[ro / "demo"] = "is not writable"
+    except pytest.skip.Exception:
+        pass  # no mount rights: the other cases still run
+    try:
+        for out, why in cases.items():
+            done = subprocess.run(demo_args(out), capture_output=True, text=True,
+                                  timeout=60, cwd=tmp_path)
+            assert done.returncode == 2, (out, done.stdout, done.stderr)
+            assert f"argument --out: {out}" in done.stderr and why in done.stderr, done.stderr
+            assert "Traceback" not in done.stderr and done.stdout == "", done.stdout
+    finally:
+        if ro in [p.parent for p in cases]:
+            subprocess.run(["umount", str(ro)], timeout=10, check=False)
+    assert (theirs / "notes.txt").read_text() == "the user's" and afile.is_file()
+    assert sorted(p.name for p in theirs.iterdir()) == ["notes.txt"]
+
+
+CHILD = """
+import signal, sys, time
+print("starting", flush=True)
+if sys.argv[1] == "fail":
+    print("RuntimeError: the link is down", flush=True)
+    sys.exit(3)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)  # only SIGKILL stops it
+time.sleep(60)
+"""
+
+
+def test_a_failed_child_is_named_with_the_end_of_its_log(tmp_path):
+    """The failed demo's folder (logs too) is put back to the previous one, so the message
+    must carry the log's end."""
+    from pdcov.errors import PdcovError
+    from pdcov.ground.demo import Children, _check_alive
+
+    children = Children()
+    try:
+        p = children.start("daemon uav1", [sys.executable, "-c", CHILD, "fail"],
+                           tmp_path / "serve-uav1.log")
+        p.wait(timeout=30)
+        with pytest.raises(PdcovError) as err:
+            _check_alive(children)
+    finally:
+        children.stop_all()
+    assert str(err.value) == ("demo: the daemon uav1 stopped (exit 3); its log ends:\n"
+                              "    starting\n    RuntimeError: the link is down")
+
+
+def test_second_ctrl_c_while_stopping_kills_the_children_at_once(tmp_path):
+    from pdcov.ground.demo import Children
+
+    def interrupt(_signum, _frame):
+        raise KeyboardInterrupt
+
+    children = Children()
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    p = None
+    try:
+        p = children.start("simulator uav1", [sys.executable, "-c", CHILD, "stubborn"],
+                           tmp_path / "sim-uav1.log")
+        end = time.monotonic() + 30
+        while b"starting" not in (tmp_path / "sim-uav1.log").read_bytes():
+            assert time.monotonic() < end, "the child did not start"
+            time.sleep(0.05)
+        signal.setitimer(signal.ITIMER_REAL, 0.5)  # the second Ctrl-C, mid-grace period
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            children.stop_all()  # SIGTERM is ignored: would wait 10 s, then SIGKILL
+        assert time.monotonic() - t0 < 5 and p.poll() == -signal.SIGKILL
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        if p is not None and p.poll() is None:
+            p.kill()
+            p.wait(timeout=10)

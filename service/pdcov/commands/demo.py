@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import argparse
 from importlib import resources
-from pathlib import Path
 
 from pdcov.atomic import replacing_dir
-from pdcov.commands.args import positive
+from pdcov.commands.args import output_dir, positive
 from pdcov.config import Mission, load_mission
 
 
@@ -21,7 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "and the watcher (`pdcov watch`) showing the coverage climbing; then "
                     "the report. --offline: plan a lawnmower and a spiral, fly them "
                     "kinematically, evaluate and compare them (the paper's Figs. 7 and 8).")
-    p.add_argument("--out", type=Path, default=Path("pdcov-demo"), help="output folder")
+    p.add_argument("--out", type=output_dir, default="pdcov-demo",
+                   help="output folder, replaced whole when the demo finishes (default "
+                        "pdcov-demo)")
     p.add_argument("--altitude-m", type=positive, default=10.0, help="flight height")
     p.add_argument("--speed-mps", type=positive, default=5.0, help="flight speed")
     p.add_argument("--speed", type=positive, default=8.0, metavar="N",
@@ -74,16 +75,21 @@ def run_live(args: argparse.Namespace) -> int:
     else:  # a west and an east half, one spiral each
         xm = 0.5 * (x0 + x1)
         areas = [free.intersection(box(x0, y0, xm, y1)), free.intersection(box(xm, y0, x1, y1))]
-    vehicles = []
-    for k, area in enumerate(areas, start=1):
-        plan, _ = build_plan(replace(scenario, free_space=area),
-                             PlanParams("spiral", args.altitude_m, args.speed_mps))
-        path = args.out / "plans" / f"uav{k}.plan"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_plan(path, plan, mission.origin())
-        vehicles.append(DemoVehicle(f"uav{k}", k, path))
-    run_live_demo(LiveDemo(args.out, doc, tuple(vehicles), speed=args.speed, web=web,
-                           plain=args.plain or not stdout_is_terminal()))
+    # The children write into a fresh folder that replaces the previous one only when the
+    # demo has finished (an error or Ctrl-C puts the previous one back).
+    with replacing_dir(args.out) as replaced:
+        vehicles = []
+        for k, area in enumerate(areas, start=1):
+            plan, _ = build_plan(replace(scenario, free_space=area),
+                                 PlanParams("spiral", args.altitude_m, args.speed_mps))
+            path = args.out / "plans" / f"uav{k}.plan"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_plan(path, plan, mission.origin())
+            vehicles.append(DemoVehicle(f"uav{k}", k, path))
+        run_live_demo(LiveDemo(args.out, doc, tuple(vehicles), speed=args.speed, web=web,
+                               plain=args.plain or not stdout_is_terminal()))
+    if replaced:
+        print(f"replaced the previous outputs in {args.out}")
     return 0
 
 

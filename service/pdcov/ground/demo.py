@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -48,9 +47,11 @@ class DemoVehicle:
 
 @dataclass(frozen=True, slots=True)
 class LiveDemo:
-    """out: the demo folder. mission_doc: the mission config mapping (the bundled demo
-    mission) each vehicle's config is made from. speed: simulator speed-up. web:
-    (host, port) for the browser map, or None. timeout_s: the longest the flights may take."""
+    """out: the demo folder, new or empty (``pdcov demo`` gives a fresh one that replaces
+    the previous folder whole when the demo finishes). mission_doc: the mission config
+    mapping (the bundled demo mission) each vehicle's config is made from. speed: simulator
+    speed-up. web: (host, port) for the browser map, or None. timeout_s: the longest the
+    flights may take."""
 
     out: Path
     mission_doc: Mapping[str, Any]
@@ -74,6 +75,7 @@ class Children:
     def __init__(self) -> None:
         self.procs: list[tuple[str, subprocess.Popen[bytes]]] = []
         self._logs: list[IO[bytes]] = []
+        self._log_paths: dict[subprocess.Popen[bytes], Path] = {}
 
     def start(self, name: str, args: Sequence[str], log: Path | None) -> subprocess.Popen[bytes]:
         out: Any = None
@@ -84,7 +86,29 @@ class Children:
         p = subprocess.Popen(list(args), stdout=out, stderr=subprocess.STDOUT if out else None,
                              stdin=subprocess.DEVNULL, start_new_session=True)
         self.procs.append((name, p))
+        if log is not None:
+            self._log_paths[p] = log
         return p
+
+    def log_end(self, p: subprocess.Popen[bytes], lines: int = 15) -> str:
+        """For an error message: the last ``lines`` lines of ``p``'s log, or "" (no log).
+        The message must carry them: a failed demo's folder, logs included, is removed and
+        the previous one put back."""
+        path = self._log_paths.get(p)
+        if path is None:
+            return ""
+        try:
+            with path.open("rb") as f:
+                f.seek(max(0, path.stat().st_size - 8192))
+                tail = f.read().decode("utf-8", "replace").splitlines()[-lines:]
+        except OSError:
+            return ""
+        return "; its log ends:\n" + "\n".join(f"    {line}" for line in tail) if tail else ""
+
+    def log_ends(self, lines: int = 5) -> str:
+        """``log_end`` of every child that has a log, each under its name."""
+        return "".join(f"\n  the {name}{self.log_end(p, lines)}" for name, p in self.procs
+                       if p in self._log_paths)
 
     @staticmethod
     def terminate(p: subprocess.Popen[bytes], grace_s: float) -> int:
@@ -100,10 +124,21 @@ class Children:
         return int(p.returncode)
 
     def stop_all(self) -> None:
-        for _, p in reversed(self.procs):
-            self.terminate(p, 10.0)
-        for f in self._logs:
-            f.close()
+        """Stop every child; a second Ctrl-C meanwhile kills the rest at once, so that no
+        child outlives the demo (and writes into a folder being put back)."""
+        try:
+            for _, p in reversed(self.procs):
+                self.terminate(p, 10.0)
+        except KeyboardInterrupt:
+            for _, p in self.procs:
+                if p.poll() is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.killpg(p.pid, signal.SIGKILL)
+                    p.wait(timeout=10)
+            raise
+        finally:
+            for f in self._logs:
+                f.close()
 
 
 class FleetStatus:
@@ -158,10 +193,6 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
     Raises PdcovError when a process fails (naming its log)."""
     say = stdout or sys.stdout
     out = demo.out
-    # A previous run's checkpoints would be resumed by the daemons (same mission), and its
-    # recording mixed with this one: start these folders afresh.
-    for folder in ("configs", "logs", "sim", "state", "report"):
-        shutil.rmtree(out / folder, ignore_errors=True)
     for folder in ("configs", "logs", "sim", "state"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     report = out / "report"
@@ -206,22 +237,22 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
                             "--connect", link], out / "logs" / f"serve-{v.vehicle_id}.log")
         deadline = time.monotonic() + demo.timeout_s
         while any(p.poll() is None for _, p in sims):
-            _check_alive(children, out, skip={p for _, p in sims})
+            _check_alive(children, skip={p for _, p in sims})
             if time.monotonic() > deadline:
-                raise PdcovError(f"demo: the flights took longer than {demo.timeout_s:g} s; "
-                                 f"logs in {out / 'logs'}")
+                raise PdcovError(f"demo: the flights took longer than {demo.timeout_s:g} s"
+                                 f"{children.log_ends()}")
             time.sleep(0.2)
         for v, p in sims:
             if p.returncode != 0:
                 raise PdcovError(f"demo: the simulator of {v.vehicle_id} failed (exit "
-                                 f"{p.returncode}); see {out / 'logs' / f'sim-{v.vehicle_id}.log'}")
+                                 f"{p.returncode}){children.log_end(p)}")
         ids = [v.vehicle_id for v in demo.vehicles]
         end = time.monotonic() + 60.0
         while not fleet.settled(ids, SETTLE_S):
-            _check_alive(children, out, skip={p for _, p in sims})  # the sims have landed
+            _check_alive(children, skip={p for _, p in sims})  # the sims have landed
             if time.monotonic() > end:
-                raise PdcovError("demo: the daemons' grids did not settle within 60 s; logs "
-                                 f"in {out / 'logs'}")
+                raise PdcovError("demo: the daemons' grids did not settle within 60 s"
+                                 f"{children.log_ends()}")
             time.sleep(0.2)
         # The watcher applies the last tiles within a tiles period; give it one second.
         time.sleep(1.0)
@@ -229,8 +260,8 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
             raise PdcovError(f"demo: the watcher exited with status {watcher.returncode}")
         for name, p in children.procs:
             if name.startswith("daemon") and children.terminate(p, 30.0) != 0:
-                raise PdcovError(f"demo: {name} exited with status {p.returncode}; see "
-                                 f"{out / 'logs'}")
+                raise PdcovError(f"demo: {name} exited with status {p.returncode}"
+                                 f"{children.log_end(p)}")
         final = fleet.final()
         summary = {"wall_s": round(time.monotonic() - t0, 1), "report": str(report),
                    "status": final}
@@ -242,12 +273,14 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
               f"flights (tlog): {out / 'sim'}; logs: {out / 'logs'}", file=say, flush=True)
         return summary
     finally:
-        children.stop_all()
-        if sub is not None:
-            sub.undeclare()
-        router.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        try:
+            children.stop_all()
+        finally:  # also after a second Ctrl-C during stop_all
+            if sub is not None:
+                sub.undeclare()
+            router.close()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
 
 def _interrupt(signum: int, _frame: Any) -> None:
@@ -265,10 +298,9 @@ def _interrupt_on_signals() -> dict[int, Any]:
     return previous
 
 
-def _check_alive(children: Children, out: Path, skip: set[Any] | frozenset = frozenset()
-                 ) -> None:
+def _check_alive(children: Children, skip: set[Any] | frozenset = frozenset()) -> None:
     for name, p in children.procs:
         if p not in skip and p.poll() is not None:
-            raise PdcovError(f"demo: the {name} stopped (exit {p.returncode}); logs in "
-                             f"{out / 'logs'}")
+            raise PdcovError(f"demo: the {name} stopped (exit {p.returncode})"
+                             f"{children.log_end(p)}")
 
