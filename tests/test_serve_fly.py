@@ -1,9 +1,9 @@
 """``pdcov-sitl fly`` -> ``pdcov serve`` -> Zenoh subscriber, loopback only: live equals
 offline for each simulated gimbal (over UDP, and over a serial pseudo-terminal that appears
-after the daemon started), frames from an onboard detector over Zenoh are counted exactly,
-a GPS glitch is reported and never interpolated across, the daemon survives the simulator's
-faults, resumes after kill -9, and a subscriber recovers the whole grid after the router was
-gone for 20 s.
+after the daemon started), frames from an onboard detector over Zenoh are counted exactly
+and the daemon's recording evaluates to its grid with them, a GPS glitch is reported and
+never interpolated across, the daemon survives the simulator's faults, resumes after kill
+-9, and a subscriber recovers the whole grid after the router was gone for 20 s.
 
 Every flight has its own router, daemon and simulator on free ports, so the flights fly at
 once (a module fixture runs them on a thread pool; each test asserts on its own flight's
@@ -66,14 +66,15 @@ def fly_args(cfg, plan, out, link: str, *more, speed: float = SPEED) -> list[str
             str(plan), "--out", str(out), "--connect", link, "--speed", str(speed), *more]
 
 
-def offline(cfg, tlog, out) -> dict:
-    """``pdcov evaluate`` of a tlog, in a process of its own (flights evaluate at once)."""
+def offline(cfg, tlog, out, *more: str) -> dict:
+    """``pdcov evaluate`` of a tlog, in a process of its own (flights evaluate at once); its
+    summary (stdout) under "summary"."""
     res = subprocess.run([sys.executable, "-m", "pdcov.cli", "evaluate", "--config", str(cfg),
-                          "--log", str(tlog), "--out", str(out), "--no-progress"],
+                          "--log", str(tlog), "--out", str(out), "--no-progress", *more],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     with np.load(out / "grid.npz") as z:
-        return {k: z[k] for k in z.files}
+        return {"summary": res.stdout, **{k: z[k] for k in z.files}}
 
 
 def same(state, ref, what) -> None:
@@ -132,7 +133,8 @@ def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
 
 def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None, **service):
     """Daemon first (UDP), then the simulator. ``detector(fly, sub, zenoh_port)`` runs
-    while the simulator flies and returns the frame times it published."""
+    while the simulator flies and returns the frame times it published and how many it
+    sent twice."""
     zport, mport = free_port(), free_port()
     cfg = serve_config(doc, tmp / "m.yaml", zenoh_port=zport, state_dir=tmp / "st", **service)
     out = {"cfg": cfg}
@@ -143,7 +145,7 @@ def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None, **s
         with process(fly_args(cfg, plan, tmp / "fly", f"udpout:127.0.0.1:{mport}", *fly_more),
                      tmp / "fly.log") as fly:
             if detector is not None:
-                out["times"] = detector(fly, sub, zport)
+                out["times"], out["resent"] = detector(fly, sub, zport)
             assert fly.wait(timeout=240) == 0, (tmp / "fly.log").read_text()[-2000:]
         out["st"], out["grid"], out["snap"] = finish(sub, daemon, tmp)
     return out
@@ -171,14 +173,16 @@ def fly_pty(tmp: Path, doc: dict, plan: Path, *fly_more: str):
     return out
 
 
-def detector_frames(fly, sub: Subscriber, zport: int) -> list[float]:
+def detector_frames(fly, sub: Subscriber, zport: int) -> tuple[list[float], int]:
     """An onboard detector: while the simulator flies, publishes the times of the images it
     processed (every 0.29 s of the autopilot clock), in batches, each a little behind the
-    newest telemetry (its processing latency); the rest once the flight has ended."""
+    newest telemetry (its processing latency); the rest once the flight has ended. Each
+    batch newest first, and every third one sent twice (the daemon takes each time once)."""
     session = open_session(BusConfig(mode="client", connect=(f"tcp/127.0.0.1:{zport}",),
                                      multicast_scouting=False))
     key = VehicleKeys("sim1").frames
     times: list[float] = []
+    batches = [0, 0]  # batches, times sent twice
 
     def publish(upto: float) -> None:
         batch = []
@@ -188,7 +192,10 @@ def detector_frames(fly, sub: Subscriber, zport: int) -> list[float]:
                 break
             batch.append(t)
         if batch:
-            session.put(key, encode_frames(batch))
+            batches[0] += 1
+            for _ in range(2 if batches[0] % 3 == 0 else 1):
+                session.put(key, encode_frames(batch[::-1]))
+            batches[1] += len(batch) if batches[0] % 3 == 0 else 0
             times.extend(batch)
 
     try:
@@ -203,7 +210,7 @@ def detector_frames(fly, sub: Subscriber, zport: int) -> list[float]:
         publish(sub.status["t_s"] - 1.0)
     finally:
         session.close()
-    return times
+    return times, batches[1]
 
 
 def grid_at_times(cfg: Path, tlog: Path, times: list[float]):
@@ -317,6 +324,14 @@ def flights(tmp_path_factory, plan) -> dict[str, Future]:
 
     fixed = dict(SIM, mount=FIXED)
 
+    def recorded_frames(out: dict) -> dict:
+        """``pdcov evaluate --frame-source capture`` of the daemon's recording ('mine'):
+        the detector's frames the daemon recorded."""
+        cfg = out["cfg"]
+        out["mine"] = offline(cfg, recording(cfg.parent), cfg.parent / "off-rec",
+                              "--frame-source", "capture")
+        return out
+
     def evaluated(out: dict, sim: bool = True) -> dict:
         """The flight's outcome with ``pdcov evaluate`` of the daemon's recording ('mine')
         and of the simulator's tlog ('sim')."""
@@ -341,8 +356,11 @@ def flights(tmp_path_factory, plan) -> dict[str, Future]:
         "device-earth": lambda: evaluated(fly_udp(tmp("earth"), SIM, plan, "--gimbal",
                                                   "device-earth")),
         "fixed": lambda: evaluated(fly_pty(tmp("pty"), fixed, plan, "--gimbal", "fixed")),
-        "zenoh": lambda: fly_udp(tmp("zenoh"), fixed, plan, "--gimbal", "fixed",
-                                 detector=detector_frames, frame_source="zenoh"),
+        # The camera triggers too: its captures are in both tlogs, and never used.
+        "zenoh": lambda: recorded_frames(fly_udp(tmp("zenoh"), fixed, plan, "--gimbal",
+                                                 "fixed", "--camera-trigger",
+                                                 detector=detector_frames,
+                                                 frame_source="zenoh")),
     }
     pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="flight")
     try:
@@ -411,7 +429,10 @@ def test_zenoh_frames_counted_exactly(flights):
     assert len(times) > 100
     frames = st["frames"]
     assert frames["source"] == "zenoh"
-    assert frames["used"] + sum(frames["skipped"].values()) == len(times), frames
+    # A time sent again after a later frame was decided is counted late, and not taken.
+    late = frames["skipped"].get("late frame time", 0)
+    assert late <= f["resent"] > 0
+    assert frames["used"] + sum(frames["skipped"].values()) - late == len(times), frames
     assert frames["pending"] == 0
     for tlog in (recording(tmp), tmp / "fly" / "flight.tlog"):
         ref, added = grid_at_times(f["cfg"], tlog, times)
@@ -420,6 +441,21 @@ def test_zenoh_frames_counted_exactly(flights):
                          "n_obs": ref.n_obs}, f"snapshot vs {tlog.name} at the frame times")
         same(f["grid"], {"log_miss_d": ref.log_miss_d, "log_miss_fa": ref.log_miss_fa,
                          "n_obs": ref.n_obs}, "tiles")
+
+
+def test_zenoh_frames_recorded_and_evaluated_offline(flights):
+    """The daemon's recording holds the detector's frames: ``pdcov evaluate`` of it (frame
+    source capture) gives the daemon's checkpoint grid, array for array, with those frames
+    and not the camera's own captures, which the log holds too."""
+    f = flights["zenoh"].result(timeout=900)
+    tmp, mine = f["cfg"].parent, f["mine"]
+    log = read_flight_log(recording(tmp))
+    assert [c.t_s for c in log.captures] == pytest.approx(f["times"], abs=1e-9)
+    assert "not the camera's" in mine["summary"], mine["summary"]
+    with np.load(tmp / "st" / "checkpoint.npz") as z:
+        for key in ("log_miss_d", "log_miss_fa", "n_obs", "frames"):
+            assert np.array_equal(z[key], mine[key]), key
+    assert int(mine["frames"]) == f["st"]["frames"]["used"] > 100
 
 
 def test_faults_keep_it_up(flights):
