@@ -21,7 +21,7 @@ from pdcov.service.daemon import Daemon
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.recorded_frames import SOURCE, FrameEncoder, is_recorded_frame
+from pdcov.telemetry.recorded_frames import MARK, SOURCE, FrameEncoder, recorded_mark
 from pdcov.telemetry.tlog import mavlink
 
 CAMERA = 100  # MAV_COMP_ID_CAMERA
@@ -47,9 +47,9 @@ def _segment(boot_shift_ms: int = 0) -> list[bytes]:
     return out
 
 
-def _config(tmp: Path):
+def _config(tmp: Path, frame_source: str = "zenoh"):
     doc = dict(MISSION, mount=FIXED)
-    doc["service"] = {"state_dir": str(tmp / "state"), "frame_source": "zenoh",
+    doc["service"] = {"state_dir": str(tmp / "state"), "frame_source": frame_source,
                       "reorder_s": 0.0}
     (tmp / "m.yaml").write_text(yaml.safe_dump(doc))
     return tmp / "m.yaml"
@@ -57,6 +57,17 @@ def _config(tmp: Path):
 
 class Link(bytes):
     """MAVLink bytes from the link (other steps are frames payloads)."""
+
+
+def evaluated_is_live(cfg_path: Path, rec: Path, out: Path, live) -> None:
+    """``pdcov evaluate --frame-source capture`` of the recording: the live grid, array
+    for array."""
+    assert pdcov_main(["evaluate", "--config", str(cfg_path), "--log", str(rec), "--out",
+                       str(out), "--frame-source", "capture", "--no-progress"]) == 0
+    with np.load(out / "grid.npz") as z:
+        assert int(z["frames"]) == live.grid.frames
+        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+            assert np.array_equal(z[key], getattr(live.grid, key)), key
 
 
 async def _fly(d: Daemon, steps: list[bytes]) -> None:
@@ -115,13 +126,7 @@ def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> N
     assert any("frame times pdcov serve took from its detector" in n
                and "not the camera's" in n for n in log.notes), log.notes
 
-    out = tmp_path / "offline"
-    assert pdcov_main(["evaluate", "--config", str(cfg_path), "--log", str(rec), "--out",
-                       str(out), "--frame-source", "capture", "--no-progress"]) == 0
-    with np.load(out / "grid.npz") as z:
-        assert int(z["frames"]) == live.grid.frames
-        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
-            assert np.array_equal(z[key], getattr(live.grid, key)), key
+    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live)
     summary = capsys.readouterr().out
     assert f"13 capture events ({SOURCE})" in summary, summary
     assert "not the camera's 16 capture events" in summary, summary
@@ -130,7 +135,7 @@ def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> N
 def test_a_recorded_frame_is_not_a_camera_capture() -> None:
     data = FrameEncoder().encode(7, 123_456)
     (msg,) = _parse(data)
-    assert is_recorded_frame(msg)
+    assert recorded_mark(msg) == MARK
     assert (msg.get_srcSystem(), msg.get_srcComponent(), msg.time_boot_ms) == (7, 191, 123_456)
 
     def camera(url: bytes, component: int):
@@ -139,6 +144,46 @@ def test_a_recorded_frame_is_not_a_camera_capture() -> None:
         return _parse(pack(msg, 7, component))[0]
 
     # The mark from another component, or component 191 without the mark: a camera's.
-    assert not is_recorded_frame(camera(b"pdcov:detector-frame", CAMERA))
-    assert not is_recorded_frame(camera(b"file:///img/0001.jpg", 191))
-    assert is_recorded_frame(camera(b"pdcov:detector-frame", 191))
+    assert recorded_mark(camera(b"pdcov:detector-frame", CAMERA)) is None
+    assert recorded_mark(camera(b"file:///img/0001.jpg", 191)) is None
+    assert recorded_mark(camera(b"pdcov:detector-frame", 191)) == MARK
+
+
+def test_capture_frames_duplicated_or_late_evaluate_to_the_live_grid(tmp_path: Path) -> None:
+    """``frame_source: capture``: the autopilot's CAMERA_IMAGE_CAPTURED every 0.3 s, one
+    sent twice at once, the same again late, and one held back until later frames were
+    decided (late: the daemon does not take it). ``pdcov evaluate`` of the recording gives
+    the live grid."""
+    cfg_path = _config(tmp_path, "capture")
+    d = Daemon(load_serve_config(cfg_path))
+    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    mav = mavlink.MAVLink(None)
+
+    def capture(ms: int) -> bytes:
+        return pack(mav.camera_image_captured_encode(ms, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0],
+                                                     ms // 100, 1, b""))
+
+    steps: list[bytes] = []
+    for i, msg in enumerate(Hover(seconds=4.0).messages()):
+        steps.append(Link(pack(msg, seq=i)))
+        ms = msg.time_boot_ms if msg.get_type() == "ATTITUDE" else 0
+        if ms == 3300:  # late (less than 2 s: more would be an autopilot reboot)
+            steps += [Link(capture(2100)), Link(capture(1500))]
+        if not ms or ms % 300 or ms == 2100:
+            continue
+        steps.append(Link(capture(ms)))
+        if ms == 1500:
+            steps.append(Link(capture(1500)))                 # a duplicate at once
+    asyncio.run(_fly(d, steps))
+    d.recorder.close()
+    live = d.live
+    assert live.counters.skipped["late frame time"] == 2, live.counters.skipped
+    assert live.frames_pending == 0
+    assert live.grid.frames == live.counters.used == 12, live.counters.skipped
+
+    rec = next((tmp_path / "rec").glob("flight-*.tlog"))
+    log = read_flight_log(rec)  # 15 capture events, the 2 late ones marked as not taken
+    assert sorted(round(c.t_s * 1000) for c in log.captures) == [
+        1200, 1500, 1500, 1800, *range(2400, 4801, 300)], log.captures
+    assert any(n.startswith("2 capture events pdcov serve did not take") for n in log.notes)
+    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live)

@@ -193,15 +193,21 @@ class LiveCoverage:
         those taken, in order (not: a duplicate, or one at or before a decided frame)."""
         taken = []
         for t in t_s:
-            if t <= self.last_frame_t_s:
-                if t < self.last_frame_t_s:
-                    self.counters.skipped["late frame time"] += 1
+            if self.is_late(t):
+                self.counters.skipped["late frame time"] += 1
+                continue
+            if t == self.last_frame_t_s:
                 continue
             i = bisect.bisect_left(self._queue, t)
             if i == len(self._queue) or self._queue[i] != t:
                 self._queue.insert(i, t)
                 taken.append(t)
         return taken
+
+    def is_late(self, t_s: float) -> bool:
+        """A frame time before the last decided frame: never taken (the frames after it are
+        in the grid already)."""
+        return t_s < self.last_frame_t_s
 
     def set_params(self, params: dict[str, float], done: bool) -> None:
         """The mount parameters read so far; ``done`` when no more will come."""

@@ -48,6 +48,7 @@ from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.gimbal import mount_param_names
 from pdcov.telemetry.link_params import MOUNT_TYPE_PARAMS
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
+from pdcov.telemetry.samples import CaptureSample
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
@@ -281,13 +282,22 @@ class Daemon:
         now = time.monotonic()
         live, proto = self.live, self.protocol
         for msg in msgs:
-            if msg.get_type() == "BAD_DATA":
+            mtype = msg.get_type()
+            if mtype == "BAD_DATA":
                 live.counters.faults["bad_messages"] += 1
                 continue
-            for sample in proto.receive(msg, now):
+            samples = proto.receive(msg, now)
+            # The message's own capture event (the last sample), not taken: late.
+            late = (mtype == "CAMERA_IMAGE_CAPTURED" and live.frame_source == "capture"
+                    and bool(samples) and isinstance(samples[-1], CaptureSample)
+                    and live.is_late(samples[-1].t_s))
+            for sample in samples:
                 live.add_sample(sample)
             if self.recorder is not None:  # all of it: even what came before a HEARTBEAT
                 self.recorder.write(msg.get_msgbuf(), time.time())
+                if late and proto.system_id is not None:  # recorded_frames: not taken
+                    self.recorder.write(self._frame_encoder.not_taken(proto.system_id, msg),
+                                        time.time())
         if not self._process_scheduled:  # once per loop pass, after every readable link
             self._process_scheduled = True
             asyncio.get_running_loop().call_soon(self._process)

@@ -28,7 +28,13 @@ import numpy as np
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
 from pdcov.telemetry.gimbal import preferred_gimbal_source
-from pdcov.telemetry.recorded_frames import MARK, RECORDED_FRAME_COMPONENT, is_recorded_frame
+from pdcov.telemetry.recorded_frames import (
+    MARK,
+    NOT_TAKEN,
+    RECORDED_FRAME_COMPONENT,
+    NotTakenCaptures,
+    recorded_mark,
+)
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.samples import (
     CONST_POS_MODE,
@@ -190,6 +196,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     heartbeats: list[HeartbeatSample] = []
     messages = _Messages()
     recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
+    not_taken = NotTakenCaptures()
     n_ok = 0
     try:
         scanner = TlogScanner(path.read_bytes())
@@ -201,10 +208,14 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         comp = comps[key]
         boot_s = mavlink_boot_time_s(msg)
-        messages.source.append((key[0] << 8) | key[1])
+        mark = recorded_mark(msg)  # the daemon's own (recorded_frames): no clock's message
+        messages.source.append(-1 if mark == NOT_TAKEN else (key[0] << 8) | key[1])
         messages.boot_s.append(math.nan if boot_s is None else boot_s)
-        if is_recorded_frame(msg):  # placed below, once the autopilot is known
+        if mark == MARK:  # placed below, once the autopilot is known
             recorded[n_ok - 1] = (key[0], int(msg.image_index))
+            continue
+        if mark == NOT_TAKEN:
+            not_taken.mark(msg)
             continue
         # Stamped in the sender's own clock here; other components than the autopilot
         # are restamped below, once it is known.
@@ -216,6 +227,8 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
             kind = type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION" else "")
             comp.samples[kind].append(sample)
             comp.message_index[kind].append(n_ok - 1)
+            if mtype == "CAMERA_IMAGE_CAPTURED":
+                not_taken.capture(msg, n_ok - 1)
     if n_ok == 0:
         raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt")
     damage = scanner.damage.describe()
@@ -228,6 +241,12 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     restarts = tuple(ap.clock.restarts_t_s)
     if restarts:
         notes.append(_restart_note(len(restarts), "time_boot_ms"))
+    if not_taken.dropped:
+        for comp in comps.values():
+            _drop_samples(comp, "CaptureSample", not_taken.dropped)
+        notes.append(f"{len(not_taken.dropped)} capture events pdcov serve did not take "
+                     f"(late: a later frame was decided; marked {NOT_TAKEN!r}) not used, "
+                     "as live")
 
     # The autopilot's own samples are already in its clock (a BootClock, as VehicleClock
     # keeps it); the other components' are restamped by the rule the daemon applies.
@@ -281,6 +300,16 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
 def _estimator(samples: list[EstimatorSample], source: str) -> tuple[EstimatorSeries, str]:
     series = EstimatorSeries.from_samples(samples)
     return series, source if len(series.t_s) else ""
+
+
+def _drop_samples(comp: _Component, kind: str, indices: set[int]) -> None:
+    """Remove ``comp``'s samples of ``kind`` whose message index is in ``indices``."""
+    idx = comp.message_index.get(kind)
+    if not idx:
+        return
+    keep = [j for j, i in enumerate(idx) if i not in indices]
+    comp.samples[kind] = [comp.samples[kind][j] for j in keep]
+    comp.message_index[kind] = [idx[j] for j in keep]
 
 
 def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:

@@ -1,6 +1,7 @@
-"""Frame times ``pdcov serve`` took from its onboard detector (Zenoh ``pdcov/<id>/frames``),
-written into its recording as MAVLink so that ``pdcov evaluate`` of the recording evaluates
-the same frames (docs/service.md, "Durability").
+"""What ``pdcov serve`` writes into its recording, beside the messages it received, so that
+``pdcov evaluate`` of the recording evaluates the frames it did (docs/service.md,
+"Durability"): the frame times it took from its onboard detector (Zenoh
+``pdcov/<id>/frames``), and the capture events it did not take (late).
 
 Each frame time the daemon accepted becomes, in the order it accepted them, one
 CAMERA_IMAGE_CAPTURED (common.xml, id 263) of the followed vehicle's system from the
@@ -12,10 +13,17 @@ Clock: its time_boot_ms is the frame time in the AUTOPILOT's boot clock (the fra
 payload's clock, to the millisecond), not a clock of component 191's own: a reader places
 it with the autopilot clock's offset at that point of the log
 (``clocks.VehicleClock.autopilot_boot_s``), as the daemon placed it when it arrived.
+
+A capture event (CAMERA_IMAGE_CAPTURED) the daemon did not take because it came after a
+later frame was decided (``frames.skipped."late frame time"``) is followed in the recording
+by a CAMERA_IMAGE_CAPTURED from component 191 with ``file_url`` NOT_TAKEN, capture_result
+0 (no image), and the capture's source component (camera_id), time_boot_ms and
+image_index: a reader drops the nearest such capture event before it.
 """
 
 from __future__ import annotations
 
+from collections import defaultdict
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -23,6 +31,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 RECORDED_FRAME_COMPONENT = 191
 """MAV_COMP_ID_ONBOARD_COMPUTER: the component the daemon speaks as."""
 MARK = "pdcov:detector-frame"
+NOT_TAKEN = "pdcov:capture-not-taken"
 SOURCE = "pdcov serve: detector frames"
 """CaptureSample.source of the frames read back."""
 MAX_BOOT_MS = 0xFFFFFFFF
@@ -40,8 +49,9 @@ def boot_s(t_boot_ms: int) -> float:
 
 
 class FrameEncoder:
-    """The recording's frame messages of one daemon: ``encode`` gives one MAVLink 2 frame
-    (bytes) per accepted frame time, numbered and sequenced."""
+    """The messages one daemon adds to its recording, as MAVLink 2 frames (bytes),
+    sequenced: ``encode`` one per detector frame time taken (numbered), ``not_taken`` one
+    per capture event not taken."""
 
     def __init__(self) -> None:
         self._mav = mavlink.MAVLink(None, srcComponent=RECORDED_FRAME_COMPONENT)
@@ -54,18 +64,51 @@ class FrameEncoder:
         mav.srcSystem = system_id
         msg = mav.camera_image_captured_encode(t_boot_ms, 0, 0, 0, 0, 0, 0, [1.0, 0, 0, 0],
                                                self.count & 0x7FFFFFFF, 1, MARK.encode())
-        data = bytes(msg.pack(mav))
-        mav.seq = (mav.seq + 1) % 256
         self.count += 1
+        return self._packed(msg)
+
+    def not_taken(self, system_id: int, capture: Any) -> bytes:
+        """The mark that the CAMERA_IMAGE_CAPTURED ``capture`` just recorded was not taken."""
+        mav = self._mav
+        mav.srcSystem = system_id
+        return self._packed(mav.camera_image_captured_encode(
+            capture.time_boot_ms, 0, capture.get_srcComponent(), 0, 0, 0, 0, [1.0, 0, 0, 0],
+            capture.image_index, 0, NOT_TAKEN.encode()))
+
+    def _packed(self, msg: Any) -> bytes:
+        data = bytes(msg.pack(self._mav))
+        self._mav.seq = (self._mav.seq + 1) % 256
         return data
 
 
-def is_recorded_frame(msg: Any) -> bool:
-    """A frame time the daemon recorded (module docstring), not a camera's capture."""
+def recorded_mark(msg: Any) -> str | None:
+    """MARK for a frame time the daemon recorded, NOT_TAKEN for its mark of a capture it
+    did not take (module docstring), None for anything else (a camera's own capture)."""
     if msg.get_type() != "CAMERA_IMAGE_CAPTURED" or \
             msg.get_srcComponent() != RECORDED_FRAME_COMPONENT:
-        return False
+        return None
     url = msg.file_url
     if isinstance(url, bytes):
         url = url.decode("ascii", "replace")
-    return str(url).rstrip("\x00") == MARK
+    url = str(url).rstrip("\x00")
+    return url if url in (MARK, NOT_TAKEN) else None
+
+
+class NotTakenCaptures:
+    """A reader's bookkeeping of NOT_TAKEN marks, fed the log in order: ``capture`` for each
+    CAMERA_IMAGE_CAPTURED capture event, ``mark`` for each mark; ``dropped`` holds the
+    message indices of the capture events the daemon did not take."""
+
+    def __init__(self) -> None:
+        self._seen: dict[tuple[int, int, int, int], list[int]] = defaultdict(list)
+        self.dropped: set[int] = set()
+
+    def capture(self, msg: Any, index: int) -> None:
+        self._seen[(msg.get_srcSystem(), msg.get_srcComponent(), msg.time_boot_ms,
+                    msg.image_index)].append(index)
+
+    def mark(self, msg: Any) -> None:
+        seen = self._seen.get((msg.get_srcSystem(), msg.camera_id, msg.time_boot_ms,
+                               msg.image_index))
+        if seen:
+            self.dropped.add(seen.pop())
