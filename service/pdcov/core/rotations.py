@@ -1,4 +1,4 @@
-"""Rotation helpers on top of scipy's Rotation: Euler angles, quaternions, slerp.
+"""Rotation helpers: Euler angles, quaternions, slerp.
 
 Conventions: ``R_a_b`` maps vectors in frame b into frame a. Quaternions are scalar first
 (w, x, y, z), as MAVLink sends them. Euler angles are the aerospace z-y-x sequence
@@ -9,6 +9,11 @@ protocol define them. Angles are radians.
 This is the one place that decomposes a rotation into Euler angles (``euler_zyx_from_R``,
 ``euler_zyx_from_R_many``);
 everything else works with matrices or quaternions, which have no gimbal lock.
+
+The quaternion <-> matrix conversions and slerp are closed forms in numpy rather than scipy's
+Rotation: the live daemon calls them for one or two frames at a time, where building Rotation
+objects cost ~0.1 ms a call; tests pin them to scipy at 1e-12. They are elementwise, so a
+frame gives the same bits whether converted alone or in a batch (live equals offline).
 """
 
 from __future__ import annotations
@@ -44,15 +49,81 @@ def euler_zyx_from_R(R: np.ndarray) -> tuple[float, float, float]:
     return float(roll), float(pitch), float(yaw)
 
 
+# R_from_quat_wxyz: each matrix entry (row-major) as the signed sum of four products of
+# the quaternion's components (w, x, y, z = 0..3), times 1 on the diagonal and 2 off it.
+_R_PRODUCTS = np.array([[0, 5, 10, 15], [6, 3, 0, 0], [7, 2, 0, 0],
+                        [6, 3, 0, 0], [0, 5, 10, 15], [11, 1, 0, 0],
+                        [7, 2, 0, 0], [11, 1, 0, 0], [0, 5, 10, 15]]).T
+_R_SIGNS = np.array([[1, 1, -1, -1], [1, -1, 0, 0], [1, 1, 0, 0],
+                     [1, 1, 0, 0], [1, -1, 1, -1], [1, -1, 0, 0],
+                     [1, -1, 0, 0], [1, 1, 0, 0], [1, -1, -1, 1]], float).T
+_R_SCALE = np.array([1.0, 2, 2, 2, 1, 2, 2, 2, 1])
+
+
 def R_from_quat_wxyz(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (w, x, y, z); (..., 4) gives (..., 3, 3)."""
-    return Rotation.from_quat(np.asarray(q_wxyz, dtype=float), scalar_first=True).as_matrix()
+    """Rotation matrix of a quaternion (w, x, y, z), normalised first; (..., 4) gives
+    (..., 3, 3). Raises ValueError for a zero quaternion."""
+    q = np.asarray(q_wxyz, dtype=float)
+    shape = q.shape[:-1]
+    q = q.reshape(-1, 4)
+    norm = quat_norm(q)
+    if not np.all(norm):
+        raise ValueError("zero-norm quaternion: no rotation")
+    q = q / norm[:, None]
+    outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)  # products w*w, w*x, ...
+    t = outer[:, _R_PRODUCTS] * _R_SIGNS                     # (N, 4, 9)
+    return (((t[:, 0] + t[:, 1]) + t[:, 2] + t[:, 3]) * _R_SCALE).reshape(*shape, 3, 3)
+
+
+def quat_norm(q_wxyz: np.ndarray) -> np.ndarray:
+    """Euclidean norms (N,) of quaternions (N, 4), summed in one fixed order, so that a row
+    gives the same bits whatever the number of rows (a numpy reduction's summation order
+    may depend on the array's shape)."""
+    sq = np.square(q_wxyz, dtype=float)
+    return np.sqrt(((sq[:, 0] + sq[:, 1]) + sq[:, 2]) + sq[:, 3])
+
+
+_ORTHO_ATOL = 1e-12  # as scipy's from_matrix: beyond it a matrix is first orthogonalised
+_EYE3 = np.eye(3)
+# quat_wxyz_from_R: for the chosen case k (Markley), 4 |q_k| q in (w, x, y, z) is
+# c + s0 m[i0] + s1 m[i1] + s2 m[i2] (m the row-major matrix entries).
+_Q_CONST = np.array([[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0]], float)
+_Q_ENTRIES = np.array([
+    [[7, 5, 0], [0, 4, 8], [3, 1, 0], [6, 2, 0]],
+    [[2, 6, 0], [3, 1, 0], [4, 0, 8], [7, 5, 0]],
+    [[3, 1, 0], [6, 2, 0], [7, 5, 0], [8, 0, 4]],
+    [[0, 4, 8], [7, 5, 0], [2, 6, 0], [3, 1, 0]]]).transpose(2, 0, 1)  # (term, case, wxyz)
+_Q_SIGNS = np.array([
+    [[1, -1, 0], [1, -1, -1], [1, 1, 0], [1, 1, 0]],
+    [[1, -1, 0], [1, 1, 0], [1, -1, -1], [1, 1, 0]],
+    [[1, -1, 0], [1, 1, 0], [1, 1, 0], [1, -1, -1]],
+    [[1, 1, 1], [1, -1, 0], [1, -1, 0], [1, -1, 0]]], float).transpose(2, 0, 1)
 
 
 def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix (..., 3, 3)."""
-    q = Rotation.from_matrix(R).as_quat(canonical=True, scalar_first=True)
-    return np.asarray(q)
+    """Unit quaternion (w, x, y, z) of rotation matrices (..., 3, 3), sign chosen so that the
+    first nonzero of w, x, y, z is positive (w >= 0). Markley's method ("Unit Quaternion from
+    Rotation Matrix", 2008), from the largest of the diagonal entries and the trace, as
+    scipy's from_matrix. Matrices not orthonormal within 1e-12 go through scipy (nearest
+    rotation by SVD; raises ValueError for a determinant <= 0)."""
+    R = np.asarray(R, dtype=float)
+    m = R.reshape(-1, 9)
+    n = len(m)
+    diag = m[:, [0, 4, 8]]
+    trace = (diag[:, 0] + diag[:, 1]) + diag[:, 2]
+    choice = np.argmax(np.concatenate([diag, trace[:, None]], axis=1), axis=1)
+    rows = np.arange(n)[:, None]
+    t = m[rows, _Q_ENTRIES[:, choice]] * _Q_SIGNS[:, choice]  # (term, N, 4)
+    q = ((_Q_CONST[choice] + t[0]) + t[1]) + t[2]
+    q /= quat_norm(q)[:, None]
+    first = np.argmax(q != 0, axis=1)
+    q *= np.where(q[np.arange(n), first] < 0, -1.0, 1.0)[:, None]
+    mm = m.reshape(-1, 3, 3)
+    other = ~np.all(np.abs(mm @ mm.transpose(0, 2, 1) - _EYE3) <= _ORTHO_ATOL, axis=(1, 2))
+    other |= np.linalg.det(mm) <= 0
+    if other.any():
+        q[other] = Rotation.from_matrix(mm[other]).as_quat(canonical=True, scalar_first=True)
+    return q.reshape(*R.shape[:-2], 4)
 
 
 def Rz(angle_rad: float) -> np.ndarray:
@@ -87,10 +158,32 @@ def euler_zyx_from_R_many(R: np.ndarray) -> np.ndarray:
     return ypr[:, ::-1].copy()
 
 
+_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
+# Hamilton product: each component (w, x, y, z) of a * b as the signed sum of four products
+# a_i b_j, indexed 4 i + j (w, x, y, z = 0..3).
+_MUL_PRODUCTS = np.array([[0, 5, 10, 15], [1, 4, 11, 14], [2, 7, 8, 13], [3, 6, 9, 12]])
+_MUL_SIGNS = np.array([[1, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]], float)
+
+
+def _quat_mul_wxyz(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a * b of quaternions (N, 4) (w, x, y, z): R(a b) = R(a) R(b)."""
+    t = (a[:, :, None] * b[:, None, :]).reshape(-1, 16)[:, _MUL_PRODUCTS] * _MUL_SIGNS
+    return ((t[..., 0] + t[..., 1]) + t[..., 2]) + t[..., 3]
+
+
 def slerp_quat_wxyz(q0_wxyz: np.ndarray, q1_wxyz: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation from unit quaternions q0 to q1 (N, 4) by fractions
-    ``w`` (N,) in [0, 1], along the shorter arc; returns (N, 4) unit quaternions (w, x, y, z)."""
-    r0 = Rotation.from_quat(np.asarray(q0_wxyz, float), scalar_first=True)
-    r1 = Rotation.from_quat(np.asarray(q1_wxyz, float), scalar_first=True)
-    rotvec = (r0.inv() * r1).as_rotvec() * np.asarray(w, float)[:, None]
-    return (r0 * Rotation.from_rotvec(rotvec)).as_quat(scalar_first=True)
+    """Spherical linear interpolation from quaternions q0 to q1 (N, 4), normalised first, by
+    fractions ``w`` (N,) in [0, 1], along the shorter arc; returns (N, 4) unit quaternions
+    (w, x, y, z): q0 * exp(w log(q0^-1 q1))."""
+    q0 = np.asarray(q0_wxyz, float).reshape(-1, 4)
+    q1 = np.asarray(q1_wxyz, float).reshape(-1, 4)
+    q0 = q0 / quat_norm(q0)[:, None]
+    rel = _quat_mul_wxyz(q0 * _CONJUGATE, q1 / quat_norm(q1)[:, None])
+    rel[rel[:, 0] < 0] *= -1.0  # the shorter arc
+    v = rel[:, 1:]
+    sin_half = np.sqrt((v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) + v[:, 2] * v[:, 2])
+    half = np.arctan2(sin_half, rel[:, 0]) * np.asarray(w, float).reshape(-1)
+    step = np.empty_like(rel)
+    step[:, 0] = np.cos(half)
+    step[:, 1:] = v * (np.sin(half) / np.where(sin_half > 0, sin_half, 1.0))[:, None]
+    return _quat_mul_wxyz(q0, step)
