@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pdcov.core.mount import AXES, GimbalMount, R_body_gimbal_from_servos, axis_R, servo_angles
+from pdcov.core.mount import AXES, GimbalMount, R_body_gimbal_from_servos, servo_angles
 from pdcov.core.pose import (
     GIMBAL_FLAG_RETRACT,
     GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
     GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,
     GIMBAL_FLAG_YAW_LOCK,
 )
-from pdcov.core.rotations import R_from_quat_wxyz
+from pdcov.core.rotations import R_from_quat_wxyz, quat_norm
 
 QUAT_NORM_TOL = 1e-3
 """A gimbal quaternion whose norm is off 1 by more than this is not a rotation report."""
@@ -192,7 +192,7 @@ def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.nd
     failure = np.asarray(failure_flags, np.int64).reshape(-1)
     R_ned_body = np.asarray(R_ned_body, float).reshape(-1, 3, 3)
     n = len(q)
-    norm = np.linalg.norm(q, axis=1)
+    norm = quat_norm(q)
     usable = np.isfinite(norm) & (norm > 0.5)
     q_unit = np.where(usable[:, None], q / np.where(usable, norm, 1.0)[:, None], [1, 0, 0, 0])
     R_ref = R_from_quat_wxyz(q_unit).reshape(n, 3, 3)
@@ -222,8 +222,13 @@ def interpret_gimbal(q_wxyz: np.ndarray, flags: np.ndarray, failure_flags: np.nd
         R_ned_gimbal = R_ned_body @ R_body_gimbal_from_servos(clipped, interp.axis_order)
     else:
         earth = earth_frame_mask(flags)
+        # A vehicle-frame report is turned by the heading: Rz(heading) @ R_ref, written out
+        # (it mixes the first two rows).
         heading = np.arctan2(R_ned_body[:, 1, 0], R_ned_body[:, 0, 0])
-        R_ned_gimbal = np.where(earth[:, None, None], R_ref, axis_R("yaw", heading) @ R_ref)
+        c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+        row0, row1 = R_ref[:, 0], R_ref[:, 1]
+        turned = np.stack([c * row0 - s * row1, s * row0 + c * row1, R_ref[:, 2]], axis=1)
+        R_ned_gimbal = np.where(earth[:, None, None], R_ref, turned)
     return GimbalAttitudes(R_ned_gimbal, reasons == "", reasons, usable, at_limit)
 
 

@@ -34,6 +34,7 @@ from pdcov.core.pose import (
 from pdcov.core.rotations import (
     R_from_quat_wxyz,
     euler_zyx_from_R_many,
+    quat_norm,
     quat_wxyz_from_R,
     slerp_quat_wxyz,
 )
@@ -90,10 +91,10 @@ def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
         z = np.zeros(len(t), int)
         f = np.zeros(len(t), bool)
         return z, z, np.zeros(len(t)), f, f
-    i = np.searchsorted(ts, t, side="right")
-    lo = np.clip(i - 1, 0, n - 1)
+    i = ts.searchsorted(t, side="right")
+    lo = np.maximum(i - 1, 0)  # i <= n
     exact = ts[lo] == t
-    hi = np.where(exact, lo, np.clip(i, 0, n - 1))
+    hi = np.where(exact, lo, np.minimum(i, n - 1))
     inside = (i >= 1) & ((i < n) | exact)
     gap = ts[hi] - ts[lo]
     w = np.where(gap > 0, (t - ts[lo]) / np.where(gap > 0, gap, 1.0), 0.0)
@@ -105,6 +106,8 @@ def _merge_sorted(old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
     """Columns (time first) of two time-sorted sets merged in time order; of equal times the
     one from ``new`` is kept. Either set may be empty."""
     cols = [np.concatenate([a, b]) for a, b in zip(old, new, strict=True)]
+    if not len(old[0]) or not len(new[0]) or new[0][0] > old[0][-1]:
+        return cols  # live telemetry comes in order: ``new`` follows ``old``
     order = np.argsort(cols[0], kind="stable")
     keep = np.diff(cols[0][order], append=np.inf) > 0
     return [c[order][keep] for c in cols]
@@ -250,12 +253,15 @@ class PoseTracker:
             self._pending_gim = []
         if self.history_s is not None and len(self._att.t_s):
             cut = self._att.t_s[-1] - self.history_s
-            a = self._att.t_s >= cut
-            self._att = AttitudeSeries(self._att.t_s[a], self._att.q_ned_body_wxyz[a])
-            p = self._pos_t >= cut
-            self._pos_t, self._pos_enu = self._pos_t[p], self._pos_enu[p]
-            g = self._gim.t_s >= cut
-            self._gim = GimbalSeries(*(c[g] for c in _gimbal_columns(self._gim)))
+            # Sorted times: the history kept is a slice from the first time >= cut.
+            a = int(self._att.t_s.searchsorted(cut))
+            if a:
+                self._att = AttitudeSeries(self._att.t_s[a:], self._att.q_ned_body_wxyz[a:])
+            p = int(self._pos_t.searchsorted(cut))
+            self._pos_t, self._pos_enu = self._pos_t[p:], self._pos_enu[p:]
+            g = int(self._gim.t_s.searchsorted(cut))
+            if g:
+                self._gim = GimbalSeries(*(c[g:] for c in _gimbal_columns(self._gim)))
 
     # --- querying --------------------------------------------------------------------------
 
@@ -335,19 +341,20 @@ class PoseTracker:
             g = self._gim
             lo, hi, w, inside, gap_ok = _bracket(g.t_s, t, self.max_gap_s)
             check("gimbal", inside, gap_ok)
-            R_ned_gimbal = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+            R_ned_gimbal = np.repeat(np.eye(3)[None], n, axis=0)  # no samples: skipped
             interp = np.full(n, interpretation.frame, dtype=object)
             if len(g.t_s):
                 near = np.where(w < 0.5, lo, hi)
-                norm = np.linalg.norm(g.q_wxyz, axis=1)
-                q_unit = g.q_wxyz / norm[:, None]
-                earth = earth_frame_mask(g.flags)
-                same = earth[lo] == earth[hi]  # never slerp across a change of frame
-                q_i = slerp_quat_wxyz(q_unit[lo], q_unit[hi], np.where(same, w, 0.0))
-                q_i = np.where(same[:, None], q_i, q_unit[near])
+                q_near = g.q_wxyz[near]
+                norm = quat_norm(q_near)
+                flags_lo, flags_hi = g.flags[lo], g.flags[hi]
+                # Never slerp across a change of frame.
+                same = earth_frame_mask(flags_lo) == earth_frame_mask(flags_hi)
+                q_i = slerp_quat_wxyz(g.q_wxyz[lo], g.q_wxyz[hi], np.where(same, w, 0.0))
+                q_i = np.where(same[:, None], q_i, q_near / norm[:, None])
                 # Carry the nearer report's norm so that a non-unit report is judged as sent.
-                gimbal_q = q_i * norm[near][:, None]
-                gimbal_flags = g.flags[near]
+                gimbal_q = q_i * norm[:, None]
+                gimbal_flags = np.where(w < 0.5, flags_lo, flags_hi)
                 failure = g.failure_flags[lo] | g.failure_flags[hi]
                 att = interpret_gimbal(gimbal_q, gimbal_flags, failure, R_ned_body,
                                        interpretation)
