@@ -4,8 +4,10 @@ URL, read from the event loop with ``loop.add_reader`` on its file descriptor.
 Why add_reader and not a reader thread: every message then reaches the decisions on the
 event loop's own thread, in order, with no locks and no hand-over; reading is
 non-blocking (pymavlink opens UDP and TCP sockets non-blocking and serial ports with
-timeout 0), so one readable event drains what has arrived in one ``recv``. Only opening a
-link blocks (a TCP connect, a serial device that is not there yet): that runs in the
+timeout 0), so one readable event drains what has arrived: a stream in one ``recv``, UDP
+datagram by datagram up to MAX_DATAGRAMS_PER_EVENT (each message batch costs the daemon one
+pass of its decisions, so a datagram per event would cost one pass per datagram). Only
+opening a link blocks (a TCP connect, a serial device that is not there yet): that runs in the
 default executor, off the loop.
 
 URLs as pymavlink and MAVProxy write them: ``udpin:0.0.0.0:14550``, ``udpout:HOST:PORT``,
@@ -31,6 +33,9 @@ log = logging.getLogger(__name__)
 READ_BYTES = 65536
 BACKOFF_START_S = 0.5
 UDP_RCVBUF_BYTES = 4 << 20
+MAX_DATAGRAMS_PER_EVENT = 64
+"""UDP datagrams read per readable event at most: what has arrived, bounded so that a flood
+cannot hold the loop (the rest is read on its next pass)."""
 
 
 def pymavlink_url(url: str) -> tuple[str, int | None]:
@@ -127,28 +132,42 @@ class Connection:
     def _readable(self) -> None:
         try:
             if hasattr(self.conn.port, "recvfrom") and self.url.startswith("udp"):
-                data = self.conn.recv()          # records the peer address for replies
+                chunks = self._datagrams()
             elif hasattr(self.conn.port, "recv"):
                 data = self.conn.port.recv(READ_BYTES)
                 if not data:
                     raise ConnectionError("closed by the peer")
+                chunks = [data]
             else:
-                data = self.conn.port.read(READ_BYTES)
+                chunks = [self.conn.port.read(READ_BYTES)]
         except (OSError, ConnectionError, Exception) as exc:  # noqa: BLE001 - serial errors
             self._lost(f"read failed: {exc}")
             return
-        if not data:
+        if not any(chunks):
             return
         self.last_rx_s = asyncio.get_running_loop().time()
         if self.state != "connected":
             self.state = "connected"
-        try:
-            msgs = self.conn.mav.parse_buffer(bytes(data)) or []
-        except Exception:  # noqa: BLE001 - robust_parsing should not raise; count if it does
-            self.bad += 1
-            return
+        msgs: list = []
+        for data in chunks:
+            try:
+                msgs += self.conn.mav.parse_buffer(bytes(data)) or []
+            except Exception:  # noqa: BLE001 - robust_parsing should not raise; count it
+                self.bad += 1
         if msgs:
             self._on_messages(self, msgs)
+
+    def _datagrams(self) -> list[bytes]:
+        """The datagrams waiting, up to MAX_DATAGRAMS_PER_EVENT, each read by pymavlink's
+        ``mavudp.recv``: it records the sender (udpin: its clients, which replies go to;
+        broadcast: the last sender) and gives b"" once nothing is waiting (EAGAIN)."""
+        out = []
+        for _ in range(MAX_DATAGRAMS_PER_EVENT):
+            data = self.conn.recv()
+            if not data:
+                break
+            out.append(data)
+        return out
 
     def _lost(self, why: str) -> None:
         log.warning("link %s: lost (%s); reopening", self.url, why)
