@@ -366,7 +366,8 @@ def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
 
 def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[float]]:
     """Frames ``pdcov evaluate`` skips in ``tlog`` (telemetry gaps): how many lie in an
-    injected outage or NaN window (widened by the 1 s gap rule), and the times of the others
+    injected outage, NaN window or GPS glitch (whose frames the estimator status skips),
+    widened by the 1 s gap rule, and the times of the others
     (frames lost to something else: the daemon not keeping up, a dropped burst)."""
     from pdcov.config import load_mission
     from pdcov.telemetry.pose_tracker import poses_from_log
@@ -379,7 +380,8 @@ def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[flo
                            frame_source=m.frame_source, max_gap_s=m.max_gap_s)
     spec = FaultSpec.parse(faults)
     windows = [(w.start_s - 1.5, w.start_s + w.duration_s + m.max_gap_s + 0.5)
-               for w in (*spec.outages, *(n.window for n in spec.nans))]
+               for w in (*spec.outages, *(n.window for n in spec.nans),
+                         *(g.window for g in spec.gps_glitches))]
     inside = [any(a <= t <= b for a, b in windows) for t in poses.skipped_t_s]
     return sum(inside), [float(t) for t, i in zip(poses.skipped_t_s, inside, strict=True)
                          if not i]

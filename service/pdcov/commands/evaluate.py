@@ -111,7 +111,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
             frame_source=args.frame_source or mission.frame_source,
-            max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress)
+            max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
+            estimator_status=mission.estimator_status)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)
     _check_near_origin(poses, args.poses or args.log, mission.source)

@@ -44,6 +44,7 @@ from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
+    EstimatorSample,
     GimbalSample,
     HeartbeatSample,
     HomeSample,
@@ -57,20 +58,22 @@ NAMED_VALUE_PERIOD_S = 1.0
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 MAX_WAITING_SAMPLES = 2_000_000
 """Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
-TrackedSample = AttitudeSample | PositionSample | GimbalSample
+TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample
 """The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
 
 
 @dataclass(slots=True)
 class Due:
     """What the shell should do now: publish status, send these tiles bytes, checkpoint,
-    send NAMED_VALUE_FLOAT with this value and/or STATUSTEXT with this text."""
+    send NAMED_VALUE_FLOAT with this value and/or STATUSTEXT with this text, log this
+    note (once)."""
 
     status: bool = False
     tiles: bytes | None = None
     checkpoint: bool = False
     named_value: float | None = None
     statustext: str | None = None
+    note: str | None = None
 
 
 @dataclass(slots=True)
@@ -105,6 +108,9 @@ class LiveCoverage:
         self._last_position: PositionSample | None = None
         self._armed_t_s: float | None = None
         self._heartbeats = False
+        self._estimator_seen = False  # an estimator status came over the link
+        self._note: str | None = None  # said once by poll (Due.note)
+        self._noted_no_estimator = False
         self._latest: dict[str, float] = {}       # stream -> newest sample time given
         self._needed = ("attitude", "position") + (
             ("gimbal",) if isinstance(m.mount, GimbalMount) else ())
@@ -182,7 +188,9 @@ class LiveCoverage:
             if not (math.isfinite(norm) and norm > 0.5):
                 self.counters.faults["nan_samples"] += 1
                 return
-        if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample)):
+        if isinstance(sample, EstimatorSample):
+            self._estimator_seen = True
+        if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample)):
             if len(self._waiting) >= MAX_WAITING_SAMPLES:
                 self._waiting.popleft()
                 self.counters.faults["samples_dropped_waiting"] += 1
@@ -232,7 +240,8 @@ class LiveCoverage:
         if isinstance(m.mount, GimbalMount) and self.interpretation is None:
             return
         self.tracker = PoseTracker(self.origin, m.mount, interpretation=self.interpretation,
-                                   max_gap_s=self.max_gap_s, history_s=self.history_s)
+                                   max_gap_s=self.max_gap_s, history_s=self.history_s,
+                                   use_estimator=m.estimator_status)
 
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting.
@@ -280,6 +289,11 @@ class LiveCoverage:
             elif isinstance(s, PositionSample):
                 tr.add_position(s)
                 stream = "position"
+            elif isinstance(s, EstimatorSample):
+                # Not a stream a frame waits for: a report carries no time of its own and is
+                # stamped at arrival, so none can come for a frame whose attitude is in.
+                tr.add_estimator(s)
+                continue
             else:
                 before = tr.gimbal_source
                 tr.add_gimbal(s)
@@ -415,8 +429,10 @@ class LiveCoverage:
         # As poses_from_log: poses are rebuilt from their quaternion (bit-identical grids).
         R_enu_cam = R_from_quat_wxyz(quat_wxyz_from_R(b.R_enu_cam[use]).reshape(-1, 4))
         added = 0
-        for R, r, t, R_body in zip(R_enu_cam.reshape(-1, 3, 3), b.r_cam_enu[use], b.t_s[use],
-                                   b.R_ned_body[use], strict=True):
+        unjudged = 0
+        for R, r, t, R_body, judged in zip(R_enu_cam.reshape(-1, 3, 3), b.r_cam_enu[use],
+                                           b.t_s[use], b.R_ned_body[use],
+                                           b.estimator_judged[use], strict=True):
             pose = CameraPose(R, r, float(t))
             self.last_pose, self._last_R_ned_body = pose, R_body
             if pose.r_cam_enu[2] < m.min_height_m:
@@ -424,8 +440,17 @@ class LiveCoverage:
                 continue
             self.grid.update(pose)
             added += 1
+            unjudged += not judged
         self.state.frames = self.grid.frames
         self.counters.used += added
+        if unjudged and m.estimator_status:
+            self.counters.faults["frames_without_estimator_status"] += unjudged
+            if not self._estimator_seen and not self._noted_no_estimator:
+                self._noted_no_estimator = True
+                self._note = ("no estimator status (EKF_STATUS_REPORT / ESTIMATOR_STATUS) on "
+                              "the link: frames are not checked against the autopilot's "
+                              "position estimate (counted in faults."
+                              "frames_without_estimator_status)")
         return added
 
     @property
@@ -445,7 +470,8 @@ class LiveCoverage:
     def poll(self, now_s: float) -> Due:
         """What is due at ``now_s`` (the daemon's monotonic clock, s)."""
         bus, svc = self.cfg.bus, self.cfg.service
-        due = Due()
+        due = Due(note=self._note)
+        self._note = None
         if now_s >= self._next_status_s:
             due.status = True
             self._next_status_s = max(self._next_status_s + bus.status_period_s, now_s)

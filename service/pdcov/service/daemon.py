@@ -326,6 +326,8 @@ class Daemon:
         live.set_params(proto.params, proto.params_done)
         live.process()
         due = live.poll(now)
+        if due.note is not None:
+            log.warning("%s", due.note)
         if due.tiles is not None:
             self._put(self.pub_tiles, due.tiles)
         if due.status:

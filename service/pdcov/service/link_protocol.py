@@ -27,6 +27,7 @@ from pdcov.telemetry.clocks import VehicleClock
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
+    EstimatorSample,
     HeartbeatSample,
     ParamSample,
     Sample,
@@ -211,6 +212,8 @@ class LinkProtocol:
             self.params[sample.name] = sample.value
             if all(n in self.params for n in self._param_names):
                 self.param_request.result = "acked"
+        if isinstance(sample, EstimatorSample) and src_comp != self.autopilot_component:
+            return early  # the autopilot's own estimator only, as the log readers take it
         if isinstance(sample, HeartbeatSample):
             if src_comp != self.autopilot_component:
                 return early

@@ -8,7 +8,9 @@ and asks ``pose_at(t_s)`` per camera frame; offline, ``poses_from_log`` loads a 
 Interpolation: attitude and gimbal quaternions by slerp, positions linearly in ENU, between
 the two samples that bracket the frame time; a frame whose bracketing samples of any stream
 are more than ``max_gap_s`` apart (or that lies outside a stream) is skipped, with the
-reason. Times are seconds in the autopilot clock (logs.py).
+reason. Frames whose position the autopilot's estimator calls bad are skipped too
+(telemetry/estimator.py), unless ``use_estimator`` is False. Times are seconds in the
+autopilot clock (logs.py).
 """
 
 from __future__ import annotations
@@ -39,6 +41,8 @@ from pdcov.core.rotations import (
     slerp_quat_wxyz,
 )
 from pdcov.errors import ConfigError, InputFileError, TelemetryError
+from pdcov.telemetry.estimator import describe as describe_estimator
+from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
 from pdcov.telemetry.gimbal import (
     GimbalInterpretation,
     GimbalMount,
@@ -51,6 +55,8 @@ from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.samples import (
     AttitudeSample,
     AttitudeSeries,
+    EstimatorSample,
+    EstimatorSeries,
     GimbalSample,
     GimbalSeries,
     PositionSample,
@@ -124,7 +130,8 @@ class FrameBatch:
     Arrays: t_s (N,), R_ned_body (N, 3, 3), r_body_enu (N, 3) m, R_enu_cam (N, 3, 3),
     r_cam_enu (N, 3) m, gimbal_q_wxyz (N, 4) as interpolated (NaN for a fixed mount),
     gimbal_flags (N,) (-1 for a fixed mount), interpretation (N,) str, at_limit (N,) a
-    servo demand at its limit."""
+    servo demand at its limit. estimator_judged (N,): an estimator status was in force (the
+    position-estimate rule could judge the frame)."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -138,6 +145,7 @@ class FrameBatch:
     trusted: np.ndarray
     untrusted_reason: np.ndarray
     at_limit: np.ndarray
+    estimator_judged: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -161,11 +169,12 @@ class PoseTracker:
     interpretation: the gimbal interpretation in force (gimbal.resolve_interpretation);
     None resolves a GimbalMount without autopilot parameters (its auto_fallback).
     history_s: live use keeps only this much history behind the newest sample.
+    use_estimator: skip frames by the estimator status (telemetry/estimator.py).
     """
 
     def __init__(self, origin: Origin, mount: FixedMount | GimbalMount, *,
                  interpretation: GimbalInterpretation | None = None, max_gap_s: float = 1.0,
-                 history_s: float | None = None) -> None:
+                 history_s: float | None = None, use_estimator: bool = True) -> None:
         if not (math.isfinite(max_gap_s) and max_gap_s > 0):
             raise ConfigError(f"max_gap_s: expected a positive number of seconds, "
                               f"got {max_gap_s!r}")
@@ -183,6 +192,9 @@ class PoseTracker:
         self._pending_att: list[AttitudeSample] = []
         self._pending_pos: list[PositionSample] = []
         self._pending_gim: list[GimbalSample] = []
+        self.use_estimator = use_estimator
+        self._est = EstimatorSeries.from_samples([])
+        self._pending_est: list[EstimatorSample] = []
         self._gimbal_flags_seen: dict[tuple[int, int, int], int] = {}
         self.gimbal_source: tuple[int, int, int] | None = None
         self.dropped_gimbal_reports = 0
@@ -190,9 +202,11 @@ class PoseTracker:
     @classmethod
     def from_flight_log(cls, log: FlightLog, origin: Origin, mount: FixedMount | GimbalMount,
                         interpretation: GimbalInterpretation | None,
-                        max_gap_s: float = 1.0) -> PoseTracker:
+                        max_gap_s: float = 1.0, use_estimator: bool = True) -> PoseTracker:
         """A tracker holding a whole log's series (offline evaluation)."""
-        tracker = cls(origin, mount, interpretation=interpretation, max_gap_s=max_gap_s)
+        tracker = cls(origin, mount, interpretation=interpretation, max_gap_s=max_gap_s,
+                      use_estimator=use_estimator)
+        tracker._est = log.estimator
         tracker._att = log.attitude
         tracker._set_positions(log.position)
         tracker._gim = tracker._usable_gimbal(log.gimbal)
@@ -206,6 +220,9 @@ class PoseTracker:
 
     def add_position(self, sample: PositionSample) -> None:
         self._pending_pos.append(sample)
+
+    def add_estimator(self, sample: EstimatorSample) -> None:
+        self._pending_est.append(sample)
 
     def add_gimbal(self, sample: GimbalSample) -> None:
         """Add a gimbal status; reports of other sources than the preferred one (gimbal.
@@ -251,6 +268,12 @@ class PoseTracker:
             self._gim = GimbalSeries(*_merge_sorted(_gimbal_columns(self._gim),
                                                     _gimbal_columns(new_gim)))
             self._pending_gim = []
+        if self._pending_est:  # older reports than can be in force go with them
+            cut_s = (self._att.t_s[-1] - self.history_s
+                     if self.history_s is not None and len(self._att.t_s) else None)
+            self._est = merge_estimator(self._est,
+                                        EstimatorSeries.from_samples(self._pending_est), cut_s)
+            self._pending_est = []
         if self.history_s is not None and len(self._att.t_s):
             cut = self._att.t_s[-1] - self.history_s
             # Sorted times: the history kept is a slice from the first time >= cut.
@@ -363,10 +386,17 @@ class PoseTracker:
                 if interpretation.frame == "flags":
                     interp = np.where(earth_frame_mask(gimbal_flags), "flags:earth",
                                       "flags:vehicle").astype(object)
+        # The estimator's verdict, where no rule above skipped the frame (a jump stays a jump).
+        est_reason, judged = estimator_reasons(self._est, t)
+        if not self.use_estimator:
+            judged[:] = False
+        else:
+            reason[(est_reason != "") & (reason == "")] = est_reason[(est_reason != "")
+                                                                     & (reason == "")]
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
         return FrameBatch(t, reason, R_ned_body, r_body, R_enu_cam, r_cam, gimbal_q,
-                          gimbal_flags, interp, trusted, untrusted, at_limit)
+                          gimbal_flags, interp, trusted, untrusted, at_limit, judged)
 
 
 # --- offline: a whole log ----------------------------------------------------------------
@@ -472,13 +502,15 @@ _CHUNK = 4096
 def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: float,
                    ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
                    frame_rate_hz: float, frame_source: str = "rate", max_gap_s: float = 1.0,
-                   system_id: int | None = None, progress: bool = False) -> LogPoses:
+                   system_id: int | None = None, progress: bool = False,
+                   estimator_status: bool = True) -> LogPoses:
     """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
     the autopilot's home altitude from the log. frame_source 'rate' places frames every
     1/frame_rate_hz s; 'capture' at the log's capture events. Frames whose telemetry has a
     gap longer than max_gap_s are skipped; untrusted gimbal frames follow mount.untrusted.
+    estimator_status: skip frames the autopilot's estimator calls bad (estimator.py).
     Raises TelemetryError / ConfigError with a message naming the file.
     """
     log = read_flight_log(path, system_id=system_id,
@@ -502,7 +534,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                  "dataflash": "the DataFlash PARM records",
                  "ulog": "the ULog parameters"}[log.format]
         interp = resolve_interpretation(mount, log.params, where)
-    tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s)
+    tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s,
+                                          use_estimator=estimator_status)
     t, how = frame_times(tracker, log, frame_rate_hz, frame_source)
 
     chunks = range(0, len(t), _CHUNK)
@@ -539,6 +572,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
         lines.append(f"skipped {len(skipped)} frames in {len(runs)} gaps longer than "
                      f"{max_gap_s:g} s or outside the data: {shown}{more}; reasons: "
                      + ", ".join(f"{r} {c}" for r, c in why.most_common()))
+    lines.append(describe_estimator(log.estimator, log.estimator_source,
+                                    int(b.estimator_judged.sum()), len(t), estimator_status))
     if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
