@@ -24,6 +24,7 @@ from link_feed import GROUND_M, LAT_DEG, LON_DEG, LinkFeed, pack, serve_config  
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 from serve_harness import Subscriber, free_port, process, router, serve_args, small_plan, stop  # noqa: E402
 from serve_harness import serve_config as write_config  # noqa: E402
+from ulog_fixture import write_ulog  # noqa: E402
 
 from benchmarks.harness import small_mission  # noqa: E402
 from pdcov.config import mission_from_dict  # noqa: E402
@@ -422,3 +423,26 @@ def test_px4_glitch_over_udp_live_equals_offline(tmp_path: Path) -> None:
                 np.testing.assert_array_equal(getattr(snap, key), z[key],
                                               err_msg=f"{name}: {key}")
             assert int(z["frames"]) == st["frames"]["grid"] > 100
+
+
+# --- PX4 ULog ----------------------------------------------------------------------------
+
+def test_ulog_estimator_status(tmp_path: Path) -> None:
+    """estimator_status.solution_status_flags (ESTIMATOR_STATUS_FLAGS, what PX4 sends as the
+    MAVLink message's flags): glitching 1-2 s, then no absolute position."""
+    att = ([("uint64_t", "timestamp"), ("float[4]", "q")],
+           [(int(k * 1e5), 1.0, 0.0, 0.0, 0.0) for k in range(40)])
+    pos = ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt")],
+           [(int(k * 1e5), LAT_DEG, LON_DEG, GROUND_M + 10) for k in range(40)])
+    flags = [OK_FLAGS] * 10 + [OK_FLAGS | mavlink.ESTIMATOR_GPS_GLITCH] * 10 + [167] * 10
+    est = ([("uint64_t", "timestamp"), ("uint16_t", "solution_status_flags")],
+           [(int(k * 1e5), f) for k, f in enumerate(flags)])
+    log = read_flight_log(write_ulog(tmp_path / "e.ulg", {
+        "vehicle_attitude": att, "vehicle_global_position": pos, "estimator_status": est}))
+    assert log.estimator_source == "estimator_status solution_status_flags"
+    e = log.estimator
+    assert len(e.t_s) == 30
+    assert list(e.gps_glitch) == [False] * 10 + [True] * 10 + [False] * 10
+    assert list(e.pos_horiz_abs) == [True] * 20 + [False] * 10
+    reason, _ = estimator_reasons(e, np.array([0.55, 1.55, 2.55]))
+    assert list(reason) == ["", GPS_GLITCHING, CONSTANT_POSITION]
