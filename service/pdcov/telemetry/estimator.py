@@ -74,8 +74,8 @@ def _columns(e: EstimatorSeries) -> tuple[np.ndarray, ...]:
 
 def describe(est: EstimatorSeries, source: str, judged: int, n_frames: int,
              enabled: bool) -> str:
-    """The summary line of the rule for ``n_frames`` frames of which ``judged`` had a report
-    in force."""
+    """The summary line of the rule for ``n_frames`` frames (those no other rule skipped) of
+    which ``judged`` had a report in force."""
     if not enabled:
         return "position estimate: not checked (log.estimator_status is false)"
     if len(est.t_s) == 0:
@@ -85,4 +85,5 @@ def describe(est: EstimatorSeries, source: str, judged: int, n_frames: int,
     unchecked = (f"; {n_frames - judged} not checked (no report within "
                  f"{ESTIMATOR_HOLD_S:g} s before them)" if judged < n_frames else "")
     return (f"position estimate: {len(est.t_s)} reports ({source}); {judged} of {n_frames} "
-            f"frames checked against the latest before them{unchecked}")
+            f"frames (not skipped otherwise) checked against the latest before them"
+            f"{unchecked}")

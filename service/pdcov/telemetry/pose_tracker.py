@@ -41,6 +41,7 @@ from pdcov.core.rotations import (
     slerp_quat_wxyz,
 )
 from pdcov.errors import ConfigError, InputFileError, TelemetryError
+from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
 from pdcov.telemetry.estimator import describe as describe_estimator
 from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
 from pdcov.telemetry.gimbal import (
@@ -572,8 +573,11 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
         lines.append(f"skipped {len(skipped)} frames in {len(runs)} gaps longer than "
                      f"{max_gap_s:g} s or outside the data: {shown}{more}; reasons: "
                      + ", ".join(f"{r} {c}" for r, c in why.most_common()))
+    # Of the frames no other rule skipped: how many a report was in force for.
+    checkable = valid | np.isin(b.skip_reason, ESTIMATOR_REASONS)
     lines.append(describe_estimator(log.estimator, log.estimator_source,
-                                    int(b.estimator_judged.sum()), len(t), estimator_status))
+                                    int((b.estimator_judged & checkable).sum()),
+                                    int(checkable.sum()), estimator_status))
     if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
