@@ -67,3 +67,38 @@ def test_a_flood_is_read_in_bounded_batches() -> None:
     n = 2 * MAX_DATAGRAMS_PER_EVENT + 5
     calls, _ = asyncio.run(asyncio.wait_for(receive_bursts([n]), 20.0))
     assert calls == [MAX_DATAGRAMS_PER_EVENT, MAX_DATAGRAMS_PER_EVENT, 5]
+
+
+async def overflow(n: int) -> tuple[int, int]:
+    """A udpin Connection whose receive buffer is made small, sent ``n`` heartbeats while the
+    loop does not read; (kernel_drops, messages read afterwards)."""
+    port = free_port(socket.SOCK_DGRAM)
+    got: list[int] = []
+    conn = Connection(f"udpin:127.0.0.1:{port}", on_messages=lambda c, m: got.append(len(m)),
+                      ids=lambda: (1, 191), signing_key=None, timeout_s=5.0,
+                      reconnect_max_s=1.0)
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        conn.start()
+        for _ in range(500):
+            if conn.state == "connected":
+                break
+            await asyncio.sleep(0.01)
+        conn.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        assert conn.kernel_drops == 0
+        for frame in heartbeat_frames(n):  # no await: the loop cannot read meanwhile
+            peer.sendto(frame, ("127.0.0.1", port))
+        drops = conn.kernel_drops
+        for _ in range(100):
+            await asyncio.sleep(0.01)
+        return drops, sum(got)
+    finally:
+        conn.close()
+        peer.close()
+
+
+def test_datagrams_the_kernel_dropped_are_counted() -> None:
+    drops, read = asyncio.run(asyncio.wait_for(overflow(500), 20.0))
+    # A 4 kB buffer holds a few datagrams: the rest were dropped, and each is accounted for.
+    assert drops > 0 and read > 0
+    assert drops + read == 500

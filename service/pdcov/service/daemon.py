@@ -97,6 +97,7 @@ class Daemon:
                                                  "recording_error": None}
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
+        self._next_drops_warning_s = 0.0
         self.recorder: TlogRecorder | None = None
         self._frame_encoder = FrameEncoder()
         self._early_frames: deque[int] = deque()  # detector frames (boot ms) before a HEARTBEAT
@@ -371,6 +372,12 @@ class Daemon:
         faults = live.counters.faults
         faults["reboots"] = self.protocol.reboots
         faults["link_losses"] = sum(c.losses for c in self.links)
+        drops = sum(c.kernel_drops for c in self.links)
+        if drops > faults.get("kernel_drops", 0) and now >= self._next_drops_warning_s:
+            self._next_drops_warning_s = now + 60.0
+            log.warning("MAVLink: the kernel dropped %d datagrams so far: the daemon did not "
+                        "read them in time (overloaded?)", drops)
+        faults["kernel_drops"] = drops
         faults["rejected_messages"] = sum(self.protocol.stats.rejected.values())
         faults["other_systems_messages"] = self.protocol.stats.other_systems
         fields = live.status_fields(uptime_s=round(now - self.started_s, 3),

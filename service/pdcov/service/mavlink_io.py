@@ -76,6 +76,23 @@ def open_connection(url: str, system_id: int, component_id: int,
     return conn
 
 
+def udp_drops(fd: int) -> int | None:
+    """Datagrams the kernel dropped at UDP socket ``fd`` because its receive buffer was full
+    (the daemon did not read in time): the ``drops`` column of /proc/net/udp or udp6 for the
+    socket's inode; None where that cannot be read (not Linux)."""
+    inode = str(os.fstat(fd).st_ino)
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as fh:
+                for line in fh:
+                    fields = line.split()
+                    if len(fields) >= 13 and fields[9] == inode:
+                        return int(fields[12])
+        except (OSError, ValueError):
+            continue
+    return None
+
+
 class Connection:
     """A link URL kept open: ``on_messages(conn, msgs, frames)`` gets each batch of parsed
     messages with their raw frames; ``send`` writes to it when open."""
@@ -99,6 +116,9 @@ class Connection:
         self._task: asyncio.Task | None = None
         self._closing = False
         self._stream = url.startswith(("tcp:", "serial:", "/dev/")) or "," in url
+        self._udp = url.startswith("udp")
+        self._drops_closed = 0  # kernel drops at the sockets closed before this one
+        self._drops_now = 0
 
     def start(self) -> None:
         self._task = asyncio.get_running_loop().create_task(self._open_forever())
@@ -200,6 +220,7 @@ class Connection:
                 self._lost(f"write failed: {exc}")
 
     def _close_conn(self) -> None:
+        self._drops_closed, self._drops_now = self.kernel_drops, 0
         if self._fd is not None:
             try:
                 asyncio.get_running_loop().remove_reader(self._fd)
@@ -225,3 +246,10 @@ class Connection:
                 "losses": self.losses,
                 "last_message_age_s": None if self.last_rx_s is None
                 else round(now_s - self.last_rx_s, 3)}
+
+    @property
+    def kernel_drops(self) -> int:
+        """Datagrams the kernel dropped at this link's UDP sockets (0 for other links)."""
+        if self._fd is not None and self._udp:
+            self._drops_now = udp_drops(self._fd) or 0
+        return self._drops_closed + self._drops_now
