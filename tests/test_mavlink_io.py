@@ -20,24 +20,30 @@ def heartbeat_frames(n: int) -> list[bytes]:
     return [mavlink.MAVLink_heartbeat_message(2, 3, 0, i, 4, 3).pack(mav) for i in range(n)]
 
 
+async def open_udpin(port: int, on_messages) -> Connection:
+    """A started udpin Connection on ``port``, once connected."""
+    conn = Connection(f"udpin:127.0.0.1:{port}", on_messages=on_messages,
+                      ids=lambda: (1, 191), signing_key=None, timeout_s=5.0,
+                      reconnect_max_s=1.0)
+    conn.start()
+    for _ in range(500):
+        if conn.state == "connected":
+            break
+        await asyncio.sleep(0.01)
+    assert conn.state == "connected"
+    return conn
+
+
 async def receive_bursts(bursts: list[int]) -> tuple[list[int], bytes]:
     """Send each burst of heartbeats at once to a udpin Connection; the number of messages
     per on_messages call, and what a reply sent after the last burst brought back."""
     port = free_port(socket.SOCK_DGRAM)
     calls: list[int] = []
-    conn = Connection(f"udpin:127.0.0.1:{port}", on_messages=lambda c, m: calls.append(len(m)),
-                      ids=lambda: (1, 191), signing_key=None, timeout_s=5.0,
-                      reconnect_max_s=1.0)
+    conn = await open_udpin(port, lambda c, m: calls.append(len(m)))
     peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     peer.bind(("127.0.0.1", 0))
     peer.settimeout(5.0)
     try:
-        conn.start()
-        for _ in range(500):
-            if conn.state == "connected":
-                break
-            await asyncio.sleep(0.01)
-        assert conn.state == "connected"
         sent = 0
         for n in bursts:
             # No await between the sends: all are waiting when the loop sees the socket.
@@ -74,16 +80,9 @@ async def overflow(n: int) -> tuple[int, int]:
     loop does not read; (kernel_drops, messages read afterwards)."""
     port = free_port(socket.SOCK_DGRAM)
     got: list[int] = []
-    conn = Connection(f"udpin:127.0.0.1:{port}", on_messages=lambda c, m: got.append(len(m)),
-                      ids=lambda: (1, 191), signing_key=None, timeout_s=5.0,
-                      reconnect_max_s=1.0)
+    conn = await open_udpin(port, lambda c, m: got.append(len(m)))
     peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        conn.start()
-        for _ in range(500):
-            if conn.state == "connected":
-                break
-            await asyncio.sleep(0.01)
         conn.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         assert conn.kernel_drops == 0
         for frame in heartbeat_frames(n):  # no await: the loop cannot read meanwhile
