@@ -30,6 +30,7 @@ from benchmarks.harness import small_mission  # noqa: E402
 from pdcov.config import mission_from_dict  # noqa: E402
 from pdcov.core.pose import FixedMount  # noqa: E402
 from pdcov.errors import ConfigError  # noqa: E402
+from pdcov.service.coverage import Due  # noqa: E402
 from pdcov.service.link_protocol import (  # noqa: E402
     EKF_STATUS_REPORT,
     ESTIMATOR_STATUS,
@@ -179,9 +180,20 @@ def live_and_offline(tmp: Path, msgs: list[mavlink.MAVLink_message], **log: obje
         Path(cfg.mission.source).write_text(yaml.safe_dump(doc))
         cfg = load_serve_config(cfg.mission.source)
     feed = LinkFeed(cfg)
+    live, poll = feed.live, feed.live.poll
+    notes: list[str] = []
+
+    def noting_poll(now_s: float) -> Due:  # what the daemon logs (Due.note)
+        due = poll(now_s)
+        if due.note is not None:
+            notes.append(due.note)
+        return due
+
+    live.poll = noting_poll  # type: ignore[method-assign]
     for i, m in enumerate(msgs):
         feed.feed(pack(m, seq=i), i * 0.001)
     feed.tick(len(msgs) * 0.001 + 1.0)
+    feed.notes = notes  # type: ignore[attr-defined]
     tlog = tmp / "hover.tlog"
     write_tlog(tlog, msgs)
     m = cfg.mission
@@ -219,6 +231,7 @@ def test_glitch_window_live_equals_offline(tmp_path: Path) -> None:
     assert [p for p in lp.poses if 10.0 < p.t_s <= 10.2]  # before the EKF said so
     status = feed.status()
     assert status["frames"]["skipped"][GPS_GLITCHING] == expected
+    assert feed.notes == []
     # The first report (1.0 s) precedes the first frame: every frame was judged.
     assert "frames_without_estimator_status" not in status["faults"], status["faults"]
     assert EKF_STATUS_REPORT in sum(status["link"]["intervals"].values(), [])
@@ -231,6 +244,7 @@ def test_no_status_on_the_link_skips_nothing_and_says_so(tmp_path: Path) -> None
     assert live.counters.used == off["grid"].frames > 100
     np.testing.assert_array_equal(live.grid.log_miss_d, off["grid"].log_miss_d)
     assert live.counters.faults["frames_without_estimator_status"] == live.counters.used
+    assert len(feed.notes) == 1 and "no estimator status" in feed.notes[0], feed.notes
     assert any("carries no estimator status" in line for line in lp.summary_lines)
 
 
