@@ -517,7 +517,8 @@ _EKF_LOGS = {3: ("XKF4", "EKF3"), 2: ("NKF4", "EKF2")}
 def _dataflash_estimator(estimators: Mapping[str, list[EstimatorSample]],
                          params: Mapping[str, float]) -> tuple[EstimatorSeries, str]:
     """The verdicts of the EKF the AHRS used (AHRS_EKF_TYPE 3: XKF4, 2: NKF4; without the
-    parameter XKF4, else NKF4); none when the AHRS ran no EKF (DCM 0, SIM 10, external 11)."""
+    parameter XKF4, else NKF4); none for the other types (0 DCM: no EKF, 1: the EKF1 of
+    ArduPilot 3.x, whose EKF4 this reader does not take, 10 SIM, 11 external AHRS)."""
     ekf_type = params.get("AHRS_EKF_TYPE")
     if ekf_type is not None and int(ekf_type) not in _EKF_LOGS:
         return EstimatorSeries.from_samples([]), ""
