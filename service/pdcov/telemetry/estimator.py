@@ -18,7 +18,9 @@ Verdicts, first that applies (samples.EstimatorSample):
 * "position estimate: no absolute position": no absolute horizontal position (no GPS fix
   used yet, relative aiding only, or EKF_UNINITIALIZED).
 PX4 also sets its constant-position bit while the vehicle is at rest with a good position;
-that alone skips nothing.
+that alone skips nothing. The reports' "variances" are not read: ArduPilot fills
+pos_horiz_variance with sqrt(position innovation test ratio) (NavEKF3_core::getVariances),
+PX4 pos_horiz_ratio likewise, and both EKFs raise their glitch flag from those innovations.
 """
 
 from __future__ import annotations
