@@ -9,6 +9,7 @@ same log. The end-to-end flight with a real Zenoh publisher is tests/test_serve_
 from __future__ import annotations
 
 import asyncio
+import json
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,18 @@ from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.footprint import encode_frames
 from pdcov.cli import main as pdcov_main
+from pdcov.config import load_mission
 from pdcov.service.daemon import Daemon
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.recorded_frames import MARK, SOURCE, FrameEncoder, recorded_mark
+from pdcov.telemetry.recorded_frames import (
+    MARK,
+    SOURCE,
+    FrameEncoder,
+    frame_source_for,
+    recorded_mark,
+)
 from pdcov.telemetry.tlog import mavlink
 
 CAMERA = 100  # MAV_COMP_ID_CAMERA
@@ -47,27 +55,37 @@ def _segment(boot_shift_ms: int = 0) -> list[bytes]:
     return out
 
 
-def _config(tmp: Path, frame_source: str = "zenoh"):
+def _config(tmp: Path, frame_source: str | None = "zenoh", name: str = "m.yaml",
+            log: dict | None = None):
+    """The mission config (no log section unless ``log`` is given) at ``tmp/name``."""
     doc = dict(MISSION, mount=FIXED)
     doc["service"] = {"state_dir": str(tmp / "state"), "frame_source": frame_source,
                       "reorder_s": 0.0}
-    (tmp / "m.yaml").write_text(yaml.safe_dump(doc))
-    return tmp / "m.yaml"
+    if log:
+        doc["log"] = log
+    (tmp / name).write_text(yaml.safe_dump(doc))
+    return tmp / name
 
 
 class Link(bytes):
     """MAVLink bytes from the link (other steps are frames payloads)."""
 
 
-def evaluated_is_live(cfg_path: Path, rec: Path, out: Path, live) -> None:
-    """``pdcov evaluate --frame-source capture`` of the recording: the live grid, array
-    for array."""
+def evaluate(cfg_path: Path, rec: Path, out: Path, *options: str) -> dict:
+    """``pdcov evaluate`` (its CLI main) of the recording: the grid arrays and frames."""
     assert pdcov_main(["evaluate", "--config", str(cfg_path), "--log", str(rec), "--out",
-                       str(out), "--frame-source", "capture", "--no-progress"]) == 0
+                       str(out), "--no-progress", *options]) == 0
     with np.load(out / "grid.npz") as z:
-        assert int(z["frames"]) == live.grid.frames
-        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
-            assert np.array_equal(z[key], getattr(live.grid, key)), key
+        return {k: z[k] for k in ("frames", "log_miss_d", "log_miss_fa", "n_obs")}
+
+
+def evaluated_is_live(cfg_path: Path, rec: Path, out: Path, live, *options: str) -> None:
+    """``pdcov evaluate`` of the recording (with ``options``): the live grid, array for
+    array."""
+    grid = evaluate(cfg_path, rec, out, *options)
+    assert int(grid["frames"]) == live.grid.frames
+    for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+        assert np.array_equal(grid[key], getattr(live.grid, key)), key
 
 
 async def _fly(d: Daemon, steps: list[bytes]) -> None:
@@ -126,7 +144,7 @@ def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> N
     assert any("frame times pdcov serve took from its detector" in n
                and "not the camera's" in n for n in log.notes), log.notes
 
-    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live)
+    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live, "--frame-source", "capture")
     summary = capsys.readouterr().out
     assert f"13 capture events ({SOURCE})" in summary, summary
     assert "not the camera's 16 capture events" in summary, summary
@@ -186,4 +204,77 @@ def test_capture_frames_duplicated_or_late_evaluate_to_the_live_grid(tmp_path: P
     assert sorted(round(c.t_s * 1000) for c in log.captures) == [
         1200, 1500, 1500, 1800, *range(2400, 4801, 300)], log.captures
     assert any(n.startswith("2 capture events pdcov serve did not take") for n in log.notes)
-    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live)
+    evaluated_is_live(cfg_path, rec, tmp_path / "offline", live, "--frame-source", "capture")
+
+
+def test_evaluate_uses_the_recorded_frames_unless_rate_is_chosen(tmp_path: Path,
+                                                                 capsys) -> None:
+    """A recording of ``service.frame_source: zenoh``, the config setting no
+    log.frame_source: ``pdcov evaluate`` with no frame source option gives the daemon's
+    grid, cell for cell, and says why; a frame source 'rate' chosen on the command line or
+    in the config is honoured (a rate lattice, not the daemon's grid) with a warning."""
+    cfg_path = _config(tmp_path)
+    d = Daemon(load_serve_config(cfg_path))
+    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    link = _segment()
+    half = len(link) // 2
+    asyncio.run(_fly(d, [Link(b"".join(link[:half])), encode_frames([1.5, 2.0]),
+                         Link(b"".join(link[half:])), encode_frames([2.5, 3.25, 4.0])]))
+    d.recorder.close()
+    live = d.live
+    assert live.grid.frames == live.counters.used == 5, live.counters.skipped
+    rec = next((tmp_path / "rec").glob("flight-*.tlog"))
+    capsys.readouterr()
+
+    evaluated_is_live(cfg_path, rec, tmp_path / "default", live)
+    out, err = capsys.readouterr()
+    assert "frame source: the 5 detector frames pdcov serve recorded" in out, out
+    assert f"frames: 5 capture events ({SOURCE}); 5 used of 5" in out, out
+    assert "WARNING" not in out + err, (out, err)
+    assert "warnings" not in json.loads((tmp_path / "default" / "metrics.json").read_text())
+
+    rate = evaluate(cfg_path, rec, tmp_path / "rate", "--frame-source", "rate")
+    out, err = capsys.readouterr()
+    assert f"frames: every {1 / MISSION['camera']['frame_rate_hz']:g} s" in out, out
+    assert int(rate["frames"]) != live.grid.frames
+    assert not np.array_equal(rate["n_obs"], live.grid.n_obs)
+    assert "pdcov evaluate: WARNING: frame source 'rate' was chosen" in err, err
+    assert "not the 5 detector frames pdcov serve recorded" in err, err
+    assert "WARNING: frame source 'rate' was chosen" in out, out  # beside the frames line
+    doc = json.loads((tmp_path / "rate" / "metrics.json").read_text())
+    assert any("frame source 'rate' was chosen" in w for w in doc["warnings"]), doc
+
+    # log.frame_source: rate in the config is a choice too; capture is the daemon's grid.
+    rate_cfg = _config(tmp_path, name="rate.yaml", log={"frame_source": "rate"})
+    again = evaluate(rate_cfg, rec, tmp_path / "rate-cfg")
+    assert "frame source 'rate' was chosen" in capsys.readouterr().err
+    for key, value in rate.items():
+        assert np.array_equal(again[key], value), key
+    capture_cfg = _config(tmp_path, name="capture.yaml", log={"frame_source": "capture"})
+    evaluated_is_live(capture_cfg, rec, tmp_path / "capture-cfg", live)
+
+
+def test_frame_source_for() -> None:
+    assert frame_source_for(None, 0).source == "rate"
+    assert frame_source_for(None, 0).line == frame_source_for(None, 0).warning == ""
+    chosen = frame_source_for(None, 7)
+    assert chosen.source == "capture" and "the 7 detector frames" in chosen.line
+    assert not chosen.warning
+    assert frame_source_for("rate", 7).source == "rate"
+    assert "not the 7 detector frames" in frame_source_for("rate", 7).warning
+    assert frame_source_for("rate", 0) == frame_source_for("rate", 0).__class__("rate")
+    assert frame_source_for("capture", 7).source == "capture"
+    assert not frame_source_for("capture", 7).warning
+
+
+def test_the_config_says_whether_a_frame_source_was_chosen(tmp_path: Path) -> None:
+    """Mission.frame_source stays 'rate' when log.frame_source is not set (the daemon and
+    the simulator read it so); chosen_frame_source tells a default from a choice."""
+    unset = load_mission(_config(tmp_path))
+    assert (unset.frame_source, unset.frame_source_set, unset.chosen_frame_source) == (
+        "rate", False, None)
+    for value in ("rate", "capture"):
+        m = load_mission(_config(tmp_path, name=f"{value}.yaml", log={"frame_source": value}))
+        assert (m.frame_source, m.chosen_frame_source) == (value, value)
+    # The daemon's default: service.frame_source null and log.frame_source not set.
+    assert load_serve_config(_config(tmp_path, None, name="s.yaml")).frame_source == "rate"

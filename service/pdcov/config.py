@@ -73,9 +73,11 @@ class Mission:
     altitude, resolved from the log or link. max_range_m / min_revisit_s: CoverageGrid
     options (None = its defaults). min_height_m: frames with the camera lower than this above
     the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or
-    'capture'. max_gap_s: telemetry gap that skips frames. system_id: the autopilot to
-    follow (None = from its HEARTBEAT). estimator_status: skip frames whose position the
-    autopilot's estimator calls bad (telemetry/estimator.py); false ignores it.
+    'capture' ('rate' when log.frame_source is not set); frame_source_set: whether the
+    config sets it (``chosen_frame_source``). max_gap_s: telemetry gap that skips frames.
+    system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
+    frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
+    false ignores it.
     """
 
     vehicle_id: str
@@ -93,11 +95,19 @@ class Mission:
     min_revisit_s: float | None = None
     min_height_m: float = 1.0
     frame_source: str = "rate"
+    frame_source_set: bool = False
     max_gap_s: float = 1.0
     system_id: int | None = None
     estimator_status: bool = True
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def chosen_frame_source(self) -> str | None:
+        """log.frame_source as the config sets it, None when it does not: ``pdcov
+        evaluate`` then uses the detector frames a daemon recorded in the log, if any
+        (recorded_frames.frame_source_for), else 'rate'."""
+        return self.frame_source if self.frame_source_set else None
 
     def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
         """The ENU origin; the ground altitude given here overrides the configured one."""
@@ -187,7 +197,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         max_range_m=_opt_number(cov, "max_range_m", src, "coverage"),
         min_revisit_s=_opt_number(cov, "min_revisit_s", src, "coverage"),
         min_height_m=_number(cov, "min_height_m", src, "coverage", default=1.0),
-        frame_source=frame_source,
+        frame_source=frame_source, frame_source_set="frame_source" in log,
         max_gap_s=_number(log, "max_gap_s", src, "log", default=1.0, positive=True),
         system_id=system_id, estimator_status=estimator_status, source=src, raw=doc)
 

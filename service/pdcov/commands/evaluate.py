@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "GeoJSON of segments with a 'poa' property")
     p.add_argument("--frame-source", choices=("rate", "capture"),
                    help="frames at the camera rate or at the log's capture events "
-                        "(default: the config's log.frame_source)")
+                        "(default: the config's log.frame_source; if that is not set, the "
+                        "detector frames pdcov serve recorded in the log, else rate)")
     p.add_argument("--export-poses", type=output_file, help="write the camera poses used (CSV)")
     p.add_argument("--outline-threshold", type=probability,
                    help="P_D threshold outlined in the heat map and GeoJSON (default: the "
@@ -94,6 +95,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     mission = load_mission(args.config)
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
+    log_warnings: tuple[str, ...] = ()
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
@@ -110,11 +112,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
             args.log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
-            frame_source=args.frame_source or mission.frame_source,
+            frame_source=args.frame_source or mission.chosen_frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
             estimator_status=mission.estimator_status)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
-        lines += list(log_poses.summary_lines)
+        lines += list(log_poses.summary_lines)  # its warnings among them
+        log_warnings = log_poses.warnings
     _check_near_origin(poses, args.poses or args.log, mission.source)
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
@@ -139,7 +142,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
     warnings = _unseen_domain_warnings(grid, mission, poses)
-    for w in warnings:
+    for w in (*log_warnings, *warnings):
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
     # The per-frame poses are done with: free them before writing the outputs (the peak).
     del poses
@@ -150,7 +153,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                             track_enu=finite_track(track), plan_enu=plan_enu,
                             outline_threshold=args.outline_threshold,
                             prior=None if prior is None else prior.poa,
-                            extra_metrics={"warnings": warnings} if warnings else None)
+                            extra_metrics={"warnings": [*log_warnings, *warnings]}
+                            if log_warnings or warnings else None)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:

@@ -317,8 +317,8 @@ def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:
     capture events are those frames (what the daemon used), never the camera's."""
     return (f"frames: the log holds {n_recorded} frame times pdcov serve took from its "
             f"detector (CAMERA_IMAGE_CAPTURED of component {RECORDED_FRAME_COMPONENT} marked "
-            f"{MARK!r}, time_boot_ms in the autopilot's clock); frame_source 'capture' "
-            "evaluates these, as the daemon did"
+            f"{MARK!r}, time_boot_ms in the autopilot's clock): its capture events, "
+            "evaluated as the daemon did unless frame source 'rate' is chosen"
             + (f", not the camera's {n_camera} capture events" if n_camera else ""))
 
 

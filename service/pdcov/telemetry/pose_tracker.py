@@ -53,6 +53,8 @@ from pdcov.telemetry.gimbal import (
     resolve_interpretation,
 )
 from pdcov.telemetry.logs import FlightLog, read_flight_log
+from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
+from pdcov.telemetry.recorded_frames import frame_source_for
 from pdcov.telemetry.samples import (
     AttitudeSample,
     AttitudeSeries,
@@ -415,7 +417,8 @@ class LogPoses:
     R_ned_body, gimbal_q_wxyz (F, 4) as reported and interpolated (NaN for a fixed mount),
     gimbal_flags (F,) (-1 fixed), interpretation (F,) str, trusted (F,) bool,
     untrusted_reason (F,) str, at_limit (F,) a servo demand at its limit. skipped_t_s:
-    frame times skipped by gaps.
+    frame times skipped by gaps. warnings: what the user should not miss (also among the
+    summary lines).
     """
 
     poses: tuple[CameraPose, ...]
@@ -431,6 +434,7 @@ class LogPoses:
     untrusted_reason: tuple[str, ...]
     at_limit: np.ndarray
     skipped_t_s: np.ndarray
+    warnings: tuple[str, ...] = ()
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -502,14 +506,18 @@ _CHUNK = 4096
 
 def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: float,
                    ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
-                   frame_rate_hz: float, frame_source: str = "rate", max_gap_s: float = 1.0,
+                   frame_rate_hz: float, frame_source: str | None = "rate",
+                   max_gap_s: float = 1.0,
                    system_id: int | None = None, progress: bool = False,
                    estimator_status: bool = True) -> LogPoses:
     """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
     the autopilot's home altitude from the log. frame_source 'rate' places frames every
-    1/frame_rate_hz s; 'capture' at the log's capture events. Frames whose telemetry has a
+    1/frame_rate_hz s; 'capture' at the log's capture events; None (the user chose none):
+    at the detector frames ``pdcov serve`` recorded in the log if it holds any, else 'rate'
+    (recorded_frames.frame_source_for; a chosen 'rate' over such a log warns). Frames whose
+    telemetry has a
     gap longer than max_gap_s are skipped; untrusted gimbal frames follow mount.untrusted.
     estimator_status: skip frames the autopilot's estimator calls bad (estimator.py).
     Raises TelemetryError / ConfigError with a message naming the file.
@@ -537,6 +545,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
         interp = resolve_interpretation(mount, log.params, where)
     tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s,
                                           use_estimator=estimator_status)
+    choice = frame_source_for(frame_source,
+                              sum(c.source == RECORDED_SOURCE for c in log.captures))
+    frame_source = choice.source
     t, how = frame_times(tracker, log, frame_rate_hz, frame_source)
 
     chunks = range(0, len(t), _CHUNK)
@@ -563,6 +574,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     lines = [f"log: {log.path} ({log.format})", *log.notes,
              f"origin: {origin.lat_deg:.7f}, {origin.lon_deg:.7f}, ground {ground_alt:.2f} m "
              f"MSL ({ground_how})",
+             *(x for x in (choice.line,) if x),
+             *(f"WARNING: {x}" for x in (choice.warning,) if x),
              f"frames: {how}; {int(use.sum())} used of {len(t)}"]
     skipped = b.t_s[~valid]
     if len(skipped):
@@ -601,7 +614,7 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
-                    skipped)
+                    skipped, tuple(x for x in (choice.warning,) if x))
 
 
 # --- pose CSV ------------------------------------------------------------------------------

@@ -19,11 +19,15 @@ later frame was decided (``frames.skipped."late frame time"``) is followed in th
 by a CAMERA_IMAGE_CAPTURED from component 191 with ``file_url`` NOT_TAKEN, capture_result
 0 (no image), and the capture's source component (camera_id), time_boot_ms and
 image_index: a reader drops the nearest such capture event before it.
+
+``frame_source_for`` decides which frames ``pdcov evaluate`` of a log uses: the recorded
+frames when the user chose no frame source (docs/logs.md, "Frames, interpolation, gaps").
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -112,3 +116,38 @@ class NotTakenCaptures:
                                msg.image_index))
         if seen:
             self.dropped.add(seen.pop())
+
+
+@dataclass(frozen=True, slots=True)
+class FrameSourceChoice:
+    """The frame source a log is evaluated with ('rate' or 'capture'), and what to say:
+    a summary line and a warning ("" for none)."""
+
+    source: str
+    line: str = ""
+    warning: str = ""
+
+
+def frame_source_for(requested: str | None, n_recorded: int) -> FrameSourceChoice:
+    """The frame source for a log holding ``n_recorded`` detector frames the daemon recorded.
+
+    ``requested``: what the user chose ('rate' or 'capture', by --frame-source or the
+    config's log.frame_source), None when neither was given. Not chosen: the recorded
+    frames when there are any (the grid the daemon built in flight), else 'rate'. A chosen
+    'rate' is kept, with a warning when the log holds recorded frames (its grid is not the
+    daemon's); a chosen 'capture' uses them (the reader made them the capture events).
+    """
+    if requested is None:
+        if not n_recorded:
+            return FrameSourceChoice("rate")
+        return FrameSourceChoice("capture", (
+            f"frame source: the {n_recorded} detector frames pdcov serve recorded, as it "
+            "evaluated them in flight (no frame source chosen: log.frame_source not set, no "
+            "--frame-source; 'rate' chooses frames every 1/camera.frame_rate_hz s instead)"))
+    if requested == "rate" and n_recorded:
+        return FrameSourceChoice("rate", warning=(
+            f"frame source 'rate' was chosen (--frame-source or log.frame_source), so frames "
+            f"every 1/camera.frame_rate_hz s are evaluated, not the {n_recorded} detector "
+            "frames pdcov serve recorded in this log and evaluated in flight: this grid is "
+            "not the daemon's. Choose no frame source, or 'capture', for the daemon's grid"))
+    return FrameSourceChoice(requested)
