@@ -453,10 +453,71 @@ def test_ulog_estimator_status(tmp_path: Path) -> None:
            [(int(k * 1e5), f) for k, f in enumerate(flags)])
     log = read_flight_log(write_ulog(tmp_path / "e.ulg", {
         "vehicle_attitude": att, "vehicle_global_position": pos, "estimator_status": est}))
-    assert log.estimator_source == "estimator_status solution_status_flags"
+    assert log.estimator_source == "estimator_status solution_status_flags, EKF instance 0"
     e = log.estimator
     assert len(e.t_s) == 30
     assert list(e.gps_glitch) == [False] * 10 + [True] * 10 + [False] * 10
     assert list(e.pos_horiz_abs) == [True] * 20 + [False] * 10
     reason, _ = estimator_reasons(e, np.array([0.55, 1.55, 2.55]))
     assert list(reason) == ["", GPS_GLITCHING, CONSTANT_POSITION]
+
+
+def _ulog_ekfs(tmp: Path, selections: list[tuple[int, int]] | None) -> Path:
+    """A 4 s PX4 log (reports every 0.1 s) with three EKF2 instances, as with
+    EKF2_MULTI_IMU 3: instance 0 glitching from 1.0 s; instance 1 good, then without
+    absolute position from 3.0 s; instance 2 glitching all along. ``selections``:
+    estimator_selector_status rows (t_us, primary_instance), None for no such topic."""
+    att = ([("uint64_t", "timestamp"), ("float[4]", "q")],
+           [(int(k * 1e5), 1.0, 0.0, 0.0, 0.0) for k in range(40)])
+    pos = ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt")],
+           [(int(k * 1e5), LAT_DEG, LON_DEG, GROUND_M + 10) for k in range(40)])
+    glitch = OK_FLAGS | mavlink.ESTIMATOR_GPS_GLITCH
+    flags = {0: [OK_FLAGS] * 10 + [glitch] * 30, 1: [OK_FLAGS] * 30 + [167] * 10,
+             2: [glitch] * 40}
+    fields = [("uint64_t", "timestamp"), ("uint16_t", "solution_status_flags")]
+    topics: dict = {"vehicle_attitude": att, "vehicle_global_position": pos}
+    for inst, f in flags.items():
+        topics["estimator_status" if inst == 0 else ("estimator_status", inst)] = (
+            fields, [(int(k * 1e5), v) for k, v in enumerate(f)])
+    if selections is not None:  # msg/EstimatorSelectorStatus.msg (the fields read)
+        topics["estimator_selector_status"] = (
+            [("uint64_t", "timestamp"), ("uint8_t", "primary_instance"),
+             ("uint8_t", "instances_available")], [(t, i, 3) for t, i in selections])
+    return write_ulog(tmp / "ekfs.ulg", topics)
+
+
+def test_ulog_follows_the_primary_ekf_instance(tmp_path: Path) -> None:
+    """PX4 with several EKF2 instances: the reports of the instance estimator_selector_status
+    names primary at their time (0, a switch to 1 at 1.45 s, back to 0 at 3.55 s); instance
+    2 is never used; the summary line names the instances and when."""
+    path = _ulog_ekfs(tmp_path, [(50_000, 0), (1_450_000, 1), (2_050_000, 1),
+                                 (3_550_000, 0)])
+    log = read_flight_log(path)
+    e = log.estimator
+    np.testing.assert_allclose(e.t_s, np.arange(40) * 0.1, atol=1e-9)  # one per report time
+    t = np.array([0.55, 1.25, 1.75, 3.25, 3.75])
+    reason, judged = estimator_reasons(e, t)
+    assert judged.all()
+    # Instance 0 only (the reader before) would say glitching at 1.75 and 3.25 s.
+    assert list(reason) == ["", GPS_GLITCHING, "", CONSTANT_POSITION, GPS_GLITCHING]
+    assert log.estimator_source == (
+        "estimator_status solution_status_flags, the primary EKF instance "
+        "(estimator_selector_status.primary_instance): 0 from 0.00 s, 1 from 1.45 s, 0 from "
+        "3.55 s; instances logged [0, 1, 2]")
+    lp = poses_from_log(path, origin_lat_deg=LAT_DEG, origin_lon_deg=LON_DEG,
+                        ground_alt_msl_m=GROUND_M, mount=FixedMount(), frame_rate_hz=10.0)
+    line = next(x for x in lp.summary_lines if x.startswith("position estimate:"))
+    assert "1 from 1.45 s" in line and "40 reports" in line, line
+    # Frames 1.1..1.5 s (instance 0 glitching) and 3.1..3.6 (instance 1 without absolute
+    # position; 3.6 by instance 1's report at 3.5 s, strictly before) and 3.7.. (0 again).
+    skipped = np.round(lp.skipped_t_s, 3).tolist()
+    assert skipped == [1.1, 1.2, 1.3, 1.4, 1.5, 3.1, 3.2, 3.3, 3.4, 3.5, 3.6, 3.7, 3.8,
+                       3.9], skipped
+
+
+def test_ulog_several_ekfs_without_a_selector_use_instance_0(tmp_path: Path) -> None:
+    log = read_flight_log(_ulog_ekfs(tmp_path, None))
+    assert list(log.estimator.gps_glitch) == [False] * 10 + [True] * 30
+    assert log.estimator_source.endswith(
+        "EKF instance 0 of instances [0, 1, 2] logged (no estimator_selector_status: the "
+        "primary is not known)"), log.estimator_source

@@ -23,30 +23,36 @@ def _kv(type_and_name: str, value: bytes) -> bytes:
     return struct.pack("<B", len(key)) + key + value
 
 
-def write_ulog(path: Path, topics: Mapping[str, tuple[Sequence[tuple[str, str]],
-                                                      Sequence[Sequence[float]]]],
+def write_ulog(path: Path, topics: Mapping[str | tuple[str, int],
+                                           tuple[Sequence[tuple[str, str]],
+                                                 Sequence[Sequence[float]]]],
                params: Mapping[str, float] | None = None, start_us: int = 0) -> Path:
-    """``topics``: name -> (fields as (type, name), first ("uint64_t", "timestamp"); rows of
-    values, arrays flattened). Arrays are types like ``float[4]``. Returns ``path``."""
+    """``topics``: name, or (name, multi_id) for an instance other than 0 -> (fields as
+    (type, name), first ("uint64_t", "timestamp"); rows of values, arrays flattened).
+    Arrays are types like ``float[4]``. Returns ``path``."""
     out = bytearray(ULOG_HEADER + struct.pack("<BQ", 1, start_us))
     out += _msg(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
-    for name, (fields, _rows) in topics.items():
-        fmt = f"{name}:" + "".join(f"{t} {n};" for t, n in fields)
+    formats: dict[str, str] = {}
+    for key, (fields, _rows) in topics.items():
+        name = key if isinstance(key, str) else key[0]
+        formats.setdefault(name, f"{name}:" + "".join(f"{t} {n};" for t, n in fields))
+    for fmt in formats.values():  # one format per topic, shared by its instances
         out += _msg(b"F", fmt.encode())
     out += _msg(b"I", _kv("char[9] sys_name", b"PX4_tests"))
     for name, value in (params or {}).items():
         out += _msg(b"P", _kv(f"float {name}", struct.pack("<f", value)))
     packers = {}
-    for msg_id, (name, (fields, _rows)) in enumerate(topics.items()):
-        out += _msg(b"A", struct.pack("<BH", 0, msg_id) + name.encode())
+    for msg_id, (key, (fields, _rows)) in enumerate(topics.items()):
+        name, multi_id = (key, 0) if isinstance(key, str) else key
+        out += _msg(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode())
         codes = ""
         for t, _n in fields:
             base, _, count = t.partition("[")
             codes += (count.rstrip("]") if count else "") + _PACK[base]
-        packers[name] = (msg_id, struct.Struct("<" + codes))
+        packers[key] = (msg_id, struct.Struct("<" + codes))
     data = []
-    for name, (_fields, rows) in topics.items():
-        msg_id, packer = packers[name]
+    for key, (_fields, rows) in topics.items():
+        msg_id, packer = packers[key]
         for row in rows:
             data.append((int(row[0]), _msg(b"D", struct.pack("<H", msg_id) + packer.pack(
                 *[int(v) if c in "BbHhIiQq?" else v for v, c in zip(

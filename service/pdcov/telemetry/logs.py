@@ -534,7 +534,7 @@ def _dataflash_estimator(estimators: Mapping[str, list[EstimatorSample]],
 _ULOG_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 _ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", *_ULOG_GPS_TOPICS,
                 "gimbal_device_attitude_status", "home_position", "camera_capture",
-                "camera_trigger", "estimator_status"]
+                "camera_trigger", "estimator_status", "estimator_selector_status"]
 _GPS_FIX_3D = 3  # fix_type: 0-1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
 
 
@@ -588,8 +588,11 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     except Exception as exc:  # noqa: BLE001 - any parser failure is a bad log, not a crash
         raise TelemetryError(f"{path}: cannot read as a ULog: {exc}") from None
     topics: dict[str, dict[str, np.ndarray]] = {}
+    ekf_instances: dict[int, dict[str, np.ndarray]] = {}  # estimator_status by multi_id
     for d in ulog.data_list:
-        if d.multi_id == 0:
+        if d.name == "estimator_status":
+            ekf_instances[d.multi_id] = d.data
+        elif d.multi_id == 0:
             topics[d.name] = d.data
 
     def col(topic: str, name: str) -> np.ndarray:
@@ -641,15 +644,6 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     params = dict(ulog.initial_parameters)
     for _t, name, value in ulog.changed_parameters:
         params[name] = value
-    estimator: list[EstimatorSample] = []
-    e = "estimator_status"
-    if e in topics and "solution_status_flags" in topics[e]:
-        # solution_status_flags: ESTIMATOR_STATUS_FLAGS bits (PX4 sends it as the MAVLink
-        # message's flags); instance 0 only, as for the other topics.
-        estimator = [EstimatorSample(t, bool(f & POS_HORIZ_ABS), bool(f & CONST_POS_MODE),
-                                     bool(f & ESTIMATOR_GPS_GLITCH))
-                     for t, f in zip(t_of(e), topics[e]["solution_status_flags"].astype(int),
-                                     strict=True)]
     gimbal, source, gnote = _choose_gimbal(gimbal_samples, 1, gimbal_instance)
     damage = _ulog_damage(path, ulog.file_corruption)
     notes = [*damage, "clock: ULog timestamps (PX4 boot time)"]
@@ -657,4 +651,65 @@ def _read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
                      gimbal, source, homes, tuple(captures), params,
                      MountTargetSeries.from_samples([]), (), tuple(notes), damage,
-                     *_estimator(estimator, "estimator_status solution_status_flags"))
+                     *_ulog_estimator(ekf_instances, topics.get("estimator_selector_status")))
+
+
+def _ulog_estimator(instances: Mapping[int, Mapping[str, np.ndarray]],
+                    selector: Mapping[str, np.ndarray] | None) -> tuple[EstimatorSeries, str]:
+    """The verdicts of the EKF instance PX4 used, and their source in words.
+
+    With several EKF2 instances (EKF2_MULTI_IMU / EKF2_MULTI_MAG) each publishes its own
+    estimator_status, the ULog multi_id being the instance (EKF2::multi_init checks the
+    uORB instances agree), and the selector names the one whose outputs the vehicle uses in
+    estimator_selector_status.primary_instance. A report applies when its instance is the
+    primary in force at its timestamp (the latest selection at or before it), so a switch
+    changes whose flags apply from then on, as the DataFlash reader follows the primary
+    core. Before the first selection, or with no selector topic, instance 0.
+    solution_status_flags: ESTIMATOR_STATUS_FLAGS bits (PX4 sends them as the MAVLink
+    ESTIMATOR_STATUS flags).
+    """
+    usable = {i: d for i, d in instances.items() if "solution_status_flags" in d}
+    if not usable:
+        return _estimator([], "")
+    t_sel = np.zeros(0)
+    primary = np.zeros(0, int)
+    if selector is not None and "primary_instance" in selector:
+        t_sel = np.asarray(selector["timestamp"], float) * 1e-6
+        primary = np.asarray(selector["primary_instance"], int)
+    samples: list[EstimatorSample] = []
+    t_first_s = math.inf
+    for inst, d in usable.items():
+        t = np.asarray(d["timestamp"], float) * 1e-6
+        t_first_s = min(t_first_s, float(t[0])) if len(t) else t_first_s
+        in_force = np.zeros(len(t), int)
+        if len(primary):
+            k = np.searchsorted(t_sel, t, side="right") - 1
+            in_force = np.where(k >= 0, primary[np.clip(k, 0, None)], 0)
+        flags = np.asarray(d["solution_status_flags"], int)
+        samples += [EstimatorSample(ts, bool(f & POS_HORIZ_ABS), bool(f & CONST_POS_MODE),
+                                    bool(f & ESTIMATOR_GPS_GLITCH))
+                    for ts, f in zip(t[in_force == inst], flags[in_force == inst],
+                                     strict=True)]
+    samples.sort(key=lambda x: x.t_s)
+    return _estimator(samples, "estimator_status solution_status_flags, "
+                      + _ekf_instances_used(sorted(usable), t_sel, primary, t_first_s))
+
+
+def _ekf_instances_used(logged: list[int], t_sel: np.ndarray, primary: np.ndarray,
+                        t_first_s: float) -> str:
+    """Which EKF instance's reports were used when, in words (``_ulog_estimator``)."""
+    if len(t_sel) == 0:
+        if logged == [0]:
+            return "EKF instance 0"
+        return (f"EKF instance 0 of instances {logged} logged (no estimator_selector_status: "
+                "the primary is not known)")
+    changes = np.flatnonzero(np.r_[True, primary[1:] != primary[:-1]])
+    runs = [(float(t_sel[i]), int(primary[i])) for i in changes]
+    if t_first_s < runs[0][0]:  # reports before the first selection: instance 0's
+        runs[:1] = [(t_first_s, 0)] + (runs[:1] if runs[0][1] != 0 else [])
+    shown = ", ".join(f"{inst} from {t:.2f} s" for t, inst in runs[:8])
+    more = f" and {len(runs) - 8} more switches" if len(runs) > 8 else ""
+    missing = sorted({inst for _t, inst in runs} - set(logged))
+    gone = f"; primary {missing} not logged: no reports meanwhile" if missing else ""
+    return (f"the primary EKF instance (estimator_selector_status.primary_instance): "
+            f"{shown}{more}; instances logged {logged}{gone}")
