@@ -48,6 +48,7 @@ from pdcov.telemetry.estimator import (  # noqa: E402
 from pdcov.telemetry.logs import read_flight_log  # noqa: E402
 from pdcov.telemetry.pose_tracker import poses_from_log  # noqa: E402
 from pdcov.telemetry.samples import (  # noqa: E402
+    NAV_GPS_GLITCHING,
     EstimatorSample,
     EstimatorSeries,
     sample_from_mavlink,
@@ -344,6 +345,37 @@ def test_real_logs_carry_the_status_they_should() -> None:
     # AHRS_EKF_TYPE 10 (SITL's own AHRS): all-zero EKF_STATUS_REPORTs, no verdict.
     vtol = read_flight_log(REAL / "uavlogviewer_vtol.tlog")
     assert len(vtol.estimator.t_s) == 0 and vtol.estimator_source == ""
+
+
+@real
+def test_dataflash_3_4_follows_a_lane_switch(tmp_path: Path) -> None:
+    """ArduCopter 3.4 logs EKF2 core 0 as NKF4 and core 1 as NKF9, each with PI, the
+    primary core. The real 3.4.4 flight never switched (PI 0 throughout: core 1's reports
+    unused); the same log with a switch to core 1 written into its last 502 records (PI 1
+    in NKF4 and NKF9) and core 1 glitching all along: core 1's flags apply from the switch
+    on, never before."""
+    from pymavlink import DFReader
+
+    src = REAL / "beast_log_0036_mechanical_failure.bin"
+    assert read_flight_log(src).estimator_source == "NKF4 SS (EKF2, primary core)"
+    reader = DFReader.DFReader_binary(str(src), zero_time_base=True)
+    data = bytearray(src.read_bytes())
+    for name in ("NKF4", "NKF9"):
+        fmt = reader.formats[reader.name_to_id[name]]
+        cols = fmt.columns
+        assert cols[11:] == ["SS", "GPS", "PI"] and fmt.len == 35
+        ss_at = 3 + struct.calcsize(fmt.msg_struct[:12])  # after the 3-byte header
+        for k, offset in enumerate(reader.offsets[reader.name_to_id[name]]):
+            if name == "NKF9":
+                (ss,) = struct.unpack_from("<H", data, offset + ss_at)
+                struct.pack_into("<H", data, offset + ss_at, ss | NAV_GPS_GLITCHING)
+            if k >= 1000:
+                data[offset + fmt.len - 1] = 1  # PI, int8, last
+    switched = tmp_path / "switched.bin"
+    switched.write_bytes(bytes(data))
+    log = read_flight_log(switched)
+    assert log.estimator_source == "NKF4/NKF9 SS (EKF2, primary core; 502 reports of core 1)"
+    assert list(log.estimator.gps_glitch) == [False] * 1000 + [True] * 502
 
 
 LOST_ON_THE_GROUND = {"ardupilot_sitl_servo_gimbal.tlog": 159,

@@ -524,8 +524,13 @@ def _dataflash_estimator(estimators: Mapping[str, list[EstimatorSample]],
         return EstimatorSeries.from_samples([]), ""
     order = [_EKF_LOGS[int(ekf_type)]] if ekf_type is not None else list(_EKF_LOGS.values())
     for name, ekf in order:
-        if estimators.get(name):
-            return _estimator(estimators[name], f"{name} SS ({ekf}, primary core)")
+        # ArduCopter 3.4: core 1's records are NKF9 (samples._CORE_OF_LOG), kept while it
+        # was the primary.
+        lane1 = estimators.get("NKF9", []) if name == "NKF4" else []
+        if estimators.get(name) or lane1:
+            return _estimator([*estimators.get(name, []), *lane1], (
+                f"{name}/NKF9 SS ({ekf}, primary core; {len(lane1)} reports of core 1)"
+                if lane1 else f"{name} SS ({ekf}, primary core)"))
     return EstimatorSeries.from_samples([]), ""
 
 

@@ -397,13 +397,19 @@ NAV_CONST_POS_MODE = 1 << 7
 NAV_GPS_GLITCHING = 1 << 14
 
 
+# ArduCopter 3.4's EKF2 logs have no core field: NKF4 is core 0, NKF9 the same layout for
+# core 1 (DataFlash Log_Write_EKF2: pkt9 = getFilterStatus(1, ...), LOG_NKF9_MSG), both
+# with PI, the primary core.
+_CORE_OF_LOG = {"NKF4": 0, "NKF9": 1}
+
+
 def _df_ekf_status(msg: Any, t_s: float) -> tuple[EstimatorSample, ...]:
-    # One record per EKF core (C); only the primary core's (PI) drives the vehicle. Logs
-    # without C (ArduCopter 3.4 NKF4) log core 0 here.
+    # One record per EKF core (C, else by message: _CORE_OF_LOG); only the primary core's
+    # (PI) drives the vehicle, so a lane switch changes whose flags apply from then on.
     core = getattr(msg, "C", None)
+    core = _CORE_OF_LOG.get(msg.get_type(), 0) if core is None else int(core)
     primary = getattr(msg, "PI", None)
-    if core is not None and int(core) != (int(primary) if primary is not None
-                                          and int(primary) >= 0 else 0):
+    if core != (int(primary) if primary is not None and int(primary) >= 0 else 0):
         return ()
     ss = int(msg.SS)
     return (EstimatorSample(t_s, bool(ss & NAV_HORIZ_POS_ABS), bool(ss & NAV_CONST_POS_MODE),
@@ -412,7 +418,7 @@ def _df_ekf_status(msg: Any, t_s: float) -> tuple[EstimatorSample, ...]:
 
 _DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
               "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps,
-              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status}
+              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status, "NKF9": _df_ekf_status}
 DATAFLASH_TYPES = tuple(_DATAFLASH)
 
 
