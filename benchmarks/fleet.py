@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "reliability.md"
 DOC_START, DOC_END = "<!-- fleet-security:start -->", "<!-- fleet-security:end -->"
 SECURITY_TESTS = ("tests/test_security_zenoh.py", "tests/test_security_mavlink.py",
-                  "tests/test_status_size.py")
+                  "tests/test_status_size.py", "tests/test_web_auth.py")
 SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Zenoh over TLS',
      "a TLS router; a client trusting the CA receives a peer's put; a client trusting "
@@ -89,6 +89,15 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      'files the daemon holds open for writing during the flight (`/proc/PID/fdinfo`): '
      'only under `service.state_dir`; an empty HOME, working directory and TMPDIR stay '
      'empty'),
+    ('Web map access',
+     '`pdcov watch --web` on 127.0.0.1: the page, its assets, `/state.json`, `/events` '
+     'and basemap tiles answer 401 (one line of plain text) with no token or a wrong one '
+     '(query, cookie, bearer), 200 with the right one; the tokened page sets an HttpOnly, '
+     'SameSite=Strict session cookie; a foreign Host header (DNS rebinding) gets 403 even '
+     'with the token; a token file group or others have any access to is refused (exit '
+     '2). No TLS '
+     'in pdcov: a trusted network or a TLS reverse proxy (docs/ground-station.md '
+     '"Access")'),
     ('Status within 1 kB/s',
      "full and brief statuses (docs/protocol.md): a minute of a flying daemon's "
      'statuses averages under 1000 B/s, and per vehicle in the fleet above'),

@@ -145,10 +145,11 @@ def test_live_demo_in_a_headless_browser(tmp_path):
     readings: list[tuple[str, str, str, int]] = []
     mid_shot = tmp_path / "web-map-mid-flight.png"
     try:
-        demo.wait_line(rf"web map at http://127\.0\.0\.1:{port}/", 90)
+        url = demo.wait_line(rf"web map at (http://127\.0\.0\.1:{port}/\?token=\S+)",
+                             90).group(1)
         driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
         driver.set_page_load_timeout(30)
-        driver.get(f"http://127.0.0.1:{port}/")
+        driver.get(url)
         end = time.monotonic() + 300
         while demo.p.poll() is None and time.monotonic() < end:
             try:

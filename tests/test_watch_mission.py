@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -68,7 +69,7 @@ def daemon(tmp_path_factory):
 @contextlib.contextmanager
 def watcher(zport: int, *extra: str):
     """`pdcov watch` (client of the router, no --config) with its web map; yields (process,
-    map URL); SIGTERM then kill in teardown."""
+    the map's URL as printed, its access token included); SIGTERM then kill in teardown."""
     port = free_port()
     p = subprocess.Popen(
         [sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client", "--zenoh-connect",
@@ -77,8 +78,9 @@ def watcher(zport: int, *extra: str):
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         line = p.stdout.readline()
-        assert f"web map at http://127.0.0.1:{port}/" in line, line
-        yield p, f"http://127.0.0.1:{port}/"
+        m = re.search(rf"web map at (http://127\.0\.0\.1:{port}/\?token=\S+)$", line.strip())
+        assert m, line
+        yield p, m.group(1)
     finally:
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
@@ -90,7 +92,9 @@ def watcher(zport: int, *extra: str):
 
 
 def map_state(url: str) -> dict:
-    with urllib.request.urlopen(url + "state.json", timeout=5) as r:
+    """/state.json of the map at ``url`` (…/?token=T)."""
+    with urllib.request.urlopen(url.replace("/?token=", "/state.json?token="),
+                                timeout=5) as r:
         return json.load(r)
 
 

@@ -1,6 +1,8 @@
 """The web map in a real headless browser (Debian's chromium driven by Selenium through
-chromium-driver): the page loads from pdcov's own server, updates live, and shows the
-coverage the publisher's grid has. Skipped when chromium or its driver is absent."""
+chromium-driver): the page loads from pdcov's own server at the address it printed (its
+access token included), takes the token out of the address bar, keeps it in an HttpOnly,
+SameSite=Strict cookie, updates live, and shows the coverage the publisher's grid has.
+Skipped when chromium or its driver is absent."""
 
 from __future__ import annotations
 
@@ -80,8 +82,13 @@ def test_web_map_shows_live_coverage(browser, tmp_path):
              "--config", DEMO],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         line = watch.stdout.readline()
-        assert f"web map at http://127.0.0.1:{port}/" in line, line
-        browser.get(f"http://127.0.0.1:{port}/")
+        m = re.search(rf"web map at (http://127\.0\.0\.1:{port}/)\?token=(\S+)$",
+                      line.strip())
+        assert m, line
+        base, token = m.groups()
+        browser.get(base)  # without the token: the short explanation, no map
+        assert "needs its access token" in browser.find_element("tag name", "body").text
+        browser.get(f"{base}?token={token}")
         first = wait_for(lambda: coverage(browser)[1] and coverage(browser), 30,
                          "the first update")
         for _ in range(20):
@@ -105,6 +112,16 @@ def test_web_map_shows_live_coverage(browser, tmp_path):
             let n = 0; for (let i = 0; i < d.length; i += 4) if (d[i+3] > 0) n++;
             return n;""")
         assert coloured > 1000
+        # The token left the address bar (not in screenshots or shared links) and lives
+        # on in a cookie the page's scripts cannot read.
+        assert browser.current_url == base
+        assert browser.execute_script("return document.cookie") == ""
+        (cookie,) = browser.get_cookies()
+        assert cookie["name"] == f"pdcov_watch_token_{port}" and cookie["value"] == token
+        assert cookie["httpOnly"] is True and cookie["sameSite"] == "Strict"
+        browser.refresh()  # the cookie alone opens the map again
+        wait_for(lambda: coverage(browser)[1], 30, "the map after a reload")
+        assert browser.current_url == base
         shot = tmp_path / "web-map.png"
         browser.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000

@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicles", type=int, choices=(1, 2), default=1,
                    help="live: 1 drone (spiral) or 2 (a spiral over each half)")
     p.add_argument("--web", nargs="?", const="127.0.0.1:8080", metavar="HOST:PORT",
-                   help="live: also show the map in the browser (default 127.0.0.1:8080)")
+                   help="live: also show the map in the browser (default 127.0.0.1:8080; "
+                        "open the address printed, its access token included)")
     p.add_argument("--plain", action="store_true",
                    help="live: print a line per change instead of the live table")
     p.add_argument("--offline", action="store_true",

@@ -33,7 +33,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-multicast-scouting", action="store_true",
                    help="do not look for peers and routers by multicast")
     p.add_argument("--web", metavar="HOST:PORT",
-                   help="serve the live map, e.g. 127.0.0.1:8080")
+                   help="serve the live map, e.g. 127.0.0.1:8080, to whoever has its access "
+                        "token: the address to open, token included, is printed at start")
+    p.add_argument("--web-token-file", type=Path, metavar="PATH",
+                   help="read the web map's token from PATH (chmod 600; at least 16 "
+                        "characters A-Z a-z 0-9 _ . ~ -) instead of making a new one at each "
+                        "start; also from the environment variable PDCOV_WEB_TOKEN, never "
+                        "from the command line (which other users see in ps)")
+    p.add_argument("--web-allow-host", action="append", metavar="NAME",
+                   help="a host name the web map answers to (repeatable), e.g. the name a "
+                        "reverse proxy forwards; IP addresses, localhost and this machine's "
+                        "name always are, other names are refused (DNS rebinding)")
     p.add_argument("--basemap", type=Path, metavar="DIR",
                    help="XYZ tile folder ({z}/{x}/{y}.png) drawn under the web map")
     p.add_argument("--record", type=Path, metavar="DIR",
@@ -75,11 +85,23 @@ def run(args: argparse.Namespace) -> int:
     if args.no_multicast_scouting:
         bus = replace(bus, multicast_scouting=False)
     web = parse_web_address(args.web) if args.web else None
+    access = None
+    if web is not None:
+        import os
+        import socket
+
+        from pdcov.ground.web_auth import web_access
+
+        access = web_access(web[0], args.web_token_file, args.web_allow_host or (),
+                            os.environ, socket.gethostname())
+    elif args.web_token_file is not None or args.web_allow_host:
+        raise ConfigError("--web-token-file and --web-allow-host go with --web HOST:PORT")
     if args.basemap is not None and not args.basemap.is_dir():
         raise ConfigError(f"--basemap {args.basemap}: not a folder of XYZ tiles")
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
     return run_watch(WatchOptions(
-        bus=bus, vehicle=vehicle, mission=mission, web=web, basemap=args.basemap,
+        bus=bus, vehicle=vehicle, mission=mission, web=web, web_access=access,
+        basemap=args.basemap,
         record=args.record, once=args.once, wait_s=args.wait_s,
         plain=args.plain or not stdout_is_terminal()))

@@ -19,11 +19,13 @@ from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import FleetReport, Watcher
+from pdcov.ground.web_auth import WebAccess
 
 
 @dataclass(frozen=True, slots=True)
 class WatchOptions:
-    """vehicle: one id or None (all). web: (host, port) or None. once: print one report
+    """vehicle: one id or None (all). web: (host, port) or None; web_access: who may read
+    the web map (ground/web_auth.py; required with web). once: print one report
     when every vehicle seen has its grid (or after wait_s) and exit. plain: one headline
     line per change instead of the live table (set when stdout is not a terminal)."""
 
@@ -31,12 +33,17 @@ class WatchOptions:
     vehicle: str | None = None
     mission: Mission | None = None
     web: tuple[str, int] | None = None
+    web_access: WebAccess | None = None
     basemap: Path | None = None
     record: Path | None = None
     once: bool = False
     wait_s: float = 10.0
     plain: bool = False
     refresh_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if (self.web is None) != (self.web_access is None):
+            raise ValueError("WatchOptions: web and web_access go together")
 
 
 def run_watch(opts: WatchOptions) -> int:
@@ -54,7 +61,7 @@ async def _main(opts: WatchOptions) -> int:
     recording = Recording(opts.record) if opts.record else None
     shell = WatchShell(watcher, opts.bus, record=recording)
     web = None
-    if opts.web is not None:
+    if opts.web is not None and opts.web_access is not None:  # both or neither
         from pdcov.ground.web import WebMap, basemap_info, map_state
 
         basemap = basemap_info(opts.basemap)
@@ -65,8 +72,9 @@ async def _main(opts: WatchOptions) -> int:
         web = WebMap(opts.web[0], opts.web[1],
                      lambda: map_state(watcher, watcher.report(shell.now_s()), opts.mission,
                                        shell.version, basemap, config_hash),
-                     lambda: shell.version, opts.basemap)
+                     lambda: shell.version, opts.web_access, opts.basemap)
         await web.start()
+        # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
     runner = asyncio.create_task(shell.run(stop))
     status = 0

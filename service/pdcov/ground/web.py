@@ -1,6 +1,8 @@
 """The live web map (``pdcov watch --web HOST:PORT``): an aiohttp server that serves the page
 and its script from the installed package (ground/web/, no CDN) and pushes the map's state
-as server-sent events (``/events``; ``/state.json`` for one copy).
+as server-sent events (``/events``; ``/state.json`` for one copy). Every path needs the
+access token (ground/web_auth.py); every answer carries headers that keep the page from
+being framed, sniffed or cached and its address from leaking as a Referer.
 
 aiohttp earns its place: HTTP/1.1 parsing, streaming responses and clean shutdown are its
 job, and a hand-written server on a ground-station laptop would be one more thing to get
@@ -17,6 +19,7 @@ import asyncio
 import base64
 import json
 import math
+import socket
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
@@ -27,10 +30,15 @@ import numpy as np
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.ground.watcher import FleetReport, VehicleFeed, Watcher
+from pdcov.ground.web_auth import Granted, WebAccess
 
 MAX_SIDE = 400
 ASSETS = {"/": ("index.html", "text/html"), "/app.js": ("app.js", "text/javascript"),
           "/style.css": ("style.css", "text/css")}
+SECURITY_HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; frame-ancestors 'none'",
+    "X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
+    "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
 COLORS = ("#e6194b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#3cb44b",
           "#9a6324")
 
@@ -174,12 +182,13 @@ def basemap_info(folder: Path | None) -> dict[str, Any] | None:
 
 class WebMap:
     """The HTTP server. ``state`` returns the current map state (called on the event loop);
-    ``version`` tells whether it changed."""
+    ``version`` tells whether it changed; ``access``: who may read it."""
 
     def __init__(self, host: str, port: int, state: Callable[[], dict[str, Any]],
-                 version: Callable[[], int], basemap_dir: Path | None = None,
-                 period_s: float = 0.5) -> None:
+                 version: Callable[[], int], access: WebAccess,
+                 basemap_dir: Path | None = None, period_s: float = 0.5) -> None:
         self.host, self.port = host, port
+        self.access = access
         self.state, self.version = state, version
         self.basemap_dir = basemap_dir
         self.period_s = period_s
@@ -189,7 +198,12 @@ class WebMap:
     async def start(self) -> None:
         from aiohttp import web
 
-        app = web.Application()
+        @web.middleware
+        async def guard(request: Any, handler: Any) -> Any:
+            return await self._guard(request, handler)
+
+        app = web.Application(middlewares=[guard])
+        app.on_response_prepare.append(self._headers)
         for path in ASSETS:
             app.router.add_get(path, self._asset)
         app.router.add_get("/state.json", self._state)
@@ -210,14 +224,47 @@ class WebMap:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """The address to open, token included; bound to every address (0.0.0.0, ::):
+        this machine's host name."""
+        host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
+        host = f"[{host}]" if ":" in host else host
+        return f"http://{host}:{self.port}/?token={self.access.token}"
+
+    @property
+    def cookie_name(self) -> str:
+        """Named for the port: cookies are per host, not per port, and two maps on one
+        machine must not overwrite each other's."""
+        return f"pdcov_watch_token_{self.port}"
+
+    async def _guard(self, request: Any, handler: Any) -> Any:
+        """Every request: serve only what WebAccess grants (a refusal is plain text); the
+        answer to a valid ``?token=`` sets the cookie."""
+        from aiohttp import web
+
+        verdict = self.access.check(request.headers.get("Host"), request.query.get("token"),
+                                    request.cookies.get(self.cookie_name),
+                                    request.headers.get("Authorization"))
+        if not isinstance(verdict, Granted):
+            headers = {"WWW-Authenticate": 'Bearer realm="pdcov watch"'} \
+                if verdict.status == 401 else {}
+            return web.Response(status=verdict.status, text=verdict.text, headers=headers)
+        response = await handler(request)
+        if verdict.set_cookie and not response.prepared:  # a stream has sent its headers
+            # No Max-Age: a session cookie, gone when the browser closes. No Secure flag:
+            # the map is served over plain HTTP (docs/ground-station.md, TLS by a proxy).
+            response.set_cookie(self.cookie_name, self.access.token, path="/",
+                                httponly=True, samesite="Strict")
+        return response
+
+    async def _headers(self, request: Any, response: Any) -> None:
+        """Before any answer's headers go out (streams and refusals too)."""
+        response.headers.update(SECURITY_HEADERS)
 
     async def _asset(self, request: Any) -> Any:
         from aiohttp import web
 
         name, ctype = ASSETS[request.path]
-        return web.Response(body=asset(name), content_type=ctype,
-                            headers={"Cache-Control": "no-cache"})
+        return web.Response(body=asset(name), content_type=ctype)
 
     async def _state(self, request: Any) -> Any:
         from aiohttp import web
@@ -227,8 +274,7 @@ class WebMap:
     async def _events(self, request: Any) -> Any:
         from aiohttp import web
 
-        resp = web.StreamResponse(headers={"Content-Type": "text/event-stream",
-                                           "Cache-Control": "no-cache"})
+        resp = web.StreamResponse(headers={"Content-Type": "text/event-stream"})
         await resp.prepare(request)
         sent = -1
         idle = 0.0

@@ -203,9 +203,22 @@ function fit() {
   draw();
 }
 
+// The server answered this page's ?token= with its cookie: take the token out of the
+// address bar, so that it is not left in screenshots, bookmarks or shared links.
+const here = new URL(window.location.href);
+if (here.searchParams.has("token")) {
+  here.searchParams.delete("token");
+  history.replaceState(null, "", here.pathname + here.search + here.hash);
+}
+
 colourBar();
 window.addEventListener("resize", fit);
 fit();
 const events = new EventSource("events");
 events.onmessage = (e) => show(JSON.parse(e.data));
-events.onerror = () => { document.getElementById("status-line").textContent = "connection lost; retrying\u2026"; };
+events.onerror = () => {
+  // CLOSED: the server refused the stream (e.g. restarted with a new token); else retrying.
+  document.getElementById("status-line").textContent = events.readyState === EventSource.CLOSED
+    ? "not connected: reload, or open the address (with ?token=) pdcov watch printed"
+    : "connection lost; retrying\u2026";
+};

@@ -1,0 +1,169 @@
+"""Who may read the web map (``pdcov watch --web``): a secret token, as Jupyter does it.
+
+The token (``secrets.token_urlsafe``, 256 bits) is made at start unless given in a file
+(``--web-token-file``, refused when group or others may read it, as ssh refuses a private
+key) or in the environment (``PDCOV_WEB_TOKEN``); never on the command line, which every
+local user sees in ``ps``. It is printed once, in the address to open. A request carries
+it as ``?token=`` (the first page load; the server answers with an HttpOnly,
+SameSite=Strict cookie and the page removes it from the address bar), as that cookie, or
+as ``Authorization: Bearer`` (scripts). Every path needs it, loopback included: other
+users of the machine can connect to loopback too.
+
+The Host header is checked as well (DNS rebinding): the token alone already stops a
+rebinding page, which cannot know it and is sent no cookie for its own name, but a name
+the operator never meant to serve is refused before the token is looked at. Allowed: any
+IP address literal (a rebinding attack needs a name), ``localhost``, this machine's host
+name (and ``NAME.local``), the name bound with ``--web`` and names given with
+``--web-allow-host``.
+
+``WebAccess.check`` is the decision, pure; reading the token file and the environment are
+the edges.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import re
+import secrets
+import stat
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from pdcov.errors import ConfigError
+
+TOKEN_ENV = "PDCOV_WEB_TOKEN"
+MIN_TOKEN_CHARS = 16
+_TOKEN_RE = re.compile(r"[A-Za-z0-9_.~-]+")  # URL- and cookie-safe, no quoting needed
+_HINT = ("open the address pdcov watch printed when it started "
+         "(http://HOST:PORT/?token=...)")
+
+
+@dataclass(frozen=True, slots=True)
+class Refusal:
+    """An HTTP status (401: no valid token; 403: a Host this map does not serve) and the
+    short plain-text explanation sent with it."""
+
+    status: int
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Granted:
+    """The request may be served; ``set_cookie``: it came with a valid ``?token=`` and no
+    valid cookie, so the answer sets the cookie."""
+
+    set_cookie: bool
+
+
+@dataclass(frozen=True, slots=True)
+class WebAccess:
+    """token: the secret (validated: ``check_token``). hosts: the host names (lower case)
+    served besides IP literals (``served_names``)."""
+
+    token: str
+    hosts: frozenset[str]
+
+    def __post_init__(self) -> None:
+        check_token(self.token, "the web map token")
+
+    def check(self, host_header: str | None, query_token: str | None,
+              cookie_token: str | None, authorization: str | None) -> Granted | Refusal:
+        """Whether a request may be served, from its Host header, its ``?token=``, its
+        cookie and its Authorization header (each None when absent)."""
+        if not host_allowed(host_header, self.hosts):
+            return Refusal(403, f"pdcov watch: Host {host_header!r} is not a name of this web "
+                                "map (DNS rebinding?). Use the address pdcov watch printed, "
+                                "or start it with --web-allow-host NAME.\n")
+        bearer = None
+        if authorization is not None and authorization[:7].lower() == "bearer ":
+            bearer = authorization[7:].strip()
+        if self._valid(cookie_token) or self._valid(bearer):
+            return Granted(set_cookie=False)
+        if self._valid(query_token):
+            return Granted(set_cookie=True)
+        if (query_token, cookie_token, bearer) == (None, None, None):
+            return Refusal(401, f"pdcov watch: this web map needs its access token: {_HINT}.\n")
+        return Refusal(401, f"pdcov watch: wrong or expired access token: {_HINT} (a new "
+                            "token is made at each start unless --web-token-file gives one).\n")
+
+    def _valid(self, presented: str | None) -> bool:
+        # Bytes: compare_digest refuses non-ASCII str, and a visitor chooses what is sent.
+        return presented is not None and hmac.compare_digest(
+            presented.encode("utf-8", "replace"), self.token.encode())
+
+
+def host_allowed(host_header: str | None, names: Iterable[str]) -> bool:
+    """Whether a Host header (``name``, ``name:port``, ``[v6]:port``) is an IP literal or
+    one of ``names`` (lower case); None (HTTP/1.0, no Host) is allowed: a browser always
+    sends one, so a request without it is not a rebinding page's."""
+    if host_header is None:
+        return True
+    h = host_header.strip().lower()
+    if h.startswith("["):
+        name = h[1:h.find("]")] if "]" in h else h
+    else:
+        name = h.rsplit(":", 1)[0] if h.count(":") == 1 else h
+    name = name.rstrip(".")
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        return name in names
+
+
+def served_names(bound_host: str, hostname: str, extra: Iterable[str] = ()) -> frozenset[str]:
+    """The host names a map bound to ``bound_host`` on a machine called ``hostname``
+    answers to: localhost, the host name and NAME.local (mDNS), the bound name, ``extra``."""
+    names = {"localhost", bound_host, hostname, f"{hostname}.local", *extra}
+    return frozenset(n.strip().lower().rstrip(".") for n in names if n.strip())
+
+
+def web_access(bound_host: str, token_file: Path | None, allow_hosts: Iterable[str],
+               environ: Mapping[str, str], hostname: str) -> WebAccess:
+    """Who may read a map bound to ``bound_host`` on a machine called ``hostname``: the
+    token of ``token_file`` (``--web-token-file``), else of ``environ[TOKEN_ENV]``, else a
+    new random one; the names ``served_names`` gives. ConfigError for a bad token file or
+    token."""
+    if token_file is not None:
+        token = read_token_file(token_file)
+    elif environ.get(TOKEN_ENV):
+        token = check_token(environ[TOKEN_ENV].strip(), TOKEN_ENV)
+    else:
+        token = secrets.token_urlsafe(32)
+    return WebAccess(token, served_names(bound_host, hostname, allow_hosts))
+
+
+def check_token(token: str, where: str) -> str:
+    """``token`` when it is usable (at least MIN_TOKEN_CHARS of A-Z a-z 0-9 _ . ~ -),
+    else ConfigError naming ``where``."""
+    if len(token) < MIN_TOKEN_CHARS or not _TOKEN_RE.fullmatch(token):
+        raise ConfigError(f"{where}: expected a token of at least {MIN_TOKEN_CHARS} "
+                          "characters A-Z a-z 0-9 _ . ~ - (e.g. python3 -c 'import secrets; "
+                          f"print(secrets.token_urlsafe(32))'), got {len(token)} characters"
+                          + ("" if _TOKEN_RE.fullmatch(token) or not token
+                             else " with others among them"))
+    return token
+
+
+def read_token_file(path: Path) -> str:
+    """The token in ``path`` (surrounding white space stripped). ConfigError when it is
+    missing, not a regular file, readable or writable by group or others (chmod 600, as
+    ssh asks of a private key) or not a usable token."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise ConfigError(f"--web-token-file {path}: cannot read it ({exc.strerror})") \
+            from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"--web-token-file {path}: not a regular file")
+    if st.st_mode & 0o077:
+        raise ConfigError(f"--web-token-file {path}: permissions "
+                          f"{stat.S_IMODE(st.st_mode):04o} are too open: group and others "
+                          f"must have no access to it (chmod 600 {path})")
+    try:
+        text = path.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"--web-token-file {path}: cannot read it ({exc})") from None
+    return check_token(text, f"--web-token-file {path}")
