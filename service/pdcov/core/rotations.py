@@ -49,17 +49,6 @@ def euler_zyx_from_R(R: np.ndarray) -> tuple[float, float, float]:
     return float(roll), float(pitch), float(yaw)
 
 
-# R_from_quat_wxyz: each matrix entry (row-major) as the signed sum of four products of
-# the quaternion's components (w, x, y, z = 0..3), times 1 on the diagonal and 2 off it.
-_R_PRODUCTS = np.array([[0, 5, 10, 15], [6, 3, 0, 0], [7, 2, 0, 0],
-                        [6, 3, 0, 0], [0, 5, 10, 15], [11, 1, 0, 0],
-                        [7, 2, 0, 0], [11, 1, 0, 0], [0, 5, 10, 15]]).T
-_R_SIGNS = np.array([[1, 1, -1, -1], [1, -1, 0, 0], [1, 1, 0, 0],
-                     [1, 1, 0, 0], [1, -1, 1, -1], [1, -1, 0, 0],
-                     [1, -1, 0, 0], [1, 1, 0, 0], [1, -1, -1, 1]], float).T
-_R_SCALE = np.array([1.0, 2, 2, 2, 1, 2, 2, 2, 1])
-
-
 def R_from_quat_wxyz(q_wxyz: np.ndarray) -> np.ndarray:
     """Rotation matrix of a quaternion (w, x, y, z), normalised first; (..., 4) gives
     (..., 3, 3). Raises ValueError for a zero quaternion."""
@@ -69,10 +58,12 @@ def R_from_quat_wxyz(q_wxyz: np.ndarray) -> np.ndarray:
     norm = quat_norm(q)
     if not np.all(norm):
         raise ValueError("zero-norm quaternion: no rotation")
-    q = q / norm[:, None]
-    outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)  # products w*w, w*x, ...
-    t = outer[:, _R_PRODUCTS] * _R_SIGNS                     # (N, 4, 9)
-    return (((t[:, 0] + t[:, 1]) + t[:, 2] + t[:, 3]) * _R_SCALE).reshape(*shape, 3, 3)
+    w, x, y, z = (q / norm[:, None]).T
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    R = np.stack([((ww + xx) - yy) - zz, (x * y - w * z) * 2, (x * z + w * y) * 2,
+                  (x * y + w * z) * 2, ((ww - xx) + yy) - zz, (y * z - w * x) * 2,
+                  (x * z - w * y) * 2, (y * z + w * x) * 2, ((ww - xx) - yy) + zz], axis=-1)
+    return R.reshape(*shape, 3, 3)
 
 
 def quat_norm(q_wxyz: np.ndarray) -> np.ndarray:
@@ -85,21 +76,6 @@ def quat_norm(q_wxyz: np.ndarray) -> np.ndarray:
 
 _ORTHO_ATOL = 1e-12  # as scipy's from_matrix: beyond it a matrix is first orthogonalised
 _EYE3 = np.eye(3)
-# quat_wxyz_from_R: for the chosen case k (Markley), 4 |q_k| q in (w, x, y, z) is
-# c + s0 m[i0] + s1 m[i1] + s2 m[i2] (m the row-major matrix entries).
-_Q_CONST = np.array([[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0]], float)
-_Q_ENTRIES = np.array([
-    [[7, 5, 0], [0, 4, 8], [3, 1, 0], [6, 2, 0]],
-    [[2, 6, 0], [3, 1, 0], [4, 0, 8], [7, 5, 0]],
-    [[3, 1, 0], [6, 2, 0], [7, 5, 0], [8, 0, 4]],
-    [[0, 4, 8], [7, 5, 0], [2, 6, 0], [3, 1, 0]]]).transpose(2, 0, 1)  # (term, case, wxyz)
-_Q_SIGNS = np.array([
-    [[1, -1, 0], [1, -1, -1], [1, 1, 0], [1, 1, 0]],
-    [[1, -1, 0], [1, 1, 0], [1, -1, -1], [1, 1, 0]],
-    [[1, -1, 0], [1, 1, 0], [1, 1, 0], [1, -1, -1]],
-    [[1, 1, 1], [1, -1, 0], [1, -1, 0], [1, -1, 0]]], float).transpose(2, 0, 1)
-
-
 def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of rotation matrices (..., 3, 3), sign chosen so that the
     first nonzero of w, x, y, z is positive (w >= 0). Markley's method ("Unit Quaternion from
@@ -109,12 +85,16 @@ def quat_wxyz_from_R(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     m = R.reshape(-1, 9)
     n = len(m)
-    diag = m[:, [0, 4, 8]]
-    trace = (diag[:, 0] + diag[:, 1]) + diag[:, 2]
-    choice = np.argmax(np.concatenate([diag, trace[:, None]], axis=1), axis=1)
-    rows = np.arange(n)[:, None]
-    t = m[rows, _Q_ENTRIES[:, choice]] * _Q_SIGNS[:, choice]  # (term, N, 4)
-    q = ((_Q_CONST[choice] + t[0]) + t[1]) + t[2]
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.T
+    trace = (m00 + m11) + m22
+    choice = np.argmax(np.stack([m00, m11, m22, trace], axis=1), axis=1)
+    # 4 |q_k| (w, x, y, z) for each case k: the largest of m00, m11, m22 and the trace.
+    cases = np.array([
+        [m21 - m12, ((1 + m00) - m11) - m22, m10 + m01, m20 + m02],
+        [m02 - m20, m10 + m01, ((1 + m11) - m00) - m22, m21 + m12],
+        [m10 - m01, m20 + m02, m21 + m12, ((1 + m22) - m00) - m11],
+        [((1 + m00) + m11) + m22, m21 - m12, m02 - m20, m10 - m01]]).reshape(4, 4, n)
+    q = cases[choice, :, np.arange(n)]
     q /= quat_norm(q)[:, None]
     first = np.argmax(q != 0, axis=1)
     q *= np.where(q[np.arange(n), first] < 0, -1.0, 1.0)[:, None]
