@@ -276,5 +276,13 @@ def test_the_config_says_whether_a_frame_source_was_chosen(tmp_path: Path) -> No
     for value in ("rate", "capture"):
         m = load_mission(_config(tmp_path, name=f"{value}.yaml", log={"frame_source": value}))
         assert (m.frame_source, m.chosen_frame_source) == (value, value)
+    # Without log.frame_source, evaluate follows the daemon's service.frame_source in the
+    # same file: 'capture' and 'rate' as the daemon flew; 'zenoh' by the recorded frames.
+    for daemon, chosen in (("capture", "capture"), ("rate", "rate"), ("zenoh", None),
+                           (None, None)):
+        m = load_mission(_config(tmp_path, daemon, name=f"d-{daemon}.yaml"))
+        assert (m.frame_source, m.chosen_frame_source) == ("rate", chosen), daemon
+    m = load_mission(_config(tmp_path, "capture", name="both.yaml", log={"frame_source": "rate"}))
+    assert m.chosen_frame_source == "rate"  # log.frame_source wins
     # The daemon's default: service.frame_source null and log.frame_source not set.
     assert load_serve_config(_config(tmp_path, None, name="s.yaml")).frame_source == "rate"

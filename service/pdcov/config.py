@@ -104,10 +104,16 @@ class Mission:
 
     @property
     def chosen_frame_source(self) -> str | None:
-        """log.frame_source as the config sets it, None when it does not: ``pdcov
-        evaluate`` then uses the detector frames a daemon recorded in the log, if any
-        (recorded_frames.frame_source_for), else 'rate'."""
-        return self.frame_source if self.frame_source_set else None
+        """log.frame_source as the config sets it; when it does not, the daemon's
+        service.frame_source in the same file if that is 'rate' or 'capture' (its recording
+        then evaluates as it flew); else None: ``pdcov evaluate`` then uses the detector
+        frames a daemon recorded in the log, if any (recorded_frames.frame_source_for),
+        else 'rate'."""
+        if self.frame_source_set:
+            return self.frame_source
+        service = self.raw.get("service")
+        daemon = service.get("frame_source") if isinstance(service, Mapping) else None
+        return daemon if daemon in ("rate", "capture") else None
 
     def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
         """The ENU origin; the ground altitude given here overrides the configured one."""
