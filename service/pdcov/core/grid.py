@@ -101,6 +101,9 @@ class CoverageGrid:
                            if min_revisit_s else None)
         self.latest_frame_t_s = -math.inf  # latest frame time seen (s), with min_revisit_s
         self.frames = 0
+        # The cells (r0, r1, c0, c1) the latest update may have changed, None for none: a
+        # subscriber (the daemon's tiles and status) re-reads only those.
+        self.touched: tuple[int, int, int, int] | None = None
         pd, pfa = detector.padded_tables()
         with np.errstate(divide="ignore"):
             self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
@@ -139,12 +142,14 @@ class CoverageGrid:
     # -- update -----------------------------------------------------------------------------
 
     def update(self, pose: CameraPose, t_s: float | None = None) -> int:
-        """Add one camera frame; returns the number of free cells it observed.
+        """Add one camera frame; returns the number of free cells it observed, and sets
+        ``touched`` to the window of cells it may have changed.
 
         t_s (s, autopilot clock) defaults to ``pose.t_s``; it is only used with
         ``min_revisit_s``, and must then not go back in time (ValueError, nothing counted).
         """
         t = float(pose.t_s if t_s is None else t_s)
+        self.touched = None
         if self.last_obs_s is not None:
             if not math.isfinite(t):
                 raise ValueError(f"min_revisit_s needs frame times: pose.t_s or t_s, got {t}")
@@ -157,6 +162,7 @@ class CoverageGrid:
         if window is None:
             return 0
         r0, r1, c0, c1 = window
+        self.touched = window
         observed, area_px2 = self._observe_area(pose, window)
         if self.last_obs_s is not None:
             if self.min_revisit_s is None:  # only if min_revisit_s was cleared after __init__

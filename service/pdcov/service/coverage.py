@@ -39,6 +39,7 @@ from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
 from pdcov.service.settings import ServeConfig
+from pdcov.service.tile_metrics import TileMetrics
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
 from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
@@ -93,6 +94,7 @@ class LiveCoverage:
         self.grid = grid
         self.state = GridState(grid.geometry, grid.mask, grid.log_miss_d, grid.log_miss_fa,
                                grid.n_obs, grid.frames)  # views: always current
+        self._grid_hash = self.state.hash  # the geometry and mask never change
         self.frame_source = cfg.frame_source
         self.rate_hz = m.frame_rate_hz
         self.max_gap_s = m.max_gap_s
@@ -120,11 +122,13 @@ class LiveCoverage:
         self.last_frame_t_s = -math.inf
         self.last_pose: CameraPose | None = None
         self._last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
-        # Tiles: values as last sent, per tile; when each tile first changed unsent.
+        # Tiles: values as last sent, per tile; the tiles frames touched since the last
+        # comparison (all at first: a resumed grid); when each tile first changed unsent.
         ts = cfg.bus.tile_size
         self.tile_size = ts
         self._tile_shape = tile_grid_shape(ts, *grid.geometry.shape)
         self._sent_n_obs = np.zeros_like(grid.n_obs)
+        self._touched_tiles = np.ones(self._tile_shape, bool)
         self._dirty_since: dict[tuple[int, int], float] = {}
         self.tiles_seq = tiles_seq
         self._allowance = float(cfg.bus.tiles_max_bytes_per_s)
@@ -136,6 +140,7 @@ class LiveCoverage:
         self._next_value_s = now_s
         self._frames_at_checkpoint = grid.frames
         self.target_pd = cfg.target_pd
+        self.metrics = TileMetrics(self.state, ts, (*m.thresholds, self.target_pd))
         share = self.share_at_target()
         self._milestones = [x for x in MILESTONES if share < x - 1e-12]
 
@@ -408,6 +413,14 @@ class LiveCoverage:
                     return True  # this stream's gap is already too long: skip it now
         return final
 
+    def _touch(self, window: tuple[int, int, int, int]) -> None:
+        """Cells rows r0:r1, columns c0:c1 may have changed: their tiles are compared and
+        their status metrics recomputed when next due."""
+        r0, r1, c0, c1 = window
+        ts = self.tile_size
+        self._touched_tiles[r0 // ts:(r1 - 1) // ts + 1, c0 // ts:(c1 - 1) // ts + 1] = True
+        self.metrics.mark(window)
+
     def _evaluate(self, tr: PoseTracker, t_s: np.ndarray) -> int:
         """Add the frames at times ``t_s`` (increasing) that are valid, trusted (or the
         mount says to use untrusted ones) and high enough; count the others by reason."""
@@ -439,6 +452,8 @@ class LiveCoverage:
                 self.counters.skipped["below min height"] += 1
                 continue
             self.grid.update(pose)
+            if self.grid.touched is not None:
+                self._touch(self.grid.touched)
             added += 1
             unjudged += not judged
         self.state.frames = self.grid.frames
@@ -465,7 +480,7 @@ class LiveCoverage:
     # --- output ---------------------------------------------------------------------------
 
     def share_at_target(self) -> float:
-        return self.state.proportion_at_or_above(self.target_pd)
+        return self.metrics.summary().proportion_at_or_above(self.target_pd)
 
     def poll(self, now_s: float) -> Due:
         """What is due at ``now_s`` (the daemon's monotonic clock, s)."""
@@ -508,13 +523,14 @@ class LiveCoverage:
         self._allowance = min(rate, self._allowance + rate * (now_s - self._last_tiles_s))
         self._last_tiles_s = now_s
         ts = self.tile_size
-        n_tr, n_tc = self._tile_shape
-        g = self.grid.geometry
-        pad = ((0, n_tr * ts - g.n_rows), (0, n_tc * ts - g.n_cols))
-        changed_cells = np.pad(self.grid.n_obs != self._sent_n_obs, pad)
-        changed = changed_cells.reshape(n_tr, ts, n_tc, ts).any(axis=(1, 3))
-        for tr, tc in zip(*np.nonzero(changed), strict=True):
-            self._dirty_since.setdefault((int(tr), int(tc)), now_s)
+        n_obs, sent = self.grid.n_obs, self._sent_n_obs
+        # Only tiles frames touched can differ from what was sent (row-major, as the
+        # whole-grid comparison this replaces).
+        for tr, tc in zip(*np.nonzero(self._touched_tiles), strict=True):
+            win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
+            if (int(tr), int(tc)) not in self._dirty_since and (n_obs[win] != sent[win]).any():
+                self._dirty_since[(int(tr), int(tc))] = now_s
+        self._touched_tiles[:] = False
         if not self._dirty_since or self._allowance <= 0:
             return None
         order = sorted(self._dirty_since, key=self._dirty_since.__getitem__)
@@ -546,7 +562,7 @@ class LiveCoverage:
                       checkpoint: dict[str, Any]) -> dict[str, Any]:
         """The status object's fields (bus.status, docs/protocol.md)."""
         m = self.cfg.mission
-        metrics = self.grid.metrics(m.thresholds)
+        metrics = self.metrics.summary()
         g = self.grid.geometry
         pose = None
         if self.last_pose is not None and self.origin is not None:
@@ -566,8 +582,8 @@ class LiveCoverage:
             "vehicle_id": m.vehicle_id, "seq": seq, "uptime_s": uptime_s,
             "t_s": self._latest_all() if self._latest else None,
             "thresholds": list(m.thresholds),
-            "proportion_at_or_above": {str(float(k)): v for k, v in
-                                       metrics.proportion_at_or_above.items()},
+            "proportion_at_or_above": {str(float(t)): metrics.proportion_at_or_above(t)
+                                       for t in m.thresholds},
             "mean_pd": metrics.mean_pd, "expected_false_alarms": metrics.expected_false_alarms,
             "cells_free": metrics.cells_free, "cells_observed": metrics.cells_observed,
             "frames": {"used": self.counters.used, "grid": self.grid.frames,
@@ -576,7 +592,7 @@ class LiveCoverage:
                        "last_t_s": self.last_frame_t_s if self.last_frame_t_s > -math.inf
                        else None},
             "link": link, "pose": pose, "gimbal": gimbal,
-            "grid": {"hash": self.state.hash, "x0_m": g.x0_m, "y0_m": g.y0_m,
+            "grid": {"hash": self._grid_hash, "x0_m": g.x0_m, "y0_m": g.y0_m,
                      "cell_size_m": g.cell_size_m, "n_rows": g.n_rows, "n_cols": g.n_cols,
                      "tile_size": self.tile_size,
                      "origin": {"lat_deg": m.origin_lat_deg, "lon_deg": m.origin_lon_deg,
