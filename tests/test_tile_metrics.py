@@ -11,7 +11,7 @@ import pytest
 from test_service_decisions import feed, serve_cfg
 
 from pdcov.bus.grid_state import GridState
-from pdcov.bus.tiles import encode_tiles, tile_grid_shape, tile_wire_bytes
+from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape, tile_wire_bytes
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
@@ -153,3 +153,22 @@ def test_tiles_and_status_equal_the_whole_grid_comparison(resumed):
         assert fa["grid"]["hash"] == ref.state.hash
     assert sent >= 5 and live.counters.used > 50
     assert np.array_equal(live._sent_n_obs, live.grid.n_obs)  # everything sent in the end
+
+
+def test_tiles_encode_the_same_bytes_without_the_whole_grid():
+    # encode_tiles computes P_D per tile now, and takes the grid hash from its caller: the
+    # same bytes as P_D of the whole grid and the state's own hash.
+    rng = np.random.default_rng(3)
+    g = grid()
+    for k in range(40):
+        g.update(random_pose(rng, 0.1 * k))
+    state = GridState.from_grid(g)
+    state.log_miss_d[5, 7] = -np.inf  # P_D = 1
+    n_tr, n_tc = tile_grid_shape(16, *g.geometry.shape)
+    ids = [(r, c) for r in range(n_tr) for c in range(n_tc)]
+    payload = encode_tiles(state, ids, seq=3, t_s=1.5, tile_size=16, grid_hash=state.hash)
+    assert payload == encode_tiles(state, ids, seq=3, t_s=1.5, tile_size=16)
+    pd_whole = np.rint(state.pd * 65535.0).astype("<u2")
+    for tile in decode_tiles(payload).tiles:
+        r0, c0 = tile.tile_row * 16, tile.tile_col * 16
+        np.testing.assert_array_equal(tile.pd_q, pd_whole[r0:r0 + 16, c0:c0 + 16])

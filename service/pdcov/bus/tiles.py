@@ -83,15 +83,17 @@ def tile_wire_bytes(tile_size: int) -> int:
 
 
 def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int,
-                 t_s: float, tile_size: int, level: int = 6) -> bytes:
-    """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col))."""
+                 t_s: float, tile_size: int, level: int = 6,
+                 grid_hash: str | None = None) -> bytes:
+    """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col)).
+    ``grid_hash``: ``state.hash`` when the caller keeps it (it reads the whole mask); the
+    cost otherwise follows the tiles sent, not the grid."""
     g = state.geometry
     ids = list(dict.fromkeys((int(r), int(c)) for r, c in tiles))
     if not 1 <= tile_size <= MAX_TILE_SIZE:
         raise ValueError(f"tile_size {tile_size}: expected 1..{MAX_TILE_SIZE}")
     if len(ids) > 0xFFFF:
         raise ValueError(f"{len(ids)} tiles in one message; at most 65535")
-    pd = state.pd
     parts = []
     for tr, tc in ids:
         r0, r1, c0, c1 = tile_bounds(tr, tc, tile_size, g.n_rows, g.n_cols)
@@ -101,9 +103,12 @@ def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int
         parts += [_TILE_ID.pack(tr, tc), state.log_miss_d[win].astype("<f4").tobytes(),
                   state.log_miss_fa[win].astype("<f4").tobytes(),
                   state.n_obs[win].astype("<u4").tobytes(),
-                  np.rint(pd[win] * 65535.0).astype("<u2").tobytes()]
-    header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(state.hash), float(t_s),
-                          min(state.frames, 0xFFFFFFFF), tile_size, len(ids), g.n_rows, g.n_cols)
+                  # P_D as GridState.pd, over the tile only
+                  np.rint((0.0 - np.expm1(state.log_miss_d[win].astype(np.float64)))
+                          * 65535.0).astype("<u2").tobytes()]
+    header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(grid_hash or state.hash),
+                          float(t_s), min(state.frames, 0xFFFFFFFF), tile_size, len(ids),
+                          g.n_rows, g.n_cols)
     return header + zlib.compress(b"".join(parts), level)
 
 

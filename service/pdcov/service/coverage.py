@@ -538,7 +538,7 @@ class LiveCoverage:
         n = max(1, min(len(order), int(self._allowance // max(per_tile, 1.0)), 0xFFFF))
         ids = order[:n]
         payload = encode_tiles(self.state, ids, seq=self.tiles_seq, t_s=self.last_frame_t_s,
-                               tile_size=ts)
+                               tile_size=ts, grid_hash=self._grid_hash)
         self.tiles_seq += 1
         self._allowance -= len(payload)
         self._ratio = max(0.01, len(payload) / (n * tile_wire_bytes(ts)))
