@@ -72,6 +72,7 @@ class _Request:
 class LinkStats:
     messages: int = 0
     other_systems: int = 0
+    unknown: int = 0  # of message ids the dialect does not know (e.g. a corrupted id)
     rejected: Counter = field(default_factory=Counter)  # message type -> refused values
     reboots: int = 0
     last_message_s: float | None = None  # wall clock (the caller's now_s)
@@ -155,7 +156,7 @@ class LinkProtocol:
             return out
         return {"system_id": self.system_id, "component_id": self.autopilot_component,
                 "autopilot": self.autopilot_type, "messages": self.stats.messages,
-                "other_systems": self.stats.other_systems,
+                "other_systems": self.stats.other_systems, "unknown": self.stats.unknown,
                 "rejected": dict(self.stats.rejected),
                 "reboots": self.reboots, "intervals": results(self.interval_requests),
                 "home_request": self.home_request.result,
@@ -166,7 +167,11 @@ class LinkProtocol:
     def receive(self, msg: Any, now_s: float) -> list[Sample]:
         """The samples in ``msg`` (autopilot clock); updates what the link knows."""
         mtype = msg.get_type()
-        if mtype == "BAD_DATA" or mtype.startswith("UNKNOWN"):
+        if mtype == "BAD_DATA":
+            return []
+        if mtype.startswith("UNKNOWN"):
+            # No checksum can catch a corrupted message id: its CRC_EXTRA is unknown too.
+            self.stats.unknown += 1
             return []
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
         early: list[Sample] = []
