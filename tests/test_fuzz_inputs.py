@@ -11,6 +11,8 @@ import io
 import json
 import math
 import os
+import re
+import struct
 import zipfile
 from pathlib import Path
 
@@ -385,3 +387,110 @@ def test_tiles_of_another_grid_or_a_wrong_shape_change_nothing(payloads):
     for a, b in zip(before, grid_values(w), strict=True):
         np.testing.assert_array_equal(a, b)
     assert w.feeds["fuzz"].bad_payloads == 1
+
+
+# --- inputs the 500-example run found (docs: PDCOV_FUZZ_EXAMPLES=500), kept as plain cases ----
+
+@pytest.mark.parametrize(("section", "key", "value", "message"), [
+    ("camera", "K", [[], [0, 480, 239.5], [0, 0, 1]],
+     "camera.K: expected 3 rows of 3 numbers, row 1 has 0"),  # numpy ValueError before
+    ("camera", "K", [[480, 0, 319.5], [0, 480, 239.5, 7], [0, 0, 1]],
+     "camera.K: expected 3 rows of 3 numbers, row 2 has 4"),
+    ("camera", "distortion_model", [], "distortion_model: expected one of"),  # TypeError
+    ("camera", "distortion_model", {"a": 1}, "distortion_model: expected one of"),
+    # Integers no float holds (YAML reads them exactly): OverflowError in math.isfinite.
+    ("camera", "K", [[10**400, 0, 319.5], [0, 480, 239.5], [0, 0, 1]], "camera.K: a number"),
+    ("origin", "lat_deg", 10**400, "origin.lat_deg: expected a finite number"),
+    ("mount", "lever_arm_frd_m", [0, 0, -10**400], "mount.lever_arm_frd_m: expected"),
+], ids=["K-empty-row", "K-long-row", "model-list", "model-mapping", "K-huge-int",
+        "lat-huge-int", "lever-arm-huge-int"])
+def test_found_mission_values_give_a_pdcov_error(tmp_path, section, key, value, message):
+    doc = copy.deepcopy(MISSION)
+    if section == "mount":
+        doc["mount"] = {"type": "fixed"}
+    doc[section][key] = value
+    for read in (lambda: mission_from_dict(doc, "m.yaml", tmp_path),
+                 lambda: load_mission(_written(tmp_path / "m.yaml", yaml.safe_dump(doc)))):
+        with pytest.raises(PdcovError, match=re.escape(message)):
+            read()
+
+
+def _written(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _npy_with_header(header: str) -> bytes:
+    """A version-1.0 .npy member whose header text is ``header`` (padded as numpy pads it),
+    followed by enough bytes for the array a valid header would describe."""
+    h = header.encode("latin1")
+    h += b" " * (64 - (10 + len(h) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(h)) + h + bytes(8 * 30 * 30)
+
+
+def _with_member(data: bytes, name: str, raw: bytes) -> bytes:
+    src = zipfile.ZipFile(io.BytesIO(data))
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as dst:
+        for info in src.infolist():
+            dst.writestr(info, raw if info.filename == name else src.read(info))
+    return out.getvalue()
+
+
+def _garbled_deflate(data: bytes, name: str) -> bytes:
+    """The zip with member ``name``'s compressed bytes overwritten with 0xff (an invalid
+    deflate block type: zlib.error -3 while inflating; the zip headers stay valid)."""
+    info = zipfile.ZipFile(io.BytesIO(data)).getinfo(name)
+    b = bytearray(data)
+    n_name, n_extra = struct.unpack("<HH", b[info.header_offset + 26:info.header_offset + 30])
+    start = info.header_offset + 30 + n_name + n_extra
+    b[start:start + info.compress_size] = b"\xff" * info.compress_size
+    return bytes(b)
+
+
+DAMAGED_MEMBERS = {
+    # numpy's header parser: ast.literal_eval fails, its old-format fallback tokenizes
+    "unclosed header (tokenize.TokenError)":
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (30,(, }",
+    "indented header (IndentationError, a SyntaxError)": "x\n  y\n z",
+    "huge shape (MemoryError)": "{'descr': '<f8', 'fortran_order': False, "
+                                "'shape': (10000000000000,), }",
+}
+
+
+@pytest.mark.parametrize("damage", [*DAMAGED_MEMBERS, "deflate (zlib.error)"])
+def test_found_damaged_checkpoints_are_set_aside(tmp_path, grid_and_checkpoint, damage):
+    mission, grid, good = grid_and_checkpoint
+    bad = (_garbled_deflate(good, "log_miss_d.npy") if damage.startswith("deflate")
+           else _with_member(good, "log_miss_d.npy", _npy_with_header(DAMAGED_MEMBERS[damage])))
+    check_resume(tmp_path, mission, grid, bad)
+    assert (tmp_path / "state" / CHECKPOINT_NAME).exists() is False
+
+
+@pytest.mark.parametrize("damage", [*DAMAGED_MEMBERS, "deflate (zlib.error)"])
+def test_found_damaged_snapshots_are_counted(payloads, damage):
+    good = payloads["snapshot"]
+    bad = (_garbled_deflate(good, "log_miss_d.npy") if damage.startswith("deflate")
+           else _with_member(good, "log_miss_d.npy", _npy_with_header(DAMAGED_MEMBERS[damage])))
+    w = watcher_with_grid(payloads["state"])
+    before = grid_values(w)
+    assert deliver(w, "snapshot", bad) is False
+    assert w.feeds["fuzz"].bad_payloads == 1
+    for a, b in zip(before, grid_values(w), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_checkpoint_time_no_float_holds_is_set_aside(tmp_path, grid_and_checkpoint):
+    """JSON reads integers exactly: 10**400 made math.isfinite raise OverflowError."""
+    mission, grid, _ = grid_and_checkpoint
+    path = tmp_path / CHECKPOINT_NAME
+    write_checkpoint(path, grid, {"mission_hash": "h", "t0_s": 10**400, "last_frame_t_s": 1.0})
+    check_resume(tmp_path, mission, grid, path.read_bytes())
+    assert not (tmp_path / "state" / CHECKPOINT_NAME).exists()
+
+
+@pytest.mark.parametrize("text", ["origin: {lat_deg: " + "1" * 5000 + "}\n",  # ValueError
+                                  "camera: " + "[" * 5000 + "]" * 5000 + "\n"])
+def test_yaml_that_python_cannot_build_gives_a_pdcov_error(tmp_path, text):
+    with pytest.raises(PdcovError, match="m.yaml: not valid YAML"):
+        load_mission(_written(tmp_path / "m.yaml", text))

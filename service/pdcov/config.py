@@ -6,6 +6,7 @@ was expected.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
 
 DEFAULT_THRESHOLDS = (0.5, 0.7, 0.8)
+_FLOAT_MAX = sys.float_info.max
 
 # Sections of the onboard daemon (`pdcov serve`), declared by its own modules: see
 # ``mission_schema``. Until a schema is passed for one, any mapping is accepted there.
@@ -224,7 +226,9 @@ def _number(doc: Mapping[str, Any], key: str, src: str | None, section: str,
     v = doc.get(key, default)
     if v is None:
         raise ConfigError(f"{where(src, full)}: missing (a number)")
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    # abs(v) <= max float: false for NaN, infinities and integers a float cannot hold
+    # (math.isfinite raises OverflowError on those).
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= _FLOAT_MAX:
         raise ConfigError(f"{where(src, full)}: expected a finite number, got {v!r}")
     if positive and v <= 0:
         raise ConfigError(f"{where(src, full)}: expected a positive number, got {v!r}")
@@ -286,7 +290,7 @@ def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:
         for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]
     arm = doc.get("lever_arm_frd_m", [0.0, 0.0, 0.0])
     if (not isinstance(arm, list) or len(arm) != 3 or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= _FLOAT_MAX
             for v in arm)):
         raise ConfigError(f"{where(src, 'mount.lever_arm_frd_m')}: expected [forward, right, "
                           f"down] in metres, got {arm!r}")

@@ -36,5 +36,7 @@ def load_yaml(path: str | Path, what: str, error: type[ConfigError] = ConfigErro
     text = read_text(path, what, error)
     try:
         return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
+    # ValueError: an integer of more than 4300 digits (int's conversion limit, CVE-2020-10735);
+    # RecursionError: collections nested too deep for the parser.
+    except (yaml.YAMLError, ValueError, RecursionError) as exc:
         raise error(f"{path}: not valid YAML ({exc})") from None

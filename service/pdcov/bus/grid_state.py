@@ -25,6 +25,7 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.core.domain import GridGeometry
 from pdcov.core.grid import SNAPSHOT_VERSION, CoverageGrid
 from pdcov.errors import DomainError
+from pdcov.npz_file import DAMAGED, read_npz
 
 MAX_CELLS = 50_000_000
 """Largest grid a decoder accepts (a 7 km square at 1 m): a bound on memory, not a limit of
@@ -99,20 +100,14 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
     try:
         with zipfile.ZipFile(io.BytesIO(bytes(payload))) as zf:
             total = sum(i.file_size for i in zf.infolist())
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
+    except DAMAGED as exc:
         raise bad(f"not an .npz (zip) file ({exc})") from None
     if total > 4 * 16 * max_cells + (1 << 20):  # four 4-byte arrays, float64 pd/pfa, slack
         raise bad(f"{total} bytes uncompressed, more than a grid of {max_cells} cells")
-    try:
-        with np.load(io.BytesIO(bytes(payload)), allow_pickle=False) as z:
-            missing = sorted(set(_NPZ_ARRAYS) - set(z.files))
-            if missing:
-                raise bad(f"missing {', '.join(missing)}")
-            data = {k: z[k] for k in z.files if k in (*_NPZ_ARRAYS, "version", "frames")}
-    except BusPayloadError:
-        raise
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise bad(str(exc)) from None
+    data = read_npz(bytes(payload), bad)
+    missing = sorted(set(_NPZ_ARRAYS) - set(data))
+    if missing:
+        raise bad(f"missing {', '.join(missing)}")
     version = int(data["version"]) if "version" in data and data["version"].size == 1 else -1
     if version not in (1, SNAPSHOT_VERSION):
         raise bad(f"snapshot version {version}, expected 1 or {SNAPSHOT_VERSION}")

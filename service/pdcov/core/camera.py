@@ -72,7 +72,8 @@ class CameraModel:
 
     def __post_init__(self) -> None:
         src = self.source
-        model = _MODEL_ALIASES.get(self.distortion_model, self.distortion_model)
+        given: Any = self.distortion_model  # from a file: may be any YAML value
+        model = _MODEL_ALIASES.get(given, given) if isinstance(given, str) else ""
         if model not in DISTORTION_MODELS:
             raise CalibrationError(
                 f"{where(src, 'distortion_model')}: expected one of "
@@ -471,17 +472,27 @@ def border_pixels(width_px: int, height_px: int, per_side: int) -> np.ndarray:
 
 
 def _floats(v: Any, source: str | None, key: str) -> np.ndarray:
+    """A flat list of numbers as floats (an integer too large for a float is refused)."""
     if not isinstance(v, (list, tuple)) or not all(
             isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
         raise CalibrationError(f"{where(source, key)}: expected a list of numbers, got {v!r}")
-    return np.array(v, dtype=float)
+    try:
+        return np.array([float(x) for x in v], dtype=float)
+    except OverflowError:
+        raise CalibrationError(f"{where(source, key)}: a number too large, got {v!r}") from None
 
 
 def _matrix(v: Any, source: str | None, key: str) -> np.ndarray:
+    """K as 3 rows of 3 numbers: [[fx, s, cx], [0, fy, cy], [0, 0, 1]]."""
     if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise CalibrationError(f"{where(source, key)}: expected [[fx, s, cx], [0, fy, cy], "
-                               f"[0, 0, 1]], got {v!r}")
-    return np.array([_floats(row, source, key) for row in v], dtype=float).reshape(3, -1)
+        raise CalibrationError(f"{where(source, key)}: expected 3 rows of 3 numbers "
+                               f"[[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {v!r}")
+    rows = [_floats(row, source, key) for row in v]
+    for i, row in enumerate(rows):
+        if row.size != 3:
+            raise CalibrationError(f"{where(source, key)}: expected 3 rows of 3 numbers, "
+                                   f"row {i + 1} has {row.size}")
+    return np.array(rows)
 
 
 def _ros_matrix(v: Any, source: str, key: str, size: int | None) -> np.ndarray:

@@ -13,8 +13,6 @@ picture, scaled to detector-input pixels.
 from __future__ import annotations
 
 import math
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -28,6 +26,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_ring_enu
 from pdcov.core.pose import CameraPose
 from pdcov.errors import InputFileError
+from pdcov.npz_file import read_npz
 
 SNAPSHOT_VERSION = 2  # 2: the revisit clock (last_obs_s) in float64; 1: float32
 _READABLE_VERSIONS = (1, 2)
@@ -335,12 +334,8 @@ class CoverageGrid:
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile,
-                zlib.error) as exc:  # a damaged zip member fails in zipfile or zlib
-            raise InputFileError(f"{path}: cannot read grid snapshot ({exc})") from None
+        data = read_npz(path, lambda why: InputFileError(
+            f"{path}: cannot read grid snapshot ({why})"))
         missing = {"mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m",
                    "cell_size_m"} - set(data)
         if missing:

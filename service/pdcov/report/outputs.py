@@ -24,6 +24,7 @@ from pdcov.core.grid import CoverageGrid, Metrics
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
+from pdcov.npz_file import read_npy, read_npz
 
 METRICS_VERSION = 1
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
@@ -86,7 +87,7 @@ def read_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
     notes: tuple[str, ...] = ()
     try:
         if suffix == ".npy":
-            poa = np.load(path, allow_pickle=False).astype(float)
+            poa = read_npy(path, ValueError).astype(float)
             if poa.shape != geometry.shape:
                 raise ValueError(f"array shape {poa.shape} != grid shape {geometry.shape} "
                                  "(rows north, columns east)")
@@ -236,8 +237,8 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], np.ndarray, np.ndarra
     run = Path(run_dir)
     try:
         doc = json.loads((run / "metrics.json").read_text())
-        with np.load(run / "grid.npz") as z:
-            pd, mask = z["pd"], z["mask"].astype(bool)
+        grid = read_npz(run / "grid.npz", ValueError)
+        pd, mask = grid["pd"], grid["mask"].astype(bool)
     except (OSError, ValueError, KeyError) as exc:
         raise InputFileError(f"{run}: not a pdcov run folder ({exc})") from None
     if doc.get("version") != METRICS_VERSION:

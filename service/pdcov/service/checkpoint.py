@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import io
 import json
-import math
+import sys
 import time
 import zipfile
 from dataclasses import dataclass
@@ -23,6 +23,7 @@ from typing import Any
 from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
 from pdcov.errors import InputFileError, PdcovError
+from pdcov.npz_file import read_zip_member
 
 META_MEMBER = "pdcov_checkpoint.json"
 META_VERSION = 1
@@ -52,11 +53,14 @@ def write_checkpoint(path: Path, grid: CoverageGrid, meta: dict[str, Any]) -> No
 
 def read_meta(path: Path) -> dict[str, Any]:
     """The metadata of a checkpoint file; InputFileError when it has none or is corrupt."""
+    def error(why: str) -> InputFileError:
+        return InputFileError(f"{path}: not a pdcov checkpoint ({why})")
+
+    text = read_zip_member(path, META_MEMBER, error)
     try:
-        with zipfile.ZipFile(path) as zf:
-            meta = json.loads(zf.read(META_MEMBER))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputFileError(f"{path}: not a pdcov checkpoint ({exc})") from None
+        meta = json.loads(text)
+    except (ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
+        raise error(f"{META_MEMBER}: {exc}") from None
     if not isinstance(meta, dict) or meta.get("version") != META_VERSION:
         raise InputFileError(f"{path}: checkpoint metadata version "
                              f"{meta.get('version') if isinstance(meta, dict) else '?'}, "
@@ -66,7 +70,10 @@ def read_meta(path: Path) -> dict[str, Any]:
 
 
 def _finite(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    # abs(v) <= max float: false for NaN and infinities, and for a JSON integer no float
+    # holds (math.isfinite raises OverflowError on it).
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)
+            and abs(v) <= sys.float_info.max)
 
 
 def _check_meta(path: Path, meta: dict[str, Any]) -> None:
