@@ -74,8 +74,10 @@ def mutated_doc(draw, doc):
         if draw(st.booleans()) and isinstance(parent, dict):
             del parent[path[-1]]
         else:
-            parent[path[-1]] = draw(st.one_of(st.sampled_from(HOSTILE),
-                                              st.floats(), st.integers(), st.text(max_size=20)))
+            # A copy: a later mutation may write into it, and HOSTILE's lists and mappings
+            # are shared by every example (writing into them made cyclic documents).
+            parent[path[-1]] = copy.deepcopy(draw(st.one_of(
+                st.sampled_from(HOSTILE), st.floats(), st.integers(), st.text(max_size=20))))
     return out
 
 
