@@ -17,9 +17,11 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from benchmarks.harness import small_mission  # noqa: E402
+from pdcov.core.grid import CoverageGrid  # noqa: E402
 from pdcov.service.coverage import LiveCoverage  # noqa: E402
 from pdcov.service.daemon import Daemon  # noqa: E402
 from pdcov.service.settings import ServeConfig, load_serve_config  # noqa: E402
+from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log  # noqa: E402
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
 MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},
@@ -77,6 +79,22 @@ class LinkFeed:
     def status(self) -> dict:
         return self.live.status_fields(uptime_s=0.0, seq=0, link=d_describe(self.daemon),
                                        checkpoint={})
+
+
+def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
+    """``pdcov evaluate`` of the same bytes as a tlog: its poses with the daemon's mission,
+    and the grid built from them as the daemon builds it (frames below min_height_m not
+    added)."""
+    m = cfg.mission
+    lp = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                        ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
+                        frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s,
+                        estimator_status=m.estimator_status)
+    grid = m.new_grid()
+    for p in lp.poses:
+        if p.r_cam_enu[2] >= m.min_height_m:
+            grid.update(p)
+    return lp, grid
 
 
 def d_describe(d: Daemon) -> dict:

@@ -20,7 +20,15 @@ import pytest
 import yaml
 
 os.environ.setdefault("MAVLINK20", "1")
-from link_feed import GROUND_M, LAT_DEG, LON_DEG, LinkFeed, pack, serve_config  # noqa: E402
+from link_feed import (  # noqa: E402
+    GROUND_M,
+    LAT_DEG,
+    LON_DEG,
+    LinkFeed,
+    offline_of,
+    pack,
+    serve_config,
+)
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 from serve_harness import Subscriber, free_port, process, router, serve_args, small_plan, stop  # noqa: E402
 from serve_harness import serve_config as write_config  # noqa: E402
@@ -197,15 +205,7 @@ def live_and_offline(tmp: Path, msgs: list[mavlink.MAVLink_message], **log: obje
     feed.notes = notes  # type: ignore[attr-defined]
     tlog = tmp / "hover.tlog"
     write_tlog(tlog, msgs)
-    m = cfg.mission
-    lp = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
-                        ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
-                        frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s,
-                        estimator_status=m.estimator_status)
-    grid = m.new_grid()
-    for p in lp.poses:
-        if p.r_cam_enu[2] >= m.min_height_m:
-            grid.update(p)
+    lp, grid = offline_of(cfg, tlog)
     return feed, lp, {"grid": grid}
 
 

@@ -197,6 +197,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     messages = _Messages()
     recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
     not_taken = NotTakenCaptures()
+    first_euler: dict[int, int] = {}  # system -> message index of its first ATTITUDE
     n_ok = 0
     try:
         scanner = TlogScanner(path.read_bytes())
@@ -208,6 +209,8 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         key = (msg.get_srcSystem(), msg.get_srcComponent())
         comp = comps[key]
         boot_s = mavlink_boot_time_s(msg)
+        if mtype == "ATTITUDE":
+            first_euler.setdefault(key[0], n_ok - 1)
         mark = recorded_mark(msg)  # the daemon's own (recorded_frames): no clock's message
         messages.source.append(-1 if mark == NOT_TAKEN else (key[0] << 8) | key[1])
         messages.boot_s.append(math.nan if boot_s is None else boot_s)
@@ -277,7 +280,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
                 out.extend(comp.samples.get(kind, []))
         return out
 
-    attitude = ap.samples.get("AttitudeSample") or ap.samples.get("AttitudeSampleQ", [])
+    attitude = _attitude_as_live(ap, first_euler.get(sysid))
     gimbals = gather("GimbalSample")
     gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp, gimbal_instance)
     if gnote:
@@ -295,6 +298,22 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
         *_estimator(ap.samples.get("EstimatorSample", []), "EKF_STATUS_REPORT / "
                     "ESTIMATOR_STATUS")), -ap.clock.offset_s)
+
+
+def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:
+    """The autopilot's attitude samples by the daemon's causal rule (LinkProtocol.receive):
+    ATTITUDE_QUATERNION until the system's first ATTITUDE message (index ``first_euler``
+    in the log, None: none), ATTITUDE from then on; in log order, so that of equal times
+    the later message wins, as live. A log or link that starts between the two messages of
+    one attitude then gives live and offline the same samples (the first frame time
+    follows the first attitude)."""
+    stop = math.inf if first_euler is None else first_euler
+    quats = [(i, smp) for i, smp in zip(ap.message_index.get("AttitudeSampleQ", []),
+                                        ap.samples.get("AttitudeSampleQ", []), strict=True)
+             if i < stop]
+    eulers = list(zip(ap.message_index.get("AttitudeSample", []),
+                      ap.samples.get("AttitudeSample", []), strict=True))
+    return [smp for _i, smp in sorted(quats + eulers, key=lambda x: x[0])]
 
 
 def _estimator(samples: list[EstimatorSample], source: str) -> tuple[EstimatorSeries, str]:

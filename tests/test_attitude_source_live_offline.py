@@ -1,0 +1,95 @@
+"""ATTITUDE and ATTITUDE_QUATERNION together (ArduPilot sends both): the daemon takes the
+quaternion until the first ATTITUDE arrives, ATTITUDE from then on (LinkProtocol.receive),
+and the tlog reader applies the same rule in log order. A link opened between the two
+messages of one attitude (a serial device read late, a backlog) starts with a
+GLOBAL_POSITION_INT and an ATTITUDE_QUATERNION before any ATTITUDE: the first frame then
+lies at the quaternion's time, live and offline alike. The tlog reader used to drop every
+quaternion of a log holding any ATTITUDE, so its frames started at the first ATTITUDE's
+time (25 ms later) and no frame matched the daemon's grid."""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from link_feed import GROUND_M, LAT_DEG, LON_DEG, LinkFeed, offline_of, pack, serve_config
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.telemetry.logs import read_flight_log
+
+
+def flying_north(seconds: float = 6.0) -> list[mavlink.MAVLink_message]:
+    """A vehicle 12 m up flying north at 4 m/s over the domain while turning, the messages in
+    the simulator's order: ATTITUDE 20 Hz at 16 + 50 k ms, ATTITUDE_QUATERNION 20 Hz at
+    41 + 50 k ms, GLOBAL_POSITION_INT 10 Hz with every other ATTITUDE; a HEARTBEAT each
+    second. The stream begins as a link opened just after an ATTITUDE: with the
+    GLOBAL_POSITION_INT of 1016 ms, then the quaternion of 1041 ms."""
+    mav = mavlink.MAVLink(None)
+    east_m, deg_per_m = 15.0, 1.0 / 111_320.0
+
+    def yaw_rad(ms: int) -> float:
+        return 0.3 + 0.5 * (ms / 1000.0 - 1.0)
+
+    def position(ms: int) -> mavlink.MAVLink_message:
+        north_m = 2.0 + 4.0 * (ms / 1000.0 - 1.0)
+        return mav.global_position_int_encode(
+            ms, round((LAT_DEG + north_m * deg_per_m) * 1e7),
+            round((LON_DEG + east_m * deg_per_m / math.cos(math.radians(LAT_DEG))) * 1e7),
+            round((GROUND_M + 12) * 1000), 12_000, 0, 0, 0, 0)
+
+    out = [position(1016)]
+    for k in range(int(seconds * 20)):
+        q_ms, a_ms = 1041 + 50 * k, 1066 + 50 * k
+        q = quat_wxyz_from_euler_zyx(0.05, -0.1, yaw_rad(q_ms)).reshape(4)
+        out.append(mav.attitude_quaternion_encode(q_ms, *map(float, q), 0, 0, 0))
+        if k % 20 == 5:
+            out.append(mav.heartbeat_encode(2, 3, 128 | 1, 4, 4))
+        out.append(mav.attitude_encode(a_ms, 0.05, -0.1, yaw_rad(a_ms), 0, 0, 0))
+        if k % 2 == 1:
+            out.append(position(a_ms))
+    return out
+
+
+def chunkings(data: list[bytes]) -> dict[str, list[bytes]]:
+    """The same bytes as one backlog read, message by message, and cut at random places
+    (inside messages too)."""
+    whole = b"".join(data)
+    rng = random.Random(7)
+    cuts = sorted(rng.sample(range(1, len(whole)), 60))
+    return {"one read": [whole], "per message": data,
+            "random cuts": [whole[a:b] for a, b in zip([0, *cuts], [*cuts, len(whole)],
+                                                       strict=True)]}
+
+
+@pytest.mark.parametrize("how", ["one read", "per message", "random cuts"])
+def test_link_starting_with_a_quaternion_gives_the_offline_grid(tmp_path: Path,
+                                                                 how: str) -> None:
+    msgs = flying_north()
+    data = [pack(m, seq=i) for i, m in enumerate(msgs)]
+    tlog = tmp_path / "late.tlog"
+    tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
+                              for i, d in enumerate(data)))
+    cfg = serve_config(tmp_path, gimbal=False)
+
+    # Offline: the quaternion before the first ATTITUDE is an attitude sample, the later
+    # quaternions are not.
+    att_t = read_flight_log(tlog).attitude.t_s
+    assert att_t[0] == pytest.approx(1.041) and att_t[1] == pytest.approx(1.066)
+    assert np.allclose(np.diff(att_t[1:]), 0.05)
+    lp, off = offline_of(cfg, tlog)
+
+    feed = LinkFeed(cfg)
+    for i, chunk in enumerate(chunkings(data)[how]):
+        feed.feed(chunk, 0.01 * i)
+    feed.tick(10.0)
+    live = feed.live
+    assert live.t0_s == pytest.approx(1.041)  # max(first attitude, first position)
+    assert lp.poses[0].t_s == live.t0_s
+    assert live.grid.frames == off.frames == len(lp.poses) > 20
+    for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+        np.testing.assert_array_equal(getattr(live.grid, key), getattr(off, key), err_msg=key)
