@@ -93,3 +93,43 @@ def test_link_starting_with_a_quaternion_gives_the_offline_grid(tmp_path: Path,
     assert live.grid.frames == off.frames == len(lp.poses) > 20
     for key in ("log_miss_d", "log_miss_fa", "n_obs"):
         np.testing.assert_array_equal(getattr(live.grid, key), getattr(off, key), err_msg=key)
+
+
+def test_another_component_s_attitude_and_position_are_not_the_vehicle_s(tmp_path: Path
+                                                                         ) -> None:
+    """A companion computer or OSD of the same system (component 197) sending ATTITUDE and
+    GLOBAL_POSITION_INT of its own (here yawed 90 deg and 40 m off) changes nothing: live and
+    offline take the autopilot's, and both give the grid of the autopilot's messages alone."""
+    msgs = flying_north()
+    own = [pack(m, seq=i) for i, m in enumerate(msgs)]
+    mav = mavlink.MAVLink(None)
+    mixed: list[bytes] = []
+    for i, m in enumerate(msgs):
+        mixed.append(own[i])
+        if m.get_type() == "ATTITUDE":
+            other = mav.attitude_encode(m.time_boot_ms + 5, 0.0, 0.0, m.yaw + 1.57, 0, 0, 0)
+            mixed.append(pack(other, component_id=197, seq=i))
+        elif m.get_type() == "GLOBAL_POSITION_INT":
+            other = mav.global_position_int_encode(m.time_boot_ms + 5, m.lat + 3600, m.lon,
+                                                   m.alt, m.relative_alt, 0, 0, 0, 0)
+            mixed.append(pack(other, component_id=197, seq=i))
+    cfg = serve_config(tmp_path, gimbal=False)
+    grids = {}
+    for name, data in (("own", own), ("mixed", mixed)):
+        tlog = tmp_path / f"{name}.tlog"
+        tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
+                                  for i, d in enumerate(data)))
+        _lp, off = offline_of(cfg, tlog)
+        feed = LinkFeed(cfg)
+        for i, chunk in enumerate(data):
+            feed.feed(chunk, 0.01 * i)
+        feed.tick(10.0)
+        live = feed.live.grid
+        assert live.frames == off.frames > 20, name
+        for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+            np.testing.assert_array_equal(getattr(live, key), getattr(off, key),
+                                          err_msg=f"{name} {key}")
+        grids[name] = live
+    for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+        np.testing.assert_array_equal(getattr(grids["mixed"], key), getattr(grids["own"], key),
+                                      err_msg=key)

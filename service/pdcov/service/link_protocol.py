@@ -27,9 +27,11 @@ from pdcov.telemetry.clocks import VehicleClock
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
+    AttitudeSample,
     EstimatorSample,
     HeartbeatSample,
     ParamSample,
+    PositionSample,
     Sample,
     mavlink_boot_time_s,
     sample_from_mavlink,
@@ -56,6 +58,8 @@ HEARTBEAT_PERIOD_S = 1.0
 RETRY_S = 1.0
 MAX_TRIES = 4
 HELD_MESSAGES = 5000
+AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample)
+"""Samples taken from the autopilot component only."""
 """Messages kept from before the autopilot's first HEARTBEAT (a few seconds of streams)."""
 
 
@@ -204,7 +208,8 @@ class LinkProtocol:
         if mtype == "COMMAND_ACK":
             self._ack(msg)
             return early
-        if mtype == "ATTITUDE":
+        autopilot = src_comp == autopilot_component
+        if mtype == "ATTITUDE" and autopilot:
             self._euler_attitude = True
         elif mtype == "ATTITUDE_QUATERNION" and self._euler_attitude:
             # As the log readers: ATTITUDE when the autopilot sends it, the quaternion
@@ -213,12 +218,15 @@ class LinkProtocol:
         sample = sample_from_mavlink(msg, t_s)
         if sample is None and mtype in MAVLINK_TYPES and not _no_value_yet(msg):
             self.stats.rejected[mtype] += 1  # NaN, out of range: samples.py's adapters
+        if isinstance(sample, AUTOPILOT_ONLY) and not autopilot:
+            # The vehicle's attitude, position, parameters and estimator are the
+            # autopilot's own, as the log readers take them (a companion computer or an OSD
+            # of the same system may send ATTITUDE or GLOBAL_POSITION_INT too).
+            return early
         if isinstance(sample, ParamSample) and sample.name in self._param_names:
             self.params[sample.name] = sample.value
             if all(n in self.params for n in self._param_names):
                 self.param_request.result = "acked"
-        if isinstance(sample, EstimatorSample) and src_comp != self.autopilot_component:
-            return early  # the autopilot's own estimator only, as the log readers take it
         if isinstance(sample, HeartbeatSample):
             if src_comp != self.autopilot_component:
                 return early

@@ -197,7 +197,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
     messages = _Messages()
     recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
     not_taken = NotTakenCaptures()
-    first_euler: dict[int, int] = {}  # system -> message index of its first ATTITUDE
+    first_euler: dict[tuple[int, int], int] = {}  # (system, component) -> first ATTITUDE
     n_ok = 0
     try:
         scanner = TlogScanner(path.read_bytes())
@@ -210,7 +210,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
         comp = comps[key]
         boot_s = mavlink_boot_time_s(msg)
         if mtype == "ATTITUDE":
-            first_euler.setdefault(key[0], n_ok - 1)
+            first_euler.setdefault(key, n_ok - 1)
         mark = recorded_mark(msg)  # the daemon's own (recorded_frames): no clock's message
         messages.source.append(-1 if mark == NOT_TAKEN else (key[0] << 8) | key[1])
         messages.boot_s.append(math.nan if boot_s is None else boot_s)
@@ -280,7 +280,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
                 out.extend(comp.samples.get(kind, []))
         return out
 
-    attitude = _attitude_as_live(ap, first_euler.get(sysid))
+    attitude = _attitude_as_live(ap, first_euler.get((sysid, ap_comp)))
     gimbals = gather("GimbalSample")
     gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp, gimbal_instance)
     if gnote:
@@ -302,7 +302,7 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
 
 def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:
     """The autopilot's attitude samples by the daemon's causal rule (LinkProtocol.receive):
-    ATTITUDE_QUATERNION until the system's first ATTITUDE message (index ``first_euler``
+    ATTITUDE_QUATERNION until the autopilot's first ATTITUDE message (index ``first_euler``
     in the log, None: none), ATTITUDE from then on; in log order, so that of equal times
     the later message wins, as live. A log or link that starts between the two messages of
     one attitude then gives live and offline the same samples (the first frame time
