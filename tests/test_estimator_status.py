@@ -452,7 +452,10 @@ def test_px4_glitch_over_udp_live_equals_offline(tmp_path: Path) -> None:
     # 4 s of glitch, flagged from the first report after 30 s (5 Hz) to the first after 34 s;
     # the frames across the jump at 30 s come before the flag.
     assert 3.0 * rate <= skipped.get(GPS_GLITCHING, 0) <= 4.5 * rate, skipped
-    assert skipped.get("position jump", 0) >= 1 and st["faults"]["position_jumps"] == 2
+    # Both jumps are seen; a frame lies strictly between the two samples of a jump only
+    # for some phases of the position stream (set by when the link's interval request
+    # reached the simulator), so 'position jump' frames may be 0.
+    assert st["faults"]["position_jumps"] == 2, st["faults"]
     assert "frames_without_estimator_status" not in st["faults"] or \
         st["faults"]["frames_without_estimator_status"] < 2 * rate, st["faults"]
     assert ESTIMATOR_STATUS in st["link"]["intervals"].get("acked", []), st["link"]

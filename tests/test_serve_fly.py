@@ -288,7 +288,9 @@ def router_gone_20_s(tmp: Path, plan: Path) -> None:
             st = sub.wait(lambda s: s["frames"]["grid"] > 100, 90, "status after the outage")
             before = st["seq"]
             fly.wait(timeout=240)
-            st = sub.wait(lambda s: s["frames"]["pending"] == 0 and s["seq"] > before + 3, 60,
+            # One frame may stay pending for good after the landing (a stream's last sample
+            # before it, no more telemetry to decide it; offline places none there either).
+            st = sub.wait(lambda s: s["frames"]["pending"] <= 1 and s["seq"] > before + 3, 60,
                           "the end of the flight")
             snap = sub.snapshot()
             with sub.lock:
