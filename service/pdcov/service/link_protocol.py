@@ -228,7 +228,7 @@ class LinkProtocol:
             if all(n in self.params for n in self._param_names):
                 self.param_request.result = "acked"
         if isinstance(sample, HeartbeatSample):
-            if src_comp != self.autopilot_component:
+            if not autopilot:
                 return early
             if sample.armed and not self._armed:
                 self.home_request = _Request(next_s=now_s)  # home is set at arming
