@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdcov.telemetry.samples import EstimatorSeries
+from pdcov.telemetry.samples import EstimatorSeries, merge_sorted_columns
 
 ESTIMATOR_HOLD_S = 3.0
 """A report applies to frames up to this long after it (s). ArduPilot sends EXTRA3 at 1-4 Hz,
@@ -60,10 +60,7 @@ def merge_estimator(old: EstimatorSeries, new: EstimatorSeries,
                     keep_from_s: float | None = None) -> EstimatorSeries:
     """The reports of both in time order (of equal times ``new``'s kept); with
     ``keep_from_s``, without those that can no longer be in force at or after it."""
-    cols = [np.concatenate([a, b]) for a, b in zip(_columns(old), _columns(new), strict=True)]
-    order = np.argsort(cols[0], kind="stable")
-    keep = np.diff(cols[0][order], append=np.inf) > 0
-    t, *flags = (c[order][keep] for c in cols)
+    t, *flags = merge_sorted_columns(_columns(old), _columns(new))
     if keep_from_s is not None:
         keep = t >= keep_from_s - ESTIMATOR_HOLD_S
         t, flags = t[keep], [f[keep] for f in flags]

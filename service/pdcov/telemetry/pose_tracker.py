@@ -64,6 +64,7 @@ from pdcov.telemetry.samples import (
     GimbalSeries,
     PositionSample,
     PositionSeries,
+    merge_sorted_columns,
 )
 from pdcov.yaml_file import read_text
 
@@ -108,18 +109,6 @@ def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
     gap = ts[hi] - ts[lo]
     w = np.where(gap > 0, (t - ts[lo]) / np.where(gap > 0, gap, 1.0), 0.0)
     return lo, hi, w, inside, inside & (gap <= max_gap_s)
-
-
-def _merge_sorted(old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
-                  ) -> list[np.ndarray]:
-    """Columns (time first) of two time-sorted sets merged in time order; of equal times the
-    one from ``new`` is kept. Either set may be empty."""
-    cols = [np.concatenate([a, b]) for a, b in zip(old, new, strict=True)]
-    if not len(old[0]) or not len(new[0]) or new[0][0] > old[0][-1]:
-        return cols  # live telemetry comes in order: ``new`` follows ``old``
-    order = np.argsort(cols[0], kind="stable")
-    keep = np.diff(cols[0][order], append=np.inf) > 0
-    return [c[order][keep] for c in cols]
 
 
 def _gimbal_columns(g: GimbalSeries) -> tuple[np.ndarray, ...]:
@@ -255,7 +244,7 @@ class PoseTracker:
         """Fold pending samples into the sorted series; drop history older than history_s."""
         if self._pending_att:
             new_att = AttitudeSeries.from_samples(self._pending_att)
-            self._att = AttitudeSeries(*_merge_sorted(
+            self._att = AttitudeSeries(*merge_sorted_columns(
                 (self._att.t_s, self._att.q_ned_body_wxyz),
                 (new_att.t_s, new_att.q_ned_body_wxyz)))
             self._pending_att = []
@@ -263,12 +252,12 @@ class PoseTracker:
             new_pos = PositionSeries.from_samples(self._pending_pos)
             enu = geodetic_to_enu(new_pos.lat_deg, new_pos.lon_deg, new_pos.alt_msl_m,
                                   self.origin).reshape(-1, 3)
-            self._pos_t, self._pos_enu = _merge_sorted((self._pos_t, self._pos_enu),
+            self._pos_t, self._pos_enu = merge_sorted_columns((self._pos_t, self._pos_enu),
                                                        (new_pos.t_s, enu))
             self._pending_pos = []
         if self._pending_gim:
             new_gim = self._usable_gimbal(GimbalSeries.from_samples(self._pending_gim))
-            self._gim = GimbalSeries(*_merge_sorted(_gimbal_columns(self._gim),
+            self._gim = GimbalSeries(*merge_sorted_columns(_gimbal_columns(self._gim),
                                                     _gimbal_columns(new_gim)))
             self._pending_gim = []
         if self._pending_est:  # older reports than can be in force go with them

@@ -441,6 +441,19 @@ def _sort_unique(t_s: np.ndarray) -> np.ndarray:
     return order[keep]
 
 
+def merge_sorted_columns(old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
+                         ) -> list[np.ndarray]:
+    """Columns (time first) of two sets, each by strictly increasing time as the series
+    keep them, merged in time order; of equal times the one from ``new`` is kept. Either set
+    may be empty."""
+    cols = [np.concatenate([a, b]) for a, b in zip(old, new, strict=True)]
+    if not len(old[0]) or not len(new[0]) or new[0][0] > old[0][-1]:
+        return cols  # live telemetry comes in order: ``new`` follows ``old``
+    order = np.argsort(cols[0], kind="stable")
+    keep = np.diff(cols[0][order], append=np.inf) > 0
+    return [c[order][keep] for c in cols]
+
+
 def _sorted_columns(rows: list[tuple[float, ...]], n_columns: int,
                     n_required: int) -> list[np.ndarray]:
     """Columns of ``rows`` (first = time) without rows whose first ``n_required`` values are
