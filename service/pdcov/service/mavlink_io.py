@@ -160,7 +160,7 @@ class Connection:
                 chunks = [data]
             else:
                 chunks = [self.conn.port.read(READ_BYTES)]
-        except (OSError, ConnectionError, Exception) as exc:  # noqa: BLE001 - serial errors
+        except Exception as exc:  # noqa: BLE001 - socket, peer-closed and serial errors alike
             self._lost(f"read failed: {exc}")
             return
         if not any(chunks):
