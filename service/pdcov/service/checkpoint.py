@@ -2,7 +2,8 @@
 
 The file is the grid.npz that ``CoverageGrid.save_npz`` writes (``pdcov evaluate`` and
 ``np.load`` read it as it is) with one more zip member, ``pdcov_checkpoint.json``: the
-mission hash (settings.mission_hash), the frame lattice's anchor ``t0_s`` and the last
+mission hash (settings.mission_hash: the vehicle id is part of it) and the vehicle id (named
+when a checkpoint is set aside), the frame lattice's anchor ``t0_s`` and the last
 frame time (autopilot clock, s), the autopilot clock's offset and boot time (so that a
 restarted daemon continues the clock), the tiles sequence number and counters. It is
 written to a temporary file, fsynced and renamed (atomic.atomic_write): a kill -9 at any
@@ -80,6 +81,7 @@ def _check_meta(path: Path, meta: dict[str, Any]) -> None:
     """The fields the daemon resumes from have the types it wrote (a damaged or foreign
     file is set aside, never half used)."""
     ok = {"mission_hash": lambda v: isinstance(v, str),
+          "vehicle_id": lambda v: isinstance(v, str),
           "t0_s": lambda v: v is None or _finite(v),
           "last_frame_t_s": lambda v: v is None or _finite(v),
           "clock": lambda v: v is None or (isinstance(v, list) and len(v) == 2
@@ -93,9 +95,9 @@ def _check_meta(path: Path, meta: dict[str, Any]) -> None:
 
 
 def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resumed:
-    """The checkpoint in ``state_dir`` if it belongs to this mission (same hash); otherwise
-    (another mission, or unreadable) it is renamed aside with a time stamp and the daemon
-    starts fresh."""
+    """The checkpoint in ``state_dir`` if it belongs to this mission and vehicle (same
+    hash); otherwise (another mission or vehicle, or unreadable) it is renamed aside with a
+    time stamp and the daemon starts fresh."""
     path = state_dir / CHECKPOINT_NAME
     # A kill during a write leaves atomic_write's temporary file: never read, removed here
     # (else every crash would leave a grid-sized file behind).
@@ -106,9 +108,11 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
     try:
         meta = read_meta(path)
         if meta.get("mission_hash") != mission_hash:
-            why = (f"it belongs to another mission (hash {meta.get('mission_hash')}, this "
-                   f"mission {mission_hash}: domain, camera, detector or grid settings "
-                   "changed)")
+            vehicle = meta.get("vehicle_id")
+            why = (f"it was written for vehicle "
+                   f"{'(not recorded)' if vehicle is None else repr(vehicle)} with mission "
+                   f"hash {meta.get('mission_hash')}, this daemon's is {mission_hash} (the "
+                   "vehicle id, domain, camera, detector or grid settings differ)")
         else:
             grid = CoverageGrid.load_npz(path, new_grid.camera, new_grid.detector,
                                          max_range_m=new_grid.max_range_m,

@@ -392,7 +392,8 @@ class Daemon:
     def _checkpoint(self) -> None:
         live = self.live
         offset, boot = self.protocol.clock_state()
-        meta = {"mission_hash": self.mission_hash, "t0_s": live.t0_s,
+        meta = {"mission_hash": self.mission_hash,
+                "vehicle_id": self.cfg.mission.vehicle_id, "t0_s": live.t0_s,
                 "last_frame_t_s": live.last_frame_t_s if math.isfinite(live.last_frame_t_s)
                 else None,
                 "clock": [offset, boot] if math.isfinite(boot) else None,

@@ -183,11 +183,13 @@ def load_serve_config(path: str | Path) -> ServeConfig:
 
 
 def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
-    """What a checkpoint must match to be resumed: SHA-256 (16 hex digits) of the origin,
+    """What a checkpoint must match to be resumed: SHA-256 (16 hex digits) of the vehicle
+    id (another vehicle's frames resumed here would count twice in the fleet), the origin,
     the grid (geometry, free mask, max range, revisit interval), the camera (size,
     intrinsics, distortion) and the detector model (bins, P_D, P_FA, input size)."""
     cam, det, g = mission.camera, mission.detector, grid.geometry
-    doc = {"origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
+    doc = {"vehicle_id": mission.vehicle_id,
+           "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
            "grid": [g.x0_m, g.y0_m, g.cell_size_m, g.n_rows, g.n_cols, grid.max_range_m,
                     grid.min_revisit_s],
            "camera": [cam.width_px, cam.height_px, np.asarray(cam.K, float).tolist(),
