@@ -22,6 +22,8 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_frames, encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
@@ -54,6 +56,26 @@ log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
 EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
+SOURCE_SN_MODULO = 1 << 32
+"""Zenoh's source sequence numbers are 32-bit: a publisher's wraps after 2^32 puts."""
+
+
+class SourcedPublisher:
+    """A declared Zenoh publisher whose every put carries ``SourceInfo(publisher id, sn)``,
+    sn = 0, 1, 2, ... per publisher: the watcher pins a vehicle to the session that publishes
+    it (``sample.source_info.source_id.zid`` is this daemon's session, as is the
+    ``replier_id`` of its query replies; docs/protocol.md "Sources")."""
+
+    def __init__(self, publisher: Any) -> None:
+        self.publisher = publisher
+        self.sn = 0
+
+    def put(self, payload: bytes) -> None:
+        sn, self.sn = self.sn, (self.sn + 1) % SOURCE_SN_MODULO
+        self.publisher.put(payload, source_info=zenoh.SourceInfo(self.publisher.id, sn))
+
+    def undeclare(self) -> None:
+        self.publisher.undeclare()
 
 
 class JournalFormatter(logging.Formatter):
@@ -190,8 +212,8 @@ class Daemon:
 
     def _declare(self, loop: asyncio.AbstractEventLoop) -> None:
         s = self.session
-        self.pub_status = s.declare_publisher(self.keys.status)
-        self.pub_tiles = s.declare_publisher(self.keys.tiles)
+        self.pub_status = SourcedPublisher(s.declare_publisher(self.keys.status))
+        self.pub_tiles = SourcedPublisher(s.declare_publisher(self.keys.tiles))
         self._zenoh_entities += [
             self.pub_status, self.pub_tiles,
             s.declare_queryable(self.keys.snapshot,
@@ -347,7 +369,7 @@ class Daemon:
             self.notifier.watchdog()
             self._next_watchdog_s = now + self.notifier.watchdog_interval_s
 
-    def _put(self, pub: Any, payload: bytes) -> None:
+    def _put(self, pub: SourcedPublisher, payload: bytes) -> None:
         try:
             pub.put(payload)
         except Exception as exc:  # noqa: BLE001 - no peer or a closing session: keep going
