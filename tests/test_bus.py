@@ -22,6 +22,7 @@ from pdcov.bus.footprint import (
     encode_frames,
 )
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
+from pdcov.bus.json_doc import finite_or_null
 from pdcov.bus.keys import VehicleKeys, all_vehicles, parse_key
 from pdcov.bus.mission import decode_mission, encode_mission
 from pdcov.bus.session import BusConfig, bus_config_from_dict, zenoh_config
@@ -212,7 +213,8 @@ def test_status_round_trip_and_validation():
         with pytest.raises(BusPayloadError, match="status"):
             decode_status(encode_status({**fields, **change}))
     with pytest.raises(BusPayloadError, match="version"):
-        decode_status(json.dumps({**fields, "schema": "pdcov.status", "version": 9}).encode())
+        decode_status(json.dumps(finite_or_null(
+            {**fields, "schema": "pdcov.status", "version": 9})).encode())
 
 
 def test_footprint_and_frames():

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.json_doc import check_schema, json_object
+from pdcov.bus.errors import Refusal, Refuser
+from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
 
 FOOTPRINT_SCHEMA = "pdcov.footprint"
 FRAMES_SCHEMA = "pdcov.frames"
@@ -28,6 +28,7 @@ VERSION = 1
 MAX_FRAMES = 1000
 MAX_VERTICES = 10_000
 MAX_PAYLOAD_BYTES = 1 << 20
+"""Largest footprint or frames payload accepted."""
 
 
 def encode_footprint(vehicle_id: str, t_s: float, lon_lat_deg: np.ndarray | None) -> bytes:
@@ -49,26 +50,32 @@ def encode_footprint(vehicle_id: str, t_s: float, lon_lat_deg: np.ndarray | None
 def decode_footprint(payload: bytes, key: str = "footprint") -> dict[str, Any]:
     """Validate a footprint Feature (schema, version, a Polygon of finite lon/lat in range
     or null). Raises BusPayloadError naming ``key``."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable footprint: {why}")
-
+    bad = Refuser(f"{key}: not a usable footprint")
     doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
     props = doc.get("properties")
     if doc.get("type") != "Feature" or not isinstance(props, dict):
-        raise bad("expected a GeoJSON Feature with properties")
+        raise bad("expected a GeoJSON Feature with properties", Refusal.MALFORMED)
     check_schema(props, FOOTPRINT_SCHEMA, VERSION, bad, "properties.")
+    f = Fields(props, bad, "properties.")
+    f.string("vehicle_id", max_len=64)
+    f.number_or_null("t_s")
     geom = doc.get("geometry")
     if geom is None:
         return doc
-    ring = (geom.get("coordinates") or [None])[0] if isinstance(geom, dict) else None
-    if geom.get("type") != "Polygon" or not isinstance(ring, list) \
-            or not 4 <= len(ring) <= MAX_VERTICES:
-        raise bad("geometry: expected a Polygon ring of 4 to 10000 positions, or null")
+    rings = geom.get("coordinates") if isinstance(geom, dict) else None
+    if not isinstance(geom, dict) or geom.get("type") != "Polygon" \
+            or not isinstance(rings, list) or len(rings) != 1 or not isinstance(rings[0], list):
+        raise bad("geometry: expected a Polygon of one ring, or null")
+    ring = rings[0]
+    if len(ring) > MAX_VERTICES:
+        raise bad(f"geometry: {len(ring)} positions, more than MAX_VERTICES {MAX_VERTICES}",
+                  Refusal.OVER_BOUND)
+    if len(ring) < 4:
+        raise bad(f"geometry: {len(ring)} positions, a closed ring has at least 4")
     for p in ring:
-        if (not isinstance(p, list) or len(p) != 2
-                or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in p)
+        if (not isinstance(p, list) or len(p) != 2 or not all(is_number(v) for v in p)
                 or not (-180 <= p[0] <= 180 and -90 <= p[1] <= 90)):
-            raise bad(f"geometry: position {p!r} is not [lon, lat] in degrees")
+            raise bad(f"geometry: position {p!r} is not [lon, lat] in degrees"[:200])
     return doc
 
 
@@ -80,14 +87,11 @@ def encode_frames(t_boot_s: Sequence[float]) -> bytes:
 
 def decode_frames(payload: bytes, key: str = "frames") -> tuple[float, ...]:
     """The frame times of a frames message: 1..MAX_FRAMES finite numbers >= 0."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable frames message: {why}")
-
+    bad = Refuser(f"{key}: not a usable frames message")
     doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
     check_schema(doc, FRAMES_SCHEMA, VERSION, bad)
     t = doc.get("t_boot_s")
     if (not isinstance(t, list) or not 1 <= len(t) <= MAX_FRAMES
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and math.isfinite(v) and v >= 0 for v in t)):
+            or not all(is_number(v) and v >= 0 for v in t)):
         raise bad(f"t_boot_s: expected a list of 1..{MAX_FRAMES} times >= 0 (s)")
     return tuple(float(v) for v in t)

@@ -15,21 +15,29 @@ from __future__ import annotations
 import hashlib
 import io
 import math
+import re
 import struct
 import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
 from pdcov.core.grid import SNAPSHOT_VERSION, CoverageGrid
 from pdcov.errors import DomainError
-from pdcov.npz_file import DAMAGED, read_npz
+from pdcov.npz_file import DAMAGED
 
-MAX_CELLS = 50_000_000
-"""Largest grid a decoder accepts (a 7 km square at 1 m): a bound on memory, not a limit of
-the format."""
+MAX_CELLS = 16_000_000
+"""Largest grid a decoder accepts (a 4 km square at 1 m; missions hold about 1 M cells): a
+bound on memory (a watcher holds about 13 bytes a cell per vehicle), not a limit of the
+format. Checked against the declared shape before anything is allocated or inflated."""
+MAX_SNAPSHOT_BYTES = 128 << 20
+"""Largest snapshot payload accepted (a 1 M-cell grid.npz is at most about 37 MB)."""
+MAX_ENU_M = 1e7
+"""Largest ENU coordinate accepted (beyond it the local flat-earth frame means nothing)."""
+GRID_HASH = re.compile(r"[0-9a-f]{16}")
+"""A grid hash as written in JSON: 16 lowercase hex digits (``grid_hash``)."""
 _NPZ_ARRAYS = ("mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m", "cell_size_m")
 
 
@@ -90,56 +98,100 @@ def encode_snapshot(grid: CoverageGrid) -> bytes:
 
 def decode_snapshot(payload: bytes, key: str = "snapshot",
                     max_cells: int = MAX_CELLS) -> GridState:
-    """Validate grid.npz bytes and return their GridState. Checks: a zip of .npy arrays
-    (no pickles) whose uncompressed size fits ``max_cells``, the snapshot version, every
-    array present with the mask's shape and a numeric dtype, finite log-miss sums <= 0,
-    observation counts >= 0, a valid geometry. Raises BusPayloadError naming ``key``."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable grid snapshot: {why}")
-
-    try:
-        with zipfile.ZipFile(io.BytesIO(bytes(payload))) as zf:
-            total = sum(i.file_size for i in zf.infolist())
-    except DAMAGED as exc:
-        raise bad(f"not an .npz (zip) file ({exc})") from None
-    if total > 4 * 16 * max_cells + (1 << 20):  # four 4-byte arrays, float64 pd/pfa, slack
-        raise bad(f"{total} bytes uncompressed, more than a grid of {max_cells} cells")
-    data = read_npz(bytes(payload), bad)
-    missing = sorted(set(_NPZ_ARRAYS) - set(data))
-    if missing:
-        raise bad(f"missing {', '.join(missing)}")
-    version = int(data["version"]) if "version" in data and data["version"].size == 1 else -1
+    """Validate grid.npz bytes and return their GridState. Checks: at most
+    MAX_SNAPSHOT_BYTES, a zip of .npy arrays (no pickles) whose headers declare a grid of
+    at most ``max_cells`` cells (read before any array is inflated; ``pd`` and ``pfa`` are
+    not read), the snapshot version, every array present with the mask's shape and a
+    numeric dtype, finite log-miss sums <= 0, observation counts >= 0, a frame count in
+    0..2**32 - 1, a valid geometry. Raises BusPayloadError naming ``key`` (its ``reason``
+    says why)."""
+    bad = Refuser(f"{key}: not a usable grid snapshot")
+    data = bytes(payload)
+    if len(data) > MAX_SNAPSHOT_BYTES:
+        raise bad(f"{len(data)} bytes, more than {MAX_SNAPSHOT_BYTES}", Refusal.TOO_LARGE)
+    arrays = _read_arrays(data, max_cells, bad)
+    version = _scalar(arrays, "version", "iu", bad)
     if version not in (1, SNAPSHOT_VERSION):
-        raise bad(f"snapshot version {version}, expected 1 or {SNAPSHOT_VERSION}")
-    mask = data["mask"]
-    if mask.ndim != 2 or mask.dtype != np.bool_:
+        raise bad(f"snapshot version {version:g}, expected 1 or {SNAPSHOT_VERSION}",
+                  Refusal.MALFORMED)
+    mask = arrays["mask"]
+    if mask.dtype != np.bool_:
         raise bad(f"mask: expected a 2-D bool array, got {mask.dtype} {mask.shape}")
     for name, kind in (("log_miss_d", "f"), ("log_miss_fa", "f"), ("n_obs", "iu")):
-        a = data[name]
+        a = arrays[name]
         if a.shape != mask.shape or a.dtype.kind not in kind:
             raise bad(f"{name}: expected {mask.shape} numbers, got {a.dtype} {a.shape}")
-    scalars = {}
-    for name in ("x0_m", "y0_m", "cell_size_m"):
-        a = data[name]
-        if a.size != 1 or a.dtype.kind not in "fiu" or not math.isfinite(float(a)):
-            raise bad(f"{name}: expected a finite number")
-        scalars[name] = float(a)
+    scalars = {name: _scalar(arrays, name, "fiu", bad)
+               for name in ("x0_m", "y0_m", "cell_size_m")}
+    if not all(abs(scalars[n]) <= MAX_ENU_M for n in ("x0_m", "y0_m")):
+        raise bad(f"x0_m, y0_m: expected metres within {MAX_ENU_M:g}")
+    frames = _scalar(arrays, "frames", "iu", bad, default=0)
+    if not 0 <= frames <= 2**32 - 1:
+        raise bad(f"frames: {frames:g}, expected a count in 0..2**32-1")
     try:
         geometry = GridGeometry(scalars["x0_m"], scalars["y0_m"], scalars["cell_size_m"],
                                 *mask.shape)
     except DomainError as exc:
         raise bad(str(exc)) from None
-    state = GridState(geometry, mask.copy(), data["log_miss_d"].astype(np.float32),
-                      data["log_miss_fa"].astype(np.float32), data["n_obs"].astype(np.int64),
-                      int(data["frames"]) if "frames" in data and data["frames"].size == 1
-                      else 0)
+    state = GridState(geometry, mask.copy(), arrays["log_miss_d"].astype(np.float32),
+                      arrays["log_miss_fa"].astype(np.float32),
+                      arrays["n_obs"].astype(np.int64), int(frames))
     check_values(state.log_miss_d, state.log_miss_fa, state.n_obs, bad)
     state.n_obs = state.n_obs.astype(np.int32)
     return state
 
 
+def _read_arrays(data: bytes, max_cells: int, bad: Refuser) -> dict[str, np.ndarray]:
+    """The arrays of _NPZ_ARRAYS (and ``version``, ``frames`` when present) of an .npz;
+    every .npy header is read and bounded (the mask 2-D and at most ``max_cells``, the
+    others at most as many values, none of objects or wider than 8 bytes) before any array
+    is inflated, so a small payload cannot declare a huge grid."""
+    wanted = set(_NPZ_ARRAYS) | {"version", "frames"}
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            members = {i.filename.removesuffix(".npy"): i for i in zf.infolist()
+                       if i.filename.removesuffix(".npy") in wanted}
+            missing = sorted(set(_NPZ_ARRAYS) - set(members))
+            if missing:
+                raise bad(f"missing {', '.join(missing)}", Refusal.MALFORMED)
+            for name, info in members.items():
+                with zf.open(info) as fh:
+                    major, _ = np.lib.format.read_magic(fh)
+                    read_header = (np.lib.format.read_array_header_1_0 if major == 1
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(fh)
+                n = math.prod(shape)
+                if name == "mask" and (len(shape) != 2 or n > max_cells):
+                    raise bad(f"mask: shape {shape}, expected a 2-D grid of at most "
+                              f"MAX_CELLS {max_cells} cells", Refusal.OVER_BOUND
+                              if len(shape) == 2 else Refusal.BAD_FIELD)
+                if n > max_cells or dtype.hasobject or dtype.itemsize > 8:
+                    raise bad(f"{name}: {dtype} {shape}, expected at most {max_cells} "
+                              "numbers", Refusal.OVER_BOUND)
+            out = {}
+            for name, info in members.items():
+                with zf.open(info) as fh:
+                    out[name] = np.lib.format.read_array(fh, allow_pickle=False)
+            return out
+    except DAMAGED as exc:
+        raise bad(f"not an .npz of .npy arrays ({type(exc).__name__}: {exc})"[:300],
+                  Refusal.MALFORMED) from None
+
+
+def _scalar(arrays: dict[str, np.ndarray], name: str, kinds: str, bad: Refuser,
+            default: float | None = None) -> float:
+    """The finite number in the one-value array ``name`` (of a dtype kind in ``kinds``)."""
+    a = arrays.get(name)
+    if a is None and default is not None:
+        return default
+    if a is None or a.size != 1 or a.dtype.kind not in kinds \
+            or not math.isfinite(float(a.reshape(()))):
+        raise bad(f"{name}: expected one finite number")
+    return float(a.reshape(()))
+
+
 def check_values(log_miss_d: np.ndarray, log_miss_fa: np.ndarray, n_obs: np.ndarray,
-                 bad) -> None:
+                 bad: Refuser) -> None:
     """Raise ``bad(why)`` unless the log-miss sums are <= 0 (-inf allowed: a cell with
     P = 1) and not NaN, and the counts lie in 0..2**31 - 1."""
     for name, a in (("log_miss_d", log_miss_d), ("log_miss_fa", log_miss_fa)):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,10 +25,11 @@ import numpy as np
 from shapely.geometry import Polygon
 from shapely.validation import explain_validity
 
-from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.grid_state import MAX_CELLS
-from pdcov.bus.json_doc import check_schema, json_object
+from pdcov.bus.errors import Refusal, Refuser
+from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
+from pdcov.bus.json_doc import check_schema, is_number, json_object
 from pdcov.bus.keys import valid_vehicle_id
+from pdcov.bus.status import MAX_THRESHOLDS
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import PdcovError
@@ -40,11 +40,8 @@ MAX_MISSION_BYTES = 8 << 20
 MAX_OBSTACLES = 10_000
 MAX_VERTICES = 100_000
 """Positions in all rings together (each ring is sent twice: ENU and WGS84)."""
-MAX_ENU_M = 1e7
-"""Largest ENU coordinate accepted (beyond it the local flat-earth frame means nothing)."""
 WGS84_TOLERANCE_M = 0.05
 """How far a WGS84 position may lie from its ENU twin (the encoder rounds to 1e-9 deg)."""
-_HASH = re.compile(r"[0-9a-f]{16}")
 
 Ring = tuple[tuple[float, float], ...]
 
@@ -113,9 +110,7 @@ def decode_mission(payload: bytes, key: str = "mission",
     polygons of non-zero area, the boundary inside the grid, WGS84 rings agreeing with the
     ENU ones within WGS84_TOLERANCE_M, thresholds and target in (0, 1]. Raises
     BusPayloadError naming ``key`` and the field; nothing is returned from bad data."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable mission: {why}")
-
+    bad = Refuser(f"{key}: not a usable mission")
     doc = json_object(payload, MAX_MISSION_BYTES, bad)
     check_schema(doc, MISSION_SCHEMA, MISSION_VERSION, bad)
     vid = doc.get("vehicle_id")
@@ -124,7 +119,7 @@ def decode_mission(payload: bytes, key: str = "mission",
     if vehicle_id is not None and vid != vehicle_id:
         raise bad(f"vehicle_id {vid!r}, but the key is vehicle {vehicle_id!r}'s")
     ghash = doc.get("grid_hash")
-    if not isinstance(ghash, str) or not _HASH.fullmatch(ghash):
+    if not isinstance(ghash, str) or not GRID_HASH.fullmatch(ghash):
         raise bad("grid_hash: expected 16 lowercase hex digits")
     origin, ground_alt = _origin(_object(doc, "origin", bad), bad)
     geometry = _grid(_object(doc, "grid", bad), bad)
@@ -158,9 +153,9 @@ def decode_mission(payload: bytes, key: str = "mission",
             for i, (a, b) in enumerate(zip(obstacles, obstacles_ll_rings, strict=True))]:
         _check_twins(name, enu_ring, ll_ring, origin, bad)
     thresholds = doc.get("thresholds")
-    if not isinstance(thresholds, list) or not 1 <= len(thresholds) <= 100 \
+    if not isinstance(thresholds, list) or not 1 <= len(thresholds) <= MAX_THRESHOLDS \
             or not all(_probability(t) for t in thresholds):
-        raise bad("thresholds: expected 1..100 probabilities in (0, 1]")
+        raise bad(f"thresholds: expected 1..{MAX_THRESHOLDS} probabilities in (0, 1]")
     target: Any = doc.get("target_pd")
     if not _probability(target):
         raise bad("target_pd: expected a probability in (0, 1]")
@@ -169,69 +164,71 @@ def decode_mission(payload: bytes, key: str = "mission",
                            tuple(float(t) for t in thresholds), float(target))
 
 
-def _number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _probability(v: Any) -> bool:
-    return _number(v) and 0 < v <= 1
+    return is_number(v) and 0 < v <= 1
 
 
-def _object(doc: dict[str, Any], name: str, bad) -> dict[str, Any]:
+def _object(doc: dict[str, Any], name: str, bad: Refuser) -> dict[str, Any]:
     v = doc.get(name)
     if not isinstance(v, dict):
         raise bad(f"{name}: expected an object")
     return v
 
 
-def _list(doc: dict[str, Any], name: str, most: int, bad) -> list[Any]:
+def _list(doc: dict[str, Any], name: str, most: int, bad: Refuser) -> list[Any]:
     v = doc.get(name)
-    if not isinstance(v, list) or len(v) > most:
-        raise bad(f"domain.{name}: expected a list of at most {most} rings")
+    if not isinstance(v, list):
+        raise bad(f"domain.{name}: expected a list of rings")
+    if len(v) > most:
+        raise bad(f"domain.{name}: {len(v)} rings, more than {most}", Refusal.OVER_BOUND)
     return v
 
 
-def _origin(o: dict[str, Any], bad) -> tuple[Origin, float | None]:
+def _origin(o: dict[str, Any], bad: Refuser) -> tuple[Origin, float | None]:
     lat: Any = o.get("lat_deg")
     lon: Any = o.get("lon_deg")
     alt: Any = o.get("ground_alt_msl_m")
-    if not (_number(lat) and -90 <= lat <= 90 and _number(lon) and -180 <= lon <= 360):
+    if not (is_number(lat) and -90 <= lat <= 90 and is_number(lon) and -180 <= lon <= 360):
         raise bad("origin: expected lat_deg in [-90, 90] and lon_deg in [-180, 360]")
-    if alt is not None and not (_number(alt) and -1e4 <= alt <= 1e5):
+    if alt is not None and not (is_number(alt) and -1e4 <= alt <= 1e5):
         raise bad("origin.ground_alt_msl_m: expected metres in [-10000, 100000] or null")
     return (Origin(float(lat), float(lon), 0.0 if alt is None else float(alt)),
             None if alt is None else float(alt))
 
 
-def _grid(g: dict[str, Any], bad) -> GridGeometry:
+def _grid(g: dict[str, Any], bad: Refuser) -> GridGeometry:
     x0: Any = g.get("x0_m")
     y0: Any = g.get("y0_m")
     c: Any = g.get("cell_size_m")
     n_rows: Any = g.get("n_rows")
     n_cols: Any = g.get("n_cols")
-    if not (_number(x0) and _number(y0) and abs(x0) <= MAX_ENU_M and abs(y0) <= MAX_ENU_M):
+    if not (is_number(x0) and is_number(y0) and abs(x0) <= MAX_ENU_M and abs(y0) <= MAX_ENU_M):
         raise bad(f"grid: x0_m and y0_m: expected finite metres within {MAX_ENU_M:g}")
-    if not (_number(c) and c > 0):
+    if not (is_number(c) and c > 0):
         raise bad("grid.cell_size_m: expected a positive number of metres")
     if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
-               for n in (n_rows, n_cols)) or n_rows * n_cols > MAX_CELLS:
-        raise bad(f"grid: n_rows and n_cols: expected positive integers, at most "
-                  f"{MAX_CELLS} cells")
+               for n in (n_rows, n_cols)):
+        raise bad("grid: n_rows and n_cols: expected positive integers")
+    if n_rows * n_cols > MAX_CELLS:
+        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_CELLS {MAX_CELLS}",
+                  Refusal.OVER_BOUND)
     try:
         return GridGeometry(float(x0), float(y0), float(c), n_rows, n_cols)
     except PdcovError as exc:
         raise bad(f"grid: {exc}") from None
 
 
-def _ring(v: Any, name: str, lon_lat: bool, budget: list[int], bad) -> Ring:
+def _ring(v: Any, name: str, lon_lat: bool, budget: list[int], bad: Refuser) -> Ring:
     """A closed ring of 4 or more finite positions (within the vertex budget)."""
-    if not isinstance(v, list) or not 4 <= len(v) <= budget[0]:
-        raise bad(f"{name}: expected a closed ring of 4 or more positions "
-                  f"(at most {MAX_VERTICES} in all rings)")
+    if not isinstance(v, list) or len(v) < 4:
+        raise bad(f"{name}: expected a closed ring of 4 or more positions")
+    if len(v) > budget[0]:
+        raise bad(f"{name}: more positions than MAX_VERTICES: at most {MAX_VERTICES} in all rings",
+                  Refusal.OVER_BOUND)
     budget[0] -= len(v)
     out = []
     for p in v:
-        if not (isinstance(p, list) and len(p) == 2 and all(_number(c) for c in p)):
+        if not (isinstance(p, list) and len(p) == 2 and all(is_number(c) for c in p)):
             raise bad(f"{name}: position {p!r} is not a pair of finite numbers"[:200])
         x, y = float(p[0]), float(p[1])
         if lon_lat and not (-180 <= x <= 360 and -90 <= y <= 90):
@@ -244,7 +241,7 @@ def _ring(v: Any, name: str, lon_lat: bool, budget: list[int], bad) -> Ring:
     return tuple(out)
 
 
-def _polygon(ring: Ring, name: str, bad) -> Polygon:
+def _polygon(ring: Ring, name: str, bad: Refuser) -> Polygon:
     """A valid polygon of non-zero area (what Domain requires), or ``bad`` naming ``name``."""
     poly = Polygon(ring)
     if not poly.is_valid:
@@ -254,7 +251,7 @@ def _polygon(ring: Ring, name: str, bad) -> Polygon:
     return poly
 
 
-def _check_twins(name: str, enu: Ring, lon_lat: Ring, origin: Origin, bad) -> None:
+def _check_twins(name: str, enu: Ring, lon_lat: Ring, origin: Origin, bad: Refuser) -> None:
     """The WGS84 ring must be the ENU ring's projection, as the encoder makes it (ENU at
     z = 0 to WGS84 about the origin): same length, within WGS84_TOLERANCE_M."""
     if len(enu) != len(lon_lat):

@@ -21,12 +21,20 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.json_doc import check_schema, json_object
+from pdcov.bus.errors import Refusal, Refuser
+from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
+from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
+from pdcov.bus.keys import valid_vehicle_id
+from pdcov.bus.tiles import MAX_TILE_SIZE
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
 MAX_STATUS_BYTES = 64 * 1024
+"""Largest status payload a receiver accepts (the daemon's are about 1.6 kB)."""
+MAX_THRESHOLDS = 64
+"""Most P_D thresholds (and proportion_at_or_above entries) in one status."""
+MAX_NAMED_COUNTS = 256
+"""Most entries of a count object (``frames.skipped``, ``faults``)."""
 FULL_EVERY = 20
 """Every this many statuses (20 s at 1 Hz) one is full even when no detail changed."""
 BRIEF_LINK = ("state", "last_message_age_s", "messages", "bad_messages")
@@ -34,25 +42,15 @@ BRIEF_GIMBAL = ("mount", "interpretation")
 _VOLATILE = "last_message_age_s"  # changes every message: not a detail change
 _POSE_DECIMALS = {"lat_deg": 7, "lon_deg": 7, "alt_msl_m": 2, "heading_deg": 1, "t_s": 3}
 
-# Required fields and their JSON types (a subscriber may rely on these being present).
-_REQUIRED: dict[str, tuple[type, ...]] = {
-    "vehicle_id": (str,), "seq": (int,), "uptime_s": (int, float), "thresholds": (list,),
-    "proportion_at_or_above": (dict,), "mean_pd": (int, float),
-    "expected_false_alarms": (int, float), "cells_free": (int,), "cells_observed": (int,),
-    "frames": (dict,), "link": (dict,), "gimbal": (dict,), "grid": (dict,),
-    "tiles_seq": (int,), "faults": (dict,),
-}
-_GRID: dict[str, tuple[type, ...]] = {
-    "hash": (str,), "x0_m": (int, float), "y0_m": (int, float), "cell_size_m": (int, float),
-    "n_rows": (int,), "n_cols": (int,), "tile_size": (int,), "origin": (dict,),
-}
+_U32 = 2**32 - 1
+_U64 = 2**64 - 1
 
 
 def encode_status(fields: Mapping[str, Any]) -> bytes:
     """JSON bytes of a status object: ``schema`` and ``version`` first, then ``fields``.
     Non-finite floats become null (JSON has no NaN)."""
     doc = {"schema": STATUS_SCHEMA, "version": STATUS_VERSION, **fields}
-    return json.dumps(_finite(doc), separators=(",", ":"), allow_nan=False).encode()
+    return json.dumps(finite_or_null(doc), separators=(",", ":"), allow_nan=False).encode()
 
 
 class StatusEncoder:
@@ -121,7 +119,7 @@ def _detail_signature(doc: Mapping[str, Any]) -> str:
               "gimbal": {k: v for k, v in _sub(doc, "gimbal").items()
                          if k not in BRIEF_GIMBAL},
               "origin": _sub(doc, "grid").get("origin"), "checkpoint": doc.get("checkpoint")}
-    return json.dumps(_finite(strip(detail)), sort_keys=True, default=str)
+    return json.dumps(finite_or_null(strip(detail)), sort_keys=True, default=str)
 
 
 def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[str, Any]:
@@ -142,43 +140,104 @@ def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[st
     return out
 
 
-def _finite(v: Any) -> Any:
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, Mapping):
-        return {str(k): _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    return v
-
-
-def decode_status(payload: bytes, key: str = "status") -> dict[str, Any]:
-    """Parse and validate a status object (schema, version, required fields and types,
-    the grid description). Raises BusPayloadError naming ``key`` and the field."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable status: {why}")
-
+def decode_status(payload: bytes, key: str = "status",
+                  vehicle_id: str | None = None) -> dict[str, Any]:
+    """Parse and validate a status object: size (MAX_STATUS_BYTES), strict JSON, schema
+    and version, then every field a receiver reads, with its type and range
+    (docs/protocol.md "status", "Validation and bounds"); ``vehicle_id`` when given: the
+    one in the key. A receiver may then trust each field's type. Raises BusPayloadError
+    naming ``key`` and the field (its ``reason`` says why, for counting)."""
+    bad = Refuser(f"{key}: not a usable status")
     doc = json_object(payload, MAX_STATUS_BYTES, bad)
     check_schema(doc, STATUS_SCHEMA, STATUS_VERSION, bad)
-    _check_types(doc, _REQUIRED, "", bad)
-    _check_types(doc["grid"], _GRID, "grid.", bad)
-    g = doc["grid"]
-    if not (g["n_rows"] > 0 and g["n_cols"] > 0 and g["cell_size_m"] > 0
-            and g["tile_size"] > 0 and len(g["hash"]) == 16):
-        raise bad("grid: expected positive n_rows, n_cols, cell_size_m, tile_size and a "
-                  "16-digit hash")
-    for name, share in doc["proportion_at_or_above"].items():
-        if not isinstance(share, (int, float)) or not 0 <= share <= 1:
-            raise bad(f"proportion_at_or_above.{name}: expected a share in [0, 1]")
+    f = Fields(doc, bad)
+    vid = f.string("vehicle_id", max_len=64)
+    if not valid_vehicle_id(vid):
+        raise bad(f"vehicle_id: {vid!r}, expected letters, digits, - and _")
+    if vehicle_id is not None and vid != vehicle_id:
+        raise bad(f"vehicle_id {vid!r}, but the key is vehicle {vehicle_id!r}'s")
+    f.integer("seq", 0, _U64)
+    f.number("uptime_s", 0.0)
+    f.number_or_null("t_s")
+    thresholds = {float(t) for i, t in enumerate(f.items("thresholds", MAX_THRESHOLDS))
+                  if _probability(t, f"thresholds[{i}]", bad)}
+    if not thresholds:
+        raise bad("thresholds: expected at least one P_D threshold")
+    props = f.obj("proportion_at_or_above")
+    if len(props.doc) > MAX_THRESHOLDS:
+        raise bad(f"proportion_at_or_above: {len(props.doc)} entries, more than "
+                  f"{MAX_THRESHOLDS}", Refusal.OVER_BOUND)
+    for name in props.doc:
+        if _threshold_key(name) not in thresholds:
+            raise bad(f"proportion_at_or_above.{name[:40]}: the key is not one of the "
+                      "thresholds written as a number (\"0.8\")")
+        props.number(name, 0.0, 1.0)
+    f.number("mean_pd", 0.0, 1.0)
+    f.number("expected_false_alarms", 0.0)
+    grid = _check_grid(f.obj("grid"), bad)
+    cells_free = f.integer("cells_free", 0, grid)
+    f.integer("cells_observed", 0, cells_free)
+    frames = f.obj("frames")
+    frames.integer("used", 0, _U32)
+    frames.integer_or_null("grid", 0, _U32)
+    frames.integer_or_null("pending", 0, _U32)
+    frames.counts("skipped", MAX_NAMED_COUNTS, _U64)
+    frames.string_or_null("source")
+    frames.number_or_null("last_t_s")
+    link = f.obj("link")
+    link.string_or_null("state", max_len=40)
+    link.number_or_null("last_message_age_s", 0.0)
+    link.integer_or_null("messages", 0, _U64)
+    link.integer_or_null("bad_messages", 0, _U64)
+    pose = f.obj_or_null("pose")
+    if pose is not None:
+        pose.number("lat_deg", -90.0, 90.0)
+        pose.number("lon_deg", -180.0, 360.0)
+        pose.number_or_null("alt_msl_m", -1e4, 1e5)
+        pose.number_or_null("heading_deg", -360.0, 360.0)
+        pose.number_or_null("t_s")
+    gimbal = f.obj("gimbal")
+    for name in ("mount", "interpretation"):
+        gimbal.string_or_null(name, max_len=40)
+    gimbal.string_or_null("describe", max_len=500)
+    f.integer("tiles_seq", -1, _U64)
+    f.counts("faults", MAX_NAMED_COUNTS, _U64)
+    f.obj_or_null("checkpoint")
+    f.boolean_or_null("full")
     return doc
 
 
-def _check_types(doc: Mapping[str, Any], spec: Mapping[str, tuple[type, ...]], prefix: str,
-                 bad) -> None:
-    for name, types in spec.items():
-        if name not in doc:
-            raise bad(f"{prefix}{name} missing")
-        v = doc[name]
-        if isinstance(v, bool) or not isinstance(v, types):
-            raise bad(f"{prefix}{name}: expected {'/'.join(t.__name__ for t in types)}, "
-                      f"got {type(v).__name__}")
+def _check_grid(g: Fields, bad: Refuser) -> int:
+    """Check the status's grid description; returns its number of cells."""
+    g.string("hash", GRID_HASH)
+    for name in ("x0_m", "y0_m"):
+        g.number(name, -MAX_ENU_M, MAX_ENU_M)
+    if not g.number("cell_size_m") > 0:
+        raise bad("grid.cell_size_m: expected a positive number of metres")
+    n_rows = g.integer("n_rows", 1, MAX_CELLS)
+    n_cols = g.integer("n_cols", 1, MAX_CELLS)
+    if n_rows * n_cols > MAX_CELLS:
+        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_CELLS {MAX_CELLS}",
+                  Refusal.OVER_BOUND)
+    g.integer("tile_size", 1, MAX_TILE_SIZE)
+    origin = g.obj("origin")
+    if origin.doc:  # {} in a brief status
+        origin.number("lat_deg", -90.0, 90.0)
+        origin.number("lon_deg", -180.0, 360.0)
+        origin.number_or_null("ground_alt_msl_m", -1e4, 1e5)
+        origin.string_or_null("how")
+    return n_rows * n_cols
+
+
+def _probability(v: Any, name: str, bad: Refuser) -> bool:
+    if not (is_number(v) and 0 <= v <= 1):
+        raise bad(f"{name}: expected a P_D threshold in [0, 1], got {v!r}"[:200])
+    return True
+
+
+def _threshold_key(name: str) -> float | None:
+    """The threshold a proportion_at_or_above key names ("0.8"), or None."""
+    try:
+        return float(name) if len(name) <= 40 else None
+    except ValueError:
+        return None

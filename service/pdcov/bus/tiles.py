@@ -18,6 +18,7 @@ n_obs uint32[h*w] and pd_q uint16[h*w] (P_D quantised as round(P_D * 65535), for
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from collections.abc import Iterable
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
 from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
 
 MAGIC = b"PDTL"
@@ -36,6 +37,9 @@ BYTES_PER_CELL = 4 + 4 + 4 + 2
 MAX_TILE_SIZE = 1024
 MAX_BODY_BYTES = 64 << 20
 """Largest inflated tiles body a decoder accepts (the daemon sends far less per message)."""
+MAX_TILES_BYTES = 4 << 20
+"""Largest tiles payload accepted (the daemon sends at most bus.tiles_max_bytes_per_s,
+64 KiB by default, per second)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,37 +118,45 @@ def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int
 
 def decode_tiles(payload: bytes, key: str = "tiles",
                  max_body_bytes: int = MAX_BODY_BYTES) -> TileUpdate:
-    """Validate and decode a tiles message: magic, version, header sizes, a grid of at most
-    MAX_CELLS, tile indices inside the grid and not repeated, the exact body length (the
-    inflated size is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN.
-    Raises BusPayloadError naming ``key``."""
-    def bad(why: str) -> BusPayloadError:
-        return BusPayloadError(f"{key}: not a usable tiles message: {why}")
-
+    """Validate and decode a tiles message: at most MAX_TILES_BYTES, magic, version, a t_s
+    not NaN nor +inf, header sizes, a grid of at most MAX_CELLS (checked before inflating),
+    tile indices inside the grid and not repeated, the exact body length (the inflated size
+    is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN. Raises
+    BusPayloadError naming ``key`` (its ``reason`` says why)."""
+    bad = Refuser(f"{key}: not a usable tiles message")
     data = bytes(payload)
+    if len(data) > MAX_TILES_BYTES:
+        raise bad(f"{len(data)} bytes, more than {MAX_TILES_BYTES}", Refusal.TOO_LARGE)
     if len(data) < _HEADER.size:
-        raise bad(f"{len(data)} bytes, shorter than the {_HEADER.size}-byte header")
+        raise bad(f"{len(data)} bytes, shorter than the {_HEADER.size}-byte header",
+                  Refusal.MALFORMED)
     (magic, version, _flags, seq, ghash, t_s, frames, tile_size, n_tiles, n_rows,
      n_cols) = _HEADER.unpack_from(data)
     if magic != MAGIC:
-        raise bad(f"magic {magic!r}, expected {MAGIC!r}")
+        raise bad(f"magic {magic!r}, expected {MAGIC!r}", Refusal.MALFORMED)
     if version != TILES_VERSION:
-        raise bad(f"version {version}, expected {TILES_VERSION}")
-    if not 1 <= tile_size <= MAX_TILE_SIZE or n_rows < 1 or n_cols < 1 \
-            or n_rows * n_cols > MAX_CELLS:
-        raise bad(f"tile_size {tile_size}, grid {n_rows} x {n_cols}")
+        raise bad(f"version {version}, expected {TILES_VERSION}", Refusal.MALFORMED)
+    if math.isnan(t_s) or t_s == math.inf:  # -inf: no frame yet (the daemon's start value)
+        raise bad(f"t_s {t_s}: expected a time (s)", Refusal.NON_FINITE)
+    if not 1 <= tile_size <= MAX_TILE_SIZE or n_rows < 1 or n_cols < 1:
+        raise bad(f"tile_size {tile_size}, grid {n_rows} x {n_cols}: expected tile_size "
+                  f"1..{MAX_TILE_SIZE} and at least one row and column")
+    if n_rows * n_cols > MAX_CELLS:
+        raise bad(f"grid {n_rows} x {n_cols}: more than MAX_CELLS {MAX_CELLS} cells",
+                  Refusal.OVER_BOUND)
     n_tr, n_tc = tile_grid_shape(tile_size, n_rows, n_cols)
     if n_tiles > n_tr * n_tc:
-        raise bad(f"{n_tiles} tiles, the grid has {n_tr * n_tc}")
+        raise bad(f"{n_tiles} tiles, the grid has {n_tr * n_tc}", Refusal.OVER_BOUND)
     bound = min(n_tiles * tile_wire_bytes(tile_size),
                 n_tiles * _TILE_ID.size + BYTES_PER_CELL * n_rows * n_cols, max_body_bytes)
     d = zlib.decompressobj()
     try:
         body = d.decompress(data[_HEADER.size:], bound + 1)
     except zlib.error as exc:
-        raise bad(f"zlib: {exc}") from None
+        raise bad(f"zlib: {exc}", Refusal.MALFORMED) from None
     if len(body) > bound or not d.eof or d.unused_data:
-        raise bad("the zlib body is longer than its tiles, incomplete, or followed by bytes")
+        raise bad("the zlib body is longer than its tiles, incomplete, or followed by bytes",
+                  Refusal.MALFORMED)
     tiles = []
     seen = set()
     at = 0
@@ -183,7 +195,8 @@ def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles") -> Non
     if update.grid_hash != state.hash or (update.n_rows, update.n_cols) != g.shape:
         raise BusPayloadError(f"{key}: tiles for grid {update.grid_hash} "
                               f"({update.n_rows} x {update.n_cols}), this grid is {state.hash} "
-                              f"({g.n_rows} x {g.n_cols}); fetch the snapshot")
+                              f"({g.n_rows} x {g.n_cols}); fetch the snapshot",
+                              Refusal.OTHER_GRID)
     for t in update.tiles:
         r0, r1, c0, c1 = tile_bounds(t.tile_row, t.tile_col, update.tile_size, *g.shape)
         state.log_miss_d[r0:r1, c0:c1] = t.log_miss_d

@@ -21,12 +21,14 @@ import json
 import math
 import socket
 from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pdcov.bus.json_doc import finite_or_null
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.ground.watcher import FleetReport, VehicleFeed, Watcher
@@ -180,20 +182,50 @@ def basemap_info(folder: Path | None) -> dict[str, Any] | None:
     return {"zooms": zooms, "ext": ext}
 
 
+def state_json(state: dict[str, Any]) -> bytes:
+    """The page's data as strict JSON: every non-finite number (NaN, ±inf) becomes null,
+    so that the page's ``JSON.parse`` never meets ``Infinity``."""
+    return json.dumps(finite_or_null(state), separators=(",", ":"), allow_nan=False).encode()
+
+
+@dataclass(frozen=True, slots=True)
+class _Built:
+    """The map state as sent: its JSON, the version it was built for and when (loop s)."""
+
+    version: int
+    built_s: float
+    data: bytes
+
+
 class WebMap:
     """The HTTP server. ``state`` returns the current map state (called on the event loop);
-    ``version`` tells whether it changed; ``access``: who may read it."""
+    ``version`` tells whether it changed; ``access``: who may read it. The state is built
+    once per version (and again after ``refresh_s`` for the message ages) and the same
+    bytes go to every /state.json and /events client."""
 
     def __init__(self, host: str, port: int, state: Callable[[], dict[str, Any]],
                  version: Callable[[], int], access: WebAccess,
-                 basemap_dir: Path | None = None, period_s: float = 0.5) -> None:
+                 basemap_dir: Path | None = None, period_s: float = 0.5,
+                 refresh_s: float = 2.0) -> None:
         self.host, self.port = host, port
         self.access = access
         self.state, self.version = state, version
         self.basemap_dir = basemap_dir
         self.period_s = period_s
+        self.refresh_s = refresh_s
         self._runner: Any = None
         self._closing = asyncio.Event()
+        self._built: _Built | None = None
+
+    def current(self) -> _Built:
+        """The state for the current version, built now only when none is held for it or
+        the one held is ``refresh_s`` old (event loop thread)."""
+        v = self.version()
+        now = asyncio.get_running_loop().time()
+        built = self._built
+        if built is None or built.version != v or now - built.built_s >= self.refresh_s:
+            built = self._built = _Built(v, now, state_json(self.state()))
+        return built
 
     async def start(self) -> None:
         from aiohttp import web
@@ -269,27 +301,25 @@ class WebMap:
     async def _state(self, request: Any) -> Any:
         from aiohttp import web
 
-        return web.json_response(self.state())
+        return web.Response(body=self.current().data, content_type="application/json")
 
     async def _events(self, request: Any) -> Any:
         from aiohttp import web
 
         resp = web.StreamResponse(headers={"Content-Type": "text/event-stream"})
         await resp.prepare(request)
-        sent = -1
-        idle = 0.0
+        sent: _Built | None = None
         try:
             while not self._closing.is_set():
-                v = self.version()
-                # A change, or once every 2 s for the ages of the last messages.
-                if v != sent or idle >= 2.0:
-                    data = json.dumps(self.state(), separators=(",", ":"))
-                    await resp.write(f"data: {data}\n\n".encode())
-                    sent, idle = v, 0.0
+                # A change, or once every refresh_s for the ages of the last messages.
+                built = self.current()
+                if built is not sent:
+                    await resp.write(b"data: " + built.data + b"\n\n")
+                    sent = built
                 try:
                     await asyncio.wait_for(self._closing.wait(), self.period_s)
                 except asyncio.TimeoutError:
-                    idle += self.period_s
+                    pass
         except (ConnectionResetError, asyncio.CancelledError):
             pass
         return resp

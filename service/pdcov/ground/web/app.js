@@ -214,8 +214,34 @@ if (here.searchParams.has("token")) {
 colourBar();
 window.addEventListener("resize", fit);
 fit();
+// An update that cannot be read or drawn is shown, never a silently frozen map: the
+// banner says what failed and that the figures shown are those of the last good update.
+function showError(what, err) {
+  const el = document.getElementById("error");
+  el.textContent = `${what}: ${err && err.message ? err.message : err}; the map shows the ` +
+    `last update that could be read (${state ? "update " + state.version : "none yet"})`;
+  el.hidden = false;
+}
+
 const events = new EventSource("events");
-events.onmessage = (e) => show(JSON.parse(e.data));
+events.onmessage = (e) => {
+  let s;
+  try {
+    s = JSON.parse(e.data);
+  } catch (err) {
+    showError("an update from pdcov watch could not be read", err);
+    return;
+  }
+  const previous = state;
+  try {
+    show(s);
+  } catch (err) {
+    state = previous;
+    showError("an update from pdcov watch could not be drawn", err);
+    return;
+  }
+  document.getElementById("error").hidden = true;
+};
 events.onerror = () => {
   // CLOSED: the server refused the stream (e.g. restarted with a new token); else retrying.
   document.getElementById("status-line").textContent = events.readyState === EventSource.CLOSED
