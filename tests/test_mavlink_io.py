@@ -1,5 +1,5 @@
 """service.mavlink_io.Connection on a real UDP socket (loopback): one readable event drains
-the datagrams waiting (bounded), and replies still go to the sender pymavlink recorded."""
+the datagrams waiting (bounded), and replies go to the sender of the autopilot's messages."""
 
 from __future__ import annotations
 
@@ -23,8 +23,8 @@ def heartbeat_frames(n: int) -> list[bytes]:
 async def open_udpin(port: int, on_messages) -> Connection:
     """A started udpin Connection on ``port``, once connected."""
     conn = Connection(f"udpin:127.0.0.1:{port}", on_messages=on_messages,
-                      ids=lambda: (1, 191), signing_key=None, timeout_s=5.0,
-                      reconnect_max_s=1.0)
+                      from_autopilot=lambda m: m.get_srcSystem() == 1, ids=lambda: (1, 191),
+                      signing_key=None, timeout_s=5.0, reconnect_max_s=1.0)
     conn.start()
     for _ in range(500):
         if conn.state == "connected":

@@ -5,7 +5,9 @@ checkpoint only under the vehicle id that wrote it."""
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import os
 import socket
 import threading
 import time
@@ -23,7 +25,11 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.core.pose import CameraPose
 from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.daemon import Daemon
+from pdcov.service.mavlink_io import ReplyPeers
 from pdcov.service.settings import load_serve_config
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 
@@ -150,3 +156,118 @@ def test_status_and_tiles_carry_the_daemon_session_as_source(tmp_path, path) -> 
     for key in (keys.status, keys.tiles):  # sn 0, 1, 2, ... per publisher
         sns = [sn for k, _, sn in seen if k == key]
         assert sns == list(range(sns[0], sns[0] + len(sns))), (key, sns)
+
+
+# --- 1. MAVLink replies go to the autopilot's addresses only ----------------------------------
+
+def test_reply_peers_are_bounded_and_the_latest_heard_stay() -> None:
+    peers = ReplyPeers(limit=4)
+    for port in range(1000):  # senders forging the autopilot's ids, each from its own port
+        peers.heard(("127.0.0.1", 20000 + port))
+    peers.heard(("127.0.0.1", 14555))  # the autopilot, heard again: kept, newest
+    assert peers.addresses == (("127.0.0.1", 20997), ("127.0.0.1", 20998),
+                               ("127.0.0.1", 20999), ("127.0.0.1", 14555))
+    peers.heard(("127.0.0.1", 20997))  # heard again: moved to the newest, nothing dropped
+    assert peers.addresses[0] == ("127.0.0.1", 20998) and len(peers.addresses) == 4
+
+
+def rogue_datagrams(n: int) -> list[bytes]:
+    """What ``n`` rogue senders send, one datagram each: a HEARTBEAT of another autopilot
+    (system 7), a GCS HEARTBEAT (system 255), ATTITUDE from another component of the
+    vehicle's system (1, 50), and junk."""
+    mav = mavlink.MAVLink(None)
+    kinds = [pack(mav.heartbeat_encode(2, 3, 0, 0, 4), 7, 1),
+             pack(mav.heartbeat_encode(6, 8, 0, 0, 4), 255, 190),
+             pack(mav.attitude_encode(1000, 0.0, 0.0, 0.0, 0, 0, 0), 1, 50),
+             b"\xfd\x09junk" + bytes(range(40))]
+    return [kinds[k % len(kinds)] for k in range(n)]
+
+
+def udp_socket() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.setblocking(False)
+    return s
+
+
+def drain(s: socket.socket) -> list[bytes]:
+    out = []
+    while True:
+        try:
+            out.append(s.recv(65536))
+        except BlockingIOError:
+            return out
+
+
+async def autopilot_among_rogues(d: Daemon, mport: int, n_rogues: int
+                                 ) -> tuple[list, list[bytes], tuple, int]:
+    """Run the daemon; rogues from ``n_rogues`` distinct ports before and after an autopilot
+    (hovering, then a HEARTBEAT a second) appears. (What the autopilot got, what the rogues
+    got, the link's reply peers, the number of pymavlink's own UDP clients)."""
+    loop = asyncio.get_running_loop()
+    task = loop.create_task(d.run())
+    rogues: list[socket.socket] = []
+    autopilot = udp_socket()
+    target = ("127.0.0.1", mport)
+    try:
+        for _ in range(400):
+            if d.links and d.links[0].state == "connected" and d.stop_event is not None:
+                break
+            await asyncio.sleep(0.025)
+        assert d.links[0].state == "connected"
+
+        async def rogue_wave(n: int) -> None:
+            for k, datagram in enumerate(rogue_datagrams(n)):
+                s = udp_socket()
+                rogues.append(s)
+                s.sendto(datagram, target)
+                if k % 50 == 49:
+                    await asyncio.sleep(0)  # the daemon reads meanwhile
+
+        await rogue_wave(n_rogues // 2)
+        for k, datagram in enumerate(hover_datagrams(seconds=2.0)):
+            autopilot.sendto(datagram, target)
+            if k % 20 == 19:
+                await asyncio.sleep(0.01)
+        await rogue_wave(n_rogues - n_rogues // 2)
+        beat = pack(mavlink.MAVLink(None).heartbeat_encode(2, 3, 128 | 1, 4, 4))
+        for _ in range(3):  # the daemon's HEARTBEAT (1 Hz) and request retries (1 s)
+            autopilot.sendto(beat, target)
+            await asyncio.sleep(1.0)
+        link = d.links[0]
+        parser = mavlink.MAVLink(None)
+        got = [m for data in drain(autopilot) for m in parser.parse_buffer(data) or []]
+        rogue_got = [data for s in rogues for data in drain(s)]
+        return got, rogue_got, link.reply_peers.addresses, len(link.conn.clients)
+    finally:
+        assert d.stop_event is not None
+        d.stop_event.set()
+        await asyncio.wait_for(task, 30.0)
+        autopilot.close()
+        for s in rogues:
+            s.close()
+
+
+@pytest.mark.e2e
+def test_mavlink_is_answered_only_to_the_autopilot_not_to_rogue_senders(tmp_path) -> None:
+    mport = free_port(socket.SOCK_DGRAM)
+    cfg_path = config(tmp_path, "uav1", state=tmp_path / "state")
+    doc = yaml.safe_load(cfg_path.read_text())
+    doc["bus"].update(connect=[], listen=["tcp/127.0.0.1:0"])
+    # The vehicle's system id configured: the first autopilot HEARTBEAT (here system 7's)
+    # is not taken for it.
+    doc["link"] = {"connect": [f"udpin:127.0.0.1:{mport}"], "system_id": 1}
+    cfg_path.write_text(yaml.safe_dump(doc))
+    d = Daemon(load_serve_config(cfg_path))
+    got, rogue_got, peers, pymavlink_clients = asyncio.run(
+        asyncio.wait_for(autopilot_among_rogues(d, mport, 3000), 120.0))
+    kinds = {m.get_type() for m in got}
+    assert "HEARTBEAT" in kinds, kinds
+    commands = {m.command for m in got if m.get_type() == "COMMAND_LONG"}
+    assert mavlink.MAV_CMD_SET_MESSAGE_INTERVAL in commands, commands
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in got} == {(1, 191)}
+    assert rogue_got == [], f"{len(rogue_got)} datagrams sent to rogue senders"
+    # One address to write each message to, however many others sent datagrams.
+    assert len(peers) == 1 and peers[0][0] == "127.0.0.1", peers
+    assert pymavlink_clients == 0
+    assert d.live.counters.used > 0  # the autopilot's telemetry was taken meanwhile

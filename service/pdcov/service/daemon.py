@@ -186,7 +186,8 @@ class Daemon:
             raise ConfigError("link.signing_key_file: cannot read 64 hex digits from "
                               f"{self.cfg.link.signing_key_file}")
         for url in self.cfg.link.connect:
-            c = Connection(url, on_messages=self._on_messages, ids=self._ids,
+            c = Connection(url, on_messages=self._on_messages,
+                           from_autopilot=self.protocol.from_autopilot, ids=self._ids,
                            signing_key=key, timeout_s=self.cfg.link.timeout_s,
                            reconnect_max_s=self.cfg.link.reconnect_max_s)
             c.start()

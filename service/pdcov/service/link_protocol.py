@@ -132,6 +132,13 @@ class LinkProtocol:
     def reboots(self) -> int:
         return len(self._clock.autopilot.restarts_t_s) if self._clock else 0
 
+    def from_autopilot(self, msg: Any) -> bool:
+        """Whether ``msg`` (received) is the followed autopilot's own: its system and
+        component (a UDP link answers only the addresses such messages come from)."""
+        return (self.autopilot_known and not msg.get_type().startswith(("BAD_DATA", "UNKNOWN"))
+                and (msg.get_srcSystem(), msg.get_srcComponent())
+                == (self.system_id, self.autopilot_component))
+
     def clock_state(self) -> tuple[float, float]:
         """(offset_s, latest boot s) of the autopilot's clock, for a checkpoint."""
         clock = self._clock.autopilot if self._clock else None
