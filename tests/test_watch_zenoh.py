@@ -4,82 +4,16 @@ tiles, --once. Every session and process is closed in teardown; each wait is bou
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
-from watch_fixtures import TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
+from watch_fixtures import TinyPublisher, ZenohTinyDaemon, load, start_watcher, stop_watcher
 
+pytestmark = pytest.mark.e2e
 zenoh = pytest.importorskip("zenoh")
-
-
-@pytest.fixture
-def router():
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(zenoh_conf("router", listen=endpoint))
-    try:
-        yield endpoint
-    finally:
-        session.close()
-
-
-@pytest.fixture
-def processes():
-    procs: list[subprocess.Popen] = []
-    try:
-        yield procs
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-                p.wait(timeout=10)
-
-
-@pytest.fixture
-def daemons():
-    made: list[ZenohTinyDaemon] = []
-    try:
-        yield made
-    finally:
-        for d in made:
-            d.close()
-
-
-def start_watcher(processes, router, *extra) -> subprocess.Popen:
-    p = subprocess.Popen([sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client",
-                          "--zenoh-connect", router, "--no-multicast-scouting", "--plain",
-                          *map(str, extra)],
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    processes.append(p)
-    line = read_line(p, 60.0)  # "following ..." once subscribed
-    assert line.startswith("pdcov watch: following"), line
-    return p
-
-
-def read_line(p: subprocess.Popen, timeout_s: float) -> str:
-    """The next line of ``p``'s output, or fail after ``timeout_s``."""
-    import selectors
-
-    with selectors.DefaultSelector() as sel:
-        sel.register(p.stdout, selectors.EVENT_READ)
-        if not sel.select(timeout_s):
-            raise AssertionError(f"no output from {p.args} in {timeout_s} s")
-    return p.stdout.readline()
-
-
-def stop_watcher(p: subprocess.Popen) -> str:
-    p.send_signal(signal.SIGTERM)
-    out, _ = p.communicate(timeout=60)
-    assert p.returncode == 0, out
-    return out
-
-
-def load(path):
-    with np.load(path) as z:
-        return {k: z[k] for k in z.files}
 
 
 def fly(daemons, steps: int, period_s: float = 0.05) -> None:
@@ -94,7 +28,7 @@ def settle(daemons, seconds: float = 1.5) -> None:
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         for d in daemons:
-            d.session.put(d.keys.status, d.pub.status())
+            d.pub_status.put(d.pub.status())
         time.sleep(0.25)
 
 

@@ -4,9 +4,13 @@ It is not the daemon; the end-to-end tests use the real one."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from benchmarks.harness import free_port as free_port  # re-exported for the watch tests
 from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
@@ -14,6 +18,7 @@ from pdcov.bus.status import encode_status
 from pdcov.bus.tiles import encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
 from pdcov.core.pose import CameraPose
+from pdcov.service.daemon import SourcedPublisher
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
@@ -78,7 +83,7 @@ class TinyPublisher:
             "link": {"state": "up"},
             "pose": {"lat_deg": o.lat_deg + 1e-5 * g.frames, "lon_deg": o.lon_deg,
                      "alt_msl_m": 15.0, "heading_deg": 90.0, "t_s": self.t_s},
-            "gimbal": {}, "faults": {}, "tiles_seq": self.seq,
+            "gimbal": {}, "faults": {}, "tiles_seq": self.seq, "tiles_behind": 0,
             "grid": {"hash": grid_hash(geo, g.mask), "x0_m": geo.x0_m, "y0_m": geo.y0_m,
                      "cell_size_m": geo.cell_size_m, "n_rows": geo.n_rows,
                      "n_cols": geo.n_cols, "tile_size": self.tile_size,
@@ -139,6 +144,9 @@ class ZenohTinyDaemon:
 
         self.queryables = [self.session.declare_queryable(self.keys.snapshot, snapshot),
                            self.session.declare_queryable(self.keys.footprint, footprint)]
+        # As the daemon publishes: each put names this session (the watcher pins to it).
+        self.pub_tiles = SourcedPublisher(self.session.declare_publisher(self.keys.tiles))
+        self.pub_status = SourcedPublisher(self.session.declare_publisher(self.keys.status))
 
     def publish_step(self, frames: int = 1, status: bool = True) -> None:
         with self.lock:
@@ -147,12 +155,90 @@ class ZenohTinyDaemon:
             seq = self.pub.seq
             st = self.pub.status()
         if payload is not None and seq not in self.drop:
-            self.session.put(self.keys.tiles, payload)
+            self.pub_tiles.put(payload)
         if status:
-            self.session.put(self.keys.status, st)
+            self.pub_status.put(st)
 
     def close(self) -> None:
-        for q in self.queryables:
+        for q in [*self.queryables, self.pub_tiles, self.pub_status]:
             q.undeclare()
         self.token.undeclare()
         self.session.close()
+
+
+# -- real Zenoh on loopback: a router in the test process, watchers as processes ---------
+
+
+@pytest.fixture
+def router():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    import zenoh
+
+    session = zenoh.open(zenoh_conf("router", listen=endpoint))
+    try:
+        yield endpoint
+    finally:
+        session.close()
+
+
+@pytest.fixture
+def processes():
+    procs: list[subprocess.Popen] = []
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+
+
+@pytest.fixture
+def daemons():
+    made: list[ZenohTinyDaemon] = []
+    try:
+        yield made
+    finally:
+        for d in made:
+            d.close()
+
+
+def start_watcher(processes, router, *extra) -> subprocess.Popen:
+    p = subprocess.Popen([sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client",
+                          "--zenoh-connect", router, "--no-multicast-scouting", "--plain",
+                          *map(str, extra)],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    processes.append(p)
+    line = read_line(p, 60.0)  # "following ..." once subscribed
+    assert line.startswith("pdcov watch: following"), line
+    return p
+
+
+def read_line(p: subprocess.Popen, timeout_s: float) -> str:
+    """The next line of ``p``'s output, or fail after ``timeout_s``."""
+    import selectors
+
+    with selectors.DefaultSelector() as sel:
+        sel.register(p.stdout, selectors.EVENT_READ)
+        if not sel.select(timeout_s):
+            raise AssertionError(f"no output from {p.args} in {timeout_s} s")
+    return p.stdout.readline()
+
+
+def stop_watcher(p: subprocess.Popen) -> str:
+    """Stop a watcher with SIGTERM; everything it printed after the lines read_line took.
+    (Read through p.stdout, not communicate(timeout=...), which reads the pipe's file
+    descriptor and so loses what read_line's readline left in the text buffer.)"""
+    p.send_signal(signal.SIGTERM)
+    p.wait(timeout=60)
+    out = p.stdout.read()
+    assert p.returncode == 0, out
+    return out
+
+
+
+
+def load(path) -> dict[str, np.ndarray]:
+    """The arrays of an .npz file."""
+    with np.load(path) as z:
+        return {k: z[k] for k in z.files}

@@ -17,6 +17,7 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -152,3 +153,51 @@ def open_session(bus: BusConfig):  # -> zenoh.Session
     except Exception as exc:  # noqa: BLE001
         raise ConfigError(f"bus: cannot open the Zenoh session ({bus.mode}, connect "
                           f"{list(bus.connect)}, listen {list(bus.listen)}): {exc}") from None
+
+
+class BusSecurity(Enum):
+    """What this session's own config says about who else can write on the bus (the
+    router's access control, if any, is not visible from here)."""
+
+    OPEN = "open"  # a plain-text link or scouting: any participant, any key
+    TLS = "tls"  # every link TLS/QUIC, but this side does not require client certificates
+    MUTUAL_TLS = "mutual-tls"  # every link TLS/QUIC with certificates on both sides
+
+    @property
+    def warning(self) -> str | None:
+        """The line the ground station shows all the time, or None when secured."""
+        if self is BusSecurity.OPEN:
+            return ("bus not secured (plain links, no certificates): anyone who reaches it "
+                    "can publish coverage as any vehicle; use mutual TLS with access control "
+                    "(docs/ground-station.md \"Securing the bus\")")
+        if self is BusSecurity.TLS:
+            return ("bus encrypted but sessions not authenticated (TLS without client "
+                    "certificates): anyone who reaches the router can publish coverage "
+                    "unless its access control stops them (docs/ground-station.md "
+                    "\"Securing the bus\")")
+        return None
+
+
+_SECURE_PROTOCOLS = ("tls/", "quic/")
+
+
+def bus_security(bus: BusConfig) -> BusSecurity:
+    """How far ``bus``'s session keeps others out: MUTUAL_TLS when every connect and listen
+    endpoint is TLS or QUIC, multicast scouting is off and the Zenoh config enables mTLS;
+    TLS without the mTLS setting; OPEN otherwise (a plain endpoint, or none at all with
+    multicast scouting, which finds peers over plain TCP)."""
+    conf = zenoh_config(bus)
+    mode = json.loads(conf.get_json("mode") or '"peer"')
+    endpoints = []
+    for name in ("connect/endpoints", "listen/endpoints"):
+        listed = json.loads(conf.get_json(name) or "[]")
+        if isinstance(listed, dict):  # per mode: {"router": [...], "peer": [...]}
+            listed = listed.get(mode, [])
+        endpoints += listed if isinstance(listed, list) else [listed]
+    scouting = json.loads(conf.get_json("scouting/multicast/enabled") or "null")
+    if (not endpoints or scouting is not False
+            or not all(isinstance(e, str) and e.startswith(_SECURE_PROTOCOLS)
+                       for e in endpoints)):
+        return BusSecurity.OPEN
+    mtls = json.loads(conf.get_json("transport/link/tls/enable_mtls") or "null")
+    return BusSecurity.MUTUAL_TLS if mtls is True else BusSecurity.TLS

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.bus.grid_state import grid_hash
-from pdcov.bus.session import BusConfig
+from pdcov.bus.session import BusConfig, bus_security
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.live import WatchShell
@@ -56,8 +56,13 @@ async def _main(opts: WatchOptions) -> int:
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    config_hash = None
+    if opts.mission is not None:
+        grid = opts.mission.new_grid()
+        config_hash = grid_hash(grid.geometry, grid.mask)
     watcher = Watcher(opts.vehicle, thresholds=(
-        opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS))
+        opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
+        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
     recording = Recording(opts.record) if opts.record else None
     shell = WatchShell(watcher, opts.bus, record=recording)
     web = None
@@ -65,10 +70,6 @@ async def _main(opts: WatchOptions) -> int:
         from pdcov.ground.web import WebMap, basemap_info, map_state
 
         basemap = basemap_info(opts.basemap)
-        config_hash = None
-        if opts.mission is not None:
-            grid = opts.mission.new_grid()
-            config_hash = grid_hash(grid.geometry, grid.mask)
         web = WebMap(opts.web[0], opts.web[1],
                      lambda: map_state(watcher, watcher.report(shell.now_s()), opts.mission,
                                        shell.version, basemap, config_hash),
@@ -131,17 +132,18 @@ async def _view(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
         live = Live(render(watcher.report(shell.now_s())), console=Console(),
                     auto_refresh=False, transient=False)
         live.start()
-    last_line = ""
+    last_lines: tuple[str, ...] = ()
     try:
         while not stop.is_set() and not runner.done():
             report: FleetReport = watcher.report(shell.now_s())
             if live is not None:
                 live.update(render(report), refresh=True)
             else:
-                line = headline(report)
-                if line != last_line:
-                    print(f"pdcov watch: {line}", flush=True)
-                    last_line = line
+                lines = (headline(report), *(f"! {w}" for w in report.warnings))
+                for line in lines:
+                    if line not in last_lines:
+                        print(f"pdcov watch: {line}", flush=True)
+                last_lines = lines
             try:
                 await asyncio.wait_for(stop.wait(), opts.refresh_s)
             except asyncio.TimeoutError:

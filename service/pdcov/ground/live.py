@@ -1,9 +1,13 @@
 """The watcher's asyncio/Zenoh shell: subscribes, queries, times, and feeds the Watcher.
 
-Zenoh calls back on its own threads; every callback only hands the raw payload to the
-event loop (``call_soon_threadsafe``), where it is decoded and given to the Watcher, so the
-Watcher is only ever touched by one thread. Queries (``get``) block until their replies
-or timeout, so they run in the loop's default thread pool.
+Zenoh calls back on its own threads; every callback only hands the raw payload and the
+session it came from (``source_info`` of a sample, ``replier_id`` of a query reply: the
+Watcher pins each vehicle to one session) to the event loop (``call_soon_threadsafe``),
+where it is decoded and given to the Watcher, so the Watcher is only ever touched by one
+thread. Queries (``get``) block until their replies or timeout, so they run in the loop's
+default thread pool; they collect every reply (no consolidation), so that a second session
+answering as the vehicle is seen. A payload is recorded after it was decoded and given to
+the Watcher: a failing recorder never costs the live view a message.
 """
 
 from __future__ import annotations
@@ -22,13 +26,26 @@ from pdcov.bus.mission import decode_mission
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
+from pdcov.ground.claims import Session
 from pdcov.ground.watcher import QueryMission, QuerySnapshot, Watcher
 
 log = logging.getLogger("pdcov.watch")
 
 Recorder = Callable[[str, str, bytes], None]
 """Called with (vehicle_id, kind, payload) for every status, tiles, snapshot and mission
-received."""
+that decoded (ground/record.py: it never raises)."""
+
+
+def sample_session(sample: Any) -> Session:
+    """The hex id of the Zenoh session that published ``sample`` (None: it named none)."""
+    info = sample.source_info
+    return None if info is None else str(info.source_id.zid)
+
+
+def reply_session(reply: Any) -> Session:
+    """The hex id of the Zenoh session that sent query reply ``reply``."""
+    replier = reply.replier_id
+    return None if replier is None else str(replier.zid)
 
 
 class WatchShell:
@@ -68,7 +85,7 @@ class WatchShell:
         try:
             def on_sample(sample: Any) -> None:
                 loop.call_soon_threadsafe(self._received, str(sample.key_expr),
-                                          sample.payload.to_bytes())
+                                          sample.payload.to_bytes(), sample_session(sample))
 
             def on_alive(sample: Any) -> None:
                 loop.call_soon_threadsafe(self._alive, str(sample.key_expr),
@@ -110,20 +127,18 @@ class WatchShell:
 
     # -- inputs (event loop thread) -----------------------------------------------------
 
-    def _received(self, key: str, payload: bytes) -> None:
+    def _received(self, key: str, payload: bytes, source: Session) -> None:
         now = self.now_s()
         try:
             vid, kind = parse_key(key)
         except BusPayloadError as exc:
             log.warning("%s", exc)
             return
-        if self.record is not None:
-            self.record(vid, kind, payload)
         try:
             if kind == "status":
-                actions = self.watcher.on_status(vid, decode_status(payload, key), now)
+                actions = self.watcher.on_status(vid, decode_status(payload, key), now, source)
             elif kind == "tiles":
-                actions = self.watcher.on_tiles(vid, decode_tiles(payload, key), now)
+                actions = self.watcher.on_tiles(vid, decode_tiles(payload, key), now, source)
             else:
                 return
         except BusPayloadError as exc:
@@ -132,6 +147,11 @@ class WatchShell:
             return
         self.version += 1
         self._do(actions)
+        self._record(vid, kind, payload)
+
+    def _record(self, vehicle_id: str, kind: str, payload: bytes) -> None:
+        if self.record is not None:
+            self.record(vehicle_id, kind, payload)
 
     def _alive(self, key: str, alive: bool) -> None:
         try:
@@ -156,59 +176,53 @@ class WatchShell:
         self._queries[(vehicle_id, kind)] = asyncio.get_running_loop().create_task(
             self._query(vehicle_id, kind))
 
-    def _get(self, key: str) -> list[bytes]:
-        """Blocking: the ok replies' payloads of ``get key`` (worker thread)."""
+    def _get(self, key: str) -> list[tuple[Session, bytes]]:
+        """Blocking: every ok reply of ``get key`` with its replier's session (worker
+        thread)."""
+        import zenoh
+
         out = []
-        for reply in self._session.get(key, timeout=self.query_timeout_s):
+        for reply in self._session.get(key, timeout=self.query_timeout_s,
+                                       consolidation=zenoh.ConsolidationMode.NONE):
             if reply.ok is not None:
-                out.append(reply.ok.payload.to_bytes())
+                out.append((reply_session(reply), reply.ok.payload.to_bytes()))
         return out
 
     async def _query(self, vehicle_id: str, kind: str) -> None:
         key = VehicleKeys(vehicle_id).key(kind)
         try:
-            payloads = await asyncio.get_running_loop().run_in_executor(None, self._get, key)
+            replies = await asyncio.get_running_loop().run_in_executor(None, self._get, key)
         except Exception as exc:  # noqa: BLE001 - Zenoh raises ZError for a closed session
             log.warning("%s: query failed: %s", key, exc)
-            payloads = []
+            replies = []
         now = self.now_s()
-        if kind == "footprint":
-            for p in payloads[:1]:
-                try:
-                    self.watcher.on_footprint(vehicle_id, decode_footprint(p, key), now)
-                    self.version += 1
-                except BusPayloadError as exc:
-                    self.watcher.on_bad_payload(vehicle_id, exc)
-            return
-        if kind == "mission":
-            self._mission_reply(vehicle_id, key, payloads[:1], now)
-            return
-        for p in payloads[:1]:
-            if self.record is not None:
-                self.record(vehicle_id, "snapshot", p)
-            try:
-                state = decode_snapshot(p, key)
-            except BusPayloadError as exc:
-                self.watcher.on_bad_payload(vehicle_id, exc)
-                log.warning("%s", exc)
-                break
-            self.version += 1
-            self._do(self.watcher.on_snapshot(vehicle_id, state, now))
-            return
-        self.watcher.on_snapshot_failed(vehicle_id, now)
+        def decode(payload: bytes, key: str) -> Any:
+            if kind == "mission":
+                return decode_mission(payload, key, vehicle_id)
+            return (decode_snapshot if kind == "snapshot" else decode_footprint)(payload, key)
 
-    def _mission_reply(self, vehicle_id: str, key: str, payloads: list[bytes],
-                       now: float) -> None:
-        for p in payloads:
-            if self.record is not None:
-                self.record(vehicle_id, "mission", p)
+        decoded = []
+        for source, payload in replies:
             try:
-                mission = decode_mission(p, key, vehicle_id)
+                decoded.append((source, decode(payload, key), payload))
             except BusPayloadError as exc:
                 self.watcher.on_bad_payload(vehicle_id, exc)
                 log.warning("%s", exc)
+        if kind == "snapshot":
+            self._do(self.watcher.on_snapshot_replies(
+                vehicle_id, [(source, state) for source, state, _ in decoded], now))
+        elif not decoded and kind == "mission":
+            self.watcher.on_mission_failed(vehicle_id, now)
+        for source, doc, _ in decoded:
+            if kind == "mission":
+                self.watcher.on_mission(vehicle_id, doc, now, source)
+            elif kind == "footprint":
+                self.watcher.on_footprint(vehicle_id, doc, now, source)
+        self.version += 1
+        if kind != "footprint":
+            trusted = self.watcher.taken_from(vehicle_id, kind)
+            for source, _, payload in decoded:
+                if source != trusted:
+                    continue
+                self._record(vehicle_id, kind, payload)
                 break
-            self.watcher.on_mission(vehicle_id, mission, now)
-            self.version += 1
-            return
-        self.watcher.on_mission_failed(vehicle_id, now)

@@ -87,6 +87,7 @@ def render(report: FleetReport) -> Any:
     parts.append(table)
     if any(not v.grid_ready for v in report.vehicles):
         parts.append(Text("* grid not yet received: figures from its status"))
+    parts += [Text(f"! {line}", style="bold yellow") for line in report.warnings]
     return Group(*parts)
 
 

@@ -18,25 +18,45 @@ Each vehicle's mission geometry (docs/protocol.md "mission") is asked for once i
 hash is known (first status, or snapshot) and again whenever that hash changes; a failed or
 stale reply is asked again after ``mission_retry_s``.
 
+Each vehicle is pinned to the Zenoh session that answers its snapshot (ground/claims.py):
+status, tiles, mission and footprint from any other session are refused and counted, and a
+snapshot query answered by two sessions leaves the vehicle contested (not trusted, shown).
+A status of the pinned session is checked against the grid rebuilt from its tiles whenever
+both describe the same frames; a disagreement beyond rounding is counted, shown and
+answered by a fresh snapshot.
+
 The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIGN.md: grids
-merge by adding). ``now_s`` is the watcher's own monotonic clock in seconds.
+merge by adding): the ground station's mission grid when it has one, else the grid most
+vehicles share (ties: the vehicle heard first). ``now_s`` is the watcher's own monotonic
+clock in seconds.
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
+from pdcov.ground.claims import ClaimVerdict, Session, SessionClaim, short_session
 
-__all__ = ["FleetReport", "QueryMission", "QuerySnapshot", "VehicleFeed", "VehicleReport",
-           "Watcher"]
+__all__ = ["MAX_VEHICLES", "FleetReport", "QueryMission", "QuerySnapshot", "VehicleFeed",
+           "VehicleReport", "Watcher"]
+
+MAX_VEHICLES = 64
+"""Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
+open bus could otherwise invent vehicles without end)."""
+STATUS_PD_TOLERANCE = 1e-6
+"""How far a status's mean P_D may be from the rebuilt grid's (the daemon sums per tile in
+float64: about 1e-16 apart; the status carries full float64 digits)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,6 +95,27 @@ class VehicleReport:
     gaps: int
     snapshots: int
     bad_payloads: int
+    session: str | None = None
+    rivals: tuple[str, ...] = ()
+    contested: bool = False
+    refused: int = 0
+    status_disagreements: int = 0
+    status_agrees: bool | None = None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What the operator must be told about this vehicle, one line each."""
+        out = []
+        if self.contested:
+            out.append(f"{self.vehicle_id}: sessions {', '.join(self.rivals)} all answer as "
+                       "this vehicle: its map is not trusted until one remains")
+        elif self.rivals:
+            out.append(f"{self.vehicle_id}: session {', '.join(self.rivals)} also claims this "
+                       f"vehicle ({self.refused} samples refused; trusted: {self.session})")
+        if self.status_agrees is False:
+            out.append(f"{self.vehicle_id}: its status disagrees with the grid rebuilt from "
+                       f"its tiles ({self.status_disagreements} times): grid fetched again")
+        return tuple(out)
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +130,18 @@ class FleetReport:
     proportion_at_or_above: dict[float, float]
     mean_pd: float | None
     cells_free: int
+    refused: dict[str, int] = field(default_factory=dict)
+    bus_warning: str | None = None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The bus's warning, every vehicle's, then the watcher's own refusals."""
+        out = [] if self.bus_warning is None else [self.bus_warning]
+        out += [w for v in self.vehicles for w in v.warnings]
+        if self.refused:
+            out.append("refused: " + ", ".join(f"{n} {why}" for why, n in
+                                               sorted(self.refused.items())))
+        return tuple(out)
 
 
 @dataclass(slots=True)
@@ -101,7 +154,10 @@ class VehicleFeed:
     alive: bool | None = None
     last_msg_s: float | None = None
     awaiting_since_s: float | None = None
-    pending: list[TileUpdate] = field(default_factory=list)
+    pending: list[tuple[TileUpdate, Session]] = field(default_factory=list)
+    status_session: Session = None  # the sessions the status, mission and footprint held
+    mission_session: Session = None  # came from (ground/claims.py)
+    footprint_session: Session = None
     last_seq: int | None = None
     seq_floor: int | None = None
     behind_since_s: float | None = None
@@ -115,29 +171,47 @@ class VehicleFeed:
     snapshots: int = 0
     bad_payloads: int = 0
     received: Counter[str] = field(default_factory=Counter)
+    claim: SessionClaim = field(default_factory=SessionClaim)
+    first_heard_s: float = 0.0
+    status_disagreements: int = 0
+    status_agrees: bool | None = None
 
 
 class Watcher:
     """Per-vehicle grids rebuilt from status, tiles and snapshot replies, and the fleet.
 
-    vehicle: the one vehicle id to follow, or None for all. thresholds: shown until a
-    vehicle's status gives its own (the mission config's). snapshot_timeout_s: ask again
-    when a snapshot reply has not come in this long. trailing_gap_s: how long a status may
-    announce a tiles sequence number not yet received before the snapshot is asked again.
-    mission_retry_s: when to ask again for a mission that did not come or describes another
-    grid than the vehicle's.
+    vehicle: the one vehicle id to follow, or None for all. thresholds: the ground
+    station's (the mission config's): shown until a vehicle's status gives its own, and the
+    largest is the headline target whatever a vehicle says. grid_hash: the ground station's
+    mission grid (bus.grid_state.grid_hash), which the fleet map shows when vehicles fly
+    several grids. snapshot_timeout_s: ask again when a snapshot reply has not come in this
+    long. trailing_gap_s: how long a status may announce a tiles sequence number not yet
+    received before the snapshot is asked again. mission_retry_s: when to ask again for a
+    mission that did not come or describes another grid than the vehicle's. max_vehicles:
+    vehicles followed at most. bus_warning: what the operator must always be told about the
+    bus (bus.session.BusSecurity.warning), or None.
+
+    Every input takes the Zenoh session it came from (``source``: hex session id, None
+    when the sample named none; ground/claims.py).
     """
 
     def __init__(self, vehicle: str | None = None, *, thresholds: tuple[float, ...] = (),
-                 snapshot_timeout_s: float = 5.0, trailing_gap_s: float = 3.0,
-                 max_track_points: int = 20_000, mission_retry_s: float = 10.0) -> None:
+                 grid_hash: str | None = None, snapshot_timeout_s: float = 5.0,
+                 trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
+                 mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
+                 bus_warning: str | None = None) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
+        self.grid_hash = grid_hash
         self.snapshot_timeout_s = snapshot_timeout_s
         self.trailing_gap_s = trailing_gap_s
         self.mission_retry_s = mission_retry_s
         self.max_track_points = max_track_points
+        self.max_vehicles = max_vehicles
+        self.bus_warning = bus_warning
         self.feeds: dict[str, VehicleFeed] = {}
+        self.refused: Counter[str] = Counter()
+        """Payloads refused before reaching a vehicle, by reason."""
 
     # -- inputs -------------------------------------------------------------------------
 
@@ -146,20 +220,21 @@ class Watcher:
 
     def on_alive(self, vehicle_id: str, alive: bool, now_s: float) -> list[QuerySnapshot]:
         """A liveliness token appeared (alive) or went away."""
-        if not self.wants(vehicle_id):
+        feed = self._feed(vehicle_id, now_s) if self.wants(vehicle_id) else None
+        if feed is None:
             return []
-        feed = self._feed(vehicle_id)
         feed.alive = alive
         return self._ensure_grid(feed, now_s) if alive else []
 
-    def on_status(self, vehicle_id: str, doc: dict[str, Any], now_s: float
-                  ) -> list[QuerySnapshot]:
-        """A decoded status (bus.status.decode_status)."""
-        if not self.wants(vehicle_id):
-            return []
-        feed = self._touch(vehicle_id, "status", now_s)
+    def on_status(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
+                  source: Session = None) -> list[QuerySnapshot]:
+        """A decoded status (bus.status.decode_status) from session ``source``."""
+        feed, refused = self._take(vehicle_id, "status", source, now_s)
+        if feed is None:
+            return refused
         previous = feed.status
         feed.status = doc = merge_status(previous, doc)
+        feed.status_session = source
         pose = doc.get("pose")
         if isinstance(pose, dict):
             self._add_track_point(feed, pose)
@@ -175,11 +250,18 @@ class Watcher:
         if feed.awaiting_since_s is not None:
             return []
         if state is not None and announced == feed.last_seq:
-            # Caught up: frames added since the last tiles changed no cell, so the grid is
-            # the daemon's as of this status; take its frame count.
+            # Caught up: the grid holds every tiles message this status counts.
             frames = doc["frames"]
             n = frames.get("grid", frames.get("used"))
-            if isinstance(n, int) and n > state.frames:
+            if isinstance(n, int) and n == state.frames and doc.get("tiles_behind") == 0:
+                if not self._status_agrees(state, doc):
+                    feed.status_disagreements += 1
+                    feed.status_agrees = False
+                    return self._requery(feed, now_s)
+                feed.status_agrees = True
+            elif isinstance(n, int) and n > state.frames:
+                # Frames added since the last tiles changed no cell, or their tiles are
+                # still to come: either way the next status tells.
                 state.frames = n
         if feed.last_seq is None and feed.seq_floor is None:
             feed.seq_floor = announced  # first status since the snapshot: no tiles owed yet
@@ -191,37 +273,61 @@ class Watcher:
             feed.behind_since_s = None
         return []
 
-    def on_tiles(self, vehicle_id: str, update: TileUpdate, now_s: float
-                 ) -> list[QuerySnapshot]:
-        """A decoded tiles message (bus.tiles.decode_tiles)."""
-        if not self.wants(vehicle_id):
-            return []
-        feed = self._touch(vehicle_id, "tiles", now_s)
+    def on_tiles(self, vehicle_id: str, update: TileUpdate, now_s: float,
+                 source: Session = None) -> list[QuerySnapshot]:
+        """A decoded tiles message (bus.tiles.decode_tiles) from session ``source``."""
+        feed, refused = self._take(vehicle_id, "tiles", source, now_s)
+        if feed is None:
+            return refused
         if feed.state is None or feed.awaiting_since_s is not None:
-            feed.pending.append(update)
+            feed.pending.append((update, source))
             return self._ensure_grid(feed, now_s)
         return self._apply(feed, update, now_s)
 
-    def on_snapshot(self, vehicle_id: str, state: GridState, now_s: float
-                    ) -> list[QuerySnapshot]:
-        """A decoded snapshot reply (bus.grid_state.decode_snapshot)."""
-        if not self.wants(vehicle_id):
+    def on_snapshot(self, vehicle_id: str, state: GridState, now_s: float,
+                    source: Session = None) -> list[QuerySnapshot]:
+        """A decoded snapshot reply (bus.grid_state.decode_snapshot), the only one its
+        query received."""
+        return self.on_snapshot_replies(vehicle_id, [(source, state)], now_s)
+
+    def on_snapshot_replies(self, vehicle_id: str,
+                            replies: Sequence[tuple[Session, GridState]], now_s: float
+                            ) -> list[QuerySnapshot]:
+        """Every decoded reply one snapshot query received, with its replier's session.
+        Replies from two or more sessions contest the vehicle: no grid is trusted and the
+        query is made again after snapshot_timeout_s."""
+        feed = self._feed(vehicle_id, now_s) if self.wants(vehicle_id) else None
+        if feed is None or not replies:
+            return [] if feed is None else self.on_snapshot_failed(vehicle_id, now_s)
+        self._touch(feed, "snapshot", now_s)
+        if not feed.claim.on_answers({s for s, _ in replies}, now_s):
+            feed.state = None
+            feed.pending = []
+            feed.awaiting_since_s = now_s
             return []
-        feed = self._touch(vehicle_id, "snapshot", now_s)
+        session, state = replies[0]
         feed.state = state
         feed.snapshots += 1
         feed.awaiting_since_s = None
         feed.behind_since_s = None
         feed.last_seq = None
         feed.seq_floor = None
-        pending, feed.pending = sorted(feed.pending, key=lambda u: u.seq), []
-        for update in pending:
-            if update.grid_hash != state.hash:
-                continue  # published for another grid (before a restart): superseded
+        feed.status_agrees = None
+        # What came before the pin from another session was provisional: dropped.
+        if feed.status_session != session:
+            feed.status = None
+        if feed.mission_session != session:
+            feed.mission, feed.mission_asked_for = None, None
+        if feed.footprint_session != session:
+            feed.footprint = None
+        pending, feed.pending = sorted(feed.pending, key=lambda u: u[0].seq), []
+        for update, source in pending:
+            if source != session or update.grid_hash != state.hash:
+                continue  # another session's, or for another grid (before a restart)
             if update.frames <= state.frames:
                 feed.last_seq = update.seq  # already inside the snapshot
                 continue
-            actions = self._apply(feed, update, now_s)
+            actions = self._apply(feed, update, now_s, after_snapshot=True)
             if actions:
                 return actions
         return []
@@ -229,32 +335,40 @@ class Watcher:
     def on_snapshot_failed(self, vehicle_id: str, now_s: float) -> list[QuerySnapshot]:
         """No usable snapshot reply came (timeout, no queryable, bad payload): ask again at
         the next poll after snapshot_timeout_s."""
-        feed = self._feed(vehicle_id)
-        if feed.awaiting_since_s is not None:
+        feed = self.feeds.get(vehicle_id)
+        if feed is not None and feed.awaiting_since_s is not None:
             feed.awaiting_since_s = min(feed.awaiting_since_s, now_s - self.snapshot_timeout_s)
         return []
 
-    def on_footprint(self, vehicle_id: str, doc: dict[str, Any], now_s: float) -> None:
+    def on_footprint(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
+                     source: Session = None) -> None:
         """A decoded footprint reply (bus.footprint.decode_footprint)."""
-        if self.wants(vehicle_id):
-            self._touch(vehicle_id, "footprint", now_s).footprint = doc
+        feed = self._trusted(vehicle_id, source, now_s)
+        if feed is not None:
+            self._touch(feed, "footprint", now_s).footprint = doc
+            feed.footprint_session = source
 
-    def on_mission(self, vehicle_id: str, mission: MissionGeometry, now_s: float) -> None:
+    def on_mission(self, vehicle_id: str, mission: MissionGeometry, now_s: float,
+                   source: Session = None) -> None:
         """A decoded mission reply (bus.mission.decode_mission). Kept even when it describes
         another grid than the vehicle's (the daemon may be restarting): ``mission_for``
         matches by grid hash, and such a reply is asked again after mission_retry_s."""
-        if not self.wants(vehicle_id):
+        feed = self._trusted(vehicle_id, source, now_s)
+        if feed is None:
+            if vehicle_id in self.feeds:
+                self.on_mission_failed(vehicle_id, now_s)
             return
-        feed = self._touch(vehicle_id, "mission", now_s)
-        feed.mission = mission
+        self._touch(feed, "mission", now_s)
+        feed.mission, feed.mission_session = mission, source
         stale = mission.grid_hash != self._grid_hash(feed)
         feed.mission_retry_at_s = now_s + self.mission_retry_s if stale else None
 
     def on_mission_failed(self, vehicle_id: str, now_s: float) -> None:
         """No usable mission reply (timeout, no queryable: an older daemon, bad payload):
         ask again after mission_retry_s."""
-        if self.wants(vehicle_id):
-            self._feed(vehicle_id).mission_retry_at_s = now_s + self.mission_retry_s
+        feed = self.feeds.get(vehicle_id)
+        if feed is not None:
+            feed.mission_retry_at_s = now_s + self.mission_retry_s
 
     def missions_due(self, now_s: float) -> list[QueryMission]:
         """Mission queries to make now: for a vehicle whose grid hash is known and whose
@@ -270,6 +384,16 @@ class Watcher:
                 due.append(QueryMission(feed.vehicle_id))
         return due
 
+    def taken_from(self, vehicle_id: str, kind: str) -> Session | tuple[()]:
+        """The session whose snapshot or mission reply the watcher holds for the vehicle,
+        or () when it holds none (unknown, contested, refused)."""
+        feed = self.feeds.get(vehicle_id)
+        if feed is None:
+            return ()
+        if kind == "mission":
+            return feed.mission_session if feed.mission is not None else ()
+        return feed.claim.session if feed.claim.pinned and feed.state is not None else ()
+
     def mission_for(self, grid_hash: str | None) -> MissionGeometry | None:
         """The mission geometry describing grid ``grid_hash`` (the first vehicle's by id),
         or with None any vehicle's; None when no vehicle sent one."""
@@ -280,9 +404,13 @@ class Watcher:
         return None
 
     def on_bad_payload(self, vehicle_id: str, error: BusPayloadError) -> None:
-        """A payload that did not decode: counted, never applied."""
-        if self.wants(vehicle_id):
-            self._feed(vehicle_id).bad_payloads += 1
+        """A payload that did not decode: counted, never applied, and no vehicle row is
+        made for it."""
+        feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
+        if feed is not None:
+            feed.bad_payloads += 1
+        else:
+            self.refused["bad payloads"] += 1
 
     def poll(self, now_s: float) -> list[QuerySnapshot]:
         """Timers: a snapshot reply overdue, or announced tiles that never came."""
@@ -301,31 +429,41 @@ class Watcher:
     # -- outputs ------------------------------------------------------------------------
 
     def fleet_state(self) -> tuple[GridState | None, tuple[str, ...]]:
-        """The merged grid (log-miss sums and counts added, float32 as the daemons hold
-        them) of the vehicles that share the most common grid, and their ids (sorted)."""
-        ready = [f for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id)
+        """The merged grid of the ready vehicles that share the fleet's grid (log-miss sums
+        added as float32, as the daemons hold them; counts added in int64, which cannot
+        overflow), and their ids (sorted). The fleet's grid is the ground station's
+        (grid_hash) when a vehicle flies it, else the one most vehicles fly (ties: the
+        vehicle heard first)."""
+        ready = [f for f in self.feeds.values()
                  if f.state is not None and f.awaiting_since_s is None]
         if not ready:
             return None, ()
         hashes = Counter(f.state.hash for f in ready if f.state is not None)
-        top = hashes.most_common(1)[0][0]
-        group = [f.state for f in ready if f.state is not None and f.state.hash == top]
-        first = group[0]
-        merged = GridState(first.geometry, first.mask.copy(), first.log_miss_d.copy(),
-                           first.log_miss_fa.copy(), first.n_obs.copy(), first.frames)
-        for s in group[1:]:
+        if self.grid_hash in hashes:
+            top = self.grid_hash
+        else:
+            first = {f.state.hash: f.first_heard_s for f in
+                     sorted(ready, key=lambda f: f.first_heard_s, reverse=True)
+                     if f.state is not None}
+            top = max(hashes, key=lambda h: (hashes[h], -first[h]))
+        group = sorted((f for f in ready if f.state is not None and f.state.hash == top),
+                       key=lambda f: f.vehicle_id)
+        states = [f.state for f in group if f.state is not None]
+        base = states[0]
+        merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
+                           base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
+        for s in states[1:]:
             merged.log_miss_d += s.log_miss_d
             merged.log_miss_fa += s.log_miss_fa
             merged.n_obs += s.n_obs
             merged.frames += s.frames
-        ids = tuple(f.vehicle_id for f in ready if f.state is not None and f.state.hash == top)
-        return merged, ids
+        return merged, tuple(f.vehicle_id for f in group)
 
     def report(self, now_s: float) -> FleetReport:
         """Every vehicle's figures and the fleet's, as of ``now_s``."""
         vehicles = tuple(self._vehicle_report(f, now_s)
                          for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id))
-        thresholds = _union_thresholds(v.thresholds for v in vehicles)
+        thresholds = _union_thresholds([self.thresholds, *(v.thresholds for v in vehicles)])
         merged, ids = self.fleet_state()
         props: dict[float, float] = {}
         mean_pd = None
@@ -334,19 +472,46 @@ class Watcher:
             props = {t: merged.proportion_at_or_above(t) for t in thresholds}
             cells_free = int(merged.mask.sum())
             mean_pd = float(merged.pd[merged.mask].mean()) if cells_free else 0.0
-        return FleetReport(vehicles, ids, thresholds, max(thresholds) if thresholds else None,
-                           props, mean_pd, cells_free)
+        target = max(self.thresholds or thresholds) if thresholds else None
+        return FleetReport(vehicles, ids, thresholds, target, props, mean_pd, cells_free,
+                           dict(self.refused), self.bus_warning)
 
     # -- internals ----------------------------------------------------------------------
 
-    def _feed(self, vehicle_id: str) -> VehicleFeed:
+    def _feed(self, vehicle_id: str, now_s: float) -> VehicleFeed | None:
+        """The vehicle's feed, made on first contact; None (counted) beyond max_vehicles."""
         feed = self.feeds.get(vehicle_id)
         if feed is None:
-            feed = self.feeds[vehicle_id] = VehicleFeed(vehicle_id)
+            if len(self.feeds) >= self.max_vehicles:
+                self.refused[f"vehicles beyond the limit of {self.max_vehicles}"] += 1
+                return None
+            feed = self.feeds[vehicle_id] = VehicleFeed(vehicle_id, first_heard_s=now_s)
         return feed
 
-    def _touch(self, vehicle_id: str, kind: str, now_s: float) -> VehicleFeed:
-        feed = self._feed(vehicle_id)
+    def _take(self, vehicle_id: str, kind: str, source: Session, now_s: float
+              ) -> tuple[VehicleFeed | None, list[QuerySnapshot]]:
+        """The feed to apply a status or tiles sample to, or None when it is not wanted or
+        refused (another session's); then the snapshot query a rival's sample may call
+        for."""
+        feed = self._feed(vehicle_id, now_s) if self.wants(vehicle_id) else None
+        if feed is None:
+            return None, []
+        if feed.claim.verdict(source, now_s) is ClaimVerdict.REFUSE:
+            if feed.claim.recheck_due(now_s):
+                return None, self._requery(feed, now_s)
+            return None, []
+        return self._touch(feed, kind, now_s), []
+
+    def _trusted(self, vehicle_id: str, source: Session, now_s: float) -> VehicleFeed | None:
+        """The feed when a query reply (mission, footprint) from ``source`` may be taken:
+        the pinned session's, or any uncontested one's before a snapshot pinned one."""
+        feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
+        if feed is None or feed.claim.verdict(source, now_s) is ClaimVerdict.REFUSE:
+            return None
+        return feed
+
+    @staticmethod
+    def _touch(feed: VehicleFeed, kind: str, now_s: float) -> VehicleFeed:
         feed.last_msg_s = now_s
         feed.received[kind] += 1
         return feed
@@ -372,8 +537,11 @@ class Watcher:
         feed.pending = []
         return [QuerySnapshot(feed.vehicle_id)]
 
-    def _apply(self, feed: VehicleFeed, update: TileUpdate, now_s: float
-               ) -> list[QuerySnapshot]:
+    def _apply(self, feed: VehicleFeed, update: TileUpdate, now_s: float, *,
+               after_snapshot: bool = False) -> list[QuerySnapshot]:
+        """Apply the next tiles message in sequence; a gap or a message for another grid
+        asks for the snapshot and keeps the message for after it, but one that fails
+        against the snapshot just taken (``after_snapshot``) is dropped, never replayed."""
         state = feed.state
         if state is None:
             raise RuntimeError("_apply without a grid")  # callers check; a bug if reached
@@ -383,14 +551,16 @@ class Watcher:
             if update.seq != feed.last_seq + 1:
                 feed.gaps += 1
                 actions = self._requery(feed, now_s)
-                feed.pending.append(update)
+                feed.pending.append((update, feed.claim.session))
                 return actions
         try:
             apply_tiles(state, update, key=f"pdcov/{feed.vehicle_id}/tiles")
         except BusPayloadError:
             feed.bad_payloads += 1  # another grid: the daemon restarted with a new mission
+            if after_snapshot:
+                return []
             actions = self._requery(feed, now_s)
-            feed.pending.append(update)
+            feed.pending.append((update, feed.claim.session))
             return actions
         feed.last_seq = update.seq
         status = feed.status
@@ -415,6 +585,7 @@ class Watcher:
 
     def _vehicle_report(self, feed: VehicleFeed, now_s: float) -> VehicleReport:
         status = feed.status or {}
+        claim = feed.claim
         thresholds = tuple(float(t) for t in status.get("thresholds", self.thresholds))
         status_props = {float(k): float(v)
                         for k, v in (status.get("proportion_at_or_above") or {}).items()}
@@ -439,7 +610,28 @@ class Watcher:
             link=str(link.get("state", "")) if isinstance(link, dict) else str(link),
             age_s=None if feed.last_msg_s is None else max(0.0, now_s - feed.last_msg_s),
             status_proportion_at_or_above=status_props, gaps=feed.gaps,
-            snapshots=feed.snapshots, bad_payloads=feed.bad_payloads)
+            snapshots=feed.snapshots, bad_payloads=feed.bad_payloads,
+            session=short_session(claim.session) if claim.pinned else None,
+            rivals=tuple(short_session(s) for s in (claim.contested or claim.rivals(now_s))),
+            contested=bool(claim.contested), refused=claim.refused,
+            status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees)
+
+    @staticmethod
+    def _status_agrees(state: GridState, doc: dict[str, Any]) -> bool:
+        """Whether the status's figures are those of the rebuilt grid (same frames, every
+        changed tile sent): each
+        share at a threshold within half a cell, mean P_D within STATUS_PD_TOLERANCE."""
+        free = int(state.mask.sum())
+        if doc["cells_free"] != free:
+            return False
+        if not free:
+            return True
+        pd = state.pd[state.mask]
+        for name, share in doc["proportion_at_or_above"].items():
+            t = float(name)
+            if abs(float((pd >= t).sum()) / free - share) > 0.5 / free:
+                return False
+        return abs(float(pd.mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE
 
 
 def _union_thresholds(groups: Any) -> tuple[float, ...]:
