@@ -598,5 +598,9 @@ class LiveCoverage:
                      "origin": {"lat_deg": m.origin_lat_deg, "lon_deg": m.origin_lon_deg,
                                 "ground_alt_msl_m": self.origin.ground_alt_msl_m
                                 if self.origin else None, "how": self.origin_how}},
-            "tiles_seq": self.tiles_seq - 1, "faults": faults, "checkpoint": checkpoint,
+            "tiles_seq": self.tiles_seq - 1,
+            # Changed tiles not yet sent (the bandwidth budget holds them back): with 0, a
+            # watcher holding tiles_seq and frames.grid holds this grid exactly.
+            "tiles_behind": len(self._dirty_since),
+            "faults": faults, "checkpoint": checkpoint,
         }
