@@ -16,10 +16,14 @@ from __future__ import annotations
 
 import io
 import json
+import logging
+import os
 import struct
 import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
 
 import numpy as np
 
@@ -31,6 +35,21 @@ from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 
 TILE_RECORD = struct.Struct("<dI")
+MAX_BACKLOG_BYTES = 64 << 20
+"""Most bytes of received payloads kept while the disk refuses them (Recording)."""
+
+log = logging.getLogger("pdcov.watch")
+
+
+def _status_line(t: float, payload: bytes) -> bytes:
+    """The status.jsonl line of a status: its JSON object, or (not strict JSON: not UTF-8,
+    not JSON, a NaN or infinity in it) its text as a string, so every line stays JSON."""
+    text = payload.decode("utf-8", "replace")
+    try:
+        line = json.dumps({"recv_unix_s": t, "status": json.loads(text)}, allow_nan=False)
+    except (ValueError, RecursionError):
+        line = json.dumps({"recv_unix_s": t, "status": text})
+    return (line + "\n").encode()
 
 
 def write_state_npz(path: Path, state: GridState) -> None:
@@ -48,10 +67,31 @@ def write_state_npz(path: Path, state: GridState) -> None:
         fh.write(buf.getvalue())
 
 
-class Recording:
-    """Appends what is received under ``out``; call ``close`` (then ``finish``) at the end."""
+@dataclass(slots=True)
+class _Pending:
+    """A payload's bytes waiting to be written: appended to ``path`` (status.jsonl,
+    tiles.bin; ``done`` bytes already are) or written as the whole file (replies)."""
 
-    def __init__(self, out: Path) -> None:
+    path: Path
+    data: bytes
+    append: bool
+    done: int = 0
+
+
+class Recording:
+    """Appends what is received under ``out``; call ``close`` (then ``finish``) at the end.
+
+    Never raises to its caller once made: a write that fails (a full disk, EIO) is logged
+    once per episode and counted, its payload and those after it wait in order in a
+    backlog of at most ``max_backlog_bytes`` (what does not fit is dropped and counted)
+    and are written at the next call (or ``flush``). What the views may show:
+    ``write_errors`` (failed attempts), ``last_error`` (the current episode's, None while
+    writing works), ``pending`` (payloads waiting), ``dropped`` (never recorded).
+    ``write``: os.write, or a stand-in for tests (same contract: bytes written, or
+    OSError)."""
+
+    def __init__(self, out: Path, *, max_backlog_bytes: int = MAX_BACKLOG_BYTES,
+                 write: Callable[[int, memoryview], int] = os.write) -> None:
         self.out = Path(out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
@@ -61,45 +101,121 @@ class Recording:
                              f"({exc.strerror or exc})") from None
         if used:  # appending to another run's files would mix two recordings
             raise PdcovError(f"--record {out}: the folder is not empty; give a new one")
-        self._files: dict[tuple[str, str], IO[Any]] = {}
+        self.max_backlog_bytes = max_backlog_bytes
+        self._write = write
+        self._fds: dict[Path, int] = {}
         self._replies: dict[tuple[str, str], int] = {}
+        self._backlog: deque[_Pending] = deque()
+        self._backlog_bytes = 0
+        self.write_errors = 0
+        self.dropped = 0
+        self.last_error: str | None = None
 
-    def _file(self, vid: str, name: str, mode: str) -> IO[Any]:
-        f = self._files.get((vid, name))
-        if f is None:
-            (self.out / vid).mkdir(exist_ok=True)
-            f = self._files[(vid, name)] = open(self.out / vid / name, mode)  # noqa: SIM115
-        return f
+    @property
+    def pending(self) -> int:
+        """Payloads received but not yet written."""
+        return len(self._backlog)
 
     def __call__(self, vehicle_id: str, kind: str, payload: bytes) -> None:
-        t = time.time()
+        item = self._item(vehicle_id, kind, bytes(payload), time.time())
+        if item is None:
+            return
+        if self._backlog and self._backlog_bytes + len(item.data) > self.max_backlog_bytes:
+            self.dropped += 1  # the backlog is full: keep the older, in order
+        else:
+            self._backlog.append(item)
+            self._backlog_bytes += len(item.data)
+        self.flush()
+
+    def _item(self, vid: str, kind: str, payload: bytes, t: float) -> _Pending | None:
+        folder = self.out / vid
         if kind == "status":
-            try:
-                doc: Any = json.loads(payload.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                doc = payload.decode("utf-8", "replace")
-            f = self._file(vehicle_id, "status.jsonl", "a")
-            f.write(json.dumps({"recv_unix_s": t, "status": doc}) + "\n")
-            f.flush()
-        elif kind == "tiles":
-            f = self._file(vehicle_id, "tiles.bin", "ab")
-            f.write(TILE_RECORD.pack(t, len(payload)) + payload)
-            f.flush()
-        elif kind in ("snapshot", "mission"):
-            n = self._replies.get((vehicle_id, kind), 0) + 1
-            self._replies[(vehicle_id, kind)] = n
-            (self.out / vehicle_id).mkdir(exist_ok=True)
+            return _Pending(folder / "status.jsonl", _status_line(t, payload), append=True)
+        if kind == "tiles":
+            return _Pending(folder / "tiles.bin", TILE_RECORD.pack(t, len(payload)) + payload,
+                            append=True)
+        if kind in ("snapshot", "mission"):
+            n = self._replies[(vid, kind)] = self._replies.get((vid, kind), 0) + 1
             ext = "npz" if kind == "snapshot" else "json"
-            (self.out / vehicle_id / f"{kind}-{n}.{ext}").write_bytes(payload)
+            return _Pending(folder / f"{kind}-{n}.{ext}", payload, append=False)
+        return None
+
+    def flush(self) -> bool:
+        """Write the backlog in order, stopping at the first failure (kept for the next
+        try); True when nothing is left."""
+        while self._backlog:
+            item = self._backlog[0]
+            try:
+                self._put(item)
+            except OSError as exc:
+                self.write_errors += 1
+                if self.last_error is None:
+                    log.warning("record: cannot write %s (%s); keeping up to %d bytes of "
+                                "what arrives and retrying", item.path,
+                                exc.strerror or exc, self.max_backlog_bytes)
+                self.last_error = f"{item.path}: {exc.strerror or exc}"
+                return False
+            self._backlog.popleft()
+            self._backlog_bytes -= len(item.data)
+        if self.last_error is not None:
+            log.warning("record: writing again (%d failed attempts, %d payloads dropped so "
+                        "far)", self.write_errors, self.dropped)
+            self.last_error = None
+        return True
+
+    def _put(self, item: _Pending) -> None:
+        """Write what is left of ``item``; a partial write advances ``item.done`` (an
+        append never repeats bytes), a whole file starts again at the next try."""
+        item.path.parent.mkdir(exist_ok=True)
+        if item.append:
+            fd = self._fds.get(item.path)
+            if fd is None:
+                fd = self._fds[item.path] = os.open(
+                    item.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+            self._write_all(fd, item)
+            return
+        item.done = 0
+        fd = os.open(item.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            self._write_all(fd, item)
+        finally:
+            os.close(fd)
+
+    def _write_all(self, fd: int, item: _Pending) -> None:
+        view = memoryview(item.data)
+        while item.done < len(view):
+            item.done += self._write(fd, view[item.done:])
 
     def close(self) -> None:
-        for f in self._files.values():
-            f.close()
-        self._files.clear()
+        """A last try at the backlog, then the files are closed; what could not be written
+        is logged (and stays counted in ``pending``)."""
+        if not self.flush():
+            log.warning("record: %d payloads (%d bytes) could not be written: %s",
+                        self.pending, self._backlog_bytes, self.last_error)
+        for fd in self._fds.values():
+            try:
+                os.close(fd)
+            except OSError as exc:  # a deferred write error (NFS): the data may be lost
+                self.write_errors += 1
+                self.last_error = f"closing a file: {exc.strerror or exc}"
+        self._fds.clear()
 
     def finish(self, watcher: Watcher, mission: Mission | None) -> list[str]:
         """Write each vehicle's rebuilt grid and the fleet's grid and report; returns lines
-        saying what was written."""
+        saying what was written, and what could not be (a write error is one of them,
+        never raised)."""
+        lines = []
+        if self.pending or self.dropped:
+            lines.append(f"record: {self.pending + self.dropped} received payloads are not "
+                         f"in {self.out} ({self.dropped} dropped while the disk refused "
+                         f"writes; last error: {self.last_error or 'none now'})")
+        try:
+            return lines + self._finish(watcher, mission)
+        except OSError as exc:
+            return lines + [f"record: could not write the final grids in {self.out}: "
+                            f"{exc.strerror or exc}"]
+
+    def _finish(self, watcher: Watcher, mission: Mission | None) -> list[str]:
         lines = []
         for vid, feed in sorted(watcher.feeds.items()):
             if feed.state is not None:
