@@ -53,7 +53,9 @@ ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "reliability.md"
 DOC_START, DOC_END = "<!-- fleet-security:start -->", "<!-- fleet-security:end -->"
 SECURITY_TESTS = ("tests/test_security_zenoh.py", "tests/test_security_mavlink.py",
-                  "tests/test_status_size.py", "tests/test_web_auth.py")
+                  "tests/test_status_size.py", "tests/test_web_auth.py",
+                  "tests/test_bus_hostile.py", "tests/test_web_hostile.py",
+                  "tests/test_record_errors.py")
 SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Zenoh over TLS',
      "a TLS router; a client trusting the CA receives a peer's put; a client trusting "
@@ -105,6 +107,22 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      'statuses averages under 1000 B/s (tests/test_status_size.py); per vehicle in the '
      "fleet above on the daemon's clock: see its status column (a checkpoint every 5 s "
      'makes every fifth status full: over the budget, tests/test_fleet.py expects it)'),
+    ('Hostile payloads',
+     'every status, tiles, snapshot, footprint and mission field the watcher and the web '
+     'map read, of the wrong type, out of range, NaN / Infinity / 1e400 or beyond a bound '
+     '(payload bytes per kind, 64 thresholds, 16 M cells): refused naming the key and the '
+     'field, with a reason to count; a 0.3 MB snapshot and a tiles message declaring 25 M '
+     "cells: refused from their headers, nothing inflated; a rogue session's statuses "
+     '(`{"abc": 0.5}`, `["x"]`, `Infinity`, 5,500 thresholds) on the default bus: `pdcov '
+     "watch --web` keeps running, its map strict JSON and uav1's figures its daemon's"),
+    ('Web map under load',
+     '40 live-event clients and 10 `/state.json` readers: the state built once per '
+     'change, not once per client; non-finite values reach the page as null; an update '
+     'the page cannot read shows a banner (app.js run by node)'),
+    ('Recorder on a failing disk',
+     '`--record` with writes failing (ENOSPC, EIO, short writes, `/dev/full`): nothing '
+     'raised, logged once per episode, counted; the recording complete once the disk '
+     'takes writes again; the backlog bounded (64 MiB), what overflows counted'),
     ('systemd hardening',
      '`systemd-analyze security --offline=true systemd/pdcov.service` (directives and '
      'why: docs/operations.md section 4)'),
