@@ -16,16 +16,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+import zenoh
 from link_feed import Hover, pack
-from serve_harness import free_port, process, router, serve_args, serve_config, stop
+from serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+    stop,
+)
 
 from benchmarks.harness import small_mission
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.core.pose import CameraPose
+from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.daemon import Daemon
 from pdcov.service.mavlink_io import ReplyPeers
+from pdcov.service.query_limit import QueryLimiter, QueryLimits, QueryRefusal
 from pdcov.service.settings import load_serve_config
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -271,3 +282,117 @@ def test_mavlink_is_answered_only_to_the_autopilot_not_to_rogue_senders(tmp_path
     assert len(peers) == 1 and peers[0][0] == "127.0.0.1", peers
     assert pymavlink_clients == 0
     assert d.live.counters.used > 0  # the autopilot's telemetry was taken meanwhile
+
+
+# --- 2. snapshot replies rate-limited per requester -------------------------------------------
+
+LIMITS = QueryLimits(per_requester_hz=2.0, burst=3, max_bytes_per_s=10_000, max_requesters=4)
+
+
+def test_each_requester_gets_its_burst_then_its_rate() -> None:
+    q = QueryLimiter(LIMITS)
+    answered = [q.admit("a", 0.0) is None for _ in range(5)]
+    assert answered == [True, True, True, False, False]
+    assert q.admit("b", 0.0) is None  # another requester has its own bucket
+    assert q.admit("a", 0.49) is QueryRefusal.REQUESTER_RATE  # 0.98 of a reply refilled
+    assert q.admit("a", 0.5) is None and q.admit("a", 0.5) is not None
+    # 10 s later the bucket is full again, not fuller: the burst, no more.
+    assert [q.admit("a", 10.5) is None for _ in range(4)] == [True, True, True, False]
+    assert q.refused[QueryRefusal.REQUESTER_RATE] == 5
+
+
+def test_anonymous_queries_share_one_bucket_and_so_do_newcomers_past_the_bound() -> None:
+    q = QueryLimiter(LIMITS)
+    assert [q.admit(None, 0.0) is None for _ in range(4)] == [True, True, True, False]
+    for k in range(3):  # with the anonymous bucket: 4 = max_requesters
+        assert q.admit(f"zid{k}", 0.0) is None
+    assert q.admit("late", 0.0) is QueryRefusal.REQUESTER_RATE  # the anonymous bucket, empty
+    # Once a requester's bucket is full again it is forgotten: room for a newcomer.
+    assert q.admit("later", 5.0) is None and q.admit("later", 5.0) is None
+    assert len(q._buckets) <= LIMITS.max_requesters
+
+
+def test_all_replies_together_are_capped_in_bytes_per_second() -> None:
+    q = QueryLimiter(LIMITS)
+    t = 0.0
+    sent = 0
+    for k in range(400):  # 20 requesters, each within its own rate, 6 kB snapshots
+        t = k * 0.025
+        if q.admit(f"zid{k % 20}", t) is None:
+            q.sent(6_000)
+            sent += 6_000
+    # 10 s at 10 kB/s plus the first second's worth and one snapshot of debt.
+    assert sent <= 10_000 * t + 10_000 + 6_000, sent
+    assert sent >= 10_000 * t - 6_000, sent
+    assert q.refused[QueryRefusal.BYTE_RATE] > 0
+    # One snapshot larger than a second's worth still goes when the bucket holds bytes.
+    big = QueryLimiter(LIMITS)
+    assert big.admit("a", 0.0) is None
+    big.sent(50_000)
+    assert big.admit("b", 1.0) is QueryRefusal.BYTE_RATE
+    assert big.admit("b", 4.1) is None
+
+
+def test_limits_are_checked_when_built() -> None:
+    with pytest.raises(ConfigError, match="per_requester_hz"):
+        QueryLimits(per_requester_hz=0.0)
+    with pytest.raises(ConfigError, match="burst"):
+        QueryLimits(burst=0)
+    assert "2 snapshot/s per requester (burst 3)" in LIMITS.reason(QueryRefusal.REQUESTER_RATE)
+
+
+def snapshot_queries(session, key: str, n: int, *, declare_source: bool
+                     ) -> tuple[int, list[str]]:
+    """``n`` snapshot queries one after the other, as fast as they are answered, with the
+    session's source info or none: (snapshots received, error replies' texts)."""
+    ok, errors = 0, []
+    for k in range(n):
+        more = {"source_info": zenoh.SourceInfo(session.id, k)} if declare_source else {}
+        for reply in session.get(key, timeout=10.0, **more):
+            if reply.ok is not None:
+                ok += 1
+            else:
+                errors.append(reply.err.payload.to_bytes().decode())
+    return ok, errors
+
+
+@pytest.mark.e2e
+def test_a_flood_of_snapshot_queries_is_refused_and_others_still_get_theirs(tmp_path) -> None:
+    zport = free_port()
+    cfg_path = config(tmp_path, "uav1", state=tmp_path / "state", zenoh_port=zport)
+    r = router(zport)
+    sub = Subscriber(zport, "uav1")
+    keys = VehicleKeys("uav1")
+    flooder, anonymous, other = (open_session(BusConfig(
+        mode="client", connect=(f"tcp/127.0.0.1:{zport}",), multicast_scouting=False))
+        for _ in range(3))
+    try:
+        with process(serve_args(cfg_path, "--connect", f"udpin:127.0.0.1:{free_port()}"),
+                     tmp_path / "serve.log") as daemon:
+            sub.wait(lambda s: True, 60, "the daemon's first status")
+            t0 = time.monotonic()
+            flood_ok, flood_err = snapshot_queries(flooder, keys.snapshot, 40,
+                                                   declare_source=True)
+            elapsed_s = time.monotonic() - t0
+            anon_ok, anon_err = snapshot_queries(anonymous, keys.snapshot, 40,
+                                                 declare_source=False)
+            other_ok, other_err = snapshot_queries(other, keys.snapshot, 1,
+                                                   declare_source=True)
+            st = sub.wait(lambda s: s["faults"].get("snapshot_queries_refused", 0) > 0, 30,
+                          "the refusals counted")
+            assert daemon.poll() is None, (tmp_path / "serve.log").read_text()[-2000:]
+            assert stop(daemon) == 0
+    finally:
+        for s in (flooder, anonymous, other):
+            s.close()
+        sub.close()
+        r.close()
+    lim = QueryLimits()
+    # Every query answered: a snapshot while its bucket held one, a reason after.
+    assert flood_ok + len(flood_err) == 40 and anon_ok + len(anon_err) == 40
+    assert lim.burst <= flood_ok <= lim.burst + lim.per_requester_hz * elapsed_s + 1
+    # The anonymous bucket is shared: the test's Subscriber took one snapshot from it.
+    assert 1 <= anon_ok <= lim.burst
+    assert flood_err and all(e.startswith("rate limited:") for e in flood_err + anon_err)
+    assert (other_ok, other_err) == (1, [])  # not starved by the flooders
+    assert st["faults"]["snapshot_queries_refused"] >= len(flood_err) + len(anon_err)

@@ -19,6 +19,7 @@ import signal
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,7 @@ from pdcov.service.link_protocol import (
     LinkProtocol,
 )
 from pdcov.service.mavlink_io import Connection, mavlink
+from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.systemd_notify import SystemdNotifier
@@ -58,6 +60,12 @@ EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
 SOURCE_SN_MODULO = 1 << 32
 """Zenoh's source sequence numbers are 32-bit: a publisher's wraps after 2^32 puts."""
+
+
+def requester(query: Any) -> str | None:
+    """The Zenoh session id a query declares in its source info (None: it declares none)."""
+    info = query.source_info
+    return None if info is None else str(info.source_id.zid)
 
 
 class SourcedPublisher:
@@ -140,6 +148,8 @@ class Daemon:
         self.state_dir.mkdir(parents=True, exist_ok=True)
         self.live = self._start_grid()  # a new or resumed grid: there before the loop runs
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
+        self._snapshot: tuple[int, bytes] | None = None  # (grid frames, bytes)
+        self._snapshot_limiter = QueryLimiter()
 
     # --- start ----------------------------------------------------------------------------
 
@@ -218,11 +228,11 @@ class Daemon:
         self._zenoh_entities += [
             self.pub_status, self.pub_tiles,
             s.declare_queryable(self.keys.snapshot,
-                                lambda q: self._answer(loop, q, self._snapshot_bytes)),
-            s.declare_queryable(self.keys.footprint,
-                                lambda q: self._answer(loop, q, self._footprint_bytes)),
-            s.declare_queryable(self.keys.mission,
-                                lambda q: self._answer(loop, q, self._mission_bytes)),
+                                lambda q: self._answer(loop, q, self._reply_snapshot)),
+            s.declare_queryable(self.keys.footprint, lambda q: self._answer(
+                loop, q, lambda q: self._reply(q, self._footprint_bytes))),
+            s.declare_queryable(self.keys.mission, lambda q: self._answer(
+                loop, q, lambda q: self._reply(q, self._mission_bytes))),
             s.liveliness().declare_token(self.keys.alive),
         ]
         if self.cfg.frame_source == "zenoh":
@@ -233,23 +243,47 @@ class Daemon:
     # --- Zenoh thread -> loop ---------------------------------------------------------------
 
     @staticmethod
-    def _answer(loop: asyncio.AbstractEventLoop, query: Any, make) -> None:
+    def _answer(loop: asyncio.AbstractEventLoop, query: Any,
+                handle: Callable[[Any], object]) -> None:
         """On a Zenoh thread: hand the query to the loop, never wait for it there (the loop
         may itself be waiting for Zenoh in a put: a deadlock)."""
-        loop.call_soon_threadsafe(Daemon._reply, query, make)
+        loop.call_soon_threadsafe(handle, query)
 
     @staticmethod
-    def _reply(query: Any, make) -> None:
-        """On the loop: build the reply, send it, finish the query."""
+    def _reply(query: Any, make: Callable[[], bytes]) -> int:
+        """On the loop: build the reply, send it, finish the query; the bytes sent."""
         try:
-            query.reply(query.key_expr, make())
+            payload = make()
+            query.reply(query.key_expr, payload)
+            return len(payload)
         except Exception as exc:  # noqa: BLE001 - a failed reply must not stop the daemon
             log.warning("query %s not answered: %s", query.key_expr, exc)
+            return 0
+        finally:
+            query.drop()
+
+    def _reply_snapshot(self, query: Any) -> None:
+        """On the loop: the snapshot, or a ``reply_err`` saying why when the requester or
+        all snapshot replies together are over their rate (query_limit; counted in
+        faults.snapshot_queries_refused)."""
+        limiter = self._snapshot_limiter
+        refusal = limiter.admit(requester(query), time.monotonic())
+        if refusal is None:
+            limiter.sent(self._reply(query, self._snapshot_bytes))
+            return
+        try:
+            query.reply_err(limiter.limits.reason(refusal))
+        except Exception as exc:  # noqa: BLE001 - as _reply
+            log.debug("query %s: refusal not sent: %s", query.key_expr, exc)
         finally:
             query.drop()
 
     def _snapshot_bytes(self) -> bytes:
-        return encode_snapshot(self.live.grid)
+        """The grid's snapshot, encoded again only once the grid took another frame."""
+        grid = self.live.grid
+        if self._snapshot is None or self._snapshot[0] != grid.frames:
+            self._snapshot = (grid.frames, encode_snapshot(grid))
+        return self._snapshot[1]
 
     def _footprint_bytes(self) -> bytes:
         t = self.live.last_pose.t_s if self.live.last_pose is not None else math.nan
@@ -403,6 +437,7 @@ class Daemon:
         faults["kernel_drops"] = drops
         faults["rejected_messages"] = sum(self.protocol.stats.rejected.values())
         faults["other_systems_messages"] = self.protocol.stats.other_systems
+        faults["snapshot_queries_refused"] = sum(self._snapshot_limiter.refused.values())
         fields = live.status_fields(uptime_s=round(now - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(now),
                                     checkpoint=self._checkpoint_info)
