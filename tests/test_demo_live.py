@@ -23,6 +23,8 @@ from watch_fixtures import free_port
 
 from pdcov.atomic import MARKER
 
+pytestmark = pytest.mark.e2e
+
 ROOT = Path(__file__).resolve().parents[1]
 SPEED = "20"
 

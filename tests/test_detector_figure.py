@@ -10,6 +10,8 @@ from pdcov.core.detector import BinCounts, DetectorModel
 from pdcov.detection.figures import detector_figure, plot_detector_model
 from pdcov.detection.statistics import BinTest, ValidationReport
 
+pytestmark = pytest.mark.e2e
+
 pytest.importorskip("matplotlib")
 
 

@@ -38,6 +38,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from benchmarks.harness import small_mission  # noqa: E402
 
+pytestmark = pytest.mark.e2e
+
 KEY = bytes(range(32))
 WRONG_KEY = bytes(range(1, 33))
 SIM = small_mission(vehicle_id="sec1")

@@ -20,6 +20,8 @@ from tls_certs import Authority
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.errors import ConfigError
 
+pytestmark = pytest.mark.e2e
+
 EXAMPLES = ROOT / "systemd" / "zenoh"
 MISSION = {
     "vehicle_id": "uav1",

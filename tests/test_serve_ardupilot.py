@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 from ardupilot_sitl import (
     MOUNT_SERVO_PARM,
     ardupilot_sitl,
@@ -23,6 +24,8 @@ from pdcov.planning.plan import read_mission
 from pdcov.service.link_protocol import ATTITUDE, GIMBAL_DEVICE_ATTITUDE_STATUS, GLOBAL_POSITION_INT
 from pdcov.telemetry.link_params import wait_autopilot
 from pdcov.telemetry.upload import mavlink2_connection
+
+pytestmark = pytest.mark.e2e
 
 SPEEDUP = 10  # autopilot seconds per wall second; the daemon works in the autopilot's clock
 ALTITUDE_M = 10.0

@@ -46,6 +46,8 @@ from pdcov.service.checkpoint import read_meta
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
 
+pytestmark = pytest.mark.e2e
+
 SIM = small_mission(vehicle_id="sim1", coverage={"min_revisit_s": 1.0})
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 SPEED = 6.0

@@ -20,6 +20,8 @@ from pdcov.core.geodesy import Origin  # noqa: E402
 from pdcov.planning.plan import read_plan  # noqa: E402
 from pdcov.telemetry.pose_tracker import read_pose_csv  # noqa: E402
 
+pytestmark = pytest.mark.e2e
+
 BIN = Path(sys.executable).parent
 FLY_TIMEOUT_S = 120
 ORIGIN = Origin(39.35, -76.33, 5.0)

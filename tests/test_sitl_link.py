@@ -27,6 +27,8 @@ from pdcov_sitl.faults import FaultSpec  # noqa: E402
 from pdcov_sitl.link import LinkError, LinkUrl, open_link  # noqa: E402
 from pdcov_sitl.protocol import TLOG_EPOCH_UNIX_S, AutopilotEndpoint, message_id  # noqa: E402
 
+pytestmark = pytest.mark.e2e
+
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 PLAN = Plan((Waypoint(0.0, 0.0, 10.0, 5.0), Waypoint(0.0, 40.0, 10.0, 5.0, 2.0),
              Waypoint(10.0, 40.0, 10.0, 5.0), Waypoint(10.0, 0.0, 10.0, 5.0),

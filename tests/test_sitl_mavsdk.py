@@ -19,6 +19,8 @@ from sitl_feed import ALT_MSL_M, LAT_DEG, LON_DEG, PARAMS, STREAMS_HZ, FeedThrea
 
 from pdcov_sitl.protocol import AutopilotEndpoint  # noqa: E402
 
+pytestmark = pytest.mark.e2e
+
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 MAV_CMD_NAV_WAYPOINT = 16
 

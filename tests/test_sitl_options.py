@@ -28,6 +28,8 @@ from pdcov.planning.plan import Plan, Waypoint, mission_items, wpl_text  # noqa:
 from pdcov.telemetry.pose_tracker import read_pose_csv  # noqa: E402
 from pdcov_sitl.protocol import TLOG_EPOCH_UNIX_S  # noqa: E402
 
+pytestmark = pytest.mark.e2e
+
 BIN = Path(sys.executable).parent
 TIMEOUT_S = 120
 ORIGIN = Origin(39.35, -76.33, 5.0)

@@ -20,6 +20,8 @@ from test_watch_web import browser, wait_for  # noqa: F401 - browser is a fixtur
 
 from pdcov.bus.mission import decode_mission
 
+pytestmark = pytest.mark.e2e
+
 BOUNDARY = [[-10.0, -10.0], [50.0, -10.0], [50.0, 40.0], [-10.0, 40.0]]
 OBSTACLE = [[10.0, 10.0], [25.0, 10.0], [25.0, 22.0], [10.0, 22.0]]
 MISSION = {

@@ -16,6 +16,8 @@ import time
 import pytest
 from watch_fixtures import DEMO, TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
 
+pytestmark = pytest.mark.e2e
+
 zenoh = pytest.importorskip("zenoh")
 webdriver = pytest.importorskip("selenium.webdriver")
 
