@@ -55,7 +55,7 @@ DOC_START, DOC_END = "<!-- fleet-security:start -->", "<!-- fleet-security:end -
 SECURITY_TESTS = ("tests/test_security_zenoh.py", "tests/test_security_mavlink.py",
                   "tests/test_status_size.py", "tests/test_web_auth.py",
                   "tests/test_bus_hostile.py", "tests/test_web_hostile.py",
-                  "tests/test_record_errors.py")
+                  "tests/test_record_errors.py", "tests/test_security_daemon.py")
 SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Zenoh over TLS',
      "a TLS router; a client trusting the CA receives a peer's put; a client trusting "
@@ -123,6 +123,24 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      '`--record` with writes failing (ENOSPC, EIO, short writes, `/dev/full`): nothing '
      'raised, logged once per episode, counted; the recording complete once the disk '
      'takes writes again; the backlog bounded (64 MiB), what overflows counted'),
+    ('MAVLink answered to the autopilot only',
+     '`pdcov serve` on a UDP server link (`link.system_id: 1`), 3,000 rogue senders from '
+     'distinct ports (another autopilot, a GCS, another component of the vehicle, junk) '
+     'before and after the autopilot: they get no datagram back, the autopilot gets '
+     "HEARTBEAT and SET_MESSAGE_INTERVAL, the link writes to one address (at most 4)"),
+    ('Snapshot queries rate-limited',
+     'a real-Zenoh flood of 40 queries from a session declaring its source info and 40 '
+     'anonymous ones: 3 and 1-3 snapshots, a `rate limited:` error reply for the rest, '
+     'counted in `faults.snapshot_queries_refused`; a third session still gets its '
+     'snapshot; the token buckets stepped in memory (burst, rate, 64 requesters, '
+     '128 KiB/s in all)'),
+    ('Publications carry their source',
+     "every status and tiles sample, through a router and peer to peer, carries the "
+     "daemon session's zid (the `replier_id` of its snapshot reply) and consecutive "
+     'sequence numbers per key'),
+    ('Checkpoint of another vehicle',
+     "a state directory holding uav1's checkpoint, started as uav2: set aside whole, the "
+     'log line names uav1, the grid starts empty; renamed back, it resumes under uav1'),
     ('systemd hardening',
      '`systemd-analyze security --offline=true systemd/pdcov.service` (directives and '
      'why: docs/operations.md section 4)'),
