@@ -35,6 +35,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.daemon import Daemon
+from pdcov.service.link_protocol import LinkProtocol
 from pdcov.service.mavlink_io import ReplyPeers
 from pdcov.service.query_limit import QueryLimiter, QueryLimits, QueryRefusal
 from pdcov.service.settings import load_serve_config
@@ -180,6 +181,32 @@ def test_reply_peers_are_bounded_and_the_latest_heard_stay() -> None:
                                ("127.0.0.1", 20999), ("127.0.0.1", 14555))
     peers.heard(("127.0.0.1", 20997))  # heard again: moved to the newest, nothing dropped
     assert peers.addresses[0] == ("127.0.0.1", 20998) and len(peers.addresses) == 4
+
+
+def test_from_autopilot_is_the_followed_autopilots_own_messages_only() -> None:
+    proto = LinkProtocol(mavlink.MAVLink(None), system_id=1, intervals={}, param_names=(),
+                         param_timeout_s=5.0)
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+
+    def received(msg, sysid: int, compid: int):
+        [m] = parser.parse_buffer(pack(msg, sysid, compid))
+        return m
+
+    mav = mavlink.MAVLink(None)
+    beat = mav.heartbeat_encode(2, 3, 0, 0, 4)
+    other = received(beat, 7, 1)  # another autopilot, before and after: never
+    assert not proto.from_autopilot(other)
+    first = received(beat, 1, 1)
+    assert not proto.from_autopilot(first)  # not followed until LinkProtocol has seen it
+    proto.receive(first, 0.0)
+    assert proto.from_autopilot(first) and proto.from_autopilot(
+        received(mav.attitude_encode(1000, 0, 0, 0, 0, 0, 0), 1, 1))
+    assert not proto.from_autopilot(other)
+    assert not proto.from_autopilot(received(beat, 1, 154))  # the vehicle's gimbal
+    junk = parser.parse_buffer(b"\xfd\x09" + bytes(20)) or []
+    assert junk and all(m.get_type() == "BAD_DATA" and not proto.from_autopilot(m)
+                        for m in junk)
 
 
 def rogue_datagrams(n: int) -> list[bytes]:
