@@ -81,6 +81,7 @@ def _default_gimbal(mount: object) -> str:
 def run_fly(args: argparse.Namespace) -> int:
     from pdcov.config import load_mission
     from pdcov.errors import PdcovError
+    from pdcov.extras import SITL
 
     from .faults import FaultSpec, FaultSpecError
     from .fly import FlyOptions, fly
@@ -101,6 +102,7 @@ def run_fly(args: argparse.Namespace) -> int:
         if len(key) != 32:
             raise UsageError("--signing-key: expected 64 hex digits (32 bytes)")
     try:
+        SITL.require()
         mission = load_mission(args.config)
         faults = FaultSpec.parse(args.faults) if args.faults else None
         system_id = args.system_id or mission.system_id or 1

@@ -9,6 +9,7 @@ from importlib import resources
 from pdcov.atomic import replacing_dir
 from pdcov.commands.args import output_dir, positive
 from pdcov.config import Mission, load_mission
+from pdcov.extras import DEMO
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,6 +64,7 @@ def run_live(args: argparse.Namespace) -> int:
     from pdcov.planning.optimise import PlanParams, build_plan
     from pdcov.planning.plan import write_plan
 
+    DEMO.require()
     web = parse_web_address(args.web) if args.web else None
     mission, doc = _bundled_mission()
     print(f"pdcov demo: live, {args.vehicles} vehicle(s), {args.speed:g}x real time; "

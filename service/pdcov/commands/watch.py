@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from pdcov.errors import ConfigError
+from pdcov.extras import GROUND
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,6 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    GROUND.require()
     from pdcov.bus.keys import valid_vehicle_id
     from pdcov.bus.session import BusConfig, bus_config_from_dict
     from pdcov.config import load_mission

@@ -2,7 +2,9 @@
 
 Outputs in a run folder (docs/outputs.md): metrics.json, grid.npz, heatmap.png,
 thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks), outline.geojson, and with a prior
-posterior.npy / posterior.tif. Every file is written atomically.
+posterior.npy / posterior.tif. Every file is written atomically. The figures need the plots
+extra, the GeoTIFF and GeoJSON files the gis extra: without one, the rest is written and the
+run says what was not (``RunOutputs.not_written``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pdcov.core.grid import CoverageGrid, Metrics
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
+from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
 
 METRICS_VERSION = 1
@@ -92,6 +95,7 @@ def read_prior(path: str | Path, geometry: GridGeometry, mask: np.ndarray,
                 raise ValueError(f"array shape {poa.shape} != grid shape {geometry.shape} "
                                  "(rows north, columns east)")
         elif suffix in (".tif", ".tiff"):
+            GIS.require("a GeoTIFF prior needs")
             from pdcov.report.gis import read_geotiff_band
             poa = np.nan_to_num(read_geotiff_band(path, geometry), nan=0.0)
         elif suffix in (".geojson", ".json"):
@@ -175,6 +179,7 @@ class RunOutputs:
     files: tuple[str, ...]
     metrics: Metrics
     outcome: SearchOutcome | None
+    not_written: tuple[str, ...] = ()  # "heatmap.png, ...: figures need ...", one a line
 
 
 def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, origin: Origin,
@@ -182,9 +187,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   plan_enu: np.ndarray | None = None, outline_threshold: float | None = None,
                   prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
                   figures: bool = True) -> RunOutputs:
-    """Write the run's files into ``out_dir`` (created if needed)."""
-    from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
-
+    """Write the run's files into ``out_dir`` (created if needed): those whose extra is
+    not installed are named in ``not_written`` instead."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -193,27 +197,46 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     doc = metrics_document(metrics, outcome)
     doc.update(extra_metrics or {})
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
-    outline = threshold_outline(pd, mask, g, threshold)
-    files = ["metrics.json", "grid.npz", "pd.tif", "outline.geojson"]
+    files = ["metrics.json", "grid.npz"]
+    not_written = []
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
     grid.save_npz(out / "grid.npz")
-    write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}, g, origin,
-                  mask)
-    write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
+    gis_missing = GIS.message()
+    outline: list[list[list[list[float]]]] = []
+    if gis_missing is None:
+        from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
+
+        outline = threshold_outline(pd, mask, g, threshold)
+        write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}, g,
+                      origin, mask)
+        write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
+        files += ["pd.tif", "outline.geojson"]
     if outcome is not None:
         with atomic_write(out / "posterior.npy", "wb") as f:
             np.save(f, outcome.posterior)
-        write_geotiff(out / "posterior.tif", {"posterior_poa": outcome.posterior}, g, origin,
-                      np.ones_like(mask))
-        files += ["posterior.npy", "posterior.tif"]
+        files.append("posterior.npy")
+        if gis_missing is None:
+            write_geotiff(out / "posterior.tif", {"posterior_poa": outcome.posterior}, g,
+                          origin, np.ones_like(mask))
+            files.append("posterior.tif")
+    if gis_missing is not None:
+        gis_files = ("pd.tif", "outline.geojson") + (("posterior.tif",) if outcome else ())
+        not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
     if figures:
-        from pdcov.report.plots import heatmap_figure, thresholds_figure
-        heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
-                       outline_enu=outline, threshold=threshold, track_enu=track_enu,
-                       plan_enu=plan_enu)
-        thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds, title=title)
-        files += ["heatmap.png", "thresholds.png"]
-    return RunOutputs(out, tuple(files), metrics, outcome)
+        figure_files = ["heatmap.png", "thresholds.png"]
+        plots_missing = PLOTS.message()
+        if plots_missing is None:
+            from pdcov.report.plots import heatmap_figure, thresholds_figure
+
+            heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
+                           outline_enu=outline, threshold=threshold, track_enu=track_enu,
+                           plan_enu=plan_enu)
+            thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds,
+                              title=title)
+            files += figure_files
+        else:
+            not_written.append(f"{', '.join(figure_files)}: {plots_missing}")
+    return RunOutputs(out, tuple(files), metrics, outcome, tuple(not_written))
 
 
 def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
@@ -229,6 +252,7 @@ def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
         out.append(f"probability of success POS: {run.outcome.probability_of_success:.3f} "
                    f"(prior mass in grid {run.outcome.prior_mass:.3f}); posterior written")
     out.append(f"wrote {', '.join(run.files)} in {run.out_dir}")
+    out += [f"not written: {line}" for line in run.not_written]
     return "\n".join(out)
 
 

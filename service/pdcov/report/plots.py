@@ -12,14 +12,13 @@ import numpy as np
 
 from pdcov.atomic import atomic_path
 from pdcov.core.domain import Domain, GridGeometry
-from pdcov.errors import PdcovError
+from pdcov.extras import PLOTS
 
 
 def _pyplot() -> Any:
-    try:
-        import matplotlib
-    except ImportError:
-        raise PdcovError("figures need matplotlib: pip install 'pdcov[plots]'") from None
+    PLOTS.require()
+    import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
