@@ -5,6 +5,8 @@ snapshot leaves the vehicle untrusted, shown; the open bus itself is always name
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -20,6 +22,7 @@ from watch_fixtures import (
 )
 
 from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.sources import source_session
 
 pytestmark = pytest.mark.e2e
 zenoh = pytest.importorskip("zenoh")
@@ -86,3 +89,23 @@ def test_a_second_session_answering_the_snapshot_leaves_the_vehicle_untrusted(
     assert "all answer as this vehicle" in out, out
     # Neither session's grid is shown as the vehicle's coverage.
     assert not any(line.startswith("pdcov watch: coverage") for line in out.splitlines()), out
+
+
+def test_the_watchers_queries_name_its_session(router, daemons):
+    # So that the daemon's snapshot rate limit gives each watcher its own share
+    # (service/query_limit.py) instead of the bucket every anonymous querier shares.
+    d = ZenohTinyDaemon(TinyPublisher("uav1"), router)
+    daemons.append(d)
+    seen: list[str | None] = []
+    spy = d.session.declare_queryable(VehicleKeys("uav1").mission,
+                                      lambda query: seen.append(source_session(query)))
+    try:
+        fly(d, 4)
+        out = subprocess.run([sys.executable, "-m", "pdcov.cli", "watch", "--once", "--mode",
+                              "client", "--zenoh-connect", router, "--no-multicast-scouting",
+                              "--wait-s", "3"], capture_output=True, text=True, timeout=60)
+    finally:
+        spy.undeclare()
+    assert out.returncode == 0, out.stderr
+    assert seen and all(isinstance(s, str) and len(s) == 32 for s in seen), seen
+    assert len(set(seen)) == 1 and seen[0] != str(d.session.zid())

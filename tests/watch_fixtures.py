@@ -14,11 +14,11 @@ import pytest
 
 from benchmarks.harness import free_port as free_port  # re-exported for the watch tests
 from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
+from pdcov.bus.sources import SourcedPublisher
 from pdcov.bus.status import encode_status
 from pdcov.bus.tiles import encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
 from pdcov.core.pose import CameraPose
-from pdcov.service.daemon import SourcedPublisher
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east

@@ -27,9 +27,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
-__all__ = ["ClaimVerdict", "SessionClaim", "short_session"]
+from pdcov.bus.sources import SessionId
 
-Session = str | None
+__all__ = ["ClaimVerdict", "SessionClaim", "short_session"]
 
 
 class ClaimVerdict(Enum):
@@ -39,7 +39,7 @@ class ClaimVerdict(Enum):
     REFUSE = "refuse"  # another session's, or the vehicle is contested
 
 
-def short_session(session: Session) -> str:
+def short_session(session: SessionId) -> str:
     """A session id as shown to the operator: its first 8 hex digits ("?" for none)."""
     return "?" if session is None else session[:8]
 
@@ -54,14 +54,14 @@ class SessionClaim:
     recheck_s: float = 10.0
     rival_memory_s: float = 30.0
     pinned: bool = False
-    session: Session = None
-    contested: tuple[Session, ...] = ()
+    session: SessionId = None
+    contested: tuple[SessionId, ...] = ()
     refused: int = 0
-    sessions_seen: set[Session] = field(default_factory=set)
-    _rivals: dict[Session, float] = field(default_factory=dict)
+    sessions_seen: set[SessionId] = field(default_factory=set)
+    _rivals: dict[SessionId, float] = field(default_factory=dict)
     _recheck_at_s: float = float("-inf")
 
-    def verdict(self, session: Session, now_s: float) -> ClaimVerdict:
+    def verdict(self, session: SessionId, now_s: float) -> ClaimVerdict:
         """Whether to take a status or tiles sample from ``session``. Before the first
         snapshot answer every session's samples are taken provisionally (the snapshot then
         decides which were right)."""
@@ -82,7 +82,7 @@ class SessionClaim:
         self._recheck_at_s = now_s + self.recheck_s
         return True
 
-    def on_answers(self, sessions: set[Session], now_s: float) -> bool:
+    def on_answers(self, sessions: set[SessionId], now_s: float) -> bool:
         """A snapshot query was answered by ``sessions`` (at least one). Returns whether
         exactly one answered, which is then the pinned session; two or more contest the
         vehicle until a query is answered by one."""
@@ -98,7 +98,7 @@ class SessionClaim:
         self._rivals.pop(only, None)
         return True
 
-    def rivals(self, now_s: float) -> tuple[Session, ...]:
+    def rivals(self, now_s: float) -> tuple[SessionId, ...]:
         """Sessions other than the pinned one heard within rival_memory_s, sorted."""
         for s, t in list(self._rivals.items()):
             if now_s - t > self.rival_memory_s:
@@ -106,7 +106,7 @@ class SessionClaim:
         return tuple(sorted((s for s in self._rivals if s != self.session or not self.pinned),
                             key=lambda s: s or ""))
 
-    def _refuse(self, session: Session, now_s: float) -> None:
+    def _refuse(self, session: SessionId, now_s: float) -> None:
         self.refused += 1
         self.sessions_seen.add(session)
         self._rivals[session] = now_s

@@ -24,9 +24,9 @@ from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.keys import VehicleKeys, parse_key
 from pdcov.bus.mission import decode_mission
 from pdcov.bus.session import BusConfig, open_session
+from pdcov.bus.sources import SessionId, reply_session, source_info, source_session
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
-from pdcov.ground.claims import Session
 from pdcov.ground.watcher import QueryMission, QuerySnapshot, Watcher
 
 log = logging.getLogger("pdcov.watch")
@@ -34,18 +34,6 @@ log = logging.getLogger("pdcov.watch")
 Recorder = Callable[[str, str, bytes], None]
 """Called with (vehicle_id, kind, payload) for every status, tiles, snapshot and mission
 that decoded (ground/record.py: it never raises)."""
-
-
-def sample_session(sample: Any) -> Session:
-    """The hex id of the Zenoh session that published ``sample`` (None: it named none)."""
-    info = sample.source_info
-    return None if info is None else str(info.source_id.zid)
-
-
-def reply_session(reply: Any) -> Session:
-    """The hex id of the Zenoh session that sent query reply ``reply``."""
-    replier = reply.replier_id
-    return None if replier is None else str(replier.zid)
 
 
 class WatchShell:
@@ -69,6 +57,7 @@ class WatchShell:
         self.connected = asyncio.Event()
         self._session: Any = None
         self._queries: dict[tuple[str, str], asyncio.Task[None]] = {}
+        self._query_sn = 0
 
     @staticmethod
     def now_s() -> float:
@@ -85,7 +74,7 @@ class WatchShell:
         try:
             def on_sample(sample: Any) -> None:
                 loop.call_soon_threadsafe(self._received, str(sample.key_expr),
-                                          sample.payload.to_bytes(), sample_session(sample))
+                                          sample.payload.to_bytes(), source_session(sample))
 
             def on_alive(sample: Any) -> None:
                 loop.call_soon_threadsafe(self._alive, str(sample.key_expr),
@@ -127,7 +116,7 @@ class WatchShell:
 
     # -- inputs (event loop thread) -----------------------------------------------------
 
-    def _received(self, key: str, payload: bytes, source: Session) -> None:
+    def _received(self, key: str, payload: bytes, source: SessionId) -> None:
         now = self.now_s()
         try:
             vid, kind = parse_key(key)
@@ -176,14 +165,18 @@ class WatchShell:
         self._queries[(vehicle_id, kind)] = asyncio.get_running_loop().create_task(
             self._query(vehicle_id, kind))
 
-    def _get(self, key: str) -> list[tuple[Session, bytes]]:
+    def _get(self, key: str) -> list[tuple[SessionId, bytes]]:
         """Blocking: every ok reply of ``get key`` with its replier's session (worker
         thread)."""
         import zenoh
 
         out = []
+        # Named as this session, so that the daemon's snapshot rate limit gives this
+        # watcher its own share (service/query_limit.py) rather than the anonymous one.
+        self._query_sn += 1
         for reply in self._session.get(key, timeout=self.query_timeout_s,
-                                       consolidation=zenoh.ConsolidationMode.NONE):
+                                       consolidation=zenoh.ConsolidationMode.NONE,
+                                       source_info=source_info(self._session.id, self._query_sn)):
             if reply.ok is not None:
                 out.append((reply_session(reply), reply.ok.payload.to_bytes()))
         return out

@@ -44,9 +44,10 @@ import numpy as np
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.mission import MissionGeometry
+from pdcov.bus.sources import SessionId
 from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
-from pdcov.ground.claims import ClaimVerdict, Session, SessionClaim, short_session
+from pdcov.ground.claims import ClaimVerdict, SessionClaim, short_session
 
 __all__ = ["MAX_VEHICLES", "FleetReport", "QueryMission", "QuerySnapshot", "VehicleFeed",
            "VehicleReport", "Watcher"]
@@ -154,10 +155,10 @@ class VehicleFeed:
     alive: bool | None = None
     last_msg_s: float | None = None
     awaiting_since_s: float | None = None
-    pending: list[tuple[TileUpdate, Session]] = field(default_factory=list)
-    status_session: Session = None  # the sessions the status, mission and footprint held
-    mission_session: Session = None  # came from (ground/claims.py)
-    footprint_session: Session = None
+    pending: list[tuple[TileUpdate, SessionId]] = field(default_factory=list)
+    status_session: SessionId = None  # the sessions the status, mission and footprint held
+    mission_session: SessionId = None  # came from (ground/claims.py)
+    footprint_session: SessionId = None
     last_seq: int | None = None
     seq_floor: int | None = None
     behind_since_s: float | None = None
@@ -227,7 +228,7 @@ class Watcher:
         return self._ensure_grid(feed, now_s) if alive else []
 
     def on_status(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
-                  source: Session = None) -> list[QuerySnapshot]:
+                  source: SessionId = None) -> list[QuerySnapshot]:
         """A decoded status (bus.status.decode_status) from session ``source``."""
         feed, refused = self._take(vehicle_id, "status", source, now_s)
         if feed is None:
@@ -274,7 +275,7 @@ class Watcher:
         return []
 
     def on_tiles(self, vehicle_id: str, update: TileUpdate, now_s: float,
-                 source: Session = None) -> list[QuerySnapshot]:
+                 source: SessionId = None) -> list[QuerySnapshot]:
         """A decoded tiles message (bus.tiles.decode_tiles) from session ``source``."""
         feed, refused = self._take(vehicle_id, "tiles", source, now_s)
         if feed is None:
@@ -285,13 +286,13 @@ class Watcher:
         return self._apply(feed, update, now_s)
 
     def on_snapshot(self, vehicle_id: str, state: GridState, now_s: float,
-                    source: Session = None) -> list[QuerySnapshot]:
+                    source: SessionId = None) -> list[QuerySnapshot]:
         """A decoded snapshot reply (bus.grid_state.decode_snapshot), the only one its
         query received."""
         return self.on_snapshot_replies(vehicle_id, [(source, state)], now_s)
 
     def on_snapshot_replies(self, vehicle_id: str,
-                            replies: Sequence[tuple[Session, GridState]], now_s: float
+                            replies: Sequence[tuple[SessionId, GridState]], now_s: float
                             ) -> list[QuerySnapshot]:
         """Every decoded reply one snapshot query received, with its replier's session.
         Replies from two or more sessions contest the vehicle: no grid is trusted and the
@@ -341,7 +342,7 @@ class Watcher:
         return []
 
     def on_footprint(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
-                     source: Session = None) -> None:
+                     source: SessionId = None) -> None:
         """A decoded footprint reply (bus.footprint.decode_footprint)."""
         feed = self._trusted(vehicle_id, source, now_s)
         if feed is not None:
@@ -349,7 +350,7 @@ class Watcher:
             feed.footprint_session = source
 
     def on_mission(self, vehicle_id: str, mission: MissionGeometry, now_s: float,
-                   source: Session = None) -> None:
+                   source: SessionId = None) -> None:
         """A decoded mission reply (bus.mission.decode_mission). Kept even when it describes
         another grid than the vehicle's (the daemon may be restarting): ``mission_for``
         matches by grid hash, and such a reply is asked again after mission_retry_s."""
@@ -384,7 +385,7 @@ class Watcher:
                 due.append(QueryMission(feed.vehicle_id))
         return due
 
-    def taken_from(self, vehicle_id: str, kind: str) -> Session | tuple[()]:
+    def taken_from(self, vehicle_id: str, kind: str) -> SessionId | tuple[()]:
         """The session whose snapshot or mission reply the watcher holds for the vehicle,
         or () when it holds none (unknown, contested, refused)."""
         feed = self.feeds.get(vehicle_id)
@@ -488,7 +489,7 @@ class Watcher:
             feed = self.feeds[vehicle_id] = VehicleFeed(vehicle_id, first_heard_s=now_s)
         return feed
 
-    def _take(self, vehicle_id: str, kind: str, source: Session, now_s: float
+    def _take(self, vehicle_id: str, kind: str, source: SessionId, now_s: float
               ) -> tuple[VehicleFeed | None, list[QuerySnapshot]]:
         """The feed to apply a status or tiles sample to, or None when it is not wanted or
         refused (another session's); then the snapshot query a rival's sample may call
@@ -502,7 +503,7 @@ class Watcher:
             return None, []
         return self._touch(feed, kind, now_s), []
 
-    def _trusted(self, vehicle_id: str, source: Session, now_s: float) -> VehicleFeed | None:
+    def _trusted(self, vehicle_id: str, source: SessionId, now_s: float) -> VehicleFeed | None:
         """The feed when a query reply (mission, footprint) from ``source`` may be taken:
         the pinned session's, or any uncontested one's before a snapshot pinned one."""
         feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None

@@ -23,14 +23,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_frames, encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.mission import encode_mission
 from pdcov.bus.session import open_session
+from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, PdcovError
@@ -58,34 +57,6 @@ log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
 EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
-SOURCE_SN_MODULO = 1 << 32
-"""Zenoh's source sequence numbers are 32-bit: a publisher's wraps after 2^32 puts."""
-
-
-def requester(query: Any) -> str | None:
-    """The Zenoh session id a query declares in its source info (None: it declares none)."""
-    info = query.source_info
-    return None if info is None else str(info.source_id.zid)
-
-
-class SourcedPublisher:
-    """A declared Zenoh publisher whose every put carries ``SourceInfo(publisher id, sn)``,
-    sn = 0, 1, 2, ... per publisher: the watcher pins a vehicle to the session that publishes
-    it (``sample.source_info.source_id.zid`` is this daemon's session, as is the
-    ``replier_id`` of its query replies; docs/protocol.md "Sources")."""
-
-    def __init__(self, publisher: Any) -> None:
-        self.publisher = publisher
-        self.sn = 0
-
-    def put(self, payload: bytes) -> None:
-        sn, self.sn = self.sn, (self.sn + 1) % SOURCE_SN_MODULO
-        self.publisher.put(payload, source_info=zenoh.SourceInfo(self.publisher.id, sn))
-
-    def undeclare(self) -> None:
-        self.publisher.undeclare()
-
-
 class JournalFormatter(logging.Formatter):
     """``<N>message``: the syslog level as journald reads it from stderr; no time stamp
     (journald adds its own)."""
@@ -267,7 +238,7 @@ class Daemon:
         all snapshot replies together are over their rate (query_limit; counted in
         faults.snapshot_queries_refused)."""
         limiter = self._snapshot_limiter
-        refusal = limiter.admit(requester(query), time.monotonic())
+        refusal = limiter.admit(source_session(query), time.monotonic())
         if refusal is None:
             limiter.sent(self._reply(query, self._snapshot_bytes))
             return
