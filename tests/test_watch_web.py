@@ -107,6 +107,10 @@ def test_web_map_shows_live_coverage(browser, tmp_path):
         assert re.fullmatch(r"\d+\.\d %", later[0])
         rows = browser.find_elements("css selector", "#vehicles tr[data-vehicle]")
         assert [r.get_attribute("data-vehicle") for r in rows] == ["uav1"]
+        # The open bus is named on the page, all the time (docs/ground-station.md
+        # "Securing the bus").
+        warnings = browser.find_element("id", "warnings")
+        assert warnings.is_displayed() and "bus not secured" in warnings.text
         # The map was drawn: the canvas has coloured (heat map) pixels.
         coloured = browser.execute_script("""
             const c = document.getElementById('map'), d = c.getContext('2d')

@@ -183,6 +183,12 @@ function show(s) {
   document.getElementById("target").textContent = f.target ?? "-";
   document.getElementById("domain-source").textContent = s.domain ? s.domain.source : "not known";
   document.getElementById("domain-note").textContent = s.domain_note || "";
+  const warnings = document.getElementById("warnings");
+  warnings.replaceChildren(...(s.warnings || []).map((text) => {
+    const li = document.createElement("li");
+    li.textContent = text;
+    return li;
+  }));
   document.getElementById("status-line").textContent =
     `${s.vehicles.length} vehicle(s); update ${s.version}; ${new Date().toLocaleTimeString()}`;
   showTables();
