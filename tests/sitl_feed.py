@@ -95,7 +95,7 @@ class FeedThread(threading.Thread):
                     if msg is not None:
                         self.endpoint.send(msg, t_s)
                 time.sleep(self.step_s)
-        except BaseException as exc:  # reported by stop()
+        except BaseException as exc:  # noqa: BLE001 - any end of the thread: stop() raises it
             self.error = exc
 
     def stop(self) -> None:

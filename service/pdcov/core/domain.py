@@ -169,7 +169,7 @@ class Domain:
             g = item.get("geometry", item) if isinstance(item, dict) else None
             try:
                 geom = shape(g)
-            except Exception as exc:  # shapely raises several types for bad GeoJSON
+            except Exception as exc:  # noqa: BLE001 - shapely raises several types
                 raise DomainError(f"{path}: feature {k}: not a GeoJSON geometry ({exc})") \
                     from None
             geoms.extend(getattr(geom, "geoms", [geom]))
