@@ -108,13 +108,17 @@ def test_the_backlog_is_bounded_and_what_overflows_is_counted(tmp_path, caplog):
     kept = rec.pending
     assert 0 < kept < len(payloads) and rec.dropped == len(payloads) - kept
     disk.failing = False
-    rec.flush()
-    rec.close()
-    assert rec.pending == 0
+    assert rec.flush() and rec.pending == 0
     statuses = (tmp_path / "rec" / "uav1" / "status.jsonl").read_text().splitlines()
-    tiles = tiles_records(tmp_path / "rec" / "uav1" / "tiles.bin")
-    assert len(statuses) + len(tiles) == kept  # the oldest, in order: a clean prefix
-    assert tiles == [p for _, k, p in payloads if k == "tiles"][:len(tiles)]
+    first = payloads[:kept]  # what came up to the first drop, nothing after it
+    assert [json.loads(line)["status"]["seq"] for line in statuses] == [
+        json.loads(p)["seq"] for _, k, p in first if k == "status"]
+    assert tiles_records(tmp_path / "rec" / "uav1" / "tiles.bin") == [
+        p for _, k, p in first if k == "tiles"]
+    assert not list((tmp_path / "rec" / "uav1").glob("snapshot-*"))
+    rec("uav1", "snapshot", b"PK after")  # writing again: taken again; numbered as received
+    assert (tmp_path / "rec" / "uav1" / "snapshot-2.npz").read_bytes() == b"PK after"
+    rec.close()
     lines = rec.finish(_NoGrids(), None)
     assert f"{rec.dropped} dropped" in lines[0]
 

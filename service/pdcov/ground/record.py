@@ -83,10 +83,11 @@ class Recording:
 
     Never raises to its caller once made: a write that fails (a full disk, EIO) is logged
     once per episode and counted, its payload and those after it wait in order in a
-    backlog of at most ``max_backlog_bytes`` (what does not fit is dropped and counted)
-    and are written at the next call (or ``flush``). What the views may show:
-    ``write_errors`` (failed attempts), ``last_error`` (the current episode's, None while
-    writing works), ``pending`` (payloads waiting), ``dropped`` (never recorded).
+    backlog of at most ``max_backlog_bytes`` and are written at the next call (or
+    ``flush``); once it is full, what arrives is dropped and counted until it is written.
+    What the views may show: ``write_errors`` (failed attempts), ``last_error`` (the
+    current episode's, None while writing works), ``pending`` (payloads waiting),
+    ``dropped`` (never recorded).
     ``write``: os.write, or a stand-in for tests (same contract: bytes written, or
     OSError)."""
 
@@ -107,6 +108,7 @@ class Recording:
         self._replies: dict[tuple[str, str], int] = {}
         self._backlog: deque[_Pending] = deque()
         self._backlog_bytes = 0
+        self._overflowing = False
         self.write_errors = 0
         self.dropped = 0
         self.last_error: str | None = None
@@ -120,8 +122,12 @@ class Recording:
         item = self._item(vehicle_id, kind, bytes(payload), time.time())
         if item is None:
             return
-        if self._backlog and self._backlog_bytes + len(item.data) > self.max_backlog_bytes:
-            self.dropped += 1  # the backlog is full: keep the older, in order
+        if self._overflowing or (self._backlog and self._backlog_bytes + len(item.data)
+                                 > self.max_backlog_bytes):
+            # Full: drop what arrives until the backlog is written, so that the files hold
+            # what came in order up to the first drop, with no hole before it.
+            self._overflowing = True
+            self.dropped += 1
         else:
             self._backlog.append(item)
             self._backlog_bytes += len(item.data)
@@ -157,6 +163,7 @@ class Recording:
                 return False
             self._backlog.popleft()
             self._backlog_bytes -= len(item.data)
+        self._overflowing = False
         if self.last_error is not None:
             log.warning("record: writing again (%d failed attempts, %d payloads dropped so "
                         "far)", self.write_errors, self.dropped)
