@@ -6,6 +6,7 @@ is allocated, with a BusPayloadError naming the key, the field and a countable r
 from __future__ import annotations
 
 import copy
+import functools
 import io
 import json
 import math
@@ -34,11 +35,16 @@ from pdcov.ground.web import map_state
 KEY = "pdcov/uav1/status"
 
 
-def good_status() -> dict:
-    """A status as the stand-in publisher sends it, after a few frames."""
+@functools.cache
+def _good_status_bytes() -> bytes:
     pub = TinyPublisher("uav1")
     pub.step(3)
-    return json.loads(pub.status())
+    return pub.status()
+
+
+def good_status() -> dict:
+    """A status as the stand-in publisher sends it, after a few frames (a fresh copy)."""
+    return json.loads(_good_status_bytes())
 
 
 def with_field(doc: dict, path: str, value) -> dict:
