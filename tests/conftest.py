@@ -19,9 +19,9 @@ from contextlib import contextmanager
 
 import pytest
 
-# watch_fixtures: router, processes, daemons (real Zenoh on loopback); pytester: for
-# tests/test_tiers.py, which runs pytest sessions of its own
-pytest_plugins = ["watch_fixtures", "pytester"]
+# watch_fixtures: router, processes, daemons (real Zenoh on loopback); chromium: browser;
+# pytester: for tests/test_tiers.py, which runs pytest sessions of its own
+pytest_plugins = ["watch_fixtures", "chromium", "pytester"]
 
 TIERS = ("e2e", "slow")
 E2E_FIXTURES = frozenset({"router", "processes", "daemons", "browser"})

@@ -124,14 +124,13 @@ def test_two_vehicle_demo_fleet_is_the_sum_and_a_late_watcher_agrees(tmp_path):
 
 
 def test_live_demo_in_a_headless_browser(tmp_path):
-    from test_watch_web import FLAGS, have_browser
+    from chromium import CHROMEDRIVER, CHROMIUM, FLAGS, have_browser
 
     if not have_browser():
         pytest.skip("chromium and chromium-driver are not installed (.ci/run installs them)")
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
-    from test_watch_web import CHROMEDRIVER, CHROMIUM
 
     out = tmp_path / "demo"
     port = free_port()

@@ -15,8 +15,8 @@ import sys
 import urllib.request
 
 import pytest
+from chromium import wait_for
 from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config
-from test_watch_web import browser, wait_for  # noqa: F401 - browser is a fixture
 
 from pdcov.bus.mission import decode_mission
 
@@ -131,7 +131,7 @@ def test_watcher_without_config_draws_the_vehicles_domain(daemon, tmp_path):
     assert not (tmp_path / "rec" / "uav1" / "mission-2.json").exists()  # asked once
 
 
-def test_web_map_in_chromium_outlines_the_domain_without_config(daemon, browser, tmp_path):  # noqa: F811
+def test_web_map_in_chromium_outlines_the_domain_without_config(daemon, browser, tmp_path):
     zport, _, _ = daemon
     with watcher(zport) as (_, url):
         browser.get(url)

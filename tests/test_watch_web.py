@@ -7,62 +7,19 @@ Skipped when chromium or its driver is absent."""
 from __future__ import annotations
 
 import re
-import shutil
 import signal
 import subprocess
 import sys
 import time
 
 import pytest
+from chromium import wait_for
 from watch_fixtures import DEMO, TinyPublisher, ZenohTinyDaemon, free_port, zenoh_conf
 
 pytestmark = pytest.mark.e2e
 
 zenoh = pytest.importorskip("zenoh")
-webdriver = pytest.importorskip("selenium.webdriver")
-
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--window-size=1280,900")
-
-
-def have_browser() -> bool:
-    import os
-
-    return os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)
-
-
-@pytest.fixture
-def browser(tmp_path):
-    if not have_browser():
-        pytest.skip("chromium and chromium-driver are not installed (.ci/run installs them)")
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-
-    opts = Options()
-    opts.binary_location = CHROMIUM
-    for f in FLAGS:
-        opts.add_argument(f)
-    opts.add_argument(f"--user-data-dir={tmp_path / 'chromium-profile'}")
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
-    driver.set_page_load_timeout(30)
-    try:
-        yield driver
-    finally:
-        driver.quit()
-
-
-def wait_for(predicate, timeout_s: float, what: str):
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        v = predicate()
-        if v:
-            return v
-        time.sleep(0.2)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-
+pytest.importorskip("selenium.webdriver")
 
 def coverage(driver) -> tuple[str, str, int]:
     el = driver.find_element("id", "coverage")
