@@ -53,6 +53,12 @@ TIER_OF_TESTS: dict[str, dict[str, str]] = {
         "test_evaluate_of_the_recording_is_the_live_grid",
         "test_evaluate_uses_the_recorded_frames_unless_rate_is_chosen"), "e2e"),
     "test_revisit_clock.py": {"test_row_order_and_time_origin_do_not_change_the_grid": "e2e"},
+    "test_serve_e2e.py": {"test_real_flight_replay_equals_offline": "e2e"},
+    "test_sitl_replay.py": dict.fromkeys((
+        "test_a_log_with_console_junk_replays_its_mavlink_part",
+        "test_replay_as_a_tcp_server_waits_for_its_client",
+        "test_replay_keeps_the_pace_at_speed_n",
+        "test_replay_of_a_real_ardupilot_log_arrives_complete_and_in_order"), "e2e"),
     "test_security_daemon.py": {
         "test_status_and_tiles_carry_the_daemon_session_as_source": "e2e"},
     "test_systemd_unit.py": dict.fromkeys((

@@ -25,8 +25,6 @@ from serve_harness import (
 from pdcov.bus.footprint import decode_footprint
 from pdcov.cli import main as pdcov_main
 
-pytestmark = pytest.mark.e2e
-
 TLOG = REAL / "ardupilot_sitl_servo_gimbal.tlog"
 CMAC = {
     "vehicle_id": "uav1",

@@ -18,8 +18,6 @@ from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 
 from pdcov_sitl.replay import main, replay_schedule, scan_tlog  # noqa: E402
 
-pytestmark = pytest.mark.e2e
-
 REAL_LOGS = Path(__file__).resolve().parents[2] / "shared" / "real-logs"
 T0_US = 1_767_225_600_000_000
 
