@@ -3,33 +3,18 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from labelled_sets import coco_set, visdrone_set, yolo_set
 from PIL import Image
 
 from pdcov.detection.annotations import detect_format, read_detections, read_truth
 from pdcov.errors import ConfigError, InputFileError
 
 
-def _coco(tmp_path: Path, annotations=None, images=None) -> Path:
-    doc = {
-        "images": images or [{"id": 1, "file_name": "a.jpg", "width": 640, "height": 480},
-                             {"id": 2, "file_name": "sub/b.jpg", "width": 800, "height": 600}],
-        "annotations": annotations if annotations is not None else [
-            {"id": 1, "image_id": 1, "category_id": 1, "bbox": [10, 20, 30, 40], "area": 1200,
-             "iscrowd": 0},
-            {"id": 2, "image_id": 1, "category_id": 3, "bbox": [0, 0, 100, 100],
-             "area": 1e4, "iscrowd": 1}],
-        "categories": [{"id": 1, "name": "person"}, {"id": 3, "name": "car"}]}
-    p = tmp_path / "gt.json"
-    p.write_text(json.dumps(doc, indent=1))
-    return p
-
-
 def test_coco_truth_and_detections(tmp_path):
-    truth = read_truth(_coco(tmp_path))
+    truth = read_truth(coco_set(tmp_path))
     assert truth.format == "coco" and truth.classes == ("person", "car")
     a = truth.images["1"]
     assert (a.width_px, a.height_px) == (640, 480)
@@ -57,7 +42,7 @@ def test_coco_truth_and_detections(tmp_path):
 ])
 def test_coco_malformed_records_are_named(tmp_path, ann, message):
     with pytest.raises(InputFileError, match=message):
-        read_truth(_coco(tmp_path, annotations=[ann]))
+        read_truth(coco_set(tmp_path, annotations=[ann]))
 
 
 def test_coco_syntax_error_names_the_line(tmp_path):
@@ -68,7 +53,7 @@ def test_coco_syntax_error_names_the_line(tmp_path):
 
 
 def test_coco_detection_errors(tmp_path):
-    truth = read_truth(_coco(tmp_path))
+    truth = read_truth(coco_set(tmp_path))
     dt = tmp_path / "dt.json"
     dt.write_text(json.dumps([{"image_id": 1, "category_id": 1, "bbox": [0, 0, 1, 1],
                                "score": 0.9},
@@ -82,7 +67,7 @@ def test_coco_detection_errors(tmp_path):
 
 
 def test_unknown_classes_are_named(tmp_path):
-    truth = read_truth(_coco(tmp_path))
+    truth = read_truth(coco_set(tmp_path))
     truth.check_classes(("person",))
     with pytest.raises(ConfigError, match=r"'pedestrain' not among the classes .*person, car"):
         truth.check_classes(("person", "pedestrain"))
@@ -91,17 +76,8 @@ def test_unknown_classes_are_named(tmp_path):
 # -- YOLO -------------------------------------------------------------------------------------
 
 
-def _yolo(tmp_path: Path) -> tuple[Path, Path]:
-    labels = tmp_path / "labels"
-    labels.mkdir()
-    (labels / "a.txt").write_text("0 0.5 0.5 0.25 0.5\n\n1 0.1 0.2 0.1 0.1\n")
-    sizes = tmp_path / "sizes.txt"
-    sizes.write_text("a.jpg 800 600\nb.png,1000,500\n")  # b has no label file: no objects
-    return labels, sizes
-
-
 def test_yolo_truth_is_unnormalised(tmp_path):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     assert detect_format(labels) == "yolo"
     truth = read_truth(labels, sizes_path=sizes)
     a = truth.images["a"]
@@ -111,7 +87,7 @@ def test_yolo_truth_is_unnormalised(tmp_path):
 
 
 def test_yolo_names_and_detections(tmp_path):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     names = tmp_path / "data.yaml"
     names.write_text("path: x\nnames:\n  0: person\n  1: car\n")
     truth = read_truth(labels, "yolo", sizes_path=sizes, names_path=names)
@@ -132,7 +108,7 @@ def test_yolo_names_and_detections(tmp_path):
 
 
 def test_yolo_names_one_a_line(tmp_path):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     names = tmp_path / "classes.txt"
     names.write_text("pedestrian\npeople\n")
     truth = read_truth(labels, "yolo", sizes_path=sizes, names_path=names)
@@ -151,14 +127,14 @@ def test_yolo_names_one_a_line(tmp_path):
     ("0 -0.2 0.5 0.1 0.2", r"a.txt:2: cx -0.2 outside"),
 ])
 def test_yolo_malformed_lines_are_named(tmp_path, line, message):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     (labels / "a.txt").write_text("0 0.5 0.5 0.25 0.5\n" + line + "\n")
     with pytest.raises(InputFileError, match=message):
         read_truth(labels, sizes_path=sizes)
 
 
 def test_yolo_needs_sizes_and_an_image_per_label(tmp_path):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     with pytest.raises(InputFileError, match="pass --images DIR or --sizes FILE"):
         read_truth(labels)
     (labels / "z.txt").write_text("0 0.5 0.5 0.1 0.1\n")
@@ -186,24 +162,8 @@ def test_yolo_sizes_from_images_in_the_ultralytics_layout(tmp_path):
 # -- VisDrone ---------------------------------------------------------------------------------
 
 
-def _visdrone(tmp_path: Path) -> Path:
-    split = tmp_path / "VisDrone2019-DET-val"
-    (split / "annotations").mkdir(parents=True)
-    (split / "images").mkdir()
-    (split / "annotations" / "0001.txt").write_text(
-        "684,8,273,116,0,0,0,0\n"  # ignored region
-        "406,119,265,70,0,0,0,0\n"
-        "10,20,30,40,1,1,0,0\n"  # pedestrian
-        "50,60,10,20,0,2,0,1\n"  # people, score 0: ignored in evaluation
-        "70,80,15,25,1,4,1,0,\n")  # car, trailing comma
-    (split / "annotations" / "0002.txt").write_text("")
-    Image.new("RGB", (1360, 765)).save(split / "images" / "0001.jpg")
-    Image.new("RGB", (960, 540)).save(split / "images" / "0002.jpg")
-    return split
-
-
 def test_visdrone_truth(tmp_path):
-    split = _visdrone(tmp_path)
+    split = visdrone_set(tmp_path)
     assert detect_format(split) == "visdrone"
     truth = read_truth(split)
     a = truth.images["0001"]
@@ -216,7 +176,7 @@ def test_visdrone_truth(tmp_path):
 
 
 def test_visdrone_detections_and_errors(tmp_path):
-    split = _visdrone(tmp_path)
+    split = visdrone_set(tmp_path)
     truth = read_truth(split)
     dets = tmp_path / "det"
     dets.mkdir()
@@ -233,7 +193,7 @@ def test_visdrone_detections_and_errors(tmp_path):
 
 
 def test_visdrone_sizes_unknown_without_images(tmp_path):
-    split = _visdrone(tmp_path)
+    split = visdrone_set(tmp_path)
     for p in (split / "images").iterdir():
         p.unlink()
     (split / "images").rmdir()

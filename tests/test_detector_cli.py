@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-from test_detector_stats import EDGES, INPUT, P_D, synthetic_set, write_coco
+from synthetic_detections import EDGES, INPUT, P_D, synthetic_set, write_coco
 
 from pdcov import cli
 from pdcov.core.detector import DetectorModel

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_annotations import _coco, _visdrone, _yolo
+from labelled_sets import coco_set, visdrone_set, yolo_set
 
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import detect_format, read_detections, read_truth
@@ -18,14 +18,14 @@ from pdcov.errors import ConfigError, DetectorModelError, InputFileError
 
 
 def test_yolo_values_rounded_just_past_one_are_normalised(tmp_path):
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     (labels / "a.txt").write_text("0 0.5 0.5 1.0000004 0.5\n")  # printed with rounding
     assert read_truth(labels, sizes_path=sizes).images["a"].boxes.xywh[0, 2] == \
         pytest.approx(800, abs=1e-3)
 
 
 def test_scores_outside_zero_one_are_refused_in_every_format(tmp_path):
-    truth = read_truth(_coco(tmp_path))
+    truth = read_truth(coco_set(tmp_path))
     dt = tmp_path / "dt.json"
     dt.write_text(json.dumps([{"image_id": 1, "category_id": 1, "bbox": [1, 2, 3, 4],
                                "score": 0.5},
@@ -34,14 +34,14 @@ def test_scores_outside_zero_one_are_refused_in_every_format(tmp_path):
     with pytest.raises(InputFileError, match=r"dt.json: \[1\]: detection score 3.2 outside "
                                              r"\[0, 1\]"):
         read_detections(dt, truth)
-    labels, sizes = _yolo(tmp_path)
+    labels, sizes = yolo_set(tmp_path)
     yolo_truth = read_truth(labels, sizes_path=sizes)
     pred = tmp_path / "pred"
     pred.mkdir()
     (pred / "a.txt").write_text("0 0.5 0.5 0.1 0.2 -0.4\n")
     with pytest.raises(InputFileError, match=r"pred/a.txt:1: detection score -0.4 outside"):
         read_detections(pred, yolo_truth)
-    split = _visdrone(tmp_path)
+    split = visdrone_set(tmp_path)
     vis_truth = read_truth(split)
     vis = tmp_path / "vis"
     vis.mkdir()
