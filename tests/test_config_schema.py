@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import pytest
 import yaml
-from test_evaluate import (
+from evaluate_inputs import (
     assert_clean_failure,
     cli,
     expected_poses,

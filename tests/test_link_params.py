@@ -14,8 +14,8 @@ import sys
 import threading
 
 import pytest
+from evaluate_inputs import mission_doc, write_config
 from pymavlink.dialects.v20 import common as mavlink2
-from test_evaluate import mission_doc, write_config
 
 from pdcov.cli import main
 from pdcov.core.mount import GimbalMount

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from test_evaluate import (
+from evaluate_inputs import (
     expected_poses,
     known_flight,
     load_grid,

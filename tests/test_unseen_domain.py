@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from test_evaluate import (
+from evaluate_inputs import (
     assert_clean_failure,
     cli,
     expected_poses,
