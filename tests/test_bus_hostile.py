@@ -309,3 +309,16 @@ def test_mission_thresholds_bound_is_the_statuses():
                              thresholds=[0.5] * (MAX_THRESHOLDS + 1), target_pd=0.5)
     err = refused(payload, decode_mission, "pdcov/uav1/mission")
     assert f"1..{MAX_THRESHOLDS}" in str(err)
+
+
+def test_shares_at_many_thresholds_are_the_daemons_and_computed_once():
+    """64 thresholds (the bound) cost one P_D computation of the grid, and give the
+    daemon's own figures."""
+    pub = TinyPublisher("uav1")
+    pub.step(12)
+    state = grid_state.GridState.from_grid(pub.grid)
+    thresholds = [round((i + 1) / (MAX_THRESHOLDS + 1), 4) for i in range(MAX_THRESHOLDS)]
+    shares = state.proportions_at_or_above(thresholds)
+    assert shares == pub.grid.metrics(thresholds).proportion_at_or_above
+    assert shares == {t: state.proportion_at_or_above(t) for t in thresholds}
+    assert 0 < shares[thresholds[0]] and shares[thresholds[0]] > shares[thresholds[-1]]

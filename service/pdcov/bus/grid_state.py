@@ -18,6 +18,7 @@ import math
 import re
 import struct
 import zipfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,8 +86,15 @@ class GridState:
 
     def proportion_at_or_above(self, threshold: float) -> float:
         """Share of free cells whose P_D is at least ``threshold``."""
-        n = int(self.mask.sum())
-        return float((self.pd[self.mask] >= threshold).sum() / n) if n else 0.0
+        return self.proportions_at_or_above((threshold,))[float(threshold)]
+
+    def proportions_at_or_above(self, thresholds: Iterable[float]) -> dict[float, float]:
+        """{threshold: share of free cells whose P_D is at least it}, P_D computed once for
+        all (per threshold it costs one comparison of the free cells, not an expm1 of the
+        whole grid)."""
+        pd = self.pd[self.mask]
+        n = pd.size
+        return {float(t): float((pd >= t).sum() / n) if n else 0.0 for t in thresholds}
 
 
 def encode_snapshot(grid: CoverageGrid) -> bytes:
