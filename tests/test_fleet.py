@@ -39,10 +39,6 @@ def test_every_watcher_holds_every_vehicles_exact_grid(fleet):
         # were full (docs/reliability.md); the budget itself: below
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "measured 1,061-1,071 B per status (1,063-1,084 B/s of the daemon's clock): a "
-    "checkpoint changes checkpoint.last_t_s, part of the status detail, so every "
-    "checkpoint's status is full (bus/status.py); remove this mark when it fits"))
 def test_status_fits_its_budget(fleet):
     table = markdown(fleet, "test_fleet")
     for v in fleet.vehicles:

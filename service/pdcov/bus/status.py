@@ -40,6 +40,10 @@ FULL_EVERY = 20
 BRIEF_LINK = ("state", "last_message_age_s", "messages", "bad_messages")
 BRIEF_GIMBAL = ("mount", "interpretation")
 _VOLATILE = "last_message_age_s"  # changes every message: not a detail change
+CHECKPOINT_PROGRESS = ("last_t_s", "written_unix_s", "frames")
+"""Checkpoint fields that change with every checkpoint written: carried by full statuses,
+not a detail change (else every checkpoint's status would be full: 1,061-1,071 B per
+status, over the 1 kB/s budget, in benchmarks.fleet)."""
 _POSE_DECIMALS = {"lat_deg": 7, "lon_deg": 7, "alt_msl_m": 2, "heading_deg": 1, "t_s": 3}
 
 _U32 = 2**32 - 1
@@ -108,7 +112,7 @@ def _brief(doc: Mapping[str, Any]) -> dict[str, Any]:
 
 def _detail_signature(doc: Mapping[str, Any]) -> str:
     """What a brief status leaves out (bar zero fault counts), without the message ages
-    that change every time, as JSON."""
+    that change every time and the checkpoint's progress, as JSON."""
     def strip(v: Any) -> Any:
         if isinstance(v, Mapping):
             return {k: strip(x) for k, x in v.items() if k != _VOLATILE}
@@ -118,7 +122,9 @@ def _detail_signature(doc: Mapping[str, Any]) -> str:
     detail = {"link": {k: v for k, v in _sub(doc, "link").items() if k not in BRIEF_LINK},
               "gimbal": {k: v for k, v in _sub(doc, "gimbal").items()
                          if k not in BRIEF_GIMBAL},
-              "origin": _sub(doc, "grid").get("origin"), "checkpoint": doc.get("checkpoint")}
+              "origin": _sub(doc, "grid").get("origin"),
+              "checkpoint": {k: v for k, v in _sub(doc, "checkpoint").items()
+                             if k not in CHECKPOINT_PROGRESS}}
     return json.dumps(finite_or_null(strip(detail)), sort_keys=True, default=str)
 
 
