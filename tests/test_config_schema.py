@@ -207,3 +207,14 @@ def test_cli_refuses_a_misspelt_key_with_exit_2_and_writes_nothing(tmp_path):
                          "did you mean 'obstacles_enu_m'?")
     assert not (tmp_path / "run").exists()
     assert load_mission(write_config(tmp_path, mission_doc(), "ok.yaml")).cell_size_m == 1.0
+
+
+def test_more_thresholds_than_the_bus_carries_are_refused():
+    # Every watcher refuses a status listing more than MAX_THRESHOLDS (bus/status.py):
+    # such a mission would fly with a ground station that shows nothing of it.
+    doc = full_doc()
+    doc["thresholds"] = [round(0.1 + 0.01 * k, 2) for k in range(65)]
+    with pytest.raises(ConfigError, match="65 thresholds, at most 64"):
+        mission_from_dict(doc)
+    doc["thresholds"] = doc["thresholds"][:64]
+    assert len(mission_from_dict(doc).thresholds) == 64

@@ -75,7 +75,11 @@ def test_a_full_disk_for_a_while_loses_nothing_that_fits(tmp_path, caplog):
         rec(vid, kind, payload)  # never raises
         if disk.failing:
             assert rec.pending == k - 4 and "No space left on device" in (rec.last_error or "")
+            # What the views show (terminal, --plain, web map: ground/app.py).
+            assert f"No space left on device), {k - 4} payloads waiting" in (
+                rec.warning or "")
     assert rec.pending == 0 and rec.last_error is None and rec.dropped == 0
+    assert rec.warning is None  # nothing lost: nothing to say once writing works
     assert rec.write_errors == 25
     rec.close()
     check_complete(tmp_path / "rec", payloads)
@@ -118,6 +122,7 @@ def test_the_backlog_is_bounded_and_what_overflows_is_counted(tmp_path, caplog):
     assert not list((tmp_path / "rec" / "uav1").glob("snapshot-*"))
     rec("uav1", "snapshot", b"PK after")  # writing again: taken again; numbered as received
     assert (tmp_path / "rec" / "uav1" / "snapshot-2.npz").read_bytes() == b"PK after"
+    assert rec.warning.endswith(f"writing again, {rec.dropped} payloads not recorded")
     rec.close()
     lines = rec.finish(_NoGrids(), None)
     assert f"{rec.dropped} dropped" in lines[0]

@@ -11,10 +11,10 @@ import time
 
 import numpy as np
 import pytest
-from test_watcher_pinning import forged_tiles
 from watch_fixtures import (
     TinyPublisher,
     ZenohTinyDaemon,
+    forged_tiles,
     load,
     start_watcher,
     stop_watcher,

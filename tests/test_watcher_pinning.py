@@ -7,12 +7,12 @@ the ground station's headline threshold. Sessions are hex ids as Zenoh gives the
 from __future__ import annotations
 
 import numpy as np
-from watch_fixtures import TinyPublisher
+from watch_fixtures import TinyPublisher, forged_tiles
 
-from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.errors import BusPayloadError, Refusal
 from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
-from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
+from pdcov.bus.tiles import decode_tiles, encode_tiles
 from pdcov.ground.watcher import QuerySnapshot, Watcher
 
 DAEMON = "a1" * 16
@@ -62,17 +62,6 @@ class Bus:
     @property
     def feed(self):
         return self.w.feeds[self.pub.vehicle_id]
-
-
-def forged_tiles(pub: TinyPublisher, seq: int, frames: int | None = None) -> bytes:
-    """Every tile of ``pub``'s grid at P_D ~ 1: ground nobody searched shown as searched."""
-    g = pub.grid
-    state = GridState(g.geometry, g.mask.copy(), np.full(g.geometry.shape, -20.0, np.float32),
-                      np.zeros(g.geometry.shape, np.float32), np.ones(g.geometry.shape, np.int32),
-                      g.frames + 1 if frames is None else frames)
-    rows, cols = tile_grid_shape(pub.tile_size, *g.geometry.shape)
-    return encode_tiles(state, [(r, c) for r in range(rows) for c in range(cols)], seq=seq,
-                        t_s=pub.t_s, tile_size=pub.tile_size)
 
 
 def same_grid(state: GridState, pub: TinyPublisher) -> bool:
@@ -208,12 +197,14 @@ def test_provisional_samples_of_a_session_the_snapshot_did_not_pin_are_dropped()
 
 def test_a_refused_payload_makes_no_vehicle_row_and_vehicles_are_bounded():
     w = Watcher(max_vehicles=3)
-    w.on_bad_payload("ghost", BusPayloadError("pdcov/ghost/status: not JSON"))
-    assert w.feeds == {} and w.report(0.0).refused == {"bad payloads": 1}
+    w.on_bad_payload("ghost", BusPayloadError("pdcov/ghost/status: not JSON",
+                                              Refusal.MALFORMED))
+    assert w.feeds == {} and w.report(0.0).refused == {"payloads: malformed": 1}
     for k in range(10):
         w.on_alive(f"fake{k}", True, float(k))
     assert sorted(w.feeds) == ["fake0", "fake1", "fake2"]
-    assert w.report(10.0).refused == {"bad payloads": 1, "vehicles beyond the limit of 3": 7}
+    assert w.report(10.0).refused == {"payloads: malformed": 1,
+                                      "vehicles beyond the limit of 3": 7}
 
 
 def test_merged_counts_cannot_overflow():

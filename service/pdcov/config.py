@@ -24,6 +24,9 @@ from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
 
 DEFAULT_THRESHOLDS = (0.5, 0.7, 0.8)
+MAX_THRESHOLDS = 64
+"""Most thresholds a mission may list: the bus's bound too (a watcher refuses a status with
+more; bus/status.py)."""
 _FLOAT_MAX = sys.float_info.max
 
 # Sections of the onboard daemon (`pdcov serve`), declared by its own modules: see
@@ -178,6 +181,10 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             for t in thresholds)):
         raise ConfigError(f"{where(src, 'thresholds')}: expected a non-empty list of "
                           f"probabilities in [0, 1], got {thresholds!r}")
+    if len(thresholds) > MAX_THRESHOLDS:
+        raise ConfigError(f"{where(src, 'thresholds')}: {len(thresholds)} thresholds, at "
+                          f"most {MAX_THRESHOLDS} (every watcher refuses a status with more; "
+                          "docs/protocol.md \"Validation and bounds\")")
 
     cov = _mapping(doc, "coverage", src, required=False)
     log = _mapping(doc, "log", src, required=False)

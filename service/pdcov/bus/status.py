@@ -26,13 +26,12 @@ from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.keys import valid_vehicle_id
 from pdcov.bus.tiles import MAX_TILE_SIZE
+from pdcov.config import MAX_THRESHOLDS
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
 MAX_STATUS_BYTES = 64 * 1024
 """Largest status payload a receiver accepts (the daemon's are about 1.6 kB)."""
-MAX_THRESHOLDS = 64
-"""Most P_D thresholds (and proportion_at_or_above entries) in one status."""
 MAX_NAMED_COUNTS = 256
 """Most entries of a count object (``frames.skipped``, ``faults``)."""
 FULL_EVERY = 20

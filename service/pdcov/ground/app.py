@@ -7,7 +7,8 @@ import asyncio
 import signal
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -65,14 +66,21 @@ async def _main(opts: WatchOptions) -> int:
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
     recording = Recording(opts.record) if opts.record else None
     shell = WatchShell(watcher, opts.bus, record=recording)
+
+    def report() -> FleetReport:
+        """The watcher's report as of now, with the recording's trouble, if any."""
+        r = watcher.report(shell.now_s())
+        trouble = recording.warning if recording is not None else None
+        return r if trouble is None else replace(r, station=(*r.station, trouble))
+
     web = None
     if opts.web is not None and opts.web_access is not None:  # both or neither
         from pdcov.ground.web import WebMap, basemap_info, map_state
 
         basemap = basemap_info(opts.basemap)
         web = WebMap(opts.web[0], opts.web[1],
-                     lambda: map_state(watcher, watcher.report(shell.now_s()), opts.mission,
-                                       shell.version, basemap, config_hash),
+                     lambda: map_state(watcher, report(), opts.mission, shell.version,
+                                       basemap, config_hash),
                      lambda: shell.version, opts.web_access, opts.basemap)
         await web.start()
         # Printed once, and only here: the token is the key to the map.
@@ -89,9 +97,9 @@ async def _main(opts: WatchOptions) -> int:
             print(f"pdcov watch: following pdcov/{opts.vehicle or '*'}/ "
                   f"({opts.bus.mode}, connect {list(opts.bus.connect)})", flush=True)
         if opts.once:
-            status = await _once(shell, watcher, opts, stop, runner)
+            status = await _once(watcher, report, opts, stop, runner)
         else:
-            await _view(shell, watcher, opts, stop, runner)
+            await _view(report, opts, stop, runner)
     finally:
         stop.set()
         try:
@@ -106,7 +114,7 @@ async def _main(opts: WatchOptions) -> int:
     return status
 
 
-async def _once(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
+async def _once(watcher: Watcher, report_now: Callable[[], FleetReport], opts: WatchOptions,
                 stop: asyncio.Event, runner: asyncio.Task[None]) -> int:
     deadline = time.monotonic() + opts.wait_s
     while time.monotonic() < deadline and not stop.is_set() and not runner.done():
@@ -117,25 +125,25 @@ async def _once(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
         await asyncio.sleep(0.1)
     if runner.done():
         runner.result()  # raises the session's error
-    report = watcher.report(shell.now_s())
+    report = report_now()
     print("\n".join(plain_lines(report)), flush=True)
     return 0 if report.vehicles else 1
 
 
-async def _view(shell: WatchShell, watcher: Watcher, opts: WatchOptions,
+async def _view(report_now: Callable[[], FleetReport], opts: WatchOptions,
                 stop: asyncio.Event, runner: asyncio.Task[None]) -> None:
     live: Any = None
     if not opts.plain:
         from rich.console import Console
         from rich.live import Live
 
-        live = Live(render(watcher.report(shell.now_s())), console=Console(),
+        live = Live(render(report_now()), console=Console(),
                     auto_refresh=False, transient=False)
         live.start()
     last_lines: tuple[str, ...] = ()
     try:
         while not stop.is_set() and not runner.done():
-            report: FleetReport = watcher.report(shell.now_s())
+            report = report_now()
             if live is not None:
                 live.update(render(report), refresh=True)
             else:

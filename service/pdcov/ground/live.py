@@ -125,7 +125,8 @@ class WatchShell:
             return
         try:
             if kind == "status":
-                actions = self.watcher.on_status(vid, decode_status(payload, key), now, source)
+                actions = self.watcher.on_status(vid, decode_status(payload, key, vid), now,
+                                                 source)
             elif kind == "tiles":
                 actions = self.watcher.on_tiles(vid, decode_tiles(payload, key), now, source)
             else:

@@ -118,6 +118,17 @@ class Recording:
         """Payloads received but not yet written."""
         return len(self._backlog)
 
+    @property
+    def warning(self) -> str | None:
+        """The line the views show while writing fails or once payloads were lost, else
+        None."""
+        if self.last_error is None and not self.dropped:
+            return None
+        state = (f"failing ({self.last_error}), {self.pending} payloads waiting"
+                 if self.last_error is not None else "writing again")
+        lost = f", {self.dropped} payloads not recorded" if self.dropped else ""
+        return f"recording in {self.out}: {state}{lost}"
+
     def __call__(self, vehicle_id: str, kind: str, payload: bytes) -> None:
         item = self._item(vehicle_id, kind, bytes(payload), time.time())
         if item is None:

@@ -132,13 +132,13 @@ class FleetReport:
     mean_pd: float | None
     cells_free: int
     refused: dict[str, int] = field(default_factory=dict)
-    bus_warning: str | None = None
+    station: tuple[str, ...] = ()
+    """The ground station's own warnings (its bus, its recording)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """The bus's warning, every vehicle's, then the watcher's own refusals."""
-        out = [] if self.bus_warning is None else [self.bus_warning]
-        out += [w for v in self.vehicles for w in v.warnings]
+        """The station's warnings, every vehicle's, then the payloads refused."""
+        out = [*self.station, *(w for v in self.vehicles for w in v.warnings)]
         if self.refused:
             out.append("refused: " + ", ".join(f"{n} {why}" for why, n in
                                                sorted(self.refused.items())))
@@ -405,13 +405,12 @@ class Watcher:
         return None
 
     def on_bad_payload(self, vehicle_id: str, error: BusPayloadError) -> None:
-        """A payload that did not decode: counted, never applied, and no vehicle row is
-        made for it."""
+        """A payload that did not decode: counted by its reason, never applied, and no
+        vehicle row is made for it."""
         feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
         if feed is not None:
             feed.bad_payloads += 1
-        else:
-            self.refused["bad payloads"] += 1
+        self.refused[f"payloads: {error.reason.value}"] += 1
 
     def poll(self, now_s: float) -> list[QuerySnapshot]:
         """Timers: a snapshot reply overdue, or announced tiles that never came."""
@@ -470,12 +469,12 @@ class Watcher:
         mean_pd = None
         cells_free = 0
         if merged is not None:
-            props = {t: merged.proportion_at_or_above(t) for t in thresholds}
+            props = merged.proportions_at_or_above(thresholds)
             cells_free = int(merged.mask.sum())
             mean_pd = float(merged.pd[merged.mask].mean()) if cells_free else 0.0
         target = max(self.thresholds or thresholds) if thresholds else None
         return FleetReport(vehicles, ids, thresholds, target, props, mean_pd, cells_free,
-                           dict(self.refused), self.bus_warning)
+                           dict(self.refused), tuple(w for w in (self.bus_warning,) if w))
 
     # -- internals ----------------------------------------------------------------------
 
@@ -594,7 +593,7 @@ class Watcher:
         if ready and feed.state is not None:
             s = feed.state
             free = s.mask
-            props = {t: s.proportion_at_or_above(t) for t in thresholds}
+            props = s.proportions_at_or_above(thresholds)
             mean_pd: float | None = float(s.pd[free].mean()) if free.any() else 0.0
         else:
             props = status_props
@@ -627,12 +626,11 @@ class Watcher:
             return False
         if not free:
             return True
-        pd = state.pd[state.mask]
-        for name, share in doc["proportion_at_or_above"].items():
-            t = float(name)
-            if abs(float((pd >= t).sum()) / free - share) > 0.5 / free:
-                return False
-        return abs(float(pd.mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE
+        shares = doc["proportion_at_or_above"]
+        mine = state.proportions_at_or_above(float(name) for name in shares)
+        if any(abs(mine[float(name)] - share) > 0.5 / free for name, share in shares.items()):
+            return False
+        return abs(float(state.pd[state.mask].mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE
 
 
 def _union_thresholds(groups: Any) -> tuple[float, ...]:
