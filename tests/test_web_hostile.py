@@ -116,6 +116,42 @@ def test_the_state_is_built_once_per_version_for_every_client():
     assert builds == list(range(n_changes + 1)), builds
 
 
+def test_a_state_that_cannot_be_built_keeps_the_map_and_says_so(caplog):
+    """A defect in building one update must not end the stream or answer 500: the page
+    keeps the last state, with the error to show (app.js), and the next version is built
+    again."""
+    version = [0]
+
+    def state():
+        if version[0] == 1:
+            raise KeyError("fleet")
+        return {"version": version[0], "fleet": {"target": 0.8}}
+
+    async def run():
+        import aiohttp
+
+        web = await _serve(state, lambda: version[0], period_s=0.02, refresh_s=3600.0)
+        base = f"http://127.0.0.1:{web.port}"
+        try:
+            async with aiohttp.ClientSession(headers=AUTH) as http:
+                stream = await http.get(f"{base}/events")
+                assert (await _first_event(stream))["version"] == 0
+                version[0] = 1
+                bad = await asyncio.wait_for(_first_event(stream), 10)
+                assert bad["version"] == 1 and bad["fleet"] == {"target": 0.8}
+                assert bad["build_error"] == "KeyError: 'fleet'"
+                async with http.get(f"{base}/state.json") as r:
+                    assert r.status == 200 and strict(await r.read())["build_error"]
+                version[0] = 2
+                good = await asyncio.wait_for(_first_event(stream), 10)
+                assert good == {"version": 2, "fleet": {"target": 0.8}}
+                stream.close()
+        finally:
+            await web.stop()
+    asyncio.run(run())
+    assert sum("could not be built" in r.getMessage() for r in caplog.records) == 1
+
+
 def test_the_state_is_rebuilt_after_refresh_s_for_the_ages():
     builds = []
 

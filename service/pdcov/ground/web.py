@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import logging
 import math
 import socket
 from collections.abc import Callable
@@ -34,6 +35,7 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.ground.watcher import FleetReport, VehicleFeed, Watcher
 from pdcov.ground.web_auth import Granted, WebAccess
 
+log = logging.getLogger("pdcov.watch")
 MAX_SIDE = 400
 ASSETS = {"/": ("index.html", "text/html"), "/app.js": ("app.js", "text/javascript"),
           "/style.css": ("style.css", "text/css")}
@@ -217,6 +219,7 @@ class WebMap:
         self._runner: Any = None
         self._closing = asyncio.Event()
         self._built: _Built | None = None
+        self._build_error: str | None = None  # the last build's failure, logged once
 
     def current(self) -> _Built:
         """The state for the current version, built now only when none is held for it or
@@ -225,7 +228,19 @@ class WebMap:
         now = asyncio.get_running_loop().time()
         built = self._built
         if built is None or built.version != v or now - built.built_s >= self.refresh_s:
-            built = self._built = _Built(v, now, state_json(self.state()))
+            try:
+                data = state_json(self.state())
+            except Exception as exc:  # noqa: BLE001 - a defect here must not end the map
+                if self._build_error != repr(exc):
+                    log.exception("web map: the state could not be built (the page keeps "
+                                  "the last one and says so)")
+                self._build_error = repr(exc)
+                data = state_json({**(json.loads(built.data) if built else {}),
+                                   "version": v, "build_error": f"{type(exc).__name__}: "
+                                                                f"{exc}"})
+            else:
+                self._build_error = None
+            built = self._built = _Built(v, now, data)
         return built
 
     async def start(self) -> None:

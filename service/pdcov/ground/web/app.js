@@ -238,6 +238,9 @@ events.onmessage = (e) => {
     showError("an update from pdcov watch could not be read", err);
     return;
   }
+  if (s.build_error) {  // pdcov watch could not build this update: it resent the last one
+    showError("pdcov watch could not build the map state", s.build_error);
+  }
   const previous = state;
   try {
     show(s);
@@ -246,7 +249,9 @@ events.onmessage = (e) => {
     showError("an update from pdcov watch could not be drawn", err);
     return;
   }
-  document.getElementById("error").hidden = true;
+  if (!s.build_error) {
+    document.getElementById("error").hidden = true;
+  }
 };
 events.onerror = () => {
   // CLOSED: the server refused the stream (e.g. restarted with a new token); else retrying.
