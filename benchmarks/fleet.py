@@ -55,7 +55,8 @@ DOC_START, DOC_END = "<!-- fleet-security:start -->", "<!-- fleet-security:end -
 SECURITY_TESTS = ("tests/test_security_zenoh.py", "tests/test_security_mavlink.py",
                   "tests/test_status_size.py", "tests/test_web_auth.py",
                   "tests/test_bus_hostile.py", "tests/test_web_hostile.py",
-                  "tests/test_record_errors.py", "tests/test_security_daemon.py")
+                  "tests/test_record_errors.py", "tests/test_security_daemon.py",
+                  "tests/test_watcher_pinning.py", "tests/test_watch_hostile.py")
 SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Zenoh over TLS',
      "a TLS router; a client trusting the CA receives a peer's put; a client trusting "
@@ -105,8 +106,19 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Status within 1 kB/s',
      "full and brief statuses (docs/protocol.md): a minute of a flying daemon's "
      'statuses averages under 1000 B/s (tests/test_status_size.py); per vehicle in the '
-     "fleet above on the daemon's clock: see its status column (a checkpoint every 5 s "
-     'makes every fifth status full: over the budget, tests/test_fleet.py expects it)'),
+     "fleet above on the daemon's clock: see its status column (a checkpoint's progress "
+     'no longer makes its status full, tests/test_fleet.py)'),
+    ('Forged coverage on the default bus',
+     "`pdcov watch` as a process through a real router, a rogue session beside the "
+     "vehicle's publisher: tiles with the vehicle's next seq and every cell at P_D 1, "
+     "as a plain put and stamped with the rogue's own source: the recorded grid equals "
+     "the daemon's cell for cell, the coverage shown is the daemon's, `also claims this "
+     "vehicle` and `bus not secured` shown; a rogue answering the snapshot query too: "
+     'the vehicle contested, no coverage shown for it; in memory: rechecks at most every '
+     "10 s, a restarted daemon's new session followed, forged tiles stamped with the "
+     "daemon's own id caught by the status cross-check, the 83-byte replayed tiles "
+     'message dropped after one snapshot, 64 vehicles at most, merged counts in int64, '
+     "the ground station's headline threshold and grid"),
     ('Hostile payloads',
      'every status, tiles, snapshot, footprint and mission field the watcher and the web '
      'map read, of the wrong type, out of range, NaN / Infinity / 1e400 or beyond a bound '
