@@ -16,10 +16,11 @@ from pdcov.bus.grid_state import grid_hash
 from pdcov.bus.session import BusConfig, bus_security
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
+from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
 from pdcov.ground.terminal import headline, plain_lines, render
-from pdcov.ground.watcher import FleetReport, Watcher
+from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 from typing import Any
 
-from pdcov.ground.watcher import FleetReport, VehicleReport
+from pdcov.ground.fleet_report import FleetReport, VehicleReport
 
 # 5-row glyphs for the large coverage figure, '#' on ' '.
 _BIG = {

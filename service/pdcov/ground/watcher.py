@@ -36,10 +36,8 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
@@ -47,10 +45,11 @@ from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.sources import SessionId
 from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
-from pdcov.ground.claims import ClaimVerdict, SessionClaim, short_session
+from pdcov.ground.claims import ClaimVerdict
+from pdcov.ground.feed import VehicleFeed
+from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
 
-__all__ = ["MAX_VEHICLES", "FleetReport", "QueryMission", "QuerySnapshot", "VehicleFeed",
-           "VehicleReport", "Watcher"]
+__all__ = ["MAX_VEHICLES", "QueryMission", "QuerySnapshot", "Watcher"]
 
 MAX_VEHICLES = 64
 """Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
@@ -74,108 +73,6 @@ class QueryMission:
     on_mission_failed)."""
 
     vehicle_id: str
-
-
-@dataclass(frozen=True, slots=True)
-class VehicleReport:
-    """One vehicle's figures. proportion_at_or_above / mean_pd come from the rebuilt grid
-    when it is ready, else from the last status; age_s: seconds since its last message
-    (None: nothing yet); link: the daemon's link state ("" unknown)."""
-
-    vehicle_id: str
-    alive: bool | None
-    grid_ready: bool
-    thresholds: tuple[float, ...]
-    proportion_at_or_above: dict[float, float]
-    mean_pd: float | None
-    frames_used: int | None
-    frames_skipped: int | None
-    link: str
-    age_s: float | None
-    status_proportion_at_or_above: dict[float, float]
-    gaps: int
-    snapshots: int
-    bad_payloads: int
-    session: str | None = None
-    rivals: tuple[str, ...] = ()
-    contested: bool = False
-    refused: int = 0
-    status_disagreements: int = 0
-    status_agrees: bool | None = None
-
-    @property
-    def warnings(self) -> tuple[str, ...]:
-        """What the operator must be told about this vehicle, one line each."""
-        out = []
-        if self.contested:
-            out.append(f"{self.vehicle_id}: sessions {', '.join(self.rivals)} all answer as "
-                       "this vehicle: its map is not trusted until one remains")
-        elif self.rivals:
-            out.append(f"{self.vehicle_id}: session {', '.join(self.rivals)} also claims this "
-                       f"vehicle ({self.refused} samples refused; trusted: {self.session})")
-        if self.status_agrees is False:
-            out.append(f"{self.vehicle_id}: its status disagrees with the grid rebuilt from "
-                       f"its tiles ({self.status_disagreements} times): grid fetched again")
-        return tuple(out)
-
-
-@dataclass(frozen=True, slots=True)
-class FleetReport:
-    """The fleet's merged figures over the vehicles in ``merged`` (those sharing one grid),
-    and each vehicle's. target: the threshold shown large (the highest configured)."""
-
-    vehicles: tuple[VehicleReport, ...]
-    merged: tuple[str, ...]
-    thresholds: tuple[float, ...]
-    target: float | None
-    proportion_at_or_above: dict[float, float]
-    mean_pd: float | None
-    cells_free: int
-    refused: dict[str, int] = field(default_factory=dict)
-    station: tuple[str, ...] = ()
-    """The ground station's own warnings (its bus, its recording)."""
-
-    @property
-    def warnings(self) -> tuple[str, ...]:
-        """The station's warnings, every vehicle's, then the payloads refused."""
-        out = [*self.station, *(w for v in self.vehicles for w in v.warnings)]
-        if self.refused:
-            out.append("refused: " + ", ".join(f"{n} {why}" for why, n in
-                                               sorted(self.refused.items())))
-        return tuple(out)
-
-
-@dataclass(slots=True)
-class VehicleFeed:
-    """What the watcher holds about one vehicle (mutable, owned by the Watcher)."""
-
-    vehicle_id: str
-    state: GridState | None = None
-    status: dict[str, Any] | None = None
-    alive: bool | None = None
-    last_msg_s: float | None = None
-    awaiting_since_s: float | None = None
-    pending: list[tuple[TileUpdate, SessionId]] = field(default_factory=list)
-    status_session: SessionId = None  # the sessions the status, mission and footprint held
-    mission_session: SessionId = None  # came from (ground/claims.py)
-    footprint_session: SessionId = None
-    last_seq: int | None = None
-    seq_floor: int | None = None
-    behind_since_s: float | None = None
-    track_lat_lon_alt: list[tuple[float, float, float]] = field(default_factory=list)
-    last_pose_t_s: float | None = None
-    footprint: dict[str, Any] | None = None
-    mission: MissionGeometry | None = None
-    mission_asked_for: str | None = None  # the grid hash the last mission query was for
-    mission_retry_at_s: float | None = None  # None while a query is out (or none needed)
-    gaps: int = 0
-    snapshots: int = 0
-    bad_payloads: int = 0
-    received: Counter[str] = field(default_factory=Counter)
-    claim: SessionClaim = field(default_factory=SessionClaim)
-    first_heard_s: float = 0.0
-    status_disagreements: int = 0
-    status_agrees: bool | None = None
 
 
 class Watcher:
@@ -434,36 +331,13 @@ class Watcher:
         overflow), and their ids (sorted). The fleet's grid is the ground station's
         (grid_hash) when a vehicle flies it, else the one most vehicles fly (ties: the
         vehicle heard first)."""
-        ready = [f for f in self.feeds.values()
-                 if f.state is not None and f.awaiting_since_s is None]
-        if not ready:
-            return None, ()
-        hashes = Counter(f.state.hash for f in ready if f.state is not None)
-        if self.grid_hash in hashes:
-            top = self.grid_hash
-        else:
-            first = {f.state.hash: f.first_heard_s for f in
-                     sorted(ready, key=lambda f: f.first_heard_s, reverse=True)
-                     if f.state is not None}
-            top = max(hashes, key=lambda h: (hashes[h], -first[h]))
-        group = sorted((f for f in ready if f.state is not None and f.state.hash == top),
-                       key=lambda f: f.vehicle_id)
-        states = [f.state for f in group if f.state is not None]
-        base = states[0]
-        merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
-                           base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
-        for s in states[1:]:
-            merged.log_miss_d += s.log_miss_d
-            merged.log_miss_fa += s.log_miss_fa
-            merged.n_obs += s.n_obs
-            merged.frames += s.frames
-        return merged, tuple(f.vehicle_id for f in group)
+        return merge_fleet(self.feeds.values(), self.grid_hash)
 
     def report(self, now_s: float) -> FleetReport:
         """Every vehicle's figures and the fleet's, as of ``now_s``."""
-        vehicles = tuple(self._vehicle_report(f, now_s)
+        vehicles = tuple(vehicle_report(f, now_s, self.thresholds)
                          for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id))
-        thresholds = _union_thresholds([self.thresholds, *(v.thresholds for v in vehicles)])
+        thresholds = union_thresholds([self.thresholds, *(v.thresholds for v in vehicles)])
         merged, ids = self.fleet_state()
         props: dict[float, float] = {}
         mean_pd = None
@@ -583,39 +457,6 @@ class Watcher:
         if len(feed.track_lat_lon_alt) > self.max_track_points:
             del feed.track_lat_lon_alt[: len(feed.track_lat_lon_alt) // 2: 2]  # thin the old
 
-    def _vehicle_report(self, feed: VehicleFeed, now_s: float) -> VehicleReport:
-        status = feed.status or {}
-        claim = feed.claim
-        thresholds = tuple(float(t) for t in status.get("thresholds", self.thresholds))
-        status_props = {float(k): float(v)
-                        for k, v in (status.get("proportion_at_or_above") or {}).items()}
-        ready = feed.state is not None and feed.awaiting_since_s is None
-        if ready and feed.state is not None:
-            s = feed.state
-            free = s.mask
-            props = s.proportions_at_or_above(thresholds)
-            mean_pd: float | None = float(s.pd[free].mean()) if free.any() else 0.0
-        else:
-            props = status_props
-            mean_pd = status.get("mean_pd")
-        frames = status.get("frames") or {}
-        skipped = frames.get("skipped")
-        link = status.get("link") or {}
-        return VehicleReport(
-            vehicle_id=feed.vehicle_id, alive=feed.alive, grid_ready=ready,
-            thresholds=thresholds, proportion_at_or_above=props, mean_pd=mean_pd,
-            frames_used=frames.get("used"),
-            frames_skipped=(sum(v for v in skipped.values() if isinstance(v, int))
-                            if isinstance(skipped, dict) else skipped),
-            link=str(link.get("state", "")) if isinstance(link, dict) else str(link),
-            age_s=None if feed.last_msg_s is None else max(0.0, now_s - feed.last_msg_s),
-            status_proportion_at_or_above=status_props, gaps=feed.gaps,
-            snapshots=feed.snapshots, bad_payloads=feed.bad_payloads,
-            session=short_session(claim.session) if claim.pinned else None,
-            rivals=tuple(short_session(s) for s in (claim.contested or claim.rivals(now_s))),
-            contested=bool(claim.contested), refused=claim.refused,
-            status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees)
-
     @staticmethod
     def _status_agrees(state: GridState, doc: dict[str, Any]) -> bool:
         """Whether the status's figures are those of the rebuilt grid (same frames, every
@@ -631,11 +472,3 @@ class Watcher:
         if any(abs(mine[float(name)] - share) > 0.5 / free for name, share in shares.items()):
             return False
         return abs(float(state.pd[state.mask].mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE
-
-
-def _union_thresholds(groups: Any) -> tuple[float, ...]:
-    out: set[float] = set()
-    for g in groups:
-        out.update(g)
-    return tuple(sorted(out))
-

@@ -32,7 +32,9 @@ import numpy as np
 from pdcov.bus.json_doc import finite_or_null
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.ground.watcher import FleetReport, VehicleFeed, Watcher
+from pdcov.ground.feed import VehicleFeed
+from pdcov.ground.fleet_report import FleetReport
+from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import Granted, WebAccess
 
 log = logging.getLogger("pdcov.watch")

@@ -1,0 +1,165 @@
+"""What the watcher reports (ground/watcher.py ``Watcher.report``): each vehicle's figures,
+the fleet's merged grid and figures, and the lines the operator must be told. Values and
+pure functions: the terminal view, the web map and the recording read them."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pdcov.bus.grid_state import GridState
+from pdcov.ground.claims import short_session
+from pdcov.ground.feed import VehicleFeed
+
+__all__ = ["FleetReport", "VehicleReport", "merge_fleet", "union_thresholds", "vehicle_report"]
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleReport:
+    """One vehicle's figures. proportion_at_or_above / mean_pd come from the rebuilt grid
+    when it is ready, else from the last status; age_s: seconds since its last message
+    (None: nothing yet); link: the daemon's link state ("" unknown)."""
+
+    vehicle_id: str
+    alive: bool | None
+    grid_ready: bool
+    thresholds: tuple[float, ...]
+    proportion_at_or_above: dict[float, float]
+    mean_pd: float | None
+    frames_used: int | None
+    frames_skipped: int | None
+    link: str
+    age_s: float | None
+    status_proportion_at_or_above: dict[float, float]
+    gaps: int
+    snapshots: int
+    bad_payloads: int
+    session: str | None = None
+    rivals: tuple[str, ...] = ()
+    contested: bool = False
+    refused: int = 0
+    status_disagreements: int = 0
+    status_agrees: bool | None = None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What the operator must be told about this vehicle, one line each."""
+        out = []
+        if self.contested:
+            out.append(f"{self.vehicle_id}: sessions {', '.join(self.rivals)} all answer as "
+                       "this vehicle: its map is not trusted until one remains")
+        elif self.rivals:
+            out.append(f"{self.vehicle_id}: session {', '.join(self.rivals)} also claims this "
+                       f"vehicle ({self.refused} samples refused; trusted: {self.session})")
+        if self.status_agrees is False:
+            out.append(f"{self.vehicle_id}: its status disagrees with the grid rebuilt from "
+                       f"its tiles ({self.status_disagreements} times): grid fetched again")
+        return tuple(out)
+
+
+@dataclass(frozen=True, slots=True)
+class FleetReport:
+    """The fleet's merged figures over the vehicles in ``merged`` (those sharing one grid),
+    and each vehicle's. target: the threshold shown large (the highest configured)."""
+
+    vehicles: tuple[VehicleReport, ...]
+    merged: tuple[str, ...]
+    thresholds: tuple[float, ...]
+    target: float | None
+    proportion_at_or_above: dict[float, float]
+    mean_pd: float | None
+    cells_free: int
+    refused: dict[str, int] = field(default_factory=dict)
+    station: tuple[str, ...] = ()
+    """The ground station's own warnings (its bus, its recording)."""
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The station's warnings, every vehicle's, then the payloads refused."""
+        out = [*self.station, *(w for v in self.vehicles for w in v.warnings)]
+        if self.refused:
+            out.append("refused: " + ", ".join(f"{n} {why}" for why, n in
+                                               sorted(self.refused.items())))
+        return tuple(out)
+
+
+def vehicle_report(feed: VehicleFeed, now_s: float, default_thresholds: tuple[float, ...]
+               ) -> VehicleReport:
+    """One vehicle's figures as of ``now_s``: from its rebuilt grid when ready, else from
+    its last status; ``default_thresholds`` until its status lists its own."""
+    status = feed.status or {}
+    claim = feed.claim
+    thresholds = tuple(float(t) for t in status.get("thresholds", default_thresholds))
+    status_props = {float(k): float(v)
+                    for k, v in (status.get("proportion_at_or_above") or {}).items()}
+    ready = feed.state is not None and feed.awaiting_since_s is None
+    if ready and feed.state is not None:
+        s = feed.state
+        free = s.mask
+        props = s.proportions_at_or_above(thresholds)
+        mean_pd: float | None = float(s.pd[free].mean()) if free.any() else 0.0
+    else:
+        props = status_props
+        mean_pd = status.get("mean_pd")
+    frames = status.get("frames") or {}
+    skipped = frames.get("skipped")
+    link = status.get("link") or {}
+    return VehicleReport(
+        vehicle_id=feed.vehicle_id, alive=feed.alive, grid_ready=ready,
+        thresholds=thresholds, proportion_at_or_above=props, mean_pd=mean_pd,
+        frames_used=frames.get("used"),
+        frames_skipped=(sum(v for v in skipped.values() if isinstance(v, int))
+                        if isinstance(skipped, dict) else skipped),
+        link=str(link.get("state", "")) if isinstance(link, dict) else str(link),
+        age_s=None if feed.last_msg_s is None else max(0.0, now_s - feed.last_msg_s),
+        status_proportion_at_or_above=status_props, gaps=feed.gaps,
+        snapshots=feed.snapshots, bad_payloads=feed.bad_payloads,
+        session=short_session(claim.session) if claim.pinned else None,
+        rivals=tuple(short_session(s) for s in (claim.contested or claim.rivals(now_s))),
+        contested=bool(claim.contested), refused=claim.refused,
+        status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees)
+
+
+def union_thresholds(groups: Any) -> tuple[float, ...]:
+    """The sorted union of threshold groups."""
+    out: set[float] = set()
+    for g in groups:
+        out.update(g)
+    return tuple(sorted(out))
+
+
+def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
+                ) -> tuple[GridState | None, tuple[str, ...]]:
+    """The merged grid of the ready vehicles that share the fleet's grid, and their ids
+    (sorted): log-miss sums added as float32, as the daemons hold them; counts added in
+    int64, which cannot overflow. The fleet's grid is ``grid_hash`` (the ground station's)
+    when a vehicle flies it, else the one most vehicles fly (ties: the vehicle heard
+    first)."""
+    ready = [f for f in feeds
+             if f.state is not None and f.awaiting_since_s is None]
+    if not ready:
+        return None, ()
+    hashes = Counter(f.state.hash for f in ready if f.state is not None)
+    if grid_hash in hashes:
+        top = grid_hash
+    else:
+        first = {f.state.hash: f.first_heard_s for f in
+                 sorted(ready, key=lambda f: f.first_heard_s, reverse=True)
+                 if f.state is not None}
+        top = max(hashes, key=lambda h: (hashes[h], -first[h]))
+    group = sorted((f for f in ready if f.state is not None and f.state.hash == top),
+                   key=lambda f: f.vehicle_id)
+    states = [f.state for f in group if f.state is not None]
+    base = states[0]
+    merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
+                       base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
+    for s in states[1:]:
+        merged.log_miss_d += s.log_miss_d
+        merged.log_miss_fa += s.log_miss_fa
+        merged.n_obs += s.n_obs
+        merged.frames += s.frames
+    return merged, tuple(f.vehicle_id for f in group)
