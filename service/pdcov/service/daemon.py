@@ -48,8 +48,7 @@ from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.systemd_notify import SystemdNotifier
-from pdcov.telemetry.gimbal import mount_param_names
-from pdcov.telemetry.link_params import MOUNT_TYPE_PARAMS
+from pdcov.telemetry.gimbal import MOUNT_TYPE_PARAMS, mount_param_names
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
 from pdcov.telemetry.samples import CaptureSample
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
+from pdcov.telemetry.frame_policy import AttitudeSource
 from pdcov.telemetry.gimbal import preferred_gimbal_source
 from pdcov.telemetry.recorded_frames import (
     MARK,
@@ -301,19 +302,22 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
 
 
 def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:
-    """The autopilot's attitude samples by the daemon's causal rule (LinkProtocol.receive):
-    ATTITUDE_QUATERNION until the autopilot's first ATTITUDE message (index ``first_euler``
-    in the log, None: none), ATTITUDE from then on; in log order, so that of equal times
-    the later message wins, as live. A log or link that starts between the two messages of
-    one attitude then gives live and offline the same samples (the first frame time
-    follows the first attitude)."""
-    stop = math.inf if first_euler is None else first_euler
-    quats = [(i, smp) for i, smp in zip(ap.message_index.get("AttitudeSampleQ", []),
-                                        ap.samples.get("AttitudeSampleQ", []), strict=True)
-             if i < stop]
-    eulers = list(zip(ap.message_index.get("AttitudeSample", []),
-                      ap.samples.get("AttitudeSample", []), strict=True))
-    return [smp for _i, smp in sorted(quats + eulers, key=lambda x: x[0])]
+    """The autopilot's attitude samples by the rule the daemon applies on its link
+    (frame_policy.AttitudeSource, which LinkProtocol.receive calls too): its messages fed
+    in log order, its first ATTITUDE message (index ``first_euler`` in the log, None:
+    none) included even when it gave no sample, as live; of equal times the later message
+    wins, as live."""
+    events = [(i, 1, "ATTITUDE_QUATERNION", smp) for i, smp in zip(
+        ap.message_index.get("AttitudeSampleQ", []), ap.samples.get("AttitudeSampleQ", []),
+        strict=True)]
+    events += [(i, 1, "ATTITUDE", smp) for i, smp in zip(
+        ap.message_index.get("AttitudeSample", []), ap.samples.get("AttitudeSample", []),
+        strict=True)]
+    if first_euler is not None:
+        events.append((first_euler, 0, "ATTITUDE", None))
+    rule = AttitudeSource()
+    return [smp for _i, _k, mtype, smp in sorted(events, key=lambda e: (e[0], e[1]))
+            if rule.takes(mtype) and smp is not None]
 
 
 def _estimator(samples: list[EstimatorSample], source: str) -> tuple[EstimatorSeries, str]:
