@@ -26,15 +26,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pdcov.telemetry.clocks import VehicleClock
-from pdcov.telemetry.frame_policy import AttitudeSource, TextEnum
+from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnum
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
-    AttitudeSample,
-    EstimatorSample,
     HeartbeatSample,
     ParamSample,
-    PositionSample,
     Sample,
     mavlink_boot_time_s,
     sample_from_mavlink,
@@ -62,8 +59,6 @@ RETRY_S = 1.0
 MAX_TRIES = 4
 HELD_MESSAGES = 5000
 """Messages kept from before the autopilot's first HEARTBEAT (a few seconds of streams)."""
-AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample)
-"""Samples taken from the autopilot component only."""
 
 
 class RequestResult(TextEnum):
@@ -254,9 +249,7 @@ class LinkProtocol:
         if sample is None and mtype in MAVLINK_TYPES and not _no_value_yet(msg):
             self.stats.rejected[mtype] += 1  # NaN, out of range: samples.py's adapters
         if isinstance(sample, AUTOPILOT_ONLY) and not autopilot:
-            # The vehicle's attitude, position, parameters and estimator are the
-            # autopilot's own, as the log readers take them (a companion computer or an OSD
-            # of the same system may send ATTITUDE or GLOBAL_POSITION_INT too).
+            # frame_policy.AUTOPILOT_ONLY: the autopilot's own (the tlog reader's rule too).
             return early
         if isinstance(sample, ParamSample) and sample.name in self._param_names:
             self.params[sample.name] = sample.value

@@ -33,10 +33,10 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: speak MAVLink 2
 
-from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.service.link_protocol import LinkState  # noqa: E402
+from pdcov.service.link_protocol import LinkState
 
 log = logging.getLogger(__name__)
 READ_BYTES = 65536

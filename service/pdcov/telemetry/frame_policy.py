@@ -6,6 +6,7 @@ because two copies are kept equal:
 
 * where frames go: ``FrameSource`` and the rate ``FrameLattice`` (t0 + k / rate from the
   first time every needed stream has samples);
+* whose samples count: ``AUTOPILOT_ONLY``;
 * which attitude messages count: ``AttitudeSource`` (ATTITUDE once the autopilot sends it,
   ATTITUDE_QUATERNION only before);
 * which frames are used: ``untrusted_policy`` / ``frames_used`` (valid, and trusted unless
@@ -31,7 +32,13 @@ import numpy as np
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
-from pdcov.telemetry.samples import HomeSample
+from pdcov.telemetry.samples import (
+    AttitudeSample,
+    EstimatorSample,
+    HomeSample,
+    ParamSample,
+    PositionSample,
+)
 
 
 class TextEnum(str, Enum):
@@ -61,6 +68,12 @@ class SkipReason(TextEnum):
     BELOW_MIN_HEIGHT = "below min height"
     LATE_FRAME_TIME = "late frame time"
 
+
+AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample)
+"""Samples taken from the autopilot component only, live and offline: the vehicle's
+attitude, position, parameters and estimator are the autopilot's own (a companion computer
+or an OSD of the same system may send ATTITUDE or GLOBAL_POSITION_INT too); gimbal, home
+and capture reports come from any component of the vehicle's system."""
 
 UNTRUSTED_PREFIX = "gimbal untrusted: "
 """The live count of an untrusted frame skipped: this prefix and its reason."""
