@@ -46,6 +46,7 @@ from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
 from pdcov.telemetry.frame_policy import (
     FrameLattice,
     FrameSource,
+    SkipReason,
     frames_used,
     home_ground_alt,
     position_ground_alt,
@@ -344,7 +345,7 @@ class PoseTracker:
             r_body = self._pos_enu[lo] + w[:, None] * step
             jump = np.linalg.norm(step, axis=1) > (
                 MAX_SPEED_MPS * (self._pos_t[hi] - self._pos_t[lo]) + POSITION_JUMP_SLACK_M)
-            reason[inside & jump & (reason == "")] = "position jump"
+            reason[inside & jump & (reason == "")] = SkipReason.POSITION_JUMP.value
         else:
             r_body = np.zeros((n, 3))
 
