@@ -56,6 +56,7 @@ from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.daemon import TICK_S
 from pdcov.service.mavlink_io import mavlink
 from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.pose_tracker import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner
 
@@ -216,7 +217,7 @@ def offline_pass(rec: Recording) -> PathRun:
                             ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
                             frame_rate_hz=m.frame_rate_hz, frame_source=m.frame_source,
                             max_gap_s=m.max_gap_s, system_id=m.system_id)
-        poses = [p for p in lp.poses if p.r_cam_enu[2] >= m.min_height_m]
+        poses = [p for p in lp.poses if not below_min_height(p.r_cam_enu[2], m.min_height_m)]
         evaluate_poses(grid, poses, progress=False, total=len(poses))
         return messages, len(poses), grid
 

@@ -21,6 +21,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.settings import ServeConfig, load_serve_config
+from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
@@ -85,7 +86,7 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
                         estimator_status=m.estimator_status)
     grid = m.new_grid()
     for p in lp.poses:
-        if p.r_cam_enu[2] >= m.min_height_m:
+        if not below_min_height(p.r_cam_enu[2], m.min_height_m):
             grid.update(p)
     return lp, grid
 

@@ -3,7 +3,8 @@
 ``ServiceCore`` is fed events and the time: MAVLink messages as parsed
 (``receive_mavlink``), a detector's frames payloads (``receive_frames``), the end of a loop
 pass (``process``), the timer (``tick``) and the outcome of what the shell did
-(``checkpoint_written``, ``put_failed``). It never reads a clock, a socket or a file:
+(``checkpoint_written``, ``put_failed``, ``snapshot_sent``) and snapshot queries
+(``admit_snapshot``). It never reads a clock, a socket or a file:
 ``now_s`` is the shell's one monotonic clock (s), and the only wall-clock time it sees is a
 value the shell passes for the checkpoint's ``written_unix_s``. What to do comes out of
 ``actions()`` (messages to send on every link, bytes to record, tiles to publish, whether a
@@ -18,7 +19,7 @@ and the grid (``LiveCoverage``), and here: detector frames held until the autopi
 known (at most EARLY_FRAMES, oldest dropped) and those beyond a recordable time refused;
 a capture event that came too late to be taken (its not-taken mark in the recording);
 the checkpoint's metadata and error state; the kernel-drop warning's rate limit; the
-link's state in the status.
+link's state in the status; which snapshot queries are answered (query_limit).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from pdcov.service.link_protocol import (
     LinkProtocol,
     LinkState,
 )
+from pdcov.service.query_limit import QueryLimiter
 from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
@@ -67,8 +69,7 @@ status)."""
 class LinkReport:
     """What the shell's links and files say, for the status (I/O facts the core cannot
     see): each link's ``describe()`` and state, their URLs, losses, datagrams the kernel
-    dropped, chunks pymavlink failed to parse, the recording's error, snapshot queries
-    refused."""
+    dropped, chunks pymavlink failed to parse, the recording's error."""
 
     links: tuple[dict[str, Any], ...] = ()
     states: tuple[LinkState, ...] = ()
@@ -77,7 +78,6 @@ class LinkReport:
     kernel_drops: int = 0
     parse_errors: int = 0
     recording_error: str | None = None
-    snapshot_queries_refused: int = 0
 
 
 @dataclass(slots=True)
@@ -156,6 +156,7 @@ class ServiceCore:
         self._status_seq = 0
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
+        self.snapshot_limiter = QueryLimiter()
         self._out = Actions()
 
     def _resume(self, meta: CheckpointMeta) -> None:
@@ -264,6 +265,18 @@ class ServiceCore:
         NAMED_VALUE_FLOAT, HEARTBEAT or request retry."""
         return min(self.coverage.next_timer_s(), self.protocol.next_timer_s())
 
+    def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
+        """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
+        ``now_s``: None, or why not (over its rate or all replies' bytes/s: query_limit;
+        counted in faults.snapshot_queries_refused). ``snapshot_sent`` then takes the
+        reply's size."""
+        limiter = self.snapshot_limiter
+        refusal = limiter.admit(requester, now_s)
+        return None if refusal is None else limiter.limits.reason(refusal)
+
+    def snapshot_sent(self, n_bytes: int) -> None:
+        self.snapshot_limiter.sent(n_bytes)
+
     def put_failed(self) -> None:
         """A Zenoh put failed (no peer, a closing session): counted."""
         self.coverage.counters.faults["zenoh_put_errors"] += 1
@@ -304,7 +317,7 @@ class ServiceCore:
         self._kernel_drops = faults["kernel_drops"] = drops
         faults["rejected_messages"] = sum(proto.stats.rejected.values())
         faults["other_systems_messages"] = proto.stats.other_systems
-        faults["snapshot_queries_refused"] = report.snapshot_queries_refused
+        faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
         self.checkpoint.recording_error = report.recording_error
         fields = live.status_fields(uptime_s=round(now_s - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(report),

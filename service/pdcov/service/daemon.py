@@ -40,7 +40,6 @@ from pdcov.service.core import Actions, LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 from pdcov.service.mavlink_io import Connection
-from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.systemd_notify import SystemdNotifier
@@ -94,7 +93,6 @@ class Daemon:
         self.keys = self.core.keys
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
         self._snapshot: tuple[int, bytes] | None = None  # (grid frames, bytes)
-        self._snapshot_limiter = QueryLimiter()
 
     # --- start ----------------------------------------------------------------------------
 
@@ -218,13 +216,12 @@ class Daemon:
         """On the loop: the snapshot, or a ``reply_err`` saying why when the requester or
         all snapshot replies together are over their rate (query_limit; counted in
         faults.snapshot_queries_refused)."""
-        limiter = self._snapshot_limiter
-        refusal = limiter.admit(source_session(query), self._clock())
+        refusal = self.core.admit_snapshot(source_session(query), self._clock())
         if refusal is None:
-            limiter.sent(self._reply(query, self._snapshot_bytes))
+            self.core.snapshot_sent(self._reply(query, self._snapshot_bytes))
             return
         try:
-            query.reply_err(limiter.limits.reason(refusal))
+            query.reply_err(refusal)
         except Exception as exc:  # noqa: BLE001 - as _reply
             log.debug("query %s: refusal not sent: %s", query.key_expr, exc)
         finally:
@@ -319,8 +316,7 @@ class Daemon:
             losses=sum(c.losses for c in self.links),
             kernel_drops=sum(c.kernel_drops for c in self.links),
             parse_errors=sum(c.bad for c in self.links),
-            recording_error=self.recorder.error if self.recorder is not None else None,
-            snapshot_queries_refused=sum(self._snapshot_limiter.refused.values()))
+            recording_error=self.recorder.error if self.recorder is not None else None)
 
     def _publish_status(self) -> None:
         now = self._clock()

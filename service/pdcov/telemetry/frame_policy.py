@@ -26,6 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import Literal
 
 import numpy as np
 
@@ -124,13 +125,19 @@ class AttitudeSource:
         return not self.euler
 
 
-def untrusted_policy(mount: FixedMount | GimbalMount) -> str:
-    """'use' or 'skip' for frames whose camera direction is not trusted (mount.untrusted;
-    a fixed mount is always trusted: 'use')."""
-    return mount.untrusted if isinstance(mount, GimbalMount) else "use"
+UntrustedPolicy = Literal["use", "skip"]
 
 
-def frames_used(valid: np.ndarray, trusted: np.ndarray, policy: str) -> np.ndarray:
+def untrusted_policy(mount: FixedMount | GimbalMount) -> UntrustedPolicy:
+    """'use' or 'skip' for frames whose camera direction is not trusted (mount.untrusted,
+    which the config checks is one of the two; a fixed mount is always trusted: 'use')."""
+    if isinstance(mount, GimbalMount) and mount.untrusted != "use":
+        return "skip"
+    return "use"
+
+
+def frames_used(valid: np.ndarray, trusted: np.ndarray, policy: UntrustedPolicy
+                ) -> np.ndarray:
     """The frames added: valid (every stream brackets them), and trusted unless the policy
     uses untrusted frames too."""
     return valid & (trusted | (policy == "use"))

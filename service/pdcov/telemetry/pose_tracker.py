@@ -313,7 +313,7 @@ class PoseTracker:
         if not b.valid[0]:
             return FrameResult(None, False, reason)
         trusted = bool(b.trusted[0])
-        if not trusted and isinstance(self.mount, GimbalMount) and self.mount.untrusted == "skip":
+        if not trusted and untrusted_policy(self.mount) == "skip":
             return FrameResult(None, False, reason)
         return FrameResult(CameraPose(b.R_enu_cam[0], b.r_cam_enu[0], float(t_s)), trusted,
                            reason)
