@@ -228,13 +228,10 @@ class ServiceCore:
     def process(self) -> None:
         """Decide what the messages and frames received so far allow (once per loop pass,
         after every readable link)."""
-        if self._early_frames and self.protocol.autopilot_known:
+        proto = self.protocol
+        if self._early_frames and proto.autopilot_known:
             early, self._early_frames = list(self._early_frames), deque()
             self._take_frames(early)
-        self._process()
-
-    def _process(self) -> None:
-        proto = self.protocol
         self.coverage.set_params(proto.params, proto.params_done)
         self.coverage.process()
 
@@ -244,7 +241,8 @@ class ServiceCore:
         live, proto = self.coverage, self.protocol
         out = self._out
         out.send += proto.poll(now_s)
-        self._process()
+        live.set_params(proto.params, proto.params_done)  # a parameter read may time out
+        live.process()
         due = live.poll(now_s)
         if due.note is not None:
             out.logs.append((logging.WARNING, due.note))
