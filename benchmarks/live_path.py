@@ -15,12 +15,11 @@ Recordings, made first and not timed:
 Each recording is then run, in this process, twice:
 
 * live: every message's bytes, one message at a time as a link delivers them, through
-  pymavlink's parser (robust parsing, as mavlink_io) and the daemon's decisions as
-  ``Daemon._on_messages``/``_process`` chain them (LinkProtocol.receive,
-  LiveCoverage.add_sample, set_params, process), and every 50 ms of the autopilot's clock
-  ``Daemon._tick``'s (LinkProtocol.poll, LiveCoverage.poll with its tiles, status_fields
-  when a status is due); no socket, Zenoh or file. Zenoh puts and status encoding are not
-  counted.
+  pymavlink's parser (robust parsing, as mavlink_io) and the daemon's decisions
+  (``ServiceCore``) as the shell drives them (``receive_mavlink``, ``process``), and every
+  50 ms of the autopilot's clock its ``tick`` (LinkProtocol.poll, LiveCoverage.poll with
+  its tiles, ``status`` when one is due); no socket, Zenoh or file. Zenoh puts and status
+  encoding are not counted.
 * offline: what ``pdcov evaluate`` computes (poses_from_log, then the grid updates), outputs
   not written.
 
@@ -53,10 +52,11 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
 from pdcov.report.outputs import evaluate_poses
-from pdcov.service.coverage import LiveCoverage
-from pdcov.service.daemon import TICK_S, Daemon
+from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.daemon import TICK_S
 from pdcov.service.mavlink_io import mavlink
 from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.pose_tracker import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner
 
@@ -166,41 +166,40 @@ class _Ticks:
 
 
 def live_pass(rec: Recording) -> PathRun:
-    """The recording's messages through the daemon's decisions, one at a time (the daemon
-    and its grid are built before the clock starts, as at its start)."""
+    """The recording's messages through the daemon's decisions (``ServiceCore``, as the
+    shell drives it), one at a time (the core and its grid are built before the clock
+    starts, as at the daemon's start)."""
     cfg = load_serve_config(rec.config)
     frames = [m.get_msgbuf() for m in TlogScanner(rec.tlog.read_bytes()).messages()]
     ticks = _Ticks()
-    daemon = Daemon(cfg)
-    daemon.mission_hash = "bench"
-    live = daemon.live = LiveCoverage(cfg, cfg.mission.new_grid(), 0.0)
-    proto = daemon.protocol
+    core = ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="bench")
+    live = core.coverage
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
 
     def run() -> tuple[int, int, CoverageGrid]:
         now_s = next_tick_s = 0.0
         for frame in frames:
-            for msg in parser.parse_buffer(frame) or []:  # Daemon._on_messages
-                if msg.get_type() == "BAD_DATA":
-                    continue
+            msgs = parser.parse_buffer(frame) or []  # Daemon._on_messages
+            for msg in msgs:
                 if msg.get_type() in CLOCK_MESSAGES:  # the daemon's clock, played by the
                     now_s = max(now_s, msg.time_boot_ms / 1000.0)  # autopilot's
                     if ticks.first_s is None:
                         ticks.first_s = next_tick_s = now_s
-                for sample in proto.receive(msg, now_s):
-                    live.add_sample(sample)
-            live.set_params(proto.params, proto.params_done)  # Daemon._process
-            live.process()
+            core.receive_mavlink(msgs, now_s)
+            core.process()  # Daemon._process
             while ticks.first_s is not None and now_s >= next_tick_s:  # Daemon._tick
                 next_tick_s += TICK_S
-                proto.poll(now_s)
-                live.set_params(proto.params, proto.params_done)
-                live.process()
+                frames_before = live.grid.frames
                 cpu0 = time.process_time()
-                if live.poll(now_s).status:
-                    live.status_fields(uptime_s=now_s, seq=0, link={}, checkpoint={})
-                ticks.cpu_s += time.process_time() - cpu0
+                core.tick(now_s, 0.0)
+                if core.actions().status_due:
+                    core.status(now_s, LinkReport())
+                    core.actions()
+                # A tick that decided frames (a parameter read timed out: the frames that
+                # waited for it) counts as frame work, not as periodic work.
+                if live.grid.frames == frames_before:
+                    ticks.cpu_s += time.process_time() - cpu0
         ticks.last_s = now_s
         return len(frames), live.grid.frames, live.grid
 
@@ -221,7 +220,7 @@ def offline_pass(rec: Recording) -> PathRun:
                             ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
                             frame_rate_hz=m.frame_rate_hz, frame_source=m.frame_source,
                             max_gap_s=m.max_gap_s, system_id=m.system_id)
-        poses = [p for p in lp.poses if p.r_cam_enu[2] >= m.min_height_m]
+        poses = [p for p in lp.poses if not below_min_height(p.r_cam_enu[2], m.min_height_m)]
         evaluate_poses(grid, poses, progress=False, total=len(poses))
         return messages, len(poses), grid
 

@@ -1,7 +1,7 @@
 """The daemon's MAVLink read path in memory, for fuzzing: bytes -> pymavlink's parser (robust
-parsing, as mavlink_io opens links) -> LinkProtocol -> LiveCoverage, exactly as
-``Daemon._on_messages`` and ``Daemon._tick`` chain them, with no socket, Zenoh or clock;
-and a hovering vehicle's messages to mutate."""
+parsing, as mavlink_io opens links) -> the daemon's decisions (``ServiceCore``, the object
+the asyncio shell drives), with no socket, Zenoh or clock; and a hovering vehicle's messages
+to mutate."""
 
 from __future__ import annotations
 
@@ -14,14 +14,15 @@ import numpy as np
 import yaml
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import small_mission  # noqa: E402
-from pdcov.core.grid import CoverageGrid  # noqa: E402
-from pdcov.service.coverage import LiveCoverage  # noqa: E402
-from pdcov.service.daemon import Daemon  # noqa: E402
-from pdcov.service.settings import ServeConfig, load_serve_config  # noqa: E402
-from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log  # noqa: E402
+from benchmarks.harness import small_mission
+from pdcov.core.grid import CoverageGrid
+from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.coverage import LiveCoverage
+from pdcov.service.settings import ServeConfig, load_serve_config
+from pdcov.telemetry.frame_policy import below_min_height
+from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
 MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},
@@ -39,46 +40,39 @@ def serve_config(tmp: Path, *, gimbal: bool = True) -> ServeConfig:
 
 class LinkFeed:
     """One daemon's decisions fed raw bytes. ``feed`` parses them (pymavlink, robust) and
-    hands every message to the daemon's own ``_on_messages`` and every tick to ``_tick``'s
-    decision steps; ``now_s`` is stepped by the caller."""
+    hands the messages to the core as the shell does on a readable link, then the end of
+    the loop pass and a tick; ``now_s`` is stepped by the caller."""
 
     def __init__(self, cfg: ServeConfig) -> None:
-        self.daemon = Daemon(cfg)
-        d = self.daemon
-        d.mission_hash = "fuzz"
-        d.live = LiveCoverage(cfg, cfg.mission.new_grid(), 0.0)
+        self.cfg = cfg
+        self.core = ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="fuzz")
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.messages = 0
+        self.now_s = 0.0
 
     @property
     def live(self) -> LiveCoverage:
-        return self.daemon.live
+        return self.core.coverage
 
     def feed(self, data: bytes, now_s: float) -> None:
         msgs = self.parser.parse_buffer(data) or []
         self.messages += len(msgs)
-        d, live = self.daemon, self.daemon.live
-        # Daemon._on_messages without the recorder and the loop's call_soon:
-        for msg in msgs:
-            if msg.get_type() == "BAD_DATA":
-                live.counters.faults["bad_messages"] += 1
-                continue
-            for sample in d.protocol.receive(msg, now_s):
-                live.add_sample(sample)
+        self.core.receive_mavlink(msgs, now_s)
+        self.core.process()
         self.tick(now_s)
 
     def tick(self, now_s: float) -> None:
-        """Daemon._tick's decisions (no links, Zenoh or files)."""
-        d, live = self.daemon, self.daemon.live
-        d.protocol.poll(now_s)
-        live.set_params(d.protocol.params, d.protocol.params_done)
-        live.process()
-        live.poll(now_s)
+        """The shell's timer (no links, Zenoh or files: what the core says to do is
+        dropped)."""
+        self.now_s = now_s
+        self.core.tick(now_s, 0.0)
+        self.core.actions()
 
     def status(self) -> dict:
-        return self.live.status_fields(uptime_s=0.0, seq=0, link=d_describe(self.daemon),
-                                       checkpoint={})
+        fields, _line = self.core.status(self.now_s, LinkReport())
+        self.core.actions()
+        return fields
 
 
 def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
@@ -92,14 +86,9 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
                         estimator_status=m.estimator_status)
     grid = m.new_grid()
     for p in lp.poses:
-        if p.r_cam_enu[2] >= m.min_height_m:
+        if not below_min_height(p.r_cam_enu[2], m.min_height_m):
             grid.update(p)
     return lp, grid
-
-
-def d_describe(d: Daemon) -> dict:
-    return {"bad_messages": d.live.counters.faults.get("bad_messages", 0),
-            **d.protocol.describe()}
 
 
 @dataclass(frozen=True, slots=True)

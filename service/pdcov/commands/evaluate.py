@@ -90,6 +90,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         summary_text,
         write_outputs,
     )
+    from pdcov.telemetry.frame_policy import below_min_height
     from pdcov.telemetry.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
 
     mission = load_mission(args.config)
@@ -121,9 +122,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     _check_near_origin(poses, args.poses or args.log, mission.source)
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
-    low = sum(1 for p in poses if p.r_cam_enu[2] < mission.min_height_m)
+    # The daemon's filter (frame_policy.below_min_height), applied to the poses of a CSV too.
+    low = sum(1 for p in poses if below_min_height(p.r_cam_enu[2], mission.min_height_m))
     if low:
-        poses = [p for p in poses if p.r_cam_enu[2] >= mission.min_height_m]
+        poses = [p for p in poses if not below_min_height(p.r_cam_enu[2],
+                                                          mission.min_height_m)]
         lines.append(f"{low} frames with the camera below coverage.min_height_m = "
                      f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:

@@ -38,9 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "mount-check", help="read the gimbal mount's parameters from the autopilot",
         description="Connect to the autopilot, read its mount type and angle limits "
-                    "(MNTn_TYPE, MNTn_*_MIN/MAX) with PARAM_REQUEST_READ, and say which "
-                    "reading of the gimbal's attitude reports the config's mount puts in "
-                    "force, and why.")
+                    "(MNTn_TYPE, MNTn_*_MIN/MAX; MNT_TYPE, MNT_ANGMIN/ANGMAX_* on ArduPilot "
+                    "4.2 and older: the list pdcov serve asks for too) with "
+                    "PARAM_REQUEST_READ, and say which reading of the gimbal's attitude "
+                    "reports the config's mount puts in force, and why.")
     p.add_argument("--config", required=True, type=Path, help="mission config YAML")
     p.add_argument("--connect", required=True, metavar="URL",
                    help="MAVLink link as pymavlink opens it: udpin:127.0.0.1:14550, "

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import io
 import json
-import sys
 import time
 import zipfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,73 +25,62 @@ from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
 from pdcov.errors import InputFileError, PdcovError
 from pdcov.npz_file import read_zip_member
+from pdcov.service.checkpoint_meta import META_VERSION, CheckpointMeta
 
 META_MEMBER = "pdcov_checkpoint.json"
-META_VERSION = 1
 CHECKPOINT_NAME = "checkpoint.npz"
 
 
 @dataclass(frozen=True, slots=True)
 class Resumed:
     """The outcome of looking for a checkpoint: the grid to continue (None: start fresh),
-    its metadata, and what was done, in words (the daemon logs it)."""
+    its metadata (None with it), and what was done, in words (the daemon logs it)."""
 
     grid: CoverageGrid | None
-    meta: dict[str, Any]
+    meta: CheckpointMeta | None
     message: str
     set_aside: Path | None = None
 
 
-def write_checkpoint(path: Path, grid: CoverageGrid, meta: dict[str, Any]) -> None:
-    """Write the grid and ``meta`` (JSON-able) atomically to ``path``."""
+def write_checkpoint(path: Path, grid: CoverageGrid,
+                     meta: CheckpointMeta | Mapping[str, Any]) -> None:
+    """Write the grid and ``meta`` atomically to ``path`` (a mapping is written as it is,
+    with the format version: tests write damaged metadata so)."""
+    doc = meta.to_json() if isinstance(meta, CheckpointMeta) else {"version": META_VERSION,
+                                                                   **meta}
     buf = io.BytesIO()
     grid.write_npz(buf)
     with zipfile.ZipFile(buf, "a") as zf:
-        zf.writestr(META_MEMBER, json.dumps({"version": META_VERSION, **meta}))
+        zf.writestr(META_MEMBER, json.dumps(doc))
     with atomic_write(path, "wb") as fh:
         fh.write(buf.getvalue())
 
 
 def read_meta(path: Path) -> dict[str, Any]:
-    """The metadata of a checkpoint file; InputFileError when it has none or is corrupt."""
+    """The metadata of a checkpoint file as its JSON object (for tools and tests), checked
+    as ``read_checkpoint_meta`` does."""
+    doc = _read_doc(path)
+    CheckpointMeta.from_json(path, doc)
+    return doc
+
+
+def read_checkpoint_meta(path: Path) -> CheckpointMeta:
+    """The metadata of a checkpoint file; InputFileError when it has none or is corrupt
+    (the fields the daemon resumes from must have the types it wrote: a damaged or foreign
+    file is set aside, never half used)."""
+    return CheckpointMeta.from_json(path, _read_doc(path))
+
+
+def _read_doc(path: Path) -> Any:
     def error(why: str) -> InputFileError:
         return InputFileError(f"{path}: not a pdcov checkpoint ({why})")
 
     text = read_zip_member(path, META_MEMBER, error)
     try:
-        meta = json.loads(text)
+        doc = json.loads(text)
     except (ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
         raise error(f"{META_MEMBER}: {exc}") from None
-    if not isinstance(meta, dict) or meta.get("version") != META_VERSION:
-        raise InputFileError(f"{path}: checkpoint metadata version "
-                             f"{meta.get('version') if isinstance(meta, dict) else '?'}, "
-                             f"expected {META_VERSION}")
-    _check_meta(path, meta)
-    return meta
-
-
-def _finite(v: Any) -> bool:
-    # abs(v) <= max float: false for NaN and infinities, and for a JSON integer no float
-    # holds (math.isfinite raises OverflowError on it).
-    return (isinstance(v, (int, float)) and not isinstance(v, bool)
-            and abs(v) <= sys.float_info.max)
-
-
-def _check_meta(path: Path, meta: dict[str, Any]) -> None:
-    """The fields the daemon resumes from have the types it wrote (a damaged or foreign
-    file is set aside, never half used)."""
-    ok = {"mission_hash": lambda v: isinstance(v, str),
-          "vehicle_id": lambda v: isinstance(v, str),
-          "t0_s": lambda v: v is None or _finite(v),
-          "last_frame_t_s": lambda v: v is None or _finite(v),
-          "clock": lambda v: v is None or (isinstance(v, list) and len(v) == 2
-                                           and all(_finite(x) for x in v)),
-          "tiles_seq": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= -1,
-          "frames_used": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0}
-    for name, check in ok.items():
-        if name in meta and not check(meta[name]):
-            raise InputFileError(f"{path}: checkpoint metadata {name} = {meta[name]!r} is "
-                                 "not what pdcov writes")
+    return doc
 
 
 def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resumed:
@@ -104,14 +93,14 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
     for stale in state_dir.glob(f".{CHECKPOINT_NAME}.*.tmp"):
         stale.unlink(missing_ok=True)
     if not path.exists():
-        return Resumed(None, {}, f"no checkpoint in {state_dir}: starting a new grid")
+        return Resumed(None, None, f"no checkpoint in {state_dir}: starting a new grid")
     try:
-        meta = read_meta(path)
-        if meta.get("mission_hash") != mission_hash:
-            vehicle = meta.get("vehicle_id")
+        meta = read_checkpoint_meta(path)
+        if meta.mission_hash != mission_hash:
+            vehicle = meta.vehicle_id
             why = (f"it was written for vehicle "
                    f"{'(not recorded)' if vehicle is None else repr(vehicle)} with mission "
-                   f"hash {meta.get('mission_hash')}, this daemon's is {mission_hash} (the "
+                   f"hash {meta.mission_hash}, this daemon's is {mission_hash} (the "
                    "vehicle id, domain, camera, detector or grid settings differ)")
         else:
             grid = CoverageGrid.load_npz(path, new_grid.camera, new_grid.detector,
@@ -121,10 +110,10 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
                 why = "its grid geometry differs from this mission's"
             else:
                 return Resumed(grid, meta, f"resumed from {path}: {grid.frames} frames, "
-                                           f"last frame at t = {meta.get('last_frame_t_s')} s")
+                                           f"last frame at t = {meta.last_frame_t_s} s")
     except PdcovError as exc:  # InputFileError, or a DomainError from its geometry
         why = f"it cannot be read ({exc})"
     aside = path.with_name(f"checkpoint-{time.strftime('%Y%m%dT%H%M%S')}.set-aside.npz")
     path.replace(aside)
-    return Resumed(None, {}, f"checkpoint {path} set aside as {aside.name}: {why}; "
+    return Resumed(None, None, f"checkpoint {path} set aside as {aside.name}: {why}; "
                              "starting a new grid", aside)

@@ -1,15 +1,17 @@
 """What the daemon decides, with no I/O: ``LiveCoverage`` is fed telemetry samples, frame
 times and ``now_s`` (the daemon's monotonic clock, s) and says what to do.
 
-Frames follow ``pdcov evaluate`` exactly (one pipeline, two drivers): the same PoseTracker
-interpolates the camera pose at each frame time of the autopilot clock; frames are placed
-every 1/rate s from the first time all needed streams have samples (or at capture / detector
-frame times); a frame is decided once every stream has a sample at or after it (then its
+Frames follow ``pdcov evaluate`` by the same code (one pipeline, two drivers): the same
+PoseTracker interpolates the camera pose at each frame time of the autopilot clock; frames
+are placed on the same ``frame_policy.FrameLattice`` (every 1/rate s from the first time
+all needed streams have samples), or at capture / detector frame times; the use/trust
+policy, the quaternion rebuild, the min-height filter and the ground altitude's fallbacks
+are frame_policy's functions, which the offline path calls too. What only a stream needs is
+decided here: a frame is decided once every stream has a sample at or after it (then its
 bracketing samples are final), or once some stream's last sample lies more than max_gap_s
-(+ reorder_s) behind the newest telemetry (then it is skipped, as offline, and counted;
-never guessed). The pose is rebuilt from its quaternion and frames below
-coverage.min_height_m are not evaluated, as offline. So a live grid equals the offline grid
-of the same telemetry, cell for cell.
+(+ reorder_s) behind the newest telemetry (then it is skipped as the tracker would call it
+offline, and counted; never guessed). So a live grid equals the offline grid of the same
+telemetry, cell for cell.
 
 Before the grid can run it needs the ENU origin's ground altitude (configured, else the
 autopilot's first HOME_POSITION, else -- after home_wait_s of autopilot time -- the first
@@ -26,7 +28,7 @@ import bisect
 import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,9 +39,19 @@ from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose
-from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
-from pdcov.service.settings import ServeConfig
 from pdcov.service.tile_metrics import TileMetrics
+from pdcov.telemetry.frame_policy import (
+    UNTRUSTED_PREFIX,
+    FrameLattice,
+    FrameSource,
+    SkipReason,
+    below_min_height,
+    frames_used,
+    home_ground_alt,
+    position_ground_alt,
+    rebuilt_R_enu_cam,
+    untrusted_policy,
+)
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
 from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
@@ -53,6 +65,9 @@ from pdcov.telemetry.samples import (
     Sample,
     usable_quaternion,
 )
+
+if TYPE_CHECKING:  # a value handed in: the decisions never load a config
+    from pdcov.service.settings import ServeConfig
 
 MILESTONES = (0.25, 0.5, 0.75, 0.9, 1.0)
 NAMED_VALUE_PERIOD_S = 1.0
@@ -95,7 +110,7 @@ class LiveCoverage:
         self.state = GridState(grid.geometry, grid.mask, grid.log_miss_d, grid.log_miss_fa,
                                grid.n_obs, grid.frames)  # views: always current
         self._grid_hash = self.state.hash  # the geometry and mask never change
-        self.frame_source = cfg.frame_source
+        self.frame_source = FrameSource(cfg.frame_source)
         self.rate_hz = m.frame_rate_hz
         self.max_gap_s = m.max_gap_s
         self.history_s = max(20.0, 8.0 * m.max_gap_s)
@@ -116,7 +131,7 @@ class LiveCoverage:
         self._latest: dict[str, float] = {}       # stream -> newest sample time given
         self._needed = ("attitude", "position") + (
             ("gimbal",) if isinstance(m.mount, GimbalMount) else ())
-        self.t0_s: float | None = None            # the rate lattice's first frame
+        self.lattice: FrameLattice | None = None  # rate frames, once the streams start
         self._k_next = 0
         self._queue: list[float] = []             # capture / detector frame times
         self.last_frame_t_s = -math.inf
@@ -164,7 +179,7 @@ class LiveCoverage:
                 self._armed_t_s = sample.t_s
             return
         if isinstance(sample, CaptureSample):
-            if self.frame_source == "capture":
+            if self.frame_source == FrameSource.CAPTURE:
                 self.add_frame_times([sample.t_s])
             return
         if isinstance(sample, AttitudeSample) and not usable_quaternion(
@@ -207,7 +222,7 @@ class LiveCoverage:
         taken = []
         for t in t_s:
             if self.is_late(t):
-                self.counters.skipped["late frame time"] += 1
+                self.counters.skipped[SkipReason.LATE_FRAME_TIME] += 1
                 continue
             if t == self.last_frame_t_s:
                 continue
@@ -274,13 +289,13 @@ class LiveCoverage:
         elif (self._heartbeats or self._first_position is None
               or now < self._first_position.t_s + wait):
             return None, ""
-        if self._homes:
-            return self._homes[-1].alt_msl_m, "the autopilot's home (HOME_POSITION)"
+        home = home_ground_alt(self._homes)
+        if home is not None:
+            return home
         p = self._first_position
         if p is None:
             return None, ""
-        return p.alt_msl_m - p.relative_alt_m, ("the first position's altitude minus its "
-                                                 "height above home")
+        return position_ground_alt(p.alt_msl_m, p.relative_alt_m)
 
     def _feed(self, tr: PoseTracker, until_s: float) -> None:
         """Give the tracker the waiting samples up to ``until_s`` (all when live; a backlog
@@ -309,11 +324,16 @@ class LiveCoverage:
                 stream = "gimbal"
             self._latest[stream] = max(self._latest.get(stream, -math.inf), s.t_s)
 
+    @property
+    def t0_s(self) -> float | None:
+        """The rate lattice's first frame (autopilot clock, s), once it started."""
+        return self.lattice.t0_s if self.lattice is not None else None
+
     def _next_frame_t(self) -> float | None:
-        if self.frame_source == "rate":
-            if self.t0_s is None:
+        if self.frame_source == FrameSource.RATE:
+            if self.lattice is None:
                 return None
-            return self.t0_s + self._k_next / self.rate_hz
+            return self.lattice.t(self._k_next)
         return self._queue[0] if self._queue else None
 
     def process(self) -> int:
@@ -328,7 +348,7 @@ class LiveCoverage:
         added = 0
         while True:
             t = self._next_frame_t()
-            if t is None and self.frame_source == "rate":
+            if t is None and self.frame_source == FrameSource.RATE:
                 t = self._start_lattice(tr)
             if t is None:
                 if not self._waiting:
@@ -344,7 +364,7 @@ class LiveCoverage:
                 if not self._decidable(t):
                     break
                 batch.append(t)
-                if self.frame_source == "rate":
+                if self.frame_source == FrameSource.RATE:
                     self._k_next += 1
                 else:
                     self._queue.pop(0)
@@ -366,24 +386,25 @@ class LiveCoverage:
         end = min(s.t_s for s in self._waiting) - self.max_gap_s - self.cfg.service.reorder_s
         if t >= end:
             return False
-        if self.t0_s is not None:  # rate mode (``t`` is on the lattice, so it has started)
-            k_end = max(self._k_next + 1, math.ceil((end - self.t0_s) * self.rate_hz))
+        lattice = self.lattice
+        if lattice is not None:  # rate mode (``t`` is on the lattice, so it has started)
+            k_end = max(self._k_next + 1, lattice.first_at_or_after(end))
             n, self._k_next = k_end - self._k_next, k_end
-            self.last_frame_t_s = self.t0_s + (k_end - 1) / self.rate_hz
+            self.last_frame_t_s = lattice.t(k_end - 1)
         else:
             n = max(1, bisect.bisect_left(self._queue, end))
             self.last_frame_t_s = self._queue[n - 1]
             del self._queue[:n]
-        self.counters.skipped["attitude gap"] += n
+        self.counters.skipped[SkipReason.ATTITUDE_GAP] += n
         return True
 
     def resume_lattice(self, t0_s: float | None, last_frame_t_s: float) -> None:
         """Continue a checkpointed run: the frame lattice anchored at ``t0_s`` (rate mode),
         the frames after ``last_frame_t_s`` (autopilot clock, s, continued by the link)."""
         self.last_frame_t_s = last_frame_t_s
-        if t0_s is not None and self.frame_source == "rate":
-            self.t0_s = t0_s
-            self._k_next = int(math.floor((last_frame_t_s - t0_s) * self.rate_hz + 1e-9)) + 1
+        if t0_s is not None and self.frame_source == FrameSource.RATE:
+            self.lattice = FrameLattice(t0_s, self.rate_hz)
+            self._k_next = self.lattice.count_until(last_frame_t_s)
 
     def _latest_all(self) -> float:
         return max(self._latest.values(), default=-math.inf)
@@ -394,8 +415,8 @@ class LiveCoverage:
         t0, _t1 = tr.coverage_s()
         if not math.isfinite(t0):
             return None
-        self.t0_s, self._k_next = t0, 0
-        return t0
+        self.lattice, self._k_next = FrameLattice(t0, self.rate_hz), 0
+        return self.lattice.t(0)
 
     def _decidable(self, t: float) -> bool:
         # The newest telemetry, fed or still waiting beyond the feed horizon (after an
@@ -427,29 +448,28 @@ class LiveCoverage:
         m = self.cfg.mission
         self.last_frame_t_s = float(t_s[-1])
         b = tr.frames_at(t_s)
-        policy = m.mount.untrusted if isinstance(m.mount, GimbalMount) else "use"
+        policy = untrusted_policy(m.mount)
         valid = b.valid
-        use = valid & (b.trusted | (policy == "use"))
+        use = frames_used(valid, b.trusted, policy)
         for reason in b.skip_reason[~valid]:
             self.counters.skipped[str(reason)] += 1
         untrusted = valid & ~b.trusted
         self.counters.faults["frames_untrusted"] += int(untrusted.sum())
         if policy != "use":
             for reason in b.untrusted_reason[untrusted]:
-                self.counters.skipped[f"gimbal untrusted: {reason}"] += 1
+                self.counters.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
         if not use.any():
             return 0
-        # As poses_from_log: poses are rebuilt from their quaternion (bit-identical grids).
-        R_enu_cam = R_from_quat_wxyz(quat_wxyz_from_R(b.R_enu_cam[use]).reshape(-1, 4))
+        _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = 0
         unjudged = 0
-        for R, r, t, R_body, judged in zip(R_enu_cam.reshape(-1, 3, 3), b.r_cam_enu[use],
+        for R, r, t, R_body, judged in zip(R_enu_cam, b.r_cam_enu[use],
                                            b.t_s[use], b.R_ned_body[use],
                                            b.estimator_judged[use], strict=True):
             pose = CameraPose(R, r, float(t))
             self.last_pose, self._last_R_ned_body = pose, R_body
-            if pose.r_cam_enu[2] < m.min_height_m:
-                self.counters.skipped["below min height"] += 1
+            if below_min_height(pose.r_cam_enu[2], m.min_height_m):
+                self.counters.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
                 continue
             self.grid.update(pose)
             if self.grid.touched is not None:
@@ -470,7 +490,7 @@ class LiveCoverage:
 
     @property
     def frames_pending(self) -> int:
-        if self.frame_source != "rate":
+        if self.frame_source != FrameSource.RATE:
             return len(self._queue)
         t = self._next_frame_t()  # None until the lattice starts
         if t is None or not self._latest:
@@ -511,6 +531,11 @@ class LiveCoverage:
                     due.statustext = (f"pdcov: {passed[-1]:.0%} of area at "
                                       f"P_D>={self.target_pd:g}")
         return due
+
+    def next_timer_s(self) -> float:
+        """When ``poll`` next has something due (the daemon's monotonic clock, s)."""
+        return min(self._next_status_s, self._next_tiles_s, self._next_checkpoint_s,
+                   self._next_value_s)
 
     def checkpointed(self) -> None:
         """The shell wrote a checkpoint of the current grid."""
@@ -588,7 +613,7 @@ class LiveCoverage:
             "cells_free": metrics.cells_free, "cells_observed": metrics.cells_observed,
             "frames": {"used": self.counters.used, "grid": self.grid.frames,
                        "skipped": dict(self.counters.skipped),
-                       "pending": self.frames_pending, "source": self.frame_source,
+                       "pending": self.frames_pending, "source": str(self.frame_source),
                        "last_t_s": self.last_frame_t_s if self.last_frame_t_s > -math.inf
                        else None},
             "link": link, "pose": pose, "gimbal": gimbal,

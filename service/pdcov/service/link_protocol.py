@@ -19,19 +19,19 @@ SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, 
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from pdcov.telemetry.clocks import VehicleClock
+from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnum
 from pdcov.telemetry.samples import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
-    AttitudeSample,
-    EstimatorSample,
     HeartbeatSample,
     ParamSample,
-    PositionSample,
     Sample,
     mavlink_boot_time_s,
     sample_from_mavlink,
@@ -58,9 +58,27 @@ HEARTBEAT_PERIOD_S = 1.0
 RETRY_S = 1.0
 MAX_TRIES = 4
 HELD_MESSAGES = 5000
-AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample)
-"""Samples taken from the autopilot component only."""
 """Messages kept from before the autopilot's first HEARTBEAT (a few seconds of streams)."""
+
+
+class RequestResult(TextEnum):
+    """Where a command or parameter read stands (the status lists them by these names)."""
+
+    PENDING = "pending"
+    ACKED = "acked"
+    REFUSED = "refused"
+    UNANSWERED = "unanswered"
+
+
+class LinkState(TextEnum):
+    """A link's state as the status reports it (docs/protocol.md ``link.state``)."""
+
+    NONE = "none"
+    CONNECTING = "connecting"
+    WAITING = "waiting"
+    CONNECTED = "connected"
+    LOST = "lost"
+    CLOSED = "closed"
 
 
 @dataclass(slots=True)
@@ -69,29 +87,34 @@ class _Request:
 
     tries: int = 0
     next_s: float = 0.0
-    result: str = "pending"  # pending | acked | refused | unanswered
+    result: RequestResult = RequestResult.PENDING
 
 
 @dataclass(slots=True)
 class LinkStats:
     messages: int = 0
+    bad: int = 0  # BAD_DATA: bytes pymavlink could not parse (checksum, signature, junk)
     other_systems: int = 0
     unknown: int = 0  # of message ids the dialect does not know (e.g. a corrupted id)
     rejected: Counter = field(default_factory=Counter)  # message type -> refused values
-    reboots: int = 0
-    last_message_s: float | None = None  # wall clock (the caller's now_s)
+    last_message_s: float | None = None  # the caller's monotonic now_s
 
 
 class LinkProtocol:
     """One autopilot's link, as decisions. ``mav`` is a pymavlink MAVLink object used only
     to encode messages (its srcSystem is set to the vehicle's when the autopilot is known).
     intervals: {message id: rate Hz} to ask for. param_names: the mount parameters to read
-    (empty for a fixed mount). estimator_hz: the rate to ask the position estimator's status
-    at (EKF_STATUS_REPORT from ArduPilot, ESTIMATOR_STATUS from others; None: not asked)."""
+    (empty for a fixed mount). params_complete(values): whether the values read so far are
+    all that is needed (default: every one of param_names; names of older firmware may be
+    asked too and never answered). estimator_hz: the rate to ask the position estimator's
+    status at (EKF_STATUS_REPORT from ArduPilot, ESTIMATOR_STATUS from others; None: not
+    asked). Every ``now_s`` is the caller's monotonic clock, s."""
 
     def __init__(self, mav: Any, *, system_id: int | None, intervals: dict[int, float],
                  param_names: tuple[str, ...], param_timeout_s: float,
-                 estimator_hz: float | None = None) -> None:
+                 estimator_hz: float | None = None,
+                 params_complete: Callable[[Mapping[str, float]], bool] | None = None
+                 ) -> None:
         self.mav = mav
         self.mav.srcComponent = MAV_COMP_ID_ONBOARD_COMPUTER
         self.system_id = system_id
@@ -100,6 +123,8 @@ class LinkProtocol:
         self._intervals = dict(intervals)
         self._estimator_hz = estimator_hz
         self._param_names = tuple(param_names)
+        self._params_complete = params_complete or (
+            lambda values: all(n in values for n in self._param_names))
         self._param_timeout_s = param_timeout_s
         self._clock: VehicleClock | None = None
         self.stats = LinkStats()
@@ -109,7 +134,7 @@ class LinkProtocol:
         self._armed = False
         self._primed: tuple[float, float] | None = None
         self._held: deque = deque(maxlen=HELD_MESSAGES)
-        self._euler_attitude = False
+        self._attitude_source = AttitudeSource()
 
     def _reset_requests(self, now_s: float) -> None:
         self.interval_requests = {mid: _Request(next_s=now_s) for mid in self._intervals}
@@ -126,7 +151,7 @@ class LinkProtocol:
     @property
     def params_done(self) -> bool:
         """All mount parameters answered, or their time is up (resolve without the rest)."""
-        return self.param_request.result != "pending"
+        return self.param_request.result != RequestResult.PENDING
 
     @property
     def reboots(self) -> int:
@@ -163,14 +188,14 @@ class LinkProtocol:
         def results(reqs: dict[int, _Request]) -> dict[str, list[int]]:
             out: dict[str, list[int]] = {}
             for mid, r in reqs.items():
-                out.setdefault(r.result, []).append(mid)
+                out.setdefault(str(r.result), []).append(mid)
             return out
         return {"system_id": self.system_id, "component_id": self.autopilot_component,
                 "autopilot": self.autopilot_type, "messages": self.stats.messages,
                 "other_systems": self.stats.other_systems, "unknown": self.stats.unknown,
                 "rejected": dict(self.stats.rejected),
                 "reboots": self.reboots, "intervals": results(self.interval_requests),
-                "home_request": self.home_request.result,
+                "home_request": str(self.home_request.result),
                 "params": dict(sorted(self.params.items()))}
 
     # --- input ----------------------------------------------------------------------------
@@ -178,7 +203,8 @@ class LinkProtocol:
     def receive(self, msg: Any, now_s: float) -> list[Sample]:
         """The samples in ``msg`` (autopilot clock); updates what the link knows."""
         mtype = msg.get_type()
-        if mtype == "BAD_DATA":
+        if mtype == "BAD_DATA":  # counted here only (the status's bad_messages)
+            self.stats.bad += 1
             return []
         if mtype.startswith("UNKNOWN"):
             # No checksum can catch a corrupted message id: its CRC_EXTRA is unknown too.
@@ -216,24 +242,19 @@ class LinkProtocol:
             self._ack(msg)
             return early
         autopilot = src_comp == autopilot_component
-        if mtype == "ATTITUDE" and autopilot:
-            self._euler_attitude = True
-        elif mtype == "ATTITUDE_QUATERNION" and self._euler_attitude:
-            # As the log readers: ATTITUDE when the autopilot sends it, the quaternion
-            # message only otherwise (the two interleaved would interpolate between them).
-            return early
+        if ((mtype == "ATTITUDE" and autopilot) or mtype == "ATTITUDE_QUATERNION") \
+                and not self._attitude_source.takes(mtype):
+            return early  # frame_policy.AttitudeSource: the tlog reader's rule too
         sample = sample_from_mavlink(msg, t_s)
         if sample is None and mtype in MAVLINK_TYPES and not _no_value_yet(msg):
             self.stats.rejected[mtype] += 1  # NaN, out of range: samples.py's adapters
         if isinstance(sample, AUTOPILOT_ONLY) and not autopilot:
-            # The vehicle's attitude, position, parameters and estimator are the
-            # autopilot's own, as the log readers take them (a companion computer or an OSD
-            # of the same system may send ATTITUDE or GLOBAL_POSITION_INT too).
+            # frame_policy.AUTOPILOT_ONLY: the autopilot's own (the tlog reader's rule too).
             return early
         if isinstance(sample, ParamSample) and sample.name in self._param_names:
             self.params[sample.name] = sample.value
-            if all(n in self.params for n in self._param_names):
-                self.param_request.result = "acked"
+            if self._params_complete(self.params):
+                self.param_request.result = RequestResult.ACKED
         if isinstance(sample, HeartbeatSample):
             if not autopilot:
                 return early
@@ -253,7 +274,6 @@ class LinkProtocol:
         before = len(self._clock.autopilot.restarts_t_s)
         t_s = self._clock.time_s(src_comp, mavlink_boot_time_s(msg))
         if len(self._clock.autopilot.restarts_t_s) > before:
-            self.stats.reboots += 1
             self._reset_requests(self.stats.last_message_s or 0.0)
         return t_s
 
@@ -261,7 +281,7 @@ class LinkProtocol:
         if msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
             # COMMAND_ACK carries no message id: the oldest pending request takes it.
             pending = [r for r in self.interval_requests.values()
-                       if r.result == "pending" and r.tries]
+                       if r.result == RequestResult.PENDING and r.tries]
             req = pending[0] if pending else None
         elif msg.command == MAV_CMD_REQUEST_MESSAGE:
             req = self.home_request
@@ -269,12 +289,14 @@ class LinkProtocol:
             return
         if req is None or msg.result == MAV_RESULT_IN_PROGRESS:
             return
-        req.result = "acked" if msg.result == MAV_RESULT_ACCEPTED else "refused"
+        req.result = (RequestResult.ACKED if msg.result == MAV_RESULT_ACCEPTED
+                      else RequestResult.REFUSED)
 
     # --- output ---------------------------------------------------------------------------
 
     def poll(self, now_s: float) -> list[Any]:
-        """Messages due at ``now_s`` (wall clock, s): heartbeat, retries, parameter reads."""
+        """Messages due at ``now_s`` (the caller's monotonic clock, s): heartbeat, retries,
+        parameter reads."""
         if not self.autopilot_known:
             return []
         out = []
@@ -291,25 +313,40 @@ class LinkProtocol:
         if self._due(self.home_request, now_s):
             out.append(self.mav.command_long_encode(*target, MAV_CMD_REQUEST_MESSAGE, 0,
                                                     HOME_POSITION, 0, 0, 0, 0, 0, 0))
-        if self._param_names and self.param_request.result == "pending":
+        if self._param_names and self.param_request.result == RequestResult.PENDING:
             if self._params_deadline_s is None:
                 self._params_deadline_s = now_s + self._param_timeout_s
             if now_s >= self._params_deadline_s:
-                self.param_request.result = "unanswered"
+                self.param_request.result = RequestResult.UNANSWERED
             elif now_s >= self.param_request.next_s:
                 self.param_request.next_s = now_s + RETRY_S
                 out += [self.mav.param_request_read_encode(*target, n.encode("ascii"), -1)
                         for n in self._param_names if n not in self.params]
         elif not self._param_names:
-            self.param_request.result = "acked"
+            self.param_request.result = RequestResult.ACKED
         return [self._out(m) for m in out]
+
+    def next_timer_s(self) -> float:
+        """When ``poll`` next has something to send (monotonic s; inf: nothing planned)."""
+        if not self.autopilot_known:
+            return math.inf
+        times = [self._next_heartbeat_s]
+        times += [r.next_s for r in self.interval_requests.values()
+                  if r.result == RequestResult.PENDING]
+        if self.home_request.result == RequestResult.PENDING:
+            times.append(self.home_request.next_s)
+        if self._param_names and self.param_request.result == RequestResult.PENDING:
+            times.append(self.param_request.next_s)
+            if self._params_deadline_s is not None:
+                times.append(self._params_deadline_s)
+        return min(times)
 
     @staticmethod
     def _due(req: _Request, now_s: float) -> bool:
-        if req.result != "pending" or now_s < req.next_s:
+        if req.result != RequestResult.PENDING or now_s < req.next_s:
             return False
         if req.tries >= MAX_TRIES:
-            req.result = "unanswered"
+            req.result = RequestResult.UNANSWERED
             return False
         req.tries += 1
         req.next_s = now_s + RETRY_S

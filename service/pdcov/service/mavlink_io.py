@@ -26,14 +26,17 @@ import contextlib
 import logging
 import os
 import socket
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: speak MAVLink 2
 
-from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.service.link_protocol import LinkState
 
 log = logging.getLogger(__name__)
 READ_BYTES = 65536
@@ -150,7 +153,8 @@ class Connection:
     def __init__(self, url: str, *, on_messages: Callable[[Connection, list], None],
                  from_autopilot: Callable[[Any], bool],
                  ids: Callable[[], tuple[int, int]], signing_key: bytes | None,
-                 timeout_s: float, reconnect_max_s: float) -> None:
+                 timeout_s: float, reconnect_max_s: float,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.url = url
         self._on_messages = on_messages
         self._from_autopilot = from_autopilot
@@ -160,11 +164,12 @@ class Connection:
         self.timeout_s = timeout_s
         self.reconnect_max_s = reconnect_max_s
         self.conn: Any = None
-        self.state = "connecting"
+        self._clock = clock  # the daemon's one monotonic clock (s)
+        self.state = LinkState.CONNECTING
         self.last_rx_s: float | None = None
         self.opens = 0
         self.losses = 0
-        self.bad = 0
+        self.bad = 0  # chunks pymavlink's parser raised on (the status's link_parse_errors)
         self._fd: int | None = None
         self._task: asyncio.Task | None = None
         self._closing = False
@@ -186,7 +191,7 @@ class Connection:
                 conn = await loop.run_in_executor(None, open_connection, self.url, sysid,
                                                   compid, self._signing_key)
             except Exception as exc:  # noqa: BLE001 - any failure to open: retry later
-                self.state = "connecting"
+                self.state = LinkState.CONNECTING
                 log.warning("link %s: cannot open (%s); retrying in %.1f s", self.url, exc,
                             delay)
                 await asyncio.sleep(delay)
@@ -199,8 +204,8 @@ class Connection:
             if self._udp_server:
                 conn.mav.file = _PeerWriter(conn.port, self.reply_peers)
             self._fd = conn.port.fileno()
-            self.state = "connected"
-            self.last_rx_s = loop.time()
+            self.state = LinkState.CONNECTED
+            self.last_rx_s = self._clock()
             loop.add_reader(self._fd, self._readable)
             log.info("link %s: open", self.url)
             return
@@ -224,9 +229,9 @@ class Connection:
             return
         if not any(chunks):
             return
-        self.last_rx_s = asyncio.get_running_loop().time()
-        if self.state != "connected":
-            self.state = "connected"
+        self.last_rx_s = self._clock()
+        if self.state != LinkState.CONNECTED:
+            self.state = LinkState.CONNECTED
         batches: list[list] = []
         for data in chunks:
             try:
@@ -273,7 +278,7 @@ class Connection:
         log.warning("link %s: lost (%s); reopening", self.url, why)
         self.losses += 1
         self._close_conn()
-        self.state = "lost"
+        self.state = LinkState.LOST
         if not self._closing:
             self.start()
 
@@ -286,7 +291,7 @@ class Connection:
             if self._stream:
                 self._lost(f"nothing received for {self.timeout_s:g} s")
             else:
-                self.state = "waiting"
+                self.state = LinkState.WAITING
 
     def send(self, msg: Any) -> None:
         if self.conn is None:
@@ -319,10 +324,10 @@ class Connection:
         if self._task is not None:
             self._task.cancel()
         self._close_conn()
-        self.state = "closed"
+        self.state = LinkState.CLOSED
 
     def describe(self, now_s: float) -> dict[str, Any]:
-        out = {"url": self.url, "state": self.state, "opens": self.opens,
+        out = {"url": self.url, "state": str(self.state), "opens": self.opens,
                "losses": self.losses,
                "last_message_age_s": None if self.last_rx_s is None
                else round(now_s - self.last_rx_s, 3)}

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
-import socket  # noqa: TID251 (the notify socket is an I/O edge of the daemon)
+import socket  # the notify socket: an I/O edge of the daemon
 from collections.abc import Mapping
 
 log = logging.getLogger(__name__)

@@ -43,6 +43,9 @@ GIMBAL_ERROR_UNTRUSTED = 8 | 16 | 32 | 64 | 128 | 256
 # (AP_Mount_Params.cpp: 1 = Servo). 7 = BrushlessPWM reports the earth-frame roll/pitch target
 # with body yaw, which is what its flags (yaw in vehicle frame) say.
 ARDUPILOT_SERVO_MOUNT_TYPES = {1: "Servo"}
+# Mount types whose report is an earth-frame demand, not a measured attitude (ArduCopter 4.7
+# SITL: ../shared/ardupilot-sitl/README.md); read as the flags say, but said as what it is.
+ARDUPILOT_EARTH_DEMAND_MOUNT_TYPES = {7: "BrushlessPWM"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +95,29 @@ def legacy_mount_param_names(instance: int) -> tuple[str, ...]:
     return ("MNT_TYPE", *(n for pair in LEGACY_LIMIT_PARAMS for n in pair))
 
 
+# ArduPilot 4.3+ has up to two mounts (HAL_MOUNT_MAX_INSTANCES), each with MNTn_TYPE.
+MOUNT_TYPE_PARAMS = ("MNT1_TYPE", "MNT2_TYPE")
+
+
+def mount_params_to_read(instance: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(names, legacy): the one list of mount parameters every reader asks the autopilot
+    for (the daemon, ``pdcov mount-check``), the ones ``resolve_interpretation`` decides by:
+    the 4.3+ names of mount ``instance`` with both mounts' MNTn_TYPE, and the names of 4.2
+    and older (``legacy_mount_param_names``). A log's parameters (tlog PARAM_VALUE,
+    DataFlash PARM, ULog) hold whichever the firmware had; ``resolve_interpretation``
+    reads either."""
+    return (tuple(dict.fromkeys((*mount_param_names(instance), *MOUNT_TYPE_PARAMS))),
+            legacy_mount_param_names(instance))
+
+
+def mount_params_complete(values: Mapping[str, float], instance: int) -> bool:
+    """Whether ``values`` hold every mount parameter of one firmware generation (then no
+    more need to be waited for)."""
+    names, legacy = mount_params_to_read(instance)
+    return (all(n in values for n in names)
+            or (bool(legacy) and all(n in values for n in legacy)))
+
+
 def _param_limits(params: Mapping[str, float], n: int) -> tuple[np.ndarray, str] | None:
     names = limit_param_names(n)
     if all(lo in params and hi in params for lo, hi in names):
@@ -125,8 +151,11 @@ def resolve_interpretation(mount: GimbalMount, params: Mapping[str, float],
         else:
             name, value = found
             servo = ARDUPILOT_SERVO_MOUNT_TYPES.get(value)
+            demand = ARDUPILOT_EARTH_DEMAND_MOUNT_TYPES.get(value)
             frame = "body" if servo else "flags"
             kind = (f"{servo} mount reports its servo demand" if servo
+                    else f"{demand} mount reports its earth-frame demand, not a measured "
+                         "attitude" if demand
                     else "the gimbal reports its attitude")
             reason = f"auto: {name}={value} in {params_origin}, {kind}"
     else:

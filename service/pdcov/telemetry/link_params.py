@@ -21,15 +21,20 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from pdcov.errors import TelemetryError
-from pdcov.telemetry.gimbal import legacy_mount_param_names, mount_param_names
+from pdcov.telemetry.gimbal import (
+    legacy_mount_param_names,
+    mount_param_names,
+    mount_params_to_read,
+)
 
 PARAM_ID_MAX_CHARS = 16
 MAV_COMP_ID_ALL = 0
 HEARTBEAT_PERIOD_S = 1.0
 """How often ``wait_autopilot`` sends the ground station's HEARTBEAT (MAVLink: 1 Hz)."""
 
-# ArduPilot 4.3+ has up to two mounts (HAL_MOUNT_MAX_INSTANCES), each with MNTn_TYPE.
-MOUNT_TYPE_PARAMS = ("MNT1_TYPE", "MNT2_TYPE")
+__all__ = ["ParamRead", "legacy_mount_param_names", "mount_param_names", "read_mount_params",
+           "read_params", "wait_autopilot", "wait_autopilot_heartbeat"]
+"""(the mount parameter names are gimbal.py's, re-exported for the callers of this module)"""
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,14 +133,13 @@ def read_mount_params(conn: mavutil.mavfile, instance: int, *, target_system: in
                       target_component: int = 1, timeout_s: float = 3.0,
                       retries: int = 2) -> ParamRead:
     """The mount parameters ``gimbal.resolve_interpretation`` uses, as the autopilot has them:
-    ``mount_param_names(instance)`` and MNT1_TYPE / MNT2_TYPE; when MNTn_TYPE is unanswered,
-    a second read of ``legacy_mount_param_names`` (older firmware). Each read as
-    ``read_params`` (at most ``timeout_s`` seconds)."""
-    names = tuple(dict.fromkeys((*mount_param_names(instance), *MOUNT_TYPE_PARAMS)))
+    ``gimbal.mount_params_to_read(instance)``, the list the daemon asks for too: the 4.3+
+    names first; when MNTn_TYPE is unanswered, a second read of the names of older
+    firmware. Each read as ``read_params`` (at most ``timeout_s`` seconds)."""
+    names, legacy = mount_params_to_read(instance)
     values = read_params(conn, names, target_system=target_system,
                          target_component=target_component, timeout_s=timeout_s,
                          retries=retries)
-    legacy = legacy_mount_param_names(instance)
     if f"MNT{instance}_TYPE" in values or not legacy:
         return ParamRead(names, values)
     values |= read_params(conn, legacy, target_system=target_system,

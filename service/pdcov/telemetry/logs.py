@@ -27,6 +27,7 @@ import numpy as np
 
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
+from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource
 from pdcov.telemetry.gimbal import preferred_gimbal_source
 from pdcov.telemetry.recorded_frames import (
     MARK,
@@ -173,7 +174,8 @@ class _Messages:
         """{message index: time in the autopilot clock (s)} for the ``wanted`` messages of
         ``system_id``, every message of that system fed to one VehicleClock in order; the
         ``read_off`` messages (frames the daemon recorded) carry a time read off the
-        autopilot's boot clock and are placed without feeding the clock, as live."""
+        autopilot's boot clock and are placed without feeding the clock
+        (VehicleClock.autopilot_boot_s, which LinkProtocol.autopilot_boot_s calls live)."""
         clock = VehicleClock(autopilot_component)
         out: dict[int, float] = {}
         last = max(wanted, default=-1)
@@ -273,47 +275,54 @@ def _read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Fligh
                      + (f"; {n_dropped} of its samples before the first autopilot time not "
                         "used" if n_dropped else ""))
 
-    def gather(kind: str) -> list:
+    def taken(kind: type) -> list:
+        """The samples of ``kind`` the daemon takes too: the autopilot component's own for
+        the frame_policy.AUTOPILOT_ONLY kinds, those of any component of the system else."""
+        if kind in AUTOPILOT_ONLY:
+            return list(ap.samples.get(kind.__name__, []))
         out = []
         for (s, _c), comp in comps.items():
             if s == sysid:
-                out.extend(comp.samples.get(kind, []))
+                out.extend(comp.samples.get(kind.__name__, []))
         return out
 
     attitude = _attitude_as_live(ap, first_euler.get((sysid, ap_comp)))
-    gimbals = gather("GimbalSample")
+    gimbals = taken(GimbalSample)
     gimbal, source, gnote = _choose_gimbal(gimbals, ap_comp, gimbal_instance)
     if gnote:
         notes.append(gnote)
-    params = {p.name: p.value for p in ap.samples.get("ParamSample", [])}
-    captures = gather("CaptureSample")
+    params = {p.name: p.value for p in taken(ParamSample)}
+    captures = taken(CaptureSample)
     if read_off:
         notes.append(_recorded_frames_note(len(read_off), len(captures)))
         captures = [CaptureSample(times[i], recorded[i][1], RECORDED_SOURCE)
                     for i in sorted(read_off)]
     return _shifted(FlightLog(
         str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
-        PositionSeries.from_samples(ap.samples.get("PositionSample", [])), gimbal, source,
-        tuple(gather("HomeSample")), tuple(sorted(captures, key=lambda c: c.t_s)),
+        PositionSeries.from_samples(taken(PositionSample)), gimbal, source,
+        tuple(taken(HomeSample)), tuple(sorted(captures, key=lambda c: c.t_s)),
         params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
-        *_estimator(ap.samples.get("EstimatorSample", []), "EKF_STATUS_REPORT / "
+        *_estimator(taken(EstimatorSample), "EKF_STATUS_REPORT / "
                     "ESTIMATOR_STATUS")), -ap.clock.offset_s)
 
 
 def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:
-    """The autopilot's attitude samples by the daemon's causal rule (LinkProtocol.receive):
-    ATTITUDE_QUATERNION until the autopilot's first ATTITUDE message (index ``first_euler``
-    in the log, None: none), ATTITUDE from then on; in log order, so that of equal times
-    the later message wins, as live. A log or link that starts between the two messages of
-    one attitude then gives live and offline the same samples (the first frame time
-    follows the first attitude)."""
-    stop = math.inf if first_euler is None else first_euler
-    quats = [(i, smp) for i, smp in zip(ap.message_index.get("AttitudeSampleQ", []),
-                                        ap.samples.get("AttitudeSampleQ", []), strict=True)
-             if i < stop]
-    eulers = list(zip(ap.message_index.get("AttitudeSample", []),
-                      ap.samples.get("AttitudeSample", []), strict=True))
-    return [smp for _i, smp in sorted(quats + eulers, key=lambda x: x[0])]
+    """The autopilot's attitude samples by frame_policy.AttitudeSource, the rule
+    LinkProtocol.receive applies on the link: its messages fed in log order, its first
+    ATTITUDE message (index ``first_euler`` in the log, None: none) included even when it
+    gave no sample (the link sees that message too); of equal times the later message
+    wins (the series keeps log order)."""
+    events = [(i, 1, "ATTITUDE_QUATERNION", smp) for i, smp in zip(
+        ap.message_index.get("AttitudeSampleQ", []), ap.samples.get("AttitudeSampleQ", []),
+        strict=True)]
+    events += [(i, 1, "ATTITUDE", smp) for i, smp in zip(
+        ap.message_index.get("AttitudeSample", []), ap.samples.get("AttitudeSample", []),
+        strict=True)]
+    if first_euler is not None:
+        events.append((first_euler, 0, "ATTITUDE", None))
+    rule = AttitudeSource()
+    return [smp for _i, _k, mtype, smp in sorted(events, key=lambda e: (e[0], e[1]))
+            if rule.takes(mtype) and smp is not None]
 
 
 def _estimator(samples: list[EstimatorSample], source: str) -> tuple[EstimatorSeries, str]:

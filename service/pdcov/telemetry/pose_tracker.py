@@ -37,13 +37,22 @@ from pdcov.core.rotations import (
     R_from_quat_wxyz,
     euler_zyx_from_R_many,
     quat_norm,
-    quat_wxyz_from_R,
     slerp_quat_wxyz,
 )
 from pdcov.errors import ConfigError, InputFileError, TelemetryError
 from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
 from pdcov.telemetry.estimator import describe as describe_estimator
 from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
+from pdcov.telemetry.frame_policy import (
+    FrameLattice,
+    FrameSource,
+    SkipReason,
+    frames_used,
+    home_ground_alt,
+    position_ground_alt,
+    rebuilt_R_enu_cam,
+    untrusted_policy,
+)
 from pdcov.telemetry.gimbal import (
     GimbalInterpretation,
     GimbalMount,
@@ -304,7 +313,7 @@ class PoseTracker:
         if not b.valid[0]:
             return FrameResult(None, False, reason)
         trusted = bool(b.trusted[0])
-        if not trusted and isinstance(self.mount, GimbalMount) and self.mount.untrusted == "skip":
+        if not trusted and untrusted_policy(self.mount) == "skip":
             return FrameResult(None, False, reason)
         return FrameResult(CameraPose(b.R_enu_cam[0], b.r_cam_enu[0], float(t_s)), trusted,
                            reason)
@@ -336,7 +345,7 @@ class PoseTracker:
             r_body = self._pos_enu[lo] + w[:, None] * step
             jump = np.linalg.norm(step, axis=1) > (
                 MAX_SPEED_MPS * (self._pos_t[hi] - self._pos_t[lo]) + POSITION_JUMP_SLACK_M)
-            reason[inside & jump & (reason == "")] = "position jump"
+            reason[inside & jump & (reason == "")] = SkipReason.POSITION_JUMP.value
         else:
             r_body = np.zeros((n, 3))
 
@@ -439,19 +448,19 @@ class LogPoses:
 
 
 def _ground_alt(log: FlightLog, ground_alt_msl_m: float | None) -> tuple[float, str]:
+    """The ground altitude of a whole log: configured, else the last home
+    (frame_policy.home_ground_alt, as the daemon falls back to), else the first position's
+    (frame_policy.position_ground_alt)."""
     if ground_alt_msl_m is not None:
         return float(ground_alt_msl_m), "configured"
-    for prefer in ("HOME_POSITION", "ORGN home", "home_position", "ORGN EKF origin"):
-        homes = [h for h in log.homes if h.source == prefer and math.isfinite(h.alt_msl_m)]
-        if homes:
-            return homes[-1].alt_msl_m, f"the autopilot's home altitude ({prefer}, last of " \
-                                        f"{len(homes)})"
+    home = home_ground_alt(log.homes)
+    if home is not None:
+        return home
     p = log.position
     ok = np.isfinite(p.relative_alt_m)
     if ok.any():
         i = int(np.argmax(ok))
-        return (float(p.alt_msl_m[i] - p.relative_alt_m[i]),
-                "the first position's altitude minus its height above home")
+        return position_ground_alt(p.alt_msl_m[i], p.relative_alt_m[i])
     raise TelemetryError(f"{log.path}: the log gives no home altitude (no HOME_POSITION, ORGN "
                          "or relative altitude); set origin.ground_alt_msl_m in the config")
 
@@ -467,8 +476,9 @@ def _intervals(t: np.ndarray, step_s: float) -> list[tuple[float, float, int]]:
 def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
                 frame_source: str) -> tuple[np.ndarray, str]:
     """Frame times (s) and a description: every 1/frame_rate_hz over the span all needed
-    streams cover ('rate'), or the log's capture events ('capture')."""
-    if frame_source == "capture":
+    streams cover ('rate': the frame_policy.FrameLattice the daemon places frames on), or
+    the log's capture events ('capture')."""
+    if frame_source == FrameSource.CAPTURE:
         if not log.captures:
             raise TelemetryError(f"{log.path}: frame_source 'capture' but the log has no "
                                  "capture events (CAMERA_IMAGE_CAPTURED, CAMERA_FEEDBACK, "
@@ -476,7 +486,7 @@ def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
         t = np.unique([c.t_s for c in log.captures])
         kinds = sorted({c.source for c in log.captures})
         return t, f"{len(t)} capture events ({', '.join(kinds)})"
-    if frame_source != "rate":
+    if frame_source != FrameSource.RATE:
         raise ConfigError(f"frame_source: expected 'rate' or 'capture', got {frame_source!r}")
     if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
         raise ConfigError(f"camera.frame_rate_hz: expected a positive rate, got {frame_rate_hz!r}")
@@ -484,8 +494,8 @@ def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
     if not math.isfinite(t0) or t1 < t0:
         raise TelemetryError(f"{log.path}: attitude, position and gimbal samples never overlap "
                              "in time; no frame can be placed")
-    n = int(math.floor((t1 - t0) * frame_rate_hz + 1e-9)) + 1
-    return t0 + np.arange(n) / frame_rate_hz, (f"every {1 / frame_rate_hz:g} s "
+    lattice = FrameLattice(t0, frame_rate_hz)
+    return lattice.times(lattice.count_until(t1)), (f"every {1 / frame_rate_hz:g} s "
                                                f"({frame_rate_hz:g} Hz) from {t0:.3f} to "
                                                f"{t1:.3f} s")
 
@@ -549,12 +559,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     b = FrameBatch(**cat)
 
     valid = b.valid
-    policy = mount.untrusted if isinstance(mount, GimbalMount) else "use"
-    use = valid & (b.trusted | (policy == "use"))
-    # Poses are built from their own quaternion so that a pose CSV written from them
-    # (write_pose_csv) reads back to bit-identical rotations.
-    q_cam = quat_wxyz_from_R(b.R_enu_cam[use]).reshape(-1, 4)
-    R_cam = R_from_quat_wxyz(q_cam).reshape(-1, 3, 3)
+    policy = untrusted_policy(mount)
+    use = frames_used(valid, b.trusted, policy)
+    q_cam, R_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
     poses = tuple(CameraPose(R, r, float(ts)) for R, r, ts in
                   zip(R_cam, b.r_cam_enu[use], b.t_s[use], strict=True))
     rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))

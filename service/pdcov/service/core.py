@@ -1,0 +1,360 @@
+"""Everything ``pdcov serve`` decides, in one object with no I/O (the aioquic / h11 shape).
+
+``ServiceCore`` is fed events and the time: MAVLink messages as parsed
+(``receive_mavlink``), a detector's frames payloads (``receive_frames``), the end of a loop
+pass (``process``), the timer (``tick``) and the outcome of what the shell did
+(``checkpoint_written``, ``put_failed``, ``snapshot_sent``) and snapshot queries
+(``admit_snapshot``). It never reads a clock, a socket or a file:
+``now_s`` is the shell's one monotonic clock (s), and the only wall-clock time it sees is a
+value the shell passes for the checkpoint's ``written_unix_s``. What to do comes out of
+``actions()`` (messages to send on every link, bytes to record, tiles to publish, whether a
+status is due, a checkpoint to write, lines to log); ``status(now_s, report)`` builds the
+status once the shell has flushed its recording; ``get_timer()`` says when ``tick`` is next
+needed. The shell (daemon.py) does the I/O; tests and benchmarks drive this object directly
+(tests/link_feed.py).
+
+What it decides, delegating to the decision classes beside it: the MAVLink conversation
+(``LinkProtocol``: which autopilot, what intervals and parameters to ask for), the frames
+and the grid (``LiveCoverage``), and here: detector frames held until the autopilot is
+known (at most EARLY_FRAMES, oldest dropped) and those beyond a recordable time refused;
+a capture event that came too late to be taken (its not-taken mark in the recording);
+the checkpoint's metadata and error state; the kernel-drop warning's rate limit; the
+link's state in the status; which snapshot queries are answered (query_limit).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.footprint import decode_frames
+from pdcov.bus.keys import VehicleKeys
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.mount import GimbalMount
+from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
+from pdcov.service.coverage import LiveCoverage
+from pdcov.service.link_protocol import (
+    ATTITUDE,
+    GIMBAL_DEVICE_ATTITUDE_STATUS,
+    GLOBAL_POSITION_INT,
+    HOME_POSITION,
+    LinkProtocol,
+    LinkState,
+)
+from pdcov.service.query_limit import QueryLimiter
+from pdcov.telemetry.frame_policy import FrameSource
+from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
+from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
+from pdcov.telemetry.samples import CaptureSample
+
+if TYPE_CHECKING:  # a value handed in: the decisions never load a config or open the bus
+    from pdcov.service.settings import ServeConfig
+
+EARLY_FRAMES = 100_000
+"""Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
+HOME_POSITION_HZ = 0.2
+DROPS_WARNING_PERIOD_S = 60.0
+"""The kernel-drop warning is logged at most once in this long (the count is always in the
+status)."""
+
+
+@dataclass(frozen=True, slots=True)
+class LinkReport:
+    """What the shell's links and files say, for the status (I/O facts the core cannot
+    see): each link's ``describe()`` and state, their URLs, losses, datagrams the kernel
+    dropped, chunks pymavlink failed to parse, the recording's error."""
+
+    links: tuple[dict[str, Any], ...] = ()
+    states: tuple[LinkState, ...] = ()
+    url: str = ""
+    losses: int = 0
+    kernel_drops: int = 0
+    parse_errors: int = 0
+    recording_error: str | None = None
+
+
+@dataclass(slots=True)
+class Actions:
+    """What the shell should do now, in this order: send these MAVLink messages on every
+    link; write these bytes to the recording; publish these tiles; if ``status_due``, flush
+    the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
+    and report it back; log these (level, text) lines."""
+
+    send: list[Any] = field(default_factory=list)
+    record: list[bytes] = field(default_factory=list)
+    tiles: bytes | None = None
+    status_due: bool = False
+    checkpoint: CheckpointMeta | None = None
+    logs: list[tuple[int, str]] = field(default_factory=list)
+
+
+def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
+                                             Callable[[Mapping[str, float]], bool] | None]:
+    """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
+    are complete): the streams a frame needs, HOME_POSITION, and for a gimbal its reports
+    and the one list of mount parameters (gimbal.mount_params_to_read, as mount-check)."""
+    link, mount = cfg.link, cfg.mission.mount
+    intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
+                 HOME_POSITION: HOME_POSITION_HZ}
+    if not isinstance(mount, GimbalMount):
+        return intervals, (), None
+    intervals[GIMBAL_DEVICE_ATTITUDE_STATUS] = link.gimbal_hz
+    names, legacy = mount_params_to_read(mount.instance)
+    instance = mount.instance
+    return (intervals, tuple(dict.fromkeys((*names, *legacy))),
+            lambda values: mount_params_complete(values, instance))
+
+
+def link_state(states: Iterable[LinkState], autopilot_known: bool) -> LinkState:
+    """The links' state as one: connected once a link is and the autopilot is known;
+    waiting while a link is open (or silent) without it; else the first link's."""
+    states = list(states)
+    if LinkState.CONNECTED in states and autopilot_known:
+        return LinkState.CONNECTED
+    if LinkState.CONNECTED in states or LinkState.WAITING in states:
+        return LinkState.WAITING
+    return states[0] if states else LinkState.NONE
+
+
+class ServiceCore:
+    """The decisions of one ``pdcov serve`` (module docstring). ``grid``: a new grid, or the
+    resumed one with its ``resumed`` metadata; ``checkpoint``: the checkpoint's state to
+    report (its path, whether it resumed or was set aside); ``now_s``: the shell's
+    monotonic clock at start."""
+
+    def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
+                 mission_hash: str, resumed: CheckpointMeta | None = None,
+                 checkpoint: CheckpointState | None = None) -> None:
+        m = cfg.mission
+        self.cfg = cfg
+        self.mission_hash = mission_hash
+        self.keys = VehicleKeys(m.vehicle_id)
+        self.started_s = now_s
+        self.record = cfg.service.record
+        intervals, names, complete = link_requests(cfg)
+        self.protocol = LinkProtocol(mavlink.MAVLink(None, srcSystem=cfg.link.system_id or 1),
+                                     system_id=cfg.link.system_id or m.system_id,
+                                     intervals=intervals, param_names=names,
+                                     param_timeout_s=cfg.link.param_timeout_s,
+                                     estimator_hz=cfg.link.estimator_hz
+                                     if m.estimator_status else None,
+                                     params_complete=complete)
+        self.coverage = LiveCoverage(cfg, grid, now_s, tiles_seq=resumed.tiles_seq + 1
+                                     if resumed is not None else 0)
+        if resumed is not None:
+            self._resume(resumed)
+        self.checkpoint = checkpoint or CheckpointState(path="")
+        self._frame_encoder = FrameEncoder()
+        self._early_frames: deque[int] = deque()  # detector frames (boot ms) before a HEARTBEAT
+        self._status_seq = 0
+        self._next_drops_warning_s = -math.inf
+        self._kernel_drops = 0
+        self.snapshot_limiter = QueryLimiter()
+        self._out = Actions()
+
+    def _resume(self, meta: CheckpointMeta) -> None:
+        live = self.coverage
+        if meta.last_frame_t_s is not None:
+            live.resume_lattice(meta.t0_s, meta.last_frame_t_s)
+        if meta.clock_offset_s is not None and meta.clock_boot_s is not None:
+            self.protocol.prime_clock(meta.clock_offset_s, meta.clock_boot_s)
+        live.counters.used = meta.frames_used
+
+    # --- events in ------------------------------------------------------------------------
+
+    def receive_mavlink(self, msgs: Iterable[Any], now_s: float) -> None:
+        """Messages as pymavlink parsed them from a link (BAD_DATA too: counted), in
+        arrival order."""
+        live, proto = self.coverage, self.protocol
+        capture = live.frame_source == FrameSource.CAPTURE
+        record = self.record
+        for msg in msgs:
+            samples = proto.receive(msg, now_s)
+            mtype = msg.get_type()
+            if mtype == "BAD_DATA":
+                continue
+            # The message's own capture event (the last sample), not taken: late.
+            late = (capture and mtype == "CAMERA_IMAGE_CAPTURED" and bool(samples)
+                    and isinstance(samples[-1], CaptureSample)
+                    and live.is_late(samples[-1].t_s))
+            for sample in samples:
+                live.add_sample(sample)
+            if record:  # all of it: even what came before a HEARTBEAT
+                self._out.record.append(msg.get_msgbuf())
+                if late and proto.system_id is not None:  # recorded_frames: not taken
+                    self._out.record.append(
+                        self._frame_encoder.not_taken(proto.system_id, msg))
+
+    def receive_frames(self, payload: bytes) -> None:
+        """A detector's frames message: its times to the millisecond (what the recording
+        keeps), held until the autopilot is known (its system and clock)."""
+        faults = self.coverage.counters.faults
+        try:
+            t_boot = decode_frames(payload, self.keys.frames)
+        except BusPayloadError as exc:
+            faults["bad_frames_messages"] += 1
+            self._out.logs.append((logging.WARNING, str(exc)))
+            return
+        ms = [boot_ms(t) for t in t_boot]
+        if any(v > MAX_BOOT_MS for v in ms):
+            faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v in ms)
+            ms = [v for v in ms if v <= MAX_BOOT_MS]
+        if not self.protocol.autopilot_known:
+            for v in ms:
+                if len(self._early_frames) >= EARLY_FRAMES:
+                    self._early_frames.popleft()
+                    faults["frames_dropped_waiting"] += 1
+                self._early_frames.append(v)
+            return
+        self._take_frames(ms)
+
+    def _take_frames(self, t_boot_ms: list[int]) -> None:
+        """Give the grid the frames (autopilot boot ms) and record, in the order taken,
+        those it took (recorded_frames: ``pdcov evaluate`` of the recording uses them)."""
+        proto = self.protocol
+        t_s = {proto.autopilot_boot_s(boot_s(v)): v for v in t_boot_ms}
+        taken = self.coverage.add_frame_times(list(t_s))
+        if self.record and proto.system_id is not None:
+            self._out.record += [self._frame_encoder.encode(proto.system_id, t_s[t])
+                                 for t in taken]
+
+    def process(self) -> None:
+        """Decide what the messages and frames received so far allow (once per loop pass,
+        after every readable link)."""
+        proto = self.protocol
+        if self._early_frames and proto.autopilot_known:
+            early, self._early_frames = list(self._early_frames), deque()
+            self._take_frames(early)
+        self.coverage.set_params(proto.params, proto.params_done)
+        self.coverage.process()
+
+    def tick(self, now_s: float, unix_s: float) -> None:
+        """The timer: what is due at ``now_s`` (monotonic s). ``unix_s``: the wall clock,
+        written into a checkpoint's metadata only."""
+        live, proto = self.coverage, self.protocol
+        out = self._out
+        out.send += proto.poll(now_s)
+        live.set_params(proto.params, proto.params_done)  # a parameter read may time out
+        live.process()
+        due = live.poll(now_s)
+        if due.note is not None:
+            out.logs.append((logging.WARNING, due.note))
+        if due.tiles is not None:
+            out.tiles = due.tiles
+        if due.status:
+            out.status_due = True
+        if due.checkpoint:
+            out.checkpoint = self.checkpoint_meta(unix_s)
+        if due.named_value is not None or due.statustext is not None:
+            t_ms = int(max(live.last_frame_t_s, 0.0) * 1000)
+            out.send += proto.coverage_messages(due.named_value, due.statustext, t_ms)
+            if due.statustext:
+                out.logs.append((logging.INFO, due.statustext))
+
+    def get_timer(self) -> float:
+        """When ``tick`` is next needed (monotonic s): the next status, tiles, checkpoint,
+        NAMED_VALUE_FLOAT, HEARTBEAT or request retry."""
+        return min(self.coverage.next_timer_s(), self.protocol.next_timer_s())
+
+    def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
+        """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
+        ``now_s``: None, or why not (over its rate or all replies' bytes/s: query_limit;
+        counted in faults.snapshot_queries_refused). ``snapshot_sent`` then takes the
+        reply's size."""
+        limiter = self.snapshot_limiter
+        refusal = limiter.admit(requester, now_s)
+        return None if refusal is None else limiter.limits.reason(refusal)
+
+    def snapshot_sent(self, n_bytes: int) -> None:
+        self.snapshot_limiter.sent(n_bytes)
+
+    def put_failed(self) -> None:
+        """A Zenoh put failed (no peer, a closing session): counted."""
+        self.coverage.counters.faults["zenoh_put_errors"] += 1
+
+    # --- actions out ----------------------------------------------------------------------
+
+    def actions(self) -> Actions:
+        """What to do since the last call (then forgotten)."""
+        out, self._out = self._out, Actions()
+        return out
+
+    def link_description(self, report: LinkReport) -> dict[str, Any]:
+        """The status's ``link`` object (docs/protocol.md)."""
+        ages = [d["last_message_age_s"] for d in report.links
+                if d.get("last_message_age_s") is not None]
+        return {"state": str(link_state(report.states, self.protocol.autopilot_known)),
+                "url": report.url, "last_message_age_s": min(ages) if ages else None,
+                "bad_messages": self.protocol.stats.bad, "links": list(report.links),
+                **self.protocol.describe()}
+
+    def status(self, now_s: float, report: LinkReport) -> tuple[dict[str, Any], str]:
+        """The status fields to publish (bus.status) and the one-line service status (for
+        sd_notify), at ``now_s`` with what the shell's links say."""
+        live, proto = self.coverage, self.protocol
+        faults = live.counters.faults
+        faults["reboots"] = proto.reboots
+        if proto.stats.bad:
+            faults["bad_messages"] = proto.stats.bad
+        faults["link_losses"] = report.losses
+        if report.parse_errors:
+            faults["link_parse_errors"] = report.parse_errors
+        drops = report.kernel_drops
+        if drops > self._kernel_drops and now_s >= self._next_drops_warning_s:
+            self._next_drops_warning_s = now_s + DROPS_WARNING_PERIOD_S
+            self._out.logs.append((logging.WARNING, (
+                f"MAVLink: the kernel dropped {drops} datagrams so far: the daemon did not "
+                "read them in time (overloaded?)")))
+        self._kernel_drops = faults["kernel_drops"] = drops
+        faults["rejected_messages"] = sum(proto.stats.rejected.values())
+        faults["other_systems_messages"] = proto.stats.other_systems
+        faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
+        self.checkpoint.recording_error = report.recording_error
+        fields = live.status_fields(uptime_s=round(now_s - self.started_s, 3),
+                                    seq=self._status_seq, link=self.link_description(report),
+                                    checkpoint=self.checkpoint.describe())
+        self._status_seq += 1
+        share = live.share_at_target()
+        line = (f"coverage {share:.1%} at P_D>={live.target_pd:g}, {live.counters.used} "
+                f"frames, link {fields['link']['state']}")
+        return fields, line
+
+    # --- checkpoints ----------------------------------------------------------------------
+
+    def checkpoint_meta(self, unix_s: float) -> CheckpointMeta:
+        """The metadata of a checkpoint of the grid as it is now."""
+        live = self.coverage
+        offset, boot = self.protocol.clock_state()
+        known = math.isfinite(boot)
+        return CheckpointMeta(
+            mission_hash=self.mission_hash, vehicle_id=self.cfg.mission.vehicle_id,
+            t0_s=live.t0_s, last_frame_t_s=finite_or_none(live.last_frame_t_s),
+            clock_offset_s=offset if known else None, clock_boot_s=boot if known else None,
+            tiles_seq=live.tiles_seq - 1, frames_used=live.counters.used,
+            written_unix_s=unix_s)
+
+    def checkpoint_written(self, meta: CheckpointMeta, error: str | None) -> None:
+        """The shell wrote the checkpoint ``meta`` of the current grid, or failed with
+        ``error`` (computing and publishing go on; the next one is retried in a period)."""
+        state, live = self.checkpoint, self.coverage
+        if error is not None:
+            live.counters.faults["checkpoint_errors"] += 1
+            if state.error is None:
+                self._out.logs.append((logging.ERROR, (
+                    "checkpoint not written (computing and publishing go on; retrying "
+                    f"every {self.cfg.service.checkpoint_period_s:g} s): {error}")))
+            state.error = error
+            return
+        if state.error is not None:
+            self._out.logs.append((logging.WARNING,
+                                   f"checkpoint written again after: {state.error}"))
+        live.checkpointed()
+        state.last_t_s, state.error = meta.last_frame_t_s, None
+        state.written_unix_s, state.frames = meta.written_unix_s, live.grid.frames
