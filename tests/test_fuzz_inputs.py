@@ -404,8 +404,12 @@ def test_tiles_of_another_grid_or_a_wrong_shape_change_nothing(payloads):
     ("camera", "K", [[10**400, 0, 319.5], [0, 480, 239.5], [0, 0, 1]], "camera.K: a number"),
     ("origin", "lat_deg", 10**400, "origin.lat_deg: expected a finite number"),
     ("mount", "lever_arm_frd_m", [0, 0, -10**400], "mount.lever_arm_frd_m: expected"),
+    # Cells so small that the cell count has no float quotient (OverflowError before), or
+    # that the domain's width in cells is infinite.
+    ("domain", "cell_size_m", 1.8e-274, "= 10^550 cells, more memory than any machine has"),
+    ("domain", "cell_size_m", 5e-324, "too small for a 30 x 30 m domain"),
 ], ids=["K-empty-row", "K-long-row", "model-list", "model-mapping", "K-huge-int",
-        "lat-huge-int", "lever-arm-huge-int"])
+        "lat-huge-int", "lever-arm-huge-int", "cell-1e-274", "cell-denormal"])
 def test_found_mission_values_give_a_pdcov_error(tmp_path, section, key, value, message):
     doc = copy.deepcopy(MISSION)
     if section == "mount":

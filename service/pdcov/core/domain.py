@@ -29,6 +29,12 @@ GRID_BYTES_PER_CELL = 52
 MAX_GRID_CELLS = 2**28
 
 
+def _count(n: int) -> str:
+    """A count as a person reads it: 160,000,000,000, or 1e+276 where the digits would
+    fill the line."""
+    return f"{n:,}" if n < 10**15 else f"{n:.3e}" if n < 10**300 else f"10^{len(str(n)) - 1}"
+
+
 @dataclass(frozen=True, slots=True)
 class GridGeometry:
     """A regular grid: south-west corner (x0_m, y0_m) of cell [0, 0] in ENU, cell size, shape."""
@@ -49,11 +55,17 @@ class GridGeometry:
         if n_cells > MAX_GRID_CELLS:
             # Refused here, before any array is allocated: a mistyped cell size otherwise
             # fails with MemoryError (or swaps) after minutes.
-            side_m = self.cell_size_m * math.sqrt(n_cells / MAX_GRID_CELLS)
+            # In floats, factor by factor: a cell size of 1e-274 m gives counts no float
+            # quotient of the product holds (OverflowError).
+            side_m = (self.cell_size_m * math.sqrt(self.n_rows / MAX_GRID_CELLS)
+                      * math.sqrt(self.n_cols))
+            gib = float(self.n_rows) * GRID_BYTES_PER_CELL / 2**30 * float(self.n_cols)
             raise DomainError(
-                f"cell_size_m = {self.cell_size_m:g} m gives {self.n_rows:,} x {self.n_cols:,} "
-                f"= {n_cells:,} cells, about {n_cells * GRID_BYTES_PER_CELL / 2**30:,.1f} GiB "
-                f"of memory; at most {MAX_GRID_CELLS:,} cells are allowed: use cells of at "
+                f"cell_size_m = {self.cell_size_m:g} m gives {_count(self.n_rows)} x "
+                f"{_count(self.n_cols)} = {_count(n_cells)} cells, "
+                + (f"about {gib:,.1f} GiB of memory" if math.isfinite(gib) else
+                   "more memory than any machine has")
+                + f"; at most {MAX_GRID_CELLS:,} cells are allowed: use cells of at "
                 f"least {side_m:.3g} m")
 
     @property
@@ -107,8 +119,13 @@ class Domain:
             raise DomainError(f"domain.cell_size_m: expected a positive number of metres, "
                               f"got {cell_size_m}")
         x_min, y_min, x_max, y_max = self.boundary.bounds
-        n_cols = max(1, math.ceil((x_max - x_min) / cell_size_m - 1e-9))
-        n_rows = max(1, math.ceil((y_max - y_min) / cell_size_m - 1e-9))
+        cols, rows = (x_max - x_min) / cell_size_m, (y_max - y_min) / cell_size_m
+        if not (math.isfinite(cols) and math.isfinite(rows)):  # a cell of 5e-324 m
+            raise DomainError(f"domain.cell_size_m = {cell_size_m:g} m: too small for a "
+                              f"{x_max - x_min:g} x {y_max - y_min:g} m domain (at most "
+                              f"{MAX_GRID_CELLS:,} cells)")
+        n_cols = max(1, math.ceil(cols - 1e-9))
+        n_rows = max(1, math.ceil(rows - 1e-9))
         return GridGeometry(x_min, y_min, cell_size_m, n_rows, n_cols)
 
     def free_mask(self, geometry: GridGeometry) -> np.ndarray:
