@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pdcov.core.camera import CAMERA_CONFIG, CameraModel
+from pdcov.core.camera import CameraModel
+from pdcov.core.camera_config import CAMERA_CONFIG
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin

@@ -11,7 +11,7 @@ the first unknown key, the caller's error naming the file and the key path with 
 known key (difflib) as a suggestion.
 
 Each module declares the section it reads beside its reader (``CAMERA_CONFIG`` in
-core/camera.py, ``MODEL_SCHEMA`` in core/detector.py, ``GIMBAL_MOUNT_CONFIG`` in
+core/camera_config.py, ``MODEL_SCHEMA`` in core/detector.py, ``GIMBAL_MOUNT_CONFIG`` in
 core/mount.py); a file's schema is composed of them (``config.mission_schema``). A frozen
 dataclass whose fields are the keys serves as a section too: ``Section.of_dataclass``.
 """
