@@ -23,9 +23,10 @@ from pdcov.core.geodesy import Origin  # noqa: E402
 from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items  # noqa: E402
 from pdcov.telemetry.link_params import read_mount_params, read_params  # noqa: E402
 from pdcov.telemetry.upload import mavlink2_connection, upload_mission  # noqa: E402
+from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S, AutopilotEndpoint  # noqa: E402
 from pdcov_sitl.faults import FaultSpec  # noqa: E402
 from pdcov_sitl.link import LinkError, LinkUrl, open_link  # noqa: E402
-from pdcov_sitl.protocol import TLOG_EPOCH_UNIX_S, AutopilotEndpoint, message_id  # noqa: E402
+from pdcov_sitl.protocol import message_id  # noqa: E402
 
 pytestmark = pytest.mark.e2e
 

@@ -26,7 +26,7 @@ from pdcov.core.mission import MissionItem  # noqa: E402
 from pdcov.core.rotations import R_from_quat_wxyz  # noqa: E402
 from pdcov.planning.plan import Plan, Waypoint, mission_items, wpl_text  # noqa: E402
 from pdcov.telemetry.pose_tracker import read_pose_csv  # noqa: E402
-from pdcov_sitl.protocol import TLOG_EPOCH_UNIX_S  # noqa: E402
+from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S  # noqa: E402
 
 pytestmark = pytest.mark.e2e
 

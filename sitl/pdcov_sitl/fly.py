@@ -158,7 +158,7 @@ def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, sp
 
 def fly(opts: FlyOptions) -> FlightResult:
     """Fly the plan from take-off to landing; write DIR/flight.tlog and DIR/truth.csv."""
-    from .protocol import AutopilotEndpoint
+    from .endpoint import AutopilotEndpoint
 
     m = opts.mission
     home_alt = m.ground_alt_msl_m if m.ground_alt_msl_m is not None else 0.0
