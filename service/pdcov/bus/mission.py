@@ -28,11 +28,11 @@ from shapely.validation import explain_validity
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import check_schema, is_number, json_object
-from pdcov.bus.keys import valid_vehicle_id
 from pdcov.config import MAX_THRESHOLDS
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import PdcovError
+from pdcov.ids import valid_vehicle_id
 
 MISSION_SCHEMA = "pdcov.mission"
 MISSION_VERSION = 1

@@ -24,9 +24,9 @@ from typing import Any
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
-from pdcov.bus.keys import valid_vehicle_id
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config import MAX_THRESHOLDS
+from pdcov.ids import valid_vehicle_id
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1

@@ -24,7 +24,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pdcov.core.camera_config import camera_args_from_camera_info, camera_args_from_config
+from pdcov.core.camera_config import (
+    CameraConfig,
+    camera_config_from_camera_info,
+    camera_config_from_mapping,
+)
 from pdcov.core.camera_fov import AngularLimit, border_pixels
 from pdcov.errors import CalibrationError, where
 
@@ -120,13 +124,19 @@ class CameraModel:
                     ) -> CameraModel:
         """From a mission-config mapping: width_px, height_px, K, distortion_model,
         distortion_coeffs (``camera_config.CAMERA_CONFIG``)."""
-        return cls(*camera_args_from_config(doc, source, key), source=where(source, key))
+        return cls.from_section(camera_config_from_mapping(doc, source, key), where(source, key))
 
     @classmethod
     def from_camera_info(cls, path: str | Path) -> CameraModel:
         """From a ROS ``camera_info`` YAML (image_width, image_height, camera_matrix,
         distortion_model, distortion_coefficients) as camera_calibration writes it."""
-        return cls(*camera_args_from_camera_info(path), source=str(path))
+        return cls.from_section(camera_config_from_camera_info(path), str(path))
+
+    @classmethod
+    def from_section(cls, c: CameraConfig, source: str | None = None) -> CameraModel:
+        """From a camera section as read (``camera_config``); ``source`` names it in errors."""
+        return cls(c.width_px, c.height_px, c.K, c.distortion_model,
+                   np.asarray(c.distortion_coeffs, dtype=float), source=source)
 
     @classmethod
     def from_fov(cls, width_px: int, height_px: int, hfov_deg: float,

@@ -2,14 +2,14 @@
 ``camera_info`` YAML, checked key by key and read into ``CameraModel``'s constructor
 arguments (core/camera.py validates the values themselves).
 
-``CAMERA_CONFIG`` and ``CAMERA_INFO`` are the sections' keys (pdcov/schema.py);
-``camera_args_from_config`` and ``camera_args_from_camera_info`` return
-``(width_px, height_px, K, distortion_model, dist_coeffs)``, raising ``CalibrationError``
-naming the file and key.
+``CameraConfig`` is the mission config's section, its fields the keys (``CAMERA_CONFIG``,
+read by pdcov/schema.py); ``CAMERA_INFO`` lists the keys of the ROS format. Both readers
+return a ``CameraConfig``, raising ``CalibrationError`` naming the file and key.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,26 +19,33 @@ from pdcov.errors import CalibrationError, where
 from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
-__all__ = ["CAMERA_CONFIG", "CAMERA_INFO", "CameraArgs", "camera_args_from_camera_info",
-           "camera_args_from_config"]
+__all__ = ["CAMERA_CONFIG", "CAMERA_INFO", "CameraConfig", "camera_config_from_camera_info",
+           "camera_config_from_mapping"]
 
-CameraArgs = tuple[Any, Any, np.ndarray, Any, np.ndarray]
-"""(width_px, height_px, K, distortion_model, dist_coeffs) as read, for CameraModel to
-validate: the sizes and model may be any YAML value."""
 
-# The keys of a camera in the mission config, and of a ROS camera_info file (as
-# camera_calibration and camera_info_manager write it; rectification and projection are read
-# by nothing here but belong to the format).
-CAMERA_CONFIG = Section.of("width_px", "height_px", "K", "distortion_model",
-                           "distortion_coeffs")
+@dataclass(frozen=True, slots=True)
+class CameraConfig:
+    """The ``camera`` section as read: sizes (px), K (3x3), the distortion model and its
+    coefficients. The values are CameraModel's to validate (sizes and model may be any YAML
+    value here)."""
+
+    width_px: Any
+    height_px: Any
+    K: np.ndarray
+    distortion_model: Any = "plumb_bob"
+    distortion_coeffs: np.ndarray | tuple[float, ...] = ()
+
+CAMERA_CONFIG = Section.of_dataclass(CameraConfig)
+# The keys of a ROS camera_info file (as camera_calibration and camera_info_manager write it;
+# rectification and projection are read by nothing here but belong to the format).
 _ROS_MATRIX = Section.of("rows", "cols", "data")
 CAMERA_INFO = Section.of("image_width", "image_height", "camera_name", "distortion_model",
                          camera_matrix=_ROS_MATRIX, distortion_coefficients=_ROS_MATRIX,
                          rectification_matrix=_ROS_MATRIX, projection_matrix=_ROS_MATRIX)
 
 
-def camera_args_from_config(doc: Any, source: str | None = None, key: str = "camera"
-                            ) -> CameraArgs:
+def camera_config_from_mapping(doc: Any, source: str | None = None, key: str = "camera"
+                               ) -> CameraConfig:
     """From a mission-config mapping: width_px, height_px, K, distortion_model,
     distortion_coeffs. ``source``: the file; ``key``: the section's key path in it."""
     if not isinstance(doc, dict):
@@ -47,12 +54,13 @@ def camera_args_from_config(doc: Any, source: str | None = None, key: str = "cam
     for k in ("width_px", "height_px", "K"):
         if k not in doc:
             raise CalibrationError(f"{where(source, key + '.' + k)}: missing")
-    return (doc["width_px"], doc["height_px"], _matrix(doc["K"], source, key + ".K"),
-            doc.get("distortion_model", "plumb_bob"),
-            _floats(doc.get("distortion_coeffs", []), source, key + ".distortion_coeffs"))
+    return CameraConfig(doc["width_px"], doc["height_px"], _matrix(doc["K"], source, key + ".K"),
+                        doc.get("distortion_model", "plumb_bob"),
+                        _floats(doc.get("distortion_coeffs", []), source,
+                                key + ".distortion_coeffs"))
 
 
-def camera_args_from_camera_info(path: str | Path) -> CameraArgs:
+def camera_config_from_camera_info(path: str | Path) -> CameraConfig:
     """From a ROS ``camera_info`` YAML (image_width, image_height, camera_matrix,
     distortion_model, distortion_coefficients) as camera_calibration writes it."""
     doc = load_yaml(path, "camera calibration", CalibrationError)
@@ -67,8 +75,8 @@ def camera_args_from_camera_info(path: str | Path) -> CameraArgs:
     dist = doc.get("distortion_coefficients")
     coeffs = (_ros_matrix(dist, src, "distortion_coefficients", None)
               if dist is not None else np.zeros(5))
-    return (doc["image_width"], doc["image_height"], K.reshape(3, 3),
-            doc.get("distortion_model", "plumb_bob"), coeffs)
+    return CameraConfig(doc["image_width"], doc["image_height"], K.reshape(3, 3),
+                        doc.get("distortion_model", "plumb_bob"), coeffs)
 
 
 def _floats(v: Any, source: str | None, key: str) -> np.ndarray:
