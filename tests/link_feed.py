@@ -14,14 +14,14 @@ import numpy as np
 import yaml
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import small_mission  # noqa: E402
-from pdcov.core.grid import CoverageGrid  # noqa: E402
-from pdcov.service.coverage import LiveCoverage  # noqa: E402
-from pdcov.service.daemon import Daemon  # noqa: E402
-from pdcov.service.settings import ServeConfig, load_serve_config  # noqa: E402
-from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log  # noqa: E402
+from benchmarks.harness import small_mission
+from pdcov.core.grid import CoverageGrid
+from pdcov.service.coverage import LiveCoverage
+from pdcov.service.daemon import Daemon
+from pdcov.service.settings import ServeConfig, load_serve_config
+from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
 MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},

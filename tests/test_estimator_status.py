@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 os.environ.setdefault("MAVLINK20", "1")
-from link_feed import (  # noqa: E402
+from link_feed import (
     GROUND_M,
     LAT_DEG,
     LON_DEG,
@@ -29,23 +29,23 @@ from link_feed import (  # noqa: E402
     pack,
     serve_config,
 )
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
-from serve_harness import Subscriber, free_port, process, router, serve_args, small_plan, stop  # noqa: E402
-from serve_harness import serve_config as write_config  # noqa: E402
-from ulog_fixture import write_ulog  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from serve_harness import Subscriber, free_port, process, router, serve_args, small_plan, stop
+from serve_harness import serve_config as write_config
+from ulog_fixture import write_ulog
 
-from benchmarks.harness import small_mission  # noqa: E402
-from pdcov.config import mission_from_dict  # noqa: E402
-from pdcov.core.pose import FixedMount  # noqa: E402
-from pdcov.errors import ConfigError  # noqa: E402
-from pdcov.service.coverage import Due  # noqa: E402
-from pdcov.service.link_protocol import (  # noqa: E402
+from benchmarks.harness import small_mission
+from pdcov.config import mission_from_dict
+from pdcov.core.pose import FixedMount
+from pdcov.errors import ConfigError
+from pdcov.service.coverage import Due
+from pdcov.service.link_protocol import (
     EKF_STATUS_REPORT,
     ESTIMATOR_STATUS,
     LinkProtocol,
 )
-from pdcov.service.settings import load_serve_config  # noqa: E402
-from pdcov.telemetry.estimator import (  # noqa: E402
+from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.estimator import (
     CONSTANT_POSITION,
     ESTIMATOR_HOLD_S,
     GPS_GLITCHING,
@@ -53,9 +53,9 @@ from pdcov.telemetry.estimator import (  # noqa: E402
     estimator_reasons,
     merge_estimator,
 )
-from pdcov.telemetry.logs import read_flight_log  # noqa: E402
-from pdcov.telemetry.pose_tracker import poses_from_log  # noqa: E402
-from pdcov.telemetry.samples import (  # noqa: E402
+from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.pose_tracker import poses_from_log
+from pdcov.telemetry.samples import (
     NAV_GPS_GLITCHING,
     EstimatorSample,
     EstimatorSeries,

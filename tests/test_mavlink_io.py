@@ -9,10 +9,10 @@ import socket
 
 os.environ["MAVLINK20"] = "1"  # before pymavlink: MAVLink 2 frames
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import free_port  # noqa: E402
-from pdcov.service.mavlink_io import MAX_DATAGRAMS_PER_EVENT, Connection  # noqa: E402
+from benchmarks.harness import free_port
+from pdcov.service.mavlink_io import MAX_DATAGRAMS_PER_EVENT, Connection
 
 
 def heartbeat_frames(n: int) -> list[bytes]:

@@ -41,7 +41,7 @@ from pdcov.service.query_limit import QueryLimiter, QueryLimits, QueryRefusal
 from pdcov.service.settings import load_serve_config
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 

@@ -34,9 +34,9 @@ from serve_harness import (
 )
 
 os.environ["MAVLINK20"] = "1"
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import small_mission  # noqa: E402
+from benchmarks.harness import small_mission
 
 pytestmark = pytest.mark.e2e
 
