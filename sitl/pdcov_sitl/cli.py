@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .messages import GIMBAL_MODES
+from .messages import GIMBAL_MODES, GimbalMode
 
 
 class UsageError(Exception):
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _default_gimbal(mount: object) -> str:
+def _default_gimbal(mount: object) -> GimbalMode:
     from pdcov.core.pose import FixedMount
 
     if isinstance(mount, FixedMount):

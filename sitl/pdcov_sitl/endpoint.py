@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from .faults import FaultInjector, FaultSpec, GimbalHealth
 from .link import open_link
-from .protocol import AUTOPILOT_COMPONENT, AutopilotProtocol, StreamSchedule
+from .protocol import AUTOPILOT_COMPONENT, Autopilot, AutopilotProtocol, StreamSchedule
 
 __all__ = ["TLOG_EPOCH_UNIX_S", "AutopilotEndpoint", "sign_with"]
 
@@ -63,7 +63,7 @@ class AutopilotEndpoint:
     fly loop: ``gps_offset_ned_m(now_s)`` (add to reported positions), ``gimbal_health``.
     """
 
-    def __init__(self, url: str, *, system_id: int, autopilot: str,
+    def __init__(self, url: str, *, system_id: int, autopilot: Autopilot,
                  params: dict[str, float], streams: dict[str, float],
                  faults: FaultSpec | None, seed: int, tlog_path: Path | None,
                  epoch_unix_s: float = TLOG_EPOCH_UNIX_S, signing_key: bytes | None = None):

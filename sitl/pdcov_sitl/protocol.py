@@ -20,13 +20,16 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Mapping
+from typing import Literal, get_args
 
 from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink2
 
 from .mission_server import MissionServer
 
-AUTOPILOTS = ("ardupilot", "px4")
+Autopilot = Literal["ardupilot", "px4"]
+"""Which flight controller the endpoint behaves like (mission requests, capabilities)."""
+AUTOPILOTS: tuple[Autopilot, ...] = get_args(Autopilot)
 AUTOPILOT_COMPONENT = 1
 # Stream names of the ArduPilot dialect (common.xml and ardupilotmega.xml: EKF_STATUS_REPORT).
 _MESSAGE_MAP = ardupilotmega.mavlink_map
@@ -138,7 +141,7 @@ class AutopilotProtocol:
     messages to send from the autopilot component. Messages addressed to another system or
     component are ignored. Unknown parameters get no answer (as on ArduPilot)."""
 
-    def __init__(self, mav: mavlink2.MAVLink, *, system_id: int, autopilot: str,
+    def __init__(self, mav: mavlink2.MAVLink, *, system_id: int, autopilot: Autopilot,
                  params: Mapping[str, float], schedule: StreamSchedule):
         if autopilot not in AUTOPILOTS:
             raise ValueError(f"autopilot {autopilot!r}: expected one of {AUTOPILOTS}")
