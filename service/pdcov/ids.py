@@ -2,12 +2,14 @@
 ``vehicle_id``, the bus's key expressions, ``pdcov watch --vehicle``) and MAVLink system ids
 (``log.system_id``, ``link.system_id``, ``pdcov-sitl fly --system-id``).
 
-Both checks return a bool; the caller raises its own error (``ConfigError`` for a config
-file or an option, ``ValueError`` for a value built in code, ``BusPayloadError`` for a
-payload), naming the key and the range below.
+Both checks return a bool (a vehicle id that passes is a ``str`` to mypy); the caller
+raises its own error (``ConfigError`` for a config file or an option, ``ValueError`` for a
+value built in code, ``BusPayloadError`` for a payload), naming the key and the rule.
 """
 
 from __future__ import annotations
+
+from typing import TypeGuard
 
 __all__ = ["SYSTEM_IDS", "VEHICLE_ID_RULE", "valid_system_id", "valid_vehicle_id"]
 
@@ -22,7 +24,7 @@ the broadcast address, invalid as a source (mavlink.io/en/guide/serialization.ht
 value: an autopilot set to SYSID_THISMAV 255 is still followed."""
 
 
-def valid_vehicle_id(vehicle_id: object) -> bool:
+def valid_vehicle_id(vehicle_id: object) -> TypeGuard[str]:
     """A non-empty string of ASCII letters, digits, '-' and '_': no Zenoh wildcard or
     separator can hide in it, and it is one key chunk on every bus."""
     return (isinstance(vehicle_id, str) and bool(vehicle_id) and vehicle_id.isascii()
