@@ -14,6 +14,9 @@ Figures, per vehicle: the daemon's CPU (user + system seconds over the flight's 
 tiles as the router forwards them (a subscriber on the router's session; Zenoh's own
 framing not counted); the watchers' CPU. ``--speed`` runs the simulators faster than real
 time: bytes and CPU per second of wall time then carry ``speed`` seconds of flight.
+
+Over 450 lines on purpose: one benchmark (the run, its figures and the docs block it writes,
+with the security rows that share that block); shared helpers are in harness.py and report.py.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from pdcov.ground.web import map_state
 # The watcher tests' stand-in publisher (a real CoverageGrid through the bus codecs), so
 # that these figures are of the same cases as tests/test_watcher_pinning.py.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from watch_fixtures import TinyPublisher  # noqa: E402
+from watch_fixtures import TinyPublisher
 
 DAEMON, ROGUE = "a1" * 16, "e7" * 16
 

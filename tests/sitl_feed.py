@@ -8,8 +8,8 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from pdcov_sitl.endpoint import AutopilotEndpoint
 from pdcov_sitl.faults import GimbalHealth
-from pdcov_sitl.protocol import AutopilotEndpoint
 
 LAT_DEG, LON_DEG, ALT_MSL_M = -35.363261, 149.165230, 584.0
 

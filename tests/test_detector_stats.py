@@ -17,19 +17,21 @@ from synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set, write_c
 
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import Boxes, ImageTruth, read_detections, read_truth
-from pdcov.detection.statistics import (
+from pdcov.detection.matching import (
     DetectionStatus,
     MatchSettings,
     TruthStatus,
+    iou_matrix,
+    match_image,
+    match_images,
+)
+from pdcov.detection.statistics import (
     ValidationReport,
     auto_bin_edges,
     count_in_bins,
     fit_binned,
     fit_logistic,
     fit_logistic_curve,
-    iou_matrix,
-    match_image,
-    match_images,
     proportion_ci,
     validate,
 )

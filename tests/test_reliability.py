@@ -1,5 +1,5 @@
 """Faults end to end with real processes (issue 15, part A), at CI sizes: the functions of
-``benchmarks/reliability.py``, whose documented run (``python -m benchmarks.reliability
+``benchmarks/reliability/``, whose documented run (``python -m benchmarks.reliability
 --write-docs``: a 2-hour soak, 50 kills, a 60 s router outage) writes docs/reliability.md.
 Each starts ``pdcov-sitl fly``, ``pdcov serve`` and a Zenoh router in this process and runs
 the watcher's shell in a thread; every process is killed and every session closed at the
@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.reliability import crash, disk_full, router_outage, soak
+from benchmarks.reliability.crash import crash
+from benchmarks.reliability.outages import disk_full, router_outage
+from benchmarks.reliability.soak import soak
 
 pytestmark = pytest.mark.e2e
 

@@ -16,9 +16,9 @@ import pytest
 
 pytest.importorskip("jsbsim")
 
-from pdcov.core.geodesy import Origin  # noqa: E402
-from pdcov.planning.plan import read_plan  # noqa: E402
-from pdcov.telemetry.pose_tracker import read_pose_csv  # noqa: E402
+from pdcov.core.geodesy import Origin
+from pdcov.planning.plan import read_plan
+from pdcov.telemetry.pose_tracker import read_pose_csv
 
 pytestmark = pytest.mark.e2e
 

@@ -15,17 +15,18 @@ from collections import Counter
 import pytest
 
 os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
-from sitl_feed import PARAMS, STREAMS_HZ, FeedThread  # noqa: E402
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
+from sitl_feed import PARAMS, STREAMS_HZ, FeedThread
 
-from pdcov.core.geodesy import Origin  # noqa: E402
-from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items  # noqa: E402
-from pdcov.telemetry.link_params import read_mount_params, read_params  # noqa: E402
-from pdcov.telemetry.upload import mavlink2_connection, upload_mission  # noqa: E402
-from pdcov_sitl.faults import FaultSpec  # noqa: E402
-from pdcov_sitl.link import LinkError, LinkUrl, open_link  # noqa: E402
-from pdcov_sitl.protocol import TLOG_EPOCH_UNIX_S, AutopilotEndpoint, message_id  # noqa: E402
+from pdcov.core.geodesy import Origin
+from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
+from pdcov.telemetry.link_params import read_mount_params, read_params
+from pdcov.telemetry.upload import mavlink2_connection, upload_mission
+from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S, AutopilotEndpoint
+from pdcov_sitl.faults import FaultSpec
+from pdcov_sitl.link import LinkError, LinkUrl, open_link
+from pdcov_sitl.protocol import message_id
 
 pytestmark = pytest.mark.e2e
 

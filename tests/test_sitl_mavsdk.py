@@ -17,7 +17,7 @@ from mavsdk.plugins.mission_raw import MissionRaw  # noqa: E402
 from mavsdk.plugins.telemetry import Telemetry  # noqa: E402
 from sitl_feed import ALT_MSL_M, LAT_DEG, LON_DEG, PARAMS, STREAMS_HZ, FeedThread  # noqa: E402
 
-from pdcov_sitl.protocol import AutopilotEndpoint  # noqa: E402
+from pdcov_sitl.endpoint import AutopilotEndpoint  # noqa: E402
 
 pytestmark = pytest.mark.e2e
 

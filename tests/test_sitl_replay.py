@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 
 os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil  # noqa: E402
-from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov_sitl.replay import main, replay_schedule, scan_tlog  # noqa: E402
+from pdcov_sitl.replay import main, replay_schedule, scan_tlog
 
 REAL_LOGS = Path(__file__).resolve().parents[2] / "shared" / "real-logs"
 T0_US = 1_767_225_600_000_000

@@ -52,7 +52,7 @@ def atomic_write(path: str | Path, mode: str = "w", **open_kwargs: Any) -> Itera
     """Open a temp file for writing (``mode`` 'w' or 'wb'); on success it replaces ``path``."""
     with atomic_path(path) as tmp:
         try:
-            f = open(tmp, mode, **open_kwargs)  # noqa: SIM115 - closed below
+            f = open(tmp, mode, **open_kwargs)  # closed below (``with f``)
         except OSError as exc:
             raise _cannot(Path(path), exc) from None
         with f:

@@ -8,11 +8,12 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from pdcov.core.camera import CAMERA_CONFIG, CameraModel
+from pdcov.core.camera import CameraModel
+from pdcov.core.camera_config import CAMERA_CONFIG
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin
@@ -20,6 +21,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import ConfigError, PdcovError, where
+from pdcov.ids import SYSTEM_IDS, VEHICLE_ID_RULE, valid_system_id, valid_vehicle_id
 from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
 
@@ -32,21 +34,166 @@ _FLOAT_MAX = sys.float_info.max
 # Sections of the onboard daemon (`pdcov serve`), declared by its own modules: see
 # ``mission_schema``. Until a schema is passed for one, any mapping is accepted there.
 RESERVED_SECTIONS = ("link", "bus", "service")
-FIXED_MOUNT_CONFIG = Section.of("type", "roll_deg", "pitch_deg", "yaw_deg", "lever_arm_frd_m")
-PLANNING_CONFIG = Section.of("max_accel_mps2", "max_yaw_rate_deg_s", "tilt", "corner_cut_m",
-                             "gimbal_pitch_deg")
+
+
+# -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
+
+@dataclass(frozen=True, slots=True)
+class OriginSection:
+    """``origin``: the ENU origin (degrees) and the ground altitude there (m MSL; None: the
+    autopilot's home altitude)."""
+
+    lat_deg: float
+    lon_deg: float
+    ground_alt_msl_m: float | None = None
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> OriginSection:
+        ground = (None if doc.get("ground_alt_msl_m") is None
+                  else _number(doc, "ground_alt_msl_m", src, "origin"))
+        return cls(_number(doc, "lat_deg", src, "origin"), _number(doc, "lon_deg", src, "origin"),
+                   ground)
+
+
+@dataclass(frozen=True, slots=True)
+class DomainSection:
+    """``domain``: one of polygon_enu_m, polygon_geodetic_deg or geojson (a file), the
+    obstacles in the same frame, and the grid's cell size (m). The polygons are read by
+    ``Domain``; here they are kept as given."""
+
+    polygon_enu_m: Any = None
+    polygon_geodetic_deg: Any = None
+    geojson: Any = None
+    obstacles_enu_m: Any = None
+    obstacles_geodetic_deg: Any = None
+    cell_size_m: float = 1.0
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> DomainSection:
+        cell = _number(doc, "cell_size_m", src, "domain", default=1.0, positive=True)
+        return cls(**{**{k: v for k, v in doc.items() if k != "cell_size_m"},
+                      "cell_size_m": cell})
+
+
+@dataclass(frozen=True, slots=True)
+class FixedMountSection:
+    """``mount`` of ``type: fixed``: the camera's angles in the body frame (degrees) and its
+    lever arm (m, forward-right-down); the gimbal's keys are ``GimbalMount``'s."""
+
+    type: str = "fixed"
+    roll_deg: float = 0.0
+    pitch_deg: float = -90.0
+    yaw_deg: float = 0.0
+    lever_arm_frd_m: Any = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> FixedMountSection:
+        default = _defaults(cls)
+        angles = {k: _number(doc, k, src, "mount", default=default[k])
+                  for k in ("roll_deg", "pitch_deg", "yaw_deg")}
+        arm = doc.get("lever_arm_frd_m", [0.0, 0.0, 0.0])
+        if (not isinstance(arm, list) or len(arm) != 3 or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= _FLOAT_MAX
+                for v in arm)):
+            raise ConfigError(f"{where(src, 'mount.lever_arm_frd_m')}: expected [forward, "
+                              f"right, down] in metres, got {arm!r}")
+        return cls("fixed", **angles,
+                   lever_arm_frd_m=(float(arm[0]), float(arm[1]), float(arm[2])))
+
+    def mount(self) -> FixedMount:
+        return FixedMount(math.radians(self.roll_deg), math.radians(self.pitch_deg),
+                          math.radians(self.yaw_deg), tuple(self.lever_arm_frd_m))
+
+
+@dataclass(frozen=True, slots=True)
+class CoverageSection:
+    """``coverage``: CoverageGrid's max_range_m and min_revisit_s (None: its defaults), and
+    min_height_m: frames with the camera lower than this above the ground are not
+    evaluated."""
+
+    max_range_m: float | None = None
+    min_revisit_s: float | None = None
+    min_height_m: float = 1.0
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> CoverageSection:
+        return cls(_opt_number(doc, "max_range_m", src, "coverage"),
+                   _opt_number(doc, "min_revisit_s", src, "coverage"),
+                   _number(doc, "min_height_m", src, "coverage", default=1.0))
+
+
+@dataclass(frozen=True, slots=True)
+class LogSection:
+    """``log``: how frames are placed in a log (frame_source 'rate' or 'capture'), the
+    telemetry gap that skips frames (s), the autopilot to follow (a MAVLink system id; None:
+    from its HEARTBEAT) and whether the estimator's status can skip frames."""
+
+    frame_source: str = "rate"
+    max_gap_s: float = 1.0
+    system_id: int | None = None
+    estimator_status: bool = True
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> LogSection:
+        frame_source = doc.get("frame_source", "rate")
+        if frame_source not in ("rate", "capture"):
+            raise ConfigError(f"{where(src, 'log.frame_source')}: expected 'rate' or "
+                              f"'capture', got {frame_source!r}")
+        system_id = doc.get("system_id")
+        if system_id is not None and not valid_system_id(system_id):
+            raise ConfigError(f"{where(src, 'log.system_id')}: expected a MAVLink system id "
+                              f"{SYSTEM_IDS.start}..{SYSTEM_IDS.stop - 1}, got {system_id!r}")
+        estimator_status = doc.get("estimator_status", True)
+        if not isinstance(estimator_status, bool):
+            raise ConfigError(f"{where(src, 'log.estimator_status')}: expected true or false, "
+                              f"got {estimator_status!r}")
+        return cls(frame_source,
+                   _number(doc, "max_gap_s", src, "log", default=1.0, positive=True),
+                   system_id, estimator_status)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanningSection:
+    """``planning`` (read by ``pdcov plan`` only): the flight kinematics of the prediction
+    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m) and the gimbal pitch (deg)."""
+
+    max_accel_mps2: float = 2.5
+    max_yaw_rate_deg_s: float = 60.0
+    tilt: bool = True
+    corner_cut_m: float = 2.0
+    gimbal_pitch_deg: float = -90.0
+
+    @classmethod
+    def from_mapping(cls, doc: Any, src: str | None) -> PlanningSection:
+        """From the section (None: the defaults); ConfigError naming ``planning``."""
+        doc = doc or {}
+        if not isinstance(doc, Mapping):
+            raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
+        given = {**_defaults(cls), **doc}
+        try:
+            return cls(float(given["max_accel_mps2"]), float(given["max_yaw_rate_deg_s"]),
+                       bool(given["tilt"]), float(given["corner_cut_m"]),
+                       float(given["gimbal_pitch_deg"]))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
+
+
+def _defaults(section: type) -> dict[str, Any]:
+    """The default value of each field of a section dataclass that has one."""
+    return {f.name: f.default for f in fields(section) if f.default is not MISSING}
+
+
 MISSION_CONFIG = Section.of(
     "vehicle_id", "calibration", "thresholds",
-    origin=Section.of("lat_deg", "lon_deg", "ground_alt_msl_m"),
-    domain=Section.of("polygon_enu_m", "polygon_geodetic_deg", "geojson", "obstacles_enu_m",
-                      "obstacles_geodetic_deg", "cell_size_m"),
+    origin=Section.of_dataclass(OriginSection),
+    domain=Section.of_dataclass(DomainSection),
     camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None),
-    mount=Variants("type", "fixed", {"fixed": FIXED_MOUNT_CONFIG,
+    mount=Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
                                      "gimbal": GIMBAL_MOUNT_CONFIG}),
     detector=MODEL_SCHEMA,
-    coverage=Section.of("max_range_m", "min_revisit_s", "min_height_m"),
-    log=Section.of("frame_source", "max_gap_s", "system_id", "estimator_status"),
-    planning=PLANNING_CONFIG,
+    coverage=Section.of_dataclass(CoverageSection),
+    log=Section.of_dataclass(LogSection),
+    planning=Section.of_dataclass(PlanningSection),
     **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
 
 
@@ -151,18 +298,14 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         if key not in doc and not (key == "camera" and "calibration" in doc):
             raise ConfigError(f"{where(src, key)}: missing (see docs/mission-config.md)")
 
-    origin = _mapping(doc, "origin", src)
-    lat = _number(origin, "lat_deg", src, "origin")
-    lon = _number(origin, "lon_deg", src, "origin")
-    ground = (None if origin.get("ground_alt_msl_m") is None
-              else _number(origin, "ground_alt_msl_m", src, "origin"))
+    origin = OriginSection.from_mapping(_mapping(doc, "origin", src), src)
     try:
-        origin_value = Origin(lat, lon, ground or 0.0)
+        origin_value = Origin(origin.lat_deg, origin.lon_deg, origin.ground_alt_msl_m or 0.0)
     except ConfigError as exc:
         raise ConfigError(f"{src}: {exc}" if src else str(exc)) from None
 
-    dom = _mapping(doc, "domain", src)
-    cell = _number(dom, "cell_size_m", src, "domain", default=1.0, positive=True)
+    dom = DomainSection.from_mapping(_mapping(doc, "domain", src), src)
+    cell = dom.cell_size_m
     domain = _domain(dom, src, base, origin_value)
     if not domain.has_free_cell(domain.grid_geometry(cell)):
         raise ConfigError(
@@ -186,35 +329,23 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
                           f"most {MAX_THRESHOLDS} (every watcher refuses a status with more; "
                           "docs/protocol.md \"Validation and bounds\")")
 
-    cov = _mapping(doc, "coverage", src, required=False)
-    log = _mapping(doc, "log", src, required=False)
-    frame_source = log.get("frame_source", "rate")
-    if frame_source not in ("rate", "capture"):
-        raise ConfigError(f"{where(src, 'log.frame_source')}: expected 'rate' or 'capture', "
-                          f"got {frame_source!r}")
-    system_id = log.get("system_id")
-    if system_id is not None and (not isinstance(system_id, int) or not 1 <= system_id <= 255):
-        raise ConfigError(f"{where(src, 'log.system_id')}: expected a MAVLink system id "
-                          f"1..255, got {system_id!r}")
-    estimator_status = log.get("estimator_status", True)
-    if not isinstance(estimator_status, bool):
-        raise ConfigError(f"{where(src, 'log.estimator_status')}: expected true or false, "
-                          f"got {estimator_status!r}")
+    cov = CoverageSection.from_mapping(_mapping(doc, "coverage", src, required=False), src)
+    log_doc = _mapping(doc, "log", src, required=False)
+    log = LogSection.from_mapping(log_doc, src)
     vehicle_id = doc.get("vehicle_id", "uav1")
-    if not isinstance(vehicle_id, str) or not vehicle_id.replace("_", "").replace("-", "") \
-            .isalnum():
-        raise ConfigError(f"{where(src, 'vehicle_id')}: expected letters, digits, - and _, "
+    if not valid_vehicle_id(vehicle_id):
+        raise ConfigError(f"{where(src, 'vehicle_id')}: expected {VEHICLE_ID_RULE}, "
                           f"got {vehicle_id!r}")
     return Mission(
-        vehicle_id=vehicle_id, origin_lat_deg=lat, origin_lon_deg=lon, ground_alt_msl_m=ground,
+        vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
+        ground_alt_msl_m=origin.ground_alt_msl_m,
         domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
         detector=detector, thresholds=tuple(float(t) for t in thresholds),
-        max_range_m=_opt_number(cov, "max_range_m", src, "coverage"),
-        min_revisit_s=_opt_number(cov, "min_revisit_s", src, "coverage"),
-        min_height_m=_number(cov, "min_height_m", src, "coverage", default=1.0),
-        frame_source=frame_source, frame_source_set="frame_source" in log,
-        max_gap_s=_number(log, "max_gap_s", src, "log", default=1.0, positive=True),
-        system_id=system_id, estimator_status=estimator_status, source=src, raw=doc)
+        max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
+        min_height_m=cov.min_height_m,
+        frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
+        max_gap_s=log.max_gap_s, system_id=log.system_id,
+        estimator_status=log.estimator_status, source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
@@ -247,19 +378,19 @@ def _opt_number(doc: Mapping[str, Any], key: str, src: str | None, section: str
     return None if doc.get(key) is None else _number(doc, key, src, section, positive=True)
 
 
-def _domain(dom: Mapping[str, Any], src: str | None, base: Path, origin: Origin) -> Domain:
-    forms = [k for k in ("polygon_enu_m", "polygon_geodetic_deg", "geojson") if k in dom]
+def _domain(dom: DomainSection, src: str | None, base: Path, origin: Origin) -> Domain:
+    forms = [k for k in ("polygon_enu_m", "polygon_geodetic_deg", "geojson")
+             if getattr(dom, k) is not None]
     if len(forms) != 1:
         raise ConfigError(f"{where(src, 'domain')}: expected exactly one of polygon_enu_m, "
                           f"polygon_geodetic_deg or geojson, got {forms or 'none'}")
     try:
         if forms[0] == "polygon_enu_m":
-            return Domain.from_enu(dom["polygon_enu_m"], dom.get("obstacles_enu_m"), src)
+            return Domain.from_enu(dom.polygon_enu_m, dom.obstacles_enu_m, src)
         if forms[0] == "polygon_geodetic_deg":
-            return Domain.from_geodetic(dom["polygon_geodetic_deg"],
-                                        dom.get("obstacles_geodetic_deg"), origin, src)
-        return Domain.from_geojson(_resolve(dom["geojson"], base, src, "domain.geojson"),
-                                   origin)
+            return Domain.from_geodetic(dom.polygon_geodetic_deg, dom.obstacles_geodetic_deg,
+                                        origin, src)
+        return Domain.from_geojson(_resolve(dom.geojson, base, src, "domain.geojson"), origin)
     except PdcovError as exc:
         raise ConfigError(str(exc)) from None
 
@@ -291,17 +422,8 @@ def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:
     if kind != "fixed":
         raise ConfigError(f"{where(src, 'mount.type')}: expected 'fixed' or 'gimbal', "
                           f"got {kind!r}")
-    check_keys(doc, FIXED_MOUNT_CONFIG, src, "mount")
-    roll_rad, pitch_rad, yaw_rad = [
-        math.radians(_number(doc, k, src, "mount", default=d))
-        for k, d in (("roll_deg", 0.0), ("pitch_deg", -90.0), ("yaw_deg", 0.0))]
-    arm = doc.get("lever_arm_frd_m", [0.0, 0.0, 0.0])
-    if (not isinstance(arm, list) or len(arm) != 3 or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= _FLOAT_MAX
-            for v in arm)):
-        raise ConfigError(f"{where(src, 'mount.lever_arm_frd_m')}: expected [forward, right, "
-                          f"down] in metres, got {arm!r}")
-    return FixedMount(roll_rad, pitch_rad, yaw_rad, (float(arm[0]), float(arm[1]), float(arm[2])))
+    check_keys(doc, Section.of_dataclass(FixedMountSection), src, "mount")
+    return FixedMountSection.from_mapping(doc, src).mount()
 
 
 def _detector(v: Any, src: str | None, base: Path) -> DetectorModel:

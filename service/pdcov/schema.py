@@ -10,10 +10,14 @@ any keys but still requires a mapping. ``check_keys`` walks a parsed document an
 the first unknown key, the caller's error naming the file and the key path with the closest
 known key (difflib) as a suggestion.
 
-Each module declares the section it reads beside its reader (``CAMERA_CONFIG`` in
-core/camera.py, ``MODEL_SCHEMA`` in core/detector.py, ``GIMBAL_MOUNT_CONFIG`` in
-core/mount.py); a file's schema is composed of them (``config.mission_schema``). A frozen
-dataclass whose fields are the keys serves as a section too: ``Section.of_dataclass``.
+Each module declares the section it reads beside its reader, where it can as the frozen
+dataclass that holds the section's values, its fields the keys (``Section.of_dataclass``):
+the mission's sections in config.py (``OriginSection``, ``LogSection``, ...),
+``CameraConfig`` in core/camera_config.py, ``GimbalMount`` in core/mount.py, the daemon's
+``LinkConfig``, ``ServiceConfig`` and ``BusConfig``. Files whose keys are not one
+dataclass's fields keep a key list: ROS's camera_info (``CAMERA_INFO``), the detector model
+(``MODEL_SCHEMA``: ``DetectorModel`` keeps the fit's metadata in ``extra``). A file's schema
+is composed of them (``config.mission_schema``).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .messages import GIMBAL_MODES
+from .messages import GIMBAL_MODES, GimbalMode
 
 
 class UsageError(Exception):
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _default_gimbal(mount: object) -> str:
+def _default_gimbal(mount: object) -> GimbalMode:
     from pdcov.core.pose import FixedMount
 
     if isinstance(mount, FixedMount):
@@ -82,6 +82,7 @@ def run_fly(args: argparse.Namespace) -> int:
     from pdcov.config import load_mission
     from pdcov.errors import PdcovError
     from pdcov.extras import SITL
+    from pdcov.ids import valid_system_id
 
     from .faults import FaultSpec, FaultSpecError
     from .fly import FlyOptions, fly
@@ -106,7 +107,7 @@ def run_fly(args: argparse.Namespace) -> int:
         mission = load_mission(args.config)
         faults = FaultSpec.parse(args.faults) if args.faults else None
         system_id = args.system_id or mission.system_id or 1
-        if not 1 <= system_id <= 255:
+        if not valid_system_id(system_id):
             raise UsageError(f"--system-id {system_id}: expected 1..255")
         opts = FlyOptions(mission=mission, plan_path=args.plan, out_dir=args.out,
                           connect=args.connect, speed=args.speed, seed=args.seed,

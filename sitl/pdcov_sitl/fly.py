@@ -44,6 +44,7 @@ from .messages import (
     GIMBAL_DEVICE_STREAMS_HZ,
     GIMBAL_FAILED_FLAGS,
     STREAMS_HZ,
+    GimbalMode,
     MessageBuilder,
     Snapshot,
     autopilot_params,
@@ -52,6 +53,7 @@ from .messages import (
     gimbal_report,
 )
 from .mission import FlightPlan, flight_plan_from_items, load_flight_plan
+from .protocol import Autopilot
 
 POLL_EVERY_STEPS = 4
 MAX_FLIGHT_S = 3 * 3600.0
@@ -67,12 +69,12 @@ class FlyOptions:
     connect: str = "udpout:127.0.0.1:14550"
     speed: float = 1.0
     seed: int = 0
-    gimbal_mode: str = "ardupilot-device"
+    gimbal_mode: GimbalMode = "ardupilot-device"
     gimbal_axes: int = 3
     faults: FaultSpec | None = None
     wind_mps: float = 0.0
     wind_from_deg: float = 270.0
-    autopilot: str = "ardupilot"
+    autopilot: Autopilot = "ardupilot"
     system_id: int = 1
     wait_mission: bool = False
     camera_trigger: bool = False
@@ -158,7 +160,7 @@ def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, sp
 
 def fly(opts: FlyOptions) -> FlightResult:
     """Fly the plan from take-off to landing; write DIR/flight.tlog and DIR/truth.csv."""
-    from .protocol import AutopilotEndpoint
+    from .endpoint import AutopilotEndpoint
 
     m = opts.mission
     home_alt = m.ground_alt_msl_m if m.ground_alt_msl_m is not None else 0.0

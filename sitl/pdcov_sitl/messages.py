@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
@@ -30,9 +31,11 @@ from pymavlink.dialects.v20 import common as mav
 
 from .dynamics import VehicleState, local_scales
 from .gimbal import quat_from_euler_zyx, quat_from_R
-from .protocol import AUTOPILOTS
+from .protocol import AUTOPILOTS, Autopilot
 
-GIMBAL_MODES = ("ardupilot-servo", "ardupilot-device", "device-earth", "fixed")
+GimbalMode = Literal["ardupilot-servo", "ardupilot-device", "device-earth", "fixed"]
+"""How the simulated gimbal reports itself (docs/simulator.md)."""
+GIMBAL_MODES: tuple[GimbalMode, ...] = get_args(GimbalMode)
 GIMBAL_COMPONENT = mav.MAV_COMP_ID_GIMBAL  # 154
 GIMBAL_CLOCK_OFFSET_S = 1.234
 """The gimbal's own boot clock runs this far ahead of the autopilot's (it boots faster)."""
@@ -70,7 +73,7 @@ _PX4_MODE = {"ground": (3, 0), "takeoff": (4, 2), "waypoint": (4, 4), "return": 
              "land": (4, 6)}
 
 
-def autopilot_params(autopilot: str, gimbal_mode: str, system_id: int,
+def autopilot_params(autopilot: Autopilot, gimbal_mode: GimbalMode, system_id: int,
                      limits_deg: tuple[tuple[float, float], ...]) -> dict[str, float]:
     """Parameters the endpoint answers: the mount's type and limits (ArduPilot names, which
     pdcov reads; ArduPilot hides the limits while MNT1_TYPE is 0), and a few others."""
@@ -120,7 +123,7 @@ class MessageBuilder:
     """Builds the autopilot's messages by stream name. ``mavlink`` is the endpoint's MAVLink
     object (``.X_encode``); home: (lat_deg, lon_deg, alt_msl_m)."""
 
-    def __init__(self, mavlink: mav.MAVLink, autopilot: str,
+    def __init__(self, mavlink: mav.MAVLink, autopilot: Autopilot,
                  home: tuple[float, float, float], seed: int) -> None:
         if autopilot not in AUTOPILOTS:
             raise ValueError(f"autopilot {autopilot!r}: expected one of {AUTOPILOTS}")

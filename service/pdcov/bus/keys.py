@@ -5,15 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pdcov.bus.errors import BusPayloadError
+from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 PREFIX = "pdcov"
 KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames")
-
-
-def valid_vehicle_id(vehicle_id: str) -> bool:
-    """Letters, digits, '-' and '_' only: no Zenoh wildcard or separator can hide in it."""
-    return bool(vehicle_id) and vehicle_id.replace("_", "").replace("-", "").isalnum() \
-        and vehicle_id.isascii()
 
 
 @dataclass(frozen=True, slots=True)
@@ -24,8 +19,7 @@ class VehicleKeys:
 
     def __post_init__(self) -> None:
         if not valid_vehicle_id(self.vehicle_id):
-            raise ValueError(f"vehicle_id {self.vehicle_id!r}: expected letters, digits, "
-                             "- and _")
+            raise ValueError(f"vehicle_id {self.vehicle_id!r}: expected {VEHICLE_ID_RULE}")
 
     def key(self, kind: str) -> str:
         if kind not in KINDS:

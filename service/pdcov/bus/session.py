@@ -12,7 +12,6 @@ publishing options status_period_s, tiles_period_s, tile_size, tiles_max_bytes_p
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 from collections.abc import Mapping
@@ -22,13 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.errors import ConfigError, where
+from pdcov.schema import Section, check_keys
 
 MODES = ("peer", "client", "router")
 _ZENOH_DEFAULT_LISTEN = '{"router":["tcp/[::]:7447"],"peer":["tcp/[::]:0"]}'
 """zenoh.Config().get_json("listen/endpoints") of Zenoh 1.x: a config that leaves it so
 names no listen endpoint of its own."""
-BUS_KEYS = ("mode", "connect", "listen", "multicast_scouting", "config_file", "zenoh",
-            "status_period_s", "tiles_period_s", "tile_size", "tiles_max_bytes_per_s")
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,24 +73,14 @@ class BusConfig:
                        listen=self.listen if listen is None else tuple(listen))
 
 
-def unknown_key_error(section: str, key: str, allowed: tuple[str, ...],
-                      source: str | None) -> ConfigError:
-    """'unknown key' naming the closest allowed key when one is near."""
-    near = difflib.get_close_matches(str(key), allowed, n=1)
-    hint = f"; did you mean {near[0]!r}?" if near else ""
-    return ConfigError(f"{where(source, f'{section}.{key}')}: unknown key{hint} (expected "
-                       f"some of {', '.join(allowed)})")
-
-
 def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
     """Validate the ``bus`` section (a mapping, or None for the defaults)."""
     if doc is None:
         return BusConfig()
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{where(source, 'bus')}: expected a mapping")
-    for k in doc:
-        if k not in BUS_KEYS:
-            raise unknown_key_error("bus", k, BUS_KEYS, source)
+    # The keys are BusConfig's fields (the daemon's schema reads the same dataclass).
+    check_keys(dict(doc), Section.of_dataclass(BusConfig), source, "bus")
     kw = dict(doc)
     for name in ("connect", "listen"):
         if name in kw:

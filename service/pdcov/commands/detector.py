@@ -28,18 +28,15 @@ from pdcov.detection.annotations import (
     read_detections,
     read_truth,
 )
+from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
     BIN_RULES,
-    DEFAULT_MAX_DETECTIONS,
     INTERVAL_METHODS,
     VALIDATION_TESTS,
-    Matches,
-    MatchSettings,
     ValidationReport,
     auto_bin_edges,
     fit_binned,
     fit_logistic,
-    match_images,
     validate,
 )
 from pdcov.errors import ConfigError, InputFileError

@@ -15,7 +15,7 @@ import json
 import math
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +31,7 @@ from pdcov.commands.args import (
     positive_int,
     probability,
 )
-from pdcov.config import Mission, load_mission
+from pdcov.config import Mission, PlanningSection, load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
 from pdcov.errors import ConfigError, where
@@ -149,17 +149,13 @@ def _overlap(args: argparse.Namespace) -> float:
 
 def scenario_of(mission: Mission) -> Scenario:
     """The prediction inputs of a mission, with its ``planning`` section applied."""
-    doc = mission.raw.get("planning") or {}
-    src = mission.source
-    if not isinstance(doc, Mapping):
-        raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
+    cfg = PlanningSection.from_mapping(mission.raw.get("planning"), mission.source)
     try:
-        kin = Kinematics(float(doc.get("max_accel_mps2", 2.5)),
-                         math.radians(float(doc.get("max_yaw_rate_deg_s", 60.0))),
-                         bool(doc.get("tilt", True)), float(doc.get("corner_cut_m", 2.0)))
-        pitch = math.radians(float(doc.get("gimbal_pitch_deg", -90.0)))
+        kin = Kinematics(cfg.max_accel_mps2, math.radians(cfg.max_yaw_rate_deg_s), cfg.tilt,
+                         cfg.corner_cut_m)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
+        raise ConfigError(f"{where(mission.source, 'planning')}: {exc}") from None
+    pitch = math.radians(cfg.gimbal_pitch_deg)
     g = mission.domain.grid_geometry(mission.cell_size_m)
     return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
                     mission.detector, mission.mount, mission.frame_rate_hz,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pdcov.errors import ConfigError
 from pdcov.extras import GROUND
+from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,15 +64,13 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     GROUND.require()
-    from pdcov.bus.keys import valid_vehicle_id
     from pdcov.bus.session import BusConfig, bus_config_from_dict
     from pdcov.config import load_mission
     from pdcov.ground.app import WatchOptions, parse_web_address, run_watch, stdout_is_terminal
 
     vehicle = None if args.vehicle == "all" else args.vehicle
     if vehicle is not None and not valid_vehicle_id(vehicle):
-        raise ConfigError(f"--vehicle {args.vehicle!r}: expected letters, digits, - and _, "
-                          "or 'all'")
+        raise ConfigError(f"--vehicle {args.vehicle!r}: expected {VEHICLE_ID_RULE}, or 'all'")
     mission = load_mission(args.config) if args.config else None
     bus = (bus_config_from_dict(mission.raw.get("bus"), mission.source) if mission
            else BusConfig())

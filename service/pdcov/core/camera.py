@@ -9,6 +9,9 @@ undistortPointsIter, fisheye.undistortPoints). The distortion polynomial of a st
 distorted lens folds points far outside the field of view back into the image; a point is
 therefore only ever reported visible when its direction lies inside the *calibrated field of
 view*: the cone of directions of the image border, undistorted (see ``in_fov``).
+
+The cone itself is ``camera_fov.AngularLimit``; reading a calibration from the mission config
+or a ROS camera_info file is ``camera_config``'s.
 """
 
 from __future__ import annotations
@@ -21,9 +24,13 @@ from typing import Any
 import cv2
 import numpy as np
 
+from pdcov.core.camera_config import (
+    CameraConfig,
+    camera_config_from_camera_info,
+    camera_config_from_mapping,
+)
+from pdcov.core.camera_fov import AngularLimit, border_pixels
 from pdcov.errors import CalibrationError, where
-from pdcov.schema import Section, check_keys
-from pdcov.yaml_file import load_yaml
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
 _COEFF_COUNTS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (8,), "fisheye": (4,)}
@@ -32,18 +39,6 @@ _BORDER_SAMPLES_PER_SIDE = 256
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 _PROJECT_CHUNK = 32768
 _EYE3 = np.eye(3)
-_SECTORS = 1024  # pseudo-azimuth sectors of the fast angular-limit test
-_ANGLE_MARGIN_RAD = 1e-9
-
-# The keys of a camera in the mission config, and of a ROS camera_info file (as
-# camera_calibration and camera_info_manager write it; rectification and projection are read
-# by nothing here but belong to the format).
-CAMERA_CONFIG = Section.of("width_px", "height_px", "K", "distortion_model",
-                           "distortion_coeffs")
-_ROS_MATRIX = Section.of("rows", "cols", "data")
-CAMERA_INFO = Section.of("image_width", "image_height", "camera_name", "distortion_model",
-                         camera_matrix=_ROS_MATRIX, distortion_coefficients=_ROS_MATRIX,
-                         rectification_matrix=_ROS_MATRIX, projection_matrix=_ROS_MATRIX)
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,37 +123,20 @@ class CameraModel:
     def from_config(cls, doc: Any, source: str | None = None, key: str = "camera"
                     ) -> CameraModel:
         """From a mission-config mapping: width_px, height_px, K, distortion_model,
-        distortion_coeffs."""
-        if not isinstance(doc, dict):
-            raise CalibrationError(f"{where(source, key)}: expected a mapping")
-        check_keys(doc, CAMERA_CONFIG, source, key, CalibrationError)
-        for k in ("width_px", "height_px", "K"):
-            if k not in doc:
-                raise CalibrationError(f"{where(source, key + '.' + k)}: missing")
-        return cls(doc["width_px"], doc["height_px"], _matrix(doc["K"], source, key + ".K"),
-                   doc.get("distortion_model", "plumb_bob"),
-                   _floats(doc.get("distortion_coeffs", []), source,
-                           key + ".distortion_coeffs"),
-                   source=where(source, key))
+        distortion_coeffs (``camera_config.CAMERA_CONFIG``)."""
+        return cls.from_section(camera_config_from_mapping(doc, source, key), where(source, key))
 
     @classmethod
     def from_camera_info(cls, path: str | Path) -> CameraModel:
         """From a ROS ``camera_info`` YAML (image_width, image_height, camera_matrix,
         distortion_model, distortion_coefficients) as camera_calibration writes it."""
-        doc = load_yaml(path, "camera calibration", CalibrationError)
-        src = str(path)
-        if not isinstance(doc, dict):
-            raise CalibrationError(f"{src}: expected a camera_info mapping")
-        check_keys(doc, CAMERA_INFO, src, "", CalibrationError)
-        for k in ("image_width", "image_height", "camera_matrix"):
-            if k not in doc:
-                raise CalibrationError(f"{where(src, k)}: missing")
-        K = _ros_matrix(doc["camera_matrix"], src, "camera_matrix", 9)
-        dist = doc.get("distortion_coefficients")
-        coeffs = (_ros_matrix(dist, src, "distortion_coefficients", None)
-                  if dist is not None else np.zeros(5))
-        return cls(doc["image_width"], doc["image_height"], K.reshape(3, 3),
-                   doc.get("distortion_model", "plumb_bob"), coeffs, source=src)
+        return cls.from_section(camera_config_from_camera_info(path), str(path))
+
+    @classmethod
+    def from_section(cls, c: CameraConfig, source: str | None = None) -> CameraModel:
+        """From a camera section as read (``camera_config``); ``source`` names it in errors."""
+        return cls(c.width_px, c.height_px, c.K, c.distortion_model,
+                   np.asarray(c.distortion_coeffs, dtype=float), source=source)
 
     @classmethod
     def from_fov(cls, width_px: int, height_px: int, hfov_deg: float,
@@ -357,79 +335,6 @@ class CameraModel:
                 "distortion_coeffs": self.dist_coeffs.tolist()}
 
 
-@dataclass(frozen=True, slots=True)
-class AngularLimit:
-    """A cone of directions about the optical axis: angle from the axis (rad) below a limit
-    that varies with the azimuth, linearly between samples.
-
-    ``contains`` is exactly ``theta < interp(azimuth, azimuth_rad, theta_rad)``; to avoid two
-    arctangents and an interpolation per point, it first compares tan^2(theta) with bounds of
-    the limit over sectors of a trigonometry-free pseudo-azimuth, and evaluates the exact
-    test only for the points that fall between the bounds.
-    """
-
-    azimuth_rad: np.ndarray   # (M,) increasing, wrapped one sample past -pi and pi
-    theta_rad: np.ndarray     # (M,) limit at each azimuth, in (0, pi/2)
-    tan2_lo: np.ndarray       # (S,) per sector: below this tan^2(theta) the point is inside
-    tan2_hi: np.ndarray       # (S,) per sector: above this tan^2(theta) the point is outside
-    tan2_inscribed: float     # tan^2 of the smallest limit (a convex circular cone), minus margin
-
-    @classmethod
-    def from_samples(cls, azimuth_rad: np.ndarray, theta_rad: np.ndarray) -> AngularLimit:
-        """From the wrapped samples; bounds of the limit over each sector, widened by the
-        neighbouring sectors and a margin so that rounding never decides."""
-        edges = np.linspace(0.0, 4.0, _SECTORS + 1)
-        phi_edges = np.arctan2(*_direction_of_pseudo_azimuth(edges)[::-1])
-        phi_edges[0] = -np.pi  # key 0 and key 4 are the same direction, at -pi and +pi
-        phi_all = np.concatenate([phi_edges, azimuth_rad[(azimuth_rad > -np.pi)
-                                                          & (azimuth_rad < np.pi)]])
-        order = np.argsort(phi_all, kind="stable")
-        phi_all = phi_all[order]
-        limit = np.interp(phi_all, azimuth_rad, theta_rad)
-        start = np.searchsorted(phi_all, phi_edges[:-1], side="left")
-        stop = np.searchsorted(phi_all, phi_edges[1:], side="right")
-        sector_min = [np.min(limit[a:b]) for a, b in zip(start, stop, strict=True)]
-        sector_max = [np.max(limit[a:b]) for a, b in zip(start, stop, strict=True)]
-        lo = np.min([np.roll(sector_min, k) for k in (-1, 0, 1)], axis=0) - _ANGLE_MARGIN_RAD
-        hi = np.max([np.roll(sector_max, k) for k in (-1, 0, 1)], axis=0) + _ANGLE_MARGIN_RAD
-        return cls(azimuth_rad, theta_rad, np.tan(np.maximum(lo, 0.0)) ** 2,
-                   np.tan(np.minimum(hi, np.pi / 2 - _ANGLE_MARGIN_RAD)) ** 2,
-                   float(np.tan(max(theta_rad.min() - _ANGLE_MARGIN_RAD, 0.0)) ** 2))
-
-    def contains(self, p_cam: np.ndarray) -> np.ndarray:
-        """True where points (..., 3) in the optical frame lie strictly inside the cone."""
-        p = np.asarray(p_cam, dtype=float)
-        return self.contains_xyz(p[..., 0], p[..., 1], p[..., 2])
-
-    def contains_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """``contains`` for the coordinates given as three arrays of one shape (float64)."""
-        r2 = x * x
-        r2 += y * y
-        z2 = z * z
-        with np.errstate(invalid="ignore", divide="ignore"):
-            key = _pseudo_azimuth(x, y)
-            key *= _SECTORS / 4.0
-            sector = np.fmax(key, 0.0).astype(np.intp)  # NaN (x = y = 0) -> 0
-        np.minimum(sector, _SECTORS - 1, out=sector)
-        inside = r2 < self.tan2_lo.take(sector) * z2
-        inside &= z > 0
-        outside = r2 > self.tan2_hi.take(sector) * z2
-        outside |= z < 0
-        unsure = ~(inside | outside)
-        if unsure.any():
-            xu, yu, zu = x[unsure], y[unsure], z[unsure]
-            theta = np.arctan2(np.hypot(xu, yu), zu)
-            azimuth = np.arctan2(yu, xu)
-            inside[unsure] = theta < np.interp(azimuth, self.azimuth_rad, self.theta_rad)
-        return inside
-
-    def inscribed_contains(self, p_cam: np.ndarray) -> np.ndarray:
-        """True where points (..., 3) lie inside the circular cone of the smallest limit."""
-        p = np.asarray(p_cam, dtype=float)
-        x, y, z = p[..., 0], p[..., 1], p[..., 2]
-        return (z > 0) & (x * x + y * y < self.tan2_inscribed * z * z)
-
-
 def _inverse_3x3(M: np.ndarray) -> np.ndarray:
     """Inverse of a 3x3 matrix by its adjugate (np.linalg.inv costs ~20 us per call)."""
     (a, b, c), (d, e, f), (g, h, i) = M.tolist()
@@ -440,19 +345,6 @@ def _inverse_3x3(M: np.ndarray) -> np.ndarray:
                      [co[2], b * g - a * h, a * e - b * d]]) / det
 
 
-def _pseudo_azimuth(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A trigonometry-free key in [0, 4] increasing with arctan2(y, x) over [-pi, pi]."""
-    p = y / (np.abs(x) + np.abs(y))
-    return np.where(x >= 0, p + 2.0, np.where(y < 0, -p, 4.0 - p))
-
-
-def _direction_of_pseudo_azimuth(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) of a direction with the given ``_pseudo_azimuth`` key (inverse of it)."""
-    p = np.where(key < 1, -key, np.where(key <= 3, key - 2.0, 4.0 - key))
-    x = np.where(key < 1, -(1 + p), np.where(key <= 3, 1 - np.abs(p), -(1 - p)))
-    return x, p
-
-
 def _undistort_points_iter(p: np.ndarray, K: np.ndarray, d: np.ndarray) -> np.ndarray:
     # OpenCV 4 has undistortPointsIter; OpenCV 5 folded its criteria into undistortPoints.
     if hasattr(cv2, "undistortPointsIter"):
@@ -460,44 +352,3 @@ def _undistort_points_iter(p: np.ndarray, K: np.ndarray, d: np.ndarray) -> np.nd
     return cv2.undistortPoints(p, K, d, None, None, None, _UNDISTORT_CRITERIA)
 
 
-def border_pixels(width_px: int, height_px: int, per_side: int) -> np.ndarray:
-    """Points (4 * per_side, 2) along the picture's outer edge, clockwise from top-left."""
-    x0, y0, x1, y1 = -0.5, -0.5, width_px - 0.5, height_px - 0.5
-    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
-    top = np.stack([x0 + t * (x1 - x0), np.full_like(t, y0)], axis=1)
-    right = np.stack([np.full_like(t, x1), y0 + t * (y1 - y0)], axis=1)
-    bottom = np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], axis=1)
-    left = np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], axis=1)
-    return np.concatenate([top, right, bottom, left])
-
-
-def _floats(v: Any, source: str | None, key: str) -> np.ndarray:
-    """A flat list of numbers as floats (an integer too large for a float is refused)."""
-    if not isinstance(v, (list, tuple)) or not all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        raise CalibrationError(f"{where(source, key)}: expected a list of numbers, got {v!r}")
-    try:
-        return np.array([float(x) for x in v], dtype=float)
-    except OverflowError:
-        raise CalibrationError(f"{where(source, key)}: a number too large, got {v!r}") from None
-
-
-def _matrix(v: Any, source: str | None, key: str) -> np.ndarray:
-    """K as 3 rows of 3 numbers: [[fx, s, cx], [0, fy, cy], [0, 0, 1]]."""
-    if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise CalibrationError(f"{where(source, key)}: expected 3 rows of 3 numbers "
-                               f"[[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {v!r}")
-    rows = [_floats(row, source, key) for row in v]
-    for i, row in enumerate(rows):
-        if row.size != 3:
-            raise CalibrationError(f"{where(source, key)}: expected 3 rows of 3 numbers, "
-                                   f"row {i + 1} has {row.size}")
-    return np.array(rows)
-
-
-def _ros_matrix(v: Any, source: str, key: str, size: int | None) -> np.ndarray:
-    data = v.get("data") if isinstance(v, dict) else v
-    arr = _floats(data, source, key + ".data")
-    if size is not None and arr.size != size:
-        raise CalibrationError(f"{where(source, key)}: expected {size} values, got {arr.size}")
-    return arr

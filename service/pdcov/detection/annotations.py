@@ -26,6 +26,9 @@ Boxes are top-left (x, y, width, height) in image pixels. Errors name the file a
 
 Detection confidences must lie in [0, 1]; a score outside is refused naming the file and the
 line or record.
+
+Over 450 lines on purpose: one concept (four formats read into one structure) whose readers
+share the line, number and size helpers; split it per format when a fifth format arrives.
 """
 
 from __future__ import annotations

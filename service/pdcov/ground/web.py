@@ -232,7 +232,7 @@ class WebMap:
         if built is None or built.version != v or now - built.built_s >= self.refresh_s:
             try:
                 data = state_json(self.state())
-            except Exception as exc:  # noqa: BLE001 - a defect here must not end the map
+            except Exception as exc:  # a defect here must not end the map (logged)
                 if self._build_error != repr(exc):
                     log.exception("web map: the state could not be built (the page keeps "
                                   "the last one and says so)")

@@ -72,10 +72,6 @@ class Decomposition:
     adjacency: tuple[tuple[int, int], ...]
     walk: tuple[int, ...]
 
-    def neighbours(self, i: int) -> list[int]:
-        return sorted({b for a, b in self.adjacency if a == i}
-                      | {a for a, b in self.adjacency if b == i})
-
     def visit_order(self) -> list[int]:
         """Cells in the order the walk first reaches them (each exactly once)."""
         seen: dict[int, None] = {}

@@ -13,7 +13,7 @@ import multiprocessing
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 from shapely.geometry import MultiPolygon, Polygon
@@ -32,7 +32,9 @@ from pdcov.planning.plan import Plan
 from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
-PATTERNS = ("lawnmower", "spiral", "expanding-square", "sector", "sector-2")
+PatternName = Literal["lawnmower", "spiral", "expanding-square", "sector", "sector-2"]
+"""A coverage pattern of planning/patterns.py, as `pdcov plan --pattern` names it."""
+PATTERNS: tuple[PatternName, ...] = get_args(PatternName)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +78,7 @@ class PlanParams:
     of a spiral or datum of the IAMSAR patterns (ENU m; None: automatic), sector radius (m;
     None: reach the whole free space)."""
 
-    pattern: str
+    pattern: PatternName
     alt_agl_m: float
     speed_mps: float
     heading_rad: float = 0.0
@@ -92,14 +94,15 @@ class PlanParams:
 
 # Which plan options each pattern uses: "spacing" (track spacing or side overlap),
 # "heading", "centre" (spiral centre or IAMSAR datum), "radius" (sector).
-PATTERN_OPTIONS = {"lawnmower": ("spacing", "heading"),
-                   "spiral": ("spacing", "centre"),
-                   "expanding-square": ("spacing", "heading", "centre"),
-                   "sector": ("heading", "centre", "radius"),
-                   "sector-2": ("heading", "centre", "radius")}
+PATTERN_OPTIONS: dict[PatternName, tuple[str, ...]] = {
+    "lawnmower": ("spacing", "heading"),
+    "spiral": ("spacing", "centre"),
+    "expanding-square": ("spacing", "heading", "centre"),
+    "sector": ("heading", "centre", "radius"),
+    "sector-2": ("heading", "centre", "radius")}
 
 
-def refuse_options(pattern: str, given: dict[str, str]) -> None:
+def refuse_options(pattern: PatternName, given: dict[str, str]) -> None:
     """Raise ConfigError when an option given (name -> how the user wrote it, e.g.
     ``{"spacing": "--spacing-m"}``) does not apply to ``pattern``: it would be ignored."""
     for name, flag in given.items():
@@ -175,9 +178,10 @@ def score(scenario: Scenario, params: PlanParams, target_pd: float) -> Score:
                  float(pd.mean()) if pd.size else 0.0)
 
 
-def candidates(patterns_: Sequence[str], alts_m: Sequence[float], speeds_mps: Sequence[float],
-               headings_rad: Sequence[float], spacings_m: Sequence[float] | None,
-               overlaps: Sequence[float]) -> list[PlanParams]:
+def candidates(patterns_: Sequence[PatternName], alts_m: Sequence[float],
+               speeds_mps: Sequence[float], headings_rad: Sequence[float],
+               spacings_m: Sequence[float] | None, overlaps: Sequence[float]
+               ) -> list[PlanParams]:
     """Every combination; heading is dropped for the spiral (it has none), so no duplicates."""
     out: dict[PlanParams, None] = {}
     spacing_opts: list[tuple[float | None, float]] = (

@@ -3,9 +3,7 @@ function), and the IAMSAR expanding-square and sector searches.
 
 Every pattern is a polyline in ENU metres clipped to the free space; where it leaves the free
 space, or where one cell's tracks end and the next cell's begin, the vehicle transits along
-the shortest path inside the free space (a visibility graph over the free space's vertices).
-Only parts of the free space that are not connected to each other are joined by a straight
-line across what separates them.
+the shortest path inside the free space (planning/routing.py).
 
 Headings are bearings: radians clockwise from north, so a heading of psi points along
 ENU (sin psi, cos psi).
@@ -19,16 +17,18 @@ from collections.abc import Callable
 import numpy as np
 import shapely
 import shapely.ops
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
-from shapely.geometry import LinearRing, LineString, MultiPolygon, Point, Polygon
-from shapely.ops import substring
+from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import Decomposition, boustrophedon_decomposition, polygons_of
 from pdcov.planning.plan import Plan
-
-_COVER_TOL_M = 1e-5
+from pdcov.planning.routing import (
+    COVER_TOL_M,
+    FreeSpaceRouter,
+    PathBuilder,
+    clip_and_join,
+    clip_polyline,
+)
 
 
 def unit_of_heading(heading_rad: float) -> np.ndarray:
@@ -61,159 +61,6 @@ def _check_spacing(spacing_m: float) -> None:
     if not (spacing_m > 0 and math.isfinite(spacing_m)):
         raise ConfigError(f"track spacing: expected a positive number of metres, "
                           f"got {spacing_m}")
-
-
-class FreeSpaceRouter:
-    """Shortest paths between points of the free space (ENU metres), staying inside it.
-
-    The straight line is used when it lies in the free space; otherwise the path runs through
-    the free space's vertices (visibility graph, Dijkstra), built on first need."""
-
-    def __init__(self, free_enu: Polygon | MultiPolygon):
-        self._free = free_enu.buffer(_COVER_TOL_M)
-        shapely.prepare(self._free)
-        self._nodes = np.unique(shapely.get_coordinates(free_enu), axis=0)
-        self._rings = [LinearRing(r) for p in polygons_of(free_enu)
-                       for r in (p.exterior, *p.interiors)]
-        self._graph: csr_matrix | None = None
-
-    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Whether each segment a[i] -> b[i] lies in the free space."""
-        segs = shapely.linestrings(np.stack([a, b], axis=1))
-        return shapely.covers(self._free, segs)
-
-    def _node_graph(self) -> csr_matrix:
-        if self._graph is None:
-            n = len(self._nodes)
-            i, j = np.triu_indices(n, k=1)
-            ok = self._visible(self._nodes[i], self._nodes[j])
-            i, j = i[ok], j[ok]
-            w = np.linalg.norm(self._nodes[i] - self._nodes[j], axis=1)
-            self._graph = csr_matrix((np.concatenate([w, w]), (np.concatenate([i, j]),
-                                      np.concatenate([j, i]))), shape=(n, n))
-        return self._graph
-
-    def boundary_path(self, a_enu_m: np.ndarray, b_enu_m: np.ndarray) -> np.ndarray | None:
-        """(K, 2) points from a to b along the shorter way round the free-space boundary ring
-        both lie on; None when they do not lie on one ring."""
-        a, b = Point(a_enu_m), Point(b_enu_m)
-        for ring in self._rings:
-            if ring.distance(a) > _COVER_TOL_M or ring.distance(b) > _COVER_TOL_M:
-                continue
-            length = ring.length
-            da, db = ring.project(a), ring.project(b)
-            forward = (db - da) % length
-            start, end, backward = (da, db, False) if forward <= length / 2 else (db, da, True)
-            if end >= start:
-                arc = shapely.get_coordinates(substring(ring, start, end))
-            else:
-                arc = np.vstack([shapely.get_coordinates(substring(ring, start, length)),
-                                 shapely.get_coordinates(substring(ring, 0.0, end))])
-            arc = arc[::-1] if backward else arc
-            return np.vstack([[a.x, a.y], arc[1:-1], [b.x, b.y]])
-        return None
-
-    def path(self, a_enu_m: np.ndarray, b_enu_m: np.ndarray) -> np.ndarray:
-        """(K, 2) points from a to b inclusive; a straight line when none exists in free
-        space (a and b in parts of the free space that do not touch)."""
-        a, b = np.asarray(a_enu_m, float), np.asarray(b_enu_m, float)
-        if self._visible(a[None], b[None])[0]:
-            return np.array([a, b])
-        g = self._node_graph()
-        n = len(self._nodes)
-        ends = np.array([a, b])
-        # Augmented graph: nodes, then a (n) and b (n + 1), joined to the nodes they see.
-        rows, cols, wts = [], [], []
-        for k, p in enumerate(ends):
-            vis = self._visible(np.repeat(p[None], n, axis=0), self._nodes)
-            idx = np.flatnonzero(vis)
-            d = np.linalg.norm(self._nodes[idx] - p, axis=1)
-            rows += [idx, np.full(len(idx), n + k)]
-            cols += [np.full(len(idx), n + k), idx]
-            wts += [d, d]
-        coo = g.tocoo()
-        full = csr_matrix((np.concatenate([coo.data, *wts]),
-                           (np.concatenate([coo.row, *rows]), np.concatenate([coo.col, *cols]))),
-                          shape=(n + 2, n + 2))
-        dist, pred = dijkstra(full, indices=n, return_predecessors=True)
-        if not np.isfinite(dist[n + 1]):
-            return np.array([a, b])
-        order = [n + 1]
-        while order[-1] != n:
-            order.append(int(pred[order[-1]]))
-        pts = np.vstack([self._nodes, ends])
-        return pts[order[::-1]]
-
-
-class PathBuilder:
-    """Accumulates a polyline, joining each new piece through the free space."""
-
-    def __init__(self, router: FreeSpaceRouter):
-        self._router = router
-        self._pts: list[np.ndarray] = []
-
-    @property
-    def last(self) -> np.ndarray | None:
-        return self._pts[-1] if self._pts else None
-
-    def add(self, piece_enu_m: np.ndarray, along_boundary: bool = False) -> None:
-        """Append a piece; with ``along_boundary``, a link between two points of one boundary
-        ring follows that ring (so that the strip along the boundary is flown too)."""
-        piece = np.asarray(piece_enu_m, dtype=float).reshape(-1, 2)
-        if self._pts:
-            link = (self._router.boundary_path(self._pts[-1], piece[0]) if along_boundary
-                    else None)
-            if link is None:
-                link = self._router.path(self._pts[-1], piece[0])
-            self._pts.extend(link[1:-1])
-        self._pts.extend(piece)
-
-    def points(self) -> np.ndarray:
-        return np.array(self._pts).reshape(-1, 2)
-
-
-def clip_polyline(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon) -> list[np.ndarray]:
-    """The parts of a polyline inside the free space, in order along it (each (K, 2))."""
-    free = free_enu
-    shapely.prepare(free)
-    pts = np.asarray(xy_enu_m, dtype=float).reshape(-1, 2)
-    pieces: list[list[np.ndarray]] = []
-    for p, q in zip(pts[:-1], pts[1:], strict=True):
-        seg = LineString([p, q])
-        if shapely.covers(free, seg):
-            parts = [(0.0, p, q)]
-        elif not shapely.intersects(free, seg):
-            parts = []
-        else:
-            parts = []
-            inside = seg.intersection(free)
-            for g in getattr(inside, "geoms", [inside]):
-                if isinstance(g, LineString) and g.length > _COVER_TOL_M:
-                    c = np.asarray(g.coords)
-                    if np.dot(c[-1] - c[0], q - p) < 0:
-                        c = c[::-1]
-                    parts.append((float(np.dot(c[0] - p, q - p)), c[0], c[-1]))
-            parts.sort(key=lambda t: t[0])
-        for _, a, b in parts:
-            if pieces and np.linalg.norm(pieces[-1][-1] - a) < 1e-6:
-                pieces[-1].append(b)
-            else:
-                pieces.append([a, b])
-    return [np.array(p) for p in pieces]
-
-
-def _clip_and_join(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon,
-                   simplify_m: float = 0.0) -> np.ndarray:
-    builder = PathBuilder(FreeSpaceRouter(free_enu))
-    for piece in clip_polyline(xy_enu_m, free_enu):
-        if simplify_m > 0 and len(piece) > 2:
-            piece = np.asarray(LineString(piece).simplify(simplify_m).coords)
-        builder.add(piece, along_boundary=True)
-    pts = builder.points()
-    if len(pts) == 0:
-        raise ConfigError("pattern: no part of it lies in the free space; check the centre "
-                          "or datum and the radius")
-    return pts
 
 
 # -- lawnmower -----------------------------------------------------------------------------
@@ -346,7 +193,7 @@ def datum_in_free_space(free_enu: Polygon | MultiPolygon,
     if datum_enu_m is None:
         return default_datum_enu_m(free_enu)
     d = np.asarray(datum_enu_m, dtype=float)
-    if not shapely.covers(free_enu.buffer(_COVER_TOL_M), Point(d)):
+    if not shapely.covers(free_enu.buffer(COVER_TOL_M), Point(d)):
         q = _nearest_free_point(free_enu, d)
         raise ConfigError(f"datum ({d[0]:g}, {d[1]:g}) m (ENU) lies outside the free space "
                           f"(the domain minus its obstacles); the nearest free point is "
@@ -373,7 +220,7 @@ def spiral(free_enu: Polygon | MultiPolygon, spacing_m: float, alt_agl_m: float,
     theta = np.unique(np.concatenate([theta, np.arange(0.0, theta_end, math.radians(5))]))
     rr = spacing_m * theta / (2 * math.pi)
     xy = c + np.column_stack([rr * np.cos(theta), rr * np.sin(theta)])
-    return Plan.from_xy(_clip_and_join(xy, free_enu, simplify_m=0.05), alt_agl_m, speed_mps,
+    return Plan.from_xy(clip_and_join(xy, free_enu, simplify_m=0.05), alt_agl_m, speed_mps,
                         f"spiral spacing {spacing_m:g} m centre ({c[0]:.1f}, {c[1]:.1f}) m")
 
 
@@ -382,7 +229,7 @@ def _until_it_leaves(xy_enu_m: np.ndarray, free_enu: Polygon | MultiPolygon) -> 
     the free space: the leg that leaves is flown to the boundary and the pattern ends there,
     so that it keeps its shape (clipping and joining the pieces along the boundary flew one
     edge again and again with left turns)."""
-    free = free_enu.buffer(_COVER_TOL_M)
+    free = free_enu.buffer(COVER_TOL_M)
     shapely.prepare(free)
     pts = np.asarray(xy_enu_m, dtype=float)
     out = [pts[0]]
@@ -481,7 +328,7 @@ def _largest_inside(pattern: Callable[[float], np.ndarray],
                     free_enu: Polygon | MultiPolygon, max_m: float) -> float:
     """The largest size r in (0, max_m] with ``pattern(r)`` (a polyline) in the free space,
     by bisection to 1 cm (the pattern scales about a point of the free space)."""
-    free = free_enu.buffer(_COVER_TOL_M)
+    free = free_enu.buffer(COVER_TOL_M)
     shapely.prepare(free)
 
     def inside(r: float) -> bool:

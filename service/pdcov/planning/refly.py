@@ -30,9 +30,10 @@ from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of
 from pdcov.planning.optimise import Prediction, Scenario, predict
-from pdcov.planning.patterns import FreeSpaceRouter, PathBuilder, clip_polyline, lawnmower
+from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import Plan
 from pdcov.planning.progress import progress as show_progress
+from pdcov.planning.routing import FreeSpaceRouter, PathBuilder, clip_polyline
 
 
 @dataclass(frozen=True, slots=True)

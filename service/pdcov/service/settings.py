@@ -21,6 +21,7 @@ from pdcov.bus.session import BusConfig, bus_config_from_dict
 from pdcov.config import Mission, load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.errors import ConfigError, where
+from pdcov.ids import valid_system_id
 from pdcov.schema import Section
 
 FRAME_SOURCES = ("rate", "capture", "zenoh")
@@ -56,9 +57,8 @@ class LinkConfig:
     def __post_init__(self) -> None:
         if not all(isinstance(u, str) and u for u in self.connect):
             raise ConfigError(f"link.connect: expected a list of URLs, got {self.connect!r}")
-        if self.system_id is not None and not (isinstance(self.system_id, int)
-                                               and 1 <= self.system_id <= 254):
-            raise ConfigError(f"link.system_id: expected 1..254, got {self.system_id!r}")
+        if self.system_id is not None and not valid_system_id(self.system_id):
+            raise ConfigError(f"link.system_id: expected 1..255, got {self.system_id!r}")
         for name in ("attitude_hz", "position_hz", "gimbal_hz", "estimator_hz", "timeout_s",
                      "reconnect_max_s", "param_timeout_s"):
             _positive(name, getattr(self, name), "link")

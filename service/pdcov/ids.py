@@ -1,0 +1,37 @@
+"""The identifiers pdcov checks, each in one place: vehicle ids (the mission config's
+``vehicle_id``, the bus's key expressions, ``pdcov watch --vehicle``) and MAVLink system ids
+(``log.system_id``, ``link.system_id``, ``pdcov-sitl fly --system-id``).
+
+Both checks return a bool (a vehicle id that passes is a ``str`` to mypy); the caller
+raises its own error (``ConfigError`` for a config file or an option, ``ValueError`` for a
+value built in code, ``BusPayloadError`` for a payload), naming the key and the rule.
+"""
+
+from __future__ import annotations
+
+from typing import TypeGuard
+
+__all__ = ["SYSTEM_IDS", "VEHICLE_ID_RULE", "valid_system_id", "valid_vehicle_id"]
+
+VEHICLE_ID_RULE = "ASCII letters, digits, - and _"
+"""What ``valid_vehicle_id`` accepts, for error messages."""
+
+SYSTEM_IDS = range(1, 256)
+"""MAVLink system ids a vehicle may have: 1..255. The header's sysid is one byte and 0 is
+the broadcast address, invalid as a source (mavlink.io/en/guide/serialization.html, the
+``sysid`` field; mavlink.io/en/guide/routing.html: "The system id has a value between 1 and
+255"). Ground stations conventionally take 255, but that is a convention, not a reserved
+value: an autopilot set to SYSID_THISMAV 255 is still followed."""
+
+
+def valid_vehicle_id(vehicle_id: object) -> TypeGuard[str]:
+    """A non-empty string of ASCII letters, digits, '-' and '_': no Zenoh wildcard or
+    separator can hide in it, and it is one key chunk on every bus."""
+    return (isinstance(vehicle_id, str) and bool(vehicle_id) and vehicle_id.isascii()
+            and vehicle_id.replace("_", "").replace("-", "").isalnum())
+
+
+def valid_system_id(system_id: object) -> bool:
+    """An int (not a bool) in ``SYSTEM_IDS``."""
+    return (isinstance(system_id, int) and not isinstance(system_id, bool)
+            and system_id in SYSTEM_IDS)
