@@ -29,6 +29,10 @@ The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIG
 merge by adding): the ground station's mission grid when it has one, else the grid most
 vehicles share (ties: the vehicle heard first). ``now_s`` is the watcher's own monotonic
 clock in seconds.
+
+One state machine, so a little over 450 lines: its inputs, timers and outputs share the
+per-vehicle state and read best together (what it holds is ground/feed.py, what it
+reports ground/fleet_report.py, who speaks for a vehicle ground/claims.py).
 """
 
 from __future__ import annotations
