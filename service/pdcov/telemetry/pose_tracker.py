@@ -10,7 +10,7 @@ the two samples that bracket the frame time; a frame whose bracketing samples of
 are more than ``max_gap_s`` apart (or that lies outside a stream) is skipped, with the
 reason. Frames whose position the autopilot's estimator calls bad are skipped too
 (telemetry/estimator.py), unless ``use_estimator`` is False. Times are seconds in the
-autopilot clock (logs.py).
+autopilot clock (telemetry/logs/).
 """
 
 from __future__ import annotations
