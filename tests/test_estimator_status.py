@@ -53,8 +53,8 @@ from pdcov.telemetry.estimator import (
     estimator_reasons,
     merge_estimator,
 )
+from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.pose_tracker import poses_from_log
 from pdcov.telemetry.samples import (
     NAV_GPS_GLITCHING,
     EstimatorSample,
