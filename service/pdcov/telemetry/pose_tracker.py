@@ -35,14 +35,11 @@ from pdcov.telemetry.gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from pdcov.telemetry.samples import (
-    AttitudeSample,
+from pdcov.telemetry.samples import AttitudeSample, EstimatorSample, GimbalSample, PositionSample
+from pdcov.telemetry.series import (
     AttitudeSeries,
-    EstimatorSample,
     EstimatorSeries,
-    GimbalSample,
     GimbalSeries,
-    PositionSample,
     PositionSeries,
     merge_sorted_columns,
 )

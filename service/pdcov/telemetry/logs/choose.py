@@ -11,13 +11,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.adapters import MAV_AUTOPILOT_INVALID
 from pdcov.telemetry.gimbal import preferred_gimbal_source
-from pdcov.telemetry.samples import (
-    MAV_AUTOPILOT_INVALID,
-    GimbalSample,
-    GimbalSeries,
-    HeartbeatSample,
-)
+from pdcov.telemetry.samples import GimbalSample, HeartbeatSample
+from pdcov.telemetry.series import GimbalSeries
 
 if TYPE_CHECKING:
     from pdcov.telemetry.logs.tlog import _Component

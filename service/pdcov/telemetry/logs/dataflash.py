@@ -18,25 +18,25 @@ from typing import Any
 import numpy as np
 
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.adapters import DATAFLASH_TYPES, dataflash_boot_time_s, samples_from_dataflash
+from pdcov.telemetry.clocks import BootClock
 from pdcov.telemetry.logs.choose import choose_gimbal
 from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
 from pdcov.telemetry.samples import (
-    DATAFLASH_TYPES,
     AttitudeSample,
-    AttitudeSeries,
-    BootClock,
     CaptureSample,
     EstimatorSample,
-    EstimatorSeries,
     GimbalSample,
     HomeSample,
     MountTargetSample,
-    MountTargetSeries,
     ParamSample,
     PositionSample,
+)
+from pdcov.telemetry.series import (
+    AttitudeSeries,
+    EstimatorSeries,
+    MountTargetSeries,
     PositionSeries,
-    dataflash_boot_time_s,
-    samples_from_dataflash,
 )
 from pdcov.telemetry.tlog import LogDamage
 
@@ -167,7 +167,7 @@ def _dataflash_estimator(estimators: Mapping[str, list[EstimatorSample]],
         return EstimatorSeries.from_samples([]), ""
     order = [_EKF_LOGS[int(ekf_type)]] if ekf_type is not None else list(_EKF_LOGS.values())
     for name, ekf in order:
-        # ArduCopter 3.4: core 1's records are NKF9 (samples._CORE_OF_LOG), kept while it
+        # ArduCopter 3.4: core 1's records are NKF9 (adapters._CORE_OF_LOG), kept while it
         # was the primary.
         lane1 = estimators.get("NKF9", []) if name == "NKF4" else []
         if estimators.get(name) or lane1:

@@ -12,14 +12,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
-from pdcov.telemetry.samples import (
-    REBOOT_GAP_S,
+from pdcov.telemetry.clocks import REBOOT_GAP_S
+from pdcov.telemetry.samples import CaptureSample, EstimatorSample, HomeSample
+from pdcov.telemetry.series import (
     AttitudeSeries,
-    CaptureSample,
-    EstimatorSample,
     EstimatorSeries,
     GimbalSeries,
-    HomeSample,
     MountTargetSeries,
     PositionSeries,
 )

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from pdcov.errors import TelemetryError
-from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, VehicleClock
+from pdcov.telemetry.adapters import mavlink_boot_time_s, sample_from_mavlink
+from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, BootClock, VehicleClock
 from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource
 from pdcov.telemetry.logs.choose import choose_gimbal, choose_system
 from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
@@ -28,20 +29,15 @@ from pdcov.telemetry.recorded_frames import (
 )
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.samples import (
-    AttitudeSeries,
-    BootClock,
     CaptureSample,
     EstimatorSample,
     GimbalSample,
     HeartbeatSample,
     HomeSample,
-    MountTargetSeries,
     ParamSample,
     PositionSample,
-    PositionSeries,
-    mavlink_boot_time_s,
-    sample_from_mavlink,
 )
+from pdcov.telemetry.series import AttitudeSeries, MountTargetSeries, PositionSeries
 from pdcov.telemetry.tlog import TlogScanner
 
 

@@ -15,21 +15,21 @@ from pathlib import Path
 import numpy as np
 
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.adapters import CONST_POS_MODE, ESTIMATOR_GPS_GLITCH, POS_HORIZ_ABS
 from pdcov.telemetry.logs.choose import choose_gimbal
 from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series
 from pdcov.telemetry.samples import (
-    CONST_POS_MODE,
-    ESTIMATOR_GPS_GLITCH,
-    POS_HORIZ_ABS,
     AttitudeSample,
-    AttitudeSeries,
     CaptureSample,
     EstimatorSample,
-    EstimatorSeries,
     GimbalSample,
     HomeSample,
-    MountTargetSeries,
     PositionSample,
+)
+from pdcov.telemetry.series import (
+    AttitudeSeries,
+    EstimatorSeries,
+    MountTargetSeries,
     PositionSeries,
 )
 from pdcov.telemetry.tlog import LogDamage
