@@ -57,7 +57,7 @@ from pdcov.service.daemon import TICK_S
 from pdcov.service.mavlink_io import mavlink
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height
-from pdcov.telemetry.pose_tracker import poses_from_log
+from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner
 
 from .harness import SMALL_MISSION, child, small_mission

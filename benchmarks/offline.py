@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import euler_zyx_from_R_many
-from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
+from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
 from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario
 

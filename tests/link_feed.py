@@ -22,7 +22,7 @@ from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.settings import ServeConfig, load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height
-from pdcov.telemetry.pose_tracker import LogPoses, poses_from_log
+from pdcov.telemetry.log_poses import LogPoses, poses_from_log
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
 MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},

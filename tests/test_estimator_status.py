@@ -45,6 +45,7 @@ from pdcov.service.link_protocol import (
     LinkProtocol,
 )
 from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.adapters import NAV_GPS_GLITCHING, sample_from_mavlink
 from pdcov.telemetry.estimator import (
     CONSTANT_POSITION,
     ESTIMATOR_HOLD_S,
@@ -53,14 +54,10 @@ from pdcov.telemetry.estimator import (
     estimator_reasons,
     merge_estimator,
 )
+from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.pose_tracker import poses_from_log
-from pdcov.telemetry.samples import (
-    NAV_GPS_GLITCHING,
-    EstimatorSample,
-    EstimatorSeries,
-    sample_from_mavlink,
-)
+from pdcov.telemetry.samples import EstimatorSample
+from pdcov.telemetry.series import EstimatorSeries
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
 HOME = dict(origin_lat_deg=-35.363261, origin_lon_deg=149.165230, ground_alt_msl_m=None)

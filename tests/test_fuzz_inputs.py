@@ -36,7 +36,7 @@ from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.plan import Plan, Waypoint, read_mission, write_plan
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
-from pdcov.telemetry.pose_tracker import read_pose_csv
+from pdcov.telemetry.pose_csv import read_pose_csv
 
 EXAMPLES = int(os.environ.get("PDCOV_FUZZ_EXAMPLES", "25"))
 SETTINGS = settings(max_examples=EXAMPLES, deadline=None,

@@ -22,7 +22,9 @@ from pdcov.core.pose import (
 )
 from pdcov.core.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
 from pdcov.errors import InputFileError, TelemetryError
-from pdcov.telemetry.pose_tracker import PoseTracker, poses_from_log, read_pose_csv, write_pose_csv
+from pdcov.telemetry.log_poses import poses_from_log
+from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
+from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.samples import AttitudeSample, CaptureSample, GimbalSample, PositionSample
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)

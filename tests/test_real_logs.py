@@ -12,8 +12,9 @@ from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import PdcovError, TelemetryError
 from pdcov.telemetry.gimbal import resolve_interpretation
+from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.pose_tracker import PoseTracker, poses_from_log
+from pdcov.telemetry.pose_tracker import PoseTracker
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present")

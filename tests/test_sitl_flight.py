@@ -18,7 +18,7 @@ pytest.importorskip("jsbsim")
 
 from pdcov.core.geodesy import Origin
 from pdcov.planning.plan import read_plan
-from pdcov.telemetry.pose_tracker import read_pose_csv
+from pdcov.telemetry.pose_csv import read_pose_csv
 
 pytestmark = pytest.mark.e2e
 

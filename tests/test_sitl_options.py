@@ -25,7 +25,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.mission import MissionItem
 from pdcov.core.rotations import R_from_quat_wxyz
 from pdcov.planning.plan import Plan, Waypoint, mission_items, wpl_text
-from pdcov.telemetry.pose_tracker import read_pose_csv
+from pdcov.telemetry.pose_csv import read_pose_csv
 from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S
 
 pytestmark = pytest.mark.e2e

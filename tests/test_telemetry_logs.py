@@ -15,12 +15,11 @@ from mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
 from pdcov.core.mount import GimbalMount
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.clocks import REBOOT_GAP_S, BootClock
+from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.pose_tracker import poses_from_log
 from pdcov.telemetry.samples import (
-    REBOOT_GAP_S,
     AttitudeSample,
-    BootClock,
     GimbalSample,
     HomeSample,
     ParamSample,

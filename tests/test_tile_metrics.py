@@ -20,6 +20,7 @@ from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.tile_metrics import TileMetrics
+from pdcov.service.tile_sender import TileSender
 
 CAMERA = CameraModel(640, 480, np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]))
 DETECTOR = DetectorModel.from_dict({"version": 1, "bin_edges_px": [1, 20, 40, 80, 2000],
@@ -87,19 +88,19 @@ def test_incremental_metrics_equal_the_whole_grid_after_random_updates_and_a_res
     assert resumed.summary() == live.summary() == whole(back, 16).summary()
 
 
-class WholeGridTiles(LiveCoverage):
+class WholeGridTiles(TileSender):
     """The daemon's tiles as they were chosen before touched windows: every tile period,
     the whole grid's observation counts compared with those last sent."""
 
-    def _tiles(self, now_s):
-        rate = float(self.cfg.bus.tiles_max_bytes_per_s)
+    def send(self, now_s, t_s):
+        rate = self._rate
         self._allowance = min(rate, self._allowance + rate * (now_s - self._last_tiles_s))
         self._last_tiles_s = now_s
         ts = self.tile_size
         n_tr, n_tc = tile_grid_shape(ts, *self.grid.geometry.shape)
         gm = self.grid.geometry
         pad = ((0, n_tr * ts - gm.n_rows), (0, n_tc * ts - gm.n_cols))
-        changed = np.pad(self.grid.n_obs != self._sent_n_obs, pad).reshape(
+        changed = np.pad(self.grid.n_obs != self.sent_n_obs, pad).reshape(
             n_tr, ts, n_tc, ts).any(axis=(1, 3))
         for tr, tc in zip(*np.nonzero(changed), strict=True):
             self._dirty_since.setdefault((int(tr), int(tc)), now_s)
@@ -108,16 +109,23 @@ class WholeGridTiles(LiveCoverage):
         order = sorted(self._dirty_since, key=self._dirty_since.__getitem__)
         per_tile = tile_wire_bytes(ts) * self._ratio
         ids = order[:max(1, min(len(order), int(self._allowance // max(per_tile, 1.0)), 0xFFFF))]
-        payload = encode_tiles(self.state, ids, seq=self.tiles_seq, t_s=self.last_frame_t_s,
-                               tile_size=ts)
-        self.tiles_seq += 1
+        payload = encode_tiles(self.state, ids, seq=self.seq, t_s=t_s, tile_size=ts)
+        self.seq += 1
         self._allowance -= len(payload)
         self._ratio = max(0.01, len(payload) / (len(ids) * tile_wire_bytes(ts)))
         for tr, tc in ids:
             del self._dirty_since[(tr, tc)]
             win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-            self._sent_n_obs[win] = self.grid.n_obs[win]
+            self.sent_n_obs[win] = self.grid.n_obs[win]
         return payload
+
+
+def whole_grid_tiles(cfg, grid, now_s):
+    """A LiveCoverage whose tiles are chosen by WholeGridTiles."""
+    live = LiveCoverage(cfg, grid, now_s)
+    live.tile_sender = WholeGridTiles(grid, live.state, live.grid_hash, cfg.bus.tile_size,
+                                      cfg.bus.tiles_max_bytes_per_s, now_s)
+    return live
 
 
 @pytest.mark.parametrize("resumed", [False, True])
@@ -129,7 +137,7 @@ def test_tiles_and_status_equal_the_whole_grid_comparison(resumed):
             feed_grid = LiveCoverage(cfg, gg, 0.0)
             feed(feed_grid, 0.0, 4.0)
             feed_grid.process()
-    live, ref = LiveCoverage(cfg, grids[0], 0.0), WholeGridTiles(cfg, grids[1], 0.0)
+    live, ref = LiveCoverage(cfg, grids[0], 0.0), whole_grid_tiles(cfg, grids[1], 0.0)
     now, sent = 0.0, 0
     for second in range(12):
         t0 = 10.0 + second
@@ -152,7 +160,7 @@ def test_tiles_and_status_equal_the_whole_grid_comparison(resumed):
                                                             rel=1e-12)
         assert fa["grid"]["hash"] == ref.state.hash
     assert sent >= 5 and live.counters.used > 50
-    assert np.array_equal(live._sent_n_obs, live.grid.n_obs)  # everything sent in the end
+    assert np.array_equal(live.tile_sender.sent_n_obs, live.grid.n_obs)  # all sent
 
 
 def test_tiles_encode_the_same_bytes_without_the_whole_grid():

@@ -31,7 +31,7 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
 from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, FixedMount
 from pdcov.core.rotations import quat_wxyz_from_R, slerp_quat_wxyz
-from pdcov.telemetry.pose_tracker import POSE_CSV_COLUMNS
+from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
 from .control import Controller
 from .dynamics import F450, VehicleState

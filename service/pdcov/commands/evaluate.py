@@ -91,7 +91,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         write_outputs,
     )
     from pdcov.telemetry.frame_policy import below_min_height
-    from pdcov.telemetry.pose_tracker import poses_from_log, read_pose_csv, write_pose_csv
+    from pdcov.telemetry.log_poses import poses_from_log
+    from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
 
     mission = load_mission(args.config)
     progress = not args.no_progress

@@ -10,7 +10,7 @@ needs with MAV_CMD_SET_MESSAGE_INTERVAL and reads COMMAND_ACK (refused: the auto
 SRx_/MAVn_ stream rates must deliver; unanswered: resent 3 times); asks for HOME_POSITION
 (MAV_CMD_REQUEST_MESSAGE); reads the mount parameters by name (PARAM_REQUEST_READ), and takes
 any PARAM_VALUE of them that passes; and does it all again after the autopilot reboots
-(its time_boot_ms falls back: samples.BootClock).
+(its time_boot_ms falls back: clocks.BootClock).
 
 It never sends anything that moves the aircraft: only HEARTBEAT, COMMAND_LONG with
 SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, STATUSTEXT
@@ -25,17 +25,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pdcov.telemetry.clocks import VehicleClock
-from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnum
-from pdcov.telemetry.samples import (
+from pdcov.telemetry.adapters import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
-    HeartbeatSample,
-    ParamSample,
-    Sample,
     mavlink_boot_time_s,
     sample_from_mavlink,
 )
+from pdcov.telemetry.clocks import VehicleClock
+from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnum
+from pdcov.telemetry.samples import HeartbeatSample, ParamSample, Sample
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 MAV_TYPE_GCS = 6

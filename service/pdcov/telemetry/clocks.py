@@ -2,7 +2,8 @@
 reader (``pdcov evaluate``) and the daemon (``pdcov serve``) both apply, message by message
 in arrival order, so that they stamp every sample identically.
 
-* The autopilot's ``time_boot_ms`` goes through a ``BootClock`` (restarts shifted forward).
+* The autopilot's ``time_boot_ms`` goes through a ``BootClock`` (restarts shifted forward;
+  defined here, used by every reader of a boot time).
 * A message without a boot time (HEARTBEAT, PARAM_VALUE, HOME_POSITION) gets the
   autopilot's latest time.
 * Another component with a boot clock of its own (a gimbal device on component 154, a
@@ -18,7 +19,45 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from pdcov.telemetry.samples import BootClock
+REBOOT_BACKSTEP_S = 2.0
+"""A boot time this far behind the latest one means the autopilot restarted (messages of
+different types may arrive slightly out of order, never by seconds)."""
+
+REBOOT_GAP_S = 60.0
+"""Clock gap inserted at a restart so that no interpolation bridges the reboot."""
+
+
+class BootClock:
+    """Turns a source's boot time (time_boot_ms, TimeUS) into one monotonic clock in seconds.
+
+    The first boot segment keeps its own time (t_s = time since boot). When the boot time
+    falls back by more than REBOOT_BACKSTEP_S the source restarted: later segments are
+    shifted to start REBOOT_GAP_S after the previous one ended, so that sorting and
+    interpolation never mix two boots. ``restarts_t_s`` records where each began;
+    ``offset_s`` is the current boot's shift (offline readers subtract it at the end so that
+    the last boot, normally the flight, keeps its own time_boot_ms).
+    """
+
+    __slots__ = ("offset_s", "_max_boot_s", "restarts_t_s")
+
+    def __init__(self) -> None:
+        self.offset_s = 0.0
+        self._max_boot_s = -math.inf
+        self.restarts_t_s: list[float] = []
+
+    def to_s(self, boot_s: float) -> float:
+        if boot_s < self._max_boot_s - REBOOT_BACKSTEP_S:
+            self.offset_s += self._max_boot_s + REBOOT_GAP_S
+            self._max_boot_s = boot_s
+            self.restarts_t_s.append(boot_s + self.offset_s)
+        self._max_boot_s = max(self._max_boot_s, boot_s)
+        return boot_s + self.offset_s
+
+    @property
+    def now_s(self) -> float:
+        """The latest time seen (NaN before the first)."""
+        return self._max_boot_s + self.offset_s if math.isfinite(self._max_boot_s) else math.nan
+
 
 COMPONENT_CLOCK_WINDOW_S = 5.0
 """How far back (in the component's own clock, s) ``ComponentClock`` looks for its offset:

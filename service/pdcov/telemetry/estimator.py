@@ -5,7 +5,7 @@ position-jump rule).
 The estimator status in force at a frame time is the latest report strictly before it, held
 for at most ESTIMATOR_HOLD_S. Strictly before, because EKF_STATUS_REPORT and ESTIMATOR_STATUS
 are stamped with the autopilot time of the last timed message before them (they carry no
-boot time of their own, samples.BootClock): a report stamped exactly at a frame's time may
+boot time of their own, clocks.BootClock): a report stamped exactly at a frame's time may
 reach the daemon after the frame was decided. A frame with no report in force (the log or
 link carries none, the stream stopped, or before its first report) is not judged by this
 rule: it is counted, never skipped for it.
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdcov.telemetry.samples import EstimatorSeries, merge_sorted_columns
+from pdcov.telemetry.series import EstimatorSeries, merge_sorted_columns
 
 ESTIMATOR_HOLD_S = 3.0
 """A report applies to frames up to this long after it (s). ArduPilot sends EXTRA3 at 1-4 Hz,

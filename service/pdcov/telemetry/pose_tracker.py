@@ -2,57 +2,31 @@
 
 One ``PoseTracker`` serves both drivers (DESIGN.md "one pipeline, two drivers"): the live
 daemon feeds samples as they arrive (``add_attitude`` / ``add_position`` / ``add_gimbal``)
-and asks ``pose_at(t_s)`` per camera frame; offline, ``poses_from_log`` loads a whole
-``FlightLog`` into one and asks ``frames_at`` for every frame time at once (vectorised).
+and asks ``pose_at(t_s)`` per camera frame; offline, ``log_poses.poses_from_log`` loads a
+whole ``FlightLog`` into one and asks ``frames_at`` for every frame time at once (vectorised).
 
 Interpolation: attitude and gimbal quaternions by slerp, positions linearly in ENU, between
 the two samples that bracket the frame time; a frame whose bracketing samples of any stream
 are more than ``max_gap_s`` apart (or that lies outside a stream) is skipped, with the
 reason. Frames whose position the autopilot's estimator calls bad are skipped too
 (telemetry/estimator.py), unless ``use_estimator`` is False. Times are seconds in the
-autopilot clock (logs.py).
+autopilot clock (telemetry/logs/).
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import math
-from collections import Counter
-from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pdcov.atomic import atomic_write
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.pose import (
-    R_ENU_NED,
-    R_GIMBAL_CAM,
-    CameraPose,
-    FixedMount,
-)
-from pdcov.core.rotations import (
-    R_from_quat_wxyz,
-    euler_zyx_from_R_many,
-    quat_norm,
-    slerp_quat_wxyz,
-)
-from pdcov.errors import ConfigError, InputFileError, TelemetryError
-from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
-from pdcov.telemetry.estimator import describe as describe_estimator
+from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
+from pdcov.core.rotations import R_from_quat_wxyz, quat_norm, slerp_quat_wxyz
+from pdcov.errors import ConfigError
 from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
-from pdcov.telemetry.frame_policy import (
-    FrameLattice,
-    FrameSource,
-    SkipReason,
-    frames_used,
-    home_ground_alt,
-    position_ground_alt,
-    rebuilt_R_enu_cam,
-    untrusted_policy,
-)
+from pdcov.telemetry.frame_policy import SkipReason, untrusted_policy
 from pdcov.telemetry.gimbal import (
     GimbalInterpretation,
     GimbalMount,
@@ -61,27 +35,18 @@ from pdcov.telemetry.gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from pdcov.telemetry.logs import FlightLog, read_flight_log
-from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
-from pdcov.telemetry.recorded_frames import frame_source_for
-from pdcov.telemetry.samples import (
-    AttitudeSample,
+from pdcov.telemetry.samples import AttitudeSample, EstimatorSample, GimbalSample, PositionSample
+from pdcov.telemetry.series import (
     AttitudeSeries,
-    EstimatorSample,
     EstimatorSeries,
-    GimbalSample,
     GimbalSeries,
-    PositionSample,
     PositionSeries,
     merge_sorted_columns,
 )
-from pdcov.yaml_file import read_text
 
-POSE_CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
-EXPORT_EXTRA_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "gimbal_qw", "gimbal_qx",
-                        "gimbal_qy", "gimbal_qz", "gimbal_flags", "interpretation", "trusted",
-                        "untrusted_reason")
-QUAT_NORM_TOL = 1e-3
+if TYPE_CHECKING:
+    from pdcov.telemetry.logs import FlightLog
+
 MAX_SPEED_MPS = 60.0
 """Faster than this between two position samples (plus POSITION_JUMP_SLACK_M) is not flight
 but a jump of the reported position (a GPS glitch, an EKF reset): a frame between the two
@@ -398,280 +363,3 @@ class PoseTracker:
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
         return FrameBatch(t, reason, R_ned_body, r_body, R_enu_cam, r_cam, gimbal_q,
                           gimbal_flags, interp, trusted, untrusted, at_limit, judged)
-
-
-# --- offline: a whole log ----------------------------------------------------------------
-
-@dataclass(frozen=True, slots=True)
-class LogPoses:
-    """The camera poses of a flight log, and how they were obtained.
-
-    poses: one CameraPose per frame used (t_s in the autopilot clock, s). origin: the ENU
-    origin as resolved. track_enu (M, 3): vehicle positions in ENU m over the log, for
-    plotting the flown track. summary_lines: what was done, in words. The remaining arrays
-    are per used frame, for ``write_pose_csv``: q_enu_cam_wxyz (F, 4) the quaternions the
-    poses were built from (written as such, so the CSV reads back bit-identical),
-    vehicle_rpy_deg (F, 3) roll/pitch/yaw of
-    R_ned_body, gimbal_q_wxyz (F, 4) as reported and interpolated (NaN for a fixed mount),
-    gimbal_flags (F,) (-1 fixed), interpretation (F,) str, trusted (F,) bool,
-    untrusted_reason (F,) str, at_limit (F,) a servo demand at its limit. skipped_t_s:
-    frame times skipped by gaps. warnings: what the user should not miss (also among the
-    summary lines).
-    """
-
-    poses: tuple[CameraPose, ...]
-    origin: Origin
-    track_enu: np.ndarray
-    summary_lines: tuple[str, ...]
-    q_enu_cam_wxyz: np.ndarray
-    vehicle_rpy_deg: np.ndarray
-    gimbal_q_wxyz: np.ndarray
-    gimbal_flags: np.ndarray
-    interpretation: tuple[str, ...]
-    trusted: np.ndarray
-    untrusted_reason: tuple[str, ...]
-    at_limit: np.ndarray
-    skipped_t_s: np.ndarray
-    warnings: tuple[str, ...] = ()
-
-    def export_rows(self) -> Iterable[list[str]]:
-        """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
-        EXPORT_EXTRA_COLUMNS); floats printed to round-trip exactly."""
-        for i, pose in enumerate(self.poses):
-            yield ([repr(float(pose.t_s)), *map(repr, map(float, pose.r_cam_enu)),
-                    *map(repr, map(float, self.q_enu_cam_wxyz[i])),
-                    *(f"{v:.6f}" for v in self.vehicle_rpy_deg[i]),
-                    *("" if math.isnan(v) else repr(float(v)) for v in self.gimbal_q_wxyz[i]),
-                    "" if self.gimbal_flags[i] < 0 else str(int(self.gimbal_flags[i])),
-                    self.interpretation[i], "1" if self.trusted[i] else "0",
-                    self.untrusted_reason[i]])
-
-
-def _ground_alt(log: FlightLog, ground_alt_msl_m: float | None) -> tuple[float, str]:
-    """The ground altitude of a whole log: configured, else the last home
-    (frame_policy.home_ground_alt, as the daemon falls back to), else the first position's
-    (frame_policy.position_ground_alt)."""
-    if ground_alt_msl_m is not None:
-        return float(ground_alt_msl_m), "configured"
-    home = home_ground_alt(log.homes)
-    if home is not None:
-        return home
-    p = log.position
-    ok = np.isfinite(p.relative_alt_m)
-    if ok.any():
-        i = int(np.argmax(ok))
-        return position_ground_alt(p.alt_msl_m[i], p.relative_alt_m[i])
-    raise TelemetryError(f"{log.path}: the log gives no home altitude (no HOME_POSITION, ORGN "
-                         "or relative altitude); set origin.ground_alt_msl_m in the config")
-
-
-def _intervals(t: np.ndarray, step_s: float) -> list[tuple[float, float, int]]:
-    """Runs of consecutive frame times (start, end, count)."""
-    if len(t) == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(t) > 1.5 * step_s) + 1
-    return [(float(r[0]), float(r[-1]), len(r)) for r in np.split(t, breaks)]
-
-
-def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
-                frame_source: str) -> tuple[np.ndarray, str]:
-    """Frame times (s) and a description: every 1/frame_rate_hz over the span all needed
-    streams cover ('rate': the frame_policy.FrameLattice the daemon places frames on), or
-    the log's capture events ('capture')."""
-    if frame_source == FrameSource.CAPTURE:
-        if not log.captures:
-            raise TelemetryError(f"{log.path}: frame_source 'capture' but the log has no "
-                                 "capture events (CAMERA_IMAGE_CAPTURED, CAMERA_FEEDBACK, "
-                                 "CAM, TRIG); use frame_source 'rate'")
-        t = np.unique([c.t_s for c in log.captures])
-        kinds = sorted({c.source for c in log.captures})
-        return t, f"{len(t)} capture events ({', '.join(kinds)})"
-    if frame_source != FrameSource.RATE:
-        raise ConfigError(f"frame_source: expected 'rate' or 'capture', got {frame_source!r}")
-    if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):
-        raise ConfigError(f"camera.frame_rate_hz: expected a positive rate, got {frame_rate_hz!r}")
-    t0, t1 = tracker.coverage_s()
-    if not math.isfinite(t0) or t1 < t0:
-        raise TelemetryError(f"{log.path}: attitude, position and gimbal samples never overlap "
-                             "in time; no frame can be placed")
-    lattice = FrameLattice(t0, frame_rate_hz)
-    return lattice.times(lattice.count_until(t1)), (f"every {1 / frame_rate_hz:g} s "
-                                               f"({frame_rate_hz:g} Hz) from {t0:.3f} to "
-                                               f"{t1:.3f} s")
-
-
-_CHUNK = 4096
-
-
-def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: float,
-                   ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
-                   frame_rate_hz: float, frame_source: str | None = "rate",
-                   max_gap_s: float = 1.0,
-                   system_id: int | None = None, progress: bool = False,
-                   estimator_status: bool = True) -> LogPoses:
-    """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
-
-    origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
-    the autopilot's home altitude from the log. frame_source 'rate' places frames every
-    1/frame_rate_hz s; 'capture' at the log's capture events; None (the user chose none):
-    at the detector frames ``pdcov serve`` recorded in the log if it holds any, else 'rate'
-    (recorded_frames.frame_source_for; a chosen 'rate' over such a log warns). Frames whose
-    telemetry has a
-    gap longer than max_gap_s are skipped; untrusted gimbal frames follow mount.untrusted.
-    estimator_status: skip frames the autopilot's estimator calls bad (estimator.py).
-    Raises TelemetryError / ConfigError with a message naming the file.
-    """
-    log = read_flight_log(path, system_id=system_id,
-                          gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
-                          else 1)
-    ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m)
-    origin = Origin(origin_lat_deg, origin_lon_deg, ground_alt)
-    interp = None
-    if isinstance(mount, GimbalMount):
-        if log.gimbal_source is None:
-            # Missing data never changes the physical model: a gimbal flight read as a
-            # fixed mount would give a wrong map.
-            read = "; ".join(log.damage) or "read whole, no damage found"
-            raise TelemetryError(f"{log.path}: the mount is a gimbal but the log has no gimbal "
-                                 "attitude (GIMBAL_DEVICE_ATTITUDE_STATUS / MNT / "
-                                 "gimbal_device_attitude_status), so the camera's attitude is "
-                                 f"unknown; reading the log: {read}. Use a log that recorded "
-                                 "the gimbal's attitude")
-        where = {"tlog": "the tlog's PARAM_VALUE messages (a tlog records parameters only "
-                         "when the ground station read them)",
-                 "dataflash": "the DataFlash PARM records",
-                 "ulog": "the ULog parameters"}[log.format]
-        interp = resolve_interpretation(mount, log.params, where)
-    tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s,
-                                          use_estimator=estimator_status)
-    choice = frame_source_for(frame_source,
-                              sum(c.source == RECORDED_SOURCE for c in log.captures))
-    frame_source = choice.source
-    t, how = frame_times(tracker, log, frame_rate_hz, frame_source)
-
-    chunks = range(0, len(t), _CHUNK)
-    if progress:
-        from tqdm import tqdm
-        chunks = tqdm(chunks, desc="poses", unit="chunk", total=len(chunks))
-    batches = [tracker.frames_at(t[i:i + _CHUNK]) for i in chunks]
-    cat = {name: np.concatenate([getattr(b, name) for b in batches]) if batches else
-           np.zeros(0) for name in FrameBatch.__slots__}
-    b = FrameBatch(**cat)
-
-    valid = b.valid
-    policy = untrusted_policy(mount)
-    use = frames_used(valid, b.trusted, policy)
-    q_cam, R_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
-    poses = tuple(CameraPose(R, r, float(ts)) for R, r, ts in
-                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], strict=True))
-    rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))
-
-    step = 1.0 / frame_rate_hz if frame_source == "rate" else max_gap_s
-    lines = [f"log: {log.path} ({log.format})", *log.notes,
-             f"origin: {origin.lat_deg:.7f}, {origin.lon_deg:.7f}, ground {ground_alt:.2f} m "
-             f"MSL ({ground_how})",
-             *(x for x in (choice.line,) if x),
-             *(f"WARNING: {x}" for x in (choice.warning,) if x),
-             f"frames: {how}; {int(use.sum())} used of {len(t)}"]
-    skipped = b.t_s[~valid]
-    if len(skipped):
-        why = Counter(b.skip_reason[~valid])
-        runs = _intervals(skipped, step)
-        shown = ", ".join(f"{a:.2f}-{e:.2f} s ({k})" for a, e, k in runs[:8])
-        more = f" and {len(runs) - 8} more" if len(runs) > 8 else ""
-        lines.append(f"skipped {len(skipped)} frames in {len(runs)} gaps longer than "
-                     f"{max_gap_s:g} s or outside the data: {shown}{more}; reasons: "
-                     + ", ".join(f"{r} {c}" for r, c in why.most_common()))
-    # Of the frames no other rule skipped: how many a report was in force for.
-    checkable = valid | np.isin(b.skip_reason, ESTIMATOR_REASONS)
-    lines.append(describe_estimator(log.estimator, log.estimator_source,
-                                    int((b.estimator_judged & checkable).sum()),
-                                    int(checkable.sum()), estimator_status))
-    if interp is not None:  # set exactly when the mount is a GimbalMount
-        lines.append(interp.describe())
-        lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
-        if tracker.dropped_gimbal_reports:
-            lines.append(f"{tracker.dropped_gimbal_reports} gimbal reports without a "
-                         "quaternion ignored")
-        bad = valid & ~b.trusted
-        why = Counter(b.untrusted_reason[bad])
-        action = "skipped" if policy == "skip" else "used anyway"
-        lines.append(f"untrusted frames: {int(bad.sum())} ({action}, mount.untrusted="
-                     f"{policy!r})" + (": " + ", ".join(f"{r} {c}" for r, c in
-                                                        why.most_common()) if why else ""))
-        if interp.frame == "body":
-            n_limit = int((valid & b.at_limit).sum())
-            lines.append(f"frames with a servo demand at its limit: {n_limit} (trusted: the "
-                         "autopilot clipped the demand, the servo is at its stop)")
-    else:
-        lines.append("fixed mount: camera attitude from the vehicle attitude and the mount "
-                     "angles")
-    return LogPoses(poses, origin, tracker.positions_enu, tuple(lines), q_cam, rpy,
-                    b.gimbal_q_wxyz[use], b.gimbal_flags[use],
-                    tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
-                    tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
-                    skipped, tuple(x for x in (choice.warning,) if x))
-
-
-# --- pose CSV ------------------------------------------------------------------------------
-
-def write_pose_csv(path: str | Path, log_poses: LogPoses) -> None:
-    """Write the poses as CSV (POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS), atomically."""
-    with atomic_write(path, "w", newline="") as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(POSE_CSV_COLUMNS + EXPORT_EXTRA_COLUMNS)
-        writer.writerows(log_poses.export_rows())
-
-
-def read_pose_csv(path: str | Path) -> tuple[CameraPose, ...]:
-    """Camera poses from a pose CSV: header starting ``t_s,x_m,y_m,z_m,qw,qx,qy,qz`` (more
-    columns allowed and ignored), camera centre ENU m and the unit quaternion (w, x, y, z)
-    of R_enu_cam. The poses come sorted by time, whatever the order of the rows. Raises
-    InputFileError naming the file and line."""
-    path = Path(path)
-    text = read_text(path, "pose CSV", InputFileError)
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        header = [h.strip() for h in next(reader, [])]
-        if tuple(header[:8]) != POSE_CSV_COLUMNS:
-            raise InputFileError(f"{path}:1: expected the header "
-                                 f"{','.join(POSE_CSV_COLUMNS)}, got {','.join(header)!r}")
-        for row in reader:
-            line = reader.line_num
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) < 8:
-                raise InputFileError(f"{path}:{line}: expected 8 columns, got {len(row)}")
-            try:
-                rows.append([float(c) for c in row[:8]])
-            except ValueError:
-                raise InputFileError(f"{path}:{line}: expected 8 numbers, got {row[:8]!r}"
-                                     ) from None
-            lines.append(line)
-    except csv.Error as exc:
-        raise InputFileError(f"{path}:{reader.line_num}: {exc}") from None
-    values = np.array(rows, dtype=float).reshape(-1, 8)
-    finite = np.isfinite(values)
-    if not finite.all():
-        k = int(np.flatnonzero(~finite.all(axis=1))[0])
-        bad = [POSE_CSV_COLUMNS[i] for i in np.flatnonzero(~finite[k])]
-        raise InputFileError(f"{path}:{lines[k]}: {', '.join(bad)} not a finite number")
-    norm = np.linalg.norm(values[:, 4:], axis=1)
-    off = np.abs(norm - 1.0) > QUAT_NORM_TOL
-    if off.any():
-        k = int(np.flatnonzero(off)[0])
-        raise InputFileError(f"{path}:{lines[k]}: quaternion (qw, qx, qy, qz) has norm "
-                             f"{norm[k]:.6f}; expected a unit quaternion "
-                             f"(within {QUAT_NORM_TOL})")
-    # Rows in time order (ties by their values): which look counts with
-    # coverage.min_revisit_s depends on the order of the frames, and the grid's float sums on
-    # the order of the additions, so any order of the same rows gives the same grid.
-    values = values[np.lexsort(values.T[::-1])]
-    # from_quat normalises, exactly as when the poses were written.
-    R_enu_cam = R_from_quat_wxyz(values[:, 4:]).reshape(-1, 3, 3)
-    poses = [CameraPose(R, v[1:4], float(v[0])) for R, v in zip(R_enu_cam, values, strict=True)]
-    if not poses:
-        raise InputFileError(f"{path}: no pose rows after the header")
-    return tuple(poses)

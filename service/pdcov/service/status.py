@@ -1,0 +1,83 @@
+"""The status the daemon publishes (bus.status, docs/protocol.md) and the last footprint.
+
+``status_fields`` reads a ``LiveCoverage``: coverage metrics (P_D at the thresholds, mean
+P_D, expected false alarms, cells), frames (used, skipped by reason, pending; times in the
+autopilot clock, s), the last pose (lat/lon deg, alt m MSL, heading deg from north), the
+gimbal reading, the grid (ENU m about the origin), tiles and faults.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pdcov.core.footprint import footprint_ring_enu
+from pdcov.core.geodesy import enu_to_geodetic
+from pdcov.core.mount import GimbalMount
+
+if TYPE_CHECKING:
+    from pdcov.service.coverage import LiveCoverage
+
+__all__ = ["footprint_lonlat", "status_fields"]
+
+
+def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
+    """The last frame's footprint ring (M, 2) as lon/lat degrees, or None."""
+    if live.last_pose is None or live.origin is None:
+        return None
+    ring = footprint_ring_enu(live.grid.camera, live.last_pose, live.grid.max_range_m)
+    if len(ring) < 3:
+        return None
+    geo = enu_to_geodetic(np.column_stack([ring, np.zeros(len(ring))]), live.origin)
+    return geo[:, [1, 0]]
+
+
+def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[str, Any],
+                  checkpoint: dict[str, Any]) -> dict[str, Any]:
+    """The status object's fields (bus.status, docs/protocol.md)."""
+    m = live.cfg.mission
+    metrics = live.metrics.summary()
+    g = live.grid.geometry
+    schedule = live.schedule
+    pose = None
+    if live.last_pose is not None and live.origin is not None:
+        lat, lon, alt = enu_to_geodetic(live.last_pose.r_cam_enu, live.origin)
+        R = live.last_R_ned_body
+        pose = {"lat_deg": float(lat), "lon_deg": float(lon), "alt_msl_m": float(alt),
+                "heading_deg": math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0,
+                "t_s": live.last_pose.t_s}
+    interp = live.interpretation
+    gimbal = ({"mount": "fixed", "interpretation": "fixed", "describe": "fixed mount"}
+              if not isinstance(m.mount, GimbalMount) else
+              {"mount": "gimbal", "interpretation": interp.frame if interp else None,
+               "describe": interp.describe() if interp else "waiting for the mount "
+                                                            "parameters"})
+    faults = dict(live.counters.faults)
+    return {
+        "vehicle_id": m.vehicle_id, "seq": seq, "uptime_s": uptime_s,
+        "t_s": schedule.latest_all() if schedule.latest else None,
+        "thresholds": list(m.thresholds),
+        "proportion_at_or_above": {str(float(t)): metrics.proportion_at_or_above(t)
+                                   for t in m.thresholds},
+        "mean_pd": metrics.mean_pd, "expected_false_alarms": metrics.expected_false_alarms,
+        "cells_free": metrics.cells_free, "cells_observed": metrics.cells_observed,
+        "frames": {"used": live.counters.used, "grid": live.grid.frames,
+                   "skipped": dict(live.counters.skipped),
+                   "pending": live.frames_pending, "source": str(live.frame_source),
+                   "last_t_s": live.last_frame_t_s if live.last_frame_t_s > -math.inf
+                   else None},
+        "link": link, "pose": pose, "gimbal": gimbal,
+        "grid": {"hash": live.grid_hash, "x0_m": g.x0_m, "y0_m": g.y0_m,
+                 "cell_size_m": g.cell_size_m, "n_rows": g.n_rows, "n_cols": g.n_cols,
+                 "tile_size": live.tile_size,
+                 "origin": {"lat_deg": m.origin_lat_deg, "lon_deg": m.origin_lon_deg,
+                            "ground_alt_msl_m": live.origin.ground_alt_msl_m
+                            if live.origin else None, "how": live.origin_how}},
+        "tiles_seq": live.tiles_seq - 1,
+        # Changed tiles not yet sent (the bandwidth budget holds them back): with 0, a
+        # watcher holding tiles_seq and frames.grid holds this grid exactly.
+        "tiles_behind": live.tile_sender.behind,
+        "faults": faults, "checkpoint": checkpoint,
+    }

@@ -1,0 +1,87 @@
+"""Which of the grid's tiles to send, and when: ``TileSender``.
+
+A tile is ``tile_size`` x ``tile_size`` cells, named (tile row, tile column). Frames mark
+the tiles they touched; when tiles are due, the touched ones are compared with the values
+last sent, and the changed tiles are encoded oldest change first within the bandwidth
+budget: a token bucket of one second at ``max_bytes_per_s`` (bytes/s), the encoded size
+learnt from what was sent. Times are the daemon's monotonic clock (s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pdcov.bus.grid_state import GridState
+from pdcov.bus.tiles import encode_tiles, tile_grid_shape, tile_wire_bytes
+from pdcov.core.grid import CoverageGrid
+
+__all__ = ["TileSender"]
+
+
+class TileSender:
+    """The tiles of ``grid`` (``state``: views of its arrays, ``grid_hash`` its hash) sent so
+    far. seq: the next tiles message's sequence number. Every tile counts as touched at
+    first (a resumed grid's observed tiles are sent)."""
+
+    def __init__(self, grid: CoverageGrid, state: GridState, grid_hash: str, tile_size: int,
+                 max_bytes_per_s: float, now_s: float, seq: int = 0) -> None:
+        self.grid = grid
+        self.state = state
+        self.grid_hash = grid_hash
+        self.tile_size = tile_size
+        self.seq = seq
+        # Values as last sent, per tile; the tiles frames touched since the last comparison;
+        # when each tile first changed unsent.
+        self._tile_shape = tile_grid_shape(tile_size, *grid.geometry.shape)
+        self.sent_n_obs = np.zeros_like(grid.n_obs)
+        self._touched_tiles = np.ones(self._tile_shape, bool)
+        self._dirty_since: dict[tuple[int, int], float] = {}
+        self._rate = float(max_bytes_per_s)
+        self._allowance = self._rate
+        self._ratio = 0.5  # compressed / raw bytes, learnt from what was sent
+        self._last_tiles_s = now_s
+
+    @property
+    def behind(self) -> int:
+        """Changed tiles not yet sent (the bandwidth budget holds them back)."""
+        return len(self._dirty_since)
+
+    def touch(self, window: tuple[int, int, int, int]) -> None:
+        """Cells rows r0:r1, columns c0:c1 may have changed: their tiles are compared when
+        tiles are next due."""
+        r0, r1, c0, c1 = window
+        ts = self.tile_size
+        self._touched_tiles[r0 // ts:(r1 - 1) // ts + 1, c0 // ts:(c1 - 1) // ts + 1] = True
+
+    def send(self, now_s: float, t_s: float) -> bytes | None:
+        """The tiles message due at ``now_s``: changed tiles within the bandwidth budget,
+        oldest change first, stamped ``t_s`` (the last frame, autopilot clock, s); None when
+        nothing is due."""
+        rate = self._rate
+        self._allowance = min(rate, self._allowance + rate * (now_s - self._last_tiles_s))
+        self._last_tiles_s = now_s
+        ts = self.tile_size
+        n_obs, sent = self.grid.n_obs, self.sent_n_obs
+        # Only tiles frames touched can differ from what was sent (row-major, as the
+        # whole-grid comparison this replaces).
+        for tr, tc in zip(*np.nonzero(self._touched_tiles), strict=True):
+            win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
+            if (int(tr), int(tc)) not in self._dirty_since and (n_obs[win] != sent[win]).any():
+                self._dirty_since[(int(tr), int(tc))] = now_s
+        self._touched_tiles[:] = False
+        if not self._dirty_since or self._allowance <= 0:
+            return None
+        order = sorted(self._dirty_since, key=self._dirty_since.__getitem__)
+        per_tile = tile_wire_bytes(ts) * self._ratio
+        n = max(1, min(len(order), int(self._allowance // max(per_tile, 1.0)), 0xFFFF))
+        ids = order[:n]
+        payload = encode_tiles(self.state, ids, seq=self.seq, t_s=t_s, tile_size=ts,
+                               grid_hash=self.grid_hash)
+        self.seq += 1
+        self._allowance -= len(payload)
+        self._ratio = max(0.01, len(payload) / (n * tile_wire_bytes(ts)))
+        for tr, tc in ids:
+            del self._dirty_since[(tr, tc)]
+            win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
+            self.sent_n_obs[win] = self.grid.n_obs[win]
+        return payload

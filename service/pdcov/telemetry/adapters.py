@@ -1,0 +1,278 @@
+"""The adapters from autopilot messages to samples: MAVLink messages and DataFlash records.
+
+The one place where MAVLink and DataFlash units (degE7, mm, cdeg, deg) become SI
+(``samples``); everything downstream sees only samples. They do not decide the time base:
+the caller passes ``t_s`` in the autopilot clock (see ``clocks.BootClock``), because several
+messages (HEARTBEAT, PARAM_VALUE, HOME_POSITION) carry no boot time of their own. Also the
+MAVLink enum values and status-flag bits the adapters read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.telemetry.samples import (
+    AttitudeSample,
+    CaptureSample,
+    EstimatorSample,
+    GimbalSample,
+    HeartbeatSample,
+    HomeSample,
+    MountTargetSample,
+    ParamSample,
+    PositionSample,
+    Sample,
+    usable_quaternion,
+)
+
+MAV_AUTOPILOT_INVALID = 8  # common.xml MAV_AUTOPILOT: not a flight controller (GCS, gimbal)
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+
+# --- MAVLink -------------------------------------------------------------------------------
+
+MAX_ANGLE_RAD = 2.0 * math.pi + 0.01
+"""Largest Euler angle magnitude accepted from ATTITUDE (rad); beyond it the message is
+corrupt, whatever rotation the number would give."""
+
+
+def valid_lat_lon_e7(lat_e7: int, lon_e7: int) -> bool:
+    """WGS84 latitude within +-90 deg and longitude within +-180 deg (degE7 integers)."""
+    return abs(lat_e7) <= 900_000_000 and abs(lon_e7) <= 1_800_000_000
+
+
+def mavlink_boot_time_s(msg: Any) -> float | None:
+    """The sender's boot time of a MAVLink message in seconds, if it carries time_boot_ms."""
+    ms = getattr(msg, "time_boot_ms", None)
+    return None if ms is None else ms * 1e-3
+
+
+def _quat(q: Sequence[float] | np.ndarray) -> tuple[float, float, float, float]:
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
+def _attitude(msg: Any, t_s: float) -> AttitudeSample | None:
+    # ATTITUDE: roll, pitch, yaw in rad, body FRD -> NED (common.xml), z-y-x Euler.
+    angles = (msg.roll, msg.pitch, msg.yaw)
+    if not all(math.isfinite(a) and abs(a) <= MAX_ANGLE_RAD for a in angles):
+        return None  # common.xml: -pi..pi (yaw 0..2pi by some autopilots); else corrupt
+    return AttitudeSample(t_s, _quat(quat_wxyz_from_euler_zyx(*angles)))
+
+
+def _attitude_quaternion(msg: Any, t_s: float) -> AttitudeSample | None:
+    q = (msg.q1, msg.q2, msg.q3, msg.q4)  # ATTITUDE_QUATERNION: w, x, y, z
+    if not usable_quaternion(q):
+        return None
+    return AttitudeSample(t_s, _quat(q))
+
+
+def _global_position_int(msg: Any, t_s: float) -> PositionSample | None:
+    # lat/lon degE7, alt mm MSL, relative_alt mm above home (common.xml). ArduPilot sends
+    # all zeros before it has a position estimate: not a position.
+    if msg.lat == 0 and msg.lon == 0 or not valid_lat_lon_e7(msg.lat, msg.lon):
+        return None
+    return PositionSample(t_s, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                          msg.relative_alt * 1e-3)
+
+
+def _gimbal_status(msg: Any, t_s: float) -> GimbalSample:
+    src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+    return GimbalSample(t_s, _quat(msg.q), int(msg.flags), int(msg.failure_flags or 0),
+                        src_sys, src_comp, int(getattr(msg, "gimbal_device_id", 0) or 0))
+
+
+def _home_position(msg: Any, t_s: float) -> HomeSample | None:
+    # latitude/longitude degE7, altitude mm MSL (common.xml HOME_POSITION).
+    if not valid_lat_lon_e7(msg.latitude, msg.longitude):
+        return None
+    return HomeSample(t_s, msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3,
+                      "HOME_POSITION")
+
+
+def _param_value(msg: Any, t_s: float) -> ParamSample:
+    name = msg.param_id
+    if isinstance(name, bytes):
+        name = name.decode("ascii", "replace")
+    return ParamSample(t_s, name.rstrip("\x00"), float(msg.param_value))
+
+
+def _image_captured(msg: Any, t_s: float) -> CaptureSample | None:
+    # capture_result 1 = success (common.xml CAMERA_IMAGE_CAPTURED).
+    if msg.capture_result != 1:
+        return None
+    return CaptureSample(t_s, int(msg.image_index), "CAMERA_IMAGE_CAPTURED")
+
+
+def _camera_feedback(msg: Any, t_s: float) -> CaptureSample:
+    return CaptureSample(t_s, int(msg.img_idx), "CAMERA_FEEDBACK")
+
+
+# EKF_STATUS_FLAGS (ardupilotmega.xml) and ESTIMATOR_STATUS_FLAGS (common.xml): the same
+# low bits, different high ones (1024 is EKF_UNINITIALIZED in one, ESTIMATOR_GPS_GLITCH in
+# the other). ArduPilot sets bit 15 (EKF_GPS_GLITCHING) from nav_filter_status.gps_glitching
+# (AP_NavEKF3_Outputs.cpp send_status_report); PX4 sends estimator_status.
+# solution_status_flags (mavlink streams/ESTIMATOR_STATUS.hpp). Other bits are not read.
+POS_HORIZ_ABS = 16
+CONST_POS_MODE = 128
+EKF_GPS_GLITCHING = 32768
+ESTIMATOR_GPS_GLITCH = 1024
+
+
+def _ekf_status_report(msg: Any, t_s: float) -> EstimatorSample | None:
+    # ArduPilot sends an all-zero report when its AHRS runs no EKF (DCM, or the simulator's
+    # own AHRS: AP_AHRS::send_ekf_status_report): that says nothing about the position.
+    flags = int(msg.flags)
+    if flags == 0:
+        return None
+    return EstimatorSample(t_s, bool(flags & POS_HORIZ_ABS), bool(flags & CONST_POS_MODE),
+                           bool(flags & EKF_GPS_GLITCHING))
+
+
+def _estimator_status(msg: Any, t_s: float) -> EstimatorSample:
+    flags = int(msg.flags)
+    return EstimatorSample(t_s, bool(flags & POS_HORIZ_ABS), bool(flags & CONST_POS_MODE),
+                           bool(flags & ESTIMATOR_GPS_GLITCH))
+
+
+def _heartbeat(msg: Any, t_s: float) -> HeartbeatSample:
+    return HeartbeatSample(t_s, msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot),
+                           int(msg.type), bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED))
+
+
+_MAVLINK = {
+    "ATTITUDE": _attitude,
+    "ATTITUDE_QUATERNION": _attitude_quaternion,
+    "GLOBAL_POSITION_INT": _global_position_int,
+    "GIMBAL_DEVICE_ATTITUDE_STATUS": _gimbal_status,
+    "HOME_POSITION": _home_position,
+    "PARAM_VALUE": _param_value,
+    "CAMERA_IMAGE_CAPTURED": _image_captured,
+    "CAMERA_FEEDBACK": _camera_feedback,
+    "HEARTBEAT": _heartbeat,
+    "EKF_STATUS_REPORT": _ekf_status_report,
+    "ESTIMATOR_STATUS": _estimator_status,
+}
+MAVLINK_TYPES = tuple(_MAVLINK)
+
+
+def sample_from_mavlink(msg: Any, t_s: float) -> Sample | None:
+    """The sample a pymavlink message carries, stamped ``t_s`` (autopilot clock, s), or None
+    for message types pdcov does not use and for messages that carry no valid value."""
+    adapter = _MAVLINK.get(msg.get_type())
+    return None if adapter is None else adapter(msg, t_s)
+
+
+# --- DataFlash (ArduPilot onboard logs) ----------------------------------------------------
+
+def dataflash_boot_time_s(msg: Any) -> float | None:
+    """Boot time in seconds of a DataFlash message (TimeUS; TimeMS in old layouts)."""
+    us = getattr(msg, "TimeUS", None)
+    if us is not None:
+        return us * 1e-6
+    ms = getattr(msg, "TimeMS", None)
+    return None if ms is None else ms * 1e-3
+
+
+def _df_att(msg: Any, t_s: float) -> AttitudeSample | None:
+    # ATT Roll, Pitch, Yaw in degrees (AP_Logger LogStructure.h), same z-y-x convention.
+    angles = np.radians([msg.Roll, msg.Pitch, msg.Yaw])
+    if not np.all(np.isfinite(angles)):
+        return None
+    return AttitudeSample(t_s, _quat(quat_wxyz_from_euler_zyx(*angles)))
+
+
+def _df_pos(msg: Any, t_s: float) -> PositionSample | None:
+    # POS Lat/Lng degrees, Alt m MSL; height above home is RelHomeAlt (4.x) or RelAlt (3.x).
+    if msg.Lat == 0 and msg.Lng == 0:
+        return None
+    rel: Any = getattr(msg, "RelHomeAlt", None)
+    if rel is None:
+        rel = getattr(msg, "RelAlt", float("nan"))
+    return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt), float(rel))
+
+
+# The DataFlash MNT message logs the roll/pitch/body-yaw Euler angles of the same quaternion
+# the autopilot sends in GIMBAL_DEVICE_ATTITUDE_STATUS (AP_Mount_Backend::write_log); ArduPilot
+# sends that message with these flags (ROLL_LOCK | PITCH_LOCK | YAW_IN_VEHICLE_FRAME).
+DATAFLASH_MNT_FLAGS = 4 | 8 | 32
+
+
+def _df_mnt(msg: Any, t_s: float) -> tuple[GimbalSample, MountTargetSample] | None:
+    fields = ("Roll", "Pitch", "YawB", "DRoll", "DPitch", "DYawB", "DYawE")
+    if not all(hasattr(msg, f) for f in fields):
+        return None  # older MNT layouts log no body-frame yaw
+    q = quat_wxyz_from_euler_zyx(*np.radians([msg.Roll, msg.Pitch, msg.YawB]))
+    instance = int(getattr(msg, "I", 0))
+    gimbal = GimbalSample(t_s, _quat(q), DATAFLASH_MNT_FLAGS, 0, 1, 1, instance + 1)
+    target = MountTargetSample(t_s, *(math.radians(v) for v in
+                                      (msg.DRoll, msg.DPitch, msg.DYawB, msg.DYawE)))
+    return gimbal, target
+
+
+def _df_parm(msg: Any, t_s: float) -> ParamSample:
+    return ParamSample(t_s, str(msg.Name), float(msg.Value))
+
+
+def _df_orgn(msg: Any, t_s: float) -> HomeSample:
+    # ORGN Type 0 = EKF origin, 1 = AHRS home (AP_Logger LogOriginType).
+    source = "ORGN home" if int(msg.Type) == 1 else "ORGN EKF origin"
+    return HomeSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt), source)
+
+
+def _df_cam(msg: Any, t_s: float) -> CaptureSample:
+    return CaptureSample(t_s, int(getattr(msg, "Img", getattr(msg, "I", 0)) or 0),
+                         msg.get_type())
+
+
+def _df_gps(msg: Any, t_s: float) -> PositionSample | None:
+    # GPS Status >= 3 is a 3D fix (AP_GPS::GPS_Status); Lat/Lng deg, Alt m MSL. Used only
+    # when a log has no POS (ArduCopter before 3.3), first receiver only.
+    if int(getattr(msg, "I", 0)) != 0 or msg.Status < 3:
+        return None
+    return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt))
+
+
+# nav_filter_status bits (AP_NavEKF/AP_Nav_Common.h), which XKF4/NKF4 log as SS
+# (NavEKF3_core::Log_Write_XKF4: solution = filterStatus.value).
+NAV_HORIZ_POS_ABS = 1 << 4
+NAV_CONST_POS_MODE = 1 << 7
+NAV_GPS_GLITCHING = 1 << 14
+
+
+# ArduCopter 3.4's EKF2 logs have no core field: NKF4 is core 0, NKF9 the same layout for
+# core 1 (DataFlash Log_Write_EKF2: pkt9 = getFilterStatus(1, ...), LOG_NKF9_MSG), both
+# with PI, the primary core.
+_CORE_OF_LOG = {"NKF4": 0, "NKF9": 1}
+
+
+def _df_ekf_status(msg: Any, t_s: float) -> tuple[EstimatorSample, ...]:
+    # One record per EKF core (C, else by message: _CORE_OF_LOG); only the primary core's
+    # (PI) drives the vehicle, so a lane switch changes whose flags apply from then on.
+    core = getattr(msg, "C", None)
+    core = _CORE_OF_LOG.get(msg.get_type(), 0) if core is None else int(core)
+    primary = getattr(msg, "PI", None)
+    if core != (int(primary) if primary is not None and int(primary) >= 0 else 0):
+        return ()
+    ss = int(msg.SS)
+    return (EstimatorSample(t_s, bool(ss & NAV_HORIZ_POS_ABS), bool(ss & NAV_CONST_POS_MODE),
+                            bool(ss & NAV_GPS_GLITCHING)),)
+
+
+_DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
+              "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps,
+              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status, "NKF9": _df_ekf_status}
+DATAFLASH_TYPES = tuple(_DATAFLASH)
+
+
+def samples_from_dataflash(msg: Any, t_s: float) -> tuple[Sample, ...]:
+    """The samples a DataFlash message carries (MNT gives a gimbal sample and a target)."""
+    adapter = _DATAFLASH.get(msg.get_type())
+    out = None if adapter is None else adapter(msg, t_s)
+    if out is None:
+        return ()
+    return out if isinstance(out, tuple) else (out,)

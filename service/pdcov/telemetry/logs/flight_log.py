@@ -1,0 +1,89 @@
+"""The flight log pdcov reads: ``FlightLog``, one vehicle's time-sorted telemetry series.
+
+Times are seconds in the autopilot's boot clock, monotonic across restarts; positions lat/lon
+degrees and altitude m AMSL, attitudes quaternions (body FRD -> NED), as ``samples`` holds
+them. Also the small parts every reader shares: the time shift, the restart note and the
+estimator series with its source.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import TypeVar
+
+from pdcov.telemetry.clocks import REBOOT_GAP_S
+from pdcov.telemetry.samples import CaptureSample, EstimatorSample, HomeSample
+from pdcov.telemetry.series import (
+    AttitudeSeries,
+    EstimatorSeries,
+    GimbalSeries,
+    MountTargetSeries,
+    PositionSeries,
+)
+
+_Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries,
+                   EstimatorSeries)
+
+
+@dataclass(frozen=True, slots=True)
+class FlightLog:
+    """What pdcov uses of one flight log, for one vehicle (``system_id``).
+
+    All times are seconds in the autopilot's boot clock (monotonic across restarts). gimbal
+    holds the chosen source (``gimbal_source`` = (system, component, gimbal_device_id)) only;
+    homes are in log order; params hold each parameter's last value. notes say, in words,
+    which clock, sources and fallbacks were used (for summaries); damage says what was
+    skipped or cut while reading (also among the notes). estimator: the position
+    estimator's verdicts (empty when the log carries none); estimator_source names the
+    messages they came from.
+    """
+
+    path: str
+    format: str
+    system_id: int | None
+    attitude: AttitudeSeries
+    position: PositionSeries
+    gimbal: GimbalSeries
+    gimbal_source: tuple[int, int, int] | None
+    homes: tuple[HomeSample, ...]
+    captures: tuple[CaptureSample, ...]
+    params: Mapping[str, float]
+    mount_targets: MountTargetSeries
+    restarts_t_s: tuple[float, ...] = ()
+    notes: tuple[str, ...] = ()
+    damage: tuple[str, ...] = ()
+    estimator: EstimatorSeries = field(
+        default_factory=lambda: EstimatorSeries.from_samples([]))
+    estimator_source: str = ""
+
+
+
+def estimator_series(samples: list[EstimatorSample], source: str
+                     ) -> tuple[EstimatorSeries, str]:
+    """The series of ``samples`` and its ``source``, no source when empty."""
+    series = EstimatorSeries.from_samples(samples)
+    return series, source if len(series.t_s) else ""
+
+
+
+def restart_note(n: int, field_name: str) -> str:
+    return (f"{field_name} restarted {n}x (autopilot reboot): t_s is the last boot's own time; "
+            f"earlier boots are placed before it with a {REBOOT_GAP_S:.0f} s gap, so no frame "
+            "interpolates across a reboot")
+
+
+def shifted(log: FlightLog, dt_s: float) -> FlightLog:
+    """The same log with every time moved by ``dt_s`` seconds."""
+    if dt_s == 0.0:
+        return log
+
+    def series(x: _Series) -> _Series:
+        return replace(x, t_s=x.t_s + dt_s)
+
+    return replace(log, attitude=series(log.attitude), position=series(log.position),
+                   gimbal=series(log.gimbal), mount_targets=series(log.mount_targets),
+                   estimator=series(log.estimator),
+                   homes=tuple(replace(h, t_s=h.t_s + dt_s) for h in log.homes),
+                   captures=tuple(replace(c, t_s=c.t_s + dt_s) for c in log.captures),
+                   restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))
