@@ -20,6 +20,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import ConfigError, InputFileError
 from pdcov.service.origin import GroundAltitude
+from pdcov.service.settings import mission_hash
 
 rasterio = pytest.importorskip("rasterio")
 from rasterio.transform import from_origin  # noqa: E402
@@ -328,3 +329,14 @@ def test_commands_show_the_mission_warnings(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith(f"pdcov plan: WARNING: {path}: origin.ground_alt_msl_m 1000.0 m MSL "
                           "differs from the DEM's 1030.0 m") and err.count("\n") == 1
+
+
+def test_a_checkpoint_belongs_to_its_terrain(tmp_path):
+    flat_around(tmp_path / "a.tif")
+    flat_around(tmp_path / "b.tif", h_m=H0 + 5.0)
+    a, b = (mission_from_dict(terrain_doc(f, ground_alt_msl_m=H0), source="m.yaml",
+                              base_dir=tmp_path) for f in ("a.tif", "b.tif"))
+    flat = mission_from_dict({**terrain_doc("-", ground_alt_msl_m=H0), "terrain": None},
+                             source="m.yaml", base_dir=tmp_path)
+    hashes = {mission_hash(m, m.new_grid()) for m in (a, b, flat)}
+    assert len(hashes) == 3
