@@ -5,13 +5,16 @@ earth's curvature, and every bad input refused in one line naming the file."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 
 import numpy as np
 import pytest
 import yaml
-from evaluate_inputs import mission_doc
+from evaluate_inputs import ORIGIN as EVAL_ORIGIN
+from evaluate_inputs import known_flight, mission_doc, run, write_config
+from mavlink_fixtures import samples_from_flight, write_tlog
 
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.config import mission_from_dict
@@ -340,3 +343,28 @@ def test_a_checkpoint_belongs_to_its_terrain(tmp_path):
                              source="m.yaml", base_dir=tmp_path)
     hashes = {mission_hash(m, m.new_grid()) for m in (a, b, flat)}
     assert len(hashes) == 3
+
+
+def test_evaluate_says_where_the_ground_came_from_and_warns(tmp_path, capsys):
+    # The known flight of the evaluate tests, over a flat DEM around its origin.
+    o = EVAL_ORIGIN
+    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(known_flight()))
+    flat_around(tmp_path / "dem.tif", h_m=o.ground_alt_msl_m, lat_deg=o.lat_deg,
+                lon_deg=o.lon_deg)
+    doc = mission_doc(terrain={"dem": "dem.tif"})
+    doc["origin"]["ground_alt_msl_m"] = None
+    config = write_config(tmp_path, doc)
+    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
+               str(tmp_path / "a"), "--no-progress") == 0
+    assert f"ground {o.ground_alt_msl_m:.2f} m MSL (the DEM at the origin)" in (
+        capsys.readouterr().out)
+    doc["origin"]["ground_alt_msl_m"] = o.ground_alt_msl_m - 5.0
+    doc["terrain"]["check_margin_m"] = 2.0
+    write_config(tmp_path, doc)
+    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
+               str(tmp_path / "b"), "--no-progress") == 0
+    out, err = capsys.readouterr()
+    assert "pdcov evaluate: WARNING: " in err and "by -5.0 m" in err
+    assert "(configured)" in out and "WARNING: " in out
+    (w,) = json.loads((tmp_path / "b" / "metrics.json").read_text())["warnings"]
+    assert "differs from the DEM's 5.0 m there (dem.tif) by -5.0 m" in w
