@@ -20,7 +20,7 @@ from pdcov.commands.args import (
     positive_int,
     probability,
 )
-from pdcov.config import load_mission
+from pdcov.commands.mission_file import load_mission_warned
 from pdcov.errors import InputFileError, PdcovError
 
 if TYPE_CHECKING:
@@ -94,7 +94,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.telemetry.log_poses import poses_from_log
     from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
 
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "evaluate")
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
     log_warnings: tuple[str, ...] = ()
@@ -116,7 +116,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
             frame_source=args.frame_source or mission.chosen_frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
-            estimator_status=mission.estimator_status)
+            estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -146,8 +146,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
         lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
     warnings = _unseen_domain_warnings(grid, mission, poses)
-    for w in (*log_warnings, *warnings):
+    for w in (*log_warnings, *warnings):  # the mission's were shown when it was loaded
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
+    warnings = [*mission.warnings, *warnings]
     # The per-frame poses are done with: free them before writing the outputs (the peak).
     del poses
     source = (args.poses or args.log).name
@@ -248,7 +249,7 @@ def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.core.rotations import R_from_euler_zyx, Rz
     from pdcov.report.plots import ray_count_figure
 
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "footprint")
     R_ned_body = R_from_euler_zyx(*np.radians([args.roll_deg, args.pitch_deg, args.yaw_deg]))
     r = np.array([0.0, 0.0, args.altitude_m])
     if isinstance(mission.mount, FixedMount) and args.camera_pitch_deg is None:

@@ -31,7 +31,8 @@ from pdcov.commands.args import (
     positive_int,
     probability,
 )
-from pdcov.config import Mission, PlanningSection, load_mission
+from pdcov.commands.mission_file import load_mission_warned
+from pdcov.config import Mission, PlanningSection
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
 from pdcov.errors import ConfigError, where
@@ -159,7 +160,7 @@ def scenario_of(mission: Mission) -> Scenario:
     g = mission.domain.grid_geometry(mission.cell_size_m)
     return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
                     mission.detector, mission.mount, mission.frame_rate_hz,
-                    mission.max_range_m, mission.min_revisit_s, kin, pitch)
+                    mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain)
 
 
 def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
@@ -192,7 +193,7 @@ def run_plan(args: argparse.Namespace) -> int:
              ("radius", "--radius-m", args.radius_m))
     refuse_options(args.pattern, {name: flag for name, flag, value in given
                                   if value is not None})
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "plan")
     sc = scenario_of(mission)
     params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
                         math.radians(args.heading_deg or 0.0), args.spacing_m,
@@ -261,7 +262,7 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def run_optimise(args: argparse.Namespace) -> int:
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "optimise")
     sc = scenario_of(mission)
     params = candidates(args.patterns, args.altitudes_m, args.speeds_mps,
                         [math.radians(h) for h in args.headings_deg], args.spacings_m,
@@ -339,11 +340,12 @@ def _front_figure(path: Path, scores: Sequence[Score], front: Sequence[int], bes
 
 
 def run_refly(args: argparse.Namespace) -> int:
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "refly")
     sc = scenario_of(mission)
     flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
                                   max_range_m=mission.max_range_m,
-                                  min_revisit_s=mission.min_revisit_s)
+                                  min_revisit_s=mission.min_revisit_s,
+                                  terrain=mission.terrain)
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")

@@ -95,6 +95,7 @@ class CoverageGrid:
     ``default_max_range_m``. terrain: the ground under the cells (None: the plane z = 0).
     min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
+    terrain: the ground under the cells (ENU, core/terrain.py); None: the plane z = 0.
 
     With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
     must come in time order (``update`` refuses one earlier than the latest); times are kept
@@ -125,6 +126,7 @@ class CoverageGrid:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self.max_range_m = float(max_range_m)
         self.min_revisit_s = min_revisit_s
+        self.terrain = terrain
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
@@ -498,7 +500,8 @@ class CoverageGrid:
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
-                 **kwargs: float | None) -> CoverageGrid:
+                 *, max_range_m: float | None = None, min_revisit_s: float | None = None,
+                 terrain: TerrainSurface | None = None) -> CoverageGrid:
         """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
@@ -518,7 +521,8 @@ class CoverageGrid:
         mask = data["mask"].astype(bool)
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
-        grid = cls(geometry, mask, camera, detector, **kwargs)
+        grid = cls(geometry, mask, camera, detector, max_range_m=max_range_m,
+                   min_revisit_s=min_revisit_s, terrain=terrain)
         grid.log_miss_d[:] = data["log_miss_d"]
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]

@@ -26,6 +26,7 @@ from pdcov.core.grid import CoverageGrid, default_max_range_m
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import Rz
+from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError
 from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
@@ -41,7 +42,8 @@ PATTERNS: tuple[PatternName, ...] = get_args(PatternName)
 class Scenario:
     """What a prediction needs from the mission: free space and its grid, camera, detector,
     mount, frame rate (Hz), the grid's range limit (m; None = the grid's default) and the
-    vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold."""
+    vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold;
+    terrain: the ground under the grid (ENU; None: the plane z = 0)."""
 
     free_space: Polygon | MultiPolygon
     geometry: GridGeometry
@@ -54,10 +56,12 @@ class Scenario:
     min_revisit_s: float | None = None
     kinematics: Kinematics = Kinematics()
     gimbal_pitch_rad: float = -math.pi / 2
+    terrain: TerrainSurface | None = None
 
     def new_grid(self) -> CoverageGrid:
         return CoverageGrid(self.geometry, self.mask, self.camera, self.detector,
-                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
+                            terrain=self.terrain)
 
     def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0) -> float:
         """Ground strip seen across the track by a level vehicle at ``alt_agl_m`` flying

@@ -121,7 +121,8 @@ class LiveCoverage:
         self.counters = Counters()
         self.origin: Origin | None = None
         self.origin_how = ""
-        self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s)
+        self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
+                                      m.ground_alt_how)
         self.interpretation: GimbalInterpretation | None = None
         self.tracker: PoseTracker | None = None
         self._waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
