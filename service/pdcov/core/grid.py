@@ -92,10 +92,10 @@ class CoverageGrid:
 
     geometry: the cells (ENU). mask: bool (n_rows, n_cols), True for free cells (only those
     are updated). max_range_m: slant range beyond which cells are not observed; None chooses
-    ``default_max_range_m``. terrain: the ground under the cells (None: the plane z = 0).
+    ``default_max_range_m``. terrain: the ground under the cells (ENU, core/terrain.py;
+    None: the plane z = 0).
     min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
-    terrain: the ground under the cells (ENU, core/terrain.py); None: the plane z = 0.
 
     With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
     must come in time order (``update`` refuses one earlier than the latest); times are kept
@@ -126,7 +126,6 @@ class CoverageGrid:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self.max_range_m = float(max_range_m)
         self.min_revisit_s = min_revisit_s
-        self.terrain = terrain
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
