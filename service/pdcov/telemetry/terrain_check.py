@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from pdcov.telemetry.logs import FlightLog
 
 __all__ = ["DEFAULT_MARGIN_M", "CheckSource", "HeightsMsl", "Mismatch", "Refused",
-           "TerrainCheck", "check_flight_log"]
+           "TerrainCheck", "check_flight_log", "terrain_check_for"]
 
 DEFAULT_MARGIN_M = 10.0
 """terrain.check_margin_m when the config does not set it (m)."""
@@ -94,7 +94,8 @@ class Refused(TextEnum):
 @dataclass(frozen=True, slots=True)
 class Mismatch:
     """One disagreement: difference_m = DEM height minus the aircraft's (m), at the ground
-    point measured (WGS84 degrees) and time t_s (autopilot clock, s)."""
+    point measured (WGS84 degrees) and time t_s (autopilot clock, s; NaN for a home or
+    terrain report before the autopilot's first time: they need none)."""
 
     source: CheckSource
     difference_m: float
@@ -105,11 +106,12 @@ class Mismatch:
     def as_dict(self) -> dict[str, Any]:
         return {"source": str(self.source), "difference_m": round(self.difference_m, 2),
                 "lat_deg": round(self.lat_deg, 7), "lon_deg": round(self.lon_deg, 7),
-                "t_s": round(self.t_s, 3)}
+                "t_s": round(self.t_s, 3) if math.isfinite(self.t_s) else None}
 
     def describe(self) -> str:
+        when = f" (t {self.t_s:.1f} s)" if math.isfinite(self.t_s) else ""
         return (f"{self.difference_m:+.1f} m by the {self.source} at {self.lat_deg:.6f}, "
-                f"{self.lon_deg:.6f} (t {self.t_s:.1f} s)")
+                f"{self.lon_deg:.6f}{when}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,7 +209,7 @@ class TerrainCheck:
     def _terrain_report(self, r: TerrainReportSample) -> None:
         if not r.has_data:
             self.refused[Refused.NO_TERRAIN_DATA] += 1
-        elif not all(map(math.isfinite, (r.t_s, r.lat_deg, r.lon_deg, r.terrain_alt_msl_m))):
+        elif not all(map(math.isfinite, (r.lat_deg, r.lon_deg, r.terrain_alt_msl_m))):
             self.refused[Refused.NOT_FINITE] += 1
         else:
             self._compare(CheckSource.TERRAIN_REPORT, r.lat_deg, r.lon_deg,
@@ -218,7 +220,7 @@ class TerrainCheck:
         if key == self._last_home:
             return  # HOME_POSITION repeats at 0.2 Hz: each home is compared once
         self._last_home = key
-        if not all(map(math.isfinite, (*key, h.t_s))):
+        if not all(map(math.isfinite, key)):
             self.refused[Refused.NOT_FINITE] += 1
             return
         self._compare(CheckSource.HOME, h.lat_deg, h.lon_deg, h.alt_msl_m, h.t_s)
@@ -336,3 +338,12 @@ def check_flight_log(check: TerrainCheck, log: FlightLog) -> None:
     events += [(s.t_s, 1, s) for s in measured]
     for _t, _k, sample in sorted(events, key=lambda e: (e[0], e[1])):
         check.add(sample)
+
+
+def terrain_check_for(mission: Any) -> TerrainCheck | None:
+    """The check of a mission with a DEM (``mission.dem``, margin
+    ``mission.terrain_check_margin_m``), None without one: what both drivers build."""
+    dem = getattr(mission, "dem", None)
+    if dem is None:
+        return None
+    return TerrainCheck(dem, getattr(mission, "terrain_check_margin_m", DEFAULT_MARGIN_M))
