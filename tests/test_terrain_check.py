@@ -66,7 +66,7 @@ def test_dem_12_m_too_high_is_counted_and_said():
     check.add(report(GROUND_M))
     assert check.checked[CheckSource.TERRAIN_REPORT] == 1 and check.mismatches == 1
     assert check.largest is not None and check.largest.difference_m == pytest.approx(12.0)
-    assert "+12.0 m by the terrain_report" in (check.warning() or "")
+    assert "+12.0 m (terrain_report at" in (check.warning() or "")
     assert "1 of 1 measurements" in check.summary_line()
     doc = check.as_dict()
     assert doc["mismatches"] == 1 and doc["largest"]["difference_m"] == 12.0

@@ -108,7 +108,7 @@ def test_warning_is_logged_first_then_at_most_once_a_minute(tmp_path: Path) -> N
 
     assert warnings_at(0.0, 0) == []
     first = warnings_at(1.0, 1)
-    assert len(first) == 1 and "+12.0 m by the terrain_report" in first[0]
+    assert len(first) == 1 and "+12.0 m (terrain_report at" in first[0]
     assert "1 disagreements so far" in first[0] and "vertical datum" in first[0]
     assert warnings_at(2.0, 5) == []  # counted, not said
     assert warnings_at(1.0 + TERRAIN_WARNING_PERIOD_S, 0) != []  # the 5 since, said once
@@ -150,3 +150,28 @@ def test_brief_status_leaves_it_out_and_the_merge_keeps_it(tmp_path: Path) -> No
     assert full["full"] is True and brief["full"] is False
     assert "terrain_check" not in brief and brief["faults"]["terrain_mismatch"] == 1
     assert merge_status(full, brief)["terrain_check"] == full["terrain_check"]
+
+
+@pytest.mark.slow  # a whole evaluate run with its figures: about 3 s
+def test_evaluate_says_it_in_the_summary_and_metrics(tmp_path: Path, monkeypatch, capsys
+                                                      ) -> None:
+    from evaluate_inputs import ORIGIN, known_flight, mission_doc, run, write_config
+    from mavlink_fixtures import samples_from_flight, write_tlog
+
+    import pdcov.telemetry.terrain_check as terrain_check
+
+    dem = FlatDem(ORIGIN.ground_alt_msl_m + 12.0)  # the home is 12 m below it
+    monkeypatch.setattr(terrain_check, "terrain_check_for", lambda mission: TerrainCheck(dem))
+    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(known_flight()))
+    config = write_config(tmp_path, mission_doc())
+    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
+               str(tmp_path / "run"), "--no-progress") == 0
+    out, err = capsys.readouterr()
+    line = ("terrain check: 1 of 1 measurements (1 home) disagree with the DEM by more than "
+            "10 m, largest +12.0 m (home at 39.350000, -76.330000")
+    assert line in out and line in err
+    doc = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert doc["terrain_check"]["checked"] == {"terrain_report": 0, "rangefinder": 0,
+                                               "home": 1}
+    assert doc["terrain_check"]["largest"]["difference_m"] == 12.0
+    assert any(w.startswith("terrain check: 1 of 1") for w in doc["warnings"])

@@ -109,9 +109,9 @@ class Mismatch:
                 "t_s": round(self.t_s, 3) if math.isfinite(self.t_s) else None}
 
     def describe(self) -> str:
-        when = f" (t {self.t_s:.1f} s)" if math.isfinite(self.t_s) else ""
-        return (f"{self.difference_m:+.1f} m by the {self.source} at {self.lat_deg:.6f}, "
-                f"{self.lon_deg:.6f}{when}")
+        when = f", t {self.t_s:.1f} s" if math.isfinite(self.t_s) else ""
+        return (f"{self.difference_m:+.1f} m ({self.source} at {self.lat_deg:.6f}, "
+                f"{self.lon_deg:.6f}{when})")
 
 
 @dataclass(frozen=True, slots=True)
@@ -308,16 +308,16 @@ class TerrainCheck:
                     f"{self.margin_m:g} m{tail}")
         return (f"terrain check: {self.mismatches} of {n} measurements ({what}) disagree with "
                 f"the DEM by more than {self.margin_m:g} m, largest "
-                f"{self.largest.describe()} (DEM minus aircraft){tail}")
+                f"{self.largest.describe()}, DEM minus aircraft{tail}")
 
     def warning(self) -> str | None:
         """The daemon's log line for the latest mismatch (and what to check); None before
         the first."""
         if self.latest is None or self.largest is None:
             return None
-        return (f"terrain check: the DEM disagrees with the aircraft by "
-                f"{self.latest.describe()} (DEM minus aircraft; margin "
-                f"{self.margin_m:g} m); {self.mismatches} disagreements so far, largest "
+        return (f"terrain check: DEM minus the aircraft's ground {self.latest.describe()}, "
+                f"beyond the margin of {self.margin_m:g} m; {self.mismatches} "
+                f"disagreements so far, largest "
                 f"{self.largest.difference_m:+.1f} m: check the DEM's vertical datum "
                 "(terrain.vertical_datum, geoid_height_m), that it is the DEM of this site, "
                 "and the barometer's drift (docs/operations.md)")
