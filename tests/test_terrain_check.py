@@ -246,3 +246,57 @@ def test_ulog_distance_sensor():
     assert out == [RangefinderSample(1.0, 12.5, 25, True, 1),
                    RangefinderSample(2.0, 50.0, 25, False, 1),  # beyond max_distance
                    RangefinderSample(3.0, 3.0, 25, False, 1)]  # signal quality 0: invalid
+
+
+def _dataflash_log(records: list[tuple[str, str, str, tuple]]) -> bytes:
+    """A DataFlash binary log of ``records`` (name, format, columns, values), each type
+    announced by its FMT record first (ids from 129 on)."""
+    import struct
+
+    from pymavlink.DFReader import FORMAT_TO_STRUCT
+
+    head, out, ids = b"\xa3\x95", bytearray(), {}
+
+    def fmt(type_id: int, length: int, name: str, form: str, cols: str) -> bytes:
+        return head + struct.pack("<BBB4s16s64s", 128, type_id, length, name.encode(),
+                                  form.encode(), cols.encode())
+
+    out += fmt(128, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
+    for name, form, cols, values in records:
+        layout = "<" + "".join(FORMAT_TO_STRUCT[c][0] for c in form)
+        if name not in ids:
+            ids[name] = 129 + len(ids)
+            out += fmt(ids[name], 3 + struct.calcsize(layout), name, form, cols)
+        out += head + bytes([ids[name]]) + struct.pack(layout, *values)
+    return bytes(out)
+
+
+def test_dataflash_log_carries_terrain_and_rangefinder(tmp_path):
+    from pdcov.telemetry.logs import read_flight_log
+
+    recs = []
+    for k in range(5):
+        us = 1_000_000 + 100_000 * k
+        recs.append(("ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw", (us, 0.0, 0.0, 0.0)))
+        recs.append(("POS", "QLLf", "TimeUS,Lat,Lng,Alt", (us, 470_000_000, 80_000_000, 500.0)))
+        # RFND Dist: uint16 cm with multiplier 0.01 (format C): 1234 -> 12.34 m.
+        recs.append(("RFND", "QBCBB", "TimeUS,Instance,Dist,Stat,Orient",
+                     (us + 50_000, 0, 1234, 4, 25)))
+    recs.append(("TERR", "QBLLHffHH", "TimeUS,Status,Lat,Lng,Spacing,TerrH,CHeight,Pending,"
+                 "Loaded", (1_200_000, 2, 470_000_000, 80_000_000, 30, 488.5, 11.5, 0, 9)))
+    path = tmp_path / "terrain.bin"
+    path.write_bytes(_dataflash_log(recs))
+    log = read_flight_log(path)
+    assert len(log.rangefinder) == 5
+    assert log.rangefinder[0].distance_m == pytest.approx(12.34)
+    assert log.rangefinder[0].t_s - log.attitude.t_s[0] == pytest.approx(0.05)
+    assert log.terrain_reports == (TerrainReportSample(
+        log.terrain_reports[0].t_s, pytest.approx(47.0), pytest.approx(8.0), 488.5, 11.5,
+        True),)
+    from pdcov.telemetry.terrain_check import check_flight_log
+
+    check = TerrainCheck(PlaneDem())
+    check_flight_log(check, log)
+    # Readings at 1.05 .. 1.45 s: the last has no position after it. 500 - 12.34 = 487.66.
+    assert check.checked == {CheckSource.RANGEFINDER: 4, CheckSource.TERRAIN_REPORT: 1}
+    assert check.mismatches == 0

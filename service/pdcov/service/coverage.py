@@ -19,7 +19,10 @@ position's altitude minus its height above home) and, for a gimbal, the reading 
 reports (the mount parameters, gimbal.resolve_interpretation); samples wait meanwhile.
 
 It also says when to publish status, which tiles changed and may be sent within the
-bandwidth budget, when to checkpoint, and the NAMED_VALUE_FLOAT / STATUSTEXT values.
+bandwidth budget, when to checkpoint, and the NAMED_VALUE_FLOAT / STATUSTEXT values; with a
+DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the one
+``pdcov evaluate`` feeds a log), and its mismatches are logged, the first at once, then at
+most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: where frames fall and when
 they can be decided to ``frame_schedule.FrameSchedule``, the ground altitude to
