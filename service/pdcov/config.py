@@ -42,6 +42,11 @@ RESERVED_SECTIONS = ("link", "bus", "service")
 
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
 
+
+DEFAULT_TERRAIN_MARGIN_M = 10.0
+"""terrain.check_margin_m when the config does not set it (m): how far the DEM may disagree
+with the home altitude and what the aircraft measures before it is said."""
+
 @dataclass(frozen=True, slots=True)
 class OriginSection:
     """``origin``: the ENU origin (degrees) and the ground altitude there (m MSL; None: the
@@ -136,7 +141,7 @@ class TerrainSection:
     dem: str
     vertical_datum: str = "msl"
     geoid_height_m: float | None = None
-    check_margin_m: float = 10.0
+    check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> TerrainSection:
@@ -159,7 +164,7 @@ class TerrainSection:
             raise ConfigError(f"{where(src, 'terrain.geoid_height_m')}: only used with "
                               "vertical_datum: ellipsoid (the DEM's heights are MSL)")
         return cls(dem, datum, geoid,
-                   _number(doc, "check_margin_m", src, "terrain", default=10.0,
+                   _number(doc, "check_margin_m", src, "terrain", default=DEFAULT_TERRAIN_MARGIN_M,
                            positive=True))
 
 
@@ -301,7 +306,7 @@ class Mission:
     ground_alt_how: str = "configured"
     terrain: TerrainSurface | None = field(default=None, compare=False, repr=False)
     dem: Dem | None = field(default=None, compare=False, repr=False)
-    terrain_check_margin_m: float = 10.0
+    terrain_check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
     warnings: tuple[str, ...] = ()
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
@@ -420,7 +425,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
-        dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else 10.0,
+        dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
         warnings=tuple(warnings), source=src, raw=doc)
 
 
