@@ -156,24 +156,3 @@ def test_full_disk_and_read_only_are_one_line_errors(tmp_path: Path, poses: Path
         assert not (full / "run").exists()  # a failed run writes nothing
     finally:
         subprocess.run(["umount", str(full)], timeout=10, check=False)
-
-
-def test_terrain_planning_keys_are_checked(tmp_path: Path, capsys) -> None:
-    mission = load_mission(DEMO)
-    # Without a terrain the plan keeps today's constant altitude above home; following a
-    # terrain it does not have is refused, naming the key.
-    assert str(scenario_of(mission).following.frame) == "relative"
-    with pytest.raises(ConfigError, match=r"planning.terrain_frame: amsl follows the "
-                                          r"terrain, but the mission has none"):
-        scenario_of(mission, {"terrain_frame": "amsl"})
-    config = tmp_path / "m.yaml"
-    config.write_text(DEMO.read_text() + "\nplanning: {terrain_frame: agl}\n")
-    with pytest.raises(ConfigError, match=r"m.yaml: planning.terrain_frame: expected one of "
-                                          r"relative, amsl, terrain_alt, got 'agl'"):
-        scenario_of(load_mission(config))
-    config.write_text(DEMO.read_text() + "\nplanning: {terrain_tolerance_m: 0}\n")
-    with pytest.raises(ConfigError, match=r"m.yaml: planning: terrain_tolerance_m must be > 0"):
-        scenario_of(load_mission(config))
-    assert cli.main(["plan", "--config", str(DEMO), "--altitude-m", "10", "--terrain-frame",
-                     "terrain_alt", "--out", str(tmp_path / "p")]) == 2
-    assert "planning.terrain_frame: terrain_alt follows the terrain" in capsys.readouterr().err

@@ -1,15 +1,22 @@
 """Terrain-following plans: constant height above a tilted plane (closed form), climb and
 descent limits over a ridge, the tolerance over hills, the frames written, the clearance
-warning, and flat terrain giving today's plan."""
+and rate warnings, flat terrain giving today's plan, and the planning keys and outputs of
+the commands."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from pdcov import cli
+from pdcov.commands.plan import scenario_of, terrain_warnings, write_prediction
+from pdcov.config import load_mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
@@ -24,15 +31,18 @@ from pdcov.core.mission import (
 )
 from pdcov.core.pose import FixedMount
 from pdcov.core.terrain import TerrainSurface
-from pdcov.planning.optimise import Scenario, predict
+from pdcov.errors import ConfigError
+from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
 from pdcov.planning.plan import Plan, Waypoint, mission_items, read_plan, write_plan
 from pdcov.planning.terrain_follow import (
     TerrainFollowing,
     clearance_intrusions,
     follow_terrain,
+    steep_legs,
 )
 from pdcov.planning.trajectory import fly
 
+DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 ORIGIN = Origin(46.5, 8.0, 1200.0)
 GEO = GridGeometry(-20.0, -20.0, 1.0, 160, 160)  # x, y in [-20, 140] m
 AMSL = TerrainFollowing(AltitudeFrame.AMSL)
@@ -248,3 +258,60 @@ def test_bad_settings_are_refused():
         TerrainFollowing(tolerance_m=0.0)
     with pytest.raises(ValueError, match="terrain_max_climb_mps must be >= 0"):
         TerrainFollowing(max_climb_mps=-1.0)
+
+
+def test_terrain_frame_plans_warn_where_the_rates_cannot_hold_the_height():
+    terrain = surface(ridge)
+    north = Plan((Waypoint(60, 0, H, 5), Waypoint(60, 100, H, 5)))
+    # 0.8 slopes at 5 m/s: 4 m/s up (limit 2.5) and 4 m/s down (limit 1.5, the worse).
+    (line,) = steep_legs(follow_terrain(north, terrain, TERRAIN_ALT), TERRAIN_ALT)
+    assert line.startswith("leg from waypoint 1 to 2, at ENU (60.0, 50.0) m: holding the "
+                           "height above terrain at 5 m/s needs 4.0 m/s of descent, more "
+                           "than terrain_max_descent_mps 1.5"), line
+    slow = Plan(tuple(replace(w, speed_mps=1.0) for w in north.waypoints))
+    assert steep_legs(follow_terrain(slow, terrain, TERRAIN_ALT), TERRAIN_ALT) == []
+    # An AMSL plan keeps to the rates itself.
+    assert steep_legs(follow_terrain(north, terrain, AMSL), AMSL) == []
+
+
+def test_terrain_planning_keys_are_checked(tmp_path: Path, capsys) -> None:
+    mission = load_mission(DEMO)
+    # Without a terrain the plan keeps today's constant altitude above home; following a
+    # terrain it does not have is refused, naming the key.
+    assert str(scenario_of(mission).following.frame) == "relative"
+    with pytest.raises(ConfigError, match=r"planning.terrain_frame: amsl follows the "
+                                          r"terrain, but the mission has none"):
+        scenario_of(mission, {"terrain_frame": "amsl"})
+    config = tmp_path / "m.yaml"
+    config.write_text(DEMO.read_text() + "\nplanning: {terrain_frame: agl}\n")
+    with pytest.raises(ConfigError, match=r"m.yaml: planning.terrain_frame: expected one of "
+                                          r"relative, amsl, terrain_alt, got 'agl'"):
+        scenario_of(load_mission(config))
+    config.write_text(DEMO.read_text() + "\nplanning: {terrain_tolerance_m: 0}\n")
+    with pytest.raises(ConfigError, match=r"m.yaml: planning: terrain_tolerance_m must be > 0"):
+        scenario_of(load_mission(config))
+    assert cli.main(["plan", "--config", str(DEMO), "--altitude-m", "10", "--terrain-frame",
+                     "terrain_alt", "--out", str(tmp_path / "p")]) == 2
+    assert "planning.terrain_frame: terrain_alt follows the terrain" in capsys.readouterr().err
+
+
+def test_terrain_warnings_go_to_stderr_and_metrics(tmp_path: Path, capsys) -> None:
+    mission = load_mission(DEMO)
+    g = mission.domain.grid_geometry(mission.cell_size_m)
+    xx, yy = np.meshgrid(g.x0_m + np.arange(g.n_cols + 1), g.y0_m + np.arange(g.n_rows + 1))
+    hill = TerrainSurface(g, 8.0 * np.exp(-((xx + 45) ** 2 + (yy + 30) ** 2) / 50.0), "hill")
+    mission = dataclasses.replace(mission, terrain=hill)
+    for frame, expected in (("relative", True), ("amsl", False)):
+        sc = scenario_of(mission, {"terrain_frame": frame, "terrain_clearance_m": 5.0})
+        plan, spacing = build_plan(sc, PlanParams("lawnmower", 12.0, 3.0))
+        pred = predict(sc, plan)
+        warned = terrain_warnings(sc, pred)
+        write_prediction(tmp_path / frame, mission, pred, pred.grid, "t", spacing,
+                         figures=False, terrain_warnings=warned)
+        err = capsys.readouterr().err
+        metrics = json.loads((tmp_path / frame / "metrics.json").read_text())["plan"]
+        assert metrics["altitude_frame"] == frame and metrics["terrain_warnings"] == warned
+        # The 8 m hill (off the take-off line) under a constant 12 m: within 5 m of the
+        # path on the legs over it; the terrain-following path is 12 m above it.
+        assert bool(warned) is expected
+        assert ("WARNING: terrain: leg from waypoint" in err) is expected

@@ -61,7 +61,11 @@ from pdcov.planning.optimise import (
 from pdcov.planning.patterns import track_spacing_m
 from pdcov.planning.plan import read_mission, write_plan
 from pdcov.planning.refly import plan_refly
-from pdcov.planning.terrain_follow import TerrainFollowing, clearance_intrusions
+from pdcov.planning.terrain_follow import (
+    TerrainFollowing,
+    clearance_intrusions,
+    steep_legs,
+)
 from pdcov.planning.trajectory import Kinematics
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
@@ -212,19 +216,23 @@ def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Sc
                     following)
 
 
-# At most this many terrain clearance warnings are printed, one line each.
-MAX_CLEARANCE_LINES = 10
+# At most this many terrain warnings of each kind are printed, one line each.
+MAX_TERRAIN_LINES = 10
 
 
-def clearance_warnings(sc: Scenario, pred: Prediction) -> list[str]:
+def terrain_warnings(sc: Scenario, pred: Prediction) -> list[str]:
     """One line per stretch of the predicted plan where the terrain plus the clearance rises
-    into the path (none without terrain), at most MAX_CLEARANCE_LINES and a count."""
+    into the path, then per leg of a terrain-frame plan steeper than the climb or descent
+    rate (none without terrain); at most MAX_TERRAIN_LINES of each and a count."""
     if sc.terrain is None:
         return []
-    found = clearance_intrusions(pred.plan, sc.terrain, sc.following.clearance_m)
-    lines = [i.message() for i in found[:MAX_CLEARANCE_LINES]]
-    if len(found) > MAX_CLEARANCE_LINES:
-        lines.append(f"and {len(found) - MAX_CLEARANCE_LINES} more stretches")
+    lines = []
+    for found in ([i.message() for i in clearance_intrusions(pred.plan, sc.terrain,
+                                                             sc.following.clearance_m)],
+                  steep_legs(pred.plan, sc.following)):
+        lines += found[:MAX_TERRAIN_LINES]
+        if len(found) > MAX_TERRAIN_LINES:
+            lines.append(f"and {len(found) - MAX_TERRAIN_LINES} more like it")
     return lines
 
 
@@ -232,9 +240,9 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
                       title: str, spacing_m: float | None, figures: bool = True,
                       terrain_warnings: Sequence[str] = ()) -> str:
     """Plan files and the predicted evaluation in ``out``; returns the summary text. The
-    ``terrain_warnings`` (``clearance_warnings``) go to stderr and metrics.json."""
+    ``terrain_warnings`` (the function of that name) go to stderr and metrics.json."""
     for line in terrain_warnings:
-        print(f"WARNING: terrain clearance: {line}", file=sys.stderr)
+        print(f"WARNING: terrain: {line}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     origin = mission.origin()
     write_plan(out / "plan.plan", pred.plan, origin)
@@ -246,7 +254,7 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
                       "path_length_m": round(pred.flight.path_length_m, 2),
                       "planned_path_length_m": round(pred.plan.path_length_m, 2),
                       "altitude_frame": str(pred.plan.altitude_frame),
-                      "terrain_clearance_warnings": list(terrain_warnings)}}
+                      "terrain_warnings": list(terrain_warnings)}}
     run = write_outputs(out, mission, grid, origin, title=title,
                         track_enu=pred.flight.r_body_enu[:, :2], plan_enu=pred.plan.xy_enu_m,
                         extra_metrics=extra, figures=figures)
@@ -281,7 +289,7 @@ def run_plan(args: argparse.Namespace) -> int:
             args.out, mission, pred, pred.grid,
             f"predicted: {plan.description} at {args.altitude_m:g} m",
             spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
-            figures=not args.no_figures, terrain_warnings=clearance_warnings(sc, pred))
+            figures=not args.no_figures, terrain_warnings=terrain_warnings(sc, pred))
     print(summary + _replaced_note(replaced, args.out))
     return 0
 
@@ -363,7 +371,7 @@ def run_optimise(args: argparse.Namespace) -> int:
         pred = predict(sc, plan, s.params)
         summary = write_prediction(out / "best", mission, pred, pred.grid,
                                     f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                    spacing, terrain_warnings=clearance_warnings(sc, pred))
+                                    spacing, terrain_warnings=terrain_warnings(sc, pred))
         write_text_atomic(out / "optimise.json", json.dumps({
             "target_pd": args.target_pd, "min_proportion": args.min_proportion,
             "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
@@ -431,7 +439,7 @@ def run_refly(args: argparse.Namespace) -> int:
     with replacing_dir(out) as replaced:
         summary = write_prediction(out, mission, r.prediction, flown,
                                     f"after the follow-up: {r.plan.description}", spacing,
-                                    terrain_warnings=clearance_warnings(sc, r.prediction))
+                                    terrain_warnings=terrain_warnings(sc, r.prediction))
         write_text_atomic(out / "gaps.json", json.dumps({
             "target_pd": args.target_pd,
             "before": {"cells": r.gaps_before.n_cells,

@@ -174,10 +174,8 @@ def clearance_intrusions(plan: Plan, terrain: TerrainSurface,
     at the last waypoint's height (ArduCopter climbs to RTL_ALT first when that is higher,
     so this is the lowest return). Sampled every half terrain cell."""
     xyz = plan.xyz_enu_m
-    number = np.cumsum(plan.written())  # mission waypoint number of the last one so far
     stretches = [("take-off to waypoint 1", np.array([0.0, 0.0, takeoff_alt_m(plan)]), xyz[0])]
-    stretches += [(f"leg from waypoint {number[i]} to {number[i] + 1}", xyz[i], xyz[i + 1])
-                  for i in range(len(xyz) - 1)]
+    stretches += [(name, xyz[i], xyz[i + 1]) for i, name in enumerate(_leg_names(plan))]
     stretches.append(("return to launch", xyz[-1], np.array([0.0, 0.0, xyz[-1, 2]])))
     step = terrain.geometry.cell_size_m / 2
     worst: dict[str, Intrusion] = {}
@@ -200,3 +198,41 @@ def clearance_intrusions(plan: Plan, terrain: TerrainSurface,
                            < old.path_z_enu_m - old.terrain_z_enu_m):
             worst[name] = found
     return list(worst.values())
+
+
+def _leg_names(plan: Plan) -> list[str]:
+    """Per piece of path between consecutive waypoints, the leg of the mission it lies on,
+    "leg from waypoint A to B", numbered as the mission's waypoints from 1."""
+    number = np.cumsum(plan.written())  # mission waypoint number of the last one so far
+    return [f"leg from waypoint {number[i]} to {number[i] + 1}"
+            for i in range(len(plan.waypoints) - 1)]
+
+
+def steep_legs(plan: Plan, following: TerrainFollowing) -> list[str]:
+    """For a MAV_FRAME_GLOBAL_TERRAIN_ALT plan, one line per leg where holding the height
+    above terrain at the planned speed needs more than the climb or descent rate (the
+    autopilot then slows down along the leg, or falls below its height on a climb), at the
+    steepest point; none for other plans (an AMSL plan meets the rates by construction)."""
+    if plan.altitude_frame is not AltitudeFrame.TERRAIN_ALT:
+        return []
+    xyz = plan.xyz_enu_m
+    dxy = np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1)
+    speed = np.array([w.speed_mps for w in plan.waypoints[1:]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.where(dxy > 0, np.diff(xyz[:, 2]) * speed / dxy, 0.0)
+    c, d = following.max_climb_mps, following.max_descent_mps
+    excess = np.maximum(rate - c if c > 0 else 0.0, -rate - d if d > 0 else 0.0)
+    worst: dict[str, int] = {}
+    for i, name in enumerate(_leg_names(plan)):
+        if excess[i] > 0 and (name not in worst or excess[i] > excess[worst[name]]):
+            worst[name] = i
+    lines = []
+    for name, i in worst.items():
+        up = rate[i] > 0
+        lines.append(f"{name}, at ENU ({xyz[i, 0]:.1f}, {xyz[i, 1]:.1f}) m: holding the "
+                     f"height above terrain at {speed[i]:g} m/s needs "
+                     f"{abs(rate[i]):.1f} m/s of {'climb' if up else 'descent'}, more than "
+                     f"terrain_max_{'climb' if up else 'descent'}_mps "
+                     f"{c if up else d:g}: the autopilot slows down there"
+                     f"{' or falls below its height' if up else ''}")
+    return lines
