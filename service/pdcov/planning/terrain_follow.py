@@ -38,8 +38,9 @@ from pdcov.planning.plan import Plan, Waypoint, takeoff_alt_m
 class TerrainFollowing:
     """How plans meet the terrain: the frame they are written in (RELATIVE: they do not
     follow it, a constant altitude above home), the tolerance (m) on the height above
-    terrain, the climb and descent rates of AMSL plans (m/s; 0: no limit), and the clearance
-    (m) the terrain must keep below every path (``clearance_intrusions``).
+    terrain, the climb and descent rates (m/s; 0: no limit; AMSL plans keep to them,
+    terrain-frame plans are warned about: ``steep_legs``), and the clearance (m) the terrain
+    must keep below every path (``clearance_intrusions``).
 
     Defaults: QGC's rule, with ArduCopter's auto-mode rates (WPNAV_SPEED_UP 2.5 m/s,
     WPNAV_SPEED_DN 1.5 m/s) rather than QGC's "no limit", and a 2 m tolerance rather than
