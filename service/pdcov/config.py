@@ -21,6 +21,7 @@ from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.terrain import TerrainSurface
@@ -201,13 +202,21 @@ class LogSection:
 @dataclass(frozen=True, slots=True)
 class PlanningSection:
     """``planning`` (read by ``pdcov plan`` only): the flight kinematics of the prediction
-    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m) and the gimbal pitch (deg)."""
+    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m), the gimbal pitch (deg), and
+    how plans meet the terrain (planning.terrain_follow.TerrainFollowing): the frame
+    (None: amsl with a terrain, relative without), tolerance (m), climb and descent rates
+    (m/s; 0: no limit) and clearance (m)."""
 
     max_accel_mps2: float = 2.5
     max_yaw_rate_deg_s: float = 60.0
     tilt: bool = True
     corner_cut_m: float = 2.0
     gimbal_pitch_deg: float = -90.0
+    terrain_frame: AltitudeFrame | None = None
+    terrain_tolerance_m: float = 2.0
+    terrain_max_climb_mps: float = 2.5
+    terrain_max_descent_mps: float = 1.5
+    terrain_clearance_m: float = 10.0
 
     @classmethod
     def from_mapping(cls, doc: Any, src: str | None) -> PlanningSection:
@@ -216,10 +225,18 @@ class PlanningSection:
         if not isinstance(doc, Mapping):
             raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
         given = {**_defaults(cls), **doc}
+        frame = given["terrain_frame"]
+        if frame is not None and frame not in set(AltitudeFrame):
+            raise ConfigError(f"{where(src, 'planning.terrain_frame')}: expected one of "
+                              f"{', '.join(AltitudeFrame)}, got {frame!r}")
         try:
             return cls(float(given["max_accel_mps2"]), float(given["max_yaw_rate_deg_s"]),
                        bool(given["tilt"]), float(given["corner_cut_m"]),
-                       float(given["gimbal_pitch_deg"]))
+                       float(given["gimbal_pitch_deg"]),
+                       None if frame is None else AltitudeFrame(frame),
+                       *(float(given[k]) for k in (
+                           "terrain_tolerance_m", "terrain_max_climb_mps",
+                           "terrain_max_descent_mps", "terrain_clearance_m")))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
 
@@ -281,7 +298,8 @@ class Mission:
     config sets it (``chosen_frame_source``). max_gap_s: telemetry gap that skips frames.
     system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
-    false ignores it.
+    false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
+    z = 0).
     """
 
     vehicle_id: str
