@@ -123,7 +123,7 @@ def run_fly(args: argparse.Namespace) -> int:
                           wind_mps=args.wind_mps, wind_from_deg=args.wind_from_deg,
                           autopilot=args.autopilot, system_id=system_id,
                           wait_mission=args.wait_mission, camera_trigger=args.camera_trigger,
-                          signing_key=key,
+                          signing_key=key, ground=mission.dem,
                           rangefinder=Rangefinder(noise_m=args.rangefinder_noise_m))
         result = fly(opts)
     except (PdcovError, FaultSpecError, LinkError) as exc:
