@@ -96,10 +96,9 @@ def test_the_ridge_hides_ground_from_the_camera(flights):
     f = flights["true"].result(timeout=600)
     limiting = f["sim"]["limiting"]
     hidden = (limiting == LimitingFactor.HIDDEN) & f["sim"]["mask"]
-    counts = f["metrics"]
-    print(f"hidden cells {int(hidden.sum())} of {int(f['sim']['mask'].sum())}; "
-          f"observed {counts['cells_observed']}")
-    assert hidden.sum() > 100
+    counts = f["metrics"]["limiting_cells"]
+    print(f"limiting factors of the {int(f['sim']['mask'].sum())} cells: {counts}")
+    assert counts["hidden"] == hidden.sum() > 100
     centres_x_m = np.flatnonzero(hidden.any(axis=0)) + 0.5  # 1 m cells from x = 0
     assert centres_x_m.min() > scene.RIDGE_X_M, centres_x_m
 
