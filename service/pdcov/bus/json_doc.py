@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
+from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 _MISSING = object()  # a key absent from the payload (None is JSON null)
 
@@ -162,6 +163,16 @@ class Fields:
         if v is not None and not isinstance(v, bool):
             raise self._fail(name, "true, false or null")
         return v
+
+    def vehicle_id(self, expected: str | None) -> str:
+        """The ``vehicle_id`` field: a valid vehicle id (ids.py), and ``expected`` (the one
+        in the key) when given."""
+        vid = self.string("vehicle_id", max_len=64)
+        if not valid_vehicle_id(vid):
+            raise self.bad(f"vehicle_id: {vid!r}, expected {VEHICLE_ID_RULE}")
+        if expected is not None and vid != expected:
+            raise self.bad(f"vehicle_id {vid!r}, but the key is vehicle {expected!r}'s")
+        return vid
 
     def items(self, name: str, most: int) -> list[Any]:
         """A list of at most ``most`` items (more: Refusal.OVER_BOUND)."""

@@ -8,7 +8,7 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 PREFIX = "pdcov"
-KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames")
+KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames", "retask")
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +53,10 @@ class VehicleKeys:
     @property
     def frames(self) -> str:
         return self.key("frames")
+
+    @property
+    def retask(self) -> str:
+        return self.key("retask")
 
 
 def all_vehicles(kind: str) -> str:
