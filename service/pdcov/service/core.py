@@ -38,6 +38,7 @@ from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
+from pdcov.planning.plan import home_item
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_protocol import (
@@ -49,6 +50,7 @@ from pdcov.service.link_protocol import (
     LinkState,
 )
 from pdcov.service.query_limit import QueryLimiter
+from pdcov.service.retask import Retasker, RetaskPolicy
 from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
@@ -85,13 +87,15 @@ class Actions:
     """What the shell should do now, in this order: send these MAVLink messages on every
     link; write these bytes to the recording; publish these tiles; if ``status_due``, flush
     the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
-    and report it back; log these (level, text) lines."""
+    and report it back; answer these re-tasking queries (ticket, reply payload); log these
+    (level, text) lines."""
 
     send: list[Any] = field(default_factory=list)
     record: list[bytes] = field(default_factory=list)
     tiles: bytes | None = None
     status_due: bool = False
     checkpoint: CheckpointMeta | None = None
+    replies: list[tuple[int, bytes]] = field(default_factory=list)
     logs: list[tuple[int, str]] = field(default_factory=list)
 
 
@@ -157,6 +161,8 @@ class ServiceCore:
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
         self.snapshot_limiter = QueryLimiter()
+        self.retasker = Retasker(m.vehicle_id, RetaskPolicy(
+            cfg.service.retask, frozenset(cfg.service.retask_sessions)), now_s)
         self._out = Actions()
 
     def _resume(self, meta: CheckpointMeta) -> None:
@@ -186,6 +192,8 @@ class ServiceCore:
                     and live.is_late(samples[-1].t_s))
             for sample in samples:
                 live.add_sample(sample)
+            if proto.from_autopilot(msg):
+                self._out.send += self.retasker.receive(msg, now_s, proto)
             if record:  # all of it: even what came before a HEARTBEAT
                 self._out.record.append(msg.get_msgbuf())
                 if late and proto.system_id is not None:  # recorded_frames: not taken
@@ -241,6 +249,7 @@ class ServiceCore:
         live, proto = self.coverage, self.protocol
         out = self._out
         out.send += proto.poll(now_s)
+        out.send += self.retasker.poll(now_s, proto)
         live.set_params(proto.params, proto.params_done)  # a parameter read may time out
         live.process()
         due = live.poll(now_s)
@@ -260,7 +269,24 @@ class ServiceCore:
     def get_timer(self) -> float:
         """When ``tick`` is next needed (monotonic s): the next status, tiles, checkpoint,
         NAMED_VALUE_FLOAT, HEARTBEAT or request retry."""
-        return min(self.coverage.next_timer_s(), self.protocol.next_timer_s())
+        return min(self.coverage.next_timer_s(), self.protocol.next_timer_s(),
+                   self.retasker.next_timer_s())
+
+    def receive_retask(self, ticket: int, payload: bytes, session: str | None,
+                       now_s: float) -> None:
+        """A re-tasking query's payload from Zenoh session ``session``, named ``ticket``
+        by the shell: refused or uploaded (service/retask.py); its answer comes out in
+        ``Actions.replies`` once known."""
+        origin = self.coverage.origin or self.cfg.mission.origin()
+        self._out.send += self.retasker.request(ticket, payload, session, now_s,
+                                                self.protocol, home_item(origin))
+        self._collect_retask()
+
+    def _collect_retask(self) -> None:
+        out = self._out
+        out.replies += self.retasker.replies()
+        out.logs += self.retasker.logs
+        self.retasker.logs = []
 
     def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
         """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
@@ -282,6 +308,7 @@ class ServiceCore:
 
     def actions(self) -> Actions:
         """What to do since the last call (then forgotten)."""
+        self._collect_retask()
         out, self._out = self._out, Actions()
         return out
 
@@ -315,10 +342,14 @@ class ServiceCore:
         faults["rejected_messages"] = sum(proto.stats.rejected.values())
         faults["other_systems_messages"] = proto.stats.other_systems
         faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
+        faults["retask_refused"] = sum(self.retasker.refused.values())
         self.checkpoint.recording_error = report.recording_error
         fields = live.status_fields(uptime_s=round(now_s - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(report),
                                     checkpoint=self.checkpoint.describe())
+        retask = self.retasker.describe()
+        if retask is not None:  # only once a request came: other statuses are unchanged
+            fields["retask"] = retask
         self._status_seq += 1
         share = live.share_at_target()
         line = (f"coverage {share:.1%} at P_D>={live.target_pd:g}, {live.counters.used} "

@@ -30,7 +30,7 @@ from typing import Any
 from pdcov.bus.footprint import encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
-from pdcov.bus.session import open_session
+from pdcov.bus.session import BusSecurity, bus_security, open_session
 from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
@@ -93,6 +93,8 @@ class Daemon:
         self.keys = self.core.keys
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
         self._snapshot: tuple[int, bytes] | None = None  # (grid frames, bytes)
+        self._retask_queries: dict[int, Any] = {}  # ticket -> Zenoh query awaiting its answer
+        self._next_ticket = 0
 
     # --- start ----------------------------------------------------------------------------
 
@@ -159,6 +161,11 @@ class Daemon:
             log.info("zenoh %s session open (connect %s, listen %s); publishing under "
                      "pdcov/%s/", self.cfg.bus.mode, list(self.cfg.bus.connect),
                      list(self.cfg.bus.listen), self.cfg.mission.vehicle_id)
+            if self.cfg.service.retask and bus_security(self.cfg.bus) \
+                    is not BusSecurity.MUTUAL_TLS:
+                log.warning("re-tasking is on (service.retask) but this bus is not mutual "
+                            "TLS: only a router's access control keeps others from sending "
+                            "missions (docs/ground-station.md \"Securing the bus\")")
             self.notifier.ready("pdcov serve: running")
             while not self.stop_event.is_set():
                 self._tick()
@@ -185,6 +192,8 @@ class Daemon:
                 loop, q, lambda q: self._reply(q, self._footprint_bytes))),
             s.declare_queryable(self.keys.mission, lambda q: self._answer(
                 loop, q, lambda q: self._reply(q, self._mission_bytes))),
+            s.declare_queryable(self.keys.retask, lambda q: self._answer(
+                loop, q, self._on_retask)),
             s.liveliness().declare_token(self.keys.alive),
         ]
         if self.cfg.frame_source == FrameSource.ZENOH:
@@ -228,6 +237,20 @@ class Daemon:
             log.debug("query %s: refusal not sent: %s", query.key_expr, exc)
         finally:
             query.drop()
+
+    def _on_retask(self, query: Any) -> None:
+        """On the loop: a re-tasking request; the query is kept until the core answers it
+        (refused at once, or once the autopilot has acknowledged the upload)."""
+        ticket, self._next_ticket = self._next_ticket, self._next_ticket + 1
+        self._retask_queries[ticket] = query
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        self.core.receive_retask(ticket, payload, source_session(query), self._clock())
+        self._do(self.core.actions())
+
+    def _reply_retask(self, ticket: int, payload: bytes) -> None:
+        query = self._retask_queries.pop(ticket, None)
+        if query is not None:
+            self._reply(query, lambda: payload)
 
     def _snapshot_bytes(self) -> bytes:
         """The grid's snapshot, encoded again only once the grid took another frame."""
@@ -300,6 +323,8 @@ class Daemon:
             self._publish_status()
         if a.checkpoint is not None:
             self._write_checkpoint(a.checkpoint)
+        for ticket, payload in a.replies:
+            self._reply_retask(ticket, payload)
         for level, text in a.logs:
             log.log(level, "%s", text)
 
@@ -351,6 +376,8 @@ class Daemon:
             c.close()
         if self.recorder is not None:
             self.recorder.close()
+        for query in self._retask_queries.values():  # the ground station's get times out
+            query.drop()
         for e in reversed(self._zenoh_entities):
             try:
                 e.undeclare()
