@@ -9,7 +9,7 @@ only written into recordings and checkpoints, as a value.
 
 Threads: everything runs on the event loop's thread. MAVLink is read with
 ``loop.add_reader`` (mavlink_io); Zenoh calls its callbacks on its own threads, which hand
-the payload (frames) or the query (snapshot, footprint, mission) to the loop with
+the payload (frames) or the query (snapshot, footprint, mission, candidates) to the loop with
 ``loop.call_soon_threadsafe`` and return at once: no grid is touched off the loop, and no
 Zenoh thread waits for the loop (which may be waiting for Zenoh in a put). Checkpoints and
 snapshots are encoded on the loop (milliseconds for a mission-sized grid).
@@ -184,8 +184,9 @@ class Daemon:
         s = self.session
         self.pub_status = SourcedPublisher(s.declare_publisher(self.keys.status))
         self.pub_tiles = SourcedPublisher(s.declare_publisher(self.keys.tiles))
+        self.pub_detections = SourcedPublisher(s.declare_publisher(self.keys.detections))
         self._zenoh_entities += [
-            self.pub_status, self.pub_tiles,
+            self.pub_status, self.pub_tiles, self.pub_detections,
             s.declare_queryable(self.keys.snapshot,
                                 lambda q: self._answer(loop, q, self._reply_snapshot)),
             s.declare_queryable(self.keys.footprint, lambda q: self._answer(
@@ -194,6 +195,8 @@ class Daemon:
                 loop, q, lambda q: self._reply(q, self._mission_bytes))),
             s.declare_queryable(self.keys.retask, lambda q: self._answer(
                 loop, q, self._on_retask)),
+            s.declare_queryable(self.keys.candidates,
+                                lambda q: self._answer(loop, q, self._reply_candidates)),
             s.liveliness().declare_token(self.keys.alive),
         ]
         if self.cfg.frame_source == FrameSource.ZENOH:
@@ -227,9 +230,19 @@ class Daemon:
         """On the loop: the snapshot, or a ``reply_err`` saying why when the requester or
         all snapshot replies together are over their rate (query_limit; counted in
         faults.snapshot_queries_refused)."""
-        refusal = self.core.admit_snapshot(source_session(query), self._clock())
+        self._reply_limited(query, self.core.admit_snapshot, self.core.snapshot_sent,
+                            self._snapshot_bytes)
+
+    def _reply_candidates(self, query: Any) -> None:
+        """On the loop: every candidate (bus.detections), rate-limited as the snapshot."""
+        self._reply_limited(query, self.core.admit_candidates, self.core.candidates_sent,
+                            self.core.candidates_payload)
+
+    def _reply_limited(self, query: Any, admit: Callable[[str | None, float], str | None],
+                       sent: Callable[[int], None], make: Callable[[], bytes]) -> None:
+        refusal = admit(source_session(query), self._clock())
         if refusal is None:
-            self.core.snapshot_sent(self._reply(query, self._snapshot_bytes))
+            sent(self._reply(query, make))
             return
         try:
             query.reply_err(refusal)
@@ -317,6 +330,8 @@ class Daemon:
                 self.recorder.write(data, unix_s)
         if a.tiles is not None:
             self._put(self.pub_tiles, a.tiles)
+        if a.detections is not None:
+            self._put(self.pub_detections, a.detections)
         if a.status_due:
             if self.recorder is not None:
                 self.recorder.flush()
