@@ -89,9 +89,6 @@ def test_share_found_matches_the_predicted_mean_pd(flight):
     assert abs(share - mean) <= 3 * sd
 
 
-@pytest.mark.xfail(raises=FileNotFoundError, strict=True,
-                   reason="pdcov evaluate writes no detections.json yet (issue 22: the daemon's "
-                          "geolocation is being built); strict: remove this mark when it does")
 def test_true_detections_geolocate_within_1_5_m_at_p90(flight, tmp_path):
     cfg = flight["cfg"]
     offline(cfg, recording(cfg.parent), tmp_path / "ev")
