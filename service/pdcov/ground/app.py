@@ -13,7 +13,13 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.bus.grid_state import grid_hash
-from pdcov.bus.session import BusConfig, bus_security
+from pdcov.bus.session import (
+    BusConfig,
+    bus_security,
+    describe_session,
+    peer_warning,
+    quiet_hint,
+)
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.fleet_report import FleetReport
@@ -22,6 +28,9 @@ from pdcov.ground.record import Recording
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
+
+QUIET_AFTER_S = 10.0
+"""A session connected this long without hearing a vehicle says why that may be."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,9 +73,17 @@ async def _main(opts: WatchOptions) -> int:
         config_hash = grid_hash(grid.geometry, grid.mask)
     watcher = Watcher(opts.vehicle, thresholds=(
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
-        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
+        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
+        quiet_hint=quiet_hint(opts.bus),
+        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
+    print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
+          flush=True)
+    warning = peer_warning(opts.bus)
+    if warning is not None:
+        print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
-    shell = WatchShell(watcher, opts.bus, record=recording)
+    shell = WatchShell(watcher, opts.bus, record=recording,
+                       connect_timeout_s=opts.wait_s if opts.once else None)
 
     def report() -> FleetReport:
         """The watcher's report as of now, with the recording's trouble, if any."""
@@ -96,7 +113,7 @@ async def _main(opts: WatchOptions) -> int:
             runner.result()  # the session's error (ConfigError: cannot open ...)
         if opts.plain and not opts.once:
             print(f"pdcov watch: following pdcov/{opts.vehicle or '*'}/ "
-                  f"({opts.bus.mode}, connect {list(opts.bus.connect)})", flush=True)
+                  f"({describe_session(opts.bus)})", flush=True)
         if opts.once:
             status = await _once(watcher, report, opts, stop, runner)
         else:
