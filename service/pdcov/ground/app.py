@@ -76,8 +76,9 @@ async def _main(opts: WatchOptions) -> int:
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
         quiet_hint=quiet_hint(opts.bus),
         quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
-    print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
-          flush=True)
+    if opts.once or not opts.plain:  # else the "following ..." line below names it
+        print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
+              flush=True)
     warning = peer_warning(opts.bus)
     if warning is not None:
         print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
