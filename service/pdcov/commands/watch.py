@@ -22,8 +22,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path,
                    help="mission config YAML: its bus section (mode, endpoints, TLS) and "
                         "domain (drawn on the web map, report figures with --record)")
-    p.add_argument("--mode", choices=("peer", "client"),
-                   help="Zenoh session mode (default: the config's bus.mode, else peer)")
+    p.add_argument("--mode", choices=("auto", "peer", "client"),
+                   help="Zenoh session mode (default: the config's bus.mode, else auto: a "
+                        "client when connecting somewhere and listening nowhere, as to a "
+                        "router, else a peer with multicast scouting)")
     p.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint to connect to, e.g. tcp/192.168.10.1:7447 "
                         "(repeatable; replaces the config's)")
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mode:
         bus = replace(bus, mode=args.mode)
     if bus.mode == "router":
-        bus = replace(bus, mode="peer")  # the daemon's config may say router; we follow
+        bus = replace(bus, mode="auto")  # the daemon's config may say router; we follow
     if args.no_multicast_scouting:
         bus = replace(bus, multicast_scouting=False)
     web = parse_web_address(args.web) if args.web else None

@@ -14,7 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.bus.grid_state import grid_hash
-from pdcov.bus.session import BusConfig, bus_security
+from pdcov.bus.session import (
+    BusConfig,
+    bus_security,
+    describe_session,
+    peer_warning,
+    quiet_hint,
+)
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.fleet_report import FleetReport
@@ -32,6 +38,9 @@ from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
 from pdcov.planning.refly import ReflySettings
 from pdcov.planning.scenario import scenario_of
+
+QUIET_AFTER_S = 10.0
+"""A session connected this long without hearing a vehicle says why that may be."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,9 +124,18 @@ async def _main(opts: WatchOptions) -> int:
         config_hash = grid_hash(grid.geometry, grid.mask)
     watcher = Watcher(opts.vehicle, thresholds=(
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
-        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
+        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
+        quiet_hint=quiet_hint(opts.bus),
+        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
+    if opts.once or not opts.plain:  # else the "following ..." line below names it
+        print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
+              flush=True)
+    warning = peer_warning(opts.bus)
+    if warning is not None:
+        print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
-    shell = WatchShell(watcher, opts.bus, record=recording)
+    shell = WatchShell(watcher, opts.bus, record=recording,
+                       connect_timeout_s=opts.wait_s if opts.once else None)
     desk = None
     if opts.mission is not None and config_hash is not None:
         desk = ReflyDesk(watcher, shell, opts.mission, config_hash, opts.refly_settings
@@ -153,7 +171,7 @@ async def _main(opts: WatchOptions) -> int:
             runner.result()  # the session's error (ConfigError: cannot open ...)
         if opts.plain and not opts.once:
             print(f"pdcov watch: following pdcov/{opts.vehicle or '*'}/ "
-                  f"({opts.bus.mode}, connect {list(opts.bus.connect)})", flush=True)
+                  f"({describe_session(opts.bus)})", flush=True)
         if opts.refly is not None and desk is not None:
             status = await _refly(desk, opts.refly, watcher, opts, stop, runner)
         elif opts.once:

@@ -47,9 +47,11 @@ class WatchShell:
 
     def __init__(self, watcher: Watcher, bus: BusConfig, *, record: Recorder | None = None,
                  query_timeout_s: float = 5.0, footprint_period_s: float = 1.0,
-                 poll_period_s: float = 0.2) -> None:
+                 poll_period_s: float = 0.2, connect_timeout_s: float | None = None) -> None:
         self.watcher = watcher
         self.bus = bus
+        self.connect_timeout_s = connect_timeout_s
+        """How long a client session waits for a router at open (None: for ever)."""
         self.record = record
         self.query_timeout_s = query_timeout_s
         self.footprint_period_s = footprint_period_s
@@ -70,7 +72,8 @@ class WatchShell:
 
         loop = asyncio.get_running_loop()
         sel = self.watcher.vehicle or "*"
-        self._session = session = await loop.run_in_executor(None, open_session, self.bus)
+        self._session = session = await loop.run_in_executor(None, open_session, self.bus,
+                                                             self.connect_timeout_s)
         entities = []
         try:
             def on_sample(sample: Any) -> None:
@@ -86,6 +89,7 @@ class WatchShell:
             entities.append(session.declare_subscriber(f"pdcov/{sel}/status", on_sample))
             entities.append(session.liveliness().declare_subscriber(
                 f"pdcov/{sel}/alive", on_alive, history=True))
+            self.watcher.on_connected(self.now_s())
             self.connected.set()
             next_footprint = 0.0
             while not stop.is_set():

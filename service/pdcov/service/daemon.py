@@ -30,7 +30,14 @@ from typing import Any
 from pdcov.bus.footprint import encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
-from pdcov.bus.session import BusSecurity, bus_security, open_session
+from pdcov.bus.session import (
+    BusSecurity,
+    bus_security,
+    describe_session,
+    open_session,
+    peer_warning,
+    session_mode,
+)
 from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
@@ -47,6 +54,10 @@ from pdcov.telemetry.frame_policy import FrameSource
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
+OPEN_ATTEMPT_S = 2.0
+"""Longest wait of one attempt to open a client session (for a router to answer)."""
+OPEN_RETRY_S = 1.0
+"""Pause between two attempts to open a client session."""
 """The longest the loop sleeps between ticks (the core's timer may wake it sooner): links'
 silence is checked this often."""
 
@@ -83,6 +94,8 @@ class Daemon:
         self.links: list[Connection] = []
         self.session: Any = None
         self._zenoh_entities: list[Any] = []
+        self.pub_status: SourcedPublisher | None = None
+        self.pub_tiles: SourcedPublisher | None = None
         self._status_encoder = StatusEncoder()
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
@@ -155,12 +168,18 @@ class Daemon:
                            reconnect_max_s=self.cfg.link.reconnect_max_s, clock=self._clock)
             c.start()
             self.links.append(c)
+        log.info("zenoh session: %s; publishing under pdcov/%s/",
+                 describe_session(self.cfg.bus), self.cfg.mission.vehicle_id)
+        warning = peer_warning(self.cfg.bus)
+        if warning is not None:
+            log.warning("%s", warning)
+        opening = None
         try:
-            self.session = await loop.run_in_executor(None, open_session, self.cfg.bus)
-            self._declare(loop)
-            log.info("zenoh %s session open (connect %s, listen %s); publishing under "
-                     "pdcov/%s/", self.cfg.bus.mode, list(self.cfg.bus.connect),
-                     list(self.cfg.bus.listen), self.cfg.mission.vehicle_id)
+            if session_mode(self.cfg.bus) == "client":  # waits for a router: in the background
+                opening = asyncio.create_task(self._open_client(loop, self.stop_event))
+            else:
+                self._declare(loop, await loop.run_in_executor(None, open_session,
+                                                               self.cfg.bus))
             if self.cfg.service.retask and bus_security(self.cfg.bus) \
                     is not BusSecurity.MUTUAL_TLS:
                 log.warning("re-tasking is on (service.retask) but this bus is not mutual "
@@ -177,11 +196,37 @@ class Daemon:
             log.info("stopping: writing the checkpoint")
             self.notifier.stopping("pdcov serve: stopping")
         finally:
+            self.stop_event.set()
+            if opening is not None:
+                await opening  # returns within OPEN_ATTEMPT_S once stop is set
             self._shutdown()
         return 0
 
-    def _declare(self, loop: asyncio.AbstractEventLoop) -> None:
-        s = self.session
+    async def _open_client(self, loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> None:
+        """Open the client session and declare everything on it, trying again every
+        OPEN_RETRY_S while no router answers (a peer opens at once); until then the daemon
+        computes and checkpoints, and publishes nothing. (The config itself was checked by
+        describe_session before: what fails here is reaching a router.)"""
+        failures = 0
+        while not stop.is_set():
+            try:
+                session = await loop.run_in_executor(None, open_session, self.cfg.bus,
+                                                     OPEN_ATTEMPT_S)
+            except ConfigError as exc:
+                failures += 1
+                (log.warning if failures == 1 else log.debug)(
+                    "%s; trying again every %.0f s", exc, OPEN_ATTEMPT_S + OPEN_RETRY_S)
+                try:
+                    await asyncio.wait_for(stop.wait(), OPEN_RETRY_S)
+                except asyncio.TimeoutError:
+                    pass
+                continue
+            self._declare(loop, session)
+            return
+
+    def _declare(self, loop: asyncio.AbstractEventLoop, session: Any) -> None:
+        self.session = s = session
+        log.info("zenoh session open")
         self.pub_status = SourcedPublisher(s.declare_publisher(self.keys.status))
         self.pub_tiles = SourcedPublisher(s.declare_publisher(self.keys.tiles))
         self.pub_detections = SourcedPublisher(s.declare_publisher(self.keys.detections))
@@ -343,7 +388,10 @@ class Daemon:
         for level, text in a.logs:
             log.log(level, "%s", text)
 
-    def _put(self, pub: SourcedPublisher, payload: bytes) -> None:
+    def _put(self, pub: SourcedPublisher | None, payload: bytes) -> None:
+        if pub is None:  # no session yet (_open_bus): nobody to publish to
+            self.core.put_failed()
+            return
         try:
             pub.put(payload)
         except Exception as exc:  # noqa: BLE001 - no peer or a closing session: keep going
