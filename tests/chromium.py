@@ -37,12 +37,36 @@ def browser(tmp_path) -> Iterator[Any]:
     for f in FLAGS:
         opts.add_argument(f)
     opts.add_argument(f"--user-data-dir={tmp_path / 'chromium-profile'}")
+    # Every request the page makes (DevTools Network events) and its console, for
+    # requested_urls and console_errors.
+    opts.set_capability("goog:loggingPrefs", {"performance": "ALL", "browser": "ALL"})
     driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
     driver.set_page_load_timeout(30)
     try:
         yield driver
     finally:
         driver.quit()
+
+
+def requested_urls(driver: Any) -> list[str]:
+    """The URLs of every request made since the last call (DevTools
+    Network.requestWillBeSent, blocked ones included), but those of chromium's own pages
+    (chrome://, e.g. the new tab page open before the test's)."""
+    import json
+
+    urls = []
+    for entry in driver.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        if message.get("method") == "Network.requestWillBeSent":
+            params = message["params"]
+            if not params.get("documentURL", "").startswith("chrome://"):
+                urls.append(params["request"]["url"])
+    return urls
+
+
+def console_errors(driver: Any) -> list[str]:
+    """The console's messages of level SEVERE since the last call."""
+    return [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
 
 
 def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str) -> Any:

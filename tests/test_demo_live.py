@@ -90,7 +90,8 @@ def test_two_vehicle_demo_fleet_is_the_sum_and_a_late_watcher_agrees(tmp_path):
     demo = Run(demo_args(out, "--vehicles", "2", speed="5"), tmp_path)
     late = None
     try:
-        router = demo.wait_line(r"following pdcov/\*/ \(client, connect \['([^']+)'\]", 90)[1]
+        router = demo.wait_line(r"following pdcov/\*/ \(client(?: \(auto\))?, connect \[([^],]+)\]",
+                               90)[1]
         # Join when both vehicles are flying and coverage has begun.
         demo.wait_line(r"coverage ([1-9]\d?\.\d)% .*2 vehicles", 120)
         late = Run([sys.executable, "-m", "pdcov.cli", "watch", "--mode", "client",

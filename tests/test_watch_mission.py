@@ -14,6 +14,7 @@ import subprocess
 import sys
 import urllib.request
 
+import numpy as np
 import pytest
 from chromium import wait_for
 from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config
@@ -138,25 +139,21 @@ def test_web_map_in_chromium_outlines_the_domain_without_config(daemon, browser,
         wait_for(lambda: browser.execute_script(
             "return document.getElementById('map').dataset.domainSource"), 30,
             "the domain drawn on the map")
-        source, px, legend = browser.execute_script("""
-            const c = document.getElementById('map');
-            return [c.dataset.domainSource, JSON.parse(c.dataset.domainPx),
+        source, legend = browser.execute_script("""
+            return [document.getElementById('map').dataset.domainSource,
                     document.getElementById('domain-source').textContent];""")
         assert source == legend == "vehicle uav1"
-        assert len(px) == 5
-        # The outline is drawn dark (#111, 2 px wide: the pixel holding an edge's midpoint
-        # is covered whole); north of the obstacle the heat map shows (not that colour).
-        mids = [[(a[0] + b[0]) / 2, (a[1] + b[1]) / 2]
-                for a, b in zip(px[:-1], px[1:], strict=True)]
-        cx = sum(x for x, _ in px[:4]) / 4
-        cy = sum(y for _, y in px[:4]) / 4
-        colours = browser.execute_script("""
-            const c = document.getElementById('map'), ctx = c.getContext('2d');
-            return arguments[0].map(([x, y]) => Array.from(
-                ctx.getImageData(Math.floor(x), Math.floor(y), 1, 1).data));""",
-            [*mids, [cx, cy - 0.3 * abs(px[2][1] - px[0][1])]])
-        for rgba in colours[:4]:
-            assert max(rgba[:3]) <= 40 and rgba[3] == 255, colours
-        assert max(colours[4][:3]) > 40, colours
+        # Drawn from the vehicle's mission reply: its WGS84 rings, on the map as polygons
+        # (the obstacle filled, the boundary outlined).
+        state = map_state(url)
+        shapes = browser.execute_script("""
+            return window.pdcov.layers.domain.getLayers().map((p) => [
+              p.options.fill, p.getLatLngs()[0].map((q) => [q.lat, q.lng])]);""")
+        assert [fill for fill, _ in shapes] == [True, False]
+        for (_, drawn), ring in zip(shapes, [*state["domain"]["obstacles_lat_lon"],
+                                             state["domain"]["boundary_lat_lon"]],
+                                    strict=True):
+            # Leaflet drops the repeated first position.
+            np.testing.assert_allclose(drawn, ring[:-1], atol=1e-9)
         browser.save_screenshot(str(tmp_path / "web-map-mission.png"))
         assert (tmp_path / "web-map-mission.png").stat().st_size > 10_000

@@ -5,22 +5,22 @@ and the right one (query, cookie, bearer); then `pdcov watch --web` as a process
 
 from __future__ import annotations
 
-import asyncio
 import http.client
 import json
 import os
 import re
 import subprocess
 import sys
-import threading
 from http.cookies import SimpleCookie
 from pathlib import Path
 
 import pytest
+from watch_fixtures import ThreadedWebMap
 
 from pdcov.errors import ConfigError
+from pdcov.ground.basemap import open_basemap
 from pdcov.ground.demo import Children
-from pdcov.ground.web import SECURITY_HEADERS, WebMap
+from pdcov.ground.web import SECURITY_HEADERS
 from pdcov.ground.web_auth import (
     TOKEN_ENV,
     Granted,
@@ -105,33 +105,12 @@ def test_token_from_file_environment_or_new(tmp_path):
 
 # --- the real server ---------------------------------------------------------------------
 
-class Server:
-    """A WebMap on 127.0.0.1 (free port) run by an event loop in a thread; stopped in
-    ``close``."""
-
-    def __init__(self, basemap: Path) -> None:
-        self.state = {"version": 7, "vehicles": [], "grid": None}
-        self.loop = asyncio.new_event_loop()
-        self.web = WebMap("127.0.0.1", 0, lambda: self.state, lambda: 7, ACCESS, basemap,
-                          period_s=0.05)
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        asyncio.run_coroutine_threadsafe(self.web.start(), self.loop).result(timeout=10)
-
-    def close(self) -> None:
-        try:
-            asyncio.run_coroutine_threadsafe(self.web.stop(), self.loop).result(timeout=10)
-        finally:
-            self.loop.call_soon_threadsafe(self.loop.stop)
-            self.thread.join(timeout=10)
-            self.loop.close()
-
-
 @pytest.fixture
 def server(tmp_path):
     (tmp_path / "tiles" / "3" / "4").mkdir(parents=True)
     (tmp_path / "tiles" / "3" / "4" / "2.png").write_bytes(b"\x89PNG tile")
-    s = Server(tmp_path / "tiles")
+    s = ThreadedWebMap(lambda: {"version": 7, "vehicles": [], "grid": None}, ACCESS,
+                       open_basemap(tmp_path / "tiles"))
     try:
         yield s
     finally:
@@ -189,11 +168,11 @@ def test_the_right_token_by_query_cookie_or_bearer(server):
             for name, value in SECURITY_HEADERS.items():
                 assert h[name] == value, (path, name)
             if path == "/":
-                assert b"<canvas id=\"map\"" in body
+                assert b"<div id=\"map\"" in body
             elif path == "/state.json":
-                assert json.loads(body) == server.state
+                assert json.loads(body) == server.state()
             elif path == "/events":
-                assert body.startswith(b"data: ") and json.loads(body[6:]) == server.state
+                assert body.startswith(b"data: ") and json.loads(body[6:]) == server.state()
             elif path.startswith("/basemap"):
                 assert body == b"\x89PNG tile"
 
@@ -295,7 +274,12 @@ def test_watch_refuses_a_bad_token_or_options_without_web(tmp_path):
             (["--web", "127.0.0.1:0"], {TOKEN_ENV: "short"}, "PDCOV_WEB_TOKEN: expected a "
              "token of at least 16"),
             (["--web-token-file", str(tmp_path / "t")], {}, "go with --web HOST:PORT"),
-            (["--web-allow-host", "x.example"], {}, "go with --web HOST:PORT")):
+            (["--web-allow-host", "x.example"], {}, "go with --web HOST:PORT"),
+            (["--basemap", str(tmp_path)], {}, "go with --web HOST:PORT"),
+            (["--web", "127.0.0.1:0", "--basemap", str(tmp_path / "none.mbtiles")], {},
+             f"--basemap {tmp_path / 'none.mbtiles'}: no such file or folder"),
+            (["--web", "127.0.0.1:0", "--plan", str(tmp_path / "none.plan")], {},
+             "none.plan")):
         p = subprocess.run([sys.executable, "-m", "pdcov.cli", "watch", *args],
                            capture_output=True, text=True, timeout=60,
                            env={**os.environ, **env})

@@ -168,8 +168,8 @@ def test_the_state_is_rebuilt_after_refresh_s_for_the_ages():
     asyncio.run(run())
 
 
-# The page's script run by node against a stand-in DOM: what the operator sees when an
-# update cannot be read.
+# The page's script run by node against a stand-in DOM and a stand-in Leaflet: what the
+# operator sees when an update cannot be read.
 NODE_HARNESS = r"""
 const fs = require("fs");
 const elements = {};
@@ -185,8 +185,10 @@ function stub(name) {
     },
     set(t, k, v) { store[k] = v; return true; },
     apply() { return stub(name + "()"); },
+    construct() { return stub("new " + name); },
   });
 }
+global.L = stub("L");  // Leaflet: every call answers a stand-in
 global.document = {
   getElementById: (id) => elements[id] || (elements[id] = stub(id)),
   createElement: (tag) => stub(tag),

@@ -253,3 +253,34 @@ def load(path) -> dict[str, np.ndarray]:
     """The arrays of an .npz file."""
     with np.load(path) as z:
         return {k: z[k] for k in z.files}
+
+
+class ThreadedWebMap:
+    """A WebMap on 127.0.0.1 (free port) serving ``state()`` (version 7 throughout), run by
+    an event loop in a thread; stopped, and its basemap closed, in ``close``."""
+
+    def __init__(self, state, access, basemap=None) -> None:
+        import asyncio
+        import threading
+
+        from pdcov.ground.web import WebMap
+
+        self.state = state
+        self.basemap = basemap
+        self.loop = asyncio.new_event_loop()
+        self.web = WebMap("127.0.0.1", 0, state, lambda: 7, access, basemap, period_s=0.05)
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        asyncio.run_coroutine_threadsafe(self.web.start(), self.loop).result(timeout=10)
+
+    def close(self) -> None:
+        import asyncio
+
+        try:
+            asyncio.run_coroutine_threadsafe(self.web.stop(), self.loop).result(timeout=10)
+        finally:
+            self.loop.call_soon_threadsafe(self.loop.stop)
+            self.thread.join(timeout=10)
+            self.loop.close()
+            if self.basemap is not None:
+                self.basemap.close()

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pdcov.errors import ConfigError
 from pdcov.extras import GROUND
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
+
+if TYPE_CHECKING:
+    from pdcov.ground.web import PlanLayer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -48,8 +52,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a host name the web map answers to (repeatable), e.g. the name a "
                         "reverse proxy forwards; IP addresses, localhost and this machine's "
                         "name always are, other names are refused (DNS rebinding)")
-    p.add_argument("--basemap", type=Path, metavar="DIR",
-                   help="XYZ tile folder ({z}/{x}/{y}.png) drawn under the web map")
+    p.add_argument("--basemap", type=Path, metavar="PATH",
+                   help="offline basemap under the web map: a folder of XYZ tiles "
+                        "({z}/{x}/{y}.png or .jpg) or an .mbtiles file")
+    p.add_argument("--plan", action="append", type=Path, metavar="FILE",
+                   help="a mission file (.plan or QGC WPL 110) whose waypoints the web map "
+                        "draws (repeatable)")
     p.add_argument("--record", type=Path, metavar="DIR",
                    help="write what is received, and at the end the grids and the report")
     p.add_argument("--once", action="store_true",
@@ -107,10 +115,10 @@ def run(args: argparse.Namespace) -> int:
 
         access = web_access(web[0], args.web_token_file, args.web_allow_host or (),
                             os.environ, socket.gethostname())
-    elif args.web_token_file is not None or args.web_allow_host:
-        raise ConfigError("--web-token-file and --web-allow-host go with --web HOST:PORT")
-    if args.basemap is not None and not args.basemap.is_dir():
-        raise ConfigError(f"--basemap {args.basemap}: not a folder of XYZ tiles")
+    elif args.web_token_file is not None or args.web_allow_host or args.basemap is not None \
+            or args.plan:
+        raise ConfigError("--web-token-file, --web-allow-host, --basemap and --plan go with "
+                          "--web HOST:PORT")
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
     from pdcov.planning.refly import ReflySettings
@@ -125,9 +133,17 @@ def run(args: argparse.Namespace) -> int:
     if mission is not None:
         settings = ReflySettings(args.target_pd if args.target_pd is not None
                                  else max(mission.thresholds))
+    plans: tuple[PlanLayer, ...] = ()
+    basemap = None
+    if web is not None:
+        from pdcov.ground.basemap import open_basemap
+        from pdcov.ground.web import plan_layer
+
+        plans = tuple(plan_layer(p) for p in args.plan or ())
+        basemap = None if args.basemap is None else open_basemap(args.basemap)
     return run_watch(WatchOptions(
         bus=bus, vehicle=vehicle, mission=mission, web=web, web_access=access,
-        basemap=args.basemap,
+        basemap=basemap, plans=plans,
         record=args.record, once=args.once, wait_s=args.wait_s,
         plain=args.plain or not stdout_is_terminal(), refly=args.refly,
         refly_settings=settings, yes=args.yes))

@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pdcov.bus.grid_state import grid_hash
 from pdcov.bus.session import (
@@ -23,6 +23,7 @@ from pdcov.bus.session import (
 )
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
+from pdcov.ground.basemap import Basemap
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
@@ -42,20 +43,26 @@ from pdcov.planning.scenario import scenario_of
 QUIET_AFTER_S = 10.0
 """A session connected this long without hearing a vehicle says why that may be."""
 
+if TYPE_CHECKING:
+    from pdcov.ground.web import PlanLayer
+
 
 @dataclass(frozen=True, slots=True)
 class WatchOptions:
     """vehicle: one id or None (all). web: (host, port) or None; web_access: who may read
     the web map (ground/web_auth.py; required with web). once: print one report
     when every vehicle seen has its grid (or after wait_s) and exit. plain: one headline
-    line per change instead of the live table (set when stdout is not a terminal)."""
+    line per change instead of the live table (set when stdout is not a terminal).
+    basemap: the tiles under the web map (closed when the watcher ends); plans: the plans
+    it draws."""
 
     bus: BusConfig
     vehicle: str | None = None
     mission: Mission | None = None
     web: tuple[str, int] | None = None
     web_access: WebAccess | None = None
-    basemap: Path | None = None
+    basemap: Basemap | None = None
+    plans: tuple[PlanLayer, ...] = ()
     record: Path | None = None
     once: bool = False
     wait_s: float = 10.0
@@ -149,12 +156,12 @@ async def _main(opts: WatchOptions) -> int:
 
     web = None
     if opts.web is not None and opts.web_access is not None:  # both or neither
-        from pdcov.ground.web import WebMap, basemap_info, map_state
+        from pdcov.ground.web import WebMap, map_state
 
-        basemap = basemap_info(opts.basemap)
+        basemap = None if opts.basemap is None else opts.basemap.info.as_json()
         web = WebMap(opts.web[0], opts.web[1],
                      lambda: map_state(watcher, report(), opts.mission, shell.version,
-                                       basemap, config_hash,
+                                       basemap, config_hash, opts.plans,
                                        desk.current if desk else None,
                                        desk.outcome if desk else None),
                      lambda: shell.version, opts.web_access, opts.basemap, desk=desk)
@@ -185,6 +192,8 @@ async def _main(opts: WatchOptions) -> int:
         finally:
             if web is not None:
                 await web.stop()
+            if opts.basemap is not None:
+                opts.basemap.close()
             if recording is not None:
                 recording.close()
                 for line in recording.finish(watcher, opts.mission):

@@ -6,12 +6,16 @@ being framed, sniffed or cached and its address from leaking as a Referer.
 
 aiohttp earns its place: HTTP/1.1 parsing, streaming responses and clean shutdown are its
 job, and a hand-written server on a ground-station laptop would be one more thing to get
-wrong. The state holds the fleet's P_D grid (quantised to 0..255, down-sampled to at most
-MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles of the grid
-shown (``domain_layer``: from the mission config when it describes that grid, else from the
-vehicles' mission replies), each vehicle's track and current footprint in ENU metres, the
-figures of the terminal view, and the re-fly proposed (``refly``: waypoints and gap rings as
-[lat, lon]; ``gaps``: its gap rings) with the outcome of the last one sent.
+wrong. The state holds what the page draws, in WGS84 latitude/longitude as Leaflet
+(vendored in ground/web/vendor/leaflet) wants it: the fleet's P_D grid (quantised, down-sampled
+to at most MAX_SIDE cells a side by taking each block's maximum, resampled onto web Mercator:
+ground/map_layers.py) with the outline of its cells at the target P_D, the domain and
+obstacles of the grid shown (``domain_layer``: from the mission config when it describes that
+grid, else from the vehicles' mission replies), the plans given with ``--plan``, each
+vehicle's track and current footprint, and the figures of the terminal view; per vehicle
+``candidates`` when the watcher has them; the re-fly proposed (``refly``: waypoints and gap
+rings as [lat, lon]; ``gaps``: its gap rings) with the outcome of the last one sent
+(docs/ground-station.md "Web map").
 
 Re-tasking (ground/retask.py, docs/ground-station.md "Re-tasking"): ``POST /api/refly``
 {vehicle, target_pd} proposes a re-fly of the merged grid's gaps (answered with the
@@ -38,23 +42,44 @@ import numpy as np
 
 from pdcov.bus.json_doc import finite_or_null
 from pdcov.config import Mission
-from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.errors import PdcovError
+from pdcov.core.geodesy import Origin
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT
+from pdcov.errors import InputFileError, PdcovError
+from pdcov.ground.basemap import Basemap
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport
+from pdcov.ground.map_layers import (
+    MAX_OUTLINE_SEGMENTS,
+    NOT_FREE,
+    PD_LEVELS,
+    mercator_raster,
+    outline_segments_xy,
+    rings_lat_lon,
+    segments_lat_lon,
+)
 from pdcov.ground.retask import ReflyProposal
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import Granted, WebAccess, post_allowed
+from pdcov.planning.plan import read_mission
 
 if TYPE_CHECKING:  # the desk is handed in (ground/app.py)
     from pdcov.ground.app import ReflyDesk
 
 log = logging.getLogger("pdcov.watch")
 MAX_SIDE = 400
+LEAFLET = "vendor/leaflet/"
 ASSETS = {"/": ("index.html", "text/html"), "/app.js": ("app.js", "text/javascript"),
-          "/style.css": ("style.css", "text/css")}
+          "/style.css": ("style.css", "text/css"),
+          f"/{LEAFLET}leaflet.js": (f"{LEAFLET}leaflet.js", "text/javascript"),
+          f"/{LEAFLET}leaflet.css": (f"{LEAFLET}leaflet.css", "text/css"),
+          **{f"/{LEAFLET}images/{n}.png": (f"{LEAFLET}images/{n}.png", "image/png")
+             for n in ("layers", "layers-2x", "marker-icon", "marker-icon-2x",
+                       "marker-shadow")}}
+# blob: images: the page turns the state's heat map into an image it made itself
+# (app.js heatImage); nothing else than this server's own paths.
 SECURITY_HEADERS = {
-    "Content-Security-Policy": "default-src 'self'; frame-ancestors 'none'",
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' blob:; "
+                               "frame-ancestors 'none'",
     "X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
     "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
 COLORS = ("#e6194b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#3cb44b",
@@ -75,32 +100,48 @@ def _origin(feed: VehicleFeed) -> Origin | None:
         return None
 
 
-def _enu_xy(lat_lon: list[tuple[float, float]], origin: Origin) -> list[list[float]]:
-    if not lat_lon:
-        return []
-    a = np.asarray(lat_lon, dtype=float)
-    r = geodetic_to_enu(a[:, 0], a[:, 1], origin.ground_alt_msl_m, origin)
-    return [[round(float(x), 2), round(float(y), 2)] for x, y in r[:, :2]]
+def _lat_lon(points: Any) -> list[list[float]]:
+    """[lat, lon] pairs (degrees, 1e-8: a millimetre) of (lat, lon, ...) tuples."""
+    return [[round(float(p[0]), 8), round(float(p[1]), 8)] for p in points]
 
 
 def _ring_xy(ring: Any) -> list[list[float]]:
     return [[round(float(x), 2), round(float(y), 2)] for x, y in list(ring)]
 
 
-def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any) -> dict[str, Any]:
-    """The heat map: P_D quantised to 0..254 per (block of) cells, 255 outside free space;
-    rows from south (row 0) to north; ``stride`` cells per shown cell."""
+def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any, origin: Origin,
+                 target: float | None) -> dict[str, Any]:
+    """The heat map: P_D quantised to 0..PD_LEVELS per (block of) cells, NOT_FREE outside
+    free space, resampled onto web Mercator (map_layers.mercator_raster: rows from the
+    north, OFF_GRID outside the grid, ``bounds_lat_lon`` [[south, west], [north, east]]);
+    ``stride`` cells per shown cell. ``outline_lat_lon``: segments [[lat, lon], [lat, lon]]
+    around the shown cells at or above ``target`` (None with ``outline_note`` when there is
+    no target or more than MAX_OUTLINE_SEGMENTS)."""
     n_rows, n_cols = mask.shape
     stride = max(1, math.ceil(max(n_rows, n_cols) / MAX_SIDE))
     h, w = math.ceil(n_rows / stride), math.ceil(n_cols / stride)
-    q = np.where(mask, np.rint(np.clip(pd, 0.0, 1.0) * 254.0), -1.0)
     padded = np.full((h * stride, w * stride), -1.0)
-    padded[:n_rows, :n_cols] = q
+    padded[:n_rows, :n_cols] = np.where(mask, np.clip(pd, 0.0, 1.0), -1.0)
     blocks = padded.reshape(h, stride, w, stride).max(axis=(1, 3))
-    data = np.where(blocks < 0, 255, blocks).astype(np.uint8)
-    return {"x0_m": geometry.x0_m, "y0_m": geometry.y0_m,
-            "cell_size_m": geometry.cell_size_m * stride, "w": w, "h": h, "stride": stride,
-            "pd_b64": base64.b64encode(data.tobytes()).decode()}
+    q = np.where(blocks < 0, NOT_FREE, np.rint(np.maximum(blocks, 0) * PD_LEVELS)) \
+        .astype(np.uint8)
+    cell_m = geometry.cell_size_m * stride
+    bounds, raster = mercator_raster(q, geometry.x0_m, geometry.y0_m, cell_m, origin)
+    outline, note = None, None
+    if target is None:
+        note = "no target P_D: no outline"
+    else:
+        segments = outline_segments_xy(blocks >= target, geometry.x0_m, geometry.y0_m,
+                                       cell_m)
+        if len(segments) > MAX_OUTLINE_SEGMENTS:
+            note = (f"the outline at P_D >= {target} has {len(segments)} edges (more than "
+                    f"{MAX_OUTLINE_SEGMENTS}): not drawn")
+        else:
+            outline = segments_lat_lon(segments, origin)
+    return {"cell_size_m": cell_m, "stride": stride, "w": raster.shape[1],
+            "h": raster.shape[0], "bounds_lat_lon": bounds, "pd_levels": PD_LEVELS,
+            "pd_b64": base64.b64encode(raster.tobytes()).decode(),
+            "outline_threshold": target, "outline_lat_lon": outline, "outline_note": note}
 
 
 def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | None,
@@ -112,9 +153,13 @@ def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | Non
     grid is never drawn over it: the note says so."""
     if mission is not None and (grid_hash is None or config_grid_hash == grid_hash):
         d = mission.domain
+        boundary = _ring_xy(d.boundary.exterior.coords)
+        obstacles = [_ring_xy(p.exterior.coords) for p in d.obstacles]
+        (boundary_ll, *obstacles_ll) = rings_lat_lon([boundary, *obstacles],
+                                                     mission.origin())
         return ({"source": "--config", "grid_hash": config_grid_hash,
-                 "boundary": _ring_xy(d.boundary.exterior.coords),
-                 "obstacles": [_ring_xy(p.exterior.coords) for p in d.obstacles]}, None)
+                 "boundary": boundary, "obstacles": obstacles,
+                 "boundary_lat_lon": boundary_ll, "obstacles_lat_lon": obstacles_ll}, None)
     note = None
     if mission is not None:
         note = (f"--config {mission.source or ''} describes grid {config_grid_hash}, the "
@@ -127,29 +172,55 @@ def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | Non
         return None, note
     return ({"source": f"vehicle {m.vehicle_id}", "grid_hash": m.grid_hash,
              "boundary": _ring_xy(m.boundary_enu_m),
-             "obstacles": [_ring_xy(r) for r in m.obstacles_enu_m]}, note)
+             "obstacles": [_ring_xy(r) for r in m.obstacles_enu_m],
+             "boundary_lat_lon": _lat_lon((lat, lon) for lon, lat in m.boundary_lon_lat_deg),
+             "obstacles_lat_lon": [_lat_lon((lat, lon) for lon, lat in r)
+                                   for r in m.obstacles_lon_lat_deg]}, note)
+
+
+@dataclass(frozen=True, slots=True)
+class PlanLayer:
+    """A plan drawn on the map (``pdcov watch --plan FILE``): where it came from and its
+    waypoints as (lat_deg, lon_deg), in flying order."""
+
+    source: str
+    waypoints_lat_lon: tuple[tuple[float, float], ...]
+
+    def as_json(self) -> dict[str, Any]:
+        return {"source": self.source, "waypoints_lat_lon": _lat_lon(self.waypoints_lat_lon)}
+
+
+def plan_layer(path: Path) -> PlanLayer:
+    """The waypoints (MAV_CMD_NAV_WAYPOINT items) of a ``.plan`` or WPL 110 mission file;
+    InputFileError when it cannot be read or has none."""
+    items = read_mission(path).items
+    points = tuple((it.lat_deg, it.lon_deg) for it in items
+                   if it.command == MAV_CMD_NAV_WAYPOINT)
+    if not points:
+        raise InputFileError(f"--plan {path}: no waypoints (MAV_CMD_NAV_WAYPOINT items) in it")
+    return PlanLayer(str(path), points)
 
 
 def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
               version: int, basemap: dict[str, Any] | None,
-              config_grid_hash: str | None = None, refly: ReflyProposal | None = None,
+              config_grid_hash: str | None = None,
+              plans: tuple[PlanLayer, ...] = (), refly: ReflyProposal | None = None,
               refly_outcome: str | None = None) -> dict[str, Any]:
-    """Everything the page draws, as JSON-ready values. config_grid_hash: the grid hash
-    of ``mission``'s grid (see domain_layer); refly: the re-fly proposed, refly_outcome:
-    the line of the last one sent."""
+    """Everything the page draws, as JSON-ready values; positions [lat_deg, lon_deg].
+    config_grid_hash: the grid hash of ``mission``'s grid (see domain_layer); refly: the
+    re-fly proposed, refly_outcome: the line of the last one sent."""
     merged, _ = watcher.fleet_state()
     vehicles = []
     origin = None
     for k, v in enumerate(report.vehicles):
         feed = watcher.feeds[v.vehicle_id]
         o = _origin(feed)
-        origin = origin or o
+        if o is not None and (origin is None or v.vehicle_id in report.merged[:1]):
+            origin = o  # the fleet grid's frame: its first vehicle's origin
         footprint = None
         geom = (feed.footprint or {}).get("geometry")
-        if o is not None and isinstance(geom, dict):
-            footprint = _enu_xy([(lat, lon) for lon, lat in geom["coordinates"][0]], o)
-        track = _enu_xy([(lat, lon) for lat, lon, _ in feed.track_lat_lon_alt], o) if o \
-            else []
+        if isinstance(geom, dict):
+            footprint = _lat_lon((lat, lon) for lon, lat in geom["coordinates"][0])
         vehicles.append({
             "id": v.vehicle_id, "color": COLORS[k % len(COLORS)], "alive": v.alive,
             "grid_ready": v.grid_ready, "link": v.link, "age_s": v.age_s,
@@ -157,22 +228,26 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
             "proportion": {str(t): p for t, p in v.proportion_at_or_above.items()},
             "status_proportion": {str(t): p
                                   for t, p in v.status_proportion_at_or_above.items()},
-            "mean_pd": v.mean_pd, "track": track, "footprint": footprint})
+            "mean_pd": v.mean_pd, "track_lat_lon": _lat_lon(feed.track_lat_lon_alt),
+            "footprint_lat_lon": footprint})
     domain, note = domain_layer(watcher, None if merged is None else merged.hash, mission,
                                 config_grid_hash)
     if origin is None and domain is not None:
         origin = (mission.origin() if domain["source"] == "--config" and mission is not None
                   else _mission_origin(watcher, domain["grid_hash"]))
+    grid = None
+    if merged is not None and origin is not None:
+        grid = grid_payload(merged.pd, merged.mask, merged.geometry, origin, report.target)
     return {
         "version": version,
         "fleet": {"target": report.target, "thresholds": list(report.thresholds),
                   "proportion": {str(t): p for t, p in report.proportion_at_or_above.items()},
                   "mean_pd": report.mean_pd, "merged": list(report.merged),
                   "cells_free": report.cells_free},
-        "grid": None if merged is None else grid_payload(merged.pd, merged.mask,
-                                                         merged.geometry),
+        "grid": grid,
         "domain": domain,
         "domain_note": note,
+        "plans": [p.as_json() for p in plans],
         "warnings": list(report.warnings),
         "vehicles": vehicles,
         "origin": None if origin is None else {"lat_deg": origin.lat_deg,
@@ -189,20 +264,6 @@ def _mission_origin(watcher: Watcher, grid_hash: str) -> Origin | None:
     m = watcher.mission_for(grid_hash)
     return None if m is None else Origin(m.origin_lat_deg, m.origin_lon_deg,
                                          m.ground_alt_msl_m or 0.0)
-
-
-def basemap_info(folder: Path | None) -> dict[str, Any] | None:
-    """The zoom levels and image type of an XYZ tile folder ({z}/{x}/{y}.png|jpg)."""
-    if folder is None:
-        return None
-    zooms = sorted(int(p.name) for p in folder.iterdir() if p.is_dir() and p.name.isdigit())
-    ext = "png"
-    for z in zooms:
-        found = next(iter(sorted((folder / str(z)).glob("*/*.*"))), None)
-        if found is not None:
-            ext = found.suffix.lstrip(".")
-            break
-    return {"zooms": zooms, "ext": ext}
 
 
 def state_json(state: dict[str, Any]) -> bytes:
@@ -228,13 +289,13 @@ class WebMap:
 
     def __init__(self, host: str, port: int, state: Callable[[], dict[str, Any]],
                  version: Callable[[], int], access: WebAccess,
-                 basemap_dir: Path | None = None, period_s: float = 0.5,
+                 basemap: Basemap | None = None, period_s: float = 0.5,
                  refresh_s: float = 2.0, desk: ReflyDesk | None = None) -> None:
         self.host, self.port = host, port
         self.desk = desk
         self.access = access
         self.state, self.version = state, version
-        self.basemap_dir = basemap_dir
+        self.basemap = basemap
         self.period_s = period_s
         self.refresh_s = refresh_s
         self._runner: Any = None
@@ -419,14 +480,16 @@ class WebMap:
         return self._answer(200, {"id": proposal_id, "accepted": accepted, "line": line})
 
     async def _basemap(self, request: Any) -> Any:
+        """/basemap/{z}/{x}/{y}[.ext] (y from the north): the tile, 404 when the set has none."""
         from aiohttp import web
 
         z, x, y = (request.match_info[k] for k in ("z", "x", "y"))
-        stem, _, ext = y.partition(".")
-        if self.basemap_dir is None or not all(s.isdigit() for s in (z, x, stem)) \
-                or ext not in ("png", "jpg", "jpeg", "webp"):
+        stem, dot, ext = y.partition(".")
+        found = None
+        if self.basemap is not None and all(s.isascii() and s.isdigit() and len(s) < 12
+                                            for s in (z, x, stem)):
+            found = self.basemap.tile(int(z), int(x), int(stem), ext if dot else None)
+        if found is None:
             raise web.HTTPNotFound()
-        path = self.basemap_dir / z / x / f"{stem}.{ext}"
-        if not path.is_file():
-            raise web.HTTPNotFound()
-        return web.FileResponse(path)
+        data, ctype = found
+        return web.Response(body=data, content_type=ctype)

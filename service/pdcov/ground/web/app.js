@@ -1,12 +1,14 @@
-// pdcov watch: draws the state pushed on /events (server-sent events) on a canvas.
-// Coordinates are local ENU metres (east x, north y) about the mission origin.
+// pdcov watch: the state pushed on /events (server-sent events) drawn with Leaflet
+// (vendor/leaflet, served by pdcov itself: nothing comes from the network). Every position
+// in the state is [lat_deg, lon_deg] (WGS84); the heat map arrives already resampled onto
+// web Mercator (service/pdcov/ground/map_layers.py) and is laid on its bounds as an image.
+//
+// For other parts of the page (docs/ground-station.md "Web map"): window.pdcov holds the
+// Leaflet map, its layer groups, the element #pdcov-controls where operator actions go,
+// state() (the last state drawn) and onUpdate(fn) (fn(state) after each state is drawn).
 "use strict";
 
-const mapCanvas = document.getElementById("map");
-const ctx = mapCanvas.getContext("2d");
-let state = null;
-const tileCache = new Map();
-
+const PD_NOT_FREE = 254, PD_OFF_GRID = 255;
 // A perceptual colour scale (viridis, 9 stops) for P_D in [0, 1].
 const STOPS = [[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
                [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37]];
@@ -20,140 +22,223 @@ function pct(share) {
   return share === null || share === undefined ? "-" : (100 * share).toFixed(1) + " %";
 }
 
-// The view: ENU extent of the grid (or domain) fitted into the canvas, north up.
-function view() {
-  let xs = [], ys = [];
-  if (state.grid) {
-    const g = state.grid;
-    xs.push(g.x0_m, g.x0_m + g.w * g.cell_size_m);
-    ys.push(g.y0_m, g.y0_m + g.h * g.cell_size_m);
+function fixed(x, digits) {
+  return typeof x === "number" ? x.toFixed(digits) : "-";
+}
+
+let state = null;
+const listeners = [];
+const mapElement = document.getElementById("map");
+const map = L.map(mapElement, {maxZoom: 24, zoomSnap: 0.25});
+map.setView([0, 0], 2);
+map.attributionControl.setPrefix("Leaflet");
+L.control.scale({metric: true, imperial: false, maxWidth: 160}).addTo(map);
+const outlineRenderer = L.canvas();  // the outline may hold thousands of edges
+
+const LAYER_NAMES = {
+  heat: "P_D heat map", outline: "outline at the target P_D", domain: "domain and obstacles",
+  plans: "plan waypoints", tracks: "tracks", footprints: "footprints now",
+  candidates: "detection candidates", gaps: "gaps to re-fly", refly: "re-fly path proposed"};
+const layers = {};
+const overlays = {};
+for (const [key, name] of Object.entries(LAYER_NAMES)) {
+  layers[key] = L.layerGroup().addTo(map);
+  overlays[name] = layers[key];
+}
+const layerControl = L.control.layers(null, overlays, {collapsed: false}).addTo(map);
+
+window.pdcov = Object.freeze({
+  map, layers, layerControl,
+  controls: document.getElementById("pdcov-controls"),
+  state: () => state,
+  onUpdate: (fn) => { listeners.push(fn); },
+});
+
+// Text only: names and classes come from the bus, never parsed as HTML.
+function el(tag, text, cls) {
+  const e = document.createElement(tag);
+  if (text !== undefined) e.textContent = text;
+  if (cls) e.className = cls;
+  return e;
+}
+
+// -- the offline basemap (pdcov watch --basemap): asked of pdcov's /basemap/{z}/{x}/{y}.
+let basemapLayer = null;
+function showBasemap(b) {
+  if (basemapLayer || !b || !b.zooms.length) return;
+  // Shown from 3 levels below its coarsest tiles (scaled down: 64 tiles a tile at most),
+  // up to 24 (its finest scaled up); hidden when zoomed out further.
+  basemapLayer = L.tileLayer(`basemap/{z}/{x}/{y}.${b.ext}`, {
+    minNativeZoom: b.zooms[0], maxNativeZoom: b.zooms[b.zooms.length - 1],
+    minZoom: Math.max(0, b.zooms[0] - 3), maxZoom: 24,
+    attribution: b.attribution ? el("span", b.attribution).innerHTML : ""});
+  basemapLayer.addTo(map);
+  layerControl.addOverlay(basemapLayer, `basemap (${b.name})`);
+}
+
+// -- the heat map: the state's P_D codes painted into an image of the page's own making.
+let heatOverlay = null, heatKey = null, heatSeq = 0;
+function showHeat(g) {
+  if (!g) {
+    layers.heat.clearLayers();
+    heatOverlay = null; heatKey = null;
+    return;
   }
-  if (state.domain) for (const [x, y] of state.domain.boundary) { xs.push(x); ys.push(y); }
-  for (const v of state.vehicles) for (const [x, y] of v.track) { xs.push(x); ys.push(y); }
-  if (!xs.length) { xs = [-50, 50]; ys = [-50, 50]; }
-  const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
-  const pad = 0.05 * Math.max(x1 - x0, y1 - y0, 1);
-  const W = mapCanvas.width, H = mapCanvas.height;
-  const scale = Math.min(W / (x1 - x0 + 2 * pad), H / (y1 - y0 + 2 * pad));
-  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
-  return {scale, px: (x) => W / 2 + (x - cx) * scale, py: (y) => H / 2 - (y - cy) * scale};
-}
-
-function path(points, v) {
-  ctx.beginPath();
-  points.forEach(([x, y], i) => (i ? ctx.lineTo(v.px(x), v.py(y)) : ctx.moveTo(v.px(x), v.py(y))));
-}
-
-// Optional basemap: XYZ (web Mercator) tiles from the folder pdcov serves, placed in ENU by a
-// local equirectangular approximation about the origin (good to centimetres over a few km).
-function drawBasemap(v) {
-  const b = state.basemap, o = state.origin;
-  if (!b || !o || !b.zooms.length) return;
-  const R = 6378137, lat0 = o.lat_deg * Math.PI / 180;
-  const toEnu = (lat, lon) => [(lon - o.lon_deg) * Math.PI / 180 * R * Math.cos(lat0),
-                               (lat - o.lat_deg) * Math.PI / 180 * R];
-  const mpp = 1 / v.scale;  // metres per screen pixel
-  let z = b.zooms[0];
-  for (const zz of b.zooms) if (2 * Math.PI * R * Math.cos(lat0) / (256 * 2 ** zz) >= mpp / 1.5) z = zz;
-  const n = 2 ** z;
-  const tileX = (lon) => Math.floor((lon + 180) / 360 * n);
-  const tileY = (lat) => { const r = lat * Math.PI / 180;
-    return Math.floor((1 - Math.log(Math.tan(r) + 1 / Math.cos(r)) / Math.PI) / 2 * n); };
-  const lonOf = (x) => x / n * 360 - 180;
-  const latOf = (y) => Math.atan(Math.sinh(Math.PI * (1 - 2 * y / n))) * 180 / Math.PI;
-  const W = mapCanvas.width, H = mapCanvas.height;
-  const corner = (px, py) => {  // screen -> lat, lon
-    const x = (px - v.px(0)) / v.scale, y = (v.py(0) - py) / v.scale;
-    return [o.lat_deg + y / R * 180 / Math.PI, o.lon_deg + x / (R * Math.cos(lat0)) * 180 / Math.PI];
-  };
-  const [latN, lonW] = corner(0, 0), [latS, lonE] = corner(W, H);
-  for (let tx = tileX(lonW); tx <= tileX(lonE); tx++) {
-    for (let ty = tileY(latN); ty <= tileY(latS); ty++) {
-      const url = `basemap/${z}/${tx}/${ty}.${b.ext}`;
-      let img = tileCache.get(url);
-      if (!img) { img = new Image(); img.onload = draw; img.src = url; tileCache.set(url, img); }
-      if (!img.complete || !img.naturalWidth) continue;
-      const [xa, ya] = toEnu(latOf(ty), lonOf(tx)), [xb, yb] = toEnu(latOf(ty + 1), lonOf(tx + 1));
-      ctx.drawImage(img, v.px(xa), v.py(ya), v.px(xb) - v.px(xa), v.py(yb) - v.py(ya));
-    }
-  }
-}
-
-function drawGrid(v) {
-  const g = state.grid;
-  if (!g) return;
+  const key = g.pd_b64 + JSON.stringify(g.bounds_lat_lon);
+  if (key === heatKey) return;
+  heatKey = key;
   const bytes = Uint8Array.from(atob(g.pd_b64), (c) => c.charCodeAt(0));
-  const off = document.createElement("canvas");
-  off.width = g.w; off.height = g.h;
-  const octx = off.getContext("2d"), img = octx.createImageData(g.w, g.h);
-  for (let r = 0; r < g.h; r++) {
-    for (let c = 0; c < g.w; c++) {
-      const q = bytes[r * g.w + c], k = 4 * ((g.h - 1 - r) * g.w + c);  // row 0 is south
-      if (q === 255) { img.data.set([119, 119, 119, 200], k); continue; }
-      const [R, G, B] = colour(q / 254);
-      img.data.set([R, G, B, 215], k);
-    }
+  const canvas = document.createElement("canvas");
+  canvas.width = g.w; canvas.height = g.h;
+  const cx = canvas.getContext("2d"), img = cx.createImageData(g.w, g.h);
+  for (let k = 0; k < bytes.length; k++) {  // rows from the north, as the image's
+    const q = bytes[k];
+    if (q === PD_OFF_GRID) continue;  // transparent
+    const rgba = q === PD_NOT_FREE ? [119, 119, 119, 170] : [...colour(q / g.pd_levels), 215];
+    img.data.set(rgba, 4 * k);
   }
-  octx.putImageData(img, 0, 0);
-  ctx.imageSmoothingEnabled = false;
-  const x1 = g.x0_m + g.w * g.cell_size_m, y1 = g.y0_m + g.h * g.cell_size_m;
-  ctx.drawImage(off, v.px(g.x0_m), v.py(y1), v.px(x1) - v.px(g.x0_m), v.py(g.y0_m) - v.py(y1));
+  cx.putImageData(img, 0, 0);
+  const seq = ++heatSeq;
+  canvas.toBlob((blob) => {
+    if (seq !== heatSeq) return;  // a newer heat map is on its way
+    const url = URL.createObjectURL(blob);
+    if (heatOverlay) {
+      const old = heatOverlay.getElement().src;
+      heatOverlay.once("load", () => URL.revokeObjectURL(old));
+      heatOverlay.setUrl(url).setBounds(L.latLngBounds(g.bounds_lat_lon));
+    } else {
+      heatOverlay = L.imageOverlay(url, g.bounds_lat_lon, {className: "pd-layer"});
+      layers.heat.addLayer(heatOverlay);
+    }
+    mapElement.dataset.heatVersion = String(state ? state.version : "");
+  });
 }
 
-function draw() {
-  if (!state) return;
-  ctx.clearRect(0, 0, mapCanvas.width, mapCanvas.height);
-  const v = view();
-  drawBasemap(v);
-  drawGrid(v);
-  if (state.domain) {
-    for (const ob of state.domain.obstacles) {
-      path(ob, v); ctx.closePath(); ctx.fillStyle = "rgba(80,80,80,0.8)"; ctx.fill();
-    }
-    path(state.domain.boundary, v); ctx.closePath();
-    ctx.lineWidth = 2; ctx.strokeStyle = "#111"; ctx.stroke();
-    // What was drawn, for tests and the curious: the source and the outline in canvas pixels.
-    mapCanvas.dataset.domainSource = state.domain.source;
-    mapCanvas.dataset.domainPx = JSON.stringify(state.domain.boundary.map(([x, y]) => [v.px(x), v.py(y)]));
-  } else {
-    delete mapCanvas.dataset.domainSource;
-    delete mapCanvas.dataset.domainPx;
-  }
-  for (const veh of state.vehicles) {
-    ctx.strokeStyle = veh.color;
-    if (veh.track.length > 1) { path(veh.track, v); ctx.lineWidth = 2; ctx.setLineDash([]); ctx.stroke(); }
-    if (veh.footprint) {
-      path(veh.footprint, v); ctx.closePath(); ctx.lineWidth = 2; ctx.setLineDash([6, 4]);
-      ctx.stroke(); ctx.setLineDash([]);
-    }
-    if (veh.track.length) {
-      const [x, y] = veh.track[veh.track.length - 1];
-      ctx.beginPath(); ctx.arc(v.px(x), v.py(y), 5, 0, 2 * Math.PI);
-      ctx.fillStyle = veh.color; ctx.fill();
-      ctx.fillStyle = "#000"; ctx.font = "12px sans-serif"; ctx.fillText(veh.id, v.px(x) + 7, v.py(y) - 7);
-    }
-  }
-  drawRefly(v);
-  // scale bar
-  const metres = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000].find((m) => m * v.scale > 60) || 10000;
-  const y = mapCanvas.height - 12;
-  ctx.strokeStyle = "#000"; ctx.lineWidth = 3; ctx.beginPath(); ctx.moveTo(12, y);
-  ctx.lineTo(12 + metres * v.scale, y); ctx.stroke();
-  ctx.fillStyle = "#000"; ctx.font = "12px sans-serif"; ctx.fillText(`${metres} m`, 16, y - 6);
+function showOutline(g) {
+  layers.outline.clearLayers();
+  if (!g || !g.outline_lat_lon || !g.outline_lat_lon.length) return;
+  const opts = {renderer: outlineRenderer, interactive: false};
+  layers.outline.addLayer(L.polyline(g.outline_lat_lon, {...opts, color: "#222", weight: 4}));
+  layers.outline.addLayer(L.polyline(g.outline_lat_lon, {...opts, color: "#fff", weight: 2}));
 }
 
-// The re-fly proposed ([lat, lon] pairs), in ENU by the equirectangular approximation about
-// the origin the basemap uses: its gap outlines and its path.
-function drawRefly(v) {
-  const r = state.refly, o = state.origin;
-  if (!r || !o) return;
-  const R = 6378137, lat0 = o.lat_deg * Math.PI / 180;
-  const enu = (pts) => pts.map(([lat, lon]) => [(lon - o.lon_deg) * Math.PI / 180 * R * Math.cos(lat0),
-                                               (lat - o.lat_deg) * Math.PI / 180 * R]);
-  ctx.strokeStyle = "#d6008f"; ctx.lineWidth = 2;
-  for (const ring of r.gaps) { path(enu(ring), v); ctx.closePath(); ctx.stroke(); }
-  ctx.setLineDash([4, 3]); path(enu(r.waypoints), v); ctx.stroke(); ctx.setLineDash([]);
-  mapCanvas.dataset.reflyId = r.id;
+function showDomain(d) {
+  layers.domain.clearLayers();
+  if (!d) {
+    delete mapElement.dataset.domainSource;
+    return;
+  }
+  for (const ob of d.obstacles_lat_lon) {
+    layers.domain.addLayer(L.polygon(ob, {stroke: false, fillColor: "#505050",
+                                          fillOpacity: 0.7, interactive: false}));
+  }
+  layers.domain.addLayer(L.polygon(d.boundary_lat_lon, {fill: false, color: "#111",
+                                                        weight: 2, interactive: false}));
+  mapElement.dataset.domainSource = d.source;
+}
+
+function showPlans(plans) {
+  layers.plans.clearLayers();
+  for (const p of plans || []) {
+    layers.plans.addLayer(L.polyline(p.waypoints_lat_lon, {color: "#222", weight: 2,
+                                                           dashArray: "6 4"}));
+    p.waypoints_lat_lon.forEach((w, k) => layers.plans.addLayer(
+      L.circleMarker(w, {radius: 4, color: "#222", weight: 1, fillColor: "#fff",
+                         fillOpacity: 1})
+        .bindTooltip(el("span", `waypoint ${k + 1} of ${p.source}`))));
+  }
+}
+
+function showVehicles(vehicles) {
+  layers.tracks.clearLayers();
+  layers.footprints.clearLayers();
+  for (const v of vehicles) {
+    if (v.track_lat_lon.length > 1) {
+      layers.tracks.addLayer(L.polyline(v.track_lat_lon, {color: v.color, weight: 2}));
+    }
+    if (v.track_lat_lon.length) {
+      layers.tracks.addLayer(L.circleMarker(v.track_lat_lon[v.track_lat_lon.length - 1], {
+        radius: 6, color: "#000", weight: 1, fillColor: v.color, fillOpacity: 1})
+        .bindTooltip(el("span", v.id), {permanent: true, direction: "right"}));
+    }
+    if (v.footprint_lat_lon) {
+      layers.footprints.addLayer(L.polygon(v.footprint_lat_lon, {
+        color: v.color, weight: 2, dashArray: "6 4", fill: false, interactive: false}));
+    }
+  }
+}
+
+// -- detection candidates: kept by vehicle and id, so that an open popup stays open.
+const candidates = new Map();
+function seenText(c) {
+  const times = (n) => `${n} time${n === 1 ? "" : "s"}`;
+  return `seen ${times(c.looks)}, detected ${c.hits}`;
+}
+function candidatePopup(v, c) {
+  const box = el("div", undefined, "candidate-popup");
+  box.appendChild(el("strong", `${c.class} (candidate ${c.id}, ${v.id})`));
+  box.appendChild(el("div", seenText(c), "looks"));
+  const dl = el("dl");
+  for (const [k, val] of [["P_D (cell)", fixed(c.pd, 3)], ["P_FA (cell)", fixed(c.pfa, 3)],
+                          ["confidence", fixed(c.confidence, 2)],
+                          ["position", `${fixed(c.lat_deg, 7)}, ${fixed(c.lon_deg, 7)} ` +
+                                       `\u00b1 ${fixed(c.sigma_m, 1)} m`],
+                          ["first seen", `${fixed(c.first_t_boot_s, 1)} s (boot)`],
+                          ["last seen", `${fixed(c.last_t_boot_s, 1)} s (boot)`]]) {
+    dl.appendChild(el("dt", k));
+    dl.appendChild(el("dd", val));
+  }
+  box.appendChild(dl);
+  return box;
+}
+function showCandidates(vehicles) {
+  const seen = new Set();
+  for (const v of vehicles) {
+    for (const c of v.candidates || []) {
+      const key = `${v.id}/${c.id}`, at = [c.lat_deg, c.lon_deg];
+      const text = JSON.stringify(c);
+      seen.add(key);
+      let entry = candidates.get(key);
+      if (!entry) {
+        entry = {marker: L.marker(at, {title: `${c.class} ${c.id}`}).bindPopup(""),
+                 circle: L.circle(at, {radius: c.sigma_m, color: v.color, weight: 1,
+                                       fillOpacity: 0.1, interactive: false}), text: null};
+        entry.marker.on("add", () => { entry.marker.getElement().dataset.candidate = key; });
+        layers.candidates.addLayer(entry.circle).addLayer(entry.marker);
+        candidates.set(key, entry);
+      }
+      if (entry.text !== text) {
+        entry.marker.setLatLng(at).setPopupContent(candidatePopup(v, c));
+        entry.circle.setLatLng(at).setRadius(c.sigma_m);
+        entry.text = text;
+      }
+    }
+  }
+  for (const [key, entry] of candidates) {
+    if (!seen.has(key)) {
+      layers.candidates.removeLayer(entry.marker).removeLayer(entry.circle);
+      candidates.delete(key);
+    }
+  }
+}
+
+function showGaps(gaps) {
+  layers.gaps.clearLayers();
+  for (const gap of gaps || []) {
+    layers.gaps.addLayer(L.polygon(gap, {color: "#ff7800", weight: 2, dashArray: "4 4",
+                                         fillOpacity: 0.2}));
+  }
+}
+
+// The re-fly proposed: its path (the gaps are the gaps layer's). The id marks the map for
+// the browser tests.
+function showRefly(r) {
+  layers.refly.clearLayers();
+  mapElement.dataset.reflyId = r ? r.id : "";
+  if (r && r.waypoints.length) {
+    layers.refly.addLayer(L.polyline(r.waypoints, {color: "#d6008f", weight: 2,
+                                                   dashArray: "6 4"}));
+  }
 }
 
 async function post(url, body) {
@@ -164,10 +249,8 @@ async function post(url, body) {
   return doc;
 }
 
-function showRefly(lines, outcome) {
-  document.getElementById("refly-lines").replaceChildren(...lines.map((text) => {
-    const li = document.createElement("li"); li.textContent = text; return li;
-  }));
+function reflyLines(lines, outcome) {
+  document.getElementById("refly-lines").replaceChildren(...lines.map((text) => el("li", text)));
   document.getElementById("refly-outcome").textContent = outcome || "";
 }
 
@@ -176,13 +259,13 @@ document.getElementById("refly-form").addEventListener("submit", async (ev) => {
   const target = document.getElementById("refly-target").value;
   const send = document.getElementById("refly-send");
   send.hidden = true;
-  showRefly(["computing the re-fly ..."]);
+  reflyLines(["computing the re-fly ..."]);
   try {
     const p = await post("api/refly", {vehicle: document.getElementById("refly-vehicle").value,
                                        target_pd: target ? Number(target) : null});
-    showRefly(p.lines);
+    reflyLines(p.lines);
     send.dataset.id = p.id; send.textContent = `Send mission ${p.id} to ${p.vehicle}`; send.hidden = false;
-  } catch (err) { showRefly([], `no re-fly: ${err.message}`); }
+  } catch (err) { reflyLines([], `no re-fly: ${err.message}`); }
 });
 
 document.getElementById("refly-send").addEventListener("click", async (ev) => {
@@ -195,6 +278,35 @@ document.getElementById("refly-send").addEventListener("click", async (ev) => {
     document.getElementById("refly-outcome").textContent = r.line;
   } catch (err) { document.getElementById("refly-outcome").textContent = `not sent: ${err.message}`; }
 });
+
+function showReflyControls(s) {
+  const sel = document.getElementById("refly-vehicle");
+  const ids = s.vehicles.map((v) => v.id);
+  if (sel.options.length !== ids.length || ids.some((id, i) => sel.options[i].value !== id)) {
+    sel.replaceChildren(...ids.map((id) => new Option(id, id)));
+  }
+  document.getElementById("refly-ask").disabled = !s.refly_available || !ids.length;
+  if (s.refly_outcome) document.getElementById("refly-outcome").textContent = s.refly_outcome;
+}
+
+// The view follows the grid (or domain) until the operator has it; refitted when the grid
+// shown moves, never because a track grew.
+let fittedTo = null;
+function fitView(s) {
+  let key = null, bounds = null;
+  if (s.grid) {
+    key = JSON.stringify(s.grid.bounds_lat_lon); bounds = L.latLngBounds(s.grid.bounds_lat_lon);
+  } else if (s.domain) {
+    key = s.domain.grid_hash + s.domain.source; bounds = L.latLngBounds(s.domain.boundary_lat_lon);
+  } else {
+    const points = s.vehicles.flatMap((v) => v.track_lat_lon);
+    if (points.length) { key = "tracks"; bounds = L.latLngBounds(points); }
+  }
+  if (key !== null && key !== fittedTo) {
+    map.fitBounds(bounds, {padding: [20, 20], maxZoom: 22});
+    fittedTo = key;
+  }
+}
 
 function row(cells, cls) {
   const tr = document.createElement("tr");
@@ -238,23 +350,24 @@ function show(s) {
   document.getElementById("target").textContent = f.target ?? "-";
   document.getElementById("domain-source").textContent = s.domain ? s.domain.source : "not known";
   document.getElementById("domain-note").textContent = s.domain_note || "";
+  document.getElementById("layer-notes").textContent = (s.grid && s.grid.outline_note) || "";
   const warnings = document.getElementById("warnings");
-  warnings.replaceChildren(...(s.warnings || []).map((text) => {
-    const li = document.createElement("li");
-    li.textContent = text;
-    return li;
-  }));
+  warnings.replaceChildren(...(s.warnings || []).map((text) => el("li", text)));
   document.getElementById("status-line").textContent =
     `${s.vehicles.length} vehicle(s); update ${s.version}; ${new Date().toLocaleTimeString()}`;
   showTables();
-  const sel = document.getElementById("refly-vehicle");
-  const ids = s.vehicles.map((v) => v.id);
-  if (sel.options.length !== ids.length || ids.some((id, i) => sel.options[i].value !== id)) {
-    sel.replaceChildren(...ids.map((id) => new Option(id, id)));
-  }
-  document.getElementById("refly-ask").disabled = !s.refly_available || !ids.length;
-  if (s.refly_outcome) document.getElementById("refly-outcome").textContent = s.refly_outcome;
-  draw();
+  fitView(s);
+  showBasemap(s.basemap);
+  showHeat(s.grid);
+  showOutline(s.grid);
+  showDomain(s.domain);
+  showPlans(s.plans);
+  showVehicles(s.vehicles);
+  showCandidates(s.vehicles);
+  showGaps(s.gaps);
+  showRefly(s.refly);
+  showReflyControls(s);
+  for (const fn of listeners) fn(s);
 }
 
 function colourBar() {
@@ -263,12 +376,6 @@ function colourBar() {
     const [R, G, B] = colour(i / (c.width - 1));
     cc.fillStyle = `rgb(${R},${G},${B})`; cc.fillRect(i, 0, 1, c.height);
   }
-}
-
-function fit() {
-  mapCanvas.width = Math.max(320, Math.min(window.innerWidth - 440, 1000));
-  mapCanvas.height = Math.max(240, Math.min(window.innerHeight - 120, 800));
-  draw();
 }
 
 // The server answered this page's ?token= with its cookie: take the token out of the
@@ -280,15 +387,13 @@ if (here.searchParams.has("token")) {
 }
 
 colourBar();
-window.addEventListener("resize", fit);
-fit();
 // An update that cannot be read or drawn is shown, never a silently frozen map: the
 // banner says what failed and that the figures shown are those of the last good update.
 function showError(what, err) {
-  const el = document.getElementById("error");
-  el.textContent = `${what}: ${err && err.message ? err.message : err}; the map shows the ` +
+  const banner = document.getElementById("error");
+  banner.textContent = `${what}: ${err && err.message ? err.message : err}; the map shows the ` +
     `last update that could be read (${state ? "update " + state.version : "none yet"})`;
-  el.hidden = false;
+  banner.hidden = false;
 }
 
 const events = new EventSource("events");
