@@ -171,7 +171,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                             track_enu=finite_track(track), plan_enu=plan_enu,
                             outline_threshold=args.outline_threshold,
                             prior=None if prior is None else prior.poa,
-                            extra_metrics=extra or None)
+                            extra_metrics=extra or None,
+                            exports=())  # the coverage's; no detections are read yet
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:

@@ -1,5 +1,6 @@
-"""``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map and the
-recording, run until Ctrl-C / SIGTERM (or, with ``once``, until one report is printed)."""
+"""``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map, the
+recording with its exports and the Cursor-on-Target feed, run until Ctrl-C / SIGTERM (or,
+with ``once``, until one report is printed)."""
 
 from __future__ import annotations
 
@@ -16,9 +17,12 @@ from pdcov.bus.grid_state import grid_hash
 from pdcov.bus.session import BusConfig, bus_security
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
+from pdcov.ground.cot import CotSchedule
+from pdcov.ground.cot_feed import CotFeed
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
+from pdcov.ground.record_exports import ExportRecorder
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
@@ -29,7 +33,9 @@ class WatchOptions:
     """vehicle: one id or None (all). web: (host, port) or None; web_access: who may read
     the web map (ground/web_auth.py; required with web). once: print one report
     when every vehicle seen has its grid (or after wait_s) and exit. plain: one headline
-    line per change instead of the live table (set when stdout is not a terminal)."""
+    line per change instead of the live table (set when stdout is not a terminal). record:
+    the recording folder (its exports in record/exports/ every exports_period_s). cot: the
+    Cursor-on-Target destination URL (ground/cot_feed.py), or None."""
 
     bus: BusConfig
     vehicle: str | None = None
@@ -42,6 +48,8 @@ class WatchOptions:
     wait_s: float = 10.0
     plain: bool = False
     refresh_s: float = 0.5
+    cot: str | None = None
+    exports_period_s: float = 5.0
 
     def __post_init__(self) -> None:
         if (self.web is None) != (self.web_access is None):
@@ -66,13 +74,19 @@ async def _main(opts: WatchOptions) -> int:
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
     recording = Recording(opts.record) if opts.record else None
+    exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
+        if opts.record else None
+    cot = CotFeed(opts.cot, CotSchedule(), lambda: list(watcher.feeds.values())) \
+        if opts.cot else None
     shell = WatchShell(watcher, opts.bus, record=recording)
 
     def report() -> FleetReport:
-        """The watcher's report as of now, with the recording's trouble, if any."""
+        """The watcher's report as of now, with the recording's, the exports' and the CoT
+        feed's trouble, if any."""
         r = watcher.report(shell.now_s())
-        trouble = recording.warning if recording is not None else None
-        return r if trouble is None else replace(r, station=(*r.station, trouble))
+        trouble = tuple(w for w in (recording and recording.warning,
+                                    exports and exports.warning, cot and cot.warning) if w)
+        return replace(r, station=(*r.station, *trouble)) if trouble else r
 
     web = None
     if opts.web is not None and opts.web_access is not None:  # both or neither
@@ -87,6 +101,11 @@ async def _main(opts: WatchOptions) -> int:
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
     runner = asyncio.create_task(shell.run(stop))
+    helpers = []
+    if cot is not None:
+        helpers.append(asyncio.create_task(cot.run(stop)))
+    if exports is not None:
+        helpers.append(asyncio.create_task(_export_loop(exports, watcher, shell, stop)))
     status = 0
     try:
         connected = asyncio.create_task(shell.connected.wait())
@@ -106,13 +125,34 @@ async def _main(opts: WatchOptions) -> int:
         try:
             await runner
         finally:
+            await asyncio.gather(*helpers, return_exceptions=True)
             if web is not None:
                 await web.stop()
             if recording is not None:
                 recording.close()
                 for line in recording.finish(watcher, opts.mission):
                     print(line, flush=True)
+            if exports is not None:
+                print(_exports_line(exports, exports.write(watcher)), flush=True)
     return status
+
+
+async def _export_loop(exports: ExportRecorder, watcher: Watcher, shell: WatchShell,
+                       stop: asyncio.Event) -> None:
+    """Rewrite the exports while the watcher runs (ExportRecorder.poll decides when)."""
+    while not stop.is_set():
+        exports.poll(watcher, shell.version, shell.now_s())
+        try:
+            await asyncio.wait_for(stop.wait(), 1.0)
+        except asyncio.TimeoutError:
+            pass
+
+
+def _exports_line(exports: ExportRecorder, ok: bool) -> str:
+    if not ok or exports.last is None:
+        return f"record: could not write the exports in {exports.out}: {exports.last_error}"
+    line = f"record: wrote {', '.join(exports.last.files)} in {exports.out}"
+    return "\n".join([line, *(f"record: not written: {n}" for n in exports.last.not_written)])
 
 
 async def _once(watcher: Watcher, report_now: Callable[[], FleetReport], opts: WatchOptions,

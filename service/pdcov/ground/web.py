@@ -9,8 +9,8 @@ job, and a hand-written server on a ground-station laptop would be one more thin
 wrong. The state holds the fleet's P_D grid (quantised to 0..255, down-sampled to at most
 MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles of the grid
 shown (``domain_layer``: from the mission config when it describes that grid, else from the
-vehicles' mission replies), each vehicle's track and current footprint in ENU metres, and
-the figures of the terminal view.
+vehicles' mission replies), each vehicle's track and current footprint in ENU metres, its
+detection candidates (WGS84, ``candidates_layer``), and the figures of the terminal view.
 """
 
 from __future__ import annotations
@@ -54,15 +54,6 @@ def asset(name: str) -> bytes:
     return (resources.files("pdcov.ground") / "web" / name).read_bytes()
 
 
-def _origin(feed: VehicleFeed) -> Origin | None:
-    o = ((feed.status or {}).get("grid") or {}).get("origin") or {}
-    try:
-        return Origin(float(o["lat_deg"]), float(o["lon_deg"]),
-                      float(o.get("ground_alt_msl_m") or 0.0))
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
 def _enu_xy(lat_lon: list[tuple[float, float]], origin: Origin) -> list[list[float]]:
     if not lat_lon:
         return []
@@ -89,6 +80,17 @@ def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any) -> dict[str, A
     return {"x0_m": geometry.x0_m, "y0_m": geometry.y0_m,
             "cell_size_m": geometry.cell_size_m * stride, "w": w, "h": h, "stride": stride,
             "pd_b64": base64.b64encode(data.tobytes()).decode()}
+
+
+CANDIDATE_FIELDS = ("id", "class", "lat_deg", "lon_deg", "sigma_m", "hits", "looks", "pd",
+                    "pfa", "confidence", "first_t_boot_s", "last_t_boot_s")
+"""What the map shows of each candidate (the names of the detections payload)."""
+
+
+def candidates_layer(feed: VehicleFeed) -> list[dict[str, Any]]:
+    """The vehicle's detection candidates for the map (CANDIDATE_FIELDS), by id."""
+    return [{k: c.get(k) for k in CANDIDATE_FIELDS}
+            for _, c in sorted(feed.candidates.items())]
 
 
 def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | None,
@@ -128,7 +130,7 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
     origin = None
     for k, v in enumerate(report.vehicles):
         feed = watcher.feeds[v.vehicle_id]
-        o = _origin(feed)
+        o = feed.origin()
         origin = origin or o
         footprint = None
         geom = (feed.footprint or {}).get("geometry")
@@ -143,7 +145,8 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
             "proportion": {str(t): p for t, p in v.proportion_at_or_above.items()},
             "status_proportion": {str(t): p
                                   for t, p in v.status_proportion_at_or_above.items()},
-            "mean_pd": v.mean_pd, "track": track, "footprint": footprint})
+            "mean_pd": v.mean_pd, "track": track, "footprint": footprint,
+            "candidates": candidates_layer(feed)})
     domain, note = domain_layer(watcher, None if merged is None else merged.hash, mission,
                                 config_grid_hash)
     if origin is None and domain is not None:
