@@ -74,10 +74,12 @@ class Sensor:
 def sensor_from_footprint(lat_deg: float, lon_deg: float, height_m: float,
                           heading_deg: float | None, ring_lon_lat_deg: Any) -> Sensor | None:
     """The sensor wedge of a camera ``height_m`` above flat ground whose footprint is the
-    ring (lon, lat) degrees: azimuth to the footprint's centroid (the heading when it lies
-    below the aircraft, NADIR_SHARE), elevation and slant range to it, and the angles the
-    footprint spans across and along that azimuth. None without a usable footprint or
-    height."""
+    ring (lon, lat) degrees, as a level pinhole camera looking at the footprint's centroid
+    sees it: azimuth, elevation and slant range of that line of sight (azimuth the heading
+    when the centroid lies below the aircraft, NADIR_SHARE), and the angles the footprint
+    spans across (fov) and along (vfov) it, from the footprint's vertices in that camera's
+    image plane (exact for a footprint whose corners are the picture's). None without a
+    usable footprint or height."""
     ring = np.asarray(ring_lon_lat_deg, dtype=float).reshape(-1, 2)
     if len(ring) < 3 or not height_m > 0 or not np.isfinite(ring).all():
         return None
@@ -88,21 +90,20 @@ def sensor_from_footprint(lat_deg: float, lon_deg: float, height_m: float,
         return None
     c = np.array(poly.centroid.coords[0])
     d = float(np.hypot(*c))
-    if d < NADIR_SHARE * height_m:
-        az = math.radians(heading_deg or 0.0)
-    else:
-        az = math.atan2(c[0], c[1])
-    along_unit = np.array([math.sin(az), math.cos(az)])
-    across_unit = np.array([math.cos(az), -math.sin(az)])
-    along, across = enu @ along_unit, enu @ across_unit
-    c_along = float(c @ along_unit)
-    across_angles = np.arctan2(across, np.hypot(along, height_m))
-    along_angles = np.arctan2(along, height_m)  # from straight down, positive ahead
+    az = math.radians(heading_deg or 0.0) if d < NADIR_SHARE * height_m \
+        else math.atan2(c[0], c[1])
+    los = np.array([c[0], c[1], -height_m])
+    b = los / np.linalg.norm(los)  # the line of sight, ENU
+    right = np.array([math.cos(az), -math.sin(az), 0.0])  # level, across the azimuth
+    up = np.cross(right, b)
+    rays = np.c_[enu, np.full(len(enu), -height_m)]
+    depth = rays @ b
+    x, y = np.arctan((rays @ right) / depth), np.arctan((rays @ up) / depth)
     return Sensor(azimuth_deg=math.degrees(az) % 360.0,
-                  elevation_deg=-math.degrees(math.atan2(height_m, c_along)),
-                  fov_deg=math.degrees(float(across_angles.max() - across_angles.min())),
-                  vfov_deg=math.degrees(float(along_angles.max() - along_angles.min())),
-                  range_m=math.hypot(d, height_m))
+                  elevation_deg=math.degrees(math.asin(float(b[2]))),
+                  fov_deg=math.degrees(float(x.max() - x.min())),
+                  vfov_deg=math.degrees(float(y.max() - y.min())),
+                  range_m=float(np.linalg.norm(los)))
 
 
 def _event(uid: str, cot_type: str, how: str, lat_deg: float, lon_deg: float, ce: str,
