@@ -15,12 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.footprint import (
-    decode_footprint,
-    decode_frames,
-    encode_footprint,
-    encode_frames,
-)
+from pdcov.bus.footprint import decode_footprint, encode_footprint
+from pdcov.bus.frames import decode_frames, encode_frames
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.json_doc import finite_or_null
 from pdcov.bus.keys import VehicleKeys, all_vehicles, parse_key
@@ -29,6 +25,7 @@ from pdcov.bus.session import BusConfig, bus_config_from_dict, zenoh_config
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
 from pdcov.config import load_mission
+from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -225,7 +222,7 @@ def test_footprint_and_frames():
     assert decode_footprint(encode_footprint("uav1", 1.0, None))["geometry"] is None
     with pytest.raises(BusPayloadError):
         decode_footprint(encode_footprint("uav1", 1.0, ring * [1, 10]))  # latitude 353
-    assert decode_frames(encode_frames([1.0, 1.5])) == (1.0, 1.5)
+    assert decode_frames(encode_frames([1.0, 1.5])) == (FrameBoxes(1.0), FrameBoxes(1.5))
     for bad in ([], [-1.0], [float("inf")]):
         with pytest.raises(BusPayloadError, match="frames"):
             decode_frames(json.dumps({"schema": "pdcov.frames", "version": 1,
@@ -257,14 +254,15 @@ def test_schema_and_version_checked_alike(kind):
     key = f"pdcov/uav1/{kind}"
     decode(payload, key)
     where = "properties." if kind == "footprint" else ""
+    versions = "one of 1, 2" if kind == "frames" else "1"  # frames: both versions read
     cases = {"schema 'pdcov.other', expected 'pdcov.": ("schema", "pdcov.other"),
              "schema missing, expected": ("schema", KeyError),
              "schema 'xxxxx": ("schema", "x" * 10_000),
-             "version 2, expected 1": ("version", 2),
-             "version True, expected 1": ("version", True),
-             "version 1.0, expected 1": ("version", 1.0),
-             "version '1', expected 1": ("version", "1"),
-             "version missing, expected 1": ("version", KeyError)}
+             f"version 9, expected {versions}": ("version", 9),
+             f"version True, expected {versions}": ("version", True),
+             f"version 1.0, expected {versions}": ("version", 1.0),
+             f"version '1', expected {versions}": ("version", "1"),
+             f"version missing, expected {versions}": ("version", KeyError)}
     for why, (name, value) in cases.items():
         doc = json.loads(payload)
         holder = doc["properties"] if kind == "footprint" else doc

@@ -41,7 +41,7 @@ from serve_harness import (
 )
 
 from benchmarks.harness import small_mission
-from pdcov.bus.footprint import encode_frames
+from pdcov.bus.frames import encode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.config import load_mission

@@ -28,7 +28,6 @@ from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config import MAX_THRESHOLDS
-from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
@@ -161,11 +160,7 @@ def decode_status(payload: bytes, key: str = "status",
     doc = json_object(payload, MAX_STATUS_BYTES, bad)
     check_schema(doc, STATUS_SCHEMA, STATUS_VERSION, bad)
     f = Fields(doc, bad)
-    vid = f.string("vehicle_id", max_len=64)
-    if not valid_vehicle_id(vid):
-        raise bad(f"vehicle_id: {vid!r}, expected {VEHICLE_ID_RULE}")
-    if vehicle_id is not None and vid != vehicle_id:
-        raise bad(f"vehicle_id {vid!r}, but the key is vehicle {vehicle_id!r}'s")
+    f.vehicle_id("vehicle_id", vehicle_id)
     f.integer("seq", 0, _U64)
     f.number("uptime_s", 0.0)
     f.number_or_null("t_s")

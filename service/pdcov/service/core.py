@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.footprint import decode_frames
+from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
@@ -197,12 +197,12 @@ class ServiceCore:
         keeps), held until the autopilot is known (its system and clock)."""
         faults = self.coverage.counters.faults
         try:
-            t_boot = decode_frames(payload, self.keys.frames)
+            frames = decode_frames(payload, self.keys.frames)
         except BusPayloadError as exc:
             faults["bad_frames_messages"] += 1
             self._out.logs.append((logging.WARNING, str(exc)))
             return
-        ms = [boot_ms(t) for t in t_boot]
+        ms = [boot_ms(f.t_boot_s) for f in frames]
         if any(v > MAX_BOOT_MS for v in ms):
             faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v in ms)
             ms = [v for v in ms if v <= MAX_BOOT_MS]
