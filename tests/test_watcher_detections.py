@@ -153,3 +153,26 @@ def test_a_failing_export_is_logged_once_keeps_the_last_files_and_is_retried(
     assert rec.poll(w, 3, 3.7) and rec.warning is None
     doc_now = json.loads((tmp_path / "exports" / "detections.geojson").read_text())
     assert doc_now["features"][0]["properties"]["hits"] == 10
+
+
+def test_malformed_detections_payloads_are_counted_by_reason_and_never_applied():
+    from pdcov.bus.detections import encode_detections
+    from pdcov.bus.session import BusConfig
+    from pdcov.ground.live import WatchShell
+
+    w, _ = pinned()
+    recorded = []
+    shell = WatchShell(w, BusConfig(), record=lambda *a: recorded.append(a))
+    key = "pdcov/uav1/detections"
+    good = doc("uav1", [detection(3, 1, 1)], [candidate(3, 1, 1)])
+    nan = encode_detections(good).replace(b'"sigma_m":0.5', b'"sigma_m":NaN')
+    other = encode_detections(doc("uav2", [], [candidate(5, 1, 1)]))  # on uav1's key
+    for payload in (b"{not json", nan, other, b'{"schema": "pdcov.detections"}',
+                    b"x" * (9 << 20)):
+        shell._received(key, payload, DAEMON)
+    assert w.refused == {"payloads: malformed": 2, "payloads: non-finite number": 1,
+                         "payloads: bad field": 1, "payloads: too large": 1}
+    assert not w.feeds["uav1"].candidates and not recorded
+    shell._received(key, encode_detections(good), DAEMON)
+    assert sorted(w.feeds["uav1"].candidates) == [3]
+    assert [(vid, kind) for vid, kind, _ in recorded] == [("uav1", "detections")]

@@ -62,16 +62,18 @@ from pdcov.ground.claims import ClaimVerdict
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
 
-__all__ = ["MAX_CANDIDATES", "MAX_DETECTIONS", "MAX_VEHICLES", "QueryCandidates",
+__all__ = ["MAX_CANDIDATES_KEPT", "MAX_DETECTIONS_KEPT", "MAX_VEHICLES", "QueryCandidates",
            "QueryMission", "QuerySnapshot", "Watcher"]
 
 MAX_VEHICLES = 64
 """Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
 open bus could otherwise invent vehicles without end)."""
-MAX_CANDIDATES = 2000
-"""Candidates kept per vehicle (a flight over a crowd, or a detector gone wrong, must not
-grow the ground station without end; the operator is told how many were forgotten)."""
-MAX_DETECTIONS = 500
+MAX_CANDIDATES_KEPT = 2000
+"""Candidates kept per vehicle, fewer than a daemon may hold (bus/detections.py
+MAX_CANDIDATES) because a ground station follows up to MAX_VEHICLES: a flight over a crowd,
+or a detector gone wrong, must not grow it without end; the operator is told how many
+were forgotten."""
+MAX_DETECTIONS_KEPT = 500
 """Recent detections kept per vehicle (the candidates summarise the rest)."""
 STATUS_PD_TOLERANCE = 1e-6
 """How far a status's mean P_D may be from the rebuilt grid's (the daemon sums per tile in
@@ -125,8 +127,8 @@ class Watcher:
                  grid_hash: str | None = None, snapshot_timeout_s: float = 5.0,
                  trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
                  mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
-                 bus_warning: str | None = None, max_candidates: int = MAX_CANDIDATES,
-                 max_detections: int = MAX_DETECTIONS) -> None:
+                 bus_warning: str | None = None, max_candidates: int = MAX_CANDIDATES_KEPT,
+                 max_detections: int = MAX_DETECTIONS_KEPT) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
@@ -364,13 +366,15 @@ class Watcher:
         return due
 
     def taken_from(self, vehicle_id: str, kind: str) -> SessionId | tuple[()]:
-        """The session whose snapshot or mission reply the watcher holds for the vehicle,
-        or () when it holds none (unknown, contested, refused)."""
+        """The session whose snapshot, mission or candidates reply the watcher holds for the
+        vehicle, or () when it holds none (unknown, contested, refused)."""
         feed = self.feeds.get(vehicle_id)
         if feed is None:
             return ()
         if kind == "mission":
             return feed.mission_session if feed.mission is not None else ()
+        if kind == "candidates":
+            return feed.detections_session
         return feed.claim.session if feed.claim.pinned and feed.state is not None else ()
 
     def mission_for(self, grid_hash: str | None) -> MissionGeometry | None:
