@@ -34,11 +34,16 @@ REAL = ROOT.parent / "shared" / "real-logs"
 
 
 def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
-                 **service) -> Path:
+                 session: dict | None = None, **service) -> Path:
+    """The daemon's config: ``base`` with a fast-publishing bus section (by default a peer
+    that connects to the router on ``zenoh_port`` and listens on a free loopback port;
+    ``session``: mode, connect and listen instead, a key given None left out) and a
+    service section writing into ``state_dir``."""
     doc = dict(base)
-    doc["bus"] = {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
-                  "listen": ["tcp/127.0.0.1:0"], "multicast_scouting": False,
-                  "status_period_s": 0.2, "tiles_period_s": 0.1,
+    bus = {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
+           "listen": ["tcp/127.0.0.1:0"], **(session or {})}
+    doc["bus"] = {**{k: v for k, v in bus.items() if v is not None},
+                  "multicast_scouting": False, "status_period_s": 0.2, "tiles_period_s": 0.1,
                   "tiles_max_bytes_per_s": 1 << 20}
     doc["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 1.0, **service}
     path.write_text(yaml.safe_dump(doc))

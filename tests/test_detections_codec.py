@@ -162,3 +162,25 @@ def test_values_refuse_what_cannot_be_right():
     d = Detection(1.0, PERSON, np.array([1.0, 2.0, 0.0]), 1.0, 0)
     assert not d.r_enu_m.flags.writeable
     assert PERSON.bottom_centre_px == (110.0, 90.0) and PERSON.centre_px == (110.0, 70.0)
+
+
+def test_frames_naming_another_vehicle_are_refused():
+    doc = {"schema": "pdcov.frames", "version": 2, "vehicle": "uav2",
+           "frames": [{"t_boot_s": 1.0, "boxes": []}]}
+    decode_frames(json.dumps(doc).encode(), vehicle_id="uav2")
+    err = refusal(json.dumps(doc).encode(), vehicle_id="uav1")
+    assert "vehicle 'uav2', but the key is vehicle 'uav1'" in str(err)
+
+
+def test_recorded_boxes_read_back_bit_identical():
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from pdcov.telemetry.recorded_frames import BOX, FrameEncoder, box_of, recorded_mark
+
+    enc = FrameEncoder()
+    enc.encode(1, 1500)
+    worst = Box("x" * 30 + " " + "y" * 33, 0.1 + 0.2, -0.1 / 3, 1e-7 / 3, 2 / 3, 1e5 / 7)
+    for box in (PERSON, worst):
+        msg = mavlink.MAVLink(None).parse_char(enc.box(1, 1500, box))
+        assert recorded_mark(msg) == BOX and box_of(msg) == box
+        assert (msg.time_boot_ms, msg.image_index) == (1500, 0)

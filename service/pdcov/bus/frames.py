@@ -11,6 +11,8 @@ Version 2, each frame's time and the boxes the detector found in it::
      "frames": [{"t_boot_s": t, "boxes": [{"class": "person", "confidence": 0.87,
                                            "box_px": [left, top, width, height]}]}]}
 
+(optionally with ``"vehicle": id``, then checked against the key's vehicle).
+
 Times are seconds of the autopilot's boot clock (time_boot_ms / 1000); boxes are in image
 pixels, OpenCV convention (core/detections.py). At most MAX_FRAMES frames per message and
 MAX_BOXES_PER_FRAME boxes per frame. Whether a box lies inside the picture needs the camera:
@@ -56,13 +58,15 @@ def encode_frames_v2(frames: Sequence[FrameBoxes]) -> bytes:
 
 
 def decode_frames(payload: bytes, key: str = "frames",
-                  picture_px: tuple[int, int] | None = None) -> tuple[FrameBoxes, ...]:
+                  picture_px: tuple[int, int] | None = None,
+                  vehicle_id: str | None = None) -> tuple[FrameBoxes, ...]:
     """The frames of a frames message of either version (version 1 frames have no boxes):
     1..MAX_FRAMES frames with times >= 0, each with at most MAX_BOXES_PER_FRAME boxes of a
     class name (CLASS_NAME_RULE), a confidence in [0, 1] and a finite box of positive width
     and height; with ``picture_px`` (width, height) every box inside that picture
-    (Box.inside_picture). Raises BusPayloadError naming ``key``, the field and the reason;
-    a message is taken whole or not at all."""
+    (Box.inside_picture); a version 2 message may name its ``vehicle`` (optional), which
+    must then be ``vehicle_id`` when that is given (the key's). Raises BusPayloadError
+    naming ``key``, the field and the reason; a message is taken whole or not at all."""
     bad = Refuser(f"{key}: not a usable frames message")
     doc = json_object(payload, MAX_FRAMES_BYTES, bad)
     version = check_schema(doc, FRAMES_SCHEMA, VERSIONS, bad)
@@ -74,7 +78,10 @@ def decode_frames(payload: bytes, key: str = "frames",
                       Refusal.OVER_BOUND if isinstance(t, list) and len(t) > MAX_FRAMES
                       else Refusal.BAD_FIELD)
         return tuple(FrameBoxes(float(v)) for v in t)
-    items = Fields(doc, bad).items("frames", MAX_FRAMES)
+    f = Fields(doc, bad)
+    if doc.get("vehicle") is not None:
+        f.vehicle_id("vehicle", vehicle_id)
+    items = f.items("frames", MAX_FRAMES)
     if not items:
         raise bad(f"frames: expected 1..{MAX_FRAMES} frames, got none")
     return tuple(_frame(Fields(item, bad, f"frames[{i}]."), picture_px)

@@ -9,7 +9,7 @@ from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 PREFIX = "pdcov"
 KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames", "detections",
-         "candidates")
+         "candidates", "retask")
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,6 +62,10 @@ class VehicleKeys:
     @property
     def candidates(self) -> str:
         return self.key("candidates")
+
+    @property
+    def retask(self) -> str:
+        return self.key("retask")
 
 
 def all_vehicles(kind: str) -> str:
