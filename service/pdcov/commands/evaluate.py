@@ -83,6 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
         finite_track,
@@ -177,7 +178,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
                             track_enu=finite_track(track), plan_enu=plan_enu,
                             outline_threshold=args.outline_threshold,
                             prior=None if prior is None else prior.poa,
-                            extra_metrics=extra or None)
+                            extra_metrics=extra or None,
+                            exports=() if detections is None
+                            else [VehicleDetections.from_doc(detections)])
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)

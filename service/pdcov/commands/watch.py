@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pdcov.errors import ConfigError
-from pdcov.extras import GROUND
+from pdcov.extras import COT, GROUND
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 if TYPE_CHECKING:
@@ -59,7 +59,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a mission file (.plan or QGC WPL 110) whose waypoints the web map "
                         "draws (repeatable)")
     p.add_argument("--record", type=Path, metavar="DIR",
-                   help="write what is received, and at the end the grids and the report")
+                   help="write what is received, the exports for CalTopo, Google Earth and "
+                        "ATAK (DIR/exports/, kept current), and at the end the grids and the "
+                        "report")
+    p.add_argument("--cot", metavar="URL",
+                   help="send the aircraft (with its camera's field of view) and the "
+                        "detection candidates as Cursor-on-Target to URL: udp://HOST:PORT "
+                        "(ATAK's mesh group udp://239.2.3.1:6969) or tcp://HOST:PORT (a TAK "
+                        "server)")
     p.add_argument("--once", action="store_true",
                    help="print one report when the grids are in (or after --wait-s) and exit")
     p.add_argument("--wait-s", type=float, default=10.0,
@@ -119,6 +126,11 @@ def run(args: argparse.Namespace) -> int:
             or args.plan:
         raise ConfigError("--web-token-file, --web-allow-host, --basemap and --plan go with "
                           "--web HOST:PORT")
+    if args.cot is not None:
+        from pdcov.ground.cot_feed import parse_cot_url
+
+        COT.require()
+        parse_cot_url(args.cot)
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
     from pdcov.planning.refly import ReflySettings
@@ -144,6 +156,6 @@ def run(args: argparse.Namespace) -> int:
     return run_watch(WatchOptions(
         bus=bus, vehicle=vehicle, mission=mission, web=web, web_access=access,
         basemap=basemap, plans=plans,
-        record=args.record, once=args.once, wait_s=args.wait_s,
+        record=args.record, once=args.once, wait_s=args.wait_s, cot=args.cot,
         plain=args.plain or not stdout_is_terminal(), refly=args.refly,
         refly_settings=settings, yes=args.yes))

@@ -1,6 +1,7 @@
 """``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map, the
-recording and re-tasking (``ReflyDesk``), run until Ctrl-C / SIGTERM (or, with ``once``,
-until one report is printed; with ``refly``, until the re-fly is sent or declined)."""
+recording with its exports, the Cursor-on-Target feed and re-tasking (``ReflyDesk``),
+run until Ctrl-C / SIGTERM (or, with ``once``, until one report is printed; with ``refly``,
+until the re-fly is sent or declined)."""
 
 from __future__ import annotations
 
@@ -24,9 +25,12 @@ from pdcov.bus.session import (
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.basemap import Basemap
+from pdcov.ground.cot import CotSchedule
+from pdcov.ground.cot_feed import CotFeed
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
+from pdcov.ground.record_exports import ExportRecorder
 from pdcov.ground.retask import (
     ReflyError,
     ReflyProposal,
@@ -54,7 +58,9 @@ class WatchOptions:
     when every vehicle seen has its grid (or after wait_s) and exit. plain: one headline
     line per change instead of the live table (set when stdout is not a terminal).
     basemap: the tiles under the web map (closed when the watcher ends); plans: the plans
-    it draws."""
+    it draws. record: the recording folder (its exports in record/exports/ every
+    exports_period_s). cot: the Cursor-on-Target destination URL (ground/cot_feed.py), or
+    None."""
 
     bus: BusConfig
     vehicle: str | None = None
@@ -68,6 +74,8 @@ class WatchOptions:
     wait_s: float = 10.0
     plain: bool = False
     refresh_s: float = 0.5
+    cot: str | None = None
+    exports_period_s: float = 5.0
     refly: str | None = None
     refly_settings: ReflySettings | None = None
     yes: bool = False
@@ -141,6 +149,10 @@ async def _main(opts: WatchOptions) -> int:
     if warning is not None:
         print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
+    exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
+        if opts.record else None
+    cot = CotFeed(opts.cot, CotSchedule(), lambda: list(watcher.feeds.values())) \
+        if opts.cot else None
     shell = WatchShell(watcher, opts.bus, record=recording,
                        connect_timeout_s=opts.wait_s if opts.once else None)
     desk = None
@@ -149,10 +161,12 @@ async def _main(opts: WatchOptions) -> int:
                          or ReflySettings(max(opts.mission.thresholds)))
 
     def report() -> FleetReport:
-        """The watcher's report as of now, with the recording's trouble, if any."""
+        """The watcher's report as of now, with the recording's, the exports' and the CoT
+        feed's trouble, if any."""
         r = watcher.report(shell.now_s())
-        trouble = recording.warning if recording is not None else None
-        return r if trouble is None else replace(r, station=(*r.station, trouble))
+        trouble = tuple(w for w in (recording and recording.warning,
+                                    exports and exports.warning, cot and cot.warning) if w)
+        return replace(r, station=(*r.station, *trouble)) if trouble else r
 
     web = None
     if opts.web is not None and opts.web_access is not None:  # both or neither
@@ -169,6 +183,11 @@ async def _main(opts: WatchOptions) -> int:
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
     runner = asyncio.create_task(shell.run(stop))
+    helpers = []
+    if cot is not None:
+        helpers.append(asyncio.create_task(cot.run(stop)))
+    if exports is not None:
+        helpers.append(asyncio.create_task(_export_loop(exports, watcher, shell, stop)))
     status = 0
     try:
         connected = asyncio.create_task(shell.connected.wait())
@@ -190,6 +209,7 @@ async def _main(opts: WatchOptions) -> int:
         try:
             await runner
         finally:
+            await asyncio.gather(*helpers, return_exceptions=True)
             if web is not None:
                 await web.stop()
             if opts.basemap is not None:
@@ -198,7 +218,27 @@ async def _main(opts: WatchOptions) -> int:
                 recording.close()
                 for line in recording.finish(watcher, opts.mission):
                     print(line, flush=True)
+            if exports is not None:
+                print(_exports_line(exports, exports.write(watcher)), flush=True)
     return status
+
+
+async def _export_loop(exports: ExportRecorder, watcher: Watcher, shell: WatchShell,
+                       stop: asyncio.Event) -> None:
+    """Rewrite the exports while the watcher runs (ExportRecorder.poll decides when)."""
+    while not stop.is_set():
+        exports.poll(watcher, shell.version, shell.now_s())
+        try:
+            await asyncio.wait_for(stop.wait(), 1.0)
+        except asyncio.TimeoutError:
+            pass
+
+
+def _exports_line(exports: ExportRecorder, ok: bool) -> str:
+    if not ok or exports.last is None:
+        return f"record: could not write the exports in {exports.out}: {exports.last_error}"
+    line = f"record: wrote {', '.join(exports.last.files)} in {exports.out}"
+    return "\n".join([line, *(f"record: not written: {n}" for n in exports.last.not_written)])
 
 
 async def _grids_in(watcher: Watcher, opts: WatchOptions, stop: asyncio.Event,

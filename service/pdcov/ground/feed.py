@@ -1,10 +1,11 @@
 """What the watcher holds about one vehicle: its rebuilt grid, its last status, the tiles
 awaiting a snapshot, the session that speaks for it (ground/claims.py), its track and
-mission, and the counts the reports show. Mutable, owned by the Watcher."""
+mission, its detection candidates and recent detections, and the counts the reports show.
+Mutable, owned by the Watcher."""
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,6 +13,7 @@ from pdcov.bus.grid_state import GridState
 from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.sources import SessionId
 from pdcov.bus.tiles import TileUpdate
+from pdcov.core.geodesy import Origin
 from pdcov.ground.claims import SessionClaim
 
 __all__ = ["VehicleFeed"]
@@ -48,3 +50,21 @@ class VehicleFeed:
     first_heard_s: float = 0.0
     status_disagreements: int = 0
     status_agrees: bool | None = None
+    candidates: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """Candidate entries of the detections payloads by id (bus/detections.py), the latest
+    of each; at most Watcher.max_candidates."""
+    detections: deque[dict[str, Any]] = field(default_factory=deque)
+    """The latest detection entries, at most Watcher.max_detections (oldest dropped)."""
+    detections_session: SessionId = None  # the session the candidates came from
+    candidates_asked_at: int | None = None  # ``snapshots`` when candidates were last asked
+    candidates_retry_at_s: float | None = None  # None while a query is out (or none needed)
+    candidates_dropped: int = 0  # candidates forgotten beyond max_candidates
+
+    def origin(self) -> Origin | None:
+        """The origin of the vehicle's grid, as its last status gave it (None: none yet)."""
+        o = ((self.status or {}).get("grid") or {}).get("origin") or {}
+        try:
+            return Origin(float(o["lat_deg"]), float(o["lon_deg"]),
+                          float(o.get("ground_alt_msl_m") or 0.0))
+        except (KeyError, TypeError, ValueError):
+            return None

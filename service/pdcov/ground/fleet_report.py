@@ -44,6 +44,10 @@ class VehicleReport:
     refused: int = 0
     status_disagreements: int = 0
     status_agrees: bool | None = None
+    candidates: int = 0
+    candidates_dropped: int = 0
+    best_candidate: str | None = None
+    """The candidate detected most often: 'person #3: detected 9 of 14 looks, P_D 0.54'."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -58,6 +62,9 @@ class VehicleReport:
         if self.status_agrees is False:
             out.append(f"{self.vehicle_id}: its status disagrees with the grid rebuilt from "
                        f"its tiles ({self.status_disagreements} times): grid fetched again")
+        if self.candidates_dropped:
+            out.append(f"{self.vehicle_id}: {self.candidates_dropped} weakest detection "
+                       f"candidates forgotten (more than {self.candidates} to keep)")
         return tuple(out)
 
 
@@ -121,7 +128,17 @@ def vehicle_report(feed: VehicleFeed, now_s: float, default_thresholds: tuple[fl
         session=short_session(claim.session) if claim.pinned else None,
         rivals=tuple(short_session(s) for s in (claim.contested or claim.rivals(now_s))),
         contested=bool(claim.contested), refused=claim.refused,
-        status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees)
+        status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees,
+        candidates=len(feed.candidates), candidates_dropped=feed.candidates_dropped,
+        best_candidate=_best_candidate(feed))
+
+
+def _best_candidate(feed: VehicleFeed) -> str | None:
+    if not feed.candidates:
+        return None
+    c = max(feed.candidates.values(), key=lambda c: (c["hits"], c["confidence"]))
+    return (f"{c['class']} #{c['id']}: detected {c['hits']} of {c['looks']} looks, "
+            f"P_D {c['pd']:.2f}")
 
 
 def union_thresholds(groups: Any) -> tuple[float, ...]:

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from pdcov.bus.detections import decode_detections
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_footprint
 from pdcov.bus.grid_state import decode_snapshot
@@ -28,13 +29,13 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.sources import SessionId, reply_session, source_info, source_session
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
-from pdcov.ground.watcher import QueryMission, QuerySnapshot, Watcher
+from pdcov.ground.watcher import QueryCandidates, QueryMission, QuerySnapshot, Watcher
 
 log = logging.getLogger("pdcov.watch")
 
 Recorder = Callable[[str, str, bytes], None]
-"""Called with (vehicle_id, kind, payload) for every status, tiles, snapshot and mission
-that decoded (ground/record.py: it never raises)."""
+"""Called with (vehicle_id, kind, payload) for every status, tiles, detections, snapshot,
+mission and candidates reply that decoded (ground/record.py: it never raises)."""
 
 
 class WatchShell:
@@ -87,6 +88,7 @@ class WatchShell:
             # Tiles first: whatever is published after the snapshot query must reach us.
             entities.append(session.declare_subscriber(f"pdcov/{sel}/tiles", on_sample))
             entities.append(session.declare_subscriber(f"pdcov/{sel}/status", on_sample))
+            entities.append(session.declare_subscriber(f"pdcov/{sel}/detections", on_sample))
             entities.append(session.liveliness().declare_subscriber(
                 f"pdcov/{sel}/alive", on_alive, history=True))
             self.watcher.on_connected(self.now_s())
@@ -96,6 +98,7 @@ class WatchShell:
                 now = self.now_s()
                 self._do(self.watcher.poll(now))
                 self._do(self.watcher.missions_due(now))
+                self._do(self.watcher.candidates_due(now))
                 if now >= next_footprint:
                     next_footprint = now + self.footprint_period_s
                     for vid, feed in self.watcher.feeds.items():
@@ -134,6 +137,10 @@ class WatchShell:
                                                  source)
             elif kind == "tiles":
                 actions = self.watcher.on_tiles(vid, decode_tiles(payload, key), now, source)
+            elif kind == "detections":
+                self.watcher.on_detections(vid, decode_detections(payload, key, vid), now,
+                                           source)
+                actions = []
             else:
                 return
         except BusPayloadError as exc:
@@ -157,10 +164,12 @@ class WatchShell:
         self.version += 1
         self._do(self.watcher.on_alive(vid, alive, self.now_s()))
 
-    def _do(self, actions: list[QuerySnapshot] | list[QueryMission]) -> None:
+    def _do(self, actions: list[QuerySnapshot] | list[QueryMission] | list[QueryCandidates]
+            ) -> None:
         for a in actions:
-            self._start_query(a.vehicle_id,
-                              "mission" if isinstance(a, QueryMission) else "snapshot")
+            self._start_query(a.vehicle_id, "mission" if isinstance(a, QueryMission)
+                              else "candidates" if isinstance(a, QueryCandidates)
+                              else "snapshot")
 
     # -- queries ------------------------------------------------------------------------
 
@@ -234,6 +243,8 @@ class WatchShell:
         def decode(payload: bytes, key: str) -> Any:
             if kind == "mission":
                 return decode_mission(payload, key, vehicle_id)
+            if kind == "candidates":
+                return decode_detections(payload, key, vehicle_id)
             return (decode_snapshot if kind == "snapshot" else decode_footprint)(payload, key)
 
         decoded = []
@@ -246,6 +257,9 @@ class WatchShell:
         if kind == "snapshot":
             self._do(self.watcher.on_snapshot_replies(
                 vehicle_id, [(source, state) for source, state, _ in decoded], now))
+        elif kind == "candidates":
+            self.watcher.on_candidates_replies(
+                vehicle_id, [(source, doc) for source, doc, _ in decoded], now)
         elif not decoded and kind == "mission":
             self.watcher.on_mission_failed(vehicle_id, now)
         for source, doc, _ in decoded:

@@ -7,6 +7,10 @@ Layout (docs/ground-station.md):
                                     then the tiles payload as received (docs/protocol.md)
     DIR/<vehicle_id>/snapshot-N.npz each snapshot reply as received
     DIR/<vehicle_id>/mission-N.json each mission reply as received
+    DIR/<vehicle_id>/detections.jsonl one line per detections payload:
+                                    {"recv_unix_s": t, "detections": {...}}
+    DIR/<vehicle_id>/candidates-N.json each candidates reply as received
+    DIR/exports/                    while running and at the end: ground/record_exports.py
     DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt
     DIR/fleet/                      at the end: the merged grid.npz and, with the mission
                                     config, the report (metrics.json, heatmap.png, ...)
@@ -41,14 +45,15 @@ MAX_BACKLOG_BYTES = 64 << 20
 log = logging.getLogger("pdcov.watch")
 
 
-def _status_line(t: float, payload: bytes) -> bytes:
-    """The status.jsonl line of a status: its JSON object, or (not strict JSON: not UTF-8,
-    not JSON, a NaN or infinity in it) its text as a string, so every line stays JSON."""
+def _json_line(t: float, kind: str, payload: bytes) -> bytes:
+    """The <kind>.jsonl line of a status or detections payload: its JSON object under
+    ``kind``, or (not strict JSON: not UTF-8, not JSON, a NaN or infinity in it) its text as
+    a string, so every line stays JSON."""
     text = payload.decode("utf-8", "replace")
     try:
-        line = json.dumps({"recv_unix_s": t, "status": json.loads(text)}, allow_nan=False)
+        line = json.dumps({"recv_unix_s": t, kind: json.loads(text)}, allow_nan=False)
     except (ValueError, RecursionError):
-        line = json.dumps({"recv_unix_s": t, "status": text})
+        line = json.dumps({"recv_unix_s": t, kind: text})
     return (line + "\n").encode()
 
 
@@ -146,12 +151,13 @@ class Recording:
 
     def _item(self, vid: str, kind: str, payload: bytes, t: float) -> _Pending | None:
         folder = self.out / vid
-        if kind == "status":
-            return _Pending(folder / "status.jsonl", _status_line(t, payload), append=True)
+        if kind in ("status", "detections"):
+            return _Pending(folder / f"{kind}.jsonl", _json_line(t, kind, payload),
+                            append=True)
         if kind == "tiles":
             return _Pending(folder / "tiles.bin", TILE_RECORD.pack(t, len(payload)) + payload,
                             append=True)
-        if kind in ("snapshot", "mission"):
+        if kind in ("snapshot", "mission", "candidates"):
             n = self._replies[(vid, kind)] = self._replies.get((vid, kind), 0) + 1
             ext = "npz" if kind == "snapshot" else "json"
             return _Pending(folder / f"{kind}-{n}.{ext}", payload, append=False)

@@ -54,6 +54,13 @@ def headline(report: FleetReport) -> str:
             f"({len(report.merged)} vehicle{'s' if len(report.merged) > 1 else ''}: {who})")
 
 
+def candidate_lines(report: FleetReport) -> list[str]:
+    """One line per vehicle with detection candidates: how many, and the one detected
+    most often."""
+    return [f"candidates {v.vehicle_id}: {v.candidates} (most detected: {v.best_candidate})"
+            for v in report.vehicles if v.candidates]
+
+
 def render(report: FleetReport) -> Any:
     """A rich renderable of the whole report."""
     from rich import box
@@ -74,7 +81,7 @@ def render(report: FleetReport) -> Any:
     table.add_column("vehicle", no_wrap=True, max_width=12)
     for th in report.thresholds:
         table.add_column(f">={th:g}", justify="right", style="bold" if th == t else "")
-    for name in ("mean P_D", "frames", "skip", "link", "age"):
+    for name in ("mean P_D", "frames", "skip", "cand", "link", "age"):
         table.add_column(name, justify="right" if name != "link" else "left", no_wrap=True)
     for v in report.vehicles:
         table.add_row(
@@ -83,10 +90,11 @@ def render(report: FleetReport) -> Any:
             "-" if v.mean_pd is None else f"{v.mean_pd:.3f}",
             "-" if v.frames_used is None else str(v.frames_used),
             "-" if v.frames_skipped is None else str(v.frames_skipped),
-            _link(v), _age(v.age_s))
+            str(v.candidates), _link(v), _age(v.age_s))
     parts.append(table)
     if any(not v.grid_ready for v in report.vehicles):
         parts.append(Text("* grid not yet received: figures from its status"))
+    parts += [Text(line) for line in candidate_lines(report)]
     parts += [Text(f"! {line}", style="bold yellow") for line in report.warnings]
     return Group(*parts)
 

@@ -18,8 +18,17 @@ Each vehicle's mission geometry (docs/protocol.md "mission") is asked for once i
 hash is known (first status, or snapshot) and again whenever that hash changes; a failed or
 stale reply is asked again after ``mission_retry_s``.
 
+Each vehicle's detections (docs/protocol.md "detections") add and update its candidates
+and its recent detections; the whole candidate list (queryable ``candidates``) is asked for
+whenever a snapshot is taken (first contact, and after every gap or restart: detections
+carry no sequence number, so the snapshot's resynchronisation is theirs too), and again
+after ``mission_retry_s`` when it did not come. At most ``max_candidates`` candidates per
+vehicle are kept (beyond, the one with the fewest hits, then the oldest last detection, is
+forgotten and counted) and the latest ``max_detections`` detections.
+
 Each vehicle is pinned to the Zenoh session that answers its snapshot (ground/claims.py):
-status, tiles, mission and footprint from any other session are refused and counted, and a
+status, tiles, mission, footprint and detections from any other session are refused and
+counted, and a
 snapshot query answered by two sessions leaves the vehicle contested (not trusted, shown).
 A status of the pinned session is checked against the grid rebuilt from its tiles whenever
 both describe the same frames; a disagreement beyond rounding is counted, shown and
@@ -30,7 +39,7 @@ merge by adding): the ground station's mission grid when it has one, else the gr
 vehicles share (ties: the vehicle heard first). ``now_s`` is the watcher's own monotonic
 clock in seconds.
 
-One state machine, so a little over 450 lines: its inputs, timers and outputs share the
+One state machine, so over 500 lines: its inputs, timers and outputs share the
 per-vehicle state and read best together (what it holds is ground/feed.py, what it
 reports ground/fleet_report.py, who speaks for a vehicle ground/claims.py).
 """
@@ -38,7 +47,7 @@ reports ground/fleet_report.py, who speaks for a vehicle ground/claims.py).
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -53,11 +62,19 @@ from pdcov.ground.claims import ClaimVerdict
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
 
-__all__ = ["MAX_VEHICLES", "QueryMission", "QuerySnapshot", "Watcher"]
+__all__ = ["MAX_CANDIDATES_KEPT", "MAX_DETECTIONS_KEPT", "MAX_VEHICLES", "QueryCandidates",
+           "QueryMission", "QuerySnapshot", "Watcher"]
 
 MAX_VEHICLES = 64
 """Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
 open bus could otherwise invent vehicles without end)."""
+MAX_CANDIDATES_KEPT = 2000
+"""Candidates kept per vehicle, fewer than a daemon may hold (bus/detections.py
+MAX_CANDIDATES) because a ground station follows up to MAX_VEHICLES: a flight over a crowd,
+or a detector gone wrong, must not grow it without end; the operator is told how many
+were forgotten."""
+MAX_DETECTIONS_KEPT = 500
+"""Recent detections kept per vehicle (the candidates summarise the rest)."""
 STATUS_PD_TOLERANCE = 1e-6
 """How far a status's mean P_D may be from the rebuilt grid's (the daemon sums per tile in
 float64: about 1e-16 apart; the status carries full float64 digits)."""
@@ -79,6 +96,14 @@ class QueryMission:
     vehicle_id: str
 
 
+@dataclass(frozen=True, slots=True)
+class QueryCandidates:
+    """Action: query ``pdcov/<vehicle_id>/candidates`` and hand the replies to
+    on_candidates_replies."""
+
+    vehicle_id: str
+
+
 class Watcher:
     """Per-vehicle grids rebuilt from status, tiles and snapshot replies, and the fleet.
 
@@ -93,7 +118,8 @@ class Watcher:
     vehicles followed at most. bus_warning: what the operator must always be told about the
     bus (bus.session.BusSecurity.warning), or None. quiet_hint: why no vehicle may be heard
     on this session (bus.session.quiet_hint), shown once the session has been connected
-    quiet_after_s without any vehicle.
+    quiet_after_s without any vehicle. max_candidates, max_detections: kept per vehicle
+    (module docstring).
 
     Every input takes the Zenoh session it came from (``source``: hex session id, None
     when the sample named none; ground/claims.py).
@@ -104,7 +130,8 @@ class Watcher:
                  trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
                  mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
                  bus_warning: str | None = None, quiet_hint: str | None = None,
-                 quiet_after_s: float = 10.0) -> None:
+                 quiet_after_s: float = 10.0, max_candidates: int = MAX_CANDIDATES_KEPT,
+                 max_detections: int = MAX_DETECTIONS_KEPT) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
@@ -114,6 +141,8 @@ class Watcher:
         self.max_track_points = max_track_points
         self.max_vehicles = max_vehicles
         self.bus_warning = bus_warning
+        self.max_candidates = max_candidates
+        self.max_detections = max_detections
         self.quiet_hint = quiet_hint
         self.quiet_after_s = quiet_after_s
         self.connected_s: float | None = None
@@ -233,6 +262,8 @@ class Watcher:
             feed.mission, feed.mission_asked_for = None, None
         if feed.footprint_session != session:
             feed.footprint = None
+        if feed.detections_session != session:
+            feed.candidates, feed.detections = {}, deque()
         pending, feed.pending = sorted(feed.pending, key=lambda u: u[0].seq), []
         for update, source in pending:
             if source != session or update.grid_hash != state.hash:
@@ -283,6 +314,54 @@ class Watcher:
         if feed is not None:
             feed.mission_retry_at_s = now_s + self.mission_retry_s
 
+    def on_detections(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
+                      source: SessionId = None) -> None:
+        """A decoded detections payload (bus.detections.decode_detections): its new
+        detections and the candidates they touched. Refused (counted in the claim) from a
+        session other than the pinned one."""
+        feed = self._trusted(vehicle_id, source, now_s)
+        if feed is None:
+            return
+        self._touch(feed, "detections", now_s)
+        if feed.detections_session != source:
+            feed.candidates, feed.detections = {}, deque()
+        feed.detections_session = source
+        self._take_findings(feed, doc)
+
+    def on_candidates_replies(self, vehicle_id: str,
+                              replies: Sequence[tuple[SessionId, dict[str, Any]]],
+                              now_s: float) -> None:
+        """Every decoded reply of one candidates query (a detections document holding all
+        the vehicle's candidates): the trusted session's replaces the candidates held; none
+        (timeout, an older daemon, only other sessions) asks again after mission_retry_s."""
+        feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
+        if feed is None:
+            return
+        for source, doc in replies:
+            if self._trusted(vehicle_id, source, now_s) is None:
+                continue
+            self._touch(feed, "candidates", now_s)
+            feed.candidates, feed.detections = {}, deque()
+            feed.detections_session = source
+            feed.candidates_retry_at_s = None
+            self._take_findings(feed, doc)
+            return
+        feed.candidates_retry_at_s = now_s + self.mission_retry_s
+
+    def candidates_due(self, now_s: float) -> list[QueryCandidates]:
+        """Candidates queries to make now: once after each snapshot taken, and again every
+        mission_retry_s until one is answered."""
+        due = []
+        for feed in self.feeds.values():
+            if feed.state is None or feed.awaiting_since_s is not None:
+                continue
+            retry = feed.candidates_retry_at_s
+            if feed.candidates_asked_at != feed.snapshots or (
+                    retry is not None and now_s >= retry):
+                feed.candidates_asked_at, feed.candidates_retry_at_s = feed.snapshots, None
+                due.append(QueryCandidates(feed.vehicle_id))
+        return due
+
     def missions_due(self, now_s: float) -> list[QueryMission]:
         """Mission queries to make now: for a vehicle whose grid hash is known and whose
         mission does not describe it, once per hash, then every mission_retry_s."""
@@ -298,13 +377,15 @@ class Watcher:
         return due
 
     def taken_from(self, vehicle_id: str, kind: str) -> SessionId | tuple[()]:
-        """The session whose snapshot or mission reply the watcher holds for the vehicle,
-        or () when it holds none (unknown, contested, refused)."""
+        """The session whose snapshot, mission or candidates reply the watcher holds for the
+        vehicle, or () when it holds none (unknown, contested, refused)."""
         feed = self.feeds.get(vehicle_id)
         if feed is None:
             return ()
         if kind == "mission":
             return feed.mission_session if feed.mission is not None else ()
+        if kind == "candidates":
+            return feed.detections_session
         return feed.claim.session if feed.claim.pinned and feed.state is not None else ()
 
     def mission_for(self, grid_hash: str | None) -> MissionGeometry | None:
@@ -462,6 +543,23 @@ class Watcher:
         if status is not None and status["tiles_seq"] <= update.seq:
             feed.behind_since_s = None
         return []
+
+    def _take_findings(self, feed: VehicleFeed, doc: dict[str, Any]) -> None:
+        """Keep a detections document's candidates (by id, the latest) and detections
+        (the newest max_detections), forgetting the weakest candidates beyond
+        max_candidates."""
+        for c in doc.get("candidates") or ():
+            feed.candidates[int(c["id"])] = c
+        feed.detections.extend(doc.get("detections") or ())
+        while len(feed.detections) > self.max_detections:
+            feed.detections.popleft()
+        extra = len(feed.candidates) - self.max_candidates
+        if extra > 0:
+            weakest = sorted(feed.candidates.values(),
+                             key=lambda c: (c["hits"], c["last_t_boot_s"]))[:extra]
+            for c in weakest:
+                del feed.candidates[int(c["id"])]
+            feed.candidates_dropped += extra
 
     def _add_track_point(self, feed: VehicleFeed, pose: dict[str, Any]) -> None:
         try:

@@ -91,15 +91,6 @@ def asset(name: str) -> bytes:
     return (resources.files("pdcov.ground") / "web" / name).read_bytes()
 
 
-def _origin(feed: VehicleFeed) -> Origin | None:
-    o = ((feed.status or {}).get("grid") or {}).get("origin") or {}
-    try:
-        return Origin(float(o["lat_deg"]), float(o["lon_deg"]),
-                      float(o.get("ground_alt_msl_m") or 0.0))
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
 def _lat_lon(points: Any) -> list[list[float]]:
     """[lat, lon] pairs (degrees, 1e-8: a millimetre) of (lat, lon, ...) tuples."""
     return [[round(float(p[0]), 8), round(float(p[1]), 8)] for p in points]
@@ -142,6 +133,17 @@ def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any, origin: Origin
             "h": raster.shape[0], "bounds_lat_lon": bounds, "pd_levels": PD_LEVELS,
             "pd_b64": base64.b64encode(raster.tobytes()).decode(),
             "outline_threshold": target, "outline_lat_lon": outline, "outline_note": note}
+
+
+CANDIDATE_FIELDS = ("id", "class", "lat_deg", "lon_deg", "sigma_m", "hits", "looks", "pd",
+                    "pfa", "confidence", "first_t_boot_s", "last_t_boot_s")
+"""What the map shows of each candidate (the names of the detections payload)."""
+
+
+def candidates_layer(feed: VehicleFeed) -> list[dict[str, Any]]:
+    """The vehicle's detection candidates for the map (CANDIDATE_FIELDS), by id."""
+    return [{k: c.get(k) for k in CANDIDATE_FIELDS}
+            for _, c in sorted(feed.candidates.items())]
 
 
 def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | None,
@@ -214,7 +216,7 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
     origin = None
     for k, v in enumerate(report.vehicles):
         feed = watcher.feeds[v.vehicle_id]
-        o = _origin(feed)
+        o = feed.origin()
         if o is not None and (origin is None or v.vehicle_id in report.merged[:1]):
             origin = o  # the fleet grid's frame: its first vehicle's origin
         footprint = None
@@ -229,7 +231,7 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
             "status_proportion": {str(t): p
                                   for t, p in v.status_proportion_at_or_above.items()},
             "mean_pd": v.mean_pd, "track_lat_lon": _lat_lon(feed.track_lat_lon_alt),
-            "footprint_lat_lon": footprint})
+            "footprint_lat_lon": footprint, "candidates": candidates_layer(feed)})
     domain, note = domain_layer(watcher, None if merged is None else merged.hash, mission,
                                 config_grid_hash)
     if origin is None and domain is not None:

@@ -1,4 +1,5 @@
-"""GIS exports: the P_D grid as a GeoTIFF and the threshold outline as GeoJSON (rasterio).
+"""GIS exports: the P_D grid as a GeoTIFF and the threshold outline as GeoJSON (rasterio);
+cell outlines in ENU and their WGS84 coordinates for the other exports (report/exports.py).
 
 The grid lives in the local ENU plane about the mission origin. The GeoTIFF's CRS is a
 transverse Mercator projection centred on that origin (scale 1, no false easting or
@@ -68,28 +69,42 @@ def threshold_outline(pd: np.ndarray, mask: np.ndarray, geometry: GridGeometry,
                       threshold: float) -> list[list[list[list[float]]]]:
     """Polygons (ENU metres, rings of [x, y]) of the free cells with P_D >= ``threshold``:
     a list of polygons, each a list of rings (exterior first, then holes)."""
+    return cells_outline(mask & (pd >= threshold), geometry)
+
+
+def cells_outline(cells: np.ndarray, geometry: GridGeometry) -> list[list[list[list[float]]]]:
+    """Polygons (ENU metres, rings of [x, y], exterior first, then holes) of the cells set
+    in the boolean grid array ``cells`` (rows growing north); cells touching by a side
+    share a polygon."""
     from rasterio.features import shapes
 
-    hit = (mask & (pd >= threshold)).astype(np.uint8)
+    hit = np.flipud(cells).astype(np.uint8)
     polys = []
-    for geom, value in shapes(np.flipud(hit), mask=np.flipud(hit) > 0,
-                              transform=_transform(geometry)):
+    for geom, value in shapes(hit, mask=hit > 0, transform=_transform(geometry)):
         if value == 1:
             polys.append([[list(map(float, p)) for p in ring] for ring in geom["coordinates"]])
     return polys
 
 
-def write_outline_geojson(path: str | Path, polygons_enu: list[list[list[list[float]]]],
-                          origin: Origin, threshold: float) -> None:
-    """GeoJSON FeatureCollection (WGS84 lon/lat) of the threshold outline, atomically."""
-    coords = []
+def polygons_lon_lat(polygons_enu: list[list[list[list[float]]]], origin: Origin
+                     ) -> list[list[list[list[float]]]]:
+    """ENU polygons (lists of rings of [x, y] m, on the origin's ground) as WGS84
+    [lon, lat] degrees, the order GeoJSON (RFC 7946) and KML use, to 1e-9 degrees."""
+    out = []
     for poly in polygons_enu:
         rings = []
         for ring in poly:
-            enu = np.array(ring, dtype=float)
+            enu = np.array(ring, dtype=float).reshape(-1, 2)
             lla = enu_to_geodetic(np.c_[enu, np.zeros(len(enu))], origin)
-            rings.append([[round(lon, 9), round(lat, 9)] for lat, lon, _ in lla])
-        coords.append(rings)
+            rings.append([[round(float(lon), 9), round(float(lat), 9)] for lat, lon, _ in lla])
+        out.append(rings)
+    return out
+
+
+def write_outline_geojson(path: str | Path, polygons_enu: list[list[list[list[float]]]],
+                          origin: Origin, threshold: float) -> None:
+    """GeoJSON FeatureCollection (WGS84 lon/lat) of the threshold outline, atomically."""
+    coords = polygons_lon_lat(polygons_enu, origin)
     doc = {"type": "FeatureCollection", "features": [{
         "type": "Feature",
         "properties": {"pd_threshold": threshold, "cells": "P_D >= threshold"},

@@ -1,10 +1,12 @@
 """Offline evaluation: camera poses through the coverage grid, and the run's outputs.
 
 Outputs in a run folder (docs/outputs.md): metrics.json, grid.npz, heatmap.png,
-thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks, limiting factor), outline.geojson, and
-with a prior posterior.npy / posterior.tif. Every file is written atomically. The figures
-need the plots extra, the GeoTIFF and GeoJSON files the gis extra: without one, the rest is
-written and the run says what was not (``RunOutputs.not_written``).
+thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks, limiting factor), outline.geojson, with
+a prior posterior.npy / posterior.tif, and for ``pdcov evaluate`` the exports for search
+teams' tools (report/exports.py: detections.geojson, caltopo.geojson, pdcov.kml, ...).
+Every file is written atomically. The figures need the plots extra, the GeoTIFF and GeoJSON
+files the gis extra: without one, the rest is written and the run says what was not
+(``RunOutputs.not_written``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
+from pdcov.report.exports import Coverage, VehicleDetections, write_exports
 
 METRICS_VERSION = 1
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
@@ -187,9 +190,12 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   *, title: str, track_enu: np.ndarray | None = None,
                   plan_enu: np.ndarray | None = None, outline_threshold: float | None = None,
                   prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
-                  figures: bool = True) -> RunOutputs:
+                  figures: bool = True,
+                  exports: Sequence[VehicleDetections] | None = None) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
-    not installed are named in ``not_written`` instead."""
+    not installed are named in ``not_written`` instead. ``exports``: the detections to
+    export with the coverage (report/exports.py; gaps below the outline threshold), None
+    for no exports."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -223,6 +229,11 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     if gis_missing is not None:
         gis_files = ("pd.tif", "outline.geojson") + (("posterior.tif",) if outcome else ())
         not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
+    if exports is not None:
+        coverage = Coverage(pd, mask, g, origin, tuple(mission.thresholds), threshold)
+        exported = write_exports(out, coverage, exports, title=title)
+        files += exported.files
+        not_written += exported.not_written
     if figures:
         figure_files = ["heatmap.png", "thresholds.png"]
         plots_missing = PLOTS.message()

@@ -1,0 +1,230 @@
+"""Cursor-on-Target events for ``pdcov watch --cot URL``, with no I/O: the watcher's state,
+``now_s`` (monotonic) and ``now_unix_s`` (for the events' times) in, CoT XML events out
+(ground/cot_feed.py sends them with pytak).
+
+Per vehicle (docs/ground-station.md "Cursor-on-Target"):
+
+* the aircraft, uid ``pdcov-<vehicle>``, type AIRCRAFT_TYPE, at its status position, with
+  a ``<sensor>`` detail (the CoT sensor schema ATAK draws as a field-of-view wedge:
+  ``azimuth`` degrees true, ``elevation`` degrees (-90 straight down), ``fov`` and ``vfov``
+  horizontal and vertical degrees, ``range`` metres) measured on the camera's current ground
+  footprint, so that a gimbal's pointing is shown as it is; sent when the position is new,
+  at most every ``aircraft_period_s``, stale after ``aircraft_stale_s`` (a silent vehicle
+  fades on the map instead of standing still);
+* each candidate, uid ``pdcov-<vehicle>-<id>``, type CANDIDATE_TYPE (unknown ground
+  object: nobody has looked at it yet), ``ce`` its 90 % circular error, its counts in the
+  remarks; sent when it changed and again every ``candidate_period_s``, stale after
+  ``candidate_stale_s``.
+
+Heights: CoT's ``hae`` is above the WGS84 ellipsoid and the status gives MSL (pdcov has no
+geoid model), so every point says its height is unknown (9999999, CoT's own value) and
+the MSL altitude is in the remarks. At most ``max_events_per_s`` events go out (a token
+bucket): aircraft first, then changed candidates, then the repeats.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from functools import partial
+from typing import Any
+
+import numpy as np
+import shapely
+
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.ground.feed import VehicleFeed
+
+__all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CotSchedule", "Sensor", "aircraft_event",
+           "candidate_event", "sensor_from_footprint"]
+
+AIRCRAFT_TYPE = "a-f-A-M-F-Q"
+"""MIL-STD-2525 friendly air, unmanned aerial vehicle: the UAV symbol TAK clients draw."""
+CANDIDATE_TYPE = "a-u-G"
+"""Unknown ground object."""
+UNKNOWN = "9999999.0"
+"""CoT's value for an unknown ce, le or hae."""
+CE90_PER_SIGMA = 2.146
+"""90 % circular error of a circular normal distribution, in units of its 1-sigma."""
+NADIR_SHARE = 0.05
+"""A footprint centre nearer the point below the aircraft than this share of its height is
+taken as straight down: the sensor azimuth is then the vehicle's heading."""
+
+
+def cot_time(unix_s: float) -> str:
+    """A CoT time: UTC, ISO 8601 to the millisecond, 'Z'."""
+    t = datetime.fromtimestamp(unix_s, tz=timezone.utc)
+    return t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
+
+
+@dataclass(frozen=True, slots=True)
+class Sensor:
+    """The CoT ``<sensor>`` detail: degrees and metres (module docstring)."""
+
+    azimuth_deg: float
+    elevation_deg: float
+    fov_deg: float
+    vfov_deg: float
+    range_m: float
+
+
+def sensor_from_footprint(lat_deg: float, lon_deg: float, height_m: float,
+                          heading_deg: float | None, ring_lon_lat_deg: Any) -> Sensor | None:
+    """The sensor wedge of a camera ``height_m`` above flat ground whose footprint is the
+    ring (lon, lat) degrees, as a level pinhole camera looking at the footprint's centroid
+    sees it: azimuth, elevation and slant range of that line of sight (azimuth the heading
+    when the centroid lies below the aircraft, NADIR_SHARE), and the angles the footprint
+    spans across (fov) and along (vfov) it, from the footprint's vertices in that camera's
+    image plane (exact for a footprint whose corners are the picture's). None without a
+    usable footprint or height."""
+    ring = np.asarray(ring_lon_lat_deg, dtype=float).reshape(-1, 2)
+    if len(ring) < 3 or not height_m > 0 or not np.isfinite(ring).all():
+        return None
+    here = Origin(lat_deg, lon_deg, 0.0)
+    enu = geodetic_to_enu(ring[:, 1], ring[:, 0], 0.0, here)[:, :2]
+    poly = shapely.Polygon(enu)
+    if not poly.is_valid or poly.area <= 0:
+        return None
+    c = np.array(poly.centroid.coords[0])
+    d = float(np.hypot(*c))
+    az = math.radians(heading_deg or 0.0) if d < NADIR_SHARE * height_m \
+        else math.atan2(c[0], c[1])
+    los = np.array([c[0], c[1], -height_m])
+    b = los / np.linalg.norm(los)  # the line of sight, ENU
+    right = np.array([math.cos(az), -math.sin(az), 0.0])  # level, across the azimuth
+    up = np.cross(right, b)
+    rays = np.c_[enu, np.full(len(enu), -height_m)]
+    depth = rays @ b
+    x, y = np.arctan((rays @ right) / depth), np.arctan((rays @ up) / depth)
+    return Sensor(azimuth_deg=math.degrees(az) % 360.0,
+                  elevation_deg=math.degrees(math.asin(float(b[2]))),
+                  fov_deg=math.degrees(float(x.max() - x.min())),
+                  vfov_deg=math.degrees(float(y.max() - y.min())),
+                  range_m=float(np.linalg.norm(los)))
+
+
+def _event(uid: str, cot_type: str, how: str, lat_deg: float, lon_deg: float, ce: str,
+           now_unix_s: float, stale_s: float) -> tuple[ET.Element, ET.Element]:
+    event = ET.Element("event", version="2.0", uid=uid, type=cot_type, how=how,
+                       time=cot_time(now_unix_s), start=cot_time(now_unix_s),
+                       stale=cot_time(now_unix_s + stale_s))
+    ET.SubElement(event, "point", lat=f"{lat_deg:.7f}", lon=f"{lon_deg:.7f}", hae=UNKNOWN,
+                  ce=ce, le=UNKNOWN)
+    return event, ET.SubElement(event, "detail")
+
+
+def _f(v: float) -> str:
+    return f"{v:.1f}"
+
+
+def aircraft_uid(vehicle_id: str) -> str:
+    return f"pdcov-{vehicle_id}"
+
+
+def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
+                   now_unix_s: float, stale_s: float) -> bytes:
+    """The aircraft's event from a status ``pose`` {lat_deg, lon_deg, alt_msl_m,
+    heading_deg}: its position (how "m-g": GPS), call sign, course, and the sensor."""
+    event, detail = _event(aircraft_uid(vehicle_id), AIRCRAFT_TYPE, "m-g",
+                           float(pose["lat_deg"]), float(pose["lon_deg"]), UNKNOWN,
+                           now_unix_s, stale_s)
+    ET.SubElement(detail, "contact", callsign=f"pdcov {vehicle_id}")
+    if pose.get("heading_deg") is not None:
+        ET.SubElement(detail, "track", course=_f(float(pose["heading_deg"]) % 360.0))
+    if sensor is not None:
+        ET.SubElement(detail, "sensor", azimuth=_f(sensor.azimuth_deg),
+                      elevation=_f(sensor.elevation_deg), fov=_f(sensor.fov_deg),
+                      vfov=_f(sensor.vfov_deg), range=_f(sensor.range_m),
+                      model="pdcov camera footprint", type="r-e")
+    alt = pose.get("alt_msl_m")
+    remarks = "pdcov coverage aircraft" + ("" if alt is None else f", {alt:.1f} m MSL")
+    ET.SubElement(detail, "remarks").text = remarks
+    return ET.tostring(event)
+
+
+def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale_s: float
+                    ) -> bytes:
+    """A candidate's event (a detections payload's candidate entry): how "m-f" (computed
+    from the pose and the pixels), ce its 90 % circle."""
+    event, detail = _event(f"pdcov-{vehicle_id}-{c['id']}", CANDIDATE_TYPE, "m-f",
+                           float(c["lat_deg"]), float(c["lon_deg"]),
+                           _f(CE90_PER_SIGMA * float(c["sigma_m"])), now_unix_s, stale_s)
+    ET.SubElement(detail, "contact", callsign=f"{vehicle_id} {c['class']} #{c['id']}")
+    ET.SubElement(detail, "link", uid=aircraft_uid(vehicle_id), type=AIRCRAFT_TYPE,
+                  relation="p-p")
+    alt = c.get("alt_msl_m")
+    ET.SubElement(detail, "remarks").text = (
+        f"{c['class']} detected {c['hits']} of {c['looks']} looks; cell P_D {c['pd']:.2f}, "
+        f"P_FA {c['pfa']:.3f}; best confidence {c['confidence']:.2f}"
+        + ("" if alt is None else f"; {alt:.1f} m MSL"))
+    return ET.tostring(event)
+
+
+@dataclass(slots=True)
+class CotSchedule:
+    """Which events to send now (module docstring): call ``due`` every tick."""
+
+    aircraft_period_s: float = 1.0
+    aircraft_stale_s: float = 10.0
+    candidate_period_s: float = 15.0
+    candidate_stale_s: float = 300.0
+    max_events_per_s: float = 20.0
+    sent: int = 0
+    _tokens: float = 0.0
+    _last_s: float | None = None
+    _sent_at: dict[tuple[str, ...], tuple[float, Any]] = field(default_factory=dict)
+    """(kind, vehicle[, candidate id]) -> (when sent, what it said)."""
+
+    def due(self, feeds: Iterable[VehicleFeed], now_s: float, now_unix_s: float
+            ) -> list[bytes]:
+        """The events to send at ``now_s`` (monotonic s; ``now_unix_s`` stamps them), at
+        most what the rate allows; the rest wait for the next call."""
+        refill = self.max_events_per_s if self._last_s is None \
+            else (now_s - self._last_s) * self.max_events_per_s
+        self._tokens = min(self.max_events_per_s, self._tokens + max(0.0, refill))
+        self._last_s = now_s
+        ranked: list[tuple[int, tuple[str, ...], Any, Callable[[], bytes]]] = []
+        for feed in feeds:
+            vid = feed.vehicle_id
+            pose = (feed.status or {}).get("pose")
+            if isinstance(pose, dict):
+                at = (pose.get("t_s"), pose.get("lat_deg"), pose.get("lon_deg"))
+                last = self._sent_at.get(("a", vid))
+                if last is None or (last[1] != at
+                                    and now_s - last[0] >= self.aircraft_period_s):
+                    ranked.append((0, ("a", vid), at, partial(
+                        aircraft_event, vid, pose, _sensor(feed, pose), now_unix_s,
+                        self.aircraft_stale_s)))
+            for cid, c in feed.candidates.items():
+                said = (c["hits"], c["looks"], c["lat_deg"], c["lon_deg"], c["sigma_m"])
+                last = self._sent_at.get(("c", vid, str(cid)))
+                changed = last is None or last[1] != said
+                if changed or (last is not None and now_s - last[0] >= self.candidate_period_s):
+                    ranked.append((1 if changed else 2, ("c", vid, str(cid)), said, partial(
+                        candidate_event, vid, c, now_unix_s, self.candidate_stale_s)))
+        ranked.sort(key=lambda r: r[0])
+        out = []
+        for _, key, said, build in ranked:
+            if self._tokens < 1.0:
+                break
+            self._tokens -= 1.0
+            self._sent_at[key] = (now_s, said)
+            out.append(build())
+        self.sent += len(out)
+        return out
+
+
+def _sensor(feed: VehicleFeed, pose: dict[str, Any]) -> Sensor | None:
+    """The sensor wedge from the vehicle's footprint and its height over the origin's
+    ground (the grid's flat ground)."""
+    geom = (feed.footprint or {}).get("geometry")
+    origin = ((feed.status or {}).get("grid") or {}).get("origin") or {}
+    ground, alt = origin.get("ground_alt_msl_m"), pose.get("alt_msl_m")
+    if not isinstance(geom, dict) or ground is None or alt is None:
+        return None
+    return sensor_from_footprint(float(pose["lat_deg"]), float(pose["lon_deg"]),
+                                 float(alt) - float(ground), pose.get("heading_deg"),
+                                 geom["coordinates"][0])

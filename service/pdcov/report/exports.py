@@ -1,0 +1,348 @@
+"""Exports for the tools search teams use, written by ``pdcov evaluate`` (in the run folder)
+and ``pdcov watch --record DIR`` (in DIR/exports/), from the same builders
+(docs/outputs.md "Exports"):
+
+* ``detections.geojson``: RFC 7946 FeatureCollection, a Point per detection and per
+  candidate (WGS84 [lon, lat]);
+* ``caltopo.geojson``: the same map for CalTopo / SARTopo's GeoJSON import: P_D outlines and
+  gaps as ``Shape`` polygons with stroke and fill, candidates as ``Marker`` points, re-fly
+  areas as ``Assignment`` polygons (the properties CalTopo itself writes in its exports);
+* ``pdcov.kml`` with ``pd_overlay.png`` beside it, and ``pdcov.kmz`` (the same ``doc.kml``
+  and PNG zipped): a P_D ground overlay and the same features, for Google Earth and ATAK
+  (report/kml.py).
+
+The builders are pure: the coverage (``Coverage``) and each vehicle's detections
+(``VehicleDetections``, the ``pdcov.detections`` document as decoded from the bus or read
+from detections.json) in, documents out. ``write_exports`` writes them atomically and says
+which it could not write for lack of an extra: the outlines and gaps need ``gis``
+(rasterio), the overlay and the KMZ ``plots`` (matplotlib).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+
+from pdcov.atomic import atomic_write, write_text_atomic
+from pdcov.core.domain import GridGeometry
+from pdcov.core.geodesy import Origin
+from pdcov.extras import GIS, PLOTS
+
+__all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
+           "VehicleDetections", "caltopo_geojson", "detections_geojson", "map_layers", "pins",
+           "write_exports"]
+
+MAX_GAP_SHAPES = 500
+"""Gap polygons exported at most (the largest; the FeatureCollection says how many there
+were): a scattered grid can have thousands of one-cell gaps, which no map tool draws well."""
+MAX_REFLY_AREAS = 50
+"""Re-fly areas (assignments) exported at most, the largest."""
+MIN_REFLY_CELLS = 4
+"""A re-fly area smaller than this many cells is not worth an assignment (its gap still is
+a shape)."""
+
+Polygon = list[list[list[float]]]
+"""One polygon: rings (exterior first, then holes) of [lon, lat] degrees."""
+
+# One palette for every export (GeoJSON '#rrggbb'; report/kml.py converts it).
+OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44ad")
+"""P_D outlines from the lowest threshold to the highest (the target), cycling."""
+GAP_COLOR = "#e74c3c"
+REFLY_COLOR = "#8e44ad"
+CANDIDATE_COLOR = "#ff0000"
+DETECTION_COLOR = "#ffa500"
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleDetections:
+    """One vehicle's detections and candidates: the ``detections`` and ``candidates``
+    entries of a ``pdcov.detections`` document (docs/protocol.md "detections"), whose
+    fields the builders read by their JSON names."""
+
+    vehicle: str
+    detections: tuple[Mapping[str, Any], ...] = ()
+    candidates: tuple[Mapping[str, Any], ...] = ()
+
+    @classmethod
+    def from_doc(cls, doc: Mapping[str, Any]) -> VehicleDetections:
+        """From a decoded ``pdcov.detections`` document (bus/detections.py; the same JSON as
+        detections.json)."""
+        return cls(str(doc["vehicle"]), tuple(doc.get("detections") or ()),
+                   tuple(doc.get("candidates") or ()))
+
+
+@dataclass(frozen=True, slots=True)
+class Coverage:
+    """The P_D grid to export: ``pd`` and ``mask`` (n_rows, n_cols; rows growing north),
+    its geometry (ENU m about ``origin``), the thresholds outlined and the target P_D below
+    which a free cell is a gap."""
+
+    pd: np.ndarray
+    mask: np.ndarray
+    geometry: GridGeometry
+    origin: Origin
+    thresholds: tuple[float, ...]
+    target_pd: float
+
+    def pd_at(self, x_m: float, y_m: float) -> float | None:
+        """P_D of the free cell holding ENU point (x_m, y_m), None outside the free cells."""
+        g = self.geometry
+        c = int(np.floor((x_m - g.x0_m) / g.cell_size_m))
+        r = int(np.floor((y_m - g.y0_m) / g.cell_size_m))
+        if not (0 <= r < g.n_rows and 0 <= c < g.n_cols) or not self.mask[r, c]:
+            return None
+        return float(self.pd[r, c])
+
+
+@dataclass(frozen=True, slots=True)
+class MapLayers:
+    """The coverage's shapes in WGS84: an outline per threshold (ascending), the gaps
+    (free cells below the target, largest first, at most MAX_GAP_SHAPES of ``gaps_total``)
+    and the re-fly areas (the gaps grown by a cell, merged and simplified)."""
+
+    outlines: tuple[tuple[float, tuple[Polygon, ...]], ...]
+    gaps: tuple[Polygon, ...]
+    gaps_total: int
+    refly: tuple[tuple[Polygon, float, int], ...]
+    """(polygon, area m², gap cells in it)"""
+    target_pd: float
+
+
+@dataclass(frozen=True, slots=True)
+class Pin:
+    """A point to export: a detection or a candidate, at (lon_deg, lat_deg), with its
+    properties as detections.geojson carries them."""
+
+    kind: str  # "detection" or "candidate"
+    lon_deg: float
+    lat_deg: float
+    properties: dict[str, Any]
+
+    @property
+    def title(self) -> str:
+        """A label for a map tool: 'alpha person #3: detected 9 of 14 looks'."""
+        p = self.properties
+        who = f"{p['vehicle']} {p['class']}"
+        if self.kind == "candidate":
+            return f"{who} #{p['candidate']}: detected {p['hits']} of {p['looks']} looks"
+        return f"{who} (candidate #{p['candidate']}) at t {p['t_boot_s']:.1f} s"
+
+    @property
+    def description(self) -> str:
+        """The properties as 'name: value' lines."""
+        return "\n".join(f"{k}: {_shown(v)}" for k, v in self.properties.items())
+
+
+def _shown(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return "-" if v is None else str(v)
+
+
+def pins(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
+         ) -> list[Pin]:
+    """The candidates, then the detections, of every vehicle (in the order given). ``pd`` is
+    the P_D of the cell under the point in ``coverage`` when given, else the candidate's
+    (the cell's P_D as the daemon sent it); a detection's looks and hits are its
+    candidate's."""
+    out: list[Pin] = []
+    for f in findings:
+        by_id = {c["id"]: c for c in f.candidates}
+        for c in f.candidates:
+            out.append(Pin("candidate", float(c["lon_deg"]), float(c["lat_deg"]), {
+                "kind": "candidate", "vehicle": f.vehicle, "candidate": c["id"],
+                "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
+                "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
+                "confidence": c["confidence"], "looks": c["looks"], "hits": c["hits"],
+                "pd": _cell_pd(coverage, c, c["pd"]), "pfa": c["pfa"],
+                "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m")}))
+        for d in f.detections:
+            cand = by_id.get(d["candidate"], {})
+            out.append(Pin("detection", float(d["lon_deg"]), float(d["lat_deg"]), {
+                "kind": "detection", "vehicle": f.vehicle, "candidate": d["candidate"],
+                "t_boot_s": d["t_boot_s"], "class": d["class"],
+                "confidence": d["confidence"], "looks": cand.get("looks"),
+                "hits": cand.get("hits"), "pd": _cell_pd(coverage, d, cand.get("pd")),
+                "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m")}))
+    return out
+
+
+def _cell_pd(coverage: Coverage | None, point: Mapping[str, Any], sent: Any) -> Any:
+    if coverage is None:
+        return sent
+    pd = coverage.pd_at(float(point["x_m"]), float(point["y_m"]))
+    return sent if pd is None else round(pd, 6)
+
+
+def map_layers(coverage: Coverage) -> MapLayers:
+    """The outlines, gaps and re-fly areas of ``coverage`` (needs the gis extra)."""
+    from pdcov.report.gis import cells_outline, polygons_lon_lat, threshold_outline
+
+    g, o = coverage.geometry, coverage.origin
+    outlines = tuple(
+        (t, tuple(polygons_lon_lat(threshold_outline(coverage.pd, coverage.mask, g, t), o)))
+        for t in sorted(coverage.thresholds))
+    gap_cells = coverage.mask & (coverage.pd < coverage.target_pd)
+    gap_enu = cells_outline(gap_cells, g)
+    gap_shapes = sorted((shapely.Polygon(p[0], p[1:]) for p in gap_enu), key=lambda s: -s.area)
+    kept = gap_shapes[:MAX_GAP_SHAPES]
+    gaps = tuple(polygons_lon_lat([_rings(s) for s in kept], o))
+    refly = _refly_areas(gap_shapes, gap_cells, g)
+    refly_ll = polygons_lon_lat([_rings(a) for a, _, _ in refly], o)
+    return MapLayers(outlines, gaps, len(gap_shapes),
+                     tuple((p, area, n) for p, (_, area, n) in zip(refly_ll, refly,
+                                                                   strict=True)),
+                     coverage.target_pd)
+
+
+def _rings(p: shapely.Polygon) -> list[list[list[float]]]:
+    return [[list(xy) for xy in p.exterior.coords],
+            *([list(xy) for xy in r.coords] for r in p.interiors)]
+
+
+def _refly_areas(gaps: list[shapely.Polygon], gap_cells: np.ndarray, g: GridGeometry
+                 ) -> list[tuple[shapely.Polygon, float, int]]:
+    """The gaps as areas to fly again: grown by a cell and simplified (as planning/refly.py
+    sweeps them, so that a staircase of cell edges and one-cell slivers between gaps make
+    one area), the largest MAX_REFLY_AREAS of at least MIN_REFLY_CELLS gap cells each."""
+    if not gaps:
+        return []
+    c = g.cell_size_m
+    grown = shapely.union_all(gaps).buffer(c, join_style="mitre").simplify(c)
+    parts = [p for p in getattr(grown, "geoms", [grown]) if isinstance(p, shapely.Polygon)]
+    xs, ys = g.centres_enu()
+    rows, cols = np.nonzero(gap_cells)
+    centres = shapely.points(xs[cols], ys[rows])
+    out = []
+    for p in parts:
+        n = int(shapely.contains(p, centres).sum())
+        if n >= MIN_REFLY_CELLS:
+            out.append((p, float(p.area), n))
+    return sorted(out, key=lambda a: -a[1])[:MAX_REFLY_AREAS]
+
+
+def detections_geojson(all_pins: Sequence[Pin]) -> dict[str, Any]:
+    """detections.geojson: a Point Feature per pin (RFC 7946: [lon, lat], WGS84; no height,
+    as RFC 7946 heights are ellipsoidal and ours MSL: ``alt_msl_m`` is a property)."""
+    return {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "geometry": _point(p), "properties": p.properties}
+        for p in all_pins]}
+
+
+def _point(p: Pin) -> dict[str, Any]:
+    return {"type": "Point", "coordinates": [round(p.lon_deg, 9), round(p.lat_deg, 9)]}
+
+
+def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: str
+                    ) -> dict[str, Any]:
+    """caltopo.geojson: CalTopo / SARTopo map objects (docs/ground-station.md "CalTopo").
+
+    The properties are those CalTopo writes in its own GeoJSON exports and its API takes:
+    ``class`` Shape / Marker / Assignment, ``title``, ``description``; Shapes ``stroke``,
+    ``stroke-opacity``, ``stroke-width``, ``fill``, ``fill-opacity`` ('#rrggbb' colours);
+    Markers ``marker-color`` (hex without '#', as CalTopo writes it), ``marker-symbol``,
+    ``marker-size``; Assignments ``letter``, ``resourceType`` AIR, ``status`` DRAFT. Only
+    candidates are exported as markers (detections would bury them: detections.geojson
+    has every one)."""
+    features: list[dict[str, Any]] = []
+    if layers is not None:
+        for k, (t, polys) in enumerate(layers.outlines):
+            color = OUTLINE_COLORS[k % len(OUTLINE_COLORS)]
+            for i, poly in enumerate(polys, start=1):
+                features.append(_shape(poly, f"P_D >= {t:g} ({i}/{len(polys)})",
+                                       f"free cells whose cumulative P_D is at least {t:g}",
+                                       color, 0.1))
+        for i, poly in enumerate(layers.gaps, start=1):
+            features.append(_shape(poly, f"gap {i} (P_D < {layers.target_pd:g})",
+                                   f"free cells below the target P_D {layers.target_pd:g}",
+                                   GAP_COLOR, 0.3))
+        for i, (poly, area, n) in enumerate(layers.refly, start=1):
+            features.append({"type": "Feature", "geometry": _polygon(poly), "properties": {
+                "class": "Assignment", "letter": f"R{i}", "resourceType": "AIR",
+                "status": "DRAFT", "title": f"re-fly R{i}",
+                "description": f"re-fly: {n} cells below P_D {layers.target_pd:g}, "
+                               f"{area:.0f} m2",
+                "stroke": REFLY_COLOR, "stroke-opacity": 1, "stroke-width": 2,
+                "fill": REFLY_COLOR, "fill-opacity": 0.1}})
+    for p in all_pins:
+        if p.kind == "candidate":
+            features.append({"type": "Feature", "geometry": _point(p), "properties": {
+                "class": "Marker", "title": p.title, "description": p.description,
+                "marker-color": CANDIDATE_COLOR.lstrip("#").upper(),
+                "marker-symbol": "point", "marker-size": "1"}})
+    doc: dict[str, Any] = {"type": "FeatureCollection", "features": features,
+                           "pdcov": {"title": title}}
+    if layers is not None:
+        doc["pdcov"].update(target_pd=layers.target_pd, gaps_total=layers.gaps_total,
+                            gaps_exported=len(layers.gaps))
+    return doc
+
+
+def _polygon(poly: Polygon) -> dict[str, Any]:
+    return {"type": "Polygon", "coordinates": poly}
+
+
+def _shape(poly: Polygon, title: str, description: str, color: str, fill_opacity: float
+           ) -> dict[str, Any]:
+    return {"type": "Feature", "geometry": _polygon(poly), "properties": {
+        "class": "Shape", "title": title, "description": description, "stroke": color,
+        "stroke-opacity": 1, "stroke-width": 2, "fill": color, "fill-opacity": fill_opacity}}
+
+
+@dataclass(frozen=True, slots=True)
+class Exported:
+    """What ``write_exports`` wrote (file names) and what not, one line each."""
+
+    files: tuple[str, ...]
+    not_written: tuple[str, ...] = field(default=())
+
+
+def write_exports(out_dir: str | Path, coverage: Coverage | None,
+                  findings: Sequence[VehicleDetections], *, title: str) -> Exported:
+    """Write the exports into ``out_dir`` (which must exist), each atomically; without a
+    coverage (no grid yet) the files hold the detections only. Raises OutputError (naming
+    the file) when one cannot be written; the files already written stay."""
+    from pdcov.report.kml import kml_document, kmz_bytes, overlay_png
+
+    out = Path(out_dir)
+    all_pins = pins(findings, coverage)
+    files, not_written = [], []
+    _write_json(out / "detections.geojson", detections_geojson(all_pins))
+    layers = None
+    if coverage is not None:
+        gis_missing = GIS.message("P_D outlines, gaps and re-fly areas need")
+        if gis_missing is None:
+            layers = map_layers(coverage)
+        else:
+            not_written.append(f"caltopo.geojson, pdcov.kml without outlines: {gis_missing}")
+    _write_json(out / "caltopo.geojson", caltopo_geojson(layers, all_pins, title))
+    files += ["detections.geojson", "caltopo.geojson"]
+    overlay = None
+    if coverage is not None:
+        plots_missing = PLOTS.message("the P_D overlay needs")
+        if plots_missing is None:
+            overlay = overlay_png(coverage)
+            with atomic_write(out / "pd_overlay.png", "wb") as f:
+                f.write(overlay.png)
+            files.append("pd_overlay.png")
+        else:
+            not_written.append(f"pd_overlay.png, pdcov.kmz: {plots_missing}")
+    doc = kml_document(layers, all_pins, overlay, title)
+    with atomic_write(out / "pdcov.kml", "wb") as f:
+        f.write(doc)
+    files.append("pdcov.kml")
+    if overlay is not None:
+        with atomic_write(out / "pdcov.kmz", "wb") as f:
+            f.write(kmz_bytes(doc, overlay))
+        files.append("pdcov.kmz")
+    return Exported(tuple(files), tuple(not_written))
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    write_text_atomic(path, json.dumps(doc, allow_nan=False, separators=(",", ":")) + "\n")
