@@ -13,7 +13,7 @@ from benchmarks.__main__ import (
     compare_reference,
     main,
 )
-from benchmarks.references import r1_pixel_rays
+from benchmarks.references import pixel_rays
 from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
 from benchmarks.scenarios import scenarios, spaced
 from pdcov.core.camera import CameraModel
@@ -23,7 +23,7 @@ from pdcov.core.camera import CameraModel
 def test_references_agree_with_pdcov(name):
     sc = scenarios(smoke=True)[name]
     frames = spaced(sc.poses(), 4, max(1, round(sc.rate_hz * 0.5)))
-    rays = r1_pixel_rays(sc.camera)
+    rays = pixel_rays(sc.camera)
     _, _, r1, _ = compare_reference(sc, frames, "R1", rays, R1_TOLERANCE_PD)
     _, _, r2, skipped = compare_reference(sc, frames, "R2", rays, R2_TOLERANCE_PD)
     assert r1.cells_compared > 100 and r2.cells_compared > 100
