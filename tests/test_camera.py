@@ -28,6 +28,19 @@ def test_pixel_ray_project_round_trip(cam):
     assert ok.all()
 
 
+@pytest.mark.parametrize("cam", [*cameras(), CameraModel(
+    640, 480, np.array([[500.0, 3.0, 320.0], [0.0, 510.0, 240.0], [0.0, 0.0, 1.0]]),
+    "plumb_bob", np.array([-0.1, 0.05, 1e-3, -1e-3, 0.002])), CameraModel.from_fov(640, 480, 70)],
+    ids=["plumb_bob", "rational", "fisheye", "skewed", "pinhole"])
+def test_project_xyz_is_opencvs_projection(cam):
+    """The numpy projection the terrain kernel uses equals OpenCV's projectPoints."""
+    rng = np.random.default_rng(2)
+    px = rng.uniform([0, 0], [cam.width_px - 1, cam.height_px - 1], size=(400, 2))
+    p = cam.pixel_rays(px) * rng.uniform(1.0, 80.0, (400, 1))
+    np.testing.assert_allclose(cam.project_xyz(p[:, 0], p[:, 1], p[:, 2]), cam.project(p),
+                               atol=1e-9)
+
+
 def test_pinhole_centre_and_known_point():
     cam = CameraModel(640, 480, np.array(K), "plumb_bob", np.zeros(5))
     np.testing.assert_allclose(cam.project(np.array([[0.1, -0.2, 1.0]])), [[370.0, 140.0]])

@@ -50,6 +50,7 @@ MISSPELLINGS = [
     ("log.max_gap_s", "max_gap", "max_gap_s"),
     ("log.frame_source", "frame_src", "frame_source"),
     ("planning.corner_cut_m", "corner_cut", "corner_cut_m"),
+    ("planning.terrain_clearance_m", "terrain_clearence_m", "terrain_clearance_m"),
     ("mount.pitch_deg", "pitch", "pitch_deg"),
     ("thresholds", "treshold", "thresholds"),
 ]
@@ -58,7 +59,7 @@ MISSPELLINGS = [
 def full_doc() -> dict:
     return mission_doc(coverage={"min_revisit_s": 1.0, "max_range_m": 50.0},
                        log={"max_gap_s": 1.0, "frame_source": "rate"},
-                       planning={"corner_cut_m": 2.0})
+                       planning={"corner_cut_m": 2.0, "terrain_clearance_m": 10.0})
 
 
 @pytest.mark.parametrize("path, wrong, right", MISSPELLINGS,

@@ -189,10 +189,9 @@ def live_and_offline(tmp: Path, msgs: list[mavlink.MAVLink_message], **log: obje
     live, poll = feed.live, feed.live.poll
     notes: list[str] = []
 
-    def noting_poll(now_s: float) -> Due:  # what the daemon logs (Due.note)
+    def noting_poll(now_s: float) -> Due:  # what the daemon logs (Due.notes)
         due = poll(now_s)
-        if due.note is not None:
-            notes.append(due.note)
+        notes.extend(due.notes)
         return due
 
     live.poll = noting_poll  # type: ignore[method-assign]

@@ -48,7 +48,10 @@ def test_pose_csv_gives_the_core_grid(tmp_path):
     assert grid.n_obs.sum() > 1000 and out["pd"].max() > 0.5
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics) == {"version", "frames", "cells_free", "cells_observed",
-                            "proportion_at_or_above", "mean_pd", "expected_false_alarms"}
+                            "proportion_at_or_above", "mean_pd", "expected_false_alarms",
+                            "limiting_cells"}
+    assert metrics["limiting_cells"] == grid.limiting_counts()
+    assert metrics["limiting_cells"]["hidden"] == 0  # flat ground hides nothing
     assert metrics["frames"] == len(poses) and metrics["cells_free"] == 1600 - 16
     assert list(metrics["proportion_at_or_above"]) == ["0.5", "0.7", "0.8"]
     free_pd = grid.pd[grid.mask]
@@ -103,11 +106,14 @@ def test_outputs_are_readable_and_follow_the_input(tmp_path):
         assert images[0].shape != images[1].shape or np.any(images[0] != images[1])
     grid = load_grid(tmp_path / "a")
     with rasterio.open(tmp_path / "a" / "pd.tif") as tif:
-        assert tif.count == 3 and tif.crs is not None
+        assert tif.count == 4 and tif.crs is not None
+        assert tif.descriptions == ("pd", "pfa", "n_obs", "limiting")
         band = tif.read(1)
         # North-up raster: the grid's row 0 (south) is the raster's last row.
         np.testing.assert_allclose(band[::-1][grid["mask"]], grid["pd"][grid["mask"]],
                                    atol=1e-6)
+        np.testing.assert_array_equal(tif.read(4)[::-1][grid["mask"]],
+                                      grid["limiting"][grid["mask"]])
         x, y = tif.xy(tif.height - 1, 0)  # centre of the south-west cell
         assert (x, y) == pytest.approx((0.5, 0.5))
     outline = json.loads((tmp_path / "a" / "outline.geojson").read_text())

@@ -83,7 +83,9 @@ def _track(run_dir: Path, plan_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     r = np.array([p.r_cam_enu for p in poses])
     t = np.array([p.t_s for p in poses])
     start = int(np.argmin(np.linalg.norm(r[:, :2] - plan_xy[0], axis=1)))
-    end = int(np.argmin(np.linalg.norm(r[:, :2] - plan_xy[-1], axis=1)))
+    # Arriving at the last waypoint (the return then climbs over it to RTL_ALT).
+    to_end = np.linalg.norm(r[:, :2] - plan_xy[-1], axis=1)
+    end = int(np.argmax(to_end <= to_end.min() + 0.3))
     r, t = r[start:end + 1], t[start:end + 1]
     d = np.full(len(r), np.inf)
     for a, b in zip(plan_xy[:-1], plan_xy[1:], strict=True):
@@ -106,9 +108,10 @@ def test_spiral_flies_in_the_predicted_time_without_stopping(spiral, calm) -> No
     xy = plan.xy_enu_m
     speed = plan.waypoints[0].speed_mps
     # Around the pattern: 1 s on the ground, climb at 1.5 m/s, transit and return at the
-    # plan's speed, descend at 0.7 m/s.
+    # plan's speed, the RTL's climb to RTL_ALT (15 m) at 2.5 m/s and its 5 s above home,
+    # descend at 0.7 m/s.
     extra_s = (1.0 + 10.0 / 1.5 + (np.linalg.norm(xy[0]) + np.linalg.norm(xy[-1])) / speed
-               + 10.0 / 0.7)
+               + 5.0 / 2.5 + 5.0 + 15.0 / 0.7)
     r, t, cross = _track(run, xy)
     pattern_s = t[-1] - t[0]
     v = np.linalg.norm(np.gradient(r[:, :2], t, axis=0), axis=1)

@@ -1,6 +1,6 @@
 """Mission config YAML (docs/mission-config.md): origin, domain, camera, mount, detector,
-thresholds, and the coverage and log options. Every error names the file, the key and what
-was expected.
+thresholds, the terrain (a DEM), and the coverage and log options. Every error names the
+file, the key and what was expected.
 """
 
 from __future__ import annotations
@@ -12,14 +12,19 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
+from pdcov.core.dem import Dem, VerticalDatum, height_mismatch, terrain_surface
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
-from pdcov.core.domain import Domain
-from pdcov.core.geodesy import Origin
+from pdcov.core.domain import Domain, GridGeometry
+from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
+from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError, PdcovError, where
 from pdcov.ids import SYSTEM_IDS, VEHICLE_ID_RULE, valid_system_id, valid_vehicle_id
 from pdcov.schema import Section, Variants, check_keys
@@ -37,6 +42,11 @@ RESERVED_SECTIONS = ("link", "bus", "service")
 
 
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
+
+
+DEFAULT_TERRAIN_MARGIN_M = 10.0
+"""terrain.check_margin_m when the config does not set it (m): how far the DEM may disagree
+with the home altitude and what the aircraft measures before it is said."""
 
 @dataclass(frozen=True, slots=True)
 class OriginSection:
@@ -123,6 +133,43 @@ class CoverageSection:
 
 
 @dataclass(frozen=True, slots=True)
+class TerrainSection:
+    """``terrain``: the DEM file (GeoTIFF, COG or SRTM .hgt, any CRS; relative to the config's
+    folder), the datum of its heights ('msl', or 'ellipsoid' with geoid_height_m, the geoid's
+    height N above the ellipsoid at the site in m: H_msl = h_ellipsoid - N), and the margin
+    (m) beyond which an altitude measured or configured that disagrees with it is warned of."""
+
+    dem: str
+    vertical_datum: str = "msl"
+    geoid_height_m: float | None = None
+    check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> TerrainSection:
+        dem = doc.get("dem")
+        if not isinstance(dem, str) or not dem:
+            raise ConfigError(f"{where(src, 'terrain.dem')}: expected the path of a DEM file "
+                              f"(GeoTIFF, Cloud-Optimized GeoTIFF, SRTM .hgt), got {dem!r}")
+        datum = doc.get("vertical_datum", "msl")
+        if datum not in tuple(VerticalDatum):
+            raise ConfigError(f"{where(src, 'terrain.vertical_datum')}: expected 'msl' or "
+                              f"'ellipsoid', got {datum!r}")
+        geoid = (None if doc.get("geoid_height_m") is None
+                 else _number(doc, "geoid_height_m", src, "terrain"))
+        if datum == VerticalDatum.ELLIPSOID and geoid is None:
+            raise ConfigError(f"{where(src, 'terrain.geoid_height_m')}: missing: with "
+                              "vertical_datum: ellipsoid, give the geoid's height N above the "
+                              "WGS84 ellipsoid at the site in metres (H_msl = h_ellipsoid - "
+                              "N; EGM2008 gives it)")
+        if datum == VerticalDatum.MSL and geoid is not None:
+            raise ConfigError(f"{where(src, 'terrain.geoid_height_m')}: only used with "
+                              "vertical_datum: ellipsoid (the DEM's heights are MSL)")
+        return cls(dem, datum, geoid,
+                   _number(doc, "check_margin_m", src, "terrain", default=DEFAULT_TERRAIN_MARGIN_M,
+                           positive=True))
+
+
+@dataclass(frozen=True, slots=True)
 class LogSection:
     """``log``: how frames are placed in a log (frame_source 'rate' or 'capture'), the
     telemetry gap that skips frames (s), the autopilot to follow (a MAVLink system id; None:
@@ -155,13 +202,21 @@ class LogSection:
 @dataclass(frozen=True, slots=True)
 class PlanningSection:
     """``planning`` (read by ``pdcov plan`` only): the flight kinematics of the prediction
-    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m) and the gimbal pitch (deg)."""
+    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m), the gimbal pitch (deg), and
+    how plans meet the terrain (planning.terrain_follow.TerrainFollowing): the frame
+    (None: amsl with a terrain, relative without), tolerance (m), climb and descent rates
+    (m/s; 0: no limit) and clearance (m)."""
 
     max_accel_mps2: float = 2.5
     max_yaw_rate_deg_s: float = 60.0
     tilt: bool = True
     corner_cut_m: float = 2.0
     gimbal_pitch_deg: float = -90.0
+    terrain_frame: AltitudeFrame | None = None
+    terrain_tolerance_m: float = 2.0
+    terrain_max_climb_mps: float = 2.5
+    terrain_max_descent_mps: float = 1.5
+    terrain_clearance_m: float = 10.0
 
     @classmethod
     def from_mapping(cls, doc: Any, src: str | None) -> PlanningSection:
@@ -170,10 +225,18 @@ class PlanningSection:
         if not isinstance(doc, Mapping):
             raise ConfigError(f"{where(src, 'planning')}: expected a mapping, got {doc!r}")
         given = {**_defaults(cls), **doc}
+        frame = given["terrain_frame"]
+        if frame is not None and frame not in set(AltitudeFrame):
+            raise ConfigError(f"{where(src, 'planning.terrain_frame')}: expected one of "
+                              f"{', '.join(AltitudeFrame)}, got {frame!r}")
         try:
             return cls(float(given["max_accel_mps2"]), float(given["max_yaw_rate_deg_s"]),
                        bool(given["tilt"]), float(given["corner_cut_m"]),
-                       float(given["gimbal_pitch_deg"]))
+                       float(given["gimbal_pitch_deg"]),
+                       None if frame is None else AltitudeFrame(frame),
+                       *(float(given[k]) for k in (
+                           "terrain_tolerance_m", "terrain_max_climb_mps",
+                           "terrain_max_descent_mps", "terrain_clearance_m")))
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
 
@@ -192,6 +255,7 @@ MISSION_CONFIG = Section.of(
                                      "gimbal": GIMBAL_MOUNT_CONFIG}),
     detector=MODEL_SCHEMA,
     coverage=Section.of_dataclass(CoverageSection),
+    terrain=Section.of_dataclass(TerrainSection),
     log=Section.of_dataclass(LogSection),
     planning=Section.of_dataclass(PlanningSection),
     **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
@@ -222,14 +286,20 @@ class Mission:
     """A parsed mission config.
 
     ground_alt_msl_m: ground altitude at the origin (m MSL); None = the autopilot's home
-    altitude, resolved from the log or link. max_range_m / min_revisit_s: CoverageGrid
+    altitude, resolved from the log or link; ground_alt_how: where a known one came from
+    ('configured', or 'the DEM at the origin'). terrain: the ground under the grid's cell
+    corners (ENU), dem: the DEM it came from (heights MSL at any lat/lon near the domain),
+    both None without a ``terrain`` section; terrain_check_margin_m: terrain.check_margin_m.
+    warnings: what loading found that the commands must show (a DEM that disagrees with
+    origin.ground_alt_msl_m). max_range_m / min_revisit_s: CoverageGrid
     options (None = its defaults). min_height_m: frames with the camera lower than this above
     the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or
     'capture' ('rate' when log.frame_source is not set); frame_source_set: whether the
     config sets it (``chosen_frame_source``). max_gap_s: telemetry gap that skips frames.
     system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
-    false ignores it.
+    false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
+    z = 0).
     """
 
     vehicle_id: str
@@ -251,6 +321,11 @@ class Mission:
     max_gap_s: float = 1.0
     system_id: int | None = None
     estimator_status: bool = True
+    ground_alt_how: str = "configured"
+    terrain: TerrainSurface | None = field(default=None, compare=False, repr=False)
+    dem: Dem | None = field(default=None, compare=False, repr=False)
+    terrain_check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+    warnings: tuple[str, ...] = ()
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -276,7 +351,8 @@ class Mission:
         """An empty coverage grid over the domain's free cells."""
         g = self.domain.grid_geometry(self.cell_size_m)
         return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
-                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
+                            terrain=self.terrain)
 
 
 def load_mission(path: str | Path, sections: Mapping[str, Section] | None = None) -> Mission:
@@ -307,6 +383,20 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     dom = DomainSection.from_mapping(_mapping(doc, "domain", src), src)
     cell = dom.cell_size_m
     domain = _domain(dom, src, base, origin_value)
+    ter = (TerrainSection.from_mapping(_mapping(doc, "terrain", src), src)
+           if doc.get("terrain") is not None else None)
+    dem = None
+    ground_alt, ground_how, warnings = origin.ground_alt_msl_m, "configured", []
+    if ter is not None:
+        dem = _dem(ter, src, base, domain.grid_geometry(cell), origin_value)
+        if ground_alt is None:
+            ground_alt, ground_how = _dem_ground_alt(dem, origin, src), "the DEM at the origin"
+            origin_value = Origin(origin.lat_deg, origin.lon_deg, ground_alt)
+            domain = _domain(dom, src, base, origin_value)  # geodetic polygons at that ground
+        else:
+            mismatch = height_mismatch(dem, origin.lat_deg, origin.lon_deg, ground_alt,
+                                       ter.check_margin_m, "origin.ground_alt_msl_m")
+            warnings += [f"{src}: {mismatch}" if src else mismatch] if mismatch else []
     if not domain.has_free_cell(domain.grid_geometry(cell)):
         raise ConfigError(
             f"{where(src, 'domain')}: no free cell to cover: no centre of a {cell:g} m cell "
@@ -314,6 +404,13 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             f"{domain.boundary.area:.3g} m^2); the obstacles cover the polygon, or it is "
             "narrower than a cell (domain.cell_size_m)")
 
+    terrain = None
+    if dem is not None:
+        g = domain.grid_geometry(cell)
+        try:
+            terrain = terrain_surface(dem, g, origin_value, domain.free_mask(g))
+        except PdcovError as exc:
+            raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
     camera, rate = _camera(doc, src, base)
     mount = _mount(doc.get("mount", {"type": "fixed"}), src)
     detector = _detector(doc["detector"], src, base)
@@ -338,14 +435,16 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
                           f"got {vehicle_id!r}")
     return Mission(
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
-        ground_alt_msl_m=origin.ground_alt_msl_m,
+        ground_alt_msl_m=ground_alt,
         domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
         detector=detector, thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
         min_height_m=cov.min_height_m,
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
         max_gap_s=log.max_gap_s, system_id=log.system_id,
-        estimator_status=log.estimator_status, source=src, raw=doc)
+        estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
+        dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
+        warnings=tuple(warnings), source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
@@ -393,6 +492,34 @@ def _domain(dom: DomainSection, src: str | None, base: Path, origin: Origin) -> 
         return Domain.from_geojson(_resolve(dom.geojson, base, src, "domain.geojson"), origin)
     except PdcovError as exc:
         raise ConfigError(str(exc)) from None
+
+
+def _dem(ter: TerrainSection, src: str | None, base: Path, g: GridGeometry,
+         origin: Origin) -> Dem:
+    """The DEM, read over the grid and the origin (``Dem.open``'s margin around them)."""
+    path = _resolve(ter.dem, base, src, "terrain.dem")
+    x1, y1 = g.x0_m + g.cell_size_m * g.n_cols, g.y0_m + g.cell_size_m * g.n_rows
+    corners = np.array([[g.x0_m, g.y0_m, 0.0], [x1, g.y0_m, 0.0], [x1, y1, 0.0],
+                        [g.x0_m, y1, 0.0]])
+    geo = enu_to_geodetic(corners, origin)
+    lat = np.append(geo[:, 0], origin.lat_deg)
+    lon = np.append(geo[:, 1], origin.lon_deg)
+    try:
+        return Dem.open(path, vertical_datum=ter.vertical_datum,
+                        geoid_height_m=ter.geoid_height_m,
+                        area_lonlat_deg=(lon.min(), lat.min(), lon.max(), lat.max()))
+    except PdcovError as exc:
+        raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
+
+
+def _dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None) -> float:
+    """The DEM's height (m MSL) at the origin, for an origin.ground_alt_msl_m not given."""
+    h = float(dem.height_msl_m(origin.lat_deg, origin.lon_deg))
+    if not math.isfinite(h):
+        raise ConfigError(f"{where(src, 'terrain.dem')}: {dem.path}: no height at the origin "
+                          f"({origin.lat_deg:.6f}, {origin.lon_deg:.6f}): it is outside the "
+                          "DEM or on nodata; set origin.ground_alt_msl_m")
+    return h
 
 
 def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[CameraModel, float]:

@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--camera-trigger", action="store_true",
                    help="send CAMERA_IMAGE_CAPTURED per frame (also when the config's "
                         "log.frame_source is capture)")
+    f.add_argument("--rangefinder-noise-m", type=float, default=0.0, metavar="SIGMA",
+                   help="1-sigma noise of the downward rangefinder over terrain, m "
+                        "(default 0: exact)")
     f.add_argument("--signing-key", metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits: sign every message and ignore "
                         "unsigned or wrongly signed ones (as the daemon's link.signing_key)")
@@ -87,6 +90,7 @@ def run_fly(args: argparse.Namespace) -> int:
     from .faults import FaultSpec, FaultSpecError
     from .fly import FlyOptions, fly
     from .link import LinkError
+    from .messages import Rangefinder
 
     if not args.speed >= 0:
         raise UsageError(f"--speed {args.speed}: expected a number >= 0")
@@ -94,6 +98,9 @@ def run_fly(args: argparse.Namespace) -> int:
         raise UsageError("--plan: required unless --wait-mission")
     if not (args.wind_mps >= 0 and args.wind_mps < 30):
         raise UsageError(f"--wind-mps {args.wind_mps}: expected 0 <= W < 30 m/s")
+    if not 0 <= args.rangefinder_noise_m < 10:
+        raise UsageError(f"--rangefinder-noise-m {args.rangefinder_noise_m}: expected "
+                         "0 <= SIGMA < 10 m")
     key = None
     if args.signing_key is not None:
         try:
@@ -116,7 +123,8 @@ def run_fly(args: argparse.Namespace) -> int:
                           wind_mps=args.wind_mps, wind_from_deg=args.wind_from_deg,
                           autopilot=args.autopilot, system_id=system_id,
                           wait_mission=args.wait_mission, camera_trigger=args.camera_trigger,
-                          signing_key=key)
+                          signing_key=key, ground=mission.dem,
+                          rangefinder=Rangefinder(noise_m=args.rangefinder_noise_m))
         result = fly(opts)
     except (PdcovError, FaultSpecError, LinkError) as exc:
         raise UsageError(str(exc)) from None

@@ -8,6 +8,11 @@ into the ESC commands ``fcs/throttle-pos-norm[0..3]``.
 Frames: NED for positions and velocities about the start point (flat earth, for control
 only; the true position is the geodetic one), body FRD for rates, attitude z-y-x Euler
 angles body -> NED. Units SI and radians.
+
+The ground: JSBSim's terrain elevation (``position/terrain-elevation-asl-ft``, where its
+ground reactions put the gear's contact) is the world's ground height under the vehicle
+(``terrain.GroundModel``), updated every step within ``GROUND_NEAR_M`` of it and every
+``GROUND_EVERY_STEPS`` steps above (only ``height_agl_m`` depends on it up there).
 """
 
 from __future__ import annotations
@@ -16,11 +21,17 @@ import contextlib
 import math
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .terrain import GroundModel
 
 FT_M = 0.3048
 STEP_HZ = 120.0
 WGS84_A_M = 6378137.0
 WGS84_E2 = 6.69437999014e-3
+GROUND_NEAR_M = 10.0
+GROUND_EVERY_STEPS = 12
 MOTORS = ("FR", "AL", "FL", "AR")
 """Motor order of ``set_motors``: front right, aft left, front left, aft right (JSBSim
 F450 engines 0..3; FR and AL spin one way, FL and AR the other)."""
@@ -76,8 +87,9 @@ def _quiet_stdout():
 
 
 class F450:
-    """The F450 in JSBSim, standing on flat ground at (lat_deg, lon_deg) whose altitude is
-    ground_alt_msl_m, nose towards heading_rad (from north, clockwise).
+    """The F450 in JSBSim, standing on the ground at (lat_deg, lon_deg) whose altitude is
+    ground_alt_msl_m, nose towards heading_rad (from north, clockwise). ground: the world's
+    ground heights (None: level at ground_alt_msl_m everywhere).
 
     wind_ned_mps: steady wind (where the air goes) in NED; turbulence_mps > 0 adds JSBSim's
     MIL-spec (Tustin) turbulence of that wind speed at 20 ft. seed: JSBSim's random seed
@@ -86,7 +98,8 @@ class F450:
 
     def __init__(self, lat_deg: float, lon_deg: float, ground_alt_msl_m: float,
                  heading_rad: float = 0.0, wind_ned_mps: tuple[float, float, float] = (0, 0, 0),
-                 turbulence_mps: float = 0.0, seed: int = 0) -> None:
+                 turbulence_mps: float = 0.0, seed: int = 0,
+                 ground: GroundModel | None = None) -> None:
         import jsbsim
 
         with _quiet_stdout():
@@ -122,6 +135,8 @@ class F450:
         self._lon0_rad = math.radians(lon_deg)
         self.m_per_rad_north, self.m_per_rad_east = local_scales(lat_deg)
         self._ground_alt_msl_m = ground_alt_msl_m
+        self._ground = ground
+        self._steps = 0
         self.t_s = 0.0
         self.dt_s = 1.0 / STEP_HZ
 
@@ -135,8 +150,23 @@ class F450:
 
     def step(self) -> None:
         """Advance one 1/120 s step."""
+        if self._ground is not None:
+            self._follow_ground(self._ground)
         self._fdm.run()
         self.t_s += self.dt_s
+
+    def _follow_ground(self, ground: GroundModel) -> None:
+        """Set JSBSim's terrain elevation to the ground under the vehicle (kept where the
+        ground model has no height)."""
+        self._steps += 1
+        g = self._get
+        if (g("position/h-agl-ft") * FT_M > GROUND_NEAR_M
+                and self._steps % GROUND_EVERY_STEPS):
+            return
+        h = float(ground.height_msl_m(math.degrees(g("position/lat-geod-rad")),
+                                      math.degrees(g("position/long-gc-rad"))))
+        if math.isfinite(h):
+            self._set("position/terrain-elevation-asl-ft", h / FT_M)
 
     def state(self) -> VehicleState:
         g = self._get

@@ -12,6 +12,12 @@ gimbal) gimbal streams have all been sent once, which is where ``pdcov evaluate 
 places its frames too; with a camera trigger (config ``log.frame_source: capture`` or
 ``camera_trigger``) a CAMERA_IMAGE_CAPTURED is sent per frame and its time_boot_ms is the
 frame time.
+
+Over terrain (``FlyOptions.ground``, the mission's DEM): home and the take-off are on the
+ground at the start point (home altitude = the ground's height there), JSBSim's ground follows
+the terrain under the vehicle, terrain-frame waypoints and a terrain RTL follow it, and
+TERRAIN_REPORT and DISTANCE_SENSOR are sent. truth.csv stays in the mission's ENU frame
+(z = 0 at origin.ground_alt_msl_m, or home's altitude when the config has none).
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
 from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, FixedMount
 from pdcov.core.rotations import quat_wxyz_from_R, slerp_quat_wxyz
+from pdcov.errors import InputFileError
+from pdcov.planning.plan import read_mission
 from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
 from .control import Controller
@@ -44,16 +52,19 @@ from .messages import (
     GIMBAL_DEVICE_STREAMS_HZ,
     GIMBAL_FAILED_FLAGS,
     STREAMS_HZ,
+    TERRAIN_STREAMS_HZ,
     GimbalMode,
     MessageBuilder,
+    Rangefinder,
     Snapshot,
     autopilot_params,
     camera_image_captured,
     gimbal_device_messages,
     gimbal_report,
 )
-from .mission import FlightPlan, flight_plan_from_items, load_flight_plan
+from .mission import AT_CURRENT_ALTITUDE, ReturnRule, flight_plan_from_items
 from .protocol import Autopilot
+from .terrain import GroundModel, LocalGround
 
 POLL_EVERY_STEPS = 4
 MAX_FLIGHT_S = 3 * 3600.0
@@ -79,6 +90,9 @@ class FlyOptions:
     wait_mission: bool = False
     camera_trigger: bool = False
     signing_key: bytes | None = None
+    ground: GroundModel | None = None
+    """The world's ground (the mission's DEM); None: level at the origin's altitude."""
+    rangefinder: Rangefinder = Rangefinder()
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,9 +152,10 @@ def _sample(s: VehicleState, gimbal: GimbalModel) -> _Sample:
                    np.array(quat_from_R(gimbal.R_ned_gimbal(R_body))))
 
 
-def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, speed: float,
-                      origin: Origin) -> FlightPlan:
-    """Sit on the ground, sending telemetry, until a mission is uploaded over MAVLink."""
+def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, speed: float
+                      ) -> list:
+    """Sit on the ground, sending telemetry, until a mission is uploaded over MAVLink; its
+    items (home dropped)."""
     wall0 = time.monotonic()
     while endpoint.mission is None:
         s = vehicle.state()
@@ -155,7 +170,7 @@ def _wait_for_mission(endpoint, vehicle: F450, gimbal: GimbalModel, send_due, sp
     items = list(endpoint.mission)
     if items and items[0].command == MAV_CMD_NAV_WAYPOINT and items[0].frame == MAV_FRAME_GLOBAL:
         items = items[1:]  # ArduPilot-style: item 0 is home
-    return flight_plan_from_items(items, origin, "the uploaded mission")
+    return items
 
 
 def fly(opts: FlyOptions) -> FlightResult:
@@ -163,18 +178,27 @@ def fly(opts: FlyOptions) -> FlightResult:
     from .endpoint import AutopilotEndpoint
 
     m = opts.mission
-    home_alt = m.ground_alt_msl_m if m.ground_alt_msl_m is not None else 0.0
-    origin = Origin(m.origin_lat_deg, m.origin_lon_deg, home_alt)
-    plan = load_flight_plan(opts.plan_path, origin) if opts.plan_path is not None else None
+    ground = None
+    if opts.ground is not None:
+        try:
+            ground = LocalGround(opts.ground, m.origin_lat_deg, m.origin_lon_deg)
+        except ValueError as exc:
+            raise InputFileError(f"{m.source or 'mission config'}: terrain: {exc}") from None
+        home_alt = ground.home_alt_msl_m
+    else:
+        home_alt = m.ground_alt_msl_m if m.ground_alt_msl_m is not None else 0.0
+    home = Origin(m.origin_lat_deg, m.origin_lon_deg, home_alt)
+    origin = m.origin(home_alt if m.ground_alt_msl_m is None else None)
+    mission = read_mission(opts.plan_path) if opts.plan_path is not None else None
     opts.out_dir.mkdir(parents=True, exist_ok=True)
     tlog, truth = opts.out_dir / "flight.tlog", opts.out_dir / "truth.csv"
 
     rng = random.Random(f"{opts.seed}:wind")
     wind_to = math.radians(opts.wind_from_deg + 180.0)
     wind = (opts.wind_mps * math.cos(wind_to), opts.wind_mps * math.sin(wind_to), 0.0)
-    vehicle = F450(origin.lat_deg, origin.lon_deg, home_alt, heading_rad=0.0,
+    vehicle = F450(home.lat_deg, home.lon_deg, home_alt, heading_rad=0.0,
                    wind_ned_mps=wind, turbulence_mps=opts.wind_mps,
-                   seed=rng.randrange(2**31))
+                   seed=rng.randrange(2**31), ground=opts.ground)
     controller = Controller(vehicle.dt_s)
     gcfg = _gimbal_config(opts.gimbal_mode, opts.gimbal_axes, m.mount)
     gimbal = GimbalModel(gcfg, seed=opts.seed)
@@ -185,26 +209,45 @@ def fly(opts: FlyOptions) -> FlightResult:
     streams = dict(STREAMS_HZ[opts.autopilot])
     if not has_gimbal or device:
         streams.pop("GIMBAL_DEVICE_ATTITUDE_STATUS")
+    if ground is not None:
+        streams.update(TERRAIN_STREAMS_HZ[opts.autopilot])
     endpoint = AutopilotEndpoint(
         opts.connect, system_id=opts.system_id, autopilot=opts.autopilot,
-        params=autopilot_params(opts.autopilot, opts.gimbal_mode, opts.system_id, limits_deg),
+        params=autopilot_params(opts.autopilot, opts.gimbal_mode, opts.system_id, limits_deg,
+                                opts.rangefinder if ground is not None else None),
         streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog,
         signing_key=opts.signing_key)
     try:
-        return _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever,
-                    has_gimbal, device, tlog, truth)
+        return _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin,
+                    ground, lever, has_gimbal, device, tlog, truth)
     finally:
         endpoint.close()
 
 
-def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_gimbal,
-         device, tlog, truth) -> FlightResult:
+def _guidance(opts: FlyOptions, items: list, source: str, default_speed_mps: float,
+              home: Origin, ground: LocalGround | None, params: dict[str, float],
+              start_s: float) -> Guidance:
+    """The guidance along the mission's legs from ``start_s``, made when the flight starts:
+    the return by the RTL parameters then in force (ArduPilot-like; PX4-like: at the last
+    waypoint's altitude)."""
+    rtl = ReturnRule.from_params(params) if opts.autopilot == "ardupilot" \
+        else AT_CURRENT_ALTITUDE
+    plan = flight_plan_from_items(items, home, source, default_speed_mps, ground=ground,
+                                  rtl=rtl)
+    try:
+        return Guidance(plan, ground=ground, start_s=start_s)
+    except ValueError as exc:
+        raise InputFileError(f"{source}: {exc}") from None
+
+
+def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, ground, lever,
+         has_gimbal, device, tlog, truth) -> FlightResult:
     from .protocol import StreamSchedule
 
     mode = opts.gimbal_mode
     builder = MessageBuilder(endpoint.mav, opts.autopilot,
-                             (origin.lat_deg, origin.lon_deg, origin.ground_alt_msl_m),
-                             opts.seed)
+                             (home.lat_deg, home.lon_deg, home.ground_alt_msl_m), opts.seed,
+                             ground=opts.ground, rangefinder=opts.rangefinder)
     device_schedule = (StreamSchedule(GIMBAL_DEVICE_STREAMS_HZ,
                                       random.Random(f"{opts.seed}:gimbal-device"))
                        if device else None)
@@ -264,9 +307,14 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
                 first_sent[name] = boot_ms / 1000.0
 
     wall0 = time.monotonic()
-    if plan is None:
-        plan = _wait_for_mission(endpoint, vehicle, gimbal, send_due, opts.speed, origin)
-    guidance = Guidance(plan, start_s=vehicle.t_s + 1.0)
+    if mission is None:
+        items = _wait_for_mission(endpoint, vehicle, gimbal, send_due, opts.speed)
+        source, speed = "the uploaded mission", 5.0
+    else:
+        items, source = list(mission.items), str(opts.plan_path)
+        speed = 5.0 if math.isnan(mission.default_speed_mps) else mission.default_speed_mps
+    guidance = _guidance(opts, items, source, speed, home, ground, endpoint.protocol.params,
+                         vehicle.t_s + 1.0)
     guidance_box[0] = guidance
     dt = vehicle.dt_s
     frames: list[tuple[float, _Sample, _Sample]] = []
@@ -296,7 +344,7 @@ def _run(opts, endpoint, vehicle, controller, gimbal, plan, origin, lever, has_g
                 frames.append((next_frame_s, before, after))
                 if trigger:
                     _send_capture(endpoint, builder, before, after, next_frame_s, frame_index,
-                                  origin, t)
+                                  home, t)
                 frame_index += 1
                 next_frame_s = first_frame_s + frame_index / frame_rate_hz
             before = None
@@ -330,11 +378,11 @@ def _interpolate(t_s: float, a: _Sample, b: _Sample
 
 
 def _send_capture(endpoint, builder: MessageBuilder, a: _Sample, b: _Sample, t_frame: float,
-                  index: int, origin: Origin, now_s: float) -> None:
+                  index: int, home: Origin, now_s: float) -> None:
     lat, lon, alt, _qb, qg = _interpolate(t_frame, a, b)
     ms = int(round(t_frame * 1000))
     msg = camera_image_captured(endpoint.mav, ms, endpoint.unix_time_us(t_frame), lat, lon,
-                                alt, alt - origin.ground_alt_msl_m, tuple(qg), index)
+                                alt, alt - home.ground_alt_msl_m, tuple(qg), index)
     endpoint.send(msg, now_s)
 
 

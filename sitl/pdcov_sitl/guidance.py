@@ -25,6 +25,12 @@ What it does, as ArduCopter's waypoint navigation (AC_WPNav with S-curves) does:
   up overshoots the lean angle by ~8 deg at a stop).
 * **Heading** towards the path's direction of travel (WP_YAW_BEHAVIOR 2), slewed at
   ``yaw_rate_rps``; held while climbing or descending vertically.
+* **Terrain following** on legs flown above the terrain (``Leg.above_terrain``): the path's
+  height is the leg's height above the terrain (linear from its start to its waypoint) plus
+  the terrain under the path (``terrain.LocalGround``), before the speed profile, which then
+  slows where the terrain makes the path climb faster than 2.5 m/s or sink faster than
+  1.5 m/s. ArduCopter adds the terrain under the vehicle; the vehicle tracks the path within
+  centimetres, so the two agree; the averaging smooths the terrain over ~2 s of travel.
 
 Pure: no clock or I/O; ``setpoint(t_s)`` is a table look-up (the reference is sampled every
 ``REF_DT_S``). NED metres about home, simulated seconds.
@@ -40,6 +46,7 @@ from pdcov.planning.trajectory import Kinematics
 
 from .control import Setpoint
 from .mission import FlightPlan, Leg
+from .terrain import LocalGround
 
 REF_DT_S = 0.02
 PATH_STEP_M = 0.1
@@ -135,6 +142,42 @@ def _sample_path(plan: FlightPlan, accel: float, cut_m: float, stop_s: float):
             np.array(leg_ix))
 
 
+def _follow_terrain(legs: tuple[Leg, ...], pts: np.ndarray, vlim: np.ndarray,
+                    leg_ix: np.ndarray, ground: LocalGround) -> tuple[np.ndarray, np.ndarray]:
+    """The path samples of legs flown above the terrain raised by the terrain under them,
+    less the terrain along the leg's chord (the chord's ends already include theirs), and
+    their speed limits lowered to keep the climb/descent rates. Other samples unchanged."""
+    on = np.array([legs[int(k)].above_terrain for k in leg_ix])
+    if not on.any():
+        return pts, vlim
+    pts, vlim = pts.copy(), vlim.copy()
+    idx = np.flatnonzero(on)
+    a = np.array([legs[int(k)].start_ned_m for k in leg_ix[idx]], float)
+    b = np.array([legs[int(k)].end_ned_m for k in leg_ix[idx]], float)
+    ab = b[:, :2] - a[:, :2]
+    length2 = np.einsum("ij,ij->i", ab, ab)
+    f = np.where(length2 > 1e-12,
+                 np.einsum("ij,ij->i", pts[idx, :2] - a[:, :2], ab) / np.maximum(length2, 1e-12),
+                 0.0).clip(0.0, 1.0)
+    t_a = ground.height_m(a[:, 0], a[:, 1])
+    t_b = ground.height_m(b[:, 0], b[:, 1])
+    t_p = ground.height_m(pts[idx, 0], pts[idx, 1])
+    offset = t_p - (t_a + f * (t_b - t_a))
+    if not np.isfinite(offset).all():
+        raise ValueError("the path leaves the DEM: no terrain height under part of it")
+    pts[idx, 2] -= offset
+    # Climb/descent along the path: dz/ds per sample from its neighbours.
+    ds = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    dz = np.diff(pts[:, 2])
+    slope = np.zeros(len(pts))
+    slope[1:] = np.where(ds > 1e-9, dz / np.maximum(ds, 1e-9), 0.0)  # + down
+    up, down = -slope[idx], slope[idx]
+    cap = np.where(up > 1e-6, CLIMB_MAX_MPS / np.maximum(up, 1e-6),
+                   np.where(down > 1e-6, DESCENT_MAX_MPS / np.maximum(down, 1e-6), np.inf))
+    vlim[idx] = np.minimum(vlim[idx], cap)
+    return pts, vlim
+
+
 def _box(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average over n (odd) samples along axis 0, the ends held."""
     h = n // 2
@@ -146,12 +189,15 @@ def _box(x: np.ndarray, n: int) -> np.ndarray:
 class Guidance:
     """Setpoints along a FlightPlan, by simulated time (module docstring). Pure.
 
+    ground: the terrain about home that legs flown above the terrain follow (None: level).
+
     ``setpoint(t_s)`` gives the Setpoint at t_s (non-decreasing times); ``leg`` is the leg
     in force, ``done`` True once landed and disarmed; ``reference_end_s`` when the
     reference reaches the ground.
     """
 
-    def __init__(self, plan: FlightPlan, *, start_s: float = 1.0,
+    def __init__(self, plan: FlightPlan, *, ground: LocalGround | None = None,
+                 start_s: float = 1.0,
                  accel_mps2: float = _PLANNER.max_accel_mps2,
                  corner_cut_m: float = _PLANNER.corner_cut_m,
                  yaw_rate_rps: float = _PLANNER.max_yaw_rate_rad_s, smooth_s: float = 0.5,
@@ -162,6 +208,8 @@ class Guidance:
         # reference rests exactly on the waypoint for the hold (as a copter settles there).
         pts, tan, vlim, alim, hold, leg_ix = _sample_path(plan, accel_mps2, corner_cut_m,
                                                           2 * smooth_s)
+        if ground is not None:
+            pts, vlim = _follow_terrain(plan.legs, pts, vlim, leg_ix, ground)
         ds = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         v = vlim.copy()
         v[0] = 0.0

@@ -16,6 +16,12 @@ FRD -> NED; LOCAL_POSITION_NED about home; GIMBAL_DEVICE_ATTITUDE_STATUS per gim
   HEARTBEAT and boot clock, gimbal_device_id 0), flags 76 (ROLL_LOCK | PITCH_LOCK |
   YAW_IN_EARTH_FRAME): the quaternion is R_ned_gimbal; MNT1_TYPE 6 (a MAVLink gimbal).
 * ``fixed``: no gimbal messages; MNT1_TYPE 0.
+
+Over terrain (a ground model): TERRAIN_REPORT (ArduPilot-like only; PX4 has no terrain
+protocol) as AP_Terrain::send_terrain_report fills it for the vehicle's position, and
+DISTANCE_SENSOR from a downward rangefinder (MAV_SENSOR_ROTATION_PITCH_270) measuring along
+the body's down axis to the ground, as GCS_MAVLINK::send_distance_sensor (ArduPilot) or
+PX4's DISTANCE_SENSOR stream fill it.
 """
 
 from __future__ import annotations
@@ -30,8 +36,9 @@ from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mav
 
 from .dynamics import VehicleState, local_scales
-from .gimbal import quat_from_euler_zyx, quat_from_R
+from .gimbal import _Rx, _Ry, _Rz, quat_from_euler_zyx, quat_from_R
 from .protocol import AUTOPILOTS, Autopilot
+from .terrain import GroundModel, slant_range_m
 
 GimbalMode = Literal["ardupilot-servo", "ardupilot-device", "device-earth", "fixed"]
 """How the simulated gimbal reports itself (docs/simulator.md)."""
@@ -65,6 +72,16 @@ STREAMS_HZ = {
             "LOCAL_POSITION_NED": 30.0, "GPS_RAW_INT": 5.0, "HOME_POSITION": 0.5,
             "GIMBAL_DEVICE_ATTITUDE_STATUS": 10.0, "ESTIMATOR_STATUS": 0.5},
 }
+# Over terrain: ArduPilot sends both in its EXTRA3 stream group (GCS_Mavlink.cpp), with
+# EKF_STATUS_REPORT; PX4's onboard mode sends DISTANCE_SENSOR at 10 Hz and no TERRAIN_REPORT.
+TERRAIN_STREAMS_HZ = {
+    "ardupilot": {"TERRAIN_REPORT": 2.0, "DISTANCE_SENSOR": 2.0},
+    "px4": {"DISTANCE_SENSOR": 10.0},
+}
+TERRAIN_SPACING_M = 100
+"""TERRAIN_SPACING's default: the grid spacing TERRAIN_REPORT names when it has data."""
+TERRAIN_LOADED_BLOCKS = 12 * 56
+"""TERRAIN_REPORT.loaded: a full cache (TERRAIN_CACHE_SZ 12 grids of 56 4x4 blocks)."""
 GIMBAL_DEVICE_STREAMS_HZ = {"HEARTBEAT": 1.0, "GIMBAL_DEVICE_ATTITUDE_STATUS": 20.0}
 
 # ArduCopter custom modes (mode numbers) and PX4 main/sub modes, per flight phase.
@@ -73,10 +90,29 @@ _PX4_MODE = {"ground": (3, 0), "takeoff": (4, 2), "waypoint": (4, 4), "return": 
              "land": (4, 6)}
 
 
+@dataclass(frozen=True, slots=True)
+class Rangefinder:
+    """The downward rangefinder: the distances it measures (m) and its noise (m, 1 sigma of
+    a Gaussian added to each reading; 0: exact). Beyond max_m it reads max_m + 1 m (no
+    return, out of range high)."""
+
+    min_m: float = 0.2
+    max_m: float = 40.0
+    noise_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.min_m < self.max_m <= 650 and self.noise_m >= 0):
+            raise ValueError(f"rangefinder: expected 0 <= min_m < max_m <= 650 m and "
+                             f"noise_m >= 0, got {self}")
+
+
 def autopilot_params(autopilot: Autopilot, gimbal_mode: GimbalMode, system_id: int,
-                     limits_deg: tuple[tuple[float, float], ...]) -> dict[str, float]:
+                     limits_deg: tuple[tuple[float, float], ...],
+                     rangefinder: Rangefinder | None = None) -> dict[str, float]:
     """Parameters the endpoint answers: the mount's type and limits (ArduPilot names, which
-    pdcov reads; ArduPilot hides the limits while MNT1_TYPE is 0), and a few others."""
+    pdcov reads; ArduPilot hides the limits while MNT1_TYPE is 0), the return to launch
+    (ArduCopter's RTL_*, read when the flight starts: mission.ReturnRule), the rangefinder
+    when fitted, and a few others."""
     if autopilot == "px4":
         params = {"MAV_SYS_ID": float(system_id), "MPC_XY_CRUISE": 5.0,
                   "MNT_MODE_OUT": 2.0 if gimbal_mode != "fixed" else -1.0}
@@ -87,6 +123,15 @@ def autopilot_params(autopilot: Autopilot, gimbal_mode: GimbalMode, system_id: i
         for axis, (lo, hi) in zip(("ROLL", "PITCH", "YAW"), limits_deg, strict=True):
             params[f"MNT1_{axis}_MIN"] = float(lo)
             params[f"MNT1_{axis}_MAX"] = float(hi)
+    # ArduCopter's defaults (Parameters.cpp, config.h): cm, cm, slope, 0 above home /
+    # 1 above terrain, ms.
+    params.update({"RTL_ALT": 1500.0, "RTL_CLIMB_MIN": 0.0, "RTL_CONE_SLOPE": 3.0,
+                   "RTL_ALT_TYPE": 0.0, "RTL_LOITER_TIME": 5000.0})
+    if rangefinder is not None:
+        # RNGFND1_TYPE 100: SITL; ORIENT 25: down (PITCH_270); MIN/MAX in m (4.6 and later).
+        params.update({"RNGFND1_TYPE": 100.0, "RNGFND1_ORIENT": 25.0,
+                       "RNGFND1_MIN": rangefinder.min_m, "RNGFND1_MAX": rangefinder.max_m,
+                       "TERRAIN_ENABLE": 1.0, "TERRAIN_SPACING": float(TERRAIN_SPACING_M)})
     return params
 
 
@@ -121,10 +166,13 @@ def _wrap(a: float) -> float:
 
 class MessageBuilder:
     """Builds the autopilot's messages by stream name. ``mavlink`` is the endpoint's MAVLink
-    object (``.X_encode``); home: (lat_deg, lon_deg, alt_msl_m)."""
+    object (``.X_encode``); home: (lat_deg, lon_deg, alt_msl_m). ground: the world's ground
+    (TERRAIN_REPORT, DISTANCE_SENSOR; None: neither is built); rangefinder: its sensor."""
 
     def __init__(self, mavlink: mav.MAVLink, autopilot: Autopilot,
-                 home: tuple[float, float, float], seed: int) -> None:
+                 home: tuple[float, float, float], seed: int,
+                 ground: GroundModel | None = None,
+                 rangefinder: Rangefinder = Rangefinder()) -> None:
         if autopilot not in AUTOPILOTS:
             raise ValueError(f"autopilot {autopilot!r}: expected one of {AUTOPILOTS}")
         self.m = mavlink
@@ -133,6 +181,11 @@ class MessageBuilder:
         self._m_per_rad = local_scales(home[0])
         self._gps_rng = random.Random(f"{seed}:gps")
         self._gps_noise = [0.0, 0.0, 0.0]
+        self.ground = ground
+        self.rangefinder = rangefinder
+        self._range_rng = random.Random(f"{seed}:rangefinder")
+        self._home_terrain_msl_m = (float(ground.height_msl_m(home[0], home[1]))
+                                    if ground is not None else math.nan)
 
     def _reported_position(self, s: Snapshot) -> tuple[float, float, float, float, float, float]:
         """(lat_deg, lon_deg, alt_msl_m, north, east, down m about home) with the glitch."""
@@ -249,6 +302,59 @@ class MessageBuilder:
         pos_ratio = 1.5 if s.gps_glitching else 0.1
         return self.m.estimator_status_encode(s.time_boot_ms * 1000, flags, 0.1, pos_ratio,
                                               0.1, 0.05, 0.0, 0.0, 0.5, 0.8)
+
+    def _terrain_report(self, s: Snapshot) -> mav.MAVLink_message | None:
+        # AP_Terrain::send_terrain_report at the vehicle's (reported) position: terrain
+        # height AMSL there; current_height = height above home + home's terrain height -
+        # the terrain height (above the terrain, home being on it); no data: spacing 0 and
+        # both heights 0.
+        if self.ground is None:
+            return None
+        lat, lon, alt, _n, _e, _d = self._reported_position(s)
+        terrain = float(self.ground.height_msl_m(lat, lon))
+        spacing, current = 0, 0.0
+        if math.isfinite(terrain) and math.isfinite(self._home_terrain_msl_m):
+            spacing = TERRAIN_SPACING_M
+            current = (alt - self.home[2]) + self._home_terrain_msl_m - terrain
+        else:
+            terrain = 0.0
+        return self.m.terrain_report_encode(round(lat * 1e7), round(lon * 1e7), spacing,
+                                            terrain, current, 0, TERRAIN_LOADED_BLOCKS)
+
+    def range_m(self, st: VehicleState) -> float:
+        """The rangefinder's reading (m) in the true state: the slant distance along the
+        body's down axis to the ground, noise added; max_m + 1 without a return."""
+        if self.ground is None:
+            return math.nan
+        rf = self.rangefinder
+        R = _Rz(st.yaw_rad) @ _Ry(st.pitch_rad) @ _Rx(st.roll_rad)
+        down = R[:, 2]
+        d = slant_range_m(self.ground, st.lat_deg, st.lon_deg, st.alt_msl_m,
+                          (float(down[0]), float(down[1]), float(down[2])), rf.max_m)
+        if not math.isfinite(d):
+            return rf.max_m + 1.0
+        if rf.noise_m > 0:
+            d = max(0.0, d + self._range_rng.gauss(0.0, rf.noise_m))
+        return d
+
+    def _distance_sensor(self, s: Snapshot) -> mav.MAVLink_message | None:
+        # ArduPilot (GCS_MAVLINK::send_distance_sensor): cm clipped to 65535, type of the
+        # backend (SITL: laser), id = instance 0, covariance 0, no FOV or quaternion, signal
+        # quality 0 (unknown). PX4 (DISTANCE_SENSOR.hpp): covariance = variance in cm^2.
+        if self.ground is None:
+            return None
+        rf = self.rangefinder
+        d = self.range_m(s.state)
+
+        def cm(m: float) -> int:
+            return min(65535, round(m * 100))
+
+        covariance = 0
+        if self.autopilot == "px4":
+            covariance = min(255, round(rf.noise_m ** 2 * 1e4))
+        return self.m.distance_sensor_encode(
+            s.time_boot_ms, cm(rf.min_m), cm(rf.max_m), cm(d), mav.MAV_DISTANCE_SENSOR_LASER,
+            0, mav.MAV_SENSOR_ROTATION_PITCH_270, covariance)
 
     def _gimbal_device_attitude_status(self, s: Snapshot) -> mav.MAVLink_message | None:
         if s.gimbal_q_wxyz is None:

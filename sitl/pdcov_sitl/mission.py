@@ -1,29 +1,99 @@
 """The flight plan the simulator flies: its legs from take-off to landing.
 
-A plan file (QGC ``.plan`` or WPL 110, as ``pdcov plan`` writes them) is read with
-``pdcov.planning.plan``: take-off at home, the waypoints with their speeds and hover times,
-return to launch. The gimbal commands of the mission (MAV_CMD_DO_MOUNT_CONTROL 205 and
+Mission items (of a QGC ``.plan`` or WPL 110 file as ``pdcov plan`` writes them, or uploaded)
+are read with ``pdcov.planning.plan``: take-off at home, the waypoints with their speeds and
+hover times, return to launch. The gimbal commands of the mission (MAV_CMD_DO_MOUNT_CONTROL 205 and
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW 1000) set the camera's pitch/yaw from the next waypoint
 on; without any the camera looks straight down.
 
 The legs: climb vertically at home to the first waypoint's altitude, the waypoints with their
-speeds and hold times, return home at altitude, descend to land. ``guidance.py`` turns them
-into the reference the controller follows. NED metres about home; times in seconds.
+speeds and hold times, the return to launch (``ReturnRule``: ArduCopter's RTL altitude), descend
+to land. ``guidance.py`` turns them into the reference the controller follows. NED metres
+about home; times in seconds.
+
+Altitude frames (common.xml MAV_FRAME): GLOBAL (0, 5: AMSL), GLOBAL_RELATIVE_ALT (3, 6: above
+home) and GLOBAL_TERRAIN_ALT (10, 11: above the terrain under the vehicle). A terrain-frame leg
+is flown as ArduCopter flies it with terrain data: its height above the terrain runs linearly
+from the leg's start (the previous waypoint, converted to the terrain frame) to its waypoint,
+and the terrain under the vehicle is added (``Leg.above_terrain``; ``guidance.py``). Home is
+on the ground, so over flat ground (no DEM) the terrain frame is the relative one.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 from pdcov.core.geodesy import Origin
-from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MissionItem
-from pdcov.planning.plan import plan_from_mission_items, read_mission
+from pdcov.core.mission import (
+    MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_GLOBAL,
+    MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    MissionItem,
+)
+from pdcov.errors import InputFileError
+from pdcov.planning.plan import plan_from_mission_items
+
+from .terrain import LocalGround
 
 MAV_CMD_DO_MOUNT_CONTROL = 205
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
 NADIR_PITCH_RAD = -math.pi / 2
+MAV_FRAME_GLOBAL_INT = 5
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+MAV_FRAME_GLOBAL_TERRAIN_ALT_INT = 11
+_FRAME_OF_INT = {MAV_FRAME_GLOBAL_INT: MAV_FRAME_GLOBAL,
+                 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                 MAV_FRAME_GLOBAL_TERRAIN_ALT_INT: MAV_FRAME_GLOBAL_TERRAIN_ALT}
+"""The deprecated ``*_INT`` frames mean the same altitudes as their plain twins."""
+RTL_ALT_MIN_M = 0.3
+RTL_MIN_CONE_SLOPE = 0.5
+"""ArduCopter config.h: RTL_ALT_MIN (30 cm) and the shallowest cone slope honoured."""
+
+
+@dataclass(frozen=True, slots=True)
+class ReturnRule:
+    """How high the vehicle returns home: ArduCopter's ModeRTL::compute_return_target.
+
+    alt_m: RTL_ALT (cm on the wire, default 1500); climb_min_m: RTL_CLIMB_MIN (cm, 0);
+    cone_slope: RTL_CONE_SLOPE (3; below 0.5 no cone); above_terrain: RTL_ALT_TYPE 1
+    (terrain) rather than 0 (above home); loiter_s: RTL_LOITER_TIME (ms, 5000) hovered above
+    home before the descent.
+    """
+
+    alt_m: float = 15.0
+    climb_min_m: float = 0.0
+    cone_slope: float = 3.0
+    above_terrain: bool = False
+    loiter_s: float = 5.0
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, float]) -> ReturnRule:
+        """The rule of ArduPilot parameters (absent ones keep their defaults)."""
+        d = cls()
+        return cls(alt_m=params.get("RTL_ALT", d.alt_m * 100) / 100,
+                   climb_min_m=params.get("RTL_CLIMB_MIN", d.climb_min_m * 100) / 100,
+                   cone_slope=params.get("RTL_CONE_SLOPE", d.cone_slope),
+                   above_terrain=params.get("RTL_ALT_TYPE", 0.0) == 1.0,
+                   loiter_s=params.get("RTL_LOITER_TIME", d.loiter_s * 1000) / 1000)
+
+    def return_alt_m(self, current_alt_m: float, distance_m: float) -> float:
+        """The altitude (m, in the rule's frame: above home, or above terrain) to return at
+        from ``current_alt_m`` (same frame) at ``distance_m`` horizontally from home: at
+        least RTL_ALT and the current altitude + RTL_CLIMB_MIN, lowered within the cone
+        (distance * slope) near home, and never below the current altitude (no descent)."""
+        min_alt = max(RTL_ALT_MIN_M, current_alt_m + max(0.0, self.climb_min_m))
+        target = max(0.0, self.alt_m, min_alt)
+        if self.cone_slope >= RTL_MIN_CONE_SLOPE:
+            target = min(target, max(distance_m * self.cone_slope, min_alt))
+        return max(target, current_alt_m)
+
+
+AT_CURRENT_ALTITUDE = ReturnRule(alt_m=0.0, cone_slope=0.0, loiter_s=1.0)
+"""Return at the altitude of the last waypoint (RTL_ALT 0), hovering 1 s above home."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +109,8 @@ class Leg:
     gimbal_pitch_rad: float = NADIR_PITCH_RAD
     gimbal_yaw_rad: float = 0.0
     kind: str = "waypoint"   # takeoff | waypoint | return | land
+    above_terrain: bool = False
+    """Flown at a height above the terrain under the vehicle (module docstring)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,37 +141,56 @@ def _gimbal_commands(items: tuple[MissionItem, ...]) -> list[tuple[float, float]
     return out
 
 
-def load_flight_plan(path: str | Path, origin: Origin, default_speed_mps: float = 5.0
-                     ) -> FlightPlan:
-    """The legs of a plan file (.plan or WPL 110), home at ``origin`` (the take-off point on
-    the ground). Raises pdcov's InputFileError naming the file for a plan it cannot fly."""
-    mission = read_mission(path)
-    speed = (default_speed_mps if math.isnan(mission.default_speed_mps)
-             else mission.default_speed_mps)
-    return flight_plan_from_items(mission.items, origin, str(path), speed)
-
-
 def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], origin: Origin,
                            source: str, default_speed_mps: float = 5.0, *,
-                           takeoff_speed_mps: float = 1.5, land_speed_mps: float = 0.7
-                           ) -> FlightPlan:
-    """The legs of mission items (no home item), home at ``origin``."""
-    items = tuple(items)
+                           takeoff_speed_mps: float = 1.5, land_speed_mps: float = 0.7,
+                           ground: LocalGround | None = None,
+                           rtl: ReturnRule = AT_CURRENT_ALTITUDE) -> FlightPlan:
+    """The legs of mission items (no home item), home at ``origin`` (on the ground).
+
+    ground: the terrain about home, for terrain-frame waypoints and a terrain RTL (None:
+    level ground, where the terrain frame is the relative one). rtl: the return's altitude.
+    """
+    items = tuple(dataclasses.replace(it, frame=_FRAME_OF_INT.get(it.frame, it.frame))
+                  for it in items)
     plan = plan_from_mission_items(items, origin, source, default_speed_mps)
     gimbal = _gimbal_commands(items)
+    nav = [(k, it) for k, it in enumerate(items) if it.command == MAV_CMD_NAV_WAYPOINT]
+
+    def terrain_m(n_m: float, e_m: float, what: str) -> float:
+        """Terrain height above home (m) at NED (n, e); 0 on level ground."""
+        if ground is None:
+            return 0.0
+        h = float(ground.height_m(n_m, e_m))
+        if not math.isfinite(h):
+            lat, lon = ground.geodetic(n_m, e_m)
+            raise InputFileError(f"{source}: {what} at ({float(lat):.7f}, {float(lon):.7f}) "
+                                 "lies outside the DEM (no terrain height there)")
+        return h
+
     legs: list[Leg] = []
     alt0 = plan.waypoints[0].alt_agl_m
     legs.append(Leg((0.0, 0.0, 0.0), (0.0, 0.0, -alt0), takeoff_speed_mps, 1.0, kind="takeoff"))
     here = (0.0, 0.0, -alt0)
     pitch, yaw = NADIR_PITCH_RAD, 0.0
-    for k, w in enumerate(plan.waypoints):
+    for k, (w, (seq, it)) in enumerate(zip(plan.waypoints, nav, strict=True)):
         if k < len(gimbal) and gimbal[k] is not None:
             pitch, yaw = gimbal[k]  # type: ignore[misc]
-        end = (w.y_enu_m, w.x_enu_m, -w.alt_agl_m)
-        legs.append(Leg(here, end, w.speed_mps, w.hover_s, pitch, yaw))
+        terrain = it.frame == MAV_FRAME_GLOBAL_TERRAIN_ALT
+        n, e = w.y_enu_m, w.x_enu_m
+        up = w.alt_agl_m + (terrain_m(n, e, f"item {seq}: the terrain-frame waypoint")
+                            if terrain else 0.0)
+        end = (n, e, -up)
+        legs.append(Leg(here, end, w.speed_mps, w.hover_s, pitch, yaw, above_terrain=terrain))
         here = end
     rtl_speed = plan.waypoints[-1].speed_mps
-    top = (0.0, 0.0, here[2])
-    legs.append(Leg(here, top, rtl_speed, 1.0, pitch, yaw, kind="return"))
+    under = terrain_m(here[0], here[1], "the start of the return") if rtl.above_terrain else 0.0
+    alt = rtl.return_alt_m(-here[2] - under, math.hypot(here[0], here[1]))
+    climbed = (here[0], here[1], -(alt + under))
+    if climbed != here:  # climb first, unless already at the return altitude
+        legs.append(Leg(here, climbed, rtl_speed, 0.0, pitch, yaw, kind="return"))
+    top = (0.0, 0.0, -alt)
+    legs.append(Leg(climbed, top, rtl_speed, rtl.loiter_s, pitch, yaw, kind="return",
+                    above_terrain=rtl.above_terrain))
     legs.append(Leg(top, (0.0, 0.0, 0.0), land_speed_mps, 0.0, pitch, yaw, kind="land"))
     return FlightPlan(origin, tuple(legs))

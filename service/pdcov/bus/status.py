@@ -5,12 +5,14 @@ vehicle_id, seq, uptime_s, t_s, thresholds, proportion_at_or_above, mean_pd,
 expected_false_alarms, cells_free, cells_observed, frames {used, skipped {reason: n}},
 link {...}, pose {lat_deg, lon_deg, alt_msl_m, heading_deg, t_s} or null, gimbal {...},
 grid {hash, x0_m, y0_m, cell_size_m, n_rows, n_cols, tile_size, origin {lat_deg,
-lon_deg, ground_alt_msl_m}}, tiles_seq, faults {name: n}, checkpoint {...}, full.
+lon_deg, ground_alt_msl_m}}, tiles_seq, faults {name: n}, checkpoint {...}, full, and
+with a DEM terrain_check {margin_m, checked, mismatches, refused, largest, latest}.
 
 ``StatusEncoder`` keeps the daemon's status under its 1 kB/s budget: the detail that rarely
 changes (the link's negotiation, the gimbal's description, the checkpoint) goes out in
 full statuses only -- the first, every ``FULL_EVERY``-th and any whose detail changed --
-and the others carry the same required fields with a brief ``link`` and ``gimbal``.
+and the others carry the same required fields with a brief ``link`` and ``gimbal`` (and no
+``checkpoint`` or ``terrain_check``).
 ``merge_status`` gives a receiver the latest values with the last full status's detail.
 """
 
@@ -63,7 +65,8 @@ class StatusEncoder:
     as given) when it is the first, every ``full_every``-th, or when its detail differs
     from the last full one's; otherwise brief (``"full": false``): ``link`` and ``gimbal``
     cut to BRIEF_LINK / BRIEF_GIMBAL, ``grid.origin`` empty, ``faults`` without its zero
-    counts, no ``checkpoint``. The detail is what a brief status leaves out, less the
+    counts, no ``checkpoint`` or ``terrain_check``. The detail is what a brief status
+    leaves out (bar the terrain check, whose counts change with every reading), less the
     message ages that change every time. Both kinds carry every required field, so any
     version-1 receiver reads both. Pose numbers are rounded to what they mean (1 cm in
     latitude and longitude, 0.1 deg, 1 ms)."""
@@ -106,6 +109,7 @@ def _brief(doc: Mapping[str, Any]) -> dict[str, Any]:
     if "faults" in doc:
         out["faults"] = {k: v for k, v in _sub(doc, "faults").items() if v != 0}
     out.pop("checkpoint", None)
+    out.pop("terrain_check", None)
     return out
 
 
@@ -140,8 +144,9 @@ def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[st
     if not _sub(doc, "grid").get("origin"):
         out["grid"] = {**_sub(doc, "grid"), "origin": _sub(last, "grid").get("origin", {})}
     out["faults"] = {**{k: 0 for k in _sub(last, "faults")}, **_sub(doc, "faults")}
-    if "checkpoint" not in doc and "checkpoint" in last:
-        out["checkpoint"] = last["checkpoint"]
+    for name in ("checkpoint", "terrain_check"):
+        if name not in doc and name in last:
+            out[name] = last[name]
     return out
 
 
@@ -209,7 +214,29 @@ def decode_status(payload: bytes, key: str = "status",
     f.counts("faults", MAX_NAMED_COUNTS, _U64)
     f.obj_or_null("checkpoint")
     f.boolean_or_null("full")
+    terrain = f.obj_or_null("terrain_check")  # absent: no DEM, or an older daemon
+    if terrain is not None:
+        _check_terrain(terrain)
     return doc
+
+
+MAX_TERRAIN_DIFFERENCE_M = 1e5
+
+
+def _check_terrain(t: Fields) -> None:
+    """Check the status's ``terrain_check`` (docs/protocol.md)."""
+    t.number("margin_m", 0.0, MAX_TERRAIN_DIFFERENCE_M)
+    t.counts("checked", MAX_NAMED_COUNTS, _U64)
+    t.integer("mismatches", 0, _U64)
+    t.counts("refused", MAX_NAMED_COUNTS, _U64)
+    for name in ("largest", "latest"):
+        m = t.obj_or_null(name)
+        if m is not None:
+            m.string("source", max_len=40)
+            m.number("difference_m", -MAX_TERRAIN_DIFFERENCE_M, MAX_TERRAIN_DIFFERENCE_M)
+            m.number("lat_deg", -90.0, 90.0)
+            m.number("lon_deg", -180.0, 360.0)
+            m.number_or_null("t_s")
 
 
 def _check_grid(g: Fields, bad: Refuser) -> int:

@@ -7,7 +7,7 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from pdcov.commands.args import (
     positive_int,
     probability,
 )
-from pdcov.config import load_mission
+from pdcov.commands.mission_file import load_mission_warned
 from pdcov.errors import InputFileError, PdcovError
 
 if TYPE_CHECKING:
@@ -93,8 +93,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.telemetry.frame_policy import below_min_height
     from pdcov.telemetry.log_poses import poses_from_log
     from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
+    from pdcov.telemetry.terrain_check import terrain_check_for
 
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "evaluate")
+    terrain_check = None
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
     log_warnings: tuple[str, ...] = ()
@@ -110,16 +112,22 @@ def run_evaluate(args: argparse.Namespace) -> int:
             lines.append("origin.ground_alt_msl_m not set: ENU heights in the CSV are taken "
                          "as heights above the ground")
     else:
+        terrain_check = terrain_check_for(mission)
         log_poses = poses_from_log(
             args.log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
             frame_source=args.frame_source or mission.chosen_frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
-            estimator_status=mission.estimator_status)
+            estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
+            terrain_check=terrain_check)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
+        if terrain_check is not None:  # the daemon's terrain_check, over the same samples
+            lines.append(terrain_check.summary_line())
+            if terrain_check.mismatches:
+                log_warnings += (terrain_check.summary_line(),)
     _check_near_origin(poses, args.poses or args.log, mission.source)
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
@@ -146,19 +154,24 @@ def run_evaluate(args: argparse.Namespace) -> int:
         lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
     warnings = _unseen_domain_warnings(grid, mission, poses)
-    for w in (*log_warnings, *warnings):
+    for w in (*log_warnings, *warnings):  # the mission's were shown when it was loaded
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
+    warnings = [*mission.warnings, *warnings]
     # The per-frame poses are done with: free them before writing the outputs (the peak).
     del poses
     source = (args.poses or args.log).name
+    extra: dict[str, Any] = {}
+    if log_warnings or warnings:
+        extra["warnings"] = [*log_warnings, *warnings]
+    if terrain_check is not None:
+        extra["terrain_check"] = terrain_check.as_dict()
     with replacing_dir(args.out) as replaced:
         run = write_outputs(args.out, mission, grid, origin,
                             title=f"{mission.vehicle_id}: {source}",
                             track_enu=finite_track(track), plan_enu=plan_enu,
                             outline_threshold=args.outline_threshold,
                             prior=None if prior is None else prior.poa,
-                            extra_metrics={"warnings": [*log_warnings, *warnings]}
-                            if log_warnings or warnings else None)
+                            extra_metrics=extra or None)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:
@@ -248,7 +261,7 @@ def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.core.rotations import R_from_euler_zyx, Rz
     from pdcov.report.plots import ray_count_figure
 
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "footprint")
     R_ned_body = R_from_euler_zyx(*np.radians([args.roll_deg, args.pitch_deg, args.yaw_deg]))
     r = np.array([0.0, 0.0, args.altitude_m])
     if isinstance(mission.mount, FixedMount) and args.camera_pitch_deg is None:

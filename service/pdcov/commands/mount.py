@@ -9,7 +9,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from pdcov.config import load_mission
+from pdcov.commands.mission_file import load_mission_warned
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, where
 from pdcov.telemetry.gimbal import mount_type_param, resolve_interpretation
@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_mount_check(args: argparse.Namespace) -> int:
-    mission = load_mission(args.config)
+    mission = load_mission_warned(args.config, "mount-check")
     mount = mission.mount
     if not isinstance(mount, GimbalMount):
         raise ConfigError(f"{where(mission.source, 'mount.type')}: mount-check reads a gimbal "

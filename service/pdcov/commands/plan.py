@@ -4,7 +4,9 @@ of parameters, the follow-up flight over the gaps, and the upload to a vehicle.
 Algorithms, limits and file formats: docs/planning.md. The mission config's optional
 ``planning`` section sets the vehicle's kinematic limits for the predictions:
 ``{max_accel_mps2: 2.5, max_yaw_rate_deg_s: 60, tilt: true, corner_cut_m: 2,
-gimbal_pitch_deg: -90}``.
+gimbal_pitch_deg: -90}``, and how plans meet the mission's terrain: ``{terrain_frame: amsl,
+terrain_tolerance_m: 2, terrain_max_climb_mps: 2.5, terrain_max_descent_mps: 1.5,
+terrain_clearance_m: 10}`` (``--terrain-*`` flags override them).
 """
 
 from __future__ import annotations
@@ -31,9 +33,15 @@ from pdcov.commands.args import (
     positive_int,
     probability,
 )
-from pdcov.config import Mission, PlanningSection, load_mission
+from pdcov.commands.mission_file import load_mission_warned
+from pdcov.config import Mission, PlanningSection
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MissionItem
+from pdcov.core.mission import (
+    MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_GLOBAL,
+    AltitudeFrame,
+    MissionItem,
+)
 from pdcov.errors import ConfigError, where
 from pdcov.planning.optimise import (
     PATTERN_OPTIONS,
@@ -54,6 +62,11 @@ from pdcov.planning.optimise import (
 from pdcov.planning.patterns import track_spacing_m
 from pdcov.planning.plan import read_mission, write_plan
 from pdcov.planning.refly import plan_refly
+from pdcov.planning.terrain_follow import (
+    TerrainFollowing,
+    clearance_intrusions,
+    steep_legs,
+)
 from pdcov.planning.trajectory import Kinematics
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
@@ -79,6 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                                   "largest keeping the triangles inside)")
     p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
+    _terrain_args(p)
     p.set_defaults(func=run_plan)
 
     o = subparsers.add_parser(
@@ -104,6 +118,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     o.add_argument("--overlaps", nargs="+", type=overlap, default=[0.0, 0.2, 0.4],
                    help="side overlaps of the swath to try")
     o.add_argument("--processes", type=positive_int, help="worker processes (default: all cores)")
+    _terrain_args(o)
     o.add_argument("--out", required=True, type=output_dir, help="folder to write")
     o.set_defaults(func=run_optimise)
 
@@ -121,6 +136,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="track directions to try, deg clockwise from north")
     r.add_argument("--start-enu-m", type=finite, nargs=2, default=[0.0, 0.0],
                    metavar=("X", "Y"), help="where the follow-up starts (home: 0 0)")
+    _terrain_args(r)
     r.add_argument("--out", required=True, type=output_dir, help="folder to write")
     r.set_defaults(func=run_refly)
 
@@ -143,28 +159,91 @@ def _spacing_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--overlap", type=overlap, help="side overlap of the swath (default 0.2)")
 
 
+def _terrain_args(p: argparse.ArgumentParser) -> None:
+    """Flags overriding the planning section's terrain keys (docs/planning.md)."""
+    p.add_argument("--terrain-frame", choices=list(AltitudeFrame),
+                   help="over the mission's terrain: amsl (waypoints along the terrain, "
+                        "MSL), terrain_alt (heights above terrain, the autopilot follows) "
+                        "or relative (a constant altitude above home); default "
+                        "planning.terrain_frame, else amsl with a terrain")
+    p.add_argument("--terrain-tolerance-m", type=positive,
+                   help="height above terrain kept within this (default "
+                        "planning.terrain_tolerance_m, 2)")
+    p.add_argument("--terrain-clearance-m", type=finite,
+                   help="warn where terrain plus this rises into the path (default "
+                        "planning.terrain_clearance_m, 10)")
+
+
+def planning_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The planning keys the ``--terrain-*`` flags set."""
+    given = {"terrain_frame": args.terrain_frame,
+             "terrain_tolerance_m": args.terrain_tolerance_m,
+             "terrain_clearance_m": args.terrain_clearance_m}
+    return {k: v for k, v in given.items() if v is not None}
+
+
 def _overlap(args: argparse.Namespace) -> float:
     return 0.2 if args.overlap is None else args.overlap
 
 
-def scenario_of(mission: Mission) -> Scenario:
-    """The prediction inputs of a mission, with its ``planning`` section applied."""
-    cfg = PlanningSection.from_mapping(mission.raw.get("planning"), mission.source)
+def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Scenario:
+    """The prediction inputs of a mission, with its ``planning`` section applied and then
+    ``overrides`` (planning keys given on the command line)."""
+    doc = mission.raw.get("planning")
+    if overrides and (doc is None or isinstance(doc, dict)):  # else from_mapping refuses it
+        doc = {**(doc or {}), **overrides}
+    cfg = PlanningSection.from_mapping(doc, mission.source)
+    frame = cfg.terrain_frame or (AltitudeFrame.RELATIVE if mission.terrain is None
+                                  else AltitudeFrame.AMSL)
+    if mission.terrain is None and frame is not AltitudeFrame.RELATIVE:
+        raise ConfigError(f"{where(mission.source, 'planning.terrain_frame')}: {frame} "
+                          "follows the terrain, but the mission has none (add terrain.dem, "
+                          "or use relative)")
+    if frame is AltitudeFrame.AMSL and mission.ground_alt_msl_m is None:
+        raise ConfigError(f"{where(mission.source, 'origin.ground_alt_msl_m')}: missing; "
+                          "amsl waypoints are written above mean sea level from it")
     try:
         kin = Kinematics(cfg.max_accel_mps2, math.radians(cfg.max_yaw_rate_deg_s), cfg.tilt,
                          cfg.corner_cut_m)
+        following = TerrainFollowing(frame, cfg.terrain_tolerance_m, cfg.terrain_max_climb_mps,
+                                     cfg.terrain_max_descent_mps, cfg.terrain_clearance_m)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where(mission.source, 'planning')}: {exc}") from None
     pitch = math.radians(cfg.gimbal_pitch_deg)
     g = mission.domain.grid_geometry(mission.cell_size_m)
     return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
                     mission.detector, mission.mount, mission.frame_rate_hz,
-                    mission.max_range_m, mission.min_revisit_s, kin, pitch)
+                    mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain,
+                    following)
+
+
+# At most this many terrain warnings of each kind are printed, one line each.
+MAX_TERRAIN_LINES = 10
+
+
+def terrain_warnings(sc: Scenario, pred: Prediction) -> list[str]:
+    """One line per stretch of the predicted plan where the terrain plus the clearance rises
+    into the path, then per leg of a terrain-frame plan steeper than the climb or descent
+    rate (none without terrain); at most MAX_TERRAIN_LINES of each and a count."""
+    if sc.terrain is None:
+        return []
+    lines = []
+    for found in ([i.message() for i in clearance_intrusions(pred.plan, sc.terrain,
+                                                             sc.following.clearance_m)],
+                  steep_legs(pred.plan, sc.following)):
+        lines += found[:MAX_TERRAIN_LINES]
+        if len(found) > MAX_TERRAIN_LINES:
+            lines.append(f"and {len(found) - MAX_TERRAIN_LINES} more like it")
+    return lines
 
 
 def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
-                      title: str, spacing_m: float | None, figures: bool = True) -> str:
-    """Plan files and the predicted evaluation in ``out``; returns the summary text."""
+                      title: str, spacing_m: float | None, figures: bool = True,
+                      terrain_warnings: Sequence[str] = ()) -> str:
+    """Plan files and the predicted evaluation in ``out``; returns the summary text. The
+    ``terrain_warnings`` (the function of that name) go to stderr and metrics.json."""
+    for line in terrain_warnings:
+        print(f"WARNING: terrain: {line}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     origin = mission.origin()
     write_plan(out / "plan.plan", pred.plan, origin)
@@ -174,7 +253,9 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
                       "spacing_m": spacing_m,
                       "flight_time_s": round(pred.flight.duration_s, 2),
                       "path_length_m": round(pred.flight.path_length_m, 2),
-                      "planned_path_length_m": round(pred.plan.path_length_m, 2)}}
+                      "planned_path_length_m": round(pred.plan.path_length_m, 2),
+                      "altitude_frame": str(pred.plan.altitude_frame),
+                      "terrain_warnings": list(terrain_warnings)}}
     run = write_outputs(out, mission, grid, origin, title=title,
                         track_enu=pred.flight.r_body_enu[:, :2], plan_enu=pred.plan.xy_enu_m,
                         extra_metrics=extra, figures=figures)
@@ -192,8 +273,8 @@ def run_plan(args: argparse.Namespace) -> int:
              ("radius", "--radius-m", args.radius_m))
     refuse_options(args.pattern, {name: flag for name, flag, value in given
                                   if value is not None})
-    mission = load_mission(args.config)
-    sc = scenario_of(mission)
+    mission = load_mission_warned(args.config, "plan")
+    sc = scenario_of(mission, planning_overrides(args))
     params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
                         math.radians(args.heading_deg or 0.0), args.spacing_m,
                         _overlap(args),
@@ -209,7 +290,7 @@ def run_plan(args: argparse.Namespace) -> int:
             args.out, mission, pred, pred.grid,
             f"predicted: {plan.description} at {args.altitude_m:g} m",
             spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
-            figures=not args.no_figures)
+            figures=not args.no_figures, terrain_warnings=terrain_warnings(sc, pred))
     print(summary + _replaced_note(replaced, args.out))
     return 0
 
@@ -261,8 +342,8 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def run_optimise(args: argparse.Namespace) -> int:
-    mission = load_mission(args.config)
-    sc = scenario_of(mission)
+    mission = load_mission_warned(args.config, "optimise")
+    sc = scenario_of(mission, planning_overrides(args))
     params = candidates(args.patterns, args.altitudes_m, args.speeds_mps,
                         [math.radians(h) for h in args.headings_deg], args.spacings_m,
                         args.overlaps)
@@ -291,7 +372,7 @@ def run_optimise(args: argparse.Namespace) -> int:
         pred = predict(sc, plan, s.params)
         summary = write_prediction(out / "best", mission, pred, pred.grid,
                                     f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                    spacing)
+                                    spacing, terrain_warnings=terrain_warnings(sc, pred))
         write_text_atomic(out / "optimise.json", json.dumps({
             "target_pd": args.target_pd, "min_proportion": args.min_proportion,
             "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
@@ -339,11 +420,12 @@ def _front_figure(path: Path, scores: Sequence[Score], front: Sequence[int], bes
 
 
 def run_refly(args: argparse.Namespace) -> int:
-    mission = load_mission(args.config)
-    sc = scenario_of(mission)
+    mission = load_mission_warned(args.config, "refly")
+    sc = scenario_of(mission, planning_overrides(args))
     flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
                                   max_range_m=mission.max_range_m,
-                                  min_revisit_s=mission.min_revisit_s)
+                                  min_revisit_s=mission.min_revisit_s,
+                                  terrain=mission.terrain)
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")
@@ -358,7 +440,8 @@ def run_refly(args: argparse.Namespace) -> int:
     out: Path = args.out
     with replacing_dir(out) as replaced:
         summary = write_prediction(out, mission, r.prediction, flown,
-                                    f"after the follow-up: {r.plan.description}", spacing)
+                                    f"after the follow-up: {r.plan.description}", spacing,
+                                    terrain_warnings=terrain_warnings(sc, r.prediction))
         write_text_atomic(out / "gaps.json", json.dumps({
             "target_pd": args.target_pd,
             "before": {"cells": r.gaps_before.n_cells,

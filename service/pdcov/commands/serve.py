@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -52,6 +53,9 @@ def run_serve(args: argparse.Namespace) -> int:
                           "--connect URL")
     if args.check:
         from pdcov.bus.session import zenoh_config
+
+        for w in cfg.mission.warnings:
+            print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
 
         grid = cfg.mission.new_grid()
         zenoh_config(cfg.bus)

@@ -65,13 +65,13 @@ def run(args: argparse.Namespace) -> int:
 
     GROUND.require()
     from pdcov.bus.session import BusConfig, bus_config_from_dict
-    from pdcov.config import load_mission
+    from pdcov.commands.mission_file import load_mission_warned
     from pdcov.ground.app import WatchOptions, parse_web_address, run_watch, stdout_is_terminal
 
     vehicle = None if args.vehicle == "all" else args.vehicle
     if vehicle is not None and not valid_vehicle_id(vehicle):
         raise ConfigError(f"--vehicle {args.vehicle!r}: expected {VEHICLE_ID_RULE}, or 'all'")
-    mission = load_mission(args.config) if args.config else None
+    mission = load_mission_warned(args.config, "watch") if args.config else None
     bus = (bus_config_from_dict(mission.raw.get("bus"), mission.source) if mission
            else BusConfig())
     bus = bus.with_endpoints(args.zenoh_connect, args.zenoh_listen)

@@ -215,6 +215,46 @@ class CameraModel:
             px[..., 0] += self._skew * (px[..., 1] - self.K[1, 2]) / self.K[1, 1]
         return px
 
+    def project_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (..., 2) of optical-frame points given as three float64 arrays.
+
+        The distortion models of ``project`` evaluated in numpy (float64), for points that
+        lie on no plane (the terrain's cell corners): OpenCV's plumb_bob / rational
+        polynomial (k1 k2 p1 p2 k3 k4 k5 k6) and fisheye (equidistant) formulas, with the
+        skew applied as ``project`` applies it. Only meaningful where ``projectable``.
+        """
+        K = self.K
+        d = self.dist_coeffs
+        px = np.empty((*np.shape(x), 2))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            inv_z = 1.0 / z
+            a = x * inv_z
+            b = y * inv_z
+            r2 = a * a + b * b
+            if self.is_fisheye:
+                r = np.sqrt(r2)
+                theta = np.arctan(r)
+                t2 = theta * theta
+                theta_d = theta * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+                scale = np.where(r > 1e-12, theta_d / r, 1.0)
+                xd, yd = a * scale, b * scale
+            elif self._distorted:
+                k = np.zeros(8)
+                k[:d.size] = d
+                radial = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
+                if k[5:].any():
+                    radial /= 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+                ab2 = 2 * a * b
+                xd = a * radial + k[2] * ab2 + k[3] * (r2 + 2 * a * a)
+                yd = b * radial + k[2] * (r2 + 2 * b * b) + k[3] * ab2
+            else:
+                xd, yd = a, b
+            px[..., 0] = K[0, 0] * xd + K[0, 2]
+            px[..., 1] = K[1, 1] * yd + K[1, 2]
+        if self._skew:
+            px[..., 0] += self._skew * (px[..., 1] - K[1, 2]) / K[1, 1]
+        return px
+
     def pixel_rays(self, px: np.ndarray) -> np.ndarray:
         """Unit direction vectors (N, 3) in the optical frame of pixels (N, 2)."""
         uv = self.undistort_normalized(px)

@@ -1,5 +1,5 @@
-"""Sensor footprint on the flat ground z = 0 (paper, section III-A) and the per-pixel ray
-count of the paper's Fig. 5.
+"""Sensor footprint on the flat ground z = 0 (paper, section III-A), or on any level plane,
+and the per-pixel ray count of the paper's Fig. 5.
 
 A pixel's ray is ``R_enu_cam @ d_cam * t + r_cam_enu``; it sees the ground where z = 0 at
 t > 0. Rays that never reach the ground, or reach it beyond ``max_range_m`` from the camera,
@@ -21,10 +21,11 @@ from pdcov.core.pose import CameraPose
 _HORIZON_EPS = 1e-9
 
 
-def ground_range_m(pose: CameraPose, max_range_m: float) -> float:
-    """Horizontal radius about the nadir point of the ground disk within ``max_range_m``
-    slant range of the camera; 0 when the camera is at or below the ground."""
-    h = float(pose.r_cam_enu[2])
+def ground_range_m(pose: CameraPose, max_range_m: float, ground_z_m: float = 0.0) -> float:
+    """Horizontal radius about the nadir point of the ground disk (on the plane z =
+    ground_z_m) within ``max_range_m`` slant range of the camera; 0 when the camera is at or
+    below that plane."""
+    h = float(pose.r_cam_enu[2]) - ground_z_m
     if h <= 0 or max_range_m <= h:
         return 0.0
     return math.sqrt(max_range_m**2 - h**2)
@@ -39,16 +40,28 @@ def footprint_ring_enu(camera: CameraModel, pose: CameraPose, max_range_m: float
     the optical axis reaches the ground, or when the camera is at or below the ground or
     higher than ``max_range_m`` above it.
     """
-    rho_max = ground_range_m(pose, max_range_m)
+    return footprint_rings_enu(camera, pose, max_range_m, (0.0,))[0]
+
+
+def footprint_rings_enu(camera: CameraModel, pose: CameraPose, max_range_m: float,
+                        ground_z_m: tuple[float, ...]) -> list[np.ndarray]:
+    """``footprint_ring_enu`` on each of the ground planes z = ground_z_m (m, ENU)."""
     d = camera.border_rays_cam @ pose.R_enu_cam.T
-    if rho_max <= 0 or (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS):
-        return np.empty((0, 2))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # Ray parameter to the ground, at most to the disk's circle: min(h / -d_z, rho / |d_xy|).
-        t = np.where(d[:, 2] < -_HORIZON_EPS, pose.r_cam_enu[2] / -d[:, 2], np.inf)
-        np.minimum(t, rho_max / np.hypot(d[:, 0], d[:, 1]), out=t)
-    t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
-    return pose.r_cam_enu[:2] + d[:, :2] * t[:, None]
+    looks_down = not (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS)
+    rings = []
+    for z in ground_z_m:
+        rho_max = ground_range_m(pose, max_range_m, z)
+        if rho_max <= 0 or not looks_down:
+            rings.append(np.empty((0, 2)))
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # Ray parameter to the ground, at most to the disk's circle:
+            # min(h / -d_z, rho / |d_xy|).
+            t = np.where(d[:, 2] < -_HORIZON_EPS, (pose.r_cam_enu[2] - z) / -d[:, 2], np.inf)
+            np.minimum(t, rho_max / np.hypot(d[:, 0], d[:, 1]), out=t)
+        t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
+        rings.append(pose.r_cam_enu[:2] + d[:, :2] * t[:, None])
+    return rings
 
 
 def footprint_polygon(camera: CameraModel, pose: CameraPose, max_range_m: float) -> Polygon:

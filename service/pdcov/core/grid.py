@@ -6,14 +6,24 @@ paper's recursion ``P(k) = P(k-1) + (1 - P(k-1)) P(s)``.
 
 A cell is observed in a frame when the ray through its centre reaches the picture: in front
 of the camera, inside the calibrated field of view, inside the image, within the maximum
-range. Its apparent size is the square root of the area, in pixels, of its image inside the
-picture, scaled to detector-input pixels.
+slant range. Its apparent size is the square root of the area, in pixels, of its image
+inside the picture, scaled to detector-input pixels.
+
+On terrain (``terrain``: a ``TerrainSurface``) each cell's corners and centre lie on the
+surface, its image is that of its 3-D patch, and it is observed only when it faces the
+camera and the terrain does not rise above the line of sight to its centre
+(``core/occlusion.py``). Without terrain, or on a surface at height 0 everywhere, the ground
+is the plane z = 0 of the paper and the grid is exactly the flat-earth one.
+
+Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
+for it, from never in view to seen at a size the detector model covers.
 """
 
 from __future__ import annotations
 
+import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
@@ -24,8 +34,10 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
-from pdcov.core.footprint import footprint_ring_enu
+from pdcov.core.footprint import footprint_rings_enu
+from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
+from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import InputFileError
 from pdcov.npz_file import read_npz
 
@@ -49,10 +61,22 @@ def default_max_range_m(camera: CameraModel, detector: DetectorModel,
     return 2.0 * camera.focal_px * cell_size_m * scale / max(detector.bin_edges_px[0], 1e-3)
 
 
+class LimitingFactor(enum.IntEnum):
+    """What limited a cell's P_D: the best that any frame did for it (the largest code over
+    its frames, so grids merge by the maximum). A cell in the picture is 'in view'."""
+
+    NEVER_IN_VIEW = 0  # no frame had its centre in the picture
+    TOO_FAR = 1  # in view only beyond the maximum slant range
+    HIDDEN = 2  # in view within range, but terrain hid it (or it faced away from the camera)
+    TOO_SMALL = 3  # seen, but always smaller than the detector model's smallest size bin
+    TOO_LARGE = 4  # seen, but only larger than its largest bin
+    SEEN = 5  # seen at a size the detector model covers
+
+
 @dataclass(frozen=True, slots=True)
 class Metrics:
     """Summary of a grid. Proportions are of free cells; false alarms sum P_FA over observed
-    free cells."""
+    free cells; limiting_cells counts free cells by LimitingFactor name (lower case)."""
 
     frames: int
     cells_free: int
@@ -60,6 +84,7 @@ class Metrics:
     proportion_at_or_above: dict[float, float]
     mean_pd: float
     expected_false_alarms: float
+    limiting_cells: dict[str, int] = field(default_factory=dict)
 
 
 class CoverageGrid:
@@ -67,7 +92,9 @@ class CoverageGrid:
 
     geometry: the cells (ENU). mask: bool (n_rows, n_cols), True for free cells (only those
     are updated). max_range_m: slant range beyond which cells are not observed; None chooses
-    ``default_max_range_m``. min_revisit_s: count at most one
+    ``default_max_range_m``. terrain: the ground under the cells (ENU, core/terrain.py;
+    None: the plane z = 0).
+    min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
 
     With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
@@ -78,10 +105,16 @@ class CoverageGrid:
 
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
                  detector: DetectorModel, *, max_range_m: float | None = None,
-                 min_revisit_s: float | None = None) -> None:
+                 min_revisit_s: float | None = None,
+                 terrain: TerrainSurface | None = None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != geometry.shape:
             raise ValueError(f"mask shape {mask.shape} != grid shape {geometry.shape}")
+        if terrain is not None and terrain.geometry != geometry:
+            raise ValueError("terrain is for another grid geometry")
+        self.terrain = terrain
+        # The kernel's terrain: None on the plane z = 0, which takes the flat-earth path.
+        self._relief = None if terrain is None or terrain.is_level_zero else terrain
         self.geometry = geometry
         self.mask = mask
         self.camera = camera
@@ -96,6 +129,7 @@ class CoverageGrid:
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
+        self.limiting = np.zeros(geometry.shape, dtype=np.uint8)  # LimitingFactor per cell
         self.last_obs_s = (np.full(geometry.shape, -np.inf, dtype=np.float64)
                            if min_revisit_s else None)
         self.latest_frame_t_s = -math.inf  # latest frame time seen (s), with min_revisit_s
@@ -111,6 +145,11 @@ class CoverageGrid:
         # edges, float32 edges), so that update compares areas with edges of their own dtype.
         area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / self.size_scale) ** 2
         self._area_edges_px2 = (area_edges, area_edges.astype(np.float32))
+        # LimitingFactor of an observed cell by its size bin index (0: below the first edge,
+        # len(edges): above the last).
+        self._seen_code = np.full(len(area_edges) + 1, LimitingFactor.SEEN, dtype=np.uint8)
+        self._seen_code[0] = LimitingFactor.TOO_SMALL
+        self._seen_code[-1] = LimitingFactor.TOO_LARGE
 
     # -- results ----------------------------------------------------------------------------
 
@@ -136,7 +175,13 @@ class CoverageGrid:
                                     for t in thresholds},
             mean_pd=float(pd.mean()) if n_free else 0.0,
             expected_false_alarms=float(self.pfa[observed].sum()),
+            limiting_cells=self.limiting_counts(),
         )
+
+    def limiting_counts(self) -> dict[str, int]:
+        """Free cells per LimitingFactor, by lower-case name, in code order."""
+        counts = np.bincount(self.limiting[self.mask], minlength=len(LimitingFactor))
+        return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
 
     # -- update -----------------------------------------------------------------------------
 
@@ -158,23 +203,27 @@ class CoverageGrid:
             self.latest_frame_t_s = max(self.latest_frame_t_s, t)
         self.frames += 1
         window = self._window(pose)
+        self._mark_too_far(pose, window)
         if window is None:
             return 0
         r0, r1, c0, c1 = window
         self.touched = window
-        observed, area_px2 = self._observe_area(pose, window)
+        observed, area_px2, reach = self._observe_area(pose, window)
+        # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
+        edges = self._area_edges_px2[area_px2.dtype == np.float32]
+        with np.errstate(invalid="ignore"):
+            idx = np.searchsorted(edges, area_px2, side="right")
+        limiting = self.limiting[r0:r1, c0:c1]
+        np.maximum(limiting, np.where(observed, self._seen_code.take(idx * observed), reach),
+                   out=limiting)
         if self.last_obs_s is not None:
             if self.min_revisit_s is None:  # only if min_revisit_s was cleared after __init__
                 raise TypeError("min_revisit_s is None but last_obs_s is kept")
             last = self.last_obs_s[r0:r1, c0:c1]
             observed &= (t - last) >= self.min_revisit_s - _REVISIT_TOL_S
             last[observed] = t
-        # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
         # over the window (cheaper than masked scatters) and leave those cells unchanged.
-        edges = self._area_edges_px2[area_px2.dtype == np.float32]
-        with np.errstate(invalid="ignore"):
-            idx = np.searchsorted(edges, area_px2, side="right")
         idx *= observed
         tab_d, tab_fa = self._log_miss_tables
         self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
@@ -189,52 +238,64 @@ class CoverageGrid:
         Returns a bool mask (r1 - r0, c1 - c0) and, for the True cells in row-major order, the
         square root of the area in image pixels of each cell's image inside the picture.
         """
-        observed, area_px2 = self._observe_area(pose, window)
+        observed, area_px2, _ = self._observe_area(pose, window)
         return observed, np.sqrt(area_px2[observed].astype(np.float64))
 
     def _observe_area(self, pose: CameraPose, window: tuple[int, int, int, int]
-                      ) -> tuple[np.ndarray, np.ndarray]:
-        """The observed mask of ``window`` and the image area (px^2) inside the picture of
-        every cell of it (meaningful only where observed; float32 or float64)."""
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The observed mask of ``window``, the image area (px^2) inside the picture of
+        every cell of it (meaningful only where observed; float32 or float64), and the
+        LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN)."""
+        H, in_view, in_range = self._centres(pose, window)
+        if not in_view.any():
+            return in_view, np.zeros(in_view.shape), np.zeros(in_view.shape, np.uint8)
         r0, r1, c0, c1 = window
-        n_rows, n_cols = r1 - r0, c1 - c0
-        g = self.geometry
+        n_rows, n_cols = in_view.shape
+        g, cam, relief = self.geometry, self.camera, self._relief
         cs = g.cell_size_m
-        cam = self.camera
         r = pose.r_cam_enu
-        # The window's cell corners form a lattice on the ground; the corner (col c0 + j,
-        # row r0 + i) is, in the optical frame, R_cam_enu @ ([x, y, 0] - r) = H @ [j, i, 1].
-        H = pose.R_enu_cam.T @ np.array([[cs, 0.0, g.x0_m + cs * c0 - r[0]],
-                                         [0.0, cs, g.y0_m + cs * r0 - r[1]],
-                                         [0.0, 0.0, -r[2]]])
-        H_centre = H.copy()
-        H_centre[:, 2] += 0.5 * (H[:, 0] + H[:, 1])
-        # Cell centres: free, in range, in the picture, in the calibrated field of view.
-        dx2 = (g.x0_m + cs * (np.arange(c0, c1) + 0.5) - r[0]) ** 2
-        dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
-        observed = self.mask[r0:r1, c0:c1] & (
-            dy2[:, None] + (dx2 + r[2] ** 2) <= self.max_range_m**2)
-        # Behind the camera the maps hold meaningless values; the tests below reject those.
+        up_cam = pose.R_enu_cam[2]
+        z_v = None if relief is None else relief.z_corner_m[r0:r1 + 1, c0:c1 + 1]
+        observed = in_view & in_range
+        reach = np.where(in_view, np.uint8(LimitingFactor.TOO_FAR),
+                         np.uint8(LimitingFactor.NEVER_IN_VIEW))
+        if relief is not None and observed.any():
+            assert z_v is not None
+            z_c = relief.centre_z_m(r0, r1, c0, c1)
+            rows, cols = np.nonzero(observed)
+            blocked = ~self._faces_camera(r, z_v, rows, cols, r0, c0)
+            front = ~blocked
+            x = g.x0_m + cs * (cols[front] + c0 + 0.5)
+            y = g.y0_m + cs * (rows[front] + r0 + 0.5)
+            blocked[front] = hidden_by_terrain(relief, r, x, y, z_c[rows[front], cols[front]])
+            observed[rows[blocked], cols[blocked]] = False
+            reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
+        if not observed.any():
+            return observed, np.zeros(observed.shape), reach
         with np.errstate(invalid="ignore", over="ignore"):
-            observed &= cam.in_picture(cam.project_lattice(H_centre, n_cols, n_rows))
-            if not observed.any():
-                return observed, np.zeros(observed.shape)
-            j = np.arange(n_cols, dtype=np.float64)
-            i = np.arange(n_rows, dtype=np.float64)[:, None]
-            observed &= cam.in_fov_xyz(*(H_centre[k, 0] * j + (H_centre[k, 1] * i
-                                                               + H_centre[k, 2])
-                                         for k in range(3)))
             # Corners, projected all at once: a cell wholly in the picture takes the area of
             # its corners' quadrilateral.
-            px_v = cam.project_lattice(H, n_cols + 1, n_rows + 1)
+            if z_v is None:
+                px_v = cam.project_lattice(H, n_cols + 1, n_rows + 1)
+            else:
+                jv = np.arange(n_cols + 1, dtype=np.float64)
+                iv = np.arange(n_rows + 1, dtype=np.float64)[:, None]
+                px_v = cam.project_xyz(*(H[k, 0] * jv + (H[k, 1] * iv + H[k, 2])
+                                         + up_cam[k] * z_v for k in range(3)))
             v_in = cam.in_picture(px_v)
             corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1],
-                                [n_cols, n_rows, 1]])
+                                [n_cols, n_rows, 1]], dtype=np.float64)
+            hull = corners @ H.T
+            if z_v is not None:  # the window's box between its lowest and highest corner
+                hull = np.concatenate([hull + up_cam * float(z_v.min()),
+                                       hull + up_cam * float(z_v.max())])
             v_ok = None  # all projectable
-            if not cam.all_projectable(corners @ H.T):
+            if not cam.all_projectable(hull):
                 jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
-                v_ok = cam.projectable(jj[..., None] * H[:, 0] + ii[..., None] * H[:, 1]
-                                       + H[:, 2])
+                p_v = jj[..., None] * H[:, 0] + ii[..., None] * H[:, 1] + H[:, 2]
+                if z_v is not None:
+                    p_v = p_v + z_v[..., None] * up_cam
+                v_ok = cam.projectable(p_v)
                 v_in &= v_ok
             whole = v_in[:-1, :-1] & v_in[:-1, 1:] & v_in[1:, 1:] & v_in[1:, :-1]
             area = quad_area(px_v[:-1, :-1], px_v[:-1, 1:], px_v[1:, 1:], px_v[1:, :-1])
@@ -252,7 +313,80 @@ class CoverageGrid:
             if not ok.all():
                 edge_area[~ok] = self._partial_area(pose, rows[~ok] + r0, cols[~ok] + c0)
             area[rows, cols] = edge_area
-        return observed, area
+        return observed, area, reach
+
+    def _mark_too_far(self, pose: CameraPose, window: tuple[int, int, int, int] | None
+                      ) -> None:
+        """Mark TOO_FAR the cells in view beyond the maximum range, out to twice it, outside
+        ``window`` (the window's own cells are judged by ``_observe_area``); the terrain's
+        line of sight is not tested there."""
+        wide = self._window(pose, 2.0 * self.max_range_m)
+        if wide is None or wide == window:
+            return
+        _, in_view, in_range = self._centres(pose, wide)
+        r0, r1, c0, c1 = wide
+        limiting = self.limiting[r0:r1, c0:c1]
+        np.maximum(limiting, (in_view & ~in_range).view(np.uint8) * np.uint8(
+            LimitingFactor.TOO_FAR), out=limiting)
+
+    def _centres(self, pose: CameraPose, window: tuple[int, int, int, int]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """H, the map of window lattice indices [j, i, 1] to the optical frame on the plane
+        z = 0, and per cell of ``window``: whether it is in view (free, its centre in the
+        picture and in the calibrated field of view) and within the maximum slant range."""
+        r0, r1, c0, c1 = window
+        n_rows, n_cols = r1 - r0, c1 - c0
+        g = self.geometry
+        cs = g.cell_size_m
+        cam = self.camera
+        r = pose.r_cam_enu
+        relief = self._relief
+        # The window's cell corners form a lattice; the corner (col c0 + j, row r0 + i) at
+        # height z is, in the optical frame, R_cam_enu @ ([x, y, z] - r) = H @ [j, i, 1]
+        # + z up_cam, with up_cam = R_cam_enu @ [0, 0, 1].
+        H = pose.R_enu_cam.T @ np.array([[cs, 0.0, g.x0_m + cs * c0 - r[0]],
+                                         [0.0, cs, g.y0_m + cs * r0 - r[1]],
+                                         [0.0, 0.0, -r[2]]])
+        H_centre = H.copy()
+        H_centre[:, 2] += 0.5 * (H[:, 0] + H[:, 1])
+        j = np.arange(n_cols, dtype=np.float64)
+        i = np.arange(n_rows, dtype=np.float64)[:, None]
+        dx2 = (g.x0_m + cs * (np.arange(c0, c1) + 0.5) - r[0]) ** 2
+        dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
+        xyz_c = [H_centre[k, 0] * j + (H_centre[k, 1] * i + H_centre[k, 2]) for k in range(3)]
+        if relief is None:
+            in_range = dy2[:, None] + (dx2 + r[2] ** 2) <= self.max_range_m**2
+        else:
+            z_c = relief.centre_z_m(r0, r1, c0, c1)
+            in_range = dy2[:, None] + (dx2 + (z_c - r[2]) ** 2) <= self.max_range_m**2
+            up_cam = pose.R_enu_cam[2]
+            xyz_c = [xyz_c[k] + up_cam[k] * z_c for k in range(3)]
+        # Behind the camera the maps hold meaningless values; the tests below reject those.
+        with np.errstate(invalid="ignore", over="ignore"):
+            px_c = (cam.project_lattice(H_centre, n_cols, n_rows) if relief is None
+                    else cam.project_xyz(*xyz_c))
+            in_view = self.mask[r0:r1, c0:c1] & cam.in_picture(px_c)
+            if in_view.any():
+                in_view &= cam.in_fov_xyz(*xyz_c)
+        return H, in_view, in_range
+
+    def _faces_camera(self, r_cam_enu: np.ndarray, z_corner_m: np.ndarray, rows: np.ndarray,
+                      cols: np.ndarray, r0: int, c0: int) -> np.ndarray:
+        """True for the cells (rows, cols) of the window at (r0, c0) whose corner heights
+        are ``z_corner_m`` whose surface faces the camera: the camera is on the upper side of
+        the plane through the centre with the normal of the diagonals' cross product."""
+        cs = self.geometry.cell_size_m
+        z00, z01 = z_corner_m[rows, cols], z_corner_m[rows, cols + 1]
+        z10, z11 = z_corner_m[rows + 1, cols], z_corner_m[rows + 1, cols + 1]
+        # (cs, cs, z11 - z00) x (-cs, cs, z10 - z01) / cs = (n_x, n_y, 2 cs)
+        n_x = (z10 - z01) - (z11 - z00)
+        n_y = -(z11 - z00) - (z10 - z01)
+        g = self.geometry
+        x = g.x0_m + cs * (cols + c0 + 0.5)
+        y = g.y0_m + cs * (rows + r0 + 0.5)
+        z = 0.25 * ((z00 + z11) + (z01 + z10))
+        return (n_x * (r_cam_enu[0] - x) + n_y * (r_cam_enu[1] - y)
+                + 2 * cs * (r_cam_enu[2] - z)) > 0
 
     def _partial_area(self, pose: CameraPose, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Image area (px^2) inside the picture of cells only partly inside it: each cell is
@@ -265,7 +399,8 @@ class CoverageGrid:
         x = g.x0_m + cs * (cols[:, None, None] + f[None, None, :])       # (k, 1, m+1)
         y = g.y0_m + cs * (rows[:, None, None] + f[None, :, None])       # (k, m+1, 1)
         x, y = np.broadcast_arrays(x, y)
-        p_enu = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3)
+        z = np.zeros_like(x) if self._relief is None else self._relief.height_m(x, y)
+        p_enu = np.stack([x, y, z], axis=-1).reshape(-1, 3)
         p_cam = (p_enu - pose.r_cam_enu) @ pose.R_enu_cam
         ok = self.camera.projectable(p_cam)
         px: np.ndarray = np.zeros((len(p_cam), 2))
@@ -279,18 +414,50 @@ class CoverageGrid:
         sub_ok &= self.camera.in_picture(centre).reshape(sub_ok.shape)
         return np.where(sub_ok, quad_area(*np.moveaxis(quads, 3, 0)), 0.0).sum(axis=(1, 2))
 
-    def _window(self, pose: CameraPose) -> tuple[int, int, int, int] | None:
-        """(r0, r1, c0, c1): the grid cells that may be observed, from the footprint's extent
-        padded by one cell and by the chord error of the sampled border."""
-        ring = footprint_ring_enu(self.camera, pose, self.max_range_m)
+    def _window(self, pose: CameraPose, range_m: float | None = None
+                ) -> tuple[int, int, int, int] | None:
+        """(r0, r1, c0, c1): the grid cells that may be observed within ``range_m`` slant
+        range (default the maximum range), from the footprint's extent padded by one cell
+        and by the chord error of the sampled border.
+
+        On terrain the footprint lies between the ground planes through the lowest and the
+        highest terrain: the picture's cone between them projects inside the footprints on
+        those two planes. Their extent on the whole surface's range gives a first window,
+        the range under that window a second, tighter one."""
+        relief = self._relief
+        range_m = self.max_range_m if range_m is None else range_m
+        if relief is None:
+            return self._window_between(pose, range_m, (0.0, 0.0))
+        z_range = relief.z_range_m
+        window = self._window_between(pose, range_m, z_range)
+        if window is None:
+            return None
+        local = relief.window_z_range_m(*window)
+        return (window if local == z_range
+                else self._window_between(pose, range_m, local, window))
+
+    def _window_between(self, pose: CameraPose, range_m: float,
+                        z_range_m: tuple[float, float],
+                        within: tuple[int, int, int, int] | None = None
+                        ) -> tuple[int, int, int, int] | None:
+        """The window of the footprints on the ground planes through the lowest and the
+        highest height of ``z_range_m``, inside ``within``; all within range when the camera
+        is not above the highest."""
+        z_lo, z_hi = z_range_m
+        rings = footprint_rings_enu(self.camera, pose, range_m,
+                                    (z_lo,) if z_lo == z_hi else (z_lo, z_hi))
+        if z_hi > z_lo and len(rings[1]) == 0:
+            rings.append(pose.r_cam_enu[:2] + range_m * np.array([[-1.0, -1.0], [1.0, 1.0]]))
+        ring = np.concatenate(rings)
         if len(ring) == 0:
             return None
         g = self.geometry
-        pad = 1.5 * g.cell_size_m + 0.01 * self.max_range_m
+        pad = 1.5 * g.cell_size_m + 0.01 * range_m
         row_lo, col_lo = g.cell_of(ring[:, 0].min() - pad, ring[:, 1].min() - pad)
         row_hi, col_hi = g.cell_of(ring[:, 0].max() + pad, ring[:, 1].max() + pad)
-        r0, r1 = max(int(row_lo), 0), min(int(row_hi) + 1, g.n_rows)
-        c0, c1 = max(int(col_lo), 0), min(int(col_hi) + 1, g.n_cols)
+        w_r0, w_r1, w_c0, w_c1 = within or (0, g.n_rows, 0, g.n_cols)
+        r0, r1 = max(int(row_lo), w_r0), min(int(row_hi) + 1, w_r1)
+        c0, c1 = max(int(col_lo), w_c0), min(int(col_hi) + 1, w_c1)
         if r0 >= r1 or c0 >= c1:
             return None
         return r0, r1, c0, c1
@@ -304,6 +471,7 @@ class CoverageGrid:
         self.log_miss_d += other.log_miss_d
         self.log_miss_fa += other.log_miss_fa
         self.n_obs += other.n_obs
+        np.maximum(self.limiting, other.limiting, out=self.limiting)
         self.frames += other.frames
         if self.last_obs_s is not None and other.last_obs_s is not None:
             np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
@@ -311,8 +479,9 @@ class CoverageGrid:
 
     def save_npz(self, path: str | Path) -> None:
         """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
-        log-miss sums, x0_m, y0_m (south-west corner of cell [0, 0]), cell_size_m, frames, and
-        with ``min_revisit_s`` each cell's last counted look, last_obs_s."""
+        log-miss sums, limiting (LimitingFactor per cell), x0_m, y0_m (south-west corner of
+        cell [0, 0]), cell_size_m, frames, and with ``min_revisit_s`` each cell's last
+        counted look, last_obs_s."""
         with atomic_write(path, "wb") as fh:
             self.write_npz(fh)
 
@@ -324,12 +493,14 @@ class CoverageGrid:
         np.savez_compressed(
             fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
             mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
-            x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m, frames=self.frames,
+            limiting=self.limiting, x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m,
+            frames=self.frames,
             **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
-                 **kwargs: float | None) -> CoverageGrid:
+                 *, max_range_m: float | None = None, min_revisit_s: float | None = None,
+                 terrain: TerrainSurface | None = None) -> CoverageGrid:
         """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
@@ -349,10 +520,17 @@ class CoverageGrid:
         mask = data["mask"].astype(bool)
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
-        grid = cls(geometry, mask, camera, detector, **kwargs)
+        grid = cls(geometry, mask, camera, detector, max_range_m=max_range_m,
+                   min_revisit_s=min_revisit_s, terrain=terrain)
         grid.log_miss_d[:] = data["log_miss_d"]
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]
+        if "limiting" in data:
+            grid.limiting[:] = data["limiting"]
+        else:  # written before limiting factors: what the sums and counts still tell
+            grid.limiting[:] = np.where(grid.log_miss_d < 0, LimitingFactor.SEEN,
+                                        np.where(grid.n_obs > 0, LimitingFactor.TOO_SMALL,
+                                                 LimitingFactor.NEVER_IN_VIEW))
         grid.frames = int(data.get("frames", 0))
         if grid.last_obs_s is not None and "last_obs_s" in data:
             last = data["last_obs_s"]
@@ -384,7 +562,7 @@ def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
     if mask.ndim != 2 or mask.dtype.kind not in "bui":
         raise bad(f"mask: expected a 2-D boolean array, got {mask.dtype} {mask.shape}")
     for key, kinds in (("log_miss_d", "f"), ("log_miss_fa", "f"), ("n_obs", "iu"),
-                       ("last_obs_s", "f")):
+                       ("last_obs_s", "f"), ("limiting", "iu")):
         a = data.get(key)
         if a is None:
             continue
@@ -397,6 +575,10 @@ def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
     for key in ("log_miss_d", "log_miss_fa"):
         if (data[key] > 0).any():
             raise bad(f"{key}: positive values (log-miss sums are <= 0)")
+    limiting = data.get("limiting")
+    if limiting is not None and limiting.size and (
+            int(limiting.min()) < 0 or int(limiting.max()) > max(LimitingFactor)):
+        raise bad(f"limiting: codes outside 0..{int(max(LimitingFactor))}")
     n_obs = data["n_obs"]
     if n_obs.size and (int(n_obs.min()) < 0 or int(n_obs.max()) > 2**31 - 1):
         raise bad("n_obs: counts outside 0..2^31-1")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 MAV_CMD_NAV_WAYPOINT = 16
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
@@ -30,3 +31,24 @@ class MissionItem:
     lon_deg: float = 0.0
     z_m: float = 0.0
     autocontinue: bool = True
+
+
+class AltitudeFrame(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+    """How a plan's altitudes are written (``planning.terrain_frame``), named for the
+    MAV_FRAME of its waypoints; prints as its text."""
+
+    RELATIVE = "relative"
+    """MAV_FRAME_GLOBAL_RELATIVE_ALT: metres above home; a constant altitude over terrain."""
+    AMSL = "amsl"
+    """MAV_FRAME_GLOBAL: metres above mean sea level, waypoints added along the terrain."""
+    TERRAIN_ALT = "terrain_alt"
+    """MAV_FRAME_GLOBAL_TERRAIN_ALT: metres above the terrain the autopilot knows."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    @property
+    def mav_frame(self) -> int:
+        return {AltitudeFrame.RELATIVE: MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                AltitudeFrame.AMSL: MAV_FRAME_GLOBAL,
+                AltitudeFrame.TERRAIN_ALT: MAV_FRAME_GLOBAL_TERRAIN_ALT}[self]

@@ -3,7 +3,7 @@
 ENU z is metres above the plane z = 0 through ``origin.ground_alt_msl_m`` (the same z as the
 camera poses'). The surface between four corners is the bilinear patch through them; a
 cell's centre is at the mean of its corners' heights. Reading a DEM into these heights is
-``pdcov.terrain`` (rasterio, pyproj); this module is the pure numeric part the kernel uses.
+``core/dem.py`` (rasterio); this module is the pure numeric part the kernel uses.
 
 Heights of blocks of ``BLOCK`` x ``BLOCK`` cells are kept as minima and maxima, so the
 range of heights under any window is found without reading the window.

@@ -26,10 +26,12 @@ from pdcov.core.grid import CoverageGrid, default_max_range_m
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import Rz
+from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError
 from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
 from pdcov.planning.progress import progress as show_progress
+from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
 from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
 PatternName = Literal["lawnmower", "spiral", "expanding-square", "sector", "sector-2"]
@@ -41,7 +43,8 @@ PATTERNS: tuple[PatternName, ...] = get_args(PatternName)
 class Scenario:
     """What a prediction needs from the mission: free space and its grid, camera, detector,
     mount, frame rate (Hz), the grid's range limit (m; None = the grid's default) and the
-    vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold."""
+    vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold;
+    terrain: the ground under the grid (ENU; None: the plane z = 0) and how plans follow it."""
 
     free_space: Polygon | MultiPolygon
     geometry: GridGeometry
@@ -54,10 +57,20 @@ class Scenario:
     min_revisit_s: float | None = None
     kinematics: Kinematics = Kinematics()
     gimbal_pitch_rad: float = -math.pi / 2
+    terrain: TerrainSurface | None = None
+    following: TerrainFollowing = TerrainFollowing()
+
+    def over_terrain(self, plan: Plan) -> Plan:
+        """``plan`` following the scenario's terrain (``follow_terrain``); without terrain,
+        ``plan``."""
+        if self.terrain is None:
+            return plan
+        return follow_terrain(plan, self.terrain, self.following)
 
     def new_grid(self) -> CoverageGrid:
         return CoverageGrid(self.geometry, self.mask, self.camera, self.detector,
-                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s)
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
+                            terrain=self.terrain)
 
     def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0) -> float:
         """Ground strip seen across the track by a level vehicle at ``alt_agl_m`` flying
@@ -114,7 +127,7 @@ def refuse_options(pattern: PatternName, given: dict[str, str]) -> None:
 
 @dataclass(frozen=True, slots=True)
 class Prediction:
-    """A plan flown through the coverage grid."""
+    """A plan flown through the coverage grid (the plan over the scenario's terrain)."""
 
     params: PlanParams
     plan: Plan
@@ -159,7 +172,9 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
 
 def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
             progress: bool = False) -> Prediction:
-    """Fly ``plan`` at the frame rate and accumulate every frame in a fresh grid."""
+    """Fly ``plan``, over the scenario's terrain (``Scenario.over_terrain``), at the frame
+    rate and accumulate every frame in a fresh grid."""
+    plan = scenario.over_terrain(plan)
     flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
     grid = scenario.new_grid()
     poses = camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad)

@@ -10,9 +10,16 @@ the uploader carry those items. Items (MAVLink common.xml):
 * MAV_CMD_NAV_WAYPOINT (16) per waypoint, param1 = hold time in s;
 * MAV_CMD_NAV_RETURN_TO_LAUNCH (20) at the end.
 
-Altitudes are MAV_FRAME_GLOBAL_RELATIVE_ALT (3), metres above home; home is the mission
-origin on the ground, so on the flat earth of the paper relative altitude = altitude above
-ground. Reading accepts frames 0 (MSL, converted with the origin's ground altitude), 3 and 10
+Waypoint altitudes are written in the plan's ``altitude_frame``:
+MAV_FRAME_GLOBAL_RELATIVE_ALT (3), metres above home (home is the mission origin on the
+ground, so on the flat earth of the paper relative altitude = altitude above ground);
+MAV_FRAME_GLOBAL (0), metres above mean sea level of the path's ENU height (a
+terrain-following plan densified along the terrain: planning/terrain_follow.py); or
+MAV_FRAME_GLOBAL_TERRAIN_ALT (10), metres above the terrain, without the points added along
+the terrain (the autopilot follows its own terrain data between waypoints). The take-off
+climbs to the first waypoint's height above home, at least its altitude above ground.
+
+Reading accepts frames 0 (MSL, converted with the origin's ground altitude), 3 and 10
 (terrain), ignores take-off, landing, return and DO commands other than the speed change,
 and refuses other navigation commands, naming the file and item.
 """
@@ -39,6 +46,7 @@ from pdcov.core.mission import (
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
     MAV_FRAME_MISSION,
+    AltitudeFrame,
     MissionItem,
 )
 from pdcov.errors import InputFileError
@@ -53,17 +61,26 @@ QGC_VEHICLE_MULTIROTOR = 2
 
 @dataclass(frozen=True, slots=True)
 class Waypoint:
-    """One waypoint: ENU metres, altitude above ground (m), speed to fly towards it (m/s),
-    and the time to hover on reaching it (s)."""
+    """One waypoint: ENU metres, altitude above ground (m; above the terrain when the plan
+    follows it), speed to fly towards it (m/s), and the time to hover on reaching it (s).
+
+    z_enu_m: ENU height of the path at the waypoint (m; default ``alt_agl_m``: the flat
+    ground z = 0). terrain_added: a point added along a leg to follow the terrain, not a
+    turn of the pattern (a MAV_FRAME_GLOBAL_TERRAIN_ALT mission leaves it out)."""
 
     x_enu_m: float
     y_enu_m: float
     alt_agl_m: float
     speed_mps: float
     hover_s: float = 0.0
+    z_enu_m: float = math.nan
+    terrain_added: bool = False
 
     def __post_init__(self) -> None:
-        if not all(math.isfinite(v) for v in (self.x_enu_m, self.y_enu_m, self.alt_agl_m)):
+        if math.isnan(self.z_enu_m):
+            object.__setattr__(self, "z_enu_m", self.alt_agl_m)
+        if not all(math.isfinite(v) for v in (self.x_enu_m, self.y_enu_m, self.alt_agl_m,
+                                              self.z_enu_m)):
             raise ValueError(f"waypoint position must be finite, got {self}")
         if not self.alt_agl_m > 0:
             raise ValueError(f"alt_agl_m must be > 0 m, got {self.alt_agl_m}")
@@ -75,10 +92,13 @@ class Waypoint:
 
 @dataclass(frozen=True, slots=True)
 class Plan:
-    """An ordered list of waypoints and a one-line description of how it was made."""
+    """An ordered list of waypoints, a one-line description of how it was made, and the
+    frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
+    above home)."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
+    altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -92,8 +112,20 @@ class Plan:
     @property
     def path_length_m(self) -> float:
         """Length of the polyline through the waypoints in 3-D, metres."""
-        p = np.array([[w.x_enu_m, w.y_enu_m, w.alt_agl_m] for w in self.waypoints])
-        return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+        return float(np.linalg.norm(np.diff(self.xyz_enu_m, axis=0), axis=1).sum())
+
+    @property
+    def xyz_enu_m(self) -> np.ndarray:
+        """(N, 3) waypoint positions with the path's height (z_enu_m), ENU metres."""
+        return np.array([[w.x_enu_m, w.y_enu_m, w.z_enu_m] for w in self.waypoints],
+                        dtype=float)
+
+    def written(self) -> np.ndarray:
+        """bool (N,): the waypoints a mission carries; a MAV_FRAME_GLOBAL_TERRAIN_ALT one
+        leaves out the points added along the terrain."""
+        return np.array([not (w.terrain_added
+                              and self.altitude_frame is AltitudeFrame.TERRAIN_ALT)
+                         for w in self.waypoints], dtype=bool)
 
     @classmethod
     def from_xy(cls, xy_enu_m: np.ndarray, alt_agl_m: float, speed_mps: float,
@@ -113,22 +145,38 @@ def home_item(origin: Origin) -> MissionItem:
                        lon_deg=origin.lon_deg, z_m=origin.ground_alt_msl_m)
 
 
+def takeoff_alt_m(plan: Plan) -> float:
+    """Height above home (m) the take-off climbs to: the first waypoint's ENU height, at
+    least its altitude above ground (home is the origin, ENU z = 0)."""
+    first = plan.waypoints[0]
+    return max(first.alt_agl_m, first.z_enu_m)
+
+
 def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
-    """Take-off, speed changes, waypoints and return to launch (no home item)."""
-    enu = np.array([[w.x_enu_m, w.y_enu_m, 0.0] for w in plan.waypoints])
+    """Take-off, speed changes, waypoints and return to launch (no home item); waypoint
+    altitudes in the plan's frame (module doc)."""
+    frame = plan.altitude_frame
+    amsl = frame is AltitudeFrame.AMSL
+    enu = plan.xyz_enu_m
+    if not amsl:
+        enu[:, 2] = 0.0  # positions on the ground plane; the altitude is written apart
     geo = enu_to_geodetic(enu, origin)
     items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
-                         z_m=plan.waypoints[0].alt_agl_m)]
+                         z_m=takeoff_alt_m(plan))]
     speed = math.nan
-    for w, (lat, lon, _) in zip(plan.waypoints, geo, strict=True):
+    for w, (lat, lon, alt_msl), written in zip(plan.waypoints, geo, plan.written(),
+                                               strict=True):
+        if not written:
+            continue
         if w.speed_mps != speed:
             speed = w.speed_mps
             items.append(MissionItem(MAV_CMD_DO_CHANGE_SPEED, MAV_FRAME_MISSION, param1=1.0,
                                      param2=speed, param3=-1.0))
-        items.append(MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        items.append(MissionItem(MAV_CMD_NAV_WAYPOINT, frame.mav_frame,
                                  param1=w.hover_s, param4=math.nan, lat_deg=float(lat),
-                                 lon_deg=float(lon), z_m=w.alt_agl_m))
+                                 lon_deg=float(lon),
+                                 z_m=float(alt_msl) if amsl else w.alt_agl_m))
     items.append(MissionItem(MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_FRAME_MISSION))
     return tuple(items)
 
@@ -174,6 +222,13 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
 
 # -- QGroundControl .plan ------------------------------------------------------------------
 
+# QGroundControlQmlGlobal::AltMode per MAV_FRAME: 1 relative, 2 absolute (AMSL), 4 terrain
+# frame; 0 is "mixed" (the plan's global mode only). QGC's 3, "calculated above terrain", is
+# its own survey's AMSL heights, which it recomputes from its terrain tiles.
+_QGC_ALTITUDE_MODE = {MAV_FRAME_GLOBAL: 2, MAV_FRAME_GLOBAL_RELATIVE_ALT: 1,
+                      MAV_FRAME_GLOBAL_TERRAIN_ALT: 4}
+
+
 def _json_number(v: float) -> float | None:
     return None if math.isnan(v) else v
 
@@ -182,6 +237,8 @@ def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
                       cruise_speed_mps: float) -> dict[str, Any]:
     """A QGroundControl plan (file version 1, mission version 2) of simple mission items."""
     simple = []
+    wp_frames = {it.frame for it in items if it.command == MAV_CMD_NAV_WAYPOINT}
+    plan_mode = _QGC_ALTITUDE_MODE.get(wp_frames.pop(), 0) if len(wp_frames) == 1 else 0
     for k, it in enumerate(items):
         entry: dict[str, Any] = {
             "autoContinue": it.autocontinue, "command": it.command, "doJumpId": k + 1,
@@ -189,17 +246,16 @@ def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
             "params": [_json_number(v) for v in (it.param1, it.param2, it.param3, it.param4,
                                                  it.lat_deg, it.lon_deg, it.z_m)],
             "type": "SimpleItem"}
-        if it.frame in (MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                        MAV_FRAME_GLOBAL_TERRAIN_ALT):
+        if it.frame in _QGC_ALTITUDE_MODE:
             entry.update({"AMSLAltAboveTerrain": None, "Altitude": it.z_m,
-                          "AltitudeMode": {0: 2, 3: 1, 10: 3}[it.frame]})
+                          "AltitudeMode": _QGC_ALTITUDE_MODE[it.frame]})
         simple.append(entry)
     return {
         "fileType": "Plan", "groundStation": "pdcov", "version": 1,
         "geoFence": {"circles": [], "polygons": [], "version": 2},
         "rallyPoints": {"points": [], "version": 2},
         "mission": {"version": 2, "firmwareType": QGC_FIRMWARE_ARDUPILOT,
-                    "vehicleType": QGC_VEHICLE_MULTIROTOR, "globalPlanAltitudeMode": 1,
+                    "vehicleType": QGC_VEHICLE_MULTIROTOR, "globalPlanAltitudeMode": plan_mode,
                     "cruiseSpeed": cruise_speed_mps, "hoverSpeed": cruise_speed_mps,
                     "plannedHomePosition": [origin.lat_deg, origin.lon_deg,
                                             origin.ground_alt_msl_m],

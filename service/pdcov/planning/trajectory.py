@@ -13,7 +13,8 @@ The model of a multicopter in an auto mission (a planning prediction, not a simu
   as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
 * with ``tilt``, the body tilts so that its thrust axis carries the acceleration (no drag).
 
-Positions are ENU metres (z = height above the flat ground), times seconds from the start.
+Positions are ENU metres (z: the waypoints' ``z_enu_m``, straight between them, so a
+terrain-following plan is flown along its profile), times seconds from the start.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.nd
                                                  np.ndarray]:
     """Dense samples of the rounded path: points (K, 3), speed limit (K,), hover time (K,),
     signed curvature (K,) (positive turning left)."""
-    P = np.array([[w.x_enu_m, w.y_enu_m, w.alt_agl_m] for w in plan.waypoints], dtype=float)
+    P = plan.xyz_enu_m
     n = len(P)
     # Per corner: tangent distance d, radius, turn sign, corner speed limit.
     d = np.zeros(n)

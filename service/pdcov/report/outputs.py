@@ -1,10 +1,10 @@
 """Offline evaluation: camera poses through the coverage grid, and the run's outputs.
 
 Outputs in a run folder (docs/outputs.md): metrics.json, grid.npz, heatmap.png,
-thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks), outline.geojson, and with a prior
-posterior.npy / posterior.tif. Every file is written atomically. The figures need the plots
-extra, the GeoTIFF and GeoJSON files the gis extra: without one, the rest is written and the
-run says what was not (``RunOutputs.not_written``).
+thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks, limiting factor), outline.geojson, and
+with a prior posterior.npy / posterior.tif. Every file is written atomically. The figures
+need the plots extra, the GeoTIFF and GeoJSON files the gis extra: without one, the rest is
+written and the run says what was not (``RunOutputs.not_written``).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.config import Mission
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.grid import CoverageGrid, Metrics
+from pdcov.core.grid import CoverageGrid, LimitingFactor, Metrics
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
@@ -60,6 +60,7 @@ def metrics_document(metrics: Metrics, outcome: SearchOutcome | None = None) -> 
                                    for t, p in metrics.proportion_at_or_above.items()},
         "mean_pd": metrics.mean_pd,
         "expected_false_alarms": metrics.expected_false_alarms,
+        "limiting_cells": metrics.limiting_cells,
     }
     if outcome is not None:
         doc["probability_of_success"] = outcome.probability_of_success
@@ -207,8 +208,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
 
         outline = threshold_outline(pd, mask, g, threshold)
-        write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}, g,
-                      origin, mask)
+        write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs,
+                                       "limiting": grid.limiting}, g, origin, mask)
         write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
         files += ["pd.tif", "outline.geojson"]
     if outcome is not None:
@@ -228,9 +229,13 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         if plots_missing is None:
             from pdcov.report.plots import heatmap_figure, thresholds_figure
 
+            terrain = grid.terrain
             heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
                            outline_enu=outline, threshold=threshold, track_enu=track_enu,
-                           plan_enu=plan_enu)
+                           plan_enu=plan_enu,
+                           terrain_z_m=None if terrain is None
+                           else terrain.centre_z_m(0, g.n_rows, 0, g.n_cols),
+                           hidden=grid.limiting == LimitingFactor.HIDDEN)
             thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds,
                               title=title)
             files += figure_files
@@ -247,7 +252,9 @@ def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
            f"({m.cells_observed / max(m.cells_free, 1):.1%})",
            f"mean P_D: {m.mean_pd:.3f}   expected false alarms: {m.expected_false_alarms:.2f}",
            "proportion of free cells with P_D at or above: " + "   ".join(
-               f"{t:g}: {p:.3f}" for t, p in m.proportion_at_or_above.items())]
+               f"{t:g}: {p:.3f}" for t, p in m.proportion_at_or_above.items()),
+           "limiting factor of free cells: " + "   ".join(
+               f"{name.replace('_', ' ')}: {n}" for name, n in m.limiting_cells.items())]
     if run.outcome is not None:
         out.append(f"probability of success POS: {run.outcome.probability_of_success:.3f} "
                    f"(prior mass in grid {run.outcome.prior_mass:.3f}); posterior written")

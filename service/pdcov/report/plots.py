@@ -44,18 +44,39 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
                    geometry: GridGeometry, domain: Domain, *, title: str,
                    outline_enu: Sequence[Sequence[Sequence[Sequence[float]]]] = (),
                    threshold: float | None = None, track_enu: np.ndarray | None = None,
-                   plan_enu: np.ndarray | None = None) -> None:
+                   plan_enu: np.ndarray | None = None, terrain_z_m: np.ndarray | None = None,
+                   hidden: np.ndarray | None = None) -> None:
     """Fig. 7: cumulative P_D per cell with a colour bar, the domain and obstacles, the
-    planned path, the flown track and the outline of the cells at or above ``threshold``."""
+    planned path, the flown track and the outline of the cells at or above ``threshold``.
+    With ``terrain_z_m`` (cell-centre heights, m) the P_D is drawn over the terrain's
+    hillshade; ``hidden`` (bool per cell) marks the cells terrain hid from every frame."""
+    from matplotlib.colors import LightSource, ListedColormap
+    from matplotlib.patches import Patch
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 6.5))
     x0, x1, y0, y1 = geometry.extent_enu
+    extent = (x0, x1, y0, y1)
+    alpha = 1.0
+    if terrain_z_m is not None:
+        # Light from the north-west, as maps are shaded; rows grow north, the image's down.
+        shade = LightSource(azdeg=315, altdeg=45).hillshade(
+            np.flipud(terrain_z_m), dx=geometry.cell_size_m, dy=geometry.cell_size_m)
+        ax.imshow(np.flipud(shade), origin="lower", extent=extent, cmap="gray", vmin=0,
+                  vmax=1, interpolation="bilinear")
+        alpha = 0.75
     # float32 with NaN (drawn transparent) costs a fraction of a masked float64 array.
     shown = np.where(mask, pd, np.nan).astype(np.float32)
-    im = ax.imshow(shown, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis", vmin=0,
-                   vmax=1, interpolation="nearest")
+    im = ax.imshow(shown, origin="lower", extent=extent, cmap="viridis", vmin=0,
+                   vmax=1, interpolation="nearest", alpha=alpha)
     fig.colorbar(im, ax=ax, label="cumulative probability of detection $P_D$", shrink=0.85)
     _draw_domain(ax, domain)
+    legend_extra = []
+    if hidden is not None and hidden.any():
+        ax.imshow(np.where(hidden & mask, 1.0, np.nan).astype(np.float32), origin="lower",
+                  extent=extent, cmap=ListedColormap(["crimson"]), vmin=0, vmax=1,
+                  interpolation="nearest", alpha=0.8)
+        legend_extra.append(Patch(facecolor="crimson", alpha=0.8, label="hidden by terrain"))
     if plan_enu is not None and len(plan_enu):
         ax.plot(plan_enu[:, 0], plan_enu[:, 1], "--", color="magenta", lw=1.3, label="plan")
     if track_enu is not None and len(track_enu):
@@ -73,7 +94,8 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_title(title)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=5, fontsize=8,
+    ax.legend(handles=ax.get_legend_handles_labels()[0] + legend_extra,
+              loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=5, fontsize=8,
               frameon=False)
     _save(fig, path)
 

@@ -244,8 +244,7 @@ class ServiceCore:
         live.set_params(proto.params, proto.params_done)  # a parameter read may time out
         live.process()
         due = live.poll(now_s)
-        if due.note is not None:
-            out.logs.append((logging.WARNING, due.note))
+        out.logs += [(logging.WARNING, note) for note in due.notes]
         if due.tiles is not None:
             out.tiles = due.tiles
         if due.status:

@@ -19,7 +19,10 @@ position's altitude minus its height above home) and, for a gimbal, the reading 
 reports (the mount parameters, gimbal.resolve_interpretation); samples wait meanwhile.
 
 It also says when to publish status, which tiles changed and may be sent within the
-bandwidth budget, when to checkpoint, and the NAMED_VALUE_FLOAT / STATUSTEXT values.
+bandwidth budget, when to checkpoint, and the NAMED_VALUE_FLOAT / STATUSTEXT values; with a
+DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the one
+``pdcov evaluate`` feeds a log), and its mismatches are logged, the first at once, then at
+most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: where frames fall and when
 they can be decided to ``frame_schedule.FrameSchedule``, the ground altitude to
@@ -69,6 +72,7 @@ from pdcov.telemetry.samples import (
     Sample,
     usable_quaternion,
 )
+from pdcov.telemetry.terrain_check import terrain_check_for
 
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
     from pdcov.service.settings import ServeConfig
@@ -76,6 +80,9 @@ if TYPE_CHECKING:  # a value handed in: the decisions never load a config
 MILESTONES = (0.25, 0.5, 0.75, 0.9, 1.0)
 NAMED_VALUE_PERIOD_S = 1.0
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
+TERRAIN_WARNING_PERIOD_S = 60.0
+"""A terrain check mismatch is logged at most once in this long (the first at once; the
+count is always in the status)."""
 MAX_WAITING_SAMPLES = 2_000_000
 """Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
 TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample
@@ -85,15 +92,15 @@ TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample
 @dataclass(slots=True)
 class Due:
     """What the shell should do now: publish status, send these tiles bytes, checkpoint,
-    send NAMED_VALUE_FLOAT with this value and/or STATUSTEXT with this text, log this
-    note (once)."""
+    send NAMED_VALUE_FLOAT with this value and/or STATUSTEXT with this text, log these
+    notes (warnings, each said once)."""
 
     status: bool = False
     tiles: bytes | None = None
     checkpoint: bool = False
     named_value: float | None = None
     statustext: str | None = None
-    note: str | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass(slots=True)
@@ -121,7 +128,8 @@ class LiveCoverage:
         self.counters = Counters()
         self.origin: Origin | None = None
         self.origin_how = ""
-        self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s)
+        self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
+                                      m.ground_alt_how)
         self.interpretation: GimbalInterpretation | None = None
         self.tracker: PoseTracker | None = None
         self._waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
@@ -129,6 +137,9 @@ class LiveCoverage:
         self._estimator_seen = False  # an estimator status came over the link
         self._note: str | None = None  # said once by poll (Due.note)
         self._noted_no_estimator = False
+        self.terrain_check = terrain_check_for(m)  # the DEM against the aircraft, or None
+        self._terrain_said = 0  # mismatches counted when the last warning was logged
+        self._next_terrain_warning_s = -math.inf
         needed = ("attitude", "position") + (
             ("gimbal",) if isinstance(m.mount, GimbalMount) else ())
         self.schedule = FrameSchedule(self.frame_source, self.rate_hz, self.max_gap_s,
@@ -154,6 +165,8 @@ class LiveCoverage:
 
     def add_sample(self, sample: Sample) -> None:
         """A sample from the link, stamped in the autopilot clock (s)."""
+        if self.terrain_check is not None:  # every sample, as offline: it refuses its own
+            self.terrain_check.add(sample)
         if not math.isfinite(sample.t_s):
             self.counters.faults["untimed_samples"] += 1
             return
@@ -398,8 +411,16 @@ class LiveCoverage:
     def poll(self, now_s: float) -> Due:
         """What is due at ``now_s`` (the daemon's monotonic clock, s)."""
         bus, svc = self.cfg.bus, self.cfg.service
-        due = Due(note=self._note)
+        due = Due(notes=[] if self._note is None else [self._note])
         self._note = None
+        check = self.terrain_check
+        warning = (None if check is None or check.mismatches == self._terrain_said
+                   else check.warning())
+        if warning is not None and check is not None \
+                and now_s >= self._next_terrain_warning_s:
+            self._terrain_said = check.mismatches
+            self._next_terrain_warning_s = now_s + TERRAIN_WARNING_PERIOD_S
+            due.notes.append(warning)
         if now_s >= self._next_status_s:
             due.status = True
             self._next_status_s = max(self._next_status_s + bus.status_period_s, now_s)

@@ -134,6 +134,8 @@ class Daemon:
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
         self.stop_event = asyncio.Event()
+        for w in self.cfg.mission.warnings:  # what loading the mission found (config.Mission)
+            log.warning("%s", w)
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self.stop_event.set)
         if self.cfg.service.record:

@@ -18,11 +18,14 @@ __all__ = ["GroundAltitude"]
 
 
 class GroundAltitude:
-    """The ground altitude's evidence so far. configured_m: the config's value (None: from
-    the autopilot); home_wait_s: how long (autopilot clock, s) to wait for a home."""
+    """The ground altitude's evidence so far. configured_m: the mission's value (None: from
+    the autopilot), configured_how: where it came from ('configured', 'the DEM at the
+    origin'); home_wait_s: how long (autopilot clock, s) to wait for a home."""
 
-    def __init__(self, configured_m: float | None, home_wait_s: float) -> None:
+    def __init__(self, configured_m: float | None, home_wait_s: float,
+                 configured_how: str = "configured") -> None:
         self.configured_m = configured_m
+        self.configured_how = configured_how
         self.home_wait_s = home_wait_s
         self.homes: list[HomeSample] = []
         self.first_position: PositionSample | None = None
@@ -52,7 +55,7 @@ class GroundAltitude:
         at all (a bare replay): after home_wait_s the latest home, else the first
         position's altitude minus its height above home."""
         if self.configured_m is not None:
-            return self.configured_m, "configured"
+            return self.configured_m, self.configured_how
         wait = self.home_wait_s
         now = max(newest_t_s, self.homes[-1].t_s if self.homes else -math.inf)
         armed = self.armed_t_s

@@ -185,8 +185,9 @@ def load_serve_config(path: str | Path) -> ServeConfig:
 def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     """What a checkpoint must match to be resumed: SHA-256 (16 hex digits) of the vehicle
     id (another vehicle's frames resumed here would count twice in the fleet), the origin,
-    the grid (geometry, free mask, max range, revisit interval), the camera (size,
-    intrinsics, distortion) and the detector model (bins, P_D, P_FA, input size)."""
+    the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
+    heights when it has them), the camera (size, intrinsics, distortion) and the detector
+    model (bins, P_D, P_FA, input size)."""
     cam, det, g = mission.camera, mission.detector, grid.geometry
     doc = {"vehicle_id": mission.vehicle_id,
            "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
@@ -198,6 +199,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
                         det.input_size_px, det.size_metric]}
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
     h.update(np.packbits(grid.mask).tobytes())
+    if grid.terrain is not None:  # none: the flat ground, hashed as before terrain existed
+        h.update(grid.terrain.z_corner_m.tobytes())
     return h.hexdigest()[:16]
 
 

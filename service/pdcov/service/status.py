@@ -3,7 +3,8 @@
 ``status_fields`` reads a ``LiveCoverage``: coverage metrics (P_D at the thresholds, mean
 P_D, expected false alarms, cells), frames (used, skipped by reason, pending; times in the
 autopilot clock, s), the last pose (lat/lon deg, alt m MSL, heading deg from north), the
-gimbal reading, the grid (ENU m about the origin), tiles and faults.
+gimbal reading, the grid (ENU m about the origin), tiles, faults and, with a DEM, the
+terrain check (``terrain_check``).
 """
 
 from __future__ import annotations
@@ -55,6 +56,11 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
                "describe": interp.describe() if interp else "waiting for the mount "
                                                             "parameters"})
     faults = dict(live.counters.faults)
+    check = live.terrain_check
+    terrain: dict[str, Any] = {}
+    if check is not None:  # only with a DEM: the statuses of a flat mission are unchanged
+        faults["terrain_mismatch"] = check.mismatches
+        terrain = {"terrain_check": check.as_dict()}
     return {
         "vehicle_id": m.vehicle_id, "seq": seq, "uptime_s": uptime_s,
         "t_s": schedule.latest_all() if schedule.latest else None,
@@ -79,5 +85,5 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
         # Changed tiles not yet sent (the bandwidth budget holds them back): with 0, a
         # watcher holding tiles_seq and frames.grid holds this grid exactly.
         "tiles_behind": live.tile_sender.behind,
-        "faults": faults, "checkpoint": checkpoint,
+        "faults": faults, "checkpoint": checkpoint, **terrain,
     }

@@ -26,7 +26,9 @@ from pdcov.telemetry.samples import (
     MountTargetSample,
     ParamSample,
     PositionSample,
+    RangefinderSample,
     Sample,
+    TerrainReportSample,
     usable_quaternion,
 )
 
@@ -144,6 +146,29 @@ def _heartbeat(msg: Any, t_s: float) -> HeartbeatSample:
                            int(msg.type), bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED))
 
 
+def _terrain_report(msg: Any, t_s: float) -> TerrainReportSample | None:
+    # lat/lon degE7, terrain_height m AMSL, current_height m above it; spacing 0: no
+    # terrain data at that point (common.xml TERRAIN_REPORT; ArduPilot then sends its last
+    # extrapolated height, AP_Terrain::send_terrain_report).
+    if not valid_lat_lon_e7(msg.lat, msg.lon):
+        return None
+    return TerrainReportSample(t_s, msg.lat * 1e-7, msg.lon * 1e-7, float(msg.terrain_height),
+                               float(msg.current_height), int(msg.spacing) != 0)
+
+
+DISTANCE_SENSOR_QUALITY_INVALID = 1
+"""DISTANCE_SENSOR signal_quality: 0 unknown, 1 invalid, 100 perfect (common.xml)."""
+
+
+def _distance_sensor(msg: Any, t_s: float) -> RangefinderSample:
+    # current/min/max_distance cm (common.xml DISTANCE_SENSOR); orientation
+    # MAV_SENSOR_ORIENTATION; signal_quality is a MAVLink 2 extension (0 when absent).
+    d_cm = int(msg.current_distance)
+    valid = (int(msg.min_distance) <= d_cm <= int(msg.max_distance)
+             and int(getattr(msg, "signal_quality", 0) or 0) != DISTANCE_SENSOR_QUALITY_INVALID)
+    return RangefinderSample(t_s, d_cm / 100.0, int(msg.orientation), valid, int(msg.id))
+
+
 _MAVLINK = {
     "ATTITUDE": _attitude,
     "ATTITUDE_QUATERNION": _attitude_quaternion,
@@ -156,6 +181,8 @@ _MAVLINK = {
     "HEARTBEAT": _heartbeat,
     "EKF_STATUS_REPORT": _ekf_status_report,
     "ESTIMATOR_STATUS": _estimator_status,
+    "TERRAIN_REPORT": _terrain_report,
+    "DISTANCE_SENSOR": _distance_sensor,
 }
 MAVLINK_TYPES = tuple(_MAVLINK)
 
@@ -263,9 +290,36 @@ def _df_ekf_status(msg: Any, t_s: float) -> tuple[EstimatorSample, ...]:
                             bool(ss & NAV_GPS_GLITCHING)),)
 
 
+# AP_Terrain::TerrainStatus (AP_Terrain.h): 0 disabled, 1 unhealthy (no data here), 2 OK.
+TERR_STATUS_OK = 2
+
+
+def _df_terr(msg: Any, t_s: float) -> TerrainReportSample:
+    # TERR Lat/Lng deg (the vehicle's position), TerrH m AMSL there, CHeight m above it
+    # (AP_Terrain::log_terrain_data, LogStructure "TERR").
+    return TerrainReportSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.TerrH),
+                               float(msg.CHeight), int(msg.Status) == TERR_STATUS_OK)
+
+
+# RangeFinder::Status (AP_RangeFinder.h): 0 not connected, 1 no data, 2 out of range low,
+# 3 out of range high, 4 good.
+RFND_STATUS_GOOD = 4
+
+
+def _df_rfnd(msg: Any, t_s: float) -> RangefinderSample | None:
+    # RFND Dist m (uint16 cm logged with multiplier 0.01, a float m since 4.4), Stat, Orient
+    # MAV_SENSOR_ORIENTATION (RangeFinder::Log_RFND). Layouts before 3.6 (Dist1/Dist2, no
+    # Orient) say no orientation: not read.
+    if not hasattr(msg, "Orient") or not hasattr(msg, "Dist"):
+        return None
+    return RangefinderSample(t_s, float(msg.Dist), int(msg.Orient),
+                             int(msg.Stat) == RFND_STATUS_GOOD, int(getattr(msg, "Instance", 0)))
+
+
 _DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
               "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps,
-              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status, "NKF9": _df_ekf_status}
+              "XKF4": _df_ekf_status, "NKF4": _df_ekf_status, "NKF9": _df_ekf_status,
+              "TERR": _df_terr, "RFND": _df_rfnd}
 DATAFLASH_TYPES = tuple(_DATAFLASH)
 
 

@@ -39,6 +39,8 @@ from pdcov.telemetry.samples import (
     HomeSample,
     ParamSample,
     PositionSample,
+    RangefinderSample,
+    TerrainReportSample,
 )
 
 
@@ -70,11 +72,13 @@ class SkipReason(TextEnum):
     LATE_FRAME_TIME = "late frame time"
 
 
-AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample)
+AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample,
+                  TerrainReportSample, RangefinderSample)
 """Samples taken from the autopilot component only, live and offline: the vehicle's
-attitude, position, parameters and estimator are the autopilot's own (a companion computer
-or an OSD of the same system may send ATTITUDE or GLOBAL_POSITION_INT too); gimbal, home
-and capture reports come from any component of the vehicle's system."""
+attitude, position, parameters, estimator, terrain database and rangefinder are the
+autopilot's own (a companion computer or an OSD of the same system may send ATTITUDE or
+GLOBAL_POSITION_INT too); gimbal, home and capture reports come from any component of the
+vehicle's system."""
 
 UNTRUSTED_PREFIX = "gimbal untrusted: "
 """The live count of an untrusted frame skipped: this prefix and its reason."""

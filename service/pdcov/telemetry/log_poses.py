@@ -36,6 +36,7 @@ from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.recorded_frames import frame_source_for
+from pdcov.telemetry.terrain_check import TerrainCheck, check_flight_log
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,12 +84,13 @@ class LogPoses:
                     self.untrusted_reason[i]])
 
 
-def _ground_alt(log: FlightLog, ground_alt_msl_m: float | None) -> tuple[float, str]:
-    """The ground altitude of a whole log: configured, else the last home
-    (frame_policy.home_ground_alt, as the daemon falls back to), else the first position's
-    (frame_policy.position_ground_alt)."""
+def _ground_alt(log: FlightLog, ground_alt_msl_m: float | None,
+                ground_alt_how: str) -> tuple[float, str]:
+    """The ground altitude of a whole log: the mission's (``ground_alt_how`` says where it came
+    from), else the last home (frame_policy.home_ground_alt, as the daemon falls back to),
+    else the first position's (frame_policy.position_ground_alt)."""
     if ground_alt_msl_m is not None:
-        return float(ground_alt_msl_m), "configured"
+        return float(ground_alt_msl_m), ground_alt_how
     home = home_ground_alt(log.homes)
     if home is not None:
         return home
@@ -144,23 +146,29 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                    frame_rate_hz: float, frame_source: str | None = "rate",
                    max_gap_s: float = 1.0,
                    system_id: int | None = None, progress: bool = False,
-                   estimator_status: bool = True) -> LogPoses:
+                   estimator_status: bool = True,
+                   ground_alt_how: str = "configured",
+                   terrain_check: TerrainCheck | None = None) -> LogPoses:
     """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
-    the autopilot's home altitude from the log. frame_source 'rate' places frames every
-    1/frame_rate_hz s; 'capture' at the log's capture events; None (the user chose none):
-    at the detector frames ``pdcov serve`` recorded in the log if it holds any, else 'rate'
-    (recorded_frames.frame_source_for; a chosen 'rate' over such a log warns). Frames whose
-    telemetry has a
-    gap longer than max_gap_s are skipped; untrusted gimbal frames follow mount.untrusted.
-    estimator_status: skip frames the autopilot's estimator calls bad (estimator.py).
-    Raises TelemetryError / ConfigError with a message naming the file.
+    the autopilot's home altitude from the log; ground_alt_how: where a given one came from
+    ('configured', 'the DEM at the origin'), for the summary. frame_source 'rate' places
+    frames every 1/frame_rate_hz s; 'capture' at the log's capture events; None (the user
+    chose none): at the detector frames ``pdcov serve`` recorded in the log if it holds any,
+    else 'rate' (recorded_frames.frame_source_for; a chosen 'rate' over such a log warns).
+    Frames whose telemetry has a gap longer than max_gap_s are skipped; untrusted gimbal
+    frames follow mount.untrusted. estimator_status: skip frames the autopilot's estimator
+    calls bad (estimator.py). terrain_check: fed the log's samples
+    (terrain_check.check_flight_log), when given. Raises TelemetryError / ConfigError with a
+    message naming the file.
     """
     log = read_flight_log(path, system_id=system_id,
                           gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
                           else 1)
-    ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m)
+    if terrain_check is not None:
+        check_flight_log(terrain_check, log)
+    ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m, ground_alt_how)
     origin = Origin(origin_lat_deg, origin_lon_deg, ground_alt)
     interp = None
     if isinstance(mount, GimbalMount):

@@ -136,5 +136,41 @@ class EstimatorSample:
     gps_glitch: bool
 
 
+@dataclass(frozen=True, slots=True)
+class TerrainReportSample:
+    """The autopilot's own terrain database at a point (TERRAIN_REPORT, DataFlash TERR):
+    terrain_alt_msl_m, the ground's height (m AMSL) at lat_deg/lon_deg (WGS84 degrees);
+    height_above_terrain_m, the vehicle's height above that ground (m). has_data: the
+    autopilot has terrain data there (TERRAIN_REPORT spacing != 0, TERR Status OK); without
+    it the heights are placeholders."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    terrain_alt_msl_m: float
+    height_above_terrain_m: float
+    has_data: bool
+
+
+MAV_SENSOR_ROTATION_PITCH_270 = 25
+"""MAV_SENSOR_ORIENTATION (common.xml) of a downward-facing sensor (PX4 distance_sensor
+ROTATION_DOWNWARD_FACING, ArduPilot RNGFNDx_ORIENT 25)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RangefinderSample:
+    """One rangefinder reading (DISTANCE_SENSOR, DataFlash RFND, ULog distance_sensor):
+    distance_m along the sensor's axis (m); orientation: MAV_SENSOR_ORIENTATION (25 = down,
+    the body's +z axis); in_range: the sender calls the reading valid (within its min/max
+    distance and not flagged invalid; DataFlash: Stat Good); sensor_id: its instance."""
+
+    t_s: float
+    distance_m: float
+    orientation: int
+    in_range: bool
+    sensor_id: int = 0
+
+
 Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
-          | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample)
+          | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample
+          | TerrainReportSample | RangefinderSample)

@@ -31,6 +31,8 @@ from pdcov.telemetry.samples import (
     MountTargetSample,
     ParamSample,
     PositionSample,
+    RangefinderSample,
+    TerrainReportSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -150,7 +152,8 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
         PositionSeries.from_samples(pos), gimbal, source, tuple(by_type[HomeSample]),
         tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
         MountTargetSeries.from_samples(by_type[MountTargetSample]),
-        tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source),
+        tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source,
+        tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample])),
         -clock.offset_s)
 
 

@@ -13,7 +13,13 @@ from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from pdcov.telemetry.clocks import REBOOT_GAP_S
-from pdcov.telemetry.samples import CaptureSample, EstimatorSample, HomeSample
+from pdcov.telemetry.samples import (
+    CaptureSample,
+    EstimatorSample,
+    HomeSample,
+    RangefinderSample,
+    TerrainReportSample,
+)
 from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
@@ -36,7 +42,9 @@ class FlightLog:
     which clock, sources and fallbacks were used (for summaries); damage says what was
     skipped or cut while reading (also among the notes). estimator: the position
     estimator's verdicts (empty when the log carries none); estimator_source names the
-    messages they came from.
+    messages they came from. terrain_reports and rangefinder: the autopilot's terrain
+    database reports and rangefinder readings (any orientation), in log order, for the
+    DEM cross-check (``terrain_check``).
     """
 
     path: str
@@ -56,6 +64,8 @@ class FlightLog:
     estimator: EstimatorSeries = field(
         default_factory=lambda: EstimatorSeries.from_samples([]))
     estimator_source: str = ""
+    terrain_reports: tuple[TerrainReportSample, ...] = ()
+    rangefinder: tuple[RangefinderSample, ...] = ()
 
 
 
@@ -86,4 +96,7 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                    estimator=series(log.estimator),
                    homes=tuple(replace(h, t_s=h.t_s + dt_s) for h in log.homes),
                    captures=tuple(replace(c, t_s=c.t_s + dt_s) for c in log.captures),
+                   terrain_reports=tuple(replace(r, t_s=r.t_s + dt_s)
+                                         for r in log.terrain_reports),
+                   rangefinder=tuple(replace(r, t_s=r.t_s + dt_s) for r in log.rangefinder),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))

@@ -36,6 +36,8 @@ from pdcov.telemetry.samples import (
     HomeSample,
     ParamSample,
     PositionSample,
+    RangefinderSample,
+    TerrainReportSample,
 )
 from pdcov.telemetry.series import AttitudeSeries, MountTargetSeries, PositionSeries
 from pdcov.telemetry.tlog import TlogScanner
@@ -197,7 +199,9 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         tuple(taken(HomeSample)), tuple(sorted(captures, key=lambda c: c.t_s)),
         params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
         *estimator_series(taken(EstimatorSample), "EKF_STATUS_REPORT / "
-                          "ESTIMATOR_STATUS")), -ap.clock.offset_s)
+                          "ESTIMATOR_STATUS"),
+        tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample))),
+        -ap.clock.offset_s)
 
 
 def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:

@@ -25,6 +25,7 @@ from pdcov.telemetry.samples import (
     GimbalSample,
     HomeSample,
     PositionSample,
+    RangefinderSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -37,7 +38,8 @@ from pdcov.telemetry.tlog import LogDamage
 _ULOG_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 _ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", *_ULOG_GPS_TOPICS,
                 "gimbal_device_attitude_status", "home_position", "camera_capture",
-                "camera_trigger", "estimator_status", "estimator_selector_status"]
+                "camera_trigger", "estimator_status", "estimator_selector_status",
+                "distance_sensor"]
 _GPS_FIX_3D = 3  # fix_type: 0-1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
 
 
@@ -92,9 +94,12 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
         raise TelemetryError(f"{path}: cannot read as a ULog: {exc}") from None
     topics: dict[str, dict[str, np.ndarray]] = {}
     ekf_instances: dict[int, dict[str, np.ndarray]] = {}  # estimator_status by multi_id
+    rangefinder: list[RangefinderSample] = []
     for d in ulog.data_list:
         if d.name == "estimator_status":
             ekf_instances[d.multi_id] = d.data
+        elif d.name == "distance_sensor":  # every instance: the check takes the downward
+            rangefinder += _ulog_rangefinder(d.data, d.multi_id)
         elif d.multi_id == 0:
             topics[d.name] = d.data
 
@@ -154,7 +159,25 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
                      gimbal, source, homes, tuple(captures), params,
                      MountTargetSeries.from_samples([]), (), tuple(notes), damage,
-                     *_ulog_estimator(ekf_instances, topics.get("estimator_selector_status")))
+                     *_ulog_estimator(ekf_instances, topics.get("estimator_selector_status")),
+                     (), tuple(sorted(rangefinder, key=lambda r: r.t_s)))
+
+
+_PX4_QUALITY_INVALID = 0  # distance_sensor.signal_quality: 0 invalid, -1 unknown, 100 best
+
+
+def _ulog_rangefinder(fields: Mapping[str, np.ndarray], instance: int
+                      ) -> list[RangefinderSample]:
+    """Readings of one distance_sensor instance (PX4 DistanceSensor.msg): current_distance,
+    min_distance, max_distance m; orientation MAV_SENSOR_ORIENTATION; valid within
+    min..max and not of signal quality 0 (invalid)."""
+    t_s = np.asarray(fields["timestamp"], float) * 1e-6
+    d, lo, hi = (np.asarray(fields[k], float) for k in
+                 ("current_distance", "min_distance", "max_distance"))
+    quality = np.asarray(fields.get("signal_quality", np.full(len(d), -1)), int)
+    valid = (lo <= d) & (d <= hi) & (quality != _PX4_QUALITY_INVALID)
+    return [RangefinderSample(float(t), float(x), int(o), bool(v), instance) for t, x, o, v in
+            zip(t_s, d, np.asarray(fields["orientation"], int), valid, strict=True)]
 
 
 def _ulog_estimator(instances: Mapping[int, Mapping[str, np.ndarray]],
