@@ -41,13 +41,14 @@ class Sizes:
     r1_frames: int
     r2_frames: int
     memory_frames: int
-    r3_frames: int
+    r3_frames: int          # S5: R3 and pdcov on frames from the middle of the flight
+    valley_frames: int      # S5 valley: frames of its flight (strided), all at full size
     planner_altitudes_m: tuple[float, ...]
     planner_speeds_mps: tuple[float, ...]
 
 
-FULL = Sizes(3000, 20, 3, 200, 6, (8.0, 10.0, 12.0), (3.0, 5.0))
-SMOKE = Sizes(200, 6, 4, 20, 4, (10.0,), (5.0,))
+FULL = Sizes(3000, 20, 3, 200, 6, 10**6, (8.0, 10.0, 12.0), (3.0, 5.0))
+SMOKE = Sizes(200, 6, 4, 20, 4, 6, (10.0,), (5.0,))
 
 
 def compare_reference(sc: Scenario, frames: list, which: str, rays: np.ndarray,
@@ -143,7 +144,7 @@ def terrain_rows(found: dict[str, Scenario], sizes: Sizes) -> list[Row]:
         with tempfile.TemporaryDirectory(prefix="pdcov-bench-") as tmp:
             site = TerrainSite.prepare(Path(tmp), found[name])
             rows += (s5_rows(site, s1_frame_s, sizes.max_timed_frames, sizes.r3_frames)
-                     if name == "S5" else valley_rows(site))
+                     if name == "S5" else valley_rows(site, sizes.valley_frames))
     return rows
 
 

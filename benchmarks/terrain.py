@@ -25,7 +25,10 @@ from .scenarios import Scenario, spaced, strided
 from .terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
 
 DEM_FILE = "valley.tif"
-R3_STEP_PX = 2           # R3 casts every 2nd pixel of every 2nd row (1920 x 1080: 518 400 rays)
+# R3 on S5 casts every pixel's ray (1920 x 1080: 2 M rays per frame); over the whole valley
+# flight the centre of every 2 x 2 block (518 400 rays), whose counts are as close to pdcov's
+# on level ground (99.7 % of cells within 0.05 on the valley's flight, z = 0).
+VALLEY_STEP_PX = 2
 R3_TOLERANCE_PD, R3_MIN_SHARE = 0.05, 0.97   # issue 21's "done when"
 TERRAIN_COST_MAX = 2.0   # per-frame cost with the DEM over flat S1's
 R3_SPEEDUP_MIN = 20.0
@@ -57,18 +60,15 @@ class TerrainSite:
 
     def terrain_grid(self) -> CoverageGrid:
         """pdcov's grid over the terrain of the mission config (its DEM)."""
-        mission = load_mission(self.mission_path)
-        g = mission.domain.grid_geometry(mission.cell_size_m)
-        return CoverageGrid(g, mission.domain.free_mask(g), mission.camera, mission.detector,
-                            max_range_m=mission.max_range_m, terrain=mission.terrain)
+        return load_mission(self.mission_path).new_grid()
 
-    def reference(self, grid: CoverageGrid, step_px: int = R3_STEP_PX) -> TerrainReferenceGrid:
+    def reference(self, grid: CoverageGrid, step_px: int = 1) -> TerrainReferenceGrid:
         """An empty R3 grid like ``grid`` (cells, camera, detector, range)."""
         return TerrainReferenceGrid(grid.geometry, grid.mask, grid.camera, grid.detector,
                                     grid.max_range_m, self.heightfield, step_px)
 
     def run_reference(self, grid: CoverageGrid, poses: list[CameraPose],
-                      step_px: int = R3_STEP_PX) -> tuple[TerrainReferenceGrid, np.ndarray]:
+                      step_px: int = 1) -> tuple[TerrainReferenceGrid, np.ndarray]:
         """R3 over ``poses`` in a fresh grid like ``grid``, and its seconds per frame."""
         ref = self.reference(grid, step_px)
         rays = pixel_rays(grid.camera, step_px)
@@ -76,31 +76,36 @@ class TerrainSite:
 
 
 def agreement_text(a: TerrainAgreement) -> str:
-    return (f"{a.share_within:.2%} of {a.cells_free:,} cells within {a.tolerance:g}; "
+    return (f"{a.share_within:.2%} of {a.cells_free:,} cells within {a.tolerance:g} "
+            f"({a.share_within_observed:.2%} of the {a.cells_observed:,} either observed); "
             f"of {a.never_seen:,} cells no ray saw, {a.never_seen_counted:,} counted as seen; "
             f"of {a.hidden:,} hidden by terrain, {a.hidden_counted:,} counted as seen")
 
 
-def agreement_ok(a: TerrainAgreement) -> bool:
-    return a.share_within >= R3_MIN_SHARE and a.hidden_counted == 0
+def agreement_ok(a: TerrainAgreement, observed_only: bool) -> bool:
+    """The target: no hidden cell seen, and P_D within the tolerance on the share of all
+    free cells (a whole flight) or of the cells observed (a few frames of a large grid)."""
+    share = a.share_within_observed if observed_only else a.share_within
+    return share >= R3_MIN_SHARE and a.hidden_counted == 0
 
 
-def valley_rows(site: TerrainSite) -> list[Row]:
-    """The whole flight over the valley: flat pdcov, then pdcov with the DEM, against R3."""
+def valley_rows(site: TerrainSite, max_frames: int) -> list[Row]:
+    """The flight over the valley (at most ``max_frames`` of it, strided): flat pdcov, then
+    pdcov with the DEM, against R3."""
     sc = site.scenario
-    poses = sc.poses()
+    poses = strided(sc.poses(), max_frames)
     flat = sc.new_grid()
     time_updates(flat, poses)
-    ref, _ = site.run_reference(flat, poses)
+    ref, _ = site.run_reference(flat, poses, VALLEY_STEP_PX)
     terrain = site.terrain_grid()
     time_updates(terrain, poses)
     target = f">= {R3_MIN_SHARE:.0%} within {R3_TOLERANCE_PD:g}, no hidden cell seen"
     rows = [Row(sc.name, "setup", sc.describe()),
-            Row(sc.name, "R3 vs flat pdcov grid (whole flight)",
+            Row(sc.name, f"R3 vs flat pdcov grid ({len(poses)} frames)",
                 agreement_text(terrain_agreement(flat, ref, R3_TOLERANCE_PD)))]
     a = terrain_agreement(terrain, ref, R3_TOLERANCE_PD)
     rows.append(Row(sc.name, f"R3 vs pdcov grid with the DEM ({len(poses)} frames)",
-                    agreement_text(a), target, agreement_ok(a)))
+                    agreement_text(a), target, agreement_ok(a, observed_only=False)))
     return rows
 
 
@@ -132,9 +137,9 @@ def s5_rows(site: TerrainSite, s1_frame_s: float, max_timed_frames: int,
             f"<= {TERRAIN_COST_MAX:g}x", ratio <= TERRAIN_COST_MAX),
         Row(name, "R3 / pdcov with the DEM, time per frame",
             f"{speedup:,.1f}x ({float(ref_s.mean()) * 1e3:,.1f} vs {mine.mean_s * 1e3:.2f} ms, "
-            f"{len(frames)} frames, rays {R3_STEP_PX} px apart)",
+            f"{len(frames)} frames, every pixel)",
             f">= {R3_SPEEDUP_MIN:g}x", speedup >= R3_SPEEDUP_MIN),
-        Row(name, "R3 vs pdcov grid with the DEM", agreement_text(a),
-            f">= {R3_MIN_SHARE:.0%} within {R3_TOLERANCE_PD:g}, no hidden cell seen",
-            agreement_ok(a)),
+        Row(name, f"R3 vs pdcov grid with the DEM ({len(frames)} frames)", agreement_text(a),
+            f">= {R3_MIN_SHARE:.0%} of observed cells within {R3_TOLERANCE_PD:g}, no hidden "
+            f"cell seen", agreement_ok(a, observed_only=True)),
     ]
