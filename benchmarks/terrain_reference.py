@@ -178,7 +178,8 @@ class Heightfield:
 class TerrainReferenceGrid(ReferenceGrid):
     """R1's sums over the terrain, and the occlusion truth per cell: ``n_clear`` / ``n_blocked``
     count the frames that had the cell's centre in the picture and within range with its line
-    of sight clear / blocked by the ground."""
+    of sight clear / blocked by the ground. centres_enu_m: (n_rows, n_cols, 3) the cells'
+    centres on the heightfield (ENU m)."""
 
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
                  detector: DetectorModel, max_range_m: float, heightfield: Heightfield,
@@ -190,8 +191,8 @@ class TerrainReferenceGrid(ReferenceGrid):
         self.n_blocked = np.zeros(geometry.shape, dtype=np.int32)
         xs, ys = geometry.centres_enu()
         X, Y = np.meshgrid(xs, ys)
-        self._centres_enu = np.stack([X, Y, heightfield.height_m(X, Y)], axis=-1)
-        if not np.isfinite(self._centres_enu[mask]).all():
+        self.centres_enu_m = np.stack([X, Y, heightfield.height_m(X, Y)], axis=-1)
+        if not np.isfinite(self.centres_enu_m[mask]).all():
             raise ValueError("the heightfield does not cover the grid's free cells")
 
     @property
@@ -218,7 +219,7 @@ def r3_update(ref: TerrainReferenceGrid, rays_cam: np.ndarray, pose: CameraPose)
     ref.add(observed, counts[observed] * float(ref.step_px**2))
 
     # Lines of sight to the free cells' centres within range and in the picture.
-    v = ref._centres_enu - r
+    v = ref.centres_enu_m - r
     dist = np.sqrt(np.einsum("...i,...i->...", v, v))
     near = ref.mask & (dist <= ref.max_range_m)
     rows, cols = np.nonzero(near)
