@@ -216,3 +216,21 @@ def test_cells_seen_through_the_window_equal_those_of_the_whole_grid():
         grid.update(p)
         assert observed.sum() > 50, k
         np.testing.assert_array_equal(grid.n_obs > 0, observed)
+
+
+def test_live_footprint_lies_on_the_terrain_under_the_view():
+    """The footprint the daemon publishes: over ground 20 m up, a camera 30 m up sees the
+    ring a camera 10 m above flat ground sees."""
+    from types import SimpleNamespace
+
+    from pdcov.core.geodesy import Origin
+    from pdcov.service.status import footprint_lonlat
+
+    origin = Origin(46.0, 7.0, 500.0)
+    raised = grid_on(np.full(X_CORNER.shape, 20.0))
+    ring_up = footprint_lonlat(SimpleNamespace(
+        last_pose=pose((1.0, 2.0, 30.0), -60.0, 40.0), origin=origin, grid=raised))
+    ring_flat = footprint_lonlat(SimpleNamespace(
+        last_pose=pose((1.0, 2.0, 10.0), -60.0, 40.0), origin=origin, grid=grid_on()))
+    assert ring_up is not None and ring_flat is not None
+    np.testing.assert_allclose(ring_up, ring_flat, atol=1e-8)  # degrees: ~1 mm

@@ -9,6 +9,7 @@ are clipped to the circle of ground points at that slant range.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -40,15 +41,25 @@ def footprint_ring_enu(camera: CameraModel, pose: CameraPose, max_range_m: float
     the optical axis reaches the ground, or when the camera is at or below the ground or
     higher than ``max_range_m`` above it.
     """
-    return footprint_rings_enu(camera, pose, max_range_m, (0.0,))[0]
+    return footprint_rings_enu(camera, pose, max_range_m, (0.0,)).rings[0]
+
+
+@dataclass(frozen=True, slots=True)
+class FootprintRings:
+    """``footprint_ring_enu`` on several ground planes; clipped: whether any border point
+    was moved onto its plane's range circle (the picture reaches beyond the range)."""
+
+    rings: list[np.ndarray]
+    clipped: bool
 
 
 def footprint_rings_enu(camera: CameraModel, pose: CameraPose, max_range_m: float,
-                        ground_z_m: tuple[float, ...]) -> list[np.ndarray]:
+                        ground_z_m: tuple[float, ...]) -> FootprintRings:
     """``footprint_ring_enu`` on each of the ground planes z = ground_z_m (m, ENU)."""
     d = camera.border_rays_cam @ pose.R_enu_cam.T
     looks_down = not (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS)
     rings = []
+    clipped = False
     for z in ground_z_m:
         rho_max = ground_range_m(pose, max_range_m, z)
         if rho_max <= 0 or not looks_down:
@@ -58,10 +69,12 @@ def footprint_rings_enu(camera: CameraModel, pose: CameraPose, max_range_m: floa
             # Ray parameter to the ground, at most to the disk's circle:
             # min(h / -d_z, rho / |d_xy|).
             t = np.where(d[:, 2] < -_HORIZON_EPS, (pose.r_cam_enu[2] - z) / -d[:, 2], np.inf)
-            np.minimum(t, rho_max / np.hypot(d[:, 0], d[:, 1]), out=t)
+            t_circle = rho_max / np.hypot(d[:, 0], d[:, 1])
+        clipped = clipped or bool((t_circle < t).any())
+        np.minimum(t, t_circle, out=t)
         t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
         rings.append(pose.r_cam_enu[:2] + d[:, :2] * t[:, None])
-    return rings
+    return FootprintRings(rings, clipped)
 
 
 def footprint_polygon(camera: CameraModel, pose: CameraPose, max_range_m: float) -> Polygon:

@@ -37,7 +37,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
-from pdcov.core.terrain import TerrainSurface
+from pdcov.core.terrain import BLOCK, TerrainSurface
 from pdcov.errors import InputFileError
 from pdcov.npz_file import read_npz
 
@@ -115,6 +115,13 @@ class CoverageGrid:
         self.terrain = terrain
         # The kernel's terrain: None on the plane z = 0, which takes the flat-earth path.
         self._relief = None if terrain is None or terrain.is_level_zero else terrain
+        # The calibrated field of view's bounding pyramid: the border rays' x / z and y / z
+        # extremes in the optical frame.
+        rays = camera.border_rays_cam
+        self._fov_box = (float((rays[:, 0] / rays[:, 2]).min()),
+                         float((rays[:, 0] / rays[:, 2]).max()),
+                         float((rays[:, 1] / rays[:, 2]).min()),
+                         float((rays[:, 1] / rays[:, 2]).max()))
         self.geometry = geometry
         self.mask = mask
         self.camera = camera
@@ -202,8 +209,9 @@ class CoverageGrid:
                                  f"after a frame at {self.latest_frame_t_s!r} s")
             self.latest_frame_t_s = max(self.latest_frame_t_s, t)
         self.frames += 1
-        window = self._window(pose)
-        self._mark_too_far(pose, window)
+        window, clipped = self._window(pose)
+        if clipped:
+            self._mark_too_far(pose, window)
         if window is None:
             return 0
         r0, r1, c0, c1 = window
@@ -319,8 +327,8 @@ class CoverageGrid:
                       ) -> None:
         """Mark TOO_FAR the cells in view beyond the maximum range, out to twice it, outside
         ``window`` (the window's own cells are judged by ``_observe_area``); the terrain's
-        line of sight is not tested there."""
-        wide = self._window(pose, 2.0 * self.max_range_m)
+        line of sight is not tested there. For frames whose picture reaches past the range."""
+        wide, _ = self._window(pose, 2.0 * self.max_range_m)
         if wide is None or wide == window:
             return
         _, in_view, in_range = self._centres(pose, wide)
@@ -415,10 +423,11 @@ class CoverageGrid:
         return np.where(sub_ok, quad_area(*np.moveaxis(quads, 3, 0)), 0.0).sum(axis=(1, 2))
 
     def _window(self, pose: CameraPose, range_m: float | None = None
-                ) -> tuple[int, int, int, int] | None:
+                ) -> tuple[tuple[int, int, int, int] | None, bool]:
         """(r0, r1, c0, c1): the grid cells that may be observed within ``range_m`` slant
         range (default the maximum range), from the footprint's extent padded by one cell
-        and by the chord error of the sampled border.
+        and by the chord error of the sampled border; and whether the picture reaches beyond
+        that range.
 
         On terrain the footprint lies between the ground planes through the lowest and the
         highest terrain: the picture's cone between them projects inside the footprints on
@@ -429,28 +438,79 @@ class CoverageGrid:
         if relief is None:
             return self._window_between(pose, range_m, (0.0, 0.0))
         z_range = relief.z_range_m
-        window = self._window_between(pose, range_m, z_range)
+        window, clipped = self._window_between(pose, range_m, z_range)
         if window is None:
-            return None
+            return None, clipped
+        window = self._blocks_in_view(pose, range_m, window)
+        if window is None:
+            return None, clipped
         local = relief.window_z_range_m(*window)
-        return (window if local == z_range
-                else self._window_between(pose, range_m, local, window))
+        if local == z_range:
+            return window, clipped
+        return self._window_between(pose, range_m, local, window)[0], clipped
+
+    def _blocks_in_view(self, pose: CameraPose, range_m: float,
+                        window: tuple[int, int, int, int]) -> tuple[int, int, int, int] | None:
+        """The part of ``window`` covered by the terrain blocks (core/terrain.py) that may be
+        in view: a block is out when its box (its cells, from its lowest to its highest
+        height) lies wholly outside one side of the pyramid bounding the calibrated field of
+        view, or farther than ``range_m``."""
+        relief = self._relief
+        assert relief is not None
+        g = self.geometry
+        (b_r0, b_r1, b_c0, b_c1), z_lo, z_hi = relief.block_bounds(*window)
+        step = BLOCK * g.cell_size_m
+        x = g.x0_m + step * np.arange(b_c0, b_c1 + 1) - pose.r_cam_enu[0]
+        y = g.y0_m + step * np.arange(b_r0, b_r1 + 1) - pose.r_cam_enu[1]
+        x_lo, x_hi = x[None, :-1], x[None, 1:]
+        y_lo, y_hi = y[:-1, None], y[1:, None]
+        z_lo = z_lo - pose.r_cam_enu[2]
+        z_hi = z_hi - pose.r_cam_enu[2]
+        R_cam_enu = pose.R_enu_cam.T
+        x_min, x_max, y_min, y_max = self._fov_box
+        # For each side plane n . p >= 0 of the pyramid (and z > 0), a box is wholly outside
+        # when the largest n . p over its corners is negative: per axis, the larger of the
+        # two extremes weighted by n's component.
+        out = np.zeros(z_lo.shape, dtype=bool)
+        for k_x, k_y in ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
+            bound = (x_min if k_x > 0 else x_max) if k_x else (
+                (y_min if k_y > 0 else y_max) if k_y else 0.0)
+            # n = k_x e_x + k_y e_y - (k bound - [no side]) e_z, in the optical frame.
+            n_cam = np.array([k_x, k_y, 1.0 if not (k_x or k_y) else -(k_x + k_y) * bound])
+            n_enu = R_cam_enu.T @ n_cam
+            top = (np.maximum(n_enu[0] * x_lo, n_enu[0] * x_hi)
+                   + np.maximum(n_enu[1] * y_lo, n_enu[1] * y_hi)
+                   + np.maximum(n_enu[2] * z_lo, n_enu[2] * z_hi))
+            out |= top < 0
+        # Nearest point of each box to the camera.
+        near2 = (np.clip(0.0, x_lo, x_hi) ** 2 + np.clip(0.0, y_lo, y_hi) ** 2
+                 + np.clip(0.0, z_lo, z_hi) ** 2)
+        out |= near2 > range_m**2
+        rows, cols = np.nonzero(~out)
+        if len(rows) == 0:
+            return None
+        r0, r1, c0, c1 = window
+        return (max(r0, (b_r0 + int(rows.min())) * BLOCK),
+                min(r1, (b_r0 + int(rows.max()) + 1) * BLOCK),
+                max(c0, (b_c0 + int(cols.min())) * BLOCK),
+                min(c1, (b_c0 + int(cols.max()) + 1) * BLOCK))
 
     def _window_between(self, pose: CameraPose, range_m: float,
                         z_range_m: tuple[float, float],
                         within: tuple[int, int, int, int] | None = None
-                        ) -> tuple[int, int, int, int] | None:
+                        ) -> tuple[tuple[int, int, int, int] | None, bool]:
         """The window of the footprints on the ground planes through the lowest and the
-        highest height of ``z_range_m``, inside ``within``; all within range when the camera
-        is not above the highest."""
+        highest height of ``z_range_m``, inside ``within``, and whether the picture reaches
+        beyond ``range_m``; all within range when the camera is not above the highest."""
         z_lo, z_hi = z_range_m
-        rings = footprint_rings_enu(self.camera, pose, range_m,
+        found = footprint_rings_enu(self.camera, pose, range_m,
                                     (z_lo,) if z_lo == z_hi else (z_lo, z_hi))
+        rings = list(found.rings)
         if z_hi > z_lo and len(rings[1]) == 0:
             rings.append(pose.r_cam_enu[:2] + range_m * np.array([[-1.0, -1.0], [1.0, 1.0]]))
         ring = np.concatenate(rings)
         if len(ring) == 0:
-            return None
+            return None, found.clipped
         g = self.geometry
         pad = 1.5 * g.cell_size_m + 0.01 * range_m
         row_lo, col_lo = g.cell_of(ring[:, 0].min() - pad, ring[:, 1].min() - pad)
@@ -459,8 +519,8 @@ class CoverageGrid:
         r0, r1 = max(int(row_lo), w_r0), min(int(row_hi) + 1, w_r1)
         c0, c1 = max(int(col_lo), w_c0), min(int(col_hi) + 1, w_c1)
         if r0 >= r1 or c0 >= c1:
-            return None
-        return r0, r1, c0, c1
+            return None, found.clipped
+        return (r0, r1, c0, c1), found.clipped
 
     # -- combine and persist ----------------------------------------------------------------
 

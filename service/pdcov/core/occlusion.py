@@ -44,23 +44,27 @@ def hidden_by_terrain(terrain: TerrainSurface, r_cam_enu: np.ndarray, x_m: np.nd
     g = terrain.geometry
     cs = g.cell_size_m
     skip = 0.5 * cs  # the target's own surface
-    if np.size(x_m) == 0:
-        return np.zeros(np.shape(x_m), dtype=bool)
+    hidden = np.zeros(np.shape(x_m), dtype=bool)
+    if hidden.size == 0:
+        return hidden
     cx, cy, cz = (float(v) for v in r_cam_enu)
-    dx = x_m - cx
-    dy = y_m - cy
-    rho = np.hypot(dx, dy)
-    # The highest terrain between the nadir point and the targets bounds every sample; one
-    # cell of margin, as a bin's radial passes within a cell of its targets'.
-    lo = g.cell_of(np.array(min(cx, float(x_m.min()))), np.array(min(cy, float(y_m.min()))))
-    hi = g.cell_of(np.array(max(cx, float(x_m.max()))), np.array(max(cy, float(y_m.max()))))
-    r0, c0 = max(int(lo[0]) - 1, 0), max(int(lo[1]) - 1, 0)
-    r1, c1 = min(int(hi[0]) + 2, g.n_rows), min(int(hi[1]) + 2, g.n_cols)
-    if r0 >= r1 or c0 >= c1:
-        return np.zeros(np.shape(x_m), dtype=bool)
-    z_max = terrain.window_z_range_m(r0, r1, c0, c1)[1]
+    box = _cells_between(terrain, cx, cy, x_m, y_m)
+    if box is None:
+        return hidden
+    rho = np.hypot(x_m - cx, y_m - cy)
     with np.errstate(divide="ignore", invalid="ignore"):
         tan_t = (z_m - cz) / rho
+    # Walking from a target towards the camera its line of sight rises by -tan_t per metre
+    # and the terrain by at most its steepest slope: where the line of sight is steeper,
+    # the terrain never reaches it. Only the others are tested.
+    test = (tan_t >= -terrain.window_max_slope(*box)) & (rho > skip)
+    if not test.any():
+        return hidden
+    if not test.all():
+        x_m, y_m, rho, tan_t = x_m[test], y_m[test], rho[test], tan_t[test]
+        box = _cells_between(terrain, cx, cy, x_m, y_m)
+        assert box is not None
+    z_max = terrain.window_z_range_m(*box)[1]
     rho_end = float(rho.max()) - skip
     lowest = float(tan_t.min())
     # Terrain at rho can only rise above a tangent t >= lowest where (z_max - cz) / rho
@@ -69,23 +73,36 @@ def hidden_by_terrain(terrain: TerrainSurface, r_cam_enu: np.ndarray, x_m: np.nd
     if cz > z_max and lowest < 0:
         rho_start = max(rho_start, (cz - z_max) / -lowest)
     if rho_start >= rho_end:
-        return np.zeros(np.shape(x_m), dtype=bool)
-    bins = _AzimuthBins.of(dx, dy, rho, 0.5 * cs / rho_end)
-    n_steps = int(math.ceil((rho_end - rho_start) / cs)) + 1
+        return hidden
+    bins = _AzimuthBins.of(x_m - cx, y_m - cy, rho, 0.5 * cs / rho_end)
     # Radials 0..n-1 meet the lines x = const, n..2n-1 the lines y = const.
     first, inv_spacing, h_run = _line_crossings(terrain, cx, cy, cz, bins.azimuth_rad,
-                                                rho_start, rho_end, n_steps)
+                                                rho_start, rho_end)
     n = len(bins.azimuth_rad)
+    n_cols = h_run.shape[1]
     ia = bins.index
     ib = np.minimum(ia + 1, n - 1)
     rows = np.stack([ia, ib, ia + n, ib + n])
     with np.errstate(invalid="ignore"):
         m = np.floor((rho - skip - first.take(rows)) * inv_spacing.take(rows))
     # Column 0 of h_run is -inf: no crossing before the target.
-    at = rows * (n_steps + 1) + np.clip(np.nan_to_num(m, nan=-1.0) + 1, 0, n_steps
-                                        ).astype(np.intp)
-    horizon = h_run.take(at).max(axis=0)
-    return tan_t < horizon - _TAN_TOL
+    at = rows * n_cols + np.clip(np.nan_to_num(m, nan=-1.0) + 1, 0, n_cols - 1
+                                 ).astype(np.intp)
+    hidden[test] = tan_t < h_run.take(at).max(axis=0) - _TAN_TOL
+    return hidden
+
+
+def _cells_between(terrain: TerrainSurface, cx: float, cy: float, x_m: np.ndarray,
+                   y_m: np.ndarray) -> tuple[int, int, int, int] | None:
+    """(r0, r1, c0, c1): the cells under the camera's nadir point (cx, cy) and the targets,
+    with one cell of margin (a bin's radial passes within a cell of its targets'); None
+    when that lies off the grid."""
+    g = terrain.geometry
+    lo = g.cell_of(np.array(min(cx, float(x_m.min()))), np.array(min(cy, float(y_m.min()))))
+    hi = g.cell_of(np.array(max(cx, float(x_m.max()))), np.array(max(cy, float(y_m.max()))))
+    r0, c0 = max(int(lo[0]) - 1, 0), max(int(lo[1]) - 1, 0)
+    r1, c1 = min(int(hi[0]) + 2, g.n_rows), min(int(hi[1]) + 2, g.n_cols)
+    return None if r0 >= r1 or c0 >= c1 else (r0, r1, c0, c1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,62 +141,55 @@ class _AzimuthBins:
 
 
 def _line_crossings(terrain: TerrainSurface, cx: float, cy: float, cz: float,
-                    azimuth_rad: np.ndarray, rho_start: float, rho_end: float, n_steps: int
+                    azimuth_rad: np.ndarray, rho_start: float, rho_end: float
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the radials of ``azimuth_rad`` from (cx, cy) cross the grid lines x = const
     (rows 0..n-1) and y = const (rows n..2n-1) from rho_start on: each row's first
     crossing's rho (m), the inverse of its spacing (1/m), and the running maximum of the
     terrain's elevation tangent over its crossings after a column of -inf
-    (2n, n_steps + 1)."""
+    (2n, 1 + the most crossings of a row). On a grid line the surface is the straight line
+    between the two corners either side of the crossing; outside the grid there is no
+    terrain (-inf)."""
     g = terrain.geometry
     cs = g.cell_size_m
+    n = len(azimuth_rad)
     cos, sin = np.cos(azimuth_rad), np.sin(azimuth_rad)
-    direction = np.concatenate([cos, sin])  # along the axis the lines cross
+    # Per row, in cell units: the camera's coordinate across the lines and along them, the
+    # radial's components, the number of lines and of cells along them, and the strides of
+    # the corner array across and along the lines.
+    u_cam = np.repeat([(cx - g.x0_m) / cs, (cy - g.y0_m) / cs], n)
+    v_cam = np.repeat([(cy - g.y0_m) / cs, (cx - g.x0_m) / cs], n)
+    direction = np.concatenate([cos, sin])
     across = np.concatenate([sin, cos])
-    c_cam = np.repeat([cx, cy], len(cos))
-    c0 = np.repeat([g.x0_m, g.y0_m], len(cos))
+    n_lines, n_along = (np.repeat(v, n) for v in ((g.n_cols, g.n_rows), (g.n_rows, g.n_cols)))
+    w = g.n_cols + 1
+    stride_line, stride_along = (np.repeat(v, n) for v in ((1, w), (w, 1)))
     ahead = np.abs(direction) > 1e-12
     sign = np.where(direction >= 0, 1.0, -1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         # The first grid line at or beyond the radial's point at rho_start.
-        at_start = (c_cam + rho_start * direction - c0) / cs
+        at_start = u_cam + rho_start / cs * direction
         k_first = np.where(ahead, np.where(sign > 0, np.ceil(at_start), np.floor(at_start)),
                            0.0)
         # A radial along the lines crosses none: past rho_end, where nothing is sampled.
-        first = np.where(ahead, (c0 + k_first * cs - c_cam) / direction, 2 * rho_end + 1)
+        first = np.where(ahead, (k_first - u_cam) * cs / direction, 2 * rho_end + 1)
         inv_spacing = np.where(ahead, np.abs(direction) / cs, 1.0 / cs)
+    # Crossings of a row: at most its span of rho over the spacing, plus one.
+    n_steps = int(math.ceil((rho_end - rho_start) * float(inv_spacing.max()))) + 1
     m = np.arange(n_steps)
     rho = first[:, None] + m / inv_spacing[:, None]
-    line = c0[:, None] + (k_first[:, None] + sign[:, None] * m) * cs
-    other = np.concatenate([np.full(len(cos), cy), np.full(len(cos), cx)])[:, None] \
-        + across[:, None] * rho
-    half = len(cos)
-    x = np.concatenate([line[:half], other[half:]])
-    y = np.concatenate([other[:half], line[half:]])
-    tan = np.full((2 * half, n_steps + 1), -np.inf)
-    with np.errstate(invalid="ignore"):
-        tan[:, 1:] = np.where(rho <= rho_end, (_height_or_low(terrain, x, y) - cz) / rho,
-                              -np.inf)
-    return first, inv_spacing, np.maximum.accumulate(tan, axis=1)
-
-
-def _height_or_low(terrain: TerrainSurface, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
-    """Bilinear terrain height (m) at ENU points; -inf outside the grid (no terrain known
-    there to hide anything)."""
-    g = terrain.geometry
-    u = (x_m - g.x0_m) / g.cell_size_m
-    v = (y_m - g.y0_m) / g.cell_size_m
-    inside = (u >= 0) & (u <= g.n_cols) & (v >= 0) & (v <= g.n_rows)
-    u = np.clip(u, 0, g.n_cols)
-    v = np.clip(v, 0, g.n_rows)
-    j = np.minimum(u.astype(np.intp), g.n_cols - 1)
-    i = np.minimum(v.astype(np.intp), g.n_rows - 1)
-    fu = u - j
-    fv = v - i
+    line = k_first[:, None] + sign[:, None] * m
+    along = v_cam[:, None] + (across / cs)[:, None] * rho
+    inside = ((line >= 0) & (line <= n_lines[:, None]) & (along >= 0)
+              & (along <= n_along[:, None]) & (rho <= rho_end))
+    cell = np.clip(along, 0, n_along[:, None] - 1).astype(np.intp)
+    frac = along - cell
+    at = (np.clip(line, 0, n_lines[:, None]).astype(np.intp) * stride_line[:, None]
+          + cell * stride_along[:, None])
     z = terrain.z_corner_m.ravel()
-    w = g.n_cols + 1
-    at = i * w + j
-    z00, z01 = z.take(at), z.take(at + 1)
-    z10, z11 = z.take(at + w), z.take(at + w + 1)
-    h = (z00 + (z01 - z00) * fu) + ((z10 + (z11 - z10) * fu) - (z00 + (z01 - z00) * fu)) * fv
-    return np.where(inside, h, -np.inf)
+    z0 = z.take(at)
+    height = z0 + frac * (z.take(at + stride_along[:, None]) - z0)
+    tan = np.full((2 * n, n_steps + 1), -np.inf)
+    with np.errstate(invalid="ignore"):
+        np.divide(height - cz, rho, out=tan[:, 1:], where=inside)
+    return first, inv_spacing, np.maximum.accumulate(tan, axis=1)

@@ -5,8 +5,9 @@ camera poses'). The surface between four corners is the bilinear patch through t
 cell's centre is at the mean of its corners' heights. Reading a DEM into these heights is
 ``core/dem.py`` (rasterio); this module is the pure numeric part the kernel uses.
 
-Heights of blocks of ``BLOCK`` x ``BLOCK`` cells are kept as minima and maxima, so the
-range of heights under any window is found without reading the window.
+Heights of blocks of ``BLOCK`` x ``BLOCK`` cells are kept as minima and maxima, and their
+steepest slope, so the range of heights and slopes under any window is found without reading
+the window.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class TerrainSurface:
     source: str = ""
     _block_min: np.ndarray = field(init=False, repr=False, compare=False)
     _block_max: np.ndarray = field(init=False, repr=False, compare=False)
+    _block_slope: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         z = np.array(self.z_corner_m, dtype=np.float64)
@@ -60,6 +62,14 @@ class TerrainSurface:
                            lo.reshape(nb_r, BLOCK, nb_c, BLOCK).min(axis=(1, 3)))
         object.__setattr__(self, "_block_max",
                            hi.reshape(nb_r, BLOCK, nb_c, BLOCK).max(axis=(1, 3)))
+        # A bilinear cell's slope along any direction (c, s) is at most |g_x c| + |g_y s|
+        # <= hypot(g_x, g_y), with g_x, g_y its steepest edges along x and y.
+        cs = g.cell_size_m
+        g_x = np.abs(np.diff(pad, axis=1)) / cs
+        g_y = np.abs(np.diff(pad, axis=0)) / cs
+        slope = np.hypot(np.maximum(g_x[:-1], g_x[1:]), np.maximum(g_y[:, :-1], g_y[:, 1:]))
+        object.__setattr__(self, "_block_slope",
+                           slope.reshape(nb_r, BLOCK, nb_c, BLOCK).max(axis=(1, 3)))
 
     @classmethod
     def flat(cls, geometry: GridGeometry, z_m: float = 0.0) -> TerrainSurface:
@@ -85,9 +95,19 @@ class TerrainSurface:
         return (float(self._block_min[b_r0:b_r1, b_c0:b_c1].min()),
                 float(self._block_max[b_r0:b_r1, b_c0:b_c1].max()))
 
-    def block_max_m(self) -> np.ndarray:
-        """Highest height per block of BLOCK x BLOCK cells (read-only view)."""
-        return self._block_max
+    def block_bounds(self, r0: int, r1: int, c0: int, c1: int
+                     ) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
+        """The blocks covering cells [r0, r1) x [c0, c1): their index range (b_r0, b_r1,
+        b_c0, b_c1) and lowest and highest heights (m), (b_r1 - b_r0, b_c1 - b_c0) each."""
+        b = (r0 // BLOCK, -(-r1 // BLOCK), c0 // BLOCK, -(-c1 // BLOCK))
+        return (b, self._block_min[b[0]:b[1], b[2]:b[3]],
+                self._block_max[b[0]:b[1], b[2]:b[3]])
+
+    def window_max_slope(self, r0: int, r1: int, c0: int, c1: int) -> float:
+        """The steepest slope (m/m, any direction) of the surface over cells [r0, r1) x
+        [c0, c1), or a little wider (whole blocks)."""
+        return float(self._block_slope[r0 // BLOCK:-(-r1 // BLOCK),
+                                       c0 // BLOCK:-(-c1 // BLOCK)].max())
 
     def centre_z_m(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """Heights (m) of the centres of cells [r0, r1) x [c0, c1): the mean of their corners."""

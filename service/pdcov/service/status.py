@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pdcov.core.footprint import footprint_ring_enu
+from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.geodesy import enu_to_geodetic
 from pdcov.core.mount import GimbalMount
 
@@ -25,13 +25,24 @@ __all__ = ["footprint_lonlat", "status_fields"]
 
 
 def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
-    """The last frame's footprint ring (M, 2) as lon/lat degrees, or None."""
-    if live.last_pose is None or live.origin is None:
+    """The last frame's footprint ring (M, 2) as lon/lat degrees, or None. Over terrain,
+    on the level plane through the terrain where the optical axis meets it (found in two
+    steps from the height under the camera): a sketch for the map, not the kernel's cells."""
+    pose = live.last_pose
+    if pose is None or live.origin is None:
         return None
-    ring = footprint_ring_enu(live.grid.camera, live.last_pose, live.grid.max_range_m)
+    z_m = 0.0
+    terrain = live.grid.terrain
+    if terrain is not None:
+        z_m = float(terrain.height_m(*pose.r_cam_enu[:2]))
+        axis = pose.optical_axis_enu
+        if axis[2] < -1e-6:
+            hit = pose.r_cam_enu + axis * (pose.r_cam_enu[2] - z_m) / -axis[2]
+            z_m = float(terrain.height_m(hit[0], hit[1]))
+    ring = footprint_rings_enu(live.grid.camera, pose, live.grid.max_range_m, (z_m,)).rings[0]
     if len(ring) < 3:
         return None
-    geo = enu_to_geodetic(np.column_stack([ring, np.zeros(len(ring))]), live.origin)
+    geo = enu_to_geodetic(np.column_stack([ring, np.full(len(ring), z_m)]), live.origin)
     return geo[:, [1, 0]]
 
 
