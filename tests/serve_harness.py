@@ -1,14 +1,19 @@
-"""End-to-end helpers for ``pdcov serve`` tests: the config writer and a subscriber that
-rebuilds the grid from tiles and snapshots exactly as docs/protocol.md says. Ports, the
+"""End-to-end helpers for ``pdcov serve`` tests: the config writer, a subscriber that
+rebuilds the grid from tiles and snapshots exactly as docs/protocol.md says, and a flight of
+``pdcov-sitl fly`` into the daemon with ``pdcov evaluate`` of its logs to compare. Ports, the
 in-process Zenoh router, processes that are always killed and the daemon's command line
 come from benchmarks.harness (shared with the benchmarks) and are re-exported here."""
 
 from __future__ import annotations
 
+import contextlib
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from benchmarks.harness import ROOT, free_port, router, serve_args, stop
@@ -21,18 +26,24 @@ from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 from pdcov.cli import main as pdcov_main
 
-__all__ = ["REAL", "ROOT", "Subscriber", "free_port", "process", "router", "serve_args",
-           "serve_config", "small_plan", "stop"]
+__all__ = ["REAL", "ROOT", "SPEED", "Subscriber", "finish", "fly_args", "fly_udp", "free_port",
+           "offline", "process", "recording", "router", "same", "serve_args", "serve_config",
+           "small_plan", "stop", "watched"]
 
 REAL = ROOT.parent / "shared" / "real-logs"
 
 
 def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
-                 **service) -> Path:
+                 session: dict | None = None, **service) -> Path:
+    """The daemon's config: ``base`` with a fast-publishing bus section (by default a peer
+    that connects to the router on ``zenoh_port`` and listens on a free loopback port;
+    ``session``: mode, connect and listen instead, a key given None left out) and a
+    service section writing into ``state_dir``."""
     doc = dict(base)
-    doc["bus"] = {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
-                  "listen": ["tcp/127.0.0.1:0"], "multicast_scouting": False,
-                  "status_period_s": 0.2, "tiles_period_s": 0.1,
+    bus = {"mode": "peer", "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
+           "listen": ["tcp/127.0.0.1:0"], **(session or {})}
+    doc["bus"] = {**{k: v for k, v in bus.items() if v is not None},
+                  "multicast_scouting": False, "status_period_s": 0.2, "tiles_period_s": 0.1,
                   "tiles_max_bytes_per_s": 1 << 20}
     doc["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 1.0, **service}
     path.write_text(yaml.safe_dump(doc))
@@ -138,3 +149,104 @@ class Subscriber:
         for s in self._subs:
             s.undeclare()
         self.session.close()
+
+
+SPEED = 6.0
+"""Simulated seconds per wall second for the flights that need no wall-clock pacing; the
+daemons keep up at this pace with all flights at once on the loaded 2-core test machine."""
+
+
+def fly_args(cfg, plan, out, link: str, *more, speed: float = SPEED) -> list[str]:
+    """The simulator flying ``plan`` over ``link`` (its end, docs/simulator.md), ``speed``
+    times faster than real time (at --speed 0 a burst of small datagrams can overflow a busy
+    receiver's socket on a loaded machine: then live and the simulator's tlog differ)."""
+    return [sys.executable, "-m", "pdcov_sitl.cli", "fly", "--config", str(cfg), "--plan",
+            str(plan), "--out", str(out), "--connect", link, "--speed", str(speed), *more]
+
+
+def offline(cfg, tlog, out, *more: str) -> dict:
+    """``pdcov evaluate`` of a tlog, in a process of its own (flights evaluate at once); its
+    summary (stdout) under "summary"."""
+    res = subprocess.run([sys.executable, "-m", "pdcov.cli", "evaluate", "--config", str(cfg),
+                          "--log", str(tlog), "--out", str(out), "--no-progress", *more],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    with np.load(out / "grid.npz") as z:
+        return {"summary": res.stdout, **{k: z[k] for k in z.files}}
+
+
+def same(state, ref, what) -> None:
+    for key in ("log_miss_d", "log_miss_fa", "n_obs"):
+        np.testing.assert_array_equal(getattr(state, key), ref[key], err_msg=f"{what}: {key}")
+
+
+def recording(tmp: Path) -> Path:
+    """The daemon's one recording of the flight."""
+    rec = sorted((tmp / "st" / "recordings").glob("*.tlog"))
+    assert len(rec) == 1, rec
+    return rec[0]
+
+
+@contextlib.contextmanager
+def watched(zport: int):
+    """A router and a subscriber following sim1 through it; closed on exit."""
+    r = router(zport)
+    sub = None
+    try:
+        sub = Subscriber(zport, "sim1")
+        yield sub
+    finally:
+        if sub is not None:
+            sub.close()
+        r.close()
+
+
+def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
+    """Wait until the daemon has read everything (its newest telemetry time and frames the
+    same in 6 statuses in a row: a daemon behind a fast simulator may still have datagrams
+    in its socket when it has no frame pending) and sent the last tiles; (final status,
+    tiles grid, snapshot); stop the daemon (SIGTERM: final checkpoint, exit 0). Frames may
+    stay pending at the very end (a stream's last sample before them, no more telemetry to
+    decide them): offline places no frame there either."""
+    seen: list = [None, None, 0]
+
+    def settled(st: dict) -> bool:
+        key = (st["t_s"], st["frames"]["grid"], st["frames"]["pending"])
+        if key != seen[0]:
+            seen[:] = [key, st["seq"], 0]
+        elif st["seq"] != seen[1]:
+            seen[1:] = [st["seq"], seen[2] + 1]
+        return seen[2] >= 5 and st["tiles_seq"] == sub.last_seq
+
+    sub.wait(settled, 90, "the last telemetry, frames and tiles")
+    time.sleep(0.5)
+    sub.sync()
+    st = sub.status
+    snap = sub.snapshot()
+    assert daemon.poll() is None, (tmp / "serve.log").read_text()[-3000:]
+    assert stop(daemon) == 0
+    assert not sub.errors, sub.errors
+    return st, sub.grid, snap
+
+
+def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None,
+            sim_config: Path | None = None, **service):
+    """Daemon first (UDP), then the simulator. ``detector(fly, sub, zenoh_port)`` runs
+    while the simulator flies and returns the frame times it published and how many it
+    sent twice. ``sim_config``: the simulator's mission config (its ground) when it is not
+    the daemon's."""
+    zport, mport = free_port(), free_port()
+    cfg = serve_config(doc, tmp / "m.yaml", zenoh_port=zport, state_dir=tmp / "st", **service)
+    out = {"cfg": cfg}
+    with watched(zport) as sub, process(serve_args(cfg, "--connect",
+                                                   f"udpin:127.0.0.1:{mport}"),
+                                        tmp / "serve.log") as daemon:
+        sub.wait(lambda s: True, 60, "the daemon's first status")
+        with process(fly_args(sim_config or cfg, plan, tmp / "fly",
+                              f"udpout:127.0.0.1:{mport}", *fly_more),
+                     tmp / "fly.log") as fly:
+            if detector is not None:
+                out["times"], out["resent"] = detector(fly, sub, zport)
+            assert fly.wait(timeout=240) == 0, (tmp / "fly.log").read_text()[-2000:]
+        out["st"], out["grid"], out["snap"] = finish(sub, daemon, tmp)
+    return out

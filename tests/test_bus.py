@@ -15,20 +15,26 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.footprint import (
-    decode_footprint,
-    decode_frames,
-    encode_footprint,
-    encode_frames,
-)
+from pdcov.bus.footprint import decode_footprint, encode_footprint
+from pdcov.bus.frames import decode_frames, encode_frames
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.json_doc import finite_or_null
 from pdcov.bus.keys import VehicleKeys, all_vehicles, parse_key
 from pdcov.bus.mission import decode_mission, encode_mission
-from pdcov.bus.session import BusConfig, bus_config_from_dict, zenoh_config
+from pdcov.bus.session import (
+    BusConfig,
+    bus_config_from_dict,
+    describe_session,
+    peer_warning,
+    quiet_hint,
+    resolve_mode,
+    session_mode,
+    zenoh_config,
+)
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
 from pdcov.config import load_mission
+from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -225,7 +231,7 @@ def test_footprint_and_frames():
     assert decode_footprint(encode_footprint("uav1", 1.0, None))["geometry"] is None
     with pytest.raises(BusPayloadError):
         decode_footprint(encode_footprint("uav1", 1.0, ring * [1, 10]))  # latitude 353
-    assert decode_frames(encode_frames([1.0, 1.5])) == (1.0, 1.5)
+    assert decode_frames(encode_frames([1.0, 1.5])) == (FrameBoxes(1.0), FrameBoxes(1.5))
     for bad in ([], [-1.0], [float("inf")]):
         with pytest.raises(BusPayloadError, match="frames"):
             decode_frames(json.dumps({"schema": "pdcov.frames", "version": 1,
@@ -257,14 +263,15 @@ def test_schema_and_version_checked_alike(kind):
     key = f"pdcov/uav1/{kind}"
     decode(payload, key)
     where = "properties." if kind == "footprint" else ""
+    versions = "one of 1, 2" if kind == "frames" else "1"  # frames: both versions read
     cases = {"schema 'pdcov.other', expected 'pdcov.": ("schema", "pdcov.other"),
              "schema missing, expected": ("schema", KeyError),
              "schema 'xxxxx": ("schema", "x" * 10_000),
-             "version 2, expected 1": ("version", 2),
-             "version True, expected 1": ("version", True),
-             "version 1.0, expected 1": ("version", 1.0),
-             "version '1', expected 1": ("version", "1"),
-             "version missing, expected 1": ("version", KeyError)}
+             f"version 9, expected {versions}": ("version", 9),
+             f"version True, expected {versions}": ("version", True),
+             f"version 1.0, expected {versions}": ("version", 1.0),
+             f"version '1', expected {versions}": ("version", "1"),
+             f"version missing, expected {versions}": ("version", KeyError)}
     for why, (name, value) in cases.items():
         doc = json.loads(payload)
         holder = doc["properties"] if kind == "footprint" else doc
@@ -293,3 +300,40 @@ def test_bus_config():
         bus_config_from_dict({"mode": "server"}, "m.yaml")
     with pytest.raises(ConfigError, match="Zenoh refuses"):
         zenoh_config(BusConfig(zenoh={"no/such/path": 1}))
+
+
+R = ("tcp/10.0.0.2:7447",)
+
+
+@pytest.mark.parametrize(("mode", "connect", "listen", "opens"), [
+    ("auto", R, (), "client"),  # through a router: a client, which the router brokers
+    ("auto", R, ("tcp/0.0.0.0:7447",), "peer"),  # listens: other peers reach it
+    ("auto", (), (), "peer"),  # no endpoint: a peer finding others by scouting
+    ("auto", (), ("tcp/0.0.0.0:7447",), "peer"),
+    ("peer", R, (), "peer"), ("client", R, (), "client"), ("router", (), R, "router")])
+def test_session_mode_follows_the_endpoints_when_auto(mode, connect, listen, opens):
+    bus = BusConfig(mode=mode, connect=connect, listen=listen)
+    assert resolve_mode(mode, list(connect), list(listen)) == opens
+    assert session_mode(bus) == opens
+    assert json.loads(zenoh_config(bus).get_json("mode")) == opens
+    assert describe_session(bus).startswith(opens + (" (auto)" if mode == "auto" else ""))
+
+
+def test_auto_is_the_default_and_a_config_file_s_endpoints_count(tmp_path):
+    assert BusConfig().mode == "auto" and bus_config_from_dict({}).mode == "auto"
+    (tmp_path / "z.json5").write_text('{connect: {endpoints: ["tcp/10.0.0.2:7447"]}}')
+    assert session_mode(BusConfig(config_file=str(tmp_path / "z.json5"))) == "client"
+
+
+def test_a_peer_behind_a_router_listening_nowhere_is_warned_about():
+    assert "listening nowhere" in peer_warning(BusConfig(mode="peer", connect=R))
+    for ok in (BusConfig(connect=R), BusConfig(mode="peer", connect=R, listen=R),
+               BusConfig(mode="peer")):
+        assert peer_warning(ok) is None
+
+
+def test_quiet_hint_names_the_session_and_what_to_check():
+    assert "client (auto), connect [tcp/10.0.0.2:7447]" in quiet_hint(BusConfig(connect=R))
+    assert "--mode client" in quiet_hint(BusConfig(mode="peer", connect=R))
+    assert "multicast scouting finds daemons on this LAN" in quiet_hint(BusConfig())
+    assert "--zenoh-listen" in quiet_hint(BusConfig(multicast_scouting=False))

@@ -239,7 +239,8 @@ def test_web_map_draws_the_domain_of_the_grid_shown(demo, geodetic_mission):
 def test_json_nested_too_deep_is_refused_by_every_json_decoder():
     """``[[[[…`` makes json raise RecursionError; it once escaped decode_status and
     decode_frames (a traceback in the watcher's and the daemon's loops)."""
-    from pdcov.bus.footprint import decode_footprint, decode_frames
+    from pdcov.bus.footprint import decode_footprint
+    from pdcov.bus.frames import decode_frames
 
     deep = b"[" * 60_000
     for decode in (decode_status, decode_footprint, decode_frames, decode_mission):

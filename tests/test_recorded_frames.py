@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 from link_feed import FIXED, MISSION, Hover, pack
 
-from pdcov.bus.footprint import encode_frames
+from pdcov.bus.frames import encode_frames
 from pdcov.cli import main as pdcov_main
 from pdcov.config import load_mission
 from pdcov.service.daemon import Daemon

@@ -2,7 +2,8 @@
 certificates made here (tls_certs): the example configs in systemd/zenoh/ let a vehicle
 publish only its own keys and the ground station read pdcov/** but publish nothing; a
 peer without an accepted certificate gets nothing; `pdcov serve` and `pdcov watch` pass
-their bus TLS settings through to Zenoh (docs/reliability.md "Security")."""
+their bus TLS settings through to Zenoh (docs/reliability.md "Security"); only the
+authorised ground station (common name "ops") reaches a daemon's pdcov/<id>/retask."""
 
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ import yaml
 from serve_harness import ROOT, free_port, process, serve_args, stop
 from tls_certs import Authority
 
+from pdcov.bus.retask import decode_retask_reply, encode_retask
 from pdcov.bus.session import BusConfig, open_session
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.errors import ConfigError
 
 pytestmark = pytest.mark.e2e
@@ -49,7 +52,7 @@ def example(name: str, certs: Path, out: Path, port: int) -> Path:
 @pytest.fixture
 def pki(tmp_path):
     ca = Authority(tmp_path / "certs")
-    for cn in ("router", "uav1", "uav2", "ground", "stranger"):
+    for cn in ("router", "uav1", "uav2", "ground", "ops", "stranger"):
         ca.leaf(cn)
     return ca
 
@@ -225,3 +228,46 @@ def test_serve_and_watch_pass_their_tls_settings_to_zenoh(tmp_path, pki, router)
         assert daemon.poll() is None
         assert stop(daemon) == 0
     assert "zenoh peer session open" in (tmp_path / "serve.log").read_text()
+
+
+ITEMS = (MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, lat_deg=47.3978,
+                     lon_deg=8.5457, z_m=10.0),)
+
+
+def ask(session, vehicle: str, payload: bytes, timeout_s: float = 5.0) -> list[bytes]:
+    return [r.ok.payload.to_bytes() for r in session.get(f"pdcov/{vehicle}/retask",
+                                                         payload=payload, timeout=timeout_s)
+            if r.ok is not None]
+
+
+def test_only_the_authorised_ground_station_reaches_the_retask_key(tmp_path, pki, router):
+    """Router ACL with mutual TLS: "ops" is answered (by the daemon: no autopilot on its
+    link yet), "ground" (the readers' certificate) and a stranger get nothing: the query
+    never reaches the daemon, whose log shows only the ops request."""
+    example("aircraft.json5", pki.folder, tmp_path / "aircraft.json5", 0)
+    doc = dict(MISSION, bus={"mode": "peer", "connect": [router], "listen": [],
+                                 "multicast_scouting": False, "config_file": "aircraft.json5",
+                                 "status_period_s": 0.2},
+               service={"state_dir": str(tmp_path / "state"), "retask": True})
+    cfg = tmp_path / "uav1.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    log = tmp_path / "serve.log"
+    request = encode_retask("uav1", ITEMS, "two waypoints")
+    with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{free_port()}"),
+                 log) as daemon:
+        sessions = {cn: open_session(tls_bus(pki, router, cn)) for cn in
+                    ("ops", "ground", "stranger")}
+        try:
+            end = time.monotonic() + 20
+            answered: list[bytes] = []
+            while not answered and time.monotonic() < end:  # until the daemon declared it
+                answered = ask(sessions["ops"], "uav1", request, 2.0)
+            assert [decode_retask_reply(a).reason for a in answered] == ["PDCOV_NO_AUTOPILOT"]
+            assert ask(sessions["ground"], "uav1", request) == []
+            assert ask(sessions["stranger"], "uav1", request) == []
+        finally:
+            for s in sessions.values():
+                s.close()
+        assert stop(daemon) == 0
+    text = log.read_text()
+    assert text.count("re-tasking request") == 1, text  # the daemon never saw the others

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 from ardupilot_sitl import (
+    FLIGHT_MISSION,
     MOUNT_SERVO_PARM,
     ardupilot_sitl,
     fly_mission,
@@ -29,23 +30,7 @@ pytestmark = pytest.mark.e2e
 
 SPEEDUP = 10  # autopilot seconds per wall second; the daemon works in the autopilot's clock
 ALTITUDE_M = 10.0
-MISSION = {
-    "vehicle_id": "ardu1",
-    "origin": {"lat_deg": -35.363261, "lon_deg": 149.165230},
-    # The paper's 40 x 40 m square, north of the SITL home.
-    "domain": {"polygon_enu_m": [[-20, 10], [20, 10], [20, 50], [-20, 50]], "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob", "distortion_coeffs": [0.0, 0.0, 0.0, 0.0, 0.0],
-               "frame_rate_hz": 5},
-    # No limits here: with auto they come from the autopilot's MNT1_*_MIN/MAX.
-    "mount": {"type": "gimbal", "attitude_frame": "auto", "auto_fallback": "flags"},
-    "detector": "illustrative",
-    "thresholds": [0.5, 0.7, 0.8],
-    "coverage": {"min_revisit_s": 1.0, "min_height_m": 2.0},
-    "planning": {"gimbal_pitch_deg": -90},
-    "link": {"attitude_hz": 25, "position_hz": 10, "gimbal_hz": 20},
-}
+MISSION = FLIGHT_MISSION
 
 
 @requires_ardupilot_sitl

@@ -12,11 +12,9 @@ outcome, and a flight that failed fails only its own tests). Wall time: docs/ser
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
-import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -26,17 +24,24 @@ import pytest
 import yaml
 from serve_harness import (
     Subscriber,
+    finish,
+    fly_args,
+    fly_udp,
     free_port,
+    offline,
     process,
+    recording,
     router,
+    same,
     serve_args,
     serve_config,
     small_plan,
     stop,
+    watched,
 )
 
 from benchmarks.harness import small_mission
-from pdcov.bus.footprint import encode_frames
+from pdcov.bus.frames import encode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.config import load_mission
@@ -50,107 +55,11 @@ pytestmark = pytest.mark.e2e
 
 SIM = small_mission(vehicle_id="sim1", coverage={"min_revisit_s": 1.0})
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
-SPEED = 6.0
-"""Simulated seconds per wall second for the flights that need no wall-clock pacing; the
-daemons keep up at this pace with all flights at once on the loaded 2-core test machine."""
 WORKERS = 5
 GLITCH = "gps_glitch=30+4:20"
 """The position jumps 20 m north at 30 s and back at 34 s (simulated)."""
 FAULTS = ("drop=0.02,corrupt=0.01,outage=20+3,reboot=35+2,gimbal_fail=50+2,"
           "nan=ATTITUDE.roll@28+1")
-
-
-def fly_args(cfg, plan, out, link: str, *more, speed: float = SPEED) -> list[str]:
-    """The simulator flying ``plan`` over ``link`` (its end, docs/simulator.md), ``speed``
-    times faster than real time (at --speed 0 a burst of small datagrams can overflow a busy
-    receiver's socket on a loaded machine: then live and the simulator's tlog differ)."""
-    return [sys.executable, "-m", "pdcov_sitl.cli", "fly", "--config", str(cfg), "--plan",
-            str(plan), "--out", str(out), "--connect", link, "--speed", str(speed), *more]
-
-
-def offline(cfg, tlog, out, *more: str) -> dict:
-    """``pdcov evaluate`` of a tlog, in a process of its own (flights evaluate at once); its
-    summary (stdout) under "summary"."""
-    res = subprocess.run([sys.executable, "-m", "pdcov.cli", "evaluate", "--config", str(cfg),
-                          "--log", str(tlog), "--out", str(out), "--no-progress", *more],
-                         capture_output=True, text=True, timeout=300)
-    assert res.returncode == 0, res.stderr[-2000:]
-    with np.load(out / "grid.npz") as z:
-        return {"summary": res.stdout, **{k: z[k] for k in z.files}}
-
-
-def same(state, ref, what) -> None:
-    for key in ("log_miss_d", "log_miss_fa", "n_obs"):
-        np.testing.assert_array_equal(getattr(state, key), ref[key], err_msg=f"{what}: {key}")
-
-
-def recording(tmp: Path) -> Path:
-    """The daemon's one recording of the flight."""
-    rec = sorted((tmp / "st" / "recordings").glob("*.tlog"))
-    assert len(rec) == 1, rec
-    return rec[0]
-
-
-@contextlib.contextmanager
-def watched(zport: int):
-    """A router and a subscriber following sim1 through it; closed on exit."""
-    r = router(zport)
-    sub = None
-    try:
-        sub = Subscriber(zport, "sim1")
-        yield sub
-    finally:
-        if sub is not None:
-            sub.close()
-        r.close()
-
-
-def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
-    """Wait until the daemon has read everything (its newest telemetry time and frames the
-    same in 6 statuses in a row: a daemon behind a fast simulator may still have datagrams
-    in its socket when it has no frame pending) and sent the last tiles; (final status,
-    tiles grid, snapshot); stop the daemon (SIGTERM: final checkpoint, exit 0). Frames may
-    stay pending at the very end (a stream's last sample before them, no more telemetry to
-    decide them): offline places no frame there either."""
-    seen: list = [None, None, 0]
-
-    def settled(st: dict) -> bool:
-        key = (st["t_s"], st["frames"]["grid"], st["frames"]["pending"])
-        if key != seen[0]:
-            seen[:] = [key, st["seq"], 0]
-        elif st["seq"] != seen[1]:
-            seen[1:] = [st["seq"], seen[2] + 1]
-        return seen[2] >= 5 and st["tiles_seq"] == sub.last_seq
-
-    sub.wait(settled, 90, "the last telemetry, frames and tiles")
-    time.sleep(0.5)
-    sub.sync()
-    st = sub.status
-    snap = sub.snapshot()
-    assert daemon.poll() is None, (tmp / "serve.log").read_text()[-3000:]
-    assert stop(daemon) == 0
-    assert not sub.errors, sub.errors
-    return st, sub.grid, snap
-
-
-def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None, **service):
-    """Daemon first (UDP), then the simulator. ``detector(fly, sub, zenoh_port)`` runs
-    while the simulator flies and returns the frame times it published and how many it
-    sent twice."""
-    zport, mport = free_port(), free_port()
-    cfg = serve_config(doc, tmp / "m.yaml", zenoh_port=zport, state_dir=tmp / "st", **service)
-    out = {"cfg": cfg}
-    with watched(zport) as sub, process(serve_args(cfg, "--connect",
-                                                   f"udpin:127.0.0.1:{mport}"),
-                                        tmp / "serve.log") as daemon:
-        sub.wait(lambda s: True, 60, "the daemon's first status")
-        with process(fly_args(cfg, plan, tmp / "fly", f"udpout:127.0.0.1:{mport}", *fly_more),
-                     tmp / "fly.log") as fly:
-            if detector is not None:
-                out["times"], out["resent"] = detector(fly, sub, zport)
-            assert fly.wait(timeout=240) == 0, (tmp / "fly.log").read_text()[-2000:]
-        out["st"], out["grid"], out["snap"] = finish(sub, daemon, tmp)
-    return out
 
 
 def fly_pty(tmp: Path, doc: dict, plan: Path, *fly_more: str):

@@ -13,7 +13,7 @@ import yaml
 from link_feed import FIXED, MISSION, Hover, pack
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.bus.footprint import encode_frames
+from pdcov.bus.frames import encode_frames
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import InputFileError
 from pdcov.service.checkpoint import read_checkpoint_meta, write_checkpoint

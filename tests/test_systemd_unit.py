@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from pdcov.bus.session import session_mode
 from pdcov.cli import main as pdcov_main
 from pdcov.service.settings import load_serve_config
 
@@ -114,7 +115,9 @@ def test_example_config_loads_and_passes_serve_check(tmp_path, capsys) -> None:
     cfg = load_serve_config(SYSTEMD_DIR / "pdcov.yaml")
     assert cfg.mission.new_grid().mask.sum() > 0
     assert cfg.mission.mount.attitude_frame == "auto"
-    assert cfg.bus.mode == "peer" and not cfg.bus.multicast_scouting
+    # auto, listening: a peer the ground station reaches; without listen, a router's client
+    assert cfg.bus.mode == "auto" and session_mode(cfg.bus) == "peer"
+    assert not cfg.bus.multicast_scouting
     assert cfg.link.connect[0].startswith("serial:/dev/serial0:")
     # The unit's --state-dir %S/pdcov is the state_dir the config names.
     assert cfg.service.state_dir == "/var/lib/pdcov"

@@ -35,6 +35,7 @@ from pdcov.errors import ConfigError
 from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
 from pdcov.planning.plan import Plan, Waypoint, mission_items, read_plan, write_plan
 from pdcov.planning.terrain_follow import (
+    TERRAIN_ALT_PROFILE_M,
     TerrainFollowing,
     clearance_intrusions,
     follow_terrain,
@@ -153,6 +154,23 @@ def test_tolerance_over_hills_with_few_waypoints():
     # A tighter tolerance keeps more points.
     tight = follow_terrain(LAWNMOWER, terrain, TerrainFollowing(AltitudeFrame.AMSL, 0.2, 0, 0))
     assert len(tight.waypoints) > len(followed.waypoints)
+
+
+def test_terrain_frame_prediction_flies_the_height_the_autopilot_holds():
+    # The autopilot holds H above the terrain along the whole leg; the file carries only the
+    # pattern's waypoints, so the tolerance does not apply to the predicted path: it stays
+    # within TERRAIN_ALT_PROFILE_M, where an amsl plan at the same tolerance strays 1 m.
+    terrain = surface(hills)
+    loose = dict(tolerance_m=1.0, max_climb_mps=0.0, max_descent_mps=0.0)
+    followed = follow_terrain(LAWNMOWER, terrain, TerrainFollowing(AltitudeFrame.TERRAIN_ALT,
+                                                                   **loose))
+    pts = along(followed)
+    height = pts[:, 2] - terrain.height_m(pts[:, 0], pts[:, 1])
+    assert np.abs(height - H).max() <= TERRAIN_ALT_PROFILE_M + 0.02  # bilinear bends
+    assert followed.written().sum() == len(LAWNMOWER.waypoints)
+    amsl = along(follow_terrain(LAWNMOWER, terrain, TerrainFollowing(AltitudeFrame.AMSL,
+                                                                     **loose)))
+    assert np.abs(amsl[:, 2] - terrain.height_m(amsl[:, 0], amsl[:, 1]) - H).max() > 0.9
 
 
 def test_amsl_waypoints_are_written_msl_and_read_back(tmp_path):

@@ -185,3 +185,16 @@ def test_one_vehicle_only_and_ages():
     w2.on_snapshot_failed("uav3", 2.0)
     assert w2.poll(2.1) == [QuerySnapshot("uav3")]  # failed replies are asked again
     assert w2.poll(2.2) == []
+
+
+def test_no_vehicle_after_connecting_says_why_then_not_once_one_is_heard():
+    from pdcov.ground.watcher import Watcher
+
+    w = Watcher(quiet_hint="this session: client", quiet_after_s=10.0)
+    assert not w.report(100.0).station  # not connected yet
+    w.on_connected(100.0)
+    assert not w.report(109.9).station
+    assert w.report(110.0).station == (
+        "no vehicle heard 10 s after connecting; this session: client",)
+    w.on_alive("uav1", True, 111.0)
+    assert not w.report(120.0).station

@@ -17,9 +17,11 @@ import numpy as np
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
 from pdcov.core.dem import Dem, VerticalDatum, height_mismatch, terrain_surface
+from pdcov.core.detections import CLASS_NAME_RULE, valid_class_name
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.geolocate import Geolocation
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
@@ -241,6 +243,43 @@ class PlanningSection:
             raise ConfigError(f"{where(src, 'planning')}: {exc}") from None
 
 
+@dataclass(frozen=True, slots=True)
+class DetectionsSection:
+    """``detections``: how the detector's boxes are geolocated and grouped
+    (core/geolocate.py, detection/candidates.py): the classes located at their box's bottom
+    centre (standing on the ground), the 1-sigma errors of the camera's attitude (deg), of
+    its position (m) and of a box's pixel (px), and the grouping gate in combined sigmas."""
+
+    standing_classes: Any = ("person", "pedestrian")
+    roll_sigma_deg: float = 0.5
+    pitch_sigma_deg: float = 0.5
+    yaw_sigma_deg: float = 1.0
+    horizontal_sigma_m: float = 1.0
+    vertical_sigma_m: float = 1.0
+    pixel_sigma_px: float = 2.0
+    gate_sigmas: float = 3.0
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> DetectionsSection:
+        default = _defaults(cls)
+        classes = doc.get("standing_classes", list(default["standing_classes"]))
+        if not isinstance(classes, list) or not all(valid_class_name(c) for c in classes):
+            raise ConfigError(f"{where(src, 'detections.standing_classes')}: expected a list "
+                              f"of class names ({CLASS_NAME_RULE}), got {classes!r}")
+        values = {k: _number(doc, k, src, "detections", default=default[k])
+                  for k in default if k != "standing_classes"}
+        for k, v in values.items():
+            if v < 0 or (k == "gate_sigmas" and v == 0):
+                raise ConfigError(f"{where(src, 'detections.' + k)}: expected a number "
+                                  f"{'> 0' if k == 'gate_sigmas' else '>= 0'}, got {v!r}")
+        return cls(tuple(classes), **values)
+
+    def geolocation(self) -> Geolocation:
+        return Geolocation(tuple(self.standing_classes), math.radians(self.roll_sigma_deg),
+                           math.radians(self.pitch_sigma_deg), math.radians(self.yaw_sigma_deg),
+                           self.horizontal_sigma_m, self.vertical_sigma_m, self.pixel_sigma_px)
+
+
 def _defaults(section: type) -> dict[str, Any]:
     """The default value of each field of a section dataclass that has one."""
     return {f.name: f.default for f in fields(section) if f.default is not MISSING}
@@ -258,6 +297,7 @@ MISSION_CONFIG = Section.of(
     terrain=Section.of_dataclass(TerrainSection),
     log=Section.of_dataclass(LogSection),
     planning=Section.of_dataclass(PlanningSection),
+    detections=Section.of_dataclass(DetectionsSection),
     **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
 
 
@@ -299,7 +339,8 @@ class Mission:
     system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
-    z = 0).
+    z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
+    grouped).
     """
 
     vehicle_id: str
@@ -325,6 +366,8 @@ class Mission:
     terrain: TerrainSurface | None = field(default=None, compare=False, repr=False)
     dem: Dem | None = field(default=None, compare=False, repr=False)
     terrain_check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+    geolocation: Geolocation = Geolocation()
+    gate_sigmas: float = 3.0
     warnings: tuple[str, ...] = ()
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
@@ -427,6 +470,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
                           "docs/protocol.md \"Validation and bounds\")")
 
     cov = CoverageSection.from_mapping(_mapping(doc, "coverage", src, required=False), src)
+    det = DetectionsSection.from_mapping(_mapping(doc, "detections", src, required=False), src)
     log_doc = _mapping(doc, "log", src, required=False)
     log = LogSection.from_mapping(log_doc, src)
     vehicle_id = doc.get("vehicle_id", "uav1")
@@ -444,6 +488,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
         dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
+        geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
         warnings=tuple(warnings), source=src, raw=doc)
 
 

@@ -64,6 +64,24 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--signing-key", metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits: sign every message and ignore "
                         "unsigned or wrongly signed ones (as the daemon's link.signing_key)")
+    t = f.add_argument_group("people and the simulated detector (docs/simulator.md)")
+    t.add_argument("--targets", metavar="N|FILE",
+                   help="place N people in the domain's free space (seeded by --seed), or "
+                        "read them from a CSV of x_m,y_m rows (ENU); simulate the detector "
+                        "and publish its boxes on pdcov/<vehicle_id>/frames; write "
+                        "targets.csv and detections.csv")
+    t.add_argument("--person-height-m", type=float, default=1.7,
+                   help="height of a standing person, for the box (default 1.7)")
+    t.add_argument("--person-width-m", type=float, default=0.5,
+                   help="width of a person, for the box (default 0.5)")
+    t.add_argument("--box-noise-px", type=float, default=1.0, metavar="SIGMA",
+                   help="1-sigma pixel noise of a box's ground point per axis (default 1)")
+    t.add_argument("--look-interval-s", type=float, metavar="S",
+                   help="seconds between independent detector draws for one person or cell "
+                        "(default: the config's coverage.min_revisit_s; 0: every frame)")
+    t.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to publish the boxes through, in place of the "
+                        "config's bus.connect (repeatable), e.g. tcp/127.0.0.1:7447")
     f.set_defaults(func=run_fly)
     r = sub.add_parser("replay", help="send a recorded tlog over a link",
                        description="Send a recorded tlog over a link at its pace or faster.")
@@ -116,6 +134,7 @@ def run_fly(args: argparse.Namespace) -> int:
         system_id = args.system_id or mission.system_id or 1
         if not valid_system_id(system_id):
             raise UsageError(f"--system-id {system_id}: expected 1..255")
+        people = _people(args, mission)
         opts = FlyOptions(mission=mission, plan_path=args.plan, out_dir=args.out,
                           connect=args.connect, speed=args.speed, seed=args.seed,
                           gimbal_mode=args.gimbal or _default_gimbal(mission.mount),
@@ -124,7 +143,8 @@ def run_fly(args: argparse.Namespace) -> int:
                           autopilot=args.autopilot, system_id=system_id,
                           wait_mission=args.wait_mission, camera_trigger=args.camera_trigger,
                           signing_key=key, ground=mission.dem,
-                          rangefinder=Rangefinder(noise_m=args.rangefinder_noise_m))
+                          rangefinder=Rangefinder(noise_m=args.rangefinder_noise_m),
+                          people=people)
         result = fly(opts)
     except (PdcovError, FaultSpecError, LinkError) as exc:
         raise UsageError(str(exc)) from None
@@ -132,7 +152,40 @@ def run_fly(args: argparse.Namespace) -> int:
         raise UsageError(f"{exc.filename or ''}: {exc.strerror or exc}") from None
     print(f"flew {result.sim_s:.1f} s in {result.wall_s:.1f} s; {result.messages} messages; "
           f"{result.frames} camera frames; wrote {result.tlog} and {result.truth}")
+    if people is not None:
+        print(f"{len(people.targets)} people; the simulated detector reported {result.boxes} "
+              f"boxes; wrote {args.out / 'targets.csv'} and {args.out / 'detections.csv'}")
     return 0
+
+
+def _people(args: argparse.Namespace, mission):  # -> fly.People | None
+    """--targets and the detector's options, checked; None without --targets."""
+    from pdcov.bus.session import bus_config_from_dict
+
+    from .detector import DetectorOptions
+    from .fly import People
+    from .targets import MAX_TARGETS, place_targets, read_targets
+
+    if args.targets is None:
+        return None
+    interval = mission.min_revisit_s if args.look_interval_s is None else args.look_interval_s
+    try:
+        options = DetectorOptions(args.person_height_m, args.person_width_m,
+                                  args.box_noise_px, interval)
+    except ValueError as exc:  # "field value: expected ...": name the option
+        field, rest = str(exc).split(" ", 1)
+        raise UsageError(f"--{field.replace('_', '-')} {rest}") from None
+    if args.targets.isdigit():
+        n = int(args.targets)
+        if not 1 <= n <= MAX_TARGETS:
+            raise UsageError(f"--targets {n}: expected 1..{MAX_TARGETS} people or a CSV file")
+        targets = place_targets(n, mission.domain, mission.terrain, args.seed)
+    else:
+        targets = read_targets(Path(args.targets), mission.terrain)
+    bus = bus_config_from_dict(mission.raw.get("bus"), mission.source)
+    if args.zenoh_connect:
+        bus = bus.with_endpoints(tuple(args.zenoh_connect), None)
+    return People(targets, options, bus)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

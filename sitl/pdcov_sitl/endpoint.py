@@ -107,6 +107,11 @@ class AutopilotEndpoint:
     def time_boot_ms(self, now_s: float) -> int:
         return max(0, int((now_s - self._boot_s) * 1000.0))
 
+    def time_boot_s(self, now_s: float) -> float:
+        """The autopilot's boot clock at simulated time ``now_s`` (s, not truncated to the
+        millisecond as time_boot_ms is)."""
+        return max(0.0, now_s - self._boot_s)
+
     def unix_time_us(self, now_s: float) -> int:
         return round((self._epoch_unix_s + now_s) * 1e6)
 

@@ -32,16 +32,19 @@ from pathlib import Path
 import numpy as np
 
 from pdcov.atomic import atomic_write
+from pdcov.bus.session import BusConfig
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
-from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, FixedMount
-from pdcov.core.rotations import quat_wxyz_from_R, slerp_quat_wxyz
+from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
+from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R, slerp_quat_wxyz
 from pdcov.errors import InputFileError
 from pdcov.planning.plan import read_mission
 from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
 from .control import Controller
+from .detector import DetectorOptions, SimulatedDetector
+from .detector_out import DetectionOutput
 from .dynamics import F450, VehicleState
 from .faults import FaultSpec
 from .gimbal import GimbalConfig, GimbalModel, _Rx, _Ry, _Rz, quat_from_euler_zyx, quat_from_R
@@ -64,6 +67,7 @@ from .messages import (
 )
 from .mission import AT_CURRENT_ALTITUDE, ReturnRule, flight_plan_from_items
 from .protocol import Autopilot
+from .targets import Targets, write_targets
 from .terrain import GroundModel, LocalGround
 
 POLL_EVERY_STEPS = 4
@@ -93,6 +97,18 @@ class FlyOptions:
     ground: GroundModel | None = None
     """The world's ground (the mission's DEM); None: level at the origin's altitude."""
     rangefinder: Rangefinder = Rangefinder()
+    people: People | None = None
+    """People on the ground and the simulated detector looking for them; None: none."""
+
+
+@dataclass(frozen=True, slots=True)
+class People:
+    """``--targets``: the people (ENU about the mission's origin), the simulated detector's
+    options, and the bus its boxes are published on (the mission's ``bus`` section)."""
+
+    targets: Targets
+    detector: DetectorOptions
+    bus: BusConfig
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,6 +121,8 @@ class FlightResult:
     messages: int
     tlog: Path
     truth: Path
+    boxes: int = 0
+    """Boxes the simulated detector reported (``--targets``)."""
 
 
 def _gimbal_config(mode: str, axes: int, mount: FixedMount | object) -> GimbalConfig:
@@ -217,11 +235,34 @@ def fly(opts: FlyOptions) -> FlightResult:
                                 opts.rangefinder if ground is not None else None),
         streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog,
         signing_key=opts.signing_key)
+    detect = None
     try:
+        if opts.people is not None:
+            detect = _detection_loop(opts.people, m, origin, opts)
         return _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin,
-                    ground, lever, has_gimbal, device, tlog, truth)
+                    ground, lever, has_gimbal, device, tlog, truth, detect)
     finally:
         endpoint.close()
+        if detect is not None:
+            detect.output.close()
+
+
+@dataclass(frozen=True, slots=True)
+class _DetectionLoop:
+    """The simulated detector and where its boxes go (``--targets``)."""
+
+    detector: SimulatedDetector
+    output: DetectionOutput
+
+
+def _detection_loop(people: People, m: Mission, origin: Origin, opts: FlyOptions
+                    ) -> _DetectionLoop:
+    """Write targets.csv; the detector (seeded by --seed) and its outputs (detections.csv,
+    the Zenoh session)."""
+    write_targets(opts.out_dir / "targets.csv", people.targets, origin)
+    detector = SimulatedDetector(m.new_grid(), people.targets, people.detector, opts.seed)
+    return _DetectionLoop(detector, DetectionOutput(people.bus, m.vehicle_id,
+                                                    opts.out_dir / "detections.csv"))
 
 
 def _guidance(opts: FlyOptions, items: list, source: str, default_speed_mps: float,
@@ -241,7 +282,7 @@ def _guidance(opts: FlyOptions, items: list, source: str, default_speed_mps: flo
 
 
 def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, ground, lever,
-         has_gimbal, device, tlog, truth) -> FlightResult:
+         has_gimbal, device, tlog, truth, detect: _DetectionLoop | None) -> FlightResult:
     from .protocol import StreamSchedule
 
     mode = opts.gimbal_mode
@@ -345,6 +386,10 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
                 if trigger:
                     _send_capture(endpoint, builder, before, after, next_frame_s, frame_index,
                                   home, t)
+                if detect is not None:
+                    pose = _true_pose(next_frame_s, before, after, origin, lever)
+                    detect.output.frame(round(endpoint.time_boot_s(next_frame_s), 3),
+                                        detect.detector.frame(pose, next_frame_s))
                 frame_index += 1
                 next_frame_s = first_frame_s + frame_index / frame_rate_hz
             before = None
@@ -363,7 +408,8 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
             if lag > 0.002:
                 time.sleep(lag)
     n = _write_truth(truth, frames, origin, lever)
-    return FlightResult(vehicle.t_s, time.monotonic() - wall0, n, endpoint.n_sent, tlog, truth)
+    return FlightResult(vehicle.t_s, time.monotonic() - wall0, n, endpoint.n_sent, tlog, truth,
+                        detect.output.boxes if detect is not None else 0)
 
 
 def _interpolate(t_s: float, a: _Sample, b: _Sample
@@ -386,20 +432,26 @@ def _send_capture(endpoint, builder: MessageBuilder, a: _Sample, b: _Sample, t_f
     endpoint.send(msg, now_s)
 
 
+def _true_pose(t_s: float, a: _Sample, b: _Sample, origin: Origin, lever_frd_m: np.ndarray
+               ) -> CameraPose:
+    """The true camera pose at ``t_s`` between the steps ``a`` and ``b`` (ENU about
+    ``origin``, the camera centre at the lever arm from the body's)."""
+    lat, lon, alt, q_body, q_gimbal = _interpolate(t_s, a, b)
+    R_ned_body = R_from_quat_wxyz(q_body)
+    r_body = geodetic_to_enu(np.array(lat), np.array(lon), np.array(alt), origin)
+    r_cam = r_body.reshape(3) + R_ENU_NED @ R_ned_body @ lever_frd_m
+    return CameraPose(R_ENU_NED @ R_from_quat_wxyz(q_gimbal) @ R_GIMBAL_CAM, r_cam, t_s)
+
+
 def _write_truth(path: Path, frames: list[tuple[float, _Sample, _Sample]], origin: Origin,
                  lever_frd_m: np.ndarray) -> int:
     """truth.csv in pdcov's pose CSV format: t_s, camera centre ENU m, q of R_enu_cam."""
-    from pdcov.core.rotations import R_from_quat_wxyz
-
     rows = []
     for t_s, a, b in frames:
-        lat, lon, alt, q_body, q_gimbal = _interpolate(t_s, a, b)
-        R_ned_body = R_from_quat_wxyz(q_body)
-        r_body = geodetic_to_enu(np.array(lat), np.array(lon), np.array(alt), origin)
-        r_cam = r_body.reshape(3) + R_ENU_NED @ R_ned_body @ lever_frd_m
-        R_enu_cam = R_ENU_NED @ R_from_quat_wxyz(q_gimbal) @ R_GIMBAL_CAM
-        q = quat_wxyz_from_R(R_enu_cam)
-        rows.append([repr(float(t_s)), *map(repr, map(float, r_cam)), *map(repr, map(float, q))])
+        pose = _true_pose(t_s, a, b, origin, lever_frd_m)
+        q = quat_wxyz_from_R(pose.R_enu_cam)
+        rows.append([repr(float(t_s)), *map(repr, map(float, pose.r_cam_enu)),
+                     *map(repr, map(float, q))])
     with atomic_write(path, "w", newline="") as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(POSE_CSV_COLUMNS)

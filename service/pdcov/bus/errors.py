@@ -24,6 +24,8 @@ class Refusal(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
     """A field missing, of the wrong type or out of its range."""
     OTHER_GRID = "another grid"
     """Tiles for a grid other than the one held."""
+    OUTSIDE_PICTURE = "outside the picture"
+    """A detector box not inside the camera's picture (frames version 2)."""
 
 
 class BusPayloadError(PdcovError):

@@ -1,20 +1,13 @@
-"""The footprint payload (queryable ``pdcov/<id>/footprint``) and the frames payload that an
-onboard detector publishes on ``pdcov/<id>/frames``.
-
-Footprint: a GeoJSON Feature (RFC 7946: WGS84 lon/lat degrees) whose geometry is the
-current camera footprint's Polygon, or null when the camera sees no ground; properties
-``schema`` "pdcov.footprint", ``version`` 1, ``vehicle_id`` and ``t_s`` (autopilot time, s).
-
-Frames: UTF-8 JSON ``{"schema": "pdcov.frames", "version": 1, "t_boot_s": [t, ...]}``: the
-times of the frames the detector processed, in seconds of the autopilot's boot clock
-(time_boot_ms / 1000), at most MAX_FRAMES per message.
+"""The footprint payload (queryable ``pdcov/<id>/footprint``): a GeoJSON Feature (RFC 7946:
+WGS84 lon/lat degrees) whose geometry is the current camera footprint's Polygon, or null when
+the camera sees no ground; properties ``schema`` "pdcov.footprint", ``version`` 1,
+``vehicle_id`` and ``t_s`` (autopilot time, s). The detector's frames payload is bus/frames.py.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -23,12 +16,10 @@ from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
 
 FOOTPRINT_SCHEMA = "pdcov.footprint"
-FRAMES_SCHEMA = "pdcov.frames"
 VERSION = 1
-MAX_FRAMES = 1000
 MAX_VERTICES = 10_000
 MAX_PAYLOAD_BYTES = 1 << 20
-"""Largest footprint or frames payload accepted."""
+"""Largest footprint payload accepted."""
 
 
 def encode_footprint(vehicle_id: str, t_s: float, lon_lat_deg: np.ndarray | None) -> bytes:
@@ -78,20 +69,3 @@ def decode_footprint(payload: bytes, key: str = "footprint") -> dict[str, Any]:
             raise bad(f"geometry: position {p!r} is not [lon, lat] in degrees"[:200])
     return doc
 
-
-def encode_frames(t_boot_s: Sequence[float]) -> bytes:
-    """A frames message for the given frame times (autopilot boot clock, s)."""
-    return json.dumps({"schema": FRAMES_SCHEMA, "version": VERSION,
-                       "t_boot_s": [float(t) for t in t_boot_s]}).encode()
-
-
-def decode_frames(payload: bytes, key: str = "frames") -> tuple[float, ...]:
-    """The frame times of a frames message: 1..MAX_FRAMES finite numbers >= 0."""
-    bad = Refuser(f"{key}: not a usable frames message")
-    doc = json_object(payload, MAX_PAYLOAD_BYTES, bad)
-    check_schema(doc, FRAMES_SCHEMA, VERSION, bad)
-    t = doc.get("t_boot_s")
-    if (not isinstance(t, list) or not 1 <= len(t) <= MAX_FRAMES
-            or not all(is_number(v) and v >= 0 for v in t)):
-        raise bad(f"t_boot_s: expected a list of 1..{MAX_FRAMES} times >= 0 (s)")
-    return tuple(float(v) for v in t)

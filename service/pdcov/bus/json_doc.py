@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
+from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 _MISSING = object()  # a key absent from the payload (None is JSON null)
 
@@ -58,19 +59,25 @@ def _non_finite_at(doc: Any) -> str | None:
     return None
 
 
-def check_schema(holder: Mapping[str, Any], schema: str, version: int,
-                 bad: Refuser, where: str = "") -> None:
+def check_schema(holder: Mapping[str, Any], schema: str, version: int | tuple[int, ...],
+                 bad: Refuser, where: str = "") -> int:
     """Raise ``bad(why)`` unless ``holder["schema"] == schema`` and ``holder["version"]`` is
-    the integer ``version`` (JSON ``true`` or ``1.0`` is not version 1). ``holder`` is the
-    object that carries the two keys: the payload itself, or the footprint's GeoJSON
-    ``properties`` (``where`` "properties." then names them in the message)."""
+    the integer ``version`` (or one of them; JSON ``true`` or ``1.0`` is not version 1);
+    returns the version. ``holder`` is the object that carries the two keys: the payload
+    itself, or the footprint's GeoJSON ``properties`` (``where`` "properties." then names
+    them in the message)."""
     got = holder.get("schema", _MISSING)
     if got != schema:
         raise bad(f"{where}schema {_shown(got)}, expected {schema!r}", Refusal.MALFORMED)
+    versions = (version,) if isinstance(version, int) else version
     got = holder.get("version", _MISSING)
-    if type(got) is not int or got != version:
-        raise bad(f"{where}version {_shown(got)}, expected {version} (the only version this "
-                  "receiver reads)", Refusal.MALFORMED)
+    if type(got) is not int or got not in versions:
+        expected = (f"{version} (the only version this receiver reads)"
+                    if isinstance(version, int)
+                    else f"one of {', '.join(map(str, versions))} (the versions this "
+                    "receiver reads)")
+        raise bad(f"{where}version {_shown(got)}, expected {expected}", Refusal.MALFORMED)
+    return got
 
 
 def is_number(v: Any) -> bool:
@@ -153,6 +160,17 @@ class Fields:
             raise self._fail(name, what if pattern is None else f"{what} matching "
                              f"{pattern.pattern!r}")
         return v
+
+    def vehicle_id(self, name: str, key_vehicle_id: str | None = None) -> str:
+        """A vehicle id (pdcov.ids.VEHICLE_ID_RULE); with ``key_vehicle_id`` (the one in the
+        payload's key), that one."""
+        vid = self.string(name, max_len=64)
+        if not valid_vehicle_id(vid):
+            raise self.bad(f"{self.where}{name}: {vid!r}, expected {VEHICLE_ID_RULE}")
+        if key_vehicle_id is not None and vid != key_vehicle_id:
+            raise self.bad(f"{self.where}{name} {vid!r}, but the key is vehicle "
+                           f"{key_vehicle_id!r}'s")
+        return vid
 
     def string_or_null(self, name: str, max_len: int = 200) -> str | None:
         return None if self.doc.get(name) is None else self.string(name, max_len=max_len)

@@ -8,7 +8,8 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 PREFIX = "pdcov"
-KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames")
+KINDS = ("status", "tiles", "snapshot", "footprint", "mission", "alive", "frames", "detections",
+         "candidates", "retask")
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +54,18 @@ class VehicleKeys:
     @property
     def frames(self) -> str:
         return self.key("frames")
+
+    @property
+    def detections(self) -> str:
+        return self.key("detections")
+
+    @property
+    def candidates(self) -> str:
+        return self.key("candidates")
+
+    @property
+    def retask(self) -> str:
+        return self.key("retask")
 
 
 def all_vehicles(kind: str) -> str:

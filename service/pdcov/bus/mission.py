@@ -27,12 +27,11 @@ from shapely.validation import explain_validity
 
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
-from pdcov.bus.json_doc import check_schema, is_number, json_object
+from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
 from pdcov.config import MAX_THRESHOLDS
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import PdcovError
-from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 MISSION_SCHEMA = "pdcov.mission"
 MISSION_VERSION = 1
@@ -113,11 +112,7 @@ def decode_mission(payload: bytes, key: str = "mission",
     bad = Refuser(f"{key}: not a usable mission")
     doc = json_object(payload, MAX_MISSION_BYTES, bad)
     check_schema(doc, MISSION_SCHEMA, MISSION_VERSION, bad)
-    vid = doc.get("vehicle_id")
-    if not valid_vehicle_id(vid):
-        raise bad(f"vehicle_id: expected {VEHICLE_ID_RULE}")
-    if vehicle_id is not None and vid != vehicle_id:
-        raise bad(f"vehicle_id {vid!r}, but the key is vehicle {vehicle_id!r}'s")
+    vid = Fields(doc, bad).vehicle_id("vehicle_id", vehicle_id)
     ghash = doc.get("grid_hash")
     if not isinstance(ghash, str) or not GRID_HASH.fullmatch(ghash):
         raise bad("grid_hash: expected 16 lowercase hex digits")

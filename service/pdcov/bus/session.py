@@ -1,7 +1,8 @@
 """The mission config's ``bus`` section and the Zenoh session it opens.
 
-``bus`` (docs/protocol.md "Session"): mode peer | client | router (default peer: on the
-aircraft the session opens with no router and connects in the background), connect and
+``bus`` (docs/protocol.md "Session"): mode auto | peer | client | router (default auto:
+a client when it connects somewhere and listens nowhere, else a peer; see
+``resolve_mode``), connect and
 listen endpoint lists (``tcp/10.0.0.2:7447``, ``tls/...``, ``quic/...``; the session listens
 on the configured ones only, none by default), multicast_scouting (default true; false keeps
 a session from announcing itself on the LAN), config_file (a Zenoh JSON5 config read first,
@@ -23,7 +24,7 @@ from typing import Any
 from pdcov.errors import ConfigError, where
 from pdcov.schema import Section, check_keys
 
-MODES = ("peer", "client", "router")
+MODES = ("auto", "peer", "client", "router")
 _ZENOH_DEFAULT_LISTEN = '{"router":["tcp/[::]:7447"],"peer":["tcp/[::]:0"]}'
 """zenoh.Config().get_json("listen/endpoints") of Zenoh 1.x: a config that leaves it so
 names no listen endpoint of its own."""
@@ -35,7 +36,7 @@ class BusConfig:
     and publishing (status every status_period_s s, changed tiles every tiles_period_s s in
     tiles of tile_size cells, at most tiles_max_bytes_per_s bytes/s of tiles on average)."""
 
-    mode: str = "peer"
+    mode: str = "auto"
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
     multicast_scouting: bool = True
@@ -105,16 +106,100 @@ def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
         raise ConfigError(f"{source}: {exc}" if source else str(exc)) from None
 
 
-def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
-    """The zenoh.Config for ``bus``: the config file (if any), then mode, endpoints and
-    scouting, then each ``bus.zenoh`` path. The session listens on ``bus.listen`` only
-    (or on the config file's listen endpoints when it names some and ``bus.listen`` is
-    empty): never on Zenoh's default. Zenoh's own errors become ConfigError."""
+def resolve_mode(mode: str, connect: list[str], listen: list[str]) -> str:
+    """The Zenoh mode a session of ``bus.mode`` opens in, given its effective connect and
+    listen endpoints: ``auto`` is a client when it connects somewhere and listens nowhere,
+    else a peer; any other mode is itself.
+
+    Why (Zenoh >= 1.9, "regions"): a router puts the peers connected to it in one
+    peer-to-peer region, whose members must reach each other directly (the router only
+    tells them each other's listen endpoints by gossip, and no longer brokers between them:
+    routing/router/peers_failover_brokering was removed in 1.9). Two peers that only
+    connect to a router and listen nowhere therefore exchange nothing, through one router
+    or several. A client is in a region of its own that the router brokers, so it reaches
+    everyone; a peer that listens is reached by the other peers. Without endpoints a peer
+    finds others by multicast scouting (one LAN, no router)."""
+    if mode != "auto":
+        return mode
+    return "client" if connect and not listen else "peer"
+
+
+def _endpoints(conf: Any, name: str, mode: str | None = None) -> list[str]:
+    """The ``connect`` or ``listen`` endpoints of a zenoh.Config for a session of ``mode``
+    (Zenoh accepts a list, or a list per mode; None or auto: the config's own mode, else
+    peer)."""
+    listed = json.loads(conf.get_json(f"{name}/endpoints") or "[]")
+    if isinstance(listed, dict):
+        if mode in (None, "auto"):
+            mode = json.loads(conf.get_json("mode") or '"peer"')
+        listed = listed.get(mode, [])
+    return [e for e in listed if isinstance(e, str)] if isinstance(listed, list) else [listed]
+
+
+def session_mode(bus: BusConfig) -> str:
+    """The mode ``bus``'s session opens in (resolve_mode on its effective endpoints)."""
+    return str(json.loads(zenoh_config(bus).get_json("mode")))
+
+
+def peer_warning(bus: BusConfig) -> str | None:
+    """What to tell the operator when ``bus`` opens a peer that connects somewhere and
+    listens nowhere (resolve_mode: through a router it reaches clients and listening peers
+    only), else None."""
+    conf = zenoh_config(bus)
+    connect, listen = _endpoints(conf, "connect"), _endpoints(conf, "listen")
+    if json.loads(conf.get_json("mode")) != "peer" or not connect or listen:
+        return None
+    return (f"bus.mode peer connecting to {', '.join(connect)} and listening nowhere: "
+            "through a router this session reaches only clients and peers that listen, "
+            "not another peer that listens nowhere (Zenoh >= 1.9); use mode auto or client, "
+            "or listen on an endpoint the other side can reach")
+
+
+def describe_session(bus: BusConfig) -> str:
+    """One line for a startup log: mode as opened (and as configured when auto), endpoints
+    and multicast scouting, e.g. ``client (auto), connect [tcp/10.0.0.2:7447], listen [],
+    multicast scouting off``."""
+    conf = zenoh_config(bus)
+    mode = json.loads(conf.get_json("mode"))
+    return (f"{mode}{' (auto)' if bus.mode == 'auto' else ''}, connect "
+            f"[{', '.join(_endpoints(conf, 'connect'))}], listen "
+            f"[{', '.join(_endpoints(conf, 'listen'))}], multicast scouting "
+            f"{'on' if bus.multicast_scouting else 'off'}")
+
+
+def quiet_hint(bus: BusConfig) -> str:
+    """Why a watcher on ``bus`` may hear no vehicle: what its session does and what the
+    daemons must do to be heard (docs/ground-station.md "Topologies")."""
+    conf = zenoh_config(bus)
+    mode = json.loads(conf.get_json("mode"))
+    connect = _endpoints(conf, "connect")
+    session = f"this session: {describe_session(bus)}"
+    if mode == "client":
+        return (f"{session}: is a daemon running with the same router (or a router linked "
+                "to it) in its bus.connect, and the --vehicle id right?")
+    if connect:
+        return (f"{session}: a daemon that is a peer listening nowhere is not heard through "
+                "a router; use --mode client (the default with --zenoh-connect) or "
+                "--zenoh-listen")
+    if bus.multicast_scouting:
+        return (f"{session}: multicast scouting finds daemons on this LAN only, and only "
+                "those that listen (bus.listen); give --zenoh-connect ROUTER or the "
+                "daemon's endpoint otherwise")
+    return (f"{session}: with no endpoint and multicast scouting off, only a daemon that "
+            "connects to this session's --zenoh-listen endpoint is heard")
+
+
+def zenoh_config(bus: BusConfig, connect_timeout_s: float | None = None):  # -> zenoh.Config
+    """The zenoh.Config for ``bus``: the config file (if any), then endpoints, mode
+    (resolve_mode) and scouting, then each ``bus.zenoh`` path. The session listens on
+    ``bus.listen`` only (or on the config file's listen endpoints when it names some and
+    ``bus.listen`` is empty): never on Zenoh's default. ``connect_timeout_s``: how long a
+    client's open waits for a router (None: until one answers). Zenoh's own errors become
+    ConfigError."""
     import zenoh
 
     try:
         conf = zenoh.Config.from_file(bus.config_file) if bus.config_file else zenoh.Config()
-        conf.insert_json5("mode", json.dumps(bus.mode))
         if bus.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(bus.connect)))
         if bus.listen or conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
@@ -122,6 +207,13 @@ def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
             # port of every interface, in plain text, where peers reach it past a
             # router's access control (docs/protocol.md "Session").
             conf.insert_json5("listen/endpoints", json.dumps(list(bus.listen)))
+        mode = resolve_mode(bus.mode, _endpoints(conf, "connect", bus.mode),
+                            _endpoints(conf, "listen", bus.mode))
+        conf.insert_json5("mode", json.dumps(mode))
+        if mode == "client" and connect_timeout_s is not None:
+            # A client's open waits for a router (Zenoh >= 1.9: connect/timeout_ms -1);
+            # bounded here, it fails instead and the caller tries again.
+            conf.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
         if not bus.multicast_scouting:
             conf.insert_json5("scouting/multicast/enabled", "false")
         for path, value in bus.zenoh.items():
@@ -131,16 +223,19 @@ def zenoh_config(bus: BusConfig):  # -> zenoh.Config (zenoh imported here only)
     return conf
 
 
-def open_session(bus: BusConfig):  # -> zenoh.Session
-    """Open a Zenoh session for ``bus`` (close it with ``.close()`` before exiting)."""
+def open_session(bus: BusConfig, connect_timeout_s: float | None = None):  # -> zenoh.Session
+    """Open a Zenoh session for ``bus`` (close it with ``.close()`` before exiting). A
+    client's open waits for one of its connect endpoints to answer, at most
+    ``connect_timeout_s`` (None: for ever); once open, a client or peer rejoins a router
+    that restarts by itself."""
     import zenoh
 
-    conf = zenoh_config(bus)
+    conf = zenoh_config(bus, connect_timeout_s)
     try:
         return zenoh.open(conf)
     except Exception as exc:  # noqa: BLE001
-        raise ConfigError(f"bus: cannot open the Zenoh session ({bus.mode}, connect "
-                          f"{list(bus.connect)}, listen {list(bus.listen)}): {exc}") from None
+        raise ConfigError(f"bus: cannot open the Zenoh session ({describe_session(bus)}): "
+                          f"{exc}") from None
 
 
 class BusSecurity(Enum):
@@ -175,13 +270,7 @@ def bus_security(bus: BusConfig) -> BusSecurity:
     TLS without the mTLS setting; OPEN otherwise (a plain endpoint, or none at all with
     multicast scouting, which finds peers over plain TCP)."""
     conf = zenoh_config(bus)
-    mode = json.loads(conf.get_json("mode") or '"peer"')
-    endpoints = []
-    for name in ("connect/endpoints", "listen/endpoints"):
-        listed = json.loads(conf.get_json(name) or "[]")
-        if isinstance(listed, dict):  # per mode: {"router": [...], "peer": [...]}
-            listed = listed.get(mode, [])
-        endpoints += listed if isinstance(listed, list) else [listed]
+    endpoints = _endpoints(conf, "connect") + _endpoints(conf, "listen")
     scouting = json.loads(conf.get_json("scouting/multicast/enabled") or "null")
     if (not endpoints or scouting is not False
             or not all(isinstance(e, str) and e.startswith(_SECURE_PROTOCOLS)

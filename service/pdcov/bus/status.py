@@ -6,13 +6,14 @@ expected_false_alarms, cells_free, cells_observed, frames {used, skipped {reason
 link {...}, pose {lat_deg, lon_deg, alt_msl_m, heading_deg, t_s} or null, gimbal {...},
 grid {hash, x0_m, y0_m, cell_size_m, n_rows, n_cols, tile_size, origin {lat_deg,
 lon_deg, ground_alt_msl_m}}, tiles_seq, faults {name: n}, checkpoint {...}, full, and
-with a DEM terrain_check {margin_m, checked, mismatches, refused, largest, latest}.
+with a DEM terrain_check {margin_m, checked, mismatches, refused, largest, latest}, and
+once a re-tasking request came retask {enabled, uploading, refused, last}.
 
 ``StatusEncoder`` keeps the daemon's status under its 1 kB/s budget: the detail that rarely
 changes (the link's negotiation, the gimbal's description, the checkpoint) goes out in
 full statuses only -- the first, every ``FULL_EVERY``-th and any whose detail changed --
 and the others carry the same required fields with a brief ``link`` and ``gimbal`` (and no
-``checkpoint`` or ``terrain_check``).
+``checkpoint``, ``terrain_check`` or ``retask``).
 ``merge_status`` gives a receiver the latest values with the last full status's detail.
 """
 
@@ -28,7 +29,6 @@ from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config import MAX_THRESHOLDS
-from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
@@ -65,7 +65,7 @@ class StatusEncoder:
     as given) when it is the first, every ``full_every``-th, or when its detail differs
     from the last full one's; otherwise brief (``"full": false``): ``link`` and ``gimbal``
     cut to BRIEF_LINK / BRIEF_GIMBAL, ``grid.origin`` empty, ``faults`` without its zero
-    counts, no ``checkpoint`` or ``terrain_check``. The detail is what a brief status
+    counts, no ``checkpoint``, ``terrain_check`` or ``retask``. The detail is what a brief status
     leaves out (bar the terrain check, whose counts change with every reading), less the
     message ages that change every time. Both kinds carry every required field, so any
     version-1 receiver reads both. Pose numbers are rounded to what they mean (1 cm in
@@ -110,6 +110,7 @@ def _brief(doc: Mapping[str, Any]) -> dict[str, Any]:
         out["faults"] = {k: v for k, v in _sub(doc, "faults").items() if v != 0}
     out.pop("checkpoint", None)
     out.pop("terrain_check", None)
+    out.pop("retask", None)
     return out
 
 
@@ -127,7 +128,8 @@ def _detail_signature(doc: Mapping[str, Any]) -> str:
                          if k not in BRIEF_GIMBAL},
               "origin": _sub(doc, "grid").get("origin"),
               "checkpoint": {k: v for k, v in _sub(doc, "checkpoint").items()
-                             if k not in CHECKPOINT_PROGRESS}}
+                             if k not in CHECKPOINT_PROGRESS},
+              "retask": doc.get("retask")}
     return json.dumps(finite_or_null(strip(detail)), sort_keys=True, default=str)
 
 
@@ -144,7 +146,7 @@ def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[st
     if not _sub(doc, "grid").get("origin"):
         out["grid"] = {**_sub(doc, "grid"), "origin": _sub(last, "grid").get("origin", {})}
     out["faults"] = {**{k: 0 for k in _sub(last, "faults")}, **_sub(doc, "faults")}
-    for name in ("checkpoint", "terrain_check"):
+    for name in ("checkpoint", "terrain_check", "retask"):
         if name not in doc and name in last:
             out[name] = last[name]
     return out
@@ -161,11 +163,7 @@ def decode_status(payload: bytes, key: str = "status",
     doc = json_object(payload, MAX_STATUS_BYTES, bad)
     check_schema(doc, STATUS_SCHEMA, STATUS_VERSION, bad)
     f = Fields(doc, bad)
-    vid = f.string("vehicle_id", max_len=64)
-    if not valid_vehicle_id(vid):
-        raise bad(f"vehicle_id: {vid!r}, expected {VEHICLE_ID_RULE}")
-    if vehicle_id is not None and vid != vehicle_id:
-        raise bad(f"vehicle_id {vid!r}, but the key is vehicle {vehicle_id!r}'s")
+    f.vehicle_id("vehicle_id", vehicle_id)
     f.integer("seq", 0, _U64)
     f.number("uptime_s", 0.0)
     f.number_or_null("t_s")
@@ -217,6 +215,17 @@ def decode_status(payload: bytes, key: str = "status",
     terrain = f.obj_or_null("terrain_check")  # absent: no DEM, or an older daemon
     if terrain is not None:
         _check_terrain(terrain)
+    retask = f.obj_or_null("retask")  # absent: no re-tasking request yet, or an older daemon
+    if retask is not None:
+        retask.boolean_or_null("enabled")
+        retask.boolean_or_null("uploading")
+        retask.counts("refused", MAX_NAMED_COUNTS, _U64)
+        last = retask.obj_or_null("last")
+        if last is not None:
+            last.string("plan_hash", max_len=16)
+            last.boolean_or_null("accepted")
+            last.string("result", max_len=64)
+            last.integer("items", 0, _U32)
     return doc
 
 

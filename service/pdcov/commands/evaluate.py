@@ -153,6 +153,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if prior is not None:
         lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
+    detections = None
+    if log_poses is not None and log_poses.frame_boxes:
+        from pdcov.report.detections import flight_detections
+        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes)
+        lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
+                     f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)
     for w in (*log_warnings, *warnings):  # the mission's were shown when it was loaded
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
@@ -172,6 +178,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
                             outline_threshold=args.outline_threshold,
                             prior=None if prior is None else prior.poa,
                             extra_metrics=extra or None)
+        if detections is not None:
+            from pdcov.report.detections import write_detections
+            write_detections(args.out, detections)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:

@@ -34,7 +34,7 @@ from pdcov.commands.args import (
     probability,
 )
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.config import Mission, PlanningSection
+from pdcov.config import Mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import (
     MAV_CMD_NAV_WAYPOINT,
@@ -42,7 +42,7 @@ from pdcov.core.mission import (
     AltitudeFrame,
     MissionItem,
 )
-from pdcov.errors import ConfigError, where
+from pdcov.errors import ConfigError
 from pdcov.planning.optimise import (
     PATTERN_OPTIONS,
     PATTERNS,
@@ -61,13 +61,12 @@ from pdcov.planning.optimise import (
 )
 from pdcov.planning.patterns import track_spacing_m
 from pdcov.planning.plan import read_mission, write_plan
-from pdcov.planning.refly import plan_refly
+from pdcov.planning.refly import ReflySettings, refly_of_grid
+from pdcov.planning.scenario import check_plan_size, scenario_of
 from pdcov.planning.terrain_follow import (
-    TerrainFollowing,
     clearance_intrusions,
     steep_legs,
 )
-from pdcov.planning.trajectory import Kinematics
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
 
@@ -186,37 +185,6 @@ def _overlap(args: argparse.Namespace) -> float:
     return 0.2 if args.overlap is None else args.overlap
 
 
-def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Scenario:
-    """The prediction inputs of a mission, with its ``planning`` section applied and then
-    ``overrides`` (planning keys given on the command line)."""
-    doc = mission.raw.get("planning")
-    if overrides and (doc is None or isinstance(doc, dict)):  # else from_mapping refuses it
-        doc = {**(doc or {}), **overrides}
-    cfg = PlanningSection.from_mapping(doc, mission.source)
-    frame = cfg.terrain_frame or (AltitudeFrame.RELATIVE if mission.terrain is None
-                                  else AltitudeFrame.AMSL)
-    if mission.terrain is None and frame is not AltitudeFrame.RELATIVE:
-        raise ConfigError(f"{where(mission.source, 'planning.terrain_frame')}: {frame} "
-                          "follows the terrain, but the mission has none (add terrain.dem, "
-                          "or use relative)")
-    if frame is AltitudeFrame.AMSL and mission.ground_alt_msl_m is None:
-        raise ConfigError(f"{where(mission.source, 'origin.ground_alt_msl_m')}: missing; "
-                          "amsl waypoints are written above mean sea level from it")
-    try:
-        kin = Kinematics(cfg.max_accel_mps2, math.radians(cfg.max_yaw_rate_deg_s), cfg.tilt,
-                         cfg.corner_cut_m)
-        following = TerrainFollowing(frame, cfg.terrain_tolerance_m, cfg.terrain_max_climb_mps,
-                                     cfg.terrain_max_descent_mps, cfg.terrain_clearance_m)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where(mission.source, 'planning')}: {exc}") from None
-    pitch = math.radians(cfg.gimbal_pitch_deg)
-    g = mission.domain.grid_geometry(mission.cell_size_m)
-    return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
-                    mission.detector, mission.mount, mission.frame_rate_hz,
-                    mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain,
-                    following)
-
-
 # At most this many terrain warnings of each kind are printed, one line each.
 MAX_TERRAIN_LINES = 10
 
@@ -293,29 +261,6 @@ def run_plan(args: argparse.Namespace) -> int:
             figures=not args.no_figures, terrain_warnings=terrain_warnings(sc, pred))
     print(summary + _replaced_note(replaced, args.out))
     return 0
-
-
-# Refused above this many predicted camera frames (the flight is sampled at the camera's
-# frame rate); warned above this flight time.
-MAX_PLAN_FRAMES = 20_000_000
-LONG_FLIGHT_S = 4 * 3600.0
-
-
-def check_plan_size(sc: Scenario, spacing_m: float, speed_mps: float) -> None:
-    """Estimate a sweep's path (free area / spacing) before building it: refuse a plan of
-    more than MAX_PLAN_FRAMES frames with the figures, warn about one over LONG_FLIGHT_S."""
-    path_m = sc.free_space.area / spacing_m
-    flight_s = path_m / speed_mps
-    frames = flight_s * sc.frame_rate_hz
-    what = (f"track spacing {spacing_m:g} m over {sc.free_space.area:,.0f} m^2 gives about "
-            f"{path_m / 1000:,.1f} km of track, {flight_s / 3600:,.1f} h of flight at "
-            f"{speed_mps:g} m/s and {frames:,.0f} camera frames")
-    if frames > MAX_PLAN_FRAMES:
-        raise ConfigError(f"{what}; at most {MAX_PLAN_FRAMES:,} frames are predicted: "
-                          "widen --spacing-m (or lower --overlap) or split the domain")
-    if flight_s > LONG_FLIGHT_S:
-        print(f"WARNING: {what}: far beyond one battery; check --spacing-m, --overlap and "
-              "--speed-mps", file=sys.stderr)
 
 
 def _replaced_note(replaced: bool, out: Path) -> str:
@@ -429,13 +374,10 @@ def run_refly(args: argparse.Namespace) -> int:
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")
-    spacing = args.spacing_m
-    if spacing is None:
-        spacing = track_spacing_m(sc.swath_width_m(args.altitude_m), _overlap(args))
-    check_plan_size(sc, spacing, args.speed_mps)
-    r = plan_refly(sc, flown.log_miss_d, args.target_pd, args.altitude_m, args.speed_mps,
-                   spacing, tuple(math.radians(h) for h in args.headings_deg),
-                   tuple(args.start_enu_m), progress=True)
+    settings = ReflySettings(args.target_pd, args.altitude_m, args.speed_mps, args.spacing_m,
+                             _overlap(args), tuple(args.headings_deg))
+    r = refly_of_grid(sc, flown.log_miss_d, settings, tuple(args.start_enu_m), progress=True)
+    spacing = settings.spacing_for(sc)
     flown.merge(r.prediction.grid)
     out: Path = args.out
     with replacing_dir(out) as replaced:

@@ -22,8 +22,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path,
                    help="mission config YAML: its bus section (mode, endpoints, TLS) and "
                         "domain (drawn on the web map, report figures with --record)")
-    p.add_argument("--mode", choices=("peer", "client"),
-                   help="Zenoh session mode (default: the config's bus.mode, else peer)")
+    p.add_argument("--mode", choices=("auto", "peer", "client"),
+                   help="Zenoh session mode (default: the config's bus.mode, else auto: a "
+                        "client when connecting somewhere and listening nowhere, as to a "
+                        "router, else a peer with multicast scouting)")
     p.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
                    help="Zenoh endpoint to connect to, e.g. tcp/192.168.10.1:7447 "
                         "(repeatable; replaces the config's)")
@@ -54,6 +56,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="print one report when the grids are in (or after --wait-s) and exit")
     p.add_argument("--wait-s", type=float, default=10.0,
                    help="with --once: longest wait for the vehicles (default 10 s)")
+    p.add_argument("--refly", metavar="VEHICLE",
+                   help="propose a re-fly of the merged grid's gaps to VEHICLE (needs "
+                        "--config), show it, ask for confirmation and send it to the "
+                        "vehicle's daemon, which uploads it to the autopilot; exits 0 once "
+                        "the autopilot accepted it (docs/ground-station.md \"Re-tasking\")")
+    p.add_argument("--target-pd", type=float, metavar="P",
+                   help="with --refly and the web map: the P_D every free cell should reach "
+                        "(default: the mission's largest threshold)")
+    p.add_argument("--yes", action="store_true",
+                   help="with --refly: send without asking (scripts)")
     p.add_argument("--plain", action="store_true",
                    help="print a line when the coverage changes instead of the live table "
                         "(the default when the output is not a terminal)")
@@ -82,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mode:
         bus = replace(bus, mode=args.mode)
     if bus.mode == "router":
-        bus = replace(bus, mode="peer")  # the daemon's config may say router; we follow
+        bus = replace(bus, mode="auto")  # the daemon's config may say router; we follow
     if args.no_multicast_scouting:
         bus = replace(bus, multicast_scouting=False)
     web = parse_web_address(args.web) if args.web else None
@@ -101,8 +113,21 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--basemap {args.basemap}: not a folder of XYZ tiles")
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
+    from pdcov.planning.refly import ReflySettings
+
+    if args.refly is not None and not valid_vehicle_id(args.refly):
+        raise ConfigError(f"--refly {args.refly!r}: expected a vehicle id ({VEHICLE_ID_RULE})")
+    if (args.refly or args.target_pd is not None or args.yes) and mission is None:
+        raise ConfigError("--refly, --target-pd and --yes need --config: the mission flown")
+    if args.yes and args.refly is None:
+        raise ConfigError("--yes goes with --refly VEHICLE")
+    settings = None
+    if mission is not None:
+        settings = ReflySettings(args.target_pd if args.target_pd is not None
+                                 else max(mission.thresholds))
     return run_watch(WatchOptions(
         bus=bus, vehicle=vehicle, mission=mission, web=web, web_access=access,
         basemap=args.basemap,
         record=args.record, once=args.once, wait_s=args.wait_s,
-        plain=args.plain or not stdout_is_terminal()))
+        plain=args.plain or not stdout_is_terminal(), refly=args.refly,
+        refly_settings=settings, yes=args.yes))

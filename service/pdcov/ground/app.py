@@ -1,5 +1,6 @@
-"""``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map and the
-recording, run until Ctrl-C / SIGTERM (or, with ``once``, until one report is printed)."""
+"""``pdcov watch`` put together: the Zenoh shell, the terminal view, the web map, the
+recording and re-tasking (``ReflyDesk``), run until Ctrl-C / SIGTERM (or, with ``once``,
+until one report is printed; with ``refly``, until the re-fly is sent or declined)."""
 
 from __future__ import annotations
 
@@ -13,15 +14,33 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.bus.grid_state import grid_hash
-from pdcov.bus.session import BusConfig, bus_security
+from pdcov.bus.session import (
+    BusConfig,
+    bus_security,
+    describe_session,
+    peer_warning,
+    quiet_hint,
+)
 from pdcov.config import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
+from pdcov.ground.retask import (
+    ReflyError,
+    ReflyProposal,
+    propose_refly,
+    refly_inputs,
+    reply_line,
+)
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
+from pdcov.planning.refly import ReflySettings
+from pdcov.planning.scenario import scenario_of
+
+QUIET_AFTER_S = 10.0
+"""A session connected this long without hearing a vehicle says why that may be."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,10 +61,51 @@ class WatchOptions:
     wait_s: float = 10.0
     plain: bool = False
     refresh_s: float = 0.5
+    refly: str | None = None
+    refly_settings: ReflySettings | None = None
+    yes: bool = False
 
     def __post_init__(self) -> None:
         if (self.web is None) != (self.web_access is None):
             raise ValueError("WatchOptions: web and web_access go together")
+        if self.refly is not None and self.mission is None:
+            raise ConfigError("--refly needs --config: the mission flown (its camera, "
+                              "detector and domain plan the re-fly)")
+
+
+class ReflyDesk:
+    """Re-tasking for the operator (terminal or web map): ``propose`` computes a re-fly
+    of the merged grid's gaps (off the event loop) and holds it as ``current`` for the map;
+    ``confirm`` sends the held proposal to its vehicle and returns the daemon's verdict."""
+
+    def __init__(self, watcher: Watcher, shell: WatchShell, mission: Mission,
+                 config_hash: str, settings: ReflySettings) -> None:
+        self.watcher, self.shell, self.mission = watcher, shell, mission
+        self.config_hash = config_hash
+        self.settings = settings
+        self.scenario = scenario_of(mission)
+        self.current: ReflyProposal | None = None
+        self.outcome: str | None = None
+
+    async def propose(self, vehicle_id: str, target_pd: float | None = None
+                      ) -> ReflyProposal:
+        """ReflyError or ConfigError (no gaps, bad target) say why none can be made."""
+        settings = self.settings if target_pd is None else replace(self.settings,
+                                                                   target_pd=target_pd)
+        inputs = refly_inputs(self.watcher, self.mission, self.config_hash, vehicle_id)
+        proposal = await asyncio.get_running_loop().run_in_executor(
+            None, propose_refly, inputs, self.scenario, settings)
+        self.current, self.outcome = proposal, None
+        return proposal
+
+    async def confirm(self, proposal_id: str) -> tuple[bool, str]:
+        """Send the held proposal ``proposal_id``: (accepted by the autopilot, the line)."""
+        p = self.current
+        if p is None or p.id != proposal_id:
+            raise ReflyError(f"re-fly {proposal_id}: not the proposal shown (ask again)")
+        reply = await self.shell.retask(p.vehicle_id, p.payload)
+        self.outcome = reply_line(p, reply)
+        return reply is not None and reply.accepted, self.outcome
 
 
 def run_watch(opts: WatchOptions) -> int:
@@ -64,9 +124,22 @@ async def _main(opts: WatchOptions) -> int:
         config_hash = grid_hash(grid.geometry, grid.mask)
     watcher = Watcher(opts.vehicle, thresholds=(
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
-        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning)
+        grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
+        quiet_hint=quiet_hint(opts.bus),
+        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
+    if opts.once or not opts.plain:  # else the "following ..." line below names it
+        print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
+              flush=True)
+    warning = peer_warning(opts.bus)
+    if warning is not None:
+        print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
-    shell = WatchShell(watcher, opts.bus, record=recording)
+    shell = WatchShell(watcher, opts.bus, record=recording,
+                       connect_timeout_s=opts.wait_s if opts.once else None)
+    desk = None
+    if opts.mission is not None and config_hash is not None:
+        desk = ReflyDesk(watcher, shell, opts.mission, config_hash, opts.refly_settings
+                         or ReflySettings(max(opts.mission.thresholds)))
 
     def report() -> FleetReport:
         """The watcher's report as of now, with the recording's trouble, if any."""
@@ -81,8 +154,10 @@ async def _main(opts: WatchOptions) -> int:
         basemap = basemap_info(opts.basemap)
         web = WebMap(opts.web[0], opts.web[1],
                      lambda: map_state(watcher, report(), opts.mission, shell.version,
-                                       basemap, config_hash),
-                     lambda: shell.version, opts.web_access, opts.basemap)
+                                       basemap, config_hash,
+                                       desk.current if desk else None,
+                                       desk.outcome if desk else None),
+                     lambda: shell.version, opts.web_access, opts.basemap, desk=desk)
         await web.start()
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
@@ -96,8 +171,10 @@ async def _main(opts: WatchOptions) -> int:
             runner.result()  # the session's error (ConfigError: cannot open ...)
         if opts.plain and not opts.once:
             print(f"pdcov watch: following pdcov/{opts.vehicle or '*'}/ "
-                  f"({opts.bus.mode}, connect {list(opts.bus.connect)})", flush=True)
-        if opts.once:
+                  f"({describe_session(opts.bus)})", flush=True)
+        if opts.refly is not None and desk is not None:
+            status = await _refly(desk, opts.refly, watcher, opts, stop, runner)
+        elif opts.once:
             status = await _once(watcher, report, opts, stop, runner)
         else:
             await _view(report, opts, stop, runner)
@@ -115,8 +192,9 @@ async def _main(opts: WatchOptions) -> int:
     return status
 
 
-async def _once(watcher: Watcher, report_now: Callable[[], FleetReport], opts: WatchOptions,
-                stop: asyncio.Event, runner: asyncio.Task[None]) -> int:
+async def _grids_in(watcher: Watcher, opts: WatchOptions, stop: asyncio.Event,
+                    runner: asyncio.Task[None]) -> None:
+    """Return once every vehicle seen has its grid and a status (or after wait_s)."""
     deadline = time.monotonic() + opts.wait_s
     while time.monotonic() < deadline and not stop.is_set() and not runner.done():
         feeds = list(watcher.feeds.values())
@@ -126,6 +204,32 @@ async def _once(watcher: Watcher, report_now: Callable[[], FleetReport], opts: W
         await asyncio.sleep(0.1)
     if runner.done():
         runner.result()  # raises the session's error
+
+
+async def _refly(desk: ReflyDesk, vehicle_id: str, watcher: Watcher, opts: WatchOptions,
+                 stop: asyncio.Event, runner: asyncio.Task[None]) -> int:
+    """``--refly``: propose, show, ask (unless ``yes``), send; 0 once the autopilot
+    accepted it, 1 otherwise (declined, refused, no answer)."""
+    await _grids_in(watcher, opts, stop, runner)
+    proposal = await desk.propose(vehicle_id)
+    for line in proposal.lines():
+        print(line, flush=True)
+    if not opts.yes:
+        answer = await asyncio.get_running_loop().run_in_executor(
+            None, input, f"send this mission to {vehicle_id}'s autopilot? [y/N] ")
+        if answer.strip().lower() not in ("y", "yes"):
+            print("re-fly not sent", flush=True)
+            return 1
+    print(f"sending mission {proposal.id} to {vehicle_id} (session "
+          f"{desk.shell.session_id}) ...", flush=True)
+    accepted, line = await desk.confirm(proposal.id)
+    print(line, flush=True)
+    return 0 if accepted else 1
+
+
+async def _once(watcher: Watcher, report_now: Callable[[], FleetReport], opts: WatchOptions,
+                stop: asyncio.Event, runner: asyncio.Task[None]) -> int:
+    await _grids_in(watcher, opts, stop, runner)
     report = report_now()
     print("\n".join(plain_lines(report)), flush=True)
     return 0 if report.vehicles else 1

@@ -23,6 +23,7 @@ from pdcov.bus.footprint import decode_footprint
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.keys import VehicleKeys, parse_key
 from pdcov.bus.mission import decode_mission
+from pdcov.bus.retask import RetaskReply, decode_retask_reply
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.sources import SessionId, reply_session, source_info, source_session
 from pdcov.bus.status import decode_status
@@ -46,9 +47,11 @@ class WatchShell:
 
     def __init__(self, watcher: Watcher, bus: BusConfig, *, record: Recorder | None = None,
                  query_timeout_s: float = 5.0, footprint_period_s: float = 1.0,
-                 poll_period_s: float = 0.2) -> None:
+                 poll_period_s: float = 0.2, connect_timeout_s: float | None = None) -> None:
         self.watcher = watcher
         self.bus = bus
+        self.connect_timeout_s = connect_timeout_s
+        """How long a client session waits for a router at open (None: for ever)."""
         self.record = record
         self.query_timeout_s = query_timeout_s
         self.footprint_period_s = footprint_period_s
@@ -69,7 +72,8 @@ class WatchShell:
 
         loop = asyncio.get_running_loop()
         sel = self.watcher.vehicle or "*"
-        self._session = session = await loop.run_in_executor(None, open_session, self.bus)
+        self._session = session = await loop.run_in_executor(None, open_session, self.bus,
+                                                             self.connect_timeout_s)
         entities = []
         try:
             def on_sample(sample: Any) -> None:
@@ -85,6 +89,7 @@ class WatchShell:
             entities.append(session.declare_subscriber(f"pdcov/{sel}/status", on_sample))
             entities.append(session.liveliness().declare_subscriber(
                 f"pdcov/{sel}/alive", on_alive, history=True))
+            self.watcher.on_connected(self.now_s())
             self.connected.set()
             next_footprint = 0.0
             while not stop.is_set():
@@ -166,21 +171,57 @@ class WatchShell:
         self._queries[(vehicle_id, kind)] = asyncio.get_running_loop().create_task(
             self._query(vehicle_id, kind))
 
-    def _get(self, key: str) -> list[tuple[SessionId, bytes]]:
-        """Blocking: every ok reply of ``get key`` with its replier's session (worker
-        thread)."""
+    def _get(self, key: str, payload: bytes | None = None, timeout_s: float | None = None
+             ) -> list[tuple[SessionId, bytes]]:
+        """Blocking: every ok reply of ``get key`` (with ``payload``) with its replier's
+        session (worker thread)."""
         import zenoh
 
         out = []
         # Named as this session, so that the daemon's snapshot rate limit gives this
-        # watcher its own share (service/query_limit.py) rather than the anonymous one.
+        # watcher its own share (service/query_limit.py) rather than the anonymous one,
+        # and its re-tasking allow-list can name it (service.retask_sessions).
         self._query_sn += 1
-        for reply in self._session.get(key, timeout=self.query_timeout_s,
+        for reply in self._session.get(key, payload=payload,
+                                       timeout=timeout_s or self.query_timeout_s,
                                        consolidation=zenoh.ConsolidationMode.NONE,
                                        source_info=source_info(self._session.id, self._query_sn)):
             if reply.ok is not None:
                 out.append((reply_session(reply), reply.ok.payload.to_bytes()))
         return out
+
+    @property
+    def session_id(self) -> str | None:
+        """This ground station's Zenoh session id (hex), once open: what a daemon's
+        service.retask_sessions names."""
+        return None if self._session is None else str(self._session.zid())
+
+    async def retask(self, vehicle_id: str, payload: bytes, timeout_s: float = 60.0
+                     ) -> RetaskReply | None:
+        """Send a re-tasking request to the vehicle's daemon and wait for its answer (the
+        upload takes a few seconds): the reply of the session the vehicle is pinned to
+        (ground/claims.py), None when that session did not answer within ``timeout_s``.
+        Replies of other sessions are refused and logged."""
+        key = VehicleKeys(vehicle_id).retask
+        trusted = self.watcher.taken_from(vehicle_id, "snapshot")
+        try:
+            replies = await asyncio.get_running_loop().run_in_executor(
+                None, self._get, key, payload, timeout_s)
+        except Exception as exc:  # noqa: BLE001 - Zenoh raises ZError for a closed session
+            log.warning("%s: query failed: %s", key, exc)
+            return None
+        answer = None
+        for source, data in replies:
+            if source != trusted:
+                log.warning("%s: reply from session %s refused: the vehicle is session %s's",
+                            key, source, trusted or "nobody's yet")
+                continue
+            try:
+                answer = decode_retask_reply(data, key, vehicle_id)
+            except BusPayloadError as exc:
+                self.watcher.on_bad_payload(vehicle_id, exc)
+                log.warning("%s", exc)
+        return answer
 
     async def _query(self, vehicle_id: str, kind: str) -> None:
         key = VehicleKeys(vehicle_id).key(kind)

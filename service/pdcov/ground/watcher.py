@@ -91,7 +91,9 @@ class Watcher:
     received before the snapshot is asked again. mission_retry_s: when to ask again for a
     mission that did not come or describes another grid than the vehicle's. max_vehicles:
     vehicles followed at most. bus_warning: what the operator must always be told about the
-    bus (bus.session.BusSecurity.warning), or None.
+    bus (bus.session.BusSecurity.warning), or None. quiet_hint: why no vehicle may be heard
+    on this session (bus.session.quiet_hint), shown once the session has been connected
+    quiet_after_s without any vehicle.
 
     Every input takes the Zenoh session it came from (``source``: hex session id, None
     when the sample named none; ground/claims.py).
@@ -101,7 +103,8 @@ class Watcher:
                  grid_hash: str | None = None, snapshot_timeout_s: float = 5.0,
                  trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
                  mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
-                 bus_warning: str | None = None) -> None:
+                 bus_warning: str | None = None, quiet_hint: str | None = None,
+                 quiet_after_s: float = 10.0) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
@@ -111,11 +114,19 @@ class Watcher:
         self.max_track_points = max_track_points
         self.max_vehicles = max_vehicles
         self.bus_warning = bus_warning
+        self.quiet_hint = quiet_hint
+        self.quiet_after_s = quiet_after_s
+        self.connected_s: float | None = None
+        """When the session was open and subscribed (on_connected), None before."""
         self.feeds: dict[str, VehicleFeed] = {}
         self.refused: Counter[str] = Counter()
         """Payloads refused before reaching a vehicle, by reason."""
 
     # -- inputs -------------------------------------------------------------------------
+
+    def on_connected(self, now_s: float) -> None:
+        """The session is open and subscribed: vehicles can be heard from now on."""
+        self.connected_s = now_s
 
     def wants(self, vehicle_id: str) -> bool:
         return self.vehicle is None or vehicle_id == self.vehicle
@@ -351,8 +362,14 @@ class Watcher:
             cells_free = int(merged.mask.sum())
             mean_pd = float(merged.pd[merged.mask].mean()) if cells_free else 0.0
         target = max(self.thresholds or thresholds) if thresholds else None
+        quiet = None
+        if (self.quiet_hint and not self.feeds and self.connected_s is not None
+                and now_s - self.connected_s >= self.quiet_after_s):
+            quiet = (f"no vehicle heard {now_s - self.connected_s:.0f} s after connecting; "
+                     f"{self.quiet_hint}")
         return FleetReport(vehicles, ids, thresholds, target, props, mean_pd, cells_free,
-                           dict(self.refused), tuple(w for w in (self.bus_warning,) if w))
+                           dict(self.refused),
+                           tuple(w for w in (self.bus_warning, quiet) if w))
 
     # -- internals ----------------------------------------------------------------------
 

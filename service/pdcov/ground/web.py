@@ -9,8 +9,15 @@ job, and a hand-written server on a ground-station laptop would be one more thin
 wrong. The state holds the fleet's P_D grid (quantised to 0..255, down-sampled to at most
 MAX_SIDE cells a side by taking each block's maximum), the domain and obstacles of the grid
 shown (``domain_layer``: from the mission config when it describes that grid, else from the
-vehicles' mission replies), each vehicle's track and current footprint in ENU metres, and
-the figures of the terminal view.
+vehicles' mission replies), each vehicle's track and current footprint in ENU metres, the
+figures of the terminal view, and the re-fly proposed (``refly``: waypoints and gap rings as
+[lat, lon]; ``gaps``: its gap rings) with the outcome of the last one sent.
+
+Re-tasking (ground/retask.py, docs/ground-station.md "Re-tasking"): ``POST /api/refly``
+{vehicle, target_pd} proposes a re-fly of the merged grid's gaps (answered with the
+proposal: id, waypoints, gaps, lines), ``POST /api/refly/confirm`` {id} sends it and
+answers with the daemon's verdict. Both need the token, a JSON body and, when the browser
+sends one, an Origin of this host (web_auth.post_allowed: CSRF).
 """
 
 from __future__ import annotations
@@ -25,17 +32,22 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pdcov.bus.json_doc import finite_or_null
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.errors import PdcovError
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport
+from pdcov.ground.retask import ReflyProposal
 from pdcov.ground.watcher import Watcher
-from pdcov.ground.web_auth import Granted, WebAccess
+from pdcov.ground.web_auth import Granted, WebAccess, post_allowed
+
+if TYPE_CHECKING:  # the desk is handed in (ground/app.py)
+    from pdcov.ground.app import ReflyDesk
 
 log = logging.getLogger("pdcov.watch")
 MAX_SIDE = 400
@@ -120,9 +132,11 @@ def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | Non
 
 def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
               version: int, basemap: dict[str, Any] | None,
-              config_grid_hash: str | None = None) -> dict[str, Any]:
+              config_grid_hash: str | None = None, refly: ReflyProposal | None = None,
+              refly_outcome: str | None = None) -> dict[str, Any]:
     """Everything the page draws, as JSON-ready values. config_grid_hash: the grid hash
-    of ``mission``'s grid (see domain_layer)."""
+    of ``mission``'s grid (see domain_layer); refly: the re-fly proposed, refly_outcome:
+    the line of the last one sent."""
     merged, _ = watcher.fleet_state()
     vehicles = []
     origin = None
@@ -164,6 +178,10 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
         "origin": None if origin is None else {"lat_deg": origin.lat_deg,
                                                "lon_deg": origin.lon_deg},
         "basemap": basemap,
+        "refly": None if refly is None else refly.map_state(),
+        "gaps": None if refly is None else refly.map_state()["gaps"],
+        "refly_outcome": refly_outcome,
+        "refly_available": mission is not None,
     }
 
 
@@ -211,8 +229,9 @@ class WebMap:
     def __init__(self, host: str, port: int, state: Callable[[], dict[str, Any]],
                  version: Callable[[], int], access: WebAccess,
                  basemap_dir: Path | None = None, period_s: float = 0.5,
-                 refresh_s: float = 2.0) -> None:
+                 refresh_s: float = 2.0, desk: ReflyDesk | None = None) -> None:
         self.host, self.port = host, port
+        self.desk = desk
         self.access = access
         self.state, self.version = state, version
         self.basemap_dir = basemap_dir
@@ -259,6 +278,8 @@ class WebMap:
         app.router.add_get("/state.json", self._state)
         app.router.add_get("/events", self._events)
         app.router.add_get("/basemap/{z}/{x}/{y}", self._basemap)
+        app.router.add_post("/api/refly", self._refly)
+        app.router.add_post("/api/refly/confirm", self._refly_confirm)
         self._runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=1.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
@@ -298,6 +319,11 @@ class WebMap:
             headers = {"WWW-Authenticate": 'Bearer realm="pdcov watch"'} \
                 if verdict.status == 401 else {}
             return web.Response(status=verdict.status, text=verdict.text, headers=headers)
+        if request.method not in ("GET", "HEAD"):
+            refused = post_allowed(request.headers.get("Origin"), request.headers.get("Host"),
+                                   request.headers.get("Content-Type"))
+            if refused is not None:
+                return web.Response(status=refused.status, text=refused.text)
         response = await handler(request)
         if verdict.set_cookie and not response.prepared:  # a stream has sent its headers
             # No Max-Age: a session cookie, gone when the browser closes. No Secure flag:
@@ -341,6 +367,56 @@ class WebMap:
         except (ConnectionResetError, asyncio.CancelledError):
             pass
         return resp
+
+    async def _json_body(self, request: Any) -> dict[str, Any]:
+        from aiohttp import web
+
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict):
+            raise web.HTTPBadRequest(text="expected a JSON object\n")
+        return body
+
+    def _answer(self, status: int, doc: dict[str, Any]) -> Any:
+        from aiohttp import web
+
+        return web.Response(status=status, body=state_json(doc),
+                            content_type="application/json")
+
+    async def _refly(self, request: Any) -> Any:
+        """POST /api/refly {vehicle, target_pd (optional)}: a re-fly proposal."""
+        body = await self._json_body(request)
+        if self.desk is None:
+            return self._answer(409, {"error": "re-tasking needs the mission flown: start "
+                                               "pdcov watch with --config"})
+        vehicle, target = body.get("vehicle"), body.get("target_pd")
+        if not isinstance(vehicle, str) or not (
+                target is None or (isinstance(target, (int, float))
+                                   and not isinstance(target, bool) and 0 < target < 1)):
+            return self._answer(400, {"error": "expected {vehicle: id, target_pd: a "
+                                               "probability in (0, 1) or null}"})
+        try:
+            proposal = await self.desk.propose(vehicle, target)
+        except PdcovError as exc:  # no grid yet, no gaps, another grid: say so
+            return self._answer(409, {"error": str(exc)})
+        return self._answer(200, proposal.map_state())
+
+    async def _refly_confirm(self, request: Any) -> Any:
+        """POST /api/refly/confirm {id}: send the proposal shown; the daemon's verdict."""
+        body = await self._json_body(request)
+        if self.desk is None:
+            return self._answer(409, {"error": "re-tasking needs --config"})
+        proposal_id = body.get("id")
+        if not isinstance(proposal_id, str):
+            return self._answer(400, {"error": "expected {id: the proposal's id}"})
+        try:
+            accepted, line = await self.desk.confirm(proposal_id)
+        except PdcovError as exc:
+            return self._answer(409, {"error": str(exc)})
+        log.warning("web map: %s", line)
+        return self._answer(200, {"id": proposal_id, "accepted": accepted, "line": line})
 
     async def _basemap(self, request: Any) -> Any:
         from aiohttp import web

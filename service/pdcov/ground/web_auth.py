@@ -16,8 +16,15 @@ IP address literal (a rebinding attack needs a name), ``localhost``, this machin
 name (and ``NAME.local``), the name bound with ``--web`` and names given with
 ``--web-allow-host``.
 
-``WebAccess.check`` is the decision, pure; reading the token file and the environment are
-the edges.
+Requests that change something (POST: the re-tasking endpoints) must also be what no other
+site can make a browser send (CSRF): a JSON body (``Content-Type: application/json``, which
+a cross-site form cannot send and a cross-site script can only after a CORS preflight this
+server never grants) and, when the browser names the page's origin, an ``Origin`` of this
+host (``post_allowed``). The cookie's SameSite=Strict already keeps it off cross-site
+requests; these keep a request that carries the token in its address from being forged.
+
+``WebAccess.check`` and ``post_allowed`` are the decisions, pure; reading the token file and
+the environment are the edges.
 """
 
 from __future__ import annotations
@@ -92,6 +99,23 @@ class WebAccess:
         # Bytes: compare_digest refuses non-ASCII str, and a visitor chooses what is sent.
         return presented is not None and hmac.compare_digest(
             presented.encode("utf-8", "replace"), self.token.encode())
+
+
+def post_allowed(origin: str | None, host_header: str | None,
+                 content_type: str | None) -> Refusal | None:
+    """Whether a state-changing request (POST) may go on (module docstring): None, else a
+    403 naming what is wrong. ``origin``: its Origin header (None: absent, as from a
+    script; "null" from a sandboxed page is refused)."""
+    if (content_type or "").split(";")[0].strip().lower() != "application/json":
+        return Refusal(403, "pdcov watch: expected a JSON body (Content-Type: "
+                            "application/json)\n")
+    if origin is not None:
+        netloc = origin.split("://", 1)[-1].rstrip("/").lower()
+        if origin.lower() == "null" or host_header is None \
+                or netloc != host_header.strip().lower():
+            return Refusal(403, f"pdcov watch: a request from another site ({origin[:80]}) "
+                                "may not change anything here\n")
+    return None
 
 
 def host_allowed(host_header: str | None, names: Iterable[str]) -> bool:

@@ -30,10 +30,11 @@ from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of
 from pdcov.planning.optimise import Prediction, Scenario, predict
-from pdcov.planning.patterns import lawnmower
+from pdcov.planning.patterns import lawnmower, track_spacing_m
 from pdcov.planning.plan import Plan
 from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.routing import FreeSpaceRouter, PathBuilder, clip_polyline
+from pdcov.planning.scenario import check_plan_size
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,6 +266,51 @@ def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
     best = min(results, key=lambda r: (r.gaps_after.n_cells > 0, r.gaps_after.n_cells,
                                        r.prediction.flight.duration_s))
     return replace(best, compared=compared)
+
+
+@dataclass(frozen=True, slots=True)
+class ReflySettings:
+    """What a re-fly is asked for: the P_D every free cell should reach, the altitude above
+    ground (m) and speed (m/s) to fly it at, the track spacing (m; None: from the camera's
+    swath at that altitude and ``overlap``, the side overlap) and the track headings (deg
+    clockwise from north). The defaults are ``pdcov refly``'s."""
+
+    target_pd: float
+    alt_agl_m: float = 10.0
+    speed_mps: float = 3.0
+    spacing_m: float | None = None
+    overlap: float = 0.2
+    headings_deg: tuple[float, ...] = (0.0, 90.0)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.target_pd < 1.0:
+            raise ConfigError(f"target P_D: expected a probability in (0, 1), got "
+                              f"{self.target_pd}")
+        for name in ("alt_agl_m", "speed_mps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"re-fly {name}: expected a number > 0, got {v}")
+
+    def spacing_for(self, scenario: Scenario) -> float:
+        """The track spacing (m): as given, else from the swath and the overlap."""
+        if self.spacing_m is not None:
+            return self.spacing_m
+        return track_spacing_m(scenario.swath_width_m(self.alt_agl_m), self.overlap)
+
+
+def refly_of_grid(scenario: Scenario, log_miss_now: np.ndarray, settings: ReflySettings,
+                  start_enu_m: tuple[float, float] = (0.0, 0.0), progress: bool = False
+                  ) -> Refly:
+    """The re-fly of a grid's gaps as ``pdcov refly`` and the ground station (``pdcov watch
+    --refly``, the web map) make it: the spacing resolved, the plan's size checked
+    (``check_plan_size``), then ``plan_refly`` from ``start_enu_m`` (ENU m: home, or
+    where the vehicle is now)."""
+    spacing = settings.spacing_for(scenario)
+    check_plan_size(scenario, spacing, settings.speed_mps)
+    return plan_refly(scenario, log_miss_now, settings.target_pd, settings.alt_agl_m,
+                      settings.speed_mps, spacing,
+                      tuple(math.radians(h) for h in settings.headings_deg), start_enu_m,
+                      progress=progress)
 
 
 def _survey_area(gaps: Gaps, scenario: Scenario) -> Polygon | MultiPolygon:

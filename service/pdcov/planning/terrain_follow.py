@@ -19,7 +19,11 @@ The rule is QGroundControl's survey "vehicle follows terrain" (TransectStyleComp
    distance along the leg). QGC keeps a point when its height differs by more than the
    tolerance from the last kept point's, which bounds the steps but not the path between
    them. The pattern's own waypoints are always kept; a straight path between kept points
-   meets the rate limits because every sample step does.
+   meets the rate limits because every sample step does. Terrain-frame plans keep their
+   points within TERRAIN_ALT_PROFILE_M instead: their file carries only the pattern's
+   waypoints and the autopilot holds the height above terrain all along the leg, so the
+   kept points are only the prediction's path, and at the tolerance it would fly up to
+   2 m off the height the vehicle holds (at 10 m, 20 % off every cell's pixel size).
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ import numpy as np
 from pdcov.core.mission import AltitudeFrame
 from pdcov.core.terrain import TerrainSurface
 from pdcov.planning.plan import Plan, Waypoint, takeoff_alt_m
+
+TERRAIN_ALT_PROFILE_M = 0.1
+"""How far (m) a terrain-frame plan's predicted path may stray from the height above terrain
+the autopilot holds (at most ``tolerance_m``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,10 +89,12 @@ def follow_terrain(plan: Plan, terrain: TerrainSurface, following: TerrainFollow
             z = np.maximum(z, np.maximum.accumulate((z - c * t)[::-1])[::-1] + c * t)
         if d > 0:  # z[k] >= z[j] - d (t_k - t_j) for every earlier j
             z = np.maximum(z, np.maximum.accumulate(z + d * t) - d * t)
+    tol = following.tolerance_m if following.frame is AltitudeFrame.AMSL else \
+        min(following.tolerance_m, TERRAIN_ALT_PROFILE_M)
     keep = np.zeros(len(z), dtype=bool)
     keep[wp_at] = True
     for a, b in zip(wp_at[:-1], wp_at[1:], strict=True):
-        _keep_within(s, z, int(a), int(b), following.tolerance_m, keep)
+        _keep_within(s, z, int(a), int(b), tol, keep)
     # The waypoint at or after each sample: its own, or the one its leg flies towards.
     leg_of = np.searchsorted(wp_at, np.arange(len(z)))
     out = []

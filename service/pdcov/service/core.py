@@ -16,7 +16,8 @@ needed. The shell (daemon.py) does the I/O; tests and benchmarks drive this obje
 What it decides, delegating to the decision classes beside it: the MAVLink conversation
 (``LinkProtocol``: which autopilot, what intervals and parameters to ask for), the frames
 and the grid (``LiveCoverage``), and here: detector frames held until the autopilot is
-known (at most EARLY_FRAMES, oldest dropped) and those beyond a recordable time refused;
+known (at most EARLY_FRAMES, oldest dropped; their boxes at most MAX_HELD_BOXES) and those
+beyond a recordable time refused; the boxes of the frames taken recorded after them;
 a capture event that came too late to be taken (its not-taken mark in the recording);
 the checkpoint's metadata and error state; the kernel-drop warning's rate limit; the
 link's state in the status; which snapshot queries are answered (query_limit).
@@ -34,12 +35,15 @@ from typing import TYPE_CHECKING, Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
-from pdcov.bus.footprint import decode_frames
+from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
+from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
+from pdcov.planning.plan import home_item
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
+from pdcov.service.detections import MAX_HELD_BOXES
 from pdcov.service.link_protocol import (
     ATTITUDE,
     GIMBAL_DEVICE_ATTITUDE_STATUS,
@@ -49,6 +53,7 @@ from pdcov.service.link_protocol import (
     LinkState,
 )
 from pdcov.service.query_limit import QueryLimiter
+from pdcov.service.retask import Retasker, RetaskPolicy
 from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
@@ -83,15 +88,19 @@ class LinkReport:
 @dataclass(slots=True)
 class Actions:
     """What the shell should do now, in this order: send these MAVLink messages on every
-    link; write these bytes to the recording; publish these tiles; if ``status_due``, flush
+    link; write these bytes to the recording; publish these tiles and detections (on
+    pdcov/<id>/detections); if ``status_due``, flush
     the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
-    and report it back; log these (level, text) lines."""
+    and report it back; answer these re-tasking queries (ticket, reply payload); log these
+    (level, text) lines."""
 
     send: list[Any] = field(default_factory=list)
     record: list[bytes] = field(default_factory=list)
     tiles: bytes | None = None
+    detections: bytes | None = None
     status_due: bool = False
     checkpoint: CheckpointMeta | None = None
+    replies: list[tuple[int, bytes]] = field(default_factory=list)
     logs: list[tuple[int, str]] = field(default_factory=list)
 
 
@@ -152,11 +161,16 @@ class ServiceCore:
             self._resume(resumed)
         self.checkpoint = checkpoint or CheckpointState(path="")
         self._frame_encoder = FrameEncoder()
-        self._early_frames: deque[int] = deque()  # detector frames (boot ms) before a HEARTBEAT
+        # Detector frames (boot ms, boxes) before a HEARTBEAT.
+        self._early_frames: deque[tuple[int, tuple[Box, ...]]] = deque()
+        self._early_boxes = 0  # boxes in _early_frames (at most MAX_HELD_BOXES)
         self._status_seq = 0
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
         self.snapshot_limiter = QueryLimiter()
+        self.retasker = Retasker(m.vehicle_id, RetaskPolicy(
+            cfg.service.retask, frozenset(cfg.service.retask_sessions)), now_s)
+        self.candidates_limiter = QueryLimiter()
         self._out = Actions()
 
     def _resume(self, meta: CheckpointMeta) -> None:
@@ -186,6 +200,8 @@ class ServiceCore:
                     and live.is_late(samples[-1].t_s))
             for sample in samples:
                 live.add_sample(sample)
+            if proto.from_autopilot(msg):
+                self._out.send += self.retasker.receive(msg, now_s, proto)
             if record:  # all of it: even what came before a HEARTBEAT
                 self._out.record.append(msg.get_msgbuf())
                 if late and proto.system_id is not None:  # recorded_frames: not taken
@@ -193,37 +209,62 @@ class ServiceCore:
                         self._frame_encoder.not_taken(proto.system_id, msg))
 
     def receive_frames(self, payload: bytes) -> None:
-        """A detector's frames message: its times to the millisecond (what the recording
-        keeps), held until the autopilot is known (its system and clock)."""
+        """A detector's frames message (version 1 or 2): its times to the millisecond (what
+        the recording keeps) and boxes, held until the autopilot is known (its system and
+        clock). A message refused (bus.frames: a box outside the picture, NaN, a flood of
+        boxes, another vehicle's) is counted by reason and logged."""
         faults = self.coverage.counters.faults
+        camera = self.cfg.mission.camera
         try:
-            t_boot = decode_frames(payload, self.keys.frames)
+            frames = decode_frames(payload, self.keys.frames,
+                                   (camera.width_px, camera.height_px), self.keys.vehicle_id)
         except BusPayloadError as exc:
             faults["bad_frames_messages"] += 1
+            faults[f"frames_refused_{exc.reason.name.lower()}"] += 1
             self._out.logs.append((logging.WARNING, str(exc)))
             return
-        ms = [boot_ms(t) for t in t_boot]
-        if any(v > MAX_BOOT_MS for v in ms):
-            faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v in ms)
-            ms = [v for v in ms if v <= MAX_BOOT_MS]
+        ms = [(boot_ms(f.t_boot_s), f.boxes) for f in frames]
+        if any(v > MAX_BOOT_MS for v, _b in ms):
+            faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v, _b in ms)
+            ms = [(v, b) for v, b in ms if v <= MAX_BOOT_MS]
         if not self.protocol.autopilot_known:
-            for v in ms:
+            for v, boxes in ms:
                 if len(self._early_frames) >= EARLY_FRAMES:
-                    self._early_frames.popleft()
+                    self._early_boxes -= len(self._early_frames.popleft()[1])
                     faults["frames_dropped_waiting"] += 1
-                self._early_frames.append(v)
+                if self._early_boxes + len(boxes) > MAX_HELD_BOXES:
+                    faults["boxes_dropped_waiting"] += len(boxes)
+                    boxes = ()
+                self._early_boxes += len(boxes)
+                self._early_frames.append((v, boxes))
             return
         self._take_frames(ms)
 
-    def _take_frames(self, t_boot_ms: list[int]) -> None:
-        """Give the grid the frames (autopilot boot ms) and record, in the order taken,
-        those it took (recorded_frames: ``pdcov evaluate`` of the recording uses them)."""
-        proto = self.protocol
-        t_s = {proto.autopilot_boot_s(boot_s(v)): v for v in t_boot_ms}
-        taken = self.coverage.add_frame_times(list(t_s))
-        if self.record and proto.system_id is not None:
-            self._out.record += [self._frame_encoder.encode(proto.system_id, t_s[t])
-                                 for t in taken]
+    def _take_frames(self, frames: list[tuple[int, tuple[Box, ...]]]) -> None:
+        """Give the grid the frames (autopilot boot ms, boxes) and record, in the order
+        taken, those it took and their boxes (recorded_frames: ``pdcov evaluate`` of the
+        recording uses them); the boxes of a frame not taken (a duplicate, or late) are
+        counted."""
+        proto, live = self.protocol, self.coverage
+        t_s: dict[float, tuple[int, tuple[Box, ...]]] = {}
+        for v, boxes in frames:
+            t = proto.autopilot_boot_s(boot_s(v))
+            if t in t_s:  # a duplicate within the message: the first is the one taken
+                live.counters.faults["boxes_of_frames_not_taken"] += len(boxes)
+            else:
+                t_s[t] = (v, boxes)
+        taken = live.add_frame_times(list(t_s))
+        not_taken = sum(len(t_s[t][1]) for t in set(t_s) - set(taken))
+        if not_taken:
+            live.counters.faults["boxes_of_frames_not_taken"] += not_taken
+        record = self.record and proto.system_id is not None
+        for t in taken:
+            v, boxes = t_s[t]
+            live.detections.hold(t, boot_s(v), boxes)
+            if record and proto.system_id is not None:
+                enc = self._frame_encoder
+                self._out.record.append(enc.encode(proto.system_id, v))
+                self._out.record += [enc.box(proto.system_id, v, b) for b in boxes]
 
     def process(self) -> None:
         """Decide what the messages and frames received so far allow (once per loop pass,
@@ -231,6 +272,7 @@ class ServiceCore:
         proto = self.protocol
         if self._early_frames and proto.autopilot_known:
             early, self._early_frames = list(self._early_frames), deque()
+            self._early_boxes = 0
             self._take_frames(early)
         self.coverage.set_params(proto.params, proto.params_done)
         self.coverage.process()
@@ -241,12 +283,16 @@ class ServiceCore:
         live, proto = self.coverage, self.protocol
         out = self._out
         out.send += proto.poll(now_s)
+        out.send += self.retasker.poll(now_s, proto)
         live.set_params(proto.params, proto.params_done)  # a parameter read may time out
         live.process()
         due = live.poll(now_s)
         out.logs += [(logging.WARNING, note) for note in due.notes]
         if due.tiles is not None:
             out.tiles = due.tiles
+        detections = live.detections.poll(now_s, live.origin)
+        if detections is not None:
+            out.detections = detections
         if due.status:
             out.status_due = True
         if due.checkpoint:
@@ -260,7 +306,24 @@ class ServiceCore:
     def get_timer(self) -> float:
         """When ``tick`` is next needed (monotonic s): the next status, tiles, checkpoint,
         NAMED_VALUE_FLOAT, HEARTBEAT or request retry."""
-        return min(self.coverage.next_timer_s(), self.protocol.next_timer_s())
+        return min(self.coverage.next_timer_s(), self.protocol.next_timer_s(),
+                   self.retasker.next_timer_s())
+
+    def receive_retask(self, ticket: int, payload: bytes, session: str | None,
+                       now_s: float) -> None:
+        """A re-tasking query's payload from Zenoh session ``session``, named ``ticket``
+        by the shell: refused or uploaded (service/retask.py); its answer comes out in
+        ``Actions.replies`` once known."""
+        origin = self.coverage.origin or self.cfg.mission.origin()
+        self._out.send += self.retasker.request(ticket, payload, session, now_s,
+                                                self.protocol, home_item(origin))
+        self._collect_retask()
+
+    def _collect_retask(self) -> None:
+        out = self._out
+        out.replies += self.retasker.replies()
+        out.logs += self.retasker.logs
+        self.retasker.logs = []
 
     def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
         """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
@@ -274,6 +337,22 @@ class ServiceCore:
     def snapshot_sent(self, n_bytes: int) -> None:
         self.snapshot_limiter.sent(n_bytes)
 
+    def admit_candidates(self, requester: str | None, now_s: float) -> str | None:
+        """Whether a candidates query is answered: as ``admit_snapshot``, with limits of its
+        own (counted in faults.candidates_queries_refused); ``candidates_sent`` then takes
+        the reply's size."""
+        limiter = self.candidates_limiter
+        refusal = limiter.admit(requester, now_s)
+        return None if refusal is None else limiter.limits.reason(refusal)
+
+    def candidates_sent(self, n_bytes: int) -> None:
+        self.candidates_limiter.sent(n_bytes)
+
+    def candidates_payload(self) -> bytes:
+        """The candidates query's answer (bus.detections): every candidate now."""
+        live = self.coverage
+        return live.detections.candidates_payload(live.origin)
+
     def put_failed(self) -> None:
         """A Zenoh put failed (no peer, a closing session): counted."""
         self.coverage.counters.faults["zenoh_put_errors"] += 1
@@ -282,6 +361,7 @@ class ServiceCore:
 
     def actions(self) -> Actions:
         """What to do since the last call (then forgotten)."""
+        self._collect_retask()
         out, self._out = self._out, Actions()
         return out
 
@@ -315,10 +395,16 @@ class ServiceCore:
         faults["rejected_messages"] = sum(proto.stats.rejected.values())
         faults["other_systems_messages"] = proto.stats.other_systems
         faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
+        faults["retask_refused"] = sum(self.retasker.refused.values())
+        if self.candidates_limiter.refused:
+            faults["candidates_queries_refused"] = sum(self.candidates_limiter.refused.values())
         self.checkpoint.recording_error = report.recording_error
         fields = live.status_fields(uptime_s=round(now_s - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(report),
                                     checkpoint=self.checkpoint.describe())
+        retask = self.retasker.describe()
+        if retask is not None:  # only once a request came: other statuses are unchanged
+            fields["retask"] = retask
         self._status_seq += 1
         share = live.share_at_target()
         line = (f"coverage {share:.1%} at P_D>={live.target_pd:g}, {live.counters.used} "

@@ -45,6 +45,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose
 from pdcov.service import status
+from pdcov.service.detections import LiveDetections
 from pdcov.service.frame_schedule import FrameSchedule
 from pdcov.service.origin import GroundAltitude
 from pdcov.service.tile_metrics import TileMetrics
@@ -126,6 +127,7 @@ class LiveCoverage:
         self.max_gap_s = m.max_gap_s
         self.history_s = max(20.0, 8.0 * m.max_gap_s)
         self.counters = Counters()
+        self.detections = LiveDetections(m, grid, self.counters.faults)
         self.origin: Origin | None = None
         self.origin_how = ""
         self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
@@ -308,7 +310,13 @@ class LiveCoverage:
     def process(self) -> int:
         """Decide every frame that can be decided; returns how many were added. Frames are
         evaluated in batches (one vectorised PoseTracker call) spanning at most a quarter
-        of the tracker's history."""
+        of the tracker's history; the boxes of the frames used are geolocated with their
+        poses (``detections``)."""
+        added = self._process()
+        self.detections.decided(self.last_frame_t_s)
+        return added
+
+    def _process(self) -> int:
         if self.tracker is None:
             self._try_start()
         tr = self.tracker
@@ -385,6 +393,7 @@ class LiveCoverage:
             self.grid.update(pose)
             if self.grid.touched is not None:
                 self._touch(self.grid.touched)
+            self.detections.frame(pose)
             added += 1
             unjudged += not judged
         self.state.frames = self.grid.frames

@@ -9,7 +9,7 @@ only written into recordings and checkpoints, as a value.
 
 Threads: everything runs on the event loop's thread. MAVLink is read with
 ``loop.add_reader`` (mavlink_io); Zenoh calls its callbacks on its own threads, which hand
-the payload (frames) or the query (snapshot, footprint, mission) to the loop with
+the payload (frames) or the query (snapshot, footprint, mission, candidates) to the loop with
 ``loop.call_soon_threadsafe`` and return at once: no grid is touched off the loop, and no
 Zenoh thread waits for the loop (which may be waiting for Zenoh in a put). Checkpoints and
 snapshots are encoded on the loop (milliseconds for a mission-sized grid).
@@ -30,7 +30,14 @@ from typing import Any
 from pdcov.bus.footprint import encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
-from pdcov.bus.session import open_session
+from pdcov.bus.session import (
+    BusSecurity,
+    bus_security,
+    describe_session,
+    open_session,
+    peer_warning,
+    session_mode,
+)
 from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
@@ -47,6 +54,10 @@ from pdcov.telemetry.frame_policy import FrameSource
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
+OPEN_ATTEMPT_S = 2.0
+"""Longest wait of one attempt to open a client session (for a router to answer)."""
+OPEN_RETRY_S = 1.0
+"""Pause between two attempts to open a client session."""
 """The longest the loop sleeps between ticks (the core's timer may wake it sooner): links'
 silence is checked this often."""
 
@@ -83,6 +94,8 @@ class Daemon:
         self.links: list[Connection] = []
         self.session: Any = None
         self._zenoh_entities: list[Any] = []
+        self.pub_status: SourcedPublisher | None = None
+        self.pub_tiles: SourcedPublisher | None = None
         self._status_encoder = StatusEncoder()
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
@@ -93,6 +106,8 @@ class Daemon:
         self.keys = self.core.keys
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
         self._snapshot: tuple[int, bytes] | None = None  # (grid frames, bytes)
+        self._retask_queries: dict[int, Any] = {}  # ticket -> Zenoh query awaiting its answer
+        self._next_ticket = 0
 
     # --- start ----------------------------------------------------------------------------
 
@@ -153,12 +168,23 @@ class Daemon:
                            reconnect_max_s=self.cfg.link.reconnect_max_s, clock=self._clock)
             c.start()
             self.links.append(c)
+        log.info("zenoh session: %s; publishing under pdcov/%s/",
+                 describe_session(self.cfg.bus), self.cfg.mission.vehicle_id)
+        warning = peer_warning(self.cfg.bus)
+        if warning is not None:
+            log.warning("%s", warning)
+        opening = None
         try:
-            self.session = await loop.run_in_executor(None, open_session, self.cfg.bus)
-            self._declare(loop)
-            log.info("zenoh %s session open (connect %s, listen %s); publishing under "
-                     "pdcov/%s/", self.cfg.bus.mode, list(self.cfg.bus.connect),
-                     list(self.cfg.bus.listen), self.cfg.mission.vehicle_id)
+            if session_mode(self.cfg.bus) == "client":  # waits for a router: in the background
+                opening = asyncio.create_task(self._open_client(loop, self.stop_event))
+            else:
+                self._declare(loop, await loop.run_in_executor(None, open_session,
+                                                               self.cfg.bus))
+            if self.cfg.service.retask and bus_security(self.cfg.bus) \
+                    is not BusSecurity.MUTUAL_TLS:
+                log.warning("re-tasking is on (service.retask) but this bus is not mutual "
+                            "TLS: only a router's access control keeps others from sending "
+                            "missions (docs/ground-station.md \"Securing the bus\")")
             self.notifier.ready("pdcov serve: running")
             while not self.stop_event.is_set():
                 self._tick()
@@ -170,21 +196,52 @@ class Daemon:
             log.info("stopping: writing the checkpoint")
             self.notifier.stopping("pdcov serve: stopping")
         finally:
+            self.stop_event.set()
+            if opening is not None:
+                await opening  # returns within OPEN_ATTEMPT_S once stop is set
             self._shutdown()
         return 0
 
-    def _declare(self, loop: asyncio.AbstractEventLoop) -> None:
-        s = self.session
+    async def _open_client(self, loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> None:
+        """Open the client session and declare everything on it, trying again every
+        OPEN_RETRY_S while no router answers (a peer opens at once); until then the daemon
+        computes and checkpoints, and publishes nothing. (The config itself was checked by
+        describe_session before: what fails here is reaching a router.)"""
+        failures = 0
+        while not stop.is_set():
+            try:
+                session = await loop.run_in_executor(None, open_session, self.cfg.bus,
+                                                     OPEN_ATTEMPT_S)
+            except ConfigError as exc:
+                failures += 1
+                (log.warning if failures == 1 else log.debug)(
+                    "%s; trying again every %.0f s", exc, OPEN_ATTEMPT_S + OPEN_RETRY_S)
+                try:
+                    await asyncio.wait_for(stop.wait(), OPEN_RETRY_S)
+                except asyncio.TimeoutError:
+                    pass
+                continue
+            self._declare(loop, session)
+            return
+
+    def _declare(self, loop: asyncio.AbstractEventLoop, session: Any) -> None:
+        self.session = s = session
+        log.info("zenoh session open")
         self.pub_status = SourcedPublisher(s.declare_publisher(self.keys.status))
         self.pub_tiles = SourcedPublisher(s.declare_publisher(self.keys.tiles))
+        self.pub_detections = SourcedPublisher(s.declare_publisher(self.keys.detections))
         self._zenoh_entities += [
-            self.pub_status, self.pub_tiles,
+            self.pub_status, self.pub_tiles, self.pub_detections,
             s.declare_queryable(self.keys.snapshot,
                                 lambda q: self._answer(loop, q, self._reply_snapshot)),
             s.declare_queryable(self.keys.footprint, lambda q: self._answer(
                 loop, q, lambda q: self._reply(q, self._footprint_bytes))),
             s.declare_queryable(self.keys.mission, lambda q: self._answer(
                 loop, q, lambda q: self._reply(q, self._mission_bytes))),
+            s.declare_queryable(self.keys.retask, lambda q: self._answer(
+                loop, q, self._on_retask)),
+            s.declare_queryable(self.keys.candidates,
+                                lambda q: self._answer(loop, q, self._reply_candidates)),
             s.liveliness().declare_token(self.keys.alive),
         ]
         if self.cfg.frame_source == FrameSource.ZENOH:
@@ -218,9 +275,19 @@ class Daemon:
         """On the loop: the snapshot, or a ``reply_err`` saying why when the requester or
         all snapshot replies together are over their rate (query_limit; counted in
         faults.snapshot_queries_refused)."""
-        refusal = self.core.admit_snapshot(source_session(query), self._clock())
+        self._reply_limited(query, self.core.admit_snapshot, self.core.snapshot_sent,
+                            self._snapshot_bytes)
+
+    def _reply_candidates(self, query: Any) -> None:
+        """On the loop: every candidate (bus.detections), rate-limited as the snapshot."""
+        self._reply_limited(query, self.core.admit_candidates, self.core.candidates_sent,
+                            self.core.candidates_payload)
+
+    def _reply_limited(self, query: Any, admit: Callable[[str | None, float], str | None],
+                       sent: Callable[[int], None], make: Callable[[], bytes]) -> None:
+        refusal = admit(source_session(query), self._clock())
         if refusal is None:
-            self.core.snapshot_sent(self._reply(query, self._snapshot_bytes))
+            sent(self._reply(query, make))
             return
         try:
             query.reply_err(refusal)
@@ -228,6 +295,20 @@ class Daemon:
             log.debug("query %s: refusal not sent: %s", query.key_expr, exc)
         finally:
             query.drop()
+
+    def _on_retask(self, query: Any) -> None:
+        """On the loop: a re-tasking request; the query is kept until the core answers it
+        (refused at once, or once the autopilot has acknowledged the upload)."""
+        ticket, self._next_ticket = self._next_ticket, self._next_ticket + 1
+        self._retask_queries[ticket] = query
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        self.core.receive_retask(ticket, payload, source_session(query), self._clock())
+        self._do(self.core.actions())
+
+    def _reply_retask(self, ticket: int, payload: bytes) -> None:
+        query = self._retask_queries.pop(ticket, None)
+        if query is not None:
+            self._reply(query, lambda: payload)
 
     def _snapshot_bytes(self) -> bytes:
         """The grid's snapshot, encoded again only once the grid took another frame."""
@@ -294,16 +375,23 @@ class Daemon:
                 self.recorder.write(data, unix_s)
         if a.tiles is not None:
             self._put(self.pub_tiles, a.tiles)
+        if a.detections is not None:
+            self._put(self.pub_detections, a.detections)
         if a.status_due:
             if self.recorder is not None:
                 self.recorder.flush()
             self._publish_status()
         if a.checkpoint is not None:
             self._write_checkpoint(a.checkpoint)
+        for ticket, payload in a.replies:
+            self._reply_retask(ticket, payload)
         for level, text in a.logs:
             log.log(level, "%s", text)
 
-    def _put(self, pub: SourcedPublisher, payload: bytes) -> None:
+    def _put(self, pub: SourcedPublisher | None, payload: bytes) -> None:
+        if pub is None:  # no session yet (_open_bus): nobody to publish to
+            self.core.put_failed()
+            return
         try:
             pub.put(payload)
         except Exception as exc:  # noqa: BLE001 - no peer or a closing session: keep going
@@ -351,6 +439,8 @@ class Daemon:
             c.close()
         if self.recorder is not None:
             self.recorder.close()
+        for query in self._retask_queries.values():  # the ground station's get times out
+            query.drop()
         for e in reversed(self._zenoh_entities):
             try:
                 e.undeclare()

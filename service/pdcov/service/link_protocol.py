@@ -12,9 +12,10 @@ SRx_/MAVn_ stream rates must deliver; unanswered: resent 3 times); asks for HOME
 any PARAM_VALUE of them that passes; and does it all again after the autopilot reboots
 (its time_boot_ms falls back: clocks.BootClock).
 
-It never sends anything that moves the aircraft: only HEARTBEAT, COMMAND_LONG with
-SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT, STATUSTEXT
-(``ALLOWED_COMMANDS`` / ``ALLOWED_MESSAGES``, checked in ``_out``).
+It never arms, takes off or changes the flight mode: it sends only HEARTBEAT, COMMAND_LONG
+with SET_MESSAGE_INTERVAL or REQUEST_MESSAGE, PARAM_REQUEST_READ, NAMED_VALUE_FLOAT,
+STATUSTEXT, and for a ground station's re-tasking (service/retask.py) MISSION_COUNT and
+MISSION_ITEM_INT (``ALLOWED_COMMANDS`` / ``ALLOWED_MESSAGES``, checked in ``checked``).
 """
 
 from __future__ import annotations
@@ -51,7 +52,8 @@ EKF_STATUS_REPORT, ESTIMATOR_STATUS = 193, 230
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 ALLOWED_COMMANDS = frozenset({MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE})
 ALLOWED_MESSAGES = frozenset({"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
-                              "NAMED_VALUE_FLOAT", "STATUSTEXT"})
+                              "NAMED_VALUE_FLOAT", "STATUSTEXT", "MISSION_COUNT",
+                              "MISSION_ITEM_INT"})
 HEARTBEAT_PERIOD_S = 1.0
 RETRY_S = 1.0
 MAX_TRIES = 4
@@ -322,7 +324,7 @@ class LinkProtocol:
                         for n in self._param_names if n not in self.params]
         elif not self._param_names:
             self.param_request.result = RequestResult.ACKED
-        return [self._out(m) for m in out]
+        return self.checked(out)
 
     def next_timer_s(self) -> float:
         """When ``poll`` next has something to send (monotonic s; inf: nothing planned)."""
@@ -361,16 +363,18 @@ class LinkProtocol:
                                                          float(value)))
         if text is not None:
             out.append(self.mav.statustext_encode(MAV_SEVERITY_INFO, text.encode()[:50]))
-        return [self._out(m) for m in out]
+        return self.checked(out)
 
     @staticmethod
-    def _out(msg: Any) -> Any:
-        """Refuse, as a bug, anything but the messages the daemon may send."""
-        name = msg.get_type()
-        if name not in ALLOWED_MESSAGES or (name == "COMMAND_LONG"
-                                            and msg.command not in ALLOWED_COMMANDS):
-            raise RuntimeError(f"the daemon never sends {name}")
-        return msg
+    def checked(msgs: list[Any]) -> list[Any]:
+        """``msgs``, refusing as a bug anything but the messages the daemon may send (module
+        docstring): every message the daemon sends passes here."""
+        for msg in msgs:
+            name = msg.get_type()
+            if name not in ALLOWED_MESSAGES or (name == "COMMAND_LONG"
+                                                and msg.command not in ALLOWED_COMMANDS):
+                raise RuntimeError(f"the daemon never sends {name}")
+        return msgs
 
 
 def _no_value_yet(msg: Any) -> bool:

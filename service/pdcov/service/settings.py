@@ -10,6 +10,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ from pdcov.ids import valid_system_id
 from pdcov.schema import Section
 
 FRAME_SOURCES = ("rate", "capture", "zenoh")
+_ZID = re.compile(r"[0-9a-f]{1,32}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +96,11 @@ class ServiceConfig:
     statustext: send them (to the GCS through the autopilot). record_max_bytes: one
     recording file's size; record_keep_bytes: all recordings together (oldest removed).
     home_wait_s: autopilot seconds to wait for HOME_POSITION before taking the ground
-    altitude from the first position (when origin.ground_alt_msl_m is not set)."""
+    altitude from the first position (when origin.ground_alt_msl_m is not set).
+    retask: upload the missions ground stations send on pdcov/<id>/retask to the autopilot
+    (default false: every request is refused and logged); retask_sessions: the Zenoh
+    session ids (hex) allowed to (empty: any session the bus lets through; what protects
+    the key: docs/ground-station.md "Securing the bus")."""
 
     state_dir: str = "/var/lib/pdcov"
     checkpoint_period_s: float = 10.0
@@ -107,8 +113,15 @@ class ServiceConfig:
     record_max_bytes: int = 256 << 20
     record_keep_bytes: int = 4 << 30
     home_wait_s: float = 5.0
+    retask: bool = False
+    retask_sessions: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        if isinstance(self.retask_sessions, str) or not all(
+                isinstance(z, str) and _ZID.fullmatch(z) for z in self.retask_sessions):
+            raise ConfigError("service.retask_sessions: expected a list of Zenoh session ids "
+                              "(1 to 32 lowercase hex digits, as `pdcov watch` prints its "
+                              f"own), got {list(self.retask_sessions)!r}"[:300])
         for name in ("checkpoint_period_s", "home_wait_s"):
             _positive(name, getattr(self, name), "service")
         if not (isinstance(self.reorder_s, (int, float)) and 0 <= self.reorder_s <= 10):
@@ -120,7 +133,7 @@ class ServiceConfig:
                                                and 0 < self.target_pd <= 1):
             raise ConfigError(f"service.target_pd: expected a probability in (0, 1], got "
                               f"{self.target_pd!r}")
-        for name in ("named_value_float", "statustext", "record"):
+        for name in ("named_value_float", "statustext", "record", "retask"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"service.{name}: expected true or false")
         for name in ("record_max_bytes", "record_keep_bytes"):
@@ -162,7 +175,7 @@ def _section(doc: Mapping[str, Any], key: str, cls: type, src: str | None) -> An
     raw = doc.get(key) or {}
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where(src, key)}: expected a mapping")
-    kw = {k: tuple(v) if isinstance(v, list) and k == "connect" else v
+    kw = {k: tuple(v) if isinstance(v, list) and k in ("connect", "retask_sessions") else v
           for k, v in raw.items()}
     if isinstance(kw.get("connect"), str):
         kw["connect"] = (kw["connect"],)

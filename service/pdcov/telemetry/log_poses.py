@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
 from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.core.rotations import euler_zyx_from_R_many
@@ -53,7 +54,9 @@ class LogPoses:
     gimbal_flags (F,) (-1 fixed), interpretation (F,) str, trusted (F,) bool,
     untrusted_reason (F,) str, at_limit (F,) a servo demand at its limit. skipped_t_s:
     frame times skipped by gaps. warnings: what the user should not miss (also among the
-    summary lines).
+    summary lines). frame_boxes: {frame time t_s: (the detector's t_boot_s, its boxes)} of
+    the frames ``pdcov serve`` recorded with boxes, when those frames are the ones
+    evaluated (recorded_frames).
     """
 
     poses: tuple[CameraPose, ...]
@@ -70,6 +73,7 @@ class LogPoses:
     at_limit: np.ndarray
     skipped_t_s: np.ndarray
     warnings: tuple[str, ...] = ()
+    frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]] = field(default_factory=dict)
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -254,4 +258,14 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
-                    skipped, tuple(x for x in (choice.warning,) if x))
+                    skipped, tuple(x for x in (choice.warning,) if x),
+                    _frame_boxes(log) if frame_source == "capture" else {})
+
+
+def _frame_boxes(log: FlightLog) -> dict[float, tuple[float, tuple[Box, ...]]]:
+    """The recorded boxes by their frame's time, in the order recorded."""
+    out: dict[float, tuple[float, tuple[Box, ...]]] = {}
+    for b in log.boxes:
+        t_boot_s, boxes = out.get(b.t_s, (b.t_boot_s, ()))
+        out[b.t_s] = (t_boot_s, (*boxes, b.box))
+    return out

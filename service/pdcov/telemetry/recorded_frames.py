@@ -14,6 +14,14 @@ payload's clock, to the millisecond), not a clock of component 191's own: a read
 it with the autopilot clock's offset at that point of the log
 (``clocks.VehicleClock.autopilot_boot_s``), as the daemon placed it when it arrived.
 
+The boxes of a frame (frames payload version 2) follow its mark, one CAMERA_IMAGE_CAPTURED
+each from component 191, with the frame's time_boot_ms and image_index, capture_result 1
+and ``file_url`` ``pdcov:box <confidence> <left> <top> <width> <height> <class>``: the
+numbers as Python's shortest exact text (repr: they read back bit-identical), pixels as
+the payload's (core/detections.py), the class name last (it may hold spaces; at most 64
+characters, so the text fits file_url's 205). A reader gives each box to the frame mark
+of the same system and image_index before it (``box_of``).
+
 A capture event (CAMERA_IMAGE_CAPTURED) the daemon did not take because it came after a
 later frame was decided (``frames.skipped."late frame time"``) is followed in the recording
 by a CAMERA_IMAGE_CAPTURED from component 191 with ``file_url`` NOT_TAKEN, capture_result
@@ -32,10 +40,13 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from pdcov.core.detections import Box
+
 RECORDED_FRAME_COMPONENT = 191
 """MAV_COMP_ID_ONBOARD_COMPUTER: the component the daemon speaks as."""
 MARK = "pdcov:detector-frame"
 NOT_TAKEN = "pdcov:capture-not-taken"
+BOX = "pdcov:box"
 SOURCE = "pdcov serve: detector frames"
 """CaptureSample.source of the frames read back."""
 MAX_BOOT_MS = 0xFFFFFFFF
@@ -71,6 +82,16 @@ class FrameEncoder:
         self.count += 1
         return self._packed(msg)
 
+    def box(self, system_id: int, t_boot_ms: int, box: Box) -> bytes:
+        """A box of the frame last ``encode``d (at ``t_boot_ms``)."""
+        mav = self._mav
+        mav.srcSystem = system_id
+        url = " ".join([BOX, *(repr(float(v)) for v in (box.confidence, *box.box_px)),
+                        box.class_name])
+        msg = mav.camera_image_captured_encode(t_boot_ms, 0, 0, 0, 0, 0, 0, [1.0, 0, 0, 0],
+                                               (self.count - 1) & 0x7FFFFFFF, 1, url.encode())
+        return self._packed(msg)
+
     def not_taken(self, system_id: int, capture: Any) -> bytes:
         """The mark that the CAMERA_IMAGE_CAPTURED ``capture`` just recorded was not taken."""
         mav = self._mav
@@ -85,17 +106,34 @@ class FrameEncoder:
         return data
 
 
-def recorded_mark(msg: Any) -> str | None:
-    """MARK for a frame time the daemon recorded, NOT_TAKEN for its mark of a capture it
-    did not take (module docstring), None for anything else (a camera's own capture)."""
-    if msg.get_type() != "CAMERA_IMAGE_CAPTURED" or \
-            msg.get_srcComponent() != RECORDED_FRAME_COMPONENT:
-        return None
+def _file_url(msg: Any) -> str:
     url = msg.file_url
     if isinstance(url, bytes):
         url = url.decode("ascii", "replace")
-    url = str(url).rstrip("\x00")
+    return str(url).rstrip("\x00")
+
+
+def recorded_mark(msg: Any) -> str | None:
+    """MARK for a frame time the daemon recorded, BOX for one of its boxes, NOT_TAKEN for its
+    mark of a capture it did not take (module docstring), None for anything else (a
+    camera's own capture)."""
+    if msg.get_type() != "CAMERA_IMAGE_CAPTURED" or \
+            msg.get_srcComponent() != RECORDED_FRAME_COMPONENT:
+        return None
+    url = _file_url(msg)
+    if url.startswith(BOX + " "):
+        return BOX
     return url if url in (MARK, NOT_TAKEN) else None
+
+
+def box_of(msg: Any) -> Box | None:
+    """The box a BOX mark records, None when its text is not one (a damaged log)."""
+    parts = _file_url(msg).split(" ", 6)
+    try:
+        confidence, left, top, width, height = (float(v) for v in parts[1:6])
+        return Box(parts[6], confidence, left, top, width, height)
+    except (IndexError, ValueError):
+        return None
 
 
 class NotTakenCaptures:
@@ -116,6 +154,17 @@ class NotTakenCaptures:
                                msg.image_index))
         if seen:
             self.dropped.add(seen.pop())
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedBox:
+    """A box read back from a recording: ``t_s`` the time of its frame in the log's
+    autopilot clock (as the frame's capture event), ``t_boot_s`` the frame time the
+    detector gave (to the millisecond), the ``box``."""
+
+    t_s: float
+    t_boot_s: float
+    box: Box
 
 
 @dataclass(frozen=True, slots=True)

@@ -133,6 +133,7 @@ function draw() {
       ctx.fillStyle = "#000"; ctx.font = "12px sans-serif"; ctx.fillText(veh.id, v.px(x) + 7, v.py(y) - 7);
     }
   }
+  drawRefly(v);
   // scale bar
   const metres = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000].find((m) => m * v.scale > 60) || 10000;
   const y = mapCanvas.height - 12;
@@ -140,6 +141,60 @@ function draw() {
   ctx.lineTo(12 + metres * v.scale, y); ctx.stroke();
   ctx.fillStyle = "#000"; ctx.font = "12px sans-serif"; ctx.fillText(`${metres} m`, 16, y - 6);
 }
+
+// The re-fly proposed ([lat, lon] pairs), in ENU by the equirectangular approximation about
+// the origin the basemap uses: its gap outlines and its path.
+function drawRefly(v) {
+  const r = state.refly, o = state.origin;
+  if (!r || !o) return;
+  const R = 6378137, lat0 = o.lat_deg * Math.PI / 180;
+  const enu = (pts) => pts.map(([lat, lon]) => [(lon - o.lon_deg) * Math.PI / 180 * R * Math.cos(lat0),
+                                               (lat - o.lat_deg) * Math.PI / 180 * R]);
+  ctx.strokeStyle = "#d6008f"; ctx.lineWidth = 2;
+  for (const ring of r.gaps) { path(enu(ring), v); ctx.closePath(); ctx.stroke(); }
+  ctx.setLineDash([4, 3]); path(enu(r.waypoints), v); ctx.stroke(); ctx.setLineDash([]);
+  mapCanvas.dataset.reflyId = r.id;
+}
+
+async function post(url, body) {
+  const resp = await fetch(url, {method: "POST", headers: {"Content-Type": "application/json"},
+                                 body: JSON.stringify(body), credentials: "same-origin"});
+  const doc = await resp.json();
+  if (!resp.ok) throw new Error(doc.error || resp.statusText);
+  return doc;
+}
+
+function showRefly(lines, outcome) {
+  document.getElementById("refly-lines").replaceChildren(...lines.map((text) => {
+    const li = document.createElement("li"); li.textContent = text; return li;
+  }));
+  document.getElementById("refly-outcome").textContent = outcome || "";
+}
+
+document.getElementById("refly-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const target = document.getElementById("refly-target").value;
+  const send = document.getElementById("refly-send");
+  send.hidden = true;
+  showRefly(["computing the re-fly ..."]);
+  try {
+    const p = await post("api/refly", {vehicle: document.getElementById("refly-vehicle").value,
+                                       target_pd: target ? Number(target) : null});
+    showRefly(p.lines);
+    send.dataset.id = p.id; send.textContent = `Send mission ${p.id} to ${p.vehicle}`; send.hidden = false;
+  } catch (err) { showRefly([], `no re-fly: ${err.message}`); }
+});
+
+document.getElementById("refly-send").addEventListener("click", async (ev) => {
+  const send = ev.target;
+  if (!window.confirm(`${send.textContent}? Its autopilot's mission is replaced; the pilot flies it.`)) return;
+  send.hidden = true;
+  document.getElementById("refly-outcome").textContent = "sending ...";
+  try {
+    const r = await post("api/refly/confirm", {id: send.dataset.id});
+    document.getElementById("refly-outcome").textContent = r.line;
+  } catch (err) { document.getElementById("refly-outcome").textContent = `not sent: ${err.message}`; }
+});
 
 function row(cells, cls) {
   const tr = document.createElement("tr");
@@ -192,6 +247,13 @@ function show(s) {
   document.getElementById("status-line").textContent =
     `${s.vehicles.length} vehicle(s); update ${s.version}; ${new Date().toLocaleTimeString()}`;
   showTables();
+  const sel = document.getElementById("refly-vehicle");
+  const ids = s.vehicles.map((v) => v.id);
+  if (sel.options.length !== ids.length || ids.some((id, i) => sel.options[i].value !== id)) {
+    sel.replaceChildren(...ids.map((id) => new Option(id, id)));
+  }
+  document.getElementById("refly-ask").disabled = !s.refly_available || !ids.length;
+  if (s.refly_outcome) document.getElementById("refly-outcome").textContent = s.refly_outcome;
   draw();
 }
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from pdcov.telemetry.clocks import REBOOT_GAP_S
+from pdcov.telemetry.recorded_frames import RecordedBox
 from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
@@ -44,7 +45,9 @@ class FlightLog:
     estimator's verdicts (empty when the log carries none); estimator_source names the
     messages they came from. terrain_reports and rangefinder: the autopilot's terrain
     database reports and rangefinder readings (any orientation), in log order, for the
-    DEM cross-check (``terrain_check``).
+    DEM cross-check (``terrain_check``). boxes: the detector boxes ``pdcov serve``
+    recorded with its frames (recorded_frames; a tlog's only), stamped as their frames'
+    capture events.
     """
 
     path: str
@@ -66,6 +69,7 @@ class FlightLog:
     estimator_source: str = ""
     terrain_reports: tuple[TerrainReportSample, ...] = ()
     rangefinder: tuple[RangefinderSample, ...] = ()
+    boxes: tuple[RecordedBox, ...] = ()
 
 
 
@@ -99,4 +103,5 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                    terrain_reports=tuple(replace(r, t_s=r.t_s + dt_s)
                                          for r in log.terrain_reports),
                    rangefinder=tuple(replace(r, t_s=r.t_s + dt_s) for r in log.rangefinder),
+                   boxes=tuple(replace(b, t_s=b.t_s + dt_s) for b in log.boxes),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))

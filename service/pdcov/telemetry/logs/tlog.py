@@ -14,6 +14,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from pdcov.core.detections import Box
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.adapters import mavlink_boot_time_s, sample_from_mavlink
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, BootClock, VehicleClock
@@ -21,13 +22,17 @@ from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource
 from pdcov.telemetry.logs.choose import choose_gimbal, choose_system
 from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
 from pdcov.telemetry.recorded_frames import (
+    BOX,
     MARK,
     NOT_TAKEN,
     RECORDED_FRAME_COMPONENT,
     NotTakenCaptures,
+    RecordedBox,
+    box_of,
     recorded_mark,
 )
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
+from pdcov.telemetry.recorded_frames import boot_s as recorded_boot_s
 from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
@@ -94,6 +99,9 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
     heartbeats: list[HeartbeatSample] = []
     messages = _Messages()
     recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
+    last_mark: dict[tuple[int, int], int] = {}  # (system, image_index) -> its latest MARK
+    boxes: list[tuple[int, float, Box]] = []  # (its MARK's message index, t_boot_s, box)
+    bad_boxes = 0
     not_taken = NotTakenCaptures()
     first_euler: dict[tuple[int, int], int] = {}  # (system, component) -> first ATTITUDE
     n_ok = 0
@@ -110,10 +118,18 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         if mtype == "ATTITUDE":
             first_euler.setdefault(key, n_ok - 1)
         mark = recorded_mark(msg)  # the daemon's own (recorded_frames): no clock's message
-        messages.source.append(-1 if mark == NOT_TAKEN else (key[0] << 8) | key[1])
+        messages.source.append(-1 if mark in (NOT_TAKEN, BOX) else (key[0] << 8) | key[1])
         messages.boot_s.append(math.nan if boot_s is None else boot_s)
         if mark == MARK:  # placed below, once the autopilot is known
             recorded[n_ok - 1] = (key[0], int(msg.image_index))
+            last_mark[recorded[n_ok - 1]] = n_ok - 1
+            continue
+        if mark == BOX:  # its frame's: the MARK of the same system and image_index before it
+            box, frame = box_of(msg), last_mark.get((key[0], int(msg.image_index)))
+            if box is None or frame is None:
+                bad_boxes += 1
+            else:
+                boxes.append((frame, recorded_boot_s(msg.time_boot_ms), box))
             continue
         if mark == NOT_TAKEN:
             not_taken.mark(msg)
@@ -189,10 +205,16 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         notes.append(gnote)
     params = {p.name: p.value for p in taken(ParamSample)}
     captures = taken(CaptureSample)
+    frame_boxes: list[RecordedBox] = []
     if read_off:
         notes.append(_recorded_frames_note(len(read_off), len(captures)))
         captures = [CaptureSample(times[i], recorded[i][1], RECORDED_SOURCE)
                     for i in sorted(read_off)]
+        frame_boxes = [RecordedBox(times[i], t_boot_s, box) for i, t_boot_s, box in boxes
+                       if i in read_off]
+    if bad_boxes:
+        notes.append(f"{bad_boxes} recorded boxes ({BOX!r}) unreadable or without their "
+                     "frame: not used")
     return shifted(FlightLog(
         str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
         PositionSeries.from_samples(taken(PositionSample)), gimbal, source,
@@ -200,7 +222,8 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
         *estimator_series(taken(EstimatorSample), "EKF_STATUS_REPORT / "
                           "ESTIMATOR_STATUS"),
-        tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample))),
+        tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample)),
+        tuple(frame_boxes)),
         -ap.clock.offset_s)
 
 

@@ -1,0 +1,158 @@
+"""Detections of one target across frames grouped into one candidate, with no I/O: the one
+rule the daemon and ``pdcov evaluate`` both run (``DetectionTracker``), so that the
+detections and candidates of a flight are the same live and offline.
+
+``DetectionTracker.frame`` takes one decided frame's pose and boxes, geolocates the boxes
+(core/geolocate.py) and groups each: it joins the nearest candidate of its class whose
+mean lies within the gate -- ``gate_sigmas`` times the combined 1-sigma (sqrt(sigma_d^2 +
+sigma_c^2)), and never less than one cell -- else it starts a new candidate (ids 0, 1, 2,
+... in order; of equally near candidates the oldest). A candidate's position is the
+inverse-variance weighted mean of its detections' ground points (weights 1 / sigma^2,
+sigma at least 1 mm), its sigma sqrt(1 / sum of weights). Looks, P_D and P_FA are the
+grid's at the candidate's cell when ``candidates`` is called (0 outside the grid): the
+operator sees "seen 14 times, detected 9". Deterministic: the same frames in the same order
+give the same candidates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from pdcov.config import Mission
+from pdcov.core.camera import CameraModel
+from pdcov.core.detections import Box, Candidate, Detection
+from pdcov.core.geolocate import Geolocation, locate_boxes
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose
+from pdcov.core.terrain import TerrainSurface
+
+__all__ = ["MAX_TRACKED_CANDIDATES", "DetectionTracker", "Skip"]
+
+MAX_TRACKED_CANDIDATES = 10_000
+"""Most candidates of one flight (bus.detections.MAX_CANDIDATES): a box that would start one
+more is counted (``Skip.TOO_MANY_CANDIDATES``), not kept."""
+_MIN_SIGMA_M = 1e-3
+
+
+class Skip:
+    """Why a box was not made a detection (counted in ``DetectionTracker.skipped``)."""
+
+    OFF_GROUND = "box off the ground"
+    """Its ray, or one of its +-1 sigma perturbations, does not meet the ground."""
+    TOO_MANY_CANDIDATES = "too many candidates"
+
+
+@dataclass(slots=True)
+class _Group:
+    class_name: str
+    sum_w: float
+    sum_wr: np.ndarray  # (3,) sum of weight * ground point
+    hits: int
+    confidence: float
+    first_t_boot_s: float
+    last_t_boot_s: float
+
+    @property
+    def r_enu_m(self) -> np.ndarray:
+        return self.sum_wr / self.sum_w
+
+    @property
+    def sigma_m(self) -> float:
+        return math.sqrt(1.0 / self.sum_w)
+
+
+class DetectionTracker:
+    """Geolocates and groups the boxes of decided frames (module docstring): ``camera``,
+    ``geolocation`` and ``terrain`` (None: the plane z = 0) as the coverage grid's;
+    ``cell_size_m`` the grid's (the least gate)."""
+
+    def __init__(self, camera: CameraModel, geolocation: Geolocation, cell_size_m: float,
+                 terrain: TerrainSurface | None = None, gate_sigmas: float = 3.0) -> None:
+        if not (math.isfinite(gate_sigmas) and gate_sigmas > 0):
+            raise ValueError(f"gate_sigmas {gate_sigmas!r}: expected a positive number")
+        self.camera = camera
+        self.geolocation = geolocation
+        self.cell_size_m = float(cell_size_m)
+        self.terrain = terrain
+        self.gate_sigmas = float(gate_sigmas)
+        self._groups: list[_Group] = []
+        self.skipped: Counter[str] = Counter()
+
+    @classmethod
+    def for_mission(cls, mission: Mission) -> DetectionTracker:
+        """The tracker of ``mission``'s camera, terrain, cells and ``detections`` section."""
+        return cls(mission.camera, mission.geolocation, mission.cell_size_m, mission.terrain,
+                   mission.gate_sigmas)
+
+    def __len__(self) -> int:
+        return len(self._groups)
+
+    def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box]
+              ) -> list[Detection]:
+        """The detections of one decided frame's ``boxes`` (its time ``t_boot_s``, autopilot
+        boot clock, s; ``pose`` the one the grid took), each grouped into a candidate; the
+        boxes not geolocated are counted in ``skipped``."""
+        boxes = tuple(boxes)
+        points, sigmas = locate_boxes(self.camera, pose, boxes, self.geolocation,
+                                      self.terrain)
+        out = []
+        for box, r, sigma in zip(boxes, points, sigmas, strict=True):
+            if not np.isfinite(sigma):
+                self.skipped[Skip.OFF_GROUND] += 1
+                continue
+            cid = self._group(box, r, float(sigma), t_boot_s)
+            if cid is None:
+                self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
+                continue
+            out.append(Detection(t_boot_s, box, r, float(sigma), cid))
+        return out
+
+    def _group(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float) -> int | None:
+        best, best_d = None, math.inf
+        for i, g in enumerate(self._groups):
+            if g.class_name != box.class_name:
+                continue
+            d = float(np.hypot(*(g.r_enu_m[:2] - r[:2])))
+            gate = max(self.gate_sigmas * math.hypot(sigma_m, g.sigma_m), self.cell_size_m)
+            if d <= gate and d < best_d:
+                best, best_d = i, d
+        w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
+        if best is None:
+            if len(self._groups) >= MAX_TRACKED_CANDIDATES:
+                return None
+            self._groups.append(_Group(box.class_name, w, w * r, 1, box.confidence,
+                                       t_boot_s, t_boot_s))
+            return len(self._groups) - 1
+        g = self._groups[best]
+        g.sum_w += w
+        g.sum_wr = g.sum_wr + w * r
+        g.hits += 1
+        g.confidence = max(g.confidence, box.confidence)
+        g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
+        g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
+        return best
+
+    def candidates(self, grid: CoverageGrid, ids: Iterable[int] | None = None
+                   ) -> list[Candidate]:
+        """The candidates ``ids`` (all when None), in id order, with the looks, P_D and
+        P_FA ``grid`` holds at their cells now."""
+        chosen = range(len(self._groups)) if ids is None else sorted(set(ids))
+        g_ = grid.geometry
+        out = []
+        for i in chosen:
+            g = self._groups[i]
+            r = g.r_enu_m
+            row, col = (int(v) for v in g_.cell_of(r[0], r[1]))
+            inside = 0 <= row < g_.n_rows and 0 <= col < g_.n_cols
+            looks = int(grid.n_obs[row, col]) if inside else 0
+            pd = float(-np.expm1(float(grid.log_miss_d[row, col]))) if inside else 0.0
+            pfa = float(-np.expm1(float(grid.log_miss_fa[row, col]))) if inside else 0.0
+            out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, looks,
+                                 min(max(pd, 0.0), 1.0), min(max(pfa, 0.0), 1.0),
+                                 g.confidence, g.first_t_boot_s, g.last_t_boot_s))
+        return out

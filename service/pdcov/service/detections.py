@@ -1,0 +1,97 @@
+"""What the daemon does with the detector's boxes, with no I/O (docs/service.md
+"Detections"): ``LiveDetections`` holds the boxes of the frames taken until each frame is
+decided, gives a used frame's boxes with its pose (the one the grid took) to the
+``DetectionTracker`` that ``pdcov evaluate`` runs too, and says when to publish.
+
+Publishing (``pdcov/<id>/detections``): at most one message every DETECTIONS_PERIOD_S,
+holding the detections new since the last one (at most bus.detections.MAX_DETECTIONS: the
+rest go in the next) and the current state of the candidates they touched. The candidates
+query answers every candidate.
+
+Counted in the status's faults: ``boxes_of_skipped_frames`` (a frame taken, then skipped:
+a telemetry gap, below min height, untrusted, ...), ``boxes_dropped_waiting`` (more than
+MAX_HELD_BOXES boxes waiting for their frames: the oldest frame's go), and the tracker's
+``boxes_off_ground`` and ``boxes_over_candidates``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import TYPE_CHECKING
+
+from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_detections
+from pdcov.core.detections import Box, Detection
+from pdcov.core.geodesy import Origin
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose
+from pdcov.detection.candidates import DetectionTracker
+
+if TYPE_CHECKING:
+    from pdcov.config import Mission
+
+DETECTIONS_PERIOD_S = 1.0
+"""At most one detections message in this long (daemon's monotonic clock, s)."""
+MAX_HELD_BOXES = 100_000
+"""Boxes kept for frames not decided yet (a detector's frames from a clock the telemetry
+never reaches are never decided)."""
+
+
+class LiveDetections:
+    """The daemon's boxes (module docstring). ``faults``: the counter the status reports."""
+
+    def __init__(self, mission: Mission, grid: CoverageGrid, faults: Counter) -> None:
+        self.vehicle_id = mission.vehicle_id
+        self.grid = grid
+        self.tracker = DetectionTracker.for_mission(mission)
+        self.faults = faults
+        self._held: dict[float, tuple[float, tuple[Box, ...]]] = {}  # frame t_s -> boxes
+        self._n_held = 0
+        self._new: list[Detection] = []
+        self._next_s = -math.inf
+
+    def hold(self, t_s: float, t_boot_s: float, boxes: tuple[Box, ...]) -> None:
+        """The boxes of a frame taken at ``t_s`` (the grid's frame time, s), which the
+        detector stamped ``t_boot_s``."""
+        if not boxes:
+            return
+        self._held[t_s] = (t_boot_s, boxes)
+        self._n_held += len(boxes)
+        while self._n_held > MAX_HELD_BOXES:
+            oldest = min(self._held)
+            dropped = len(self._held.pop(oldest)[1])
+            self._n_held -= dropped
+            self.faults["boxes_dropped_waiting"] += dropped
+
+    def frame(self, pose: CameraPose) -> None:
+        """The grid took the frame at ``pose.t_s`` with ``pose``: its boxes, geolocated."""
+        held = self._held.pop(pose.t_s, None)
+        if held is None:
+            return
+        self._n_held -= len(held[1])
+        before = Counter(self.tracker.skipped)
+        self._new += self.tracker.frame(pose, *held)
+        self.faults.update(self.tracker.skipped - before)
+
+    def decided(self, last_frame_t_s: float) -> None:
+        """Frames up to ``last_frame_t_s`` are decided: the boxes still held for them were
+        of frames skipped."""
+        for t in [t for t in self._held if t <= last_frame_t_s]:
+            n = len(self._held.pop(t)[1])
+            self._n_held -= n
+            self.faults["boxes_of_skipped_frames"] += n
+
+    def poll(self, now_s: float, origin: Origin | None) -> bytes | None:
+        """The detections message due at ``now_s`` (monotonic s), or None."""
+        if not self._new or origin is None or now_s < self._next_s:
+            return None
+        self._next_s = now_s + DETECTIONS_PERIOD_S
+        sent, self._new = self._new[:MAX_DETECTIONS], self._new[MAX_DETECTIONS:]
+        touched = self.tracker.candidates(self.grid, (d.candidate_id for d in sent))
+        return encode_detections(detections_document(sent, touched, origin, self.vehicle_id))
+
+    def candidates_payload(self, origin: Origin | None) -> bytes:
+        """The candidates query's answer: every candidate, no detection."""
+        cands = self.tracker.candidates(self.grid) if origin is not None else []
+        return encode_detections(detections_document(
+            [], cands, origin or Origin(0.0, 0.0), self.vehicle_id))

@@ -1,0 +1,317 @@
+"""Re-tasking in memory: the request payload's strict decoder, the daemon's decisions
+(``ServiceCore`` with its ``Retasker``) against a scripted autopilot on a fake link, the
+ground station's proposal (the same re-fly as ``pdcov refly``) and the web map's CSRF rule.
+Real Zenoh and the real ArduCopter: tests/test_retask_e2e.py."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import yaml
+from link_feed import MISSION, Hover, pack
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.grid_state import GridState, grid_hash
+from pdcov.bus.retask import (
+    MAX_RETASK_ITEMS,
+    decode_retask,
+    decode_retask_reply,
+    encode_retask,
+    plan_hash,
+)
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
+from pdcov.ground.retask import ReflyInputs, propose_refly
+from pdcov.ground.web_auth import post_allowed
+from pdcov.planning.refly import ReflySettings, refly_of_grid
+from pdcov.planning.scenario import scenario_of
+from pdcov.service.core import Actions, LinkReport, ServiceCore
+from pdcov.service.retask import RetaskRefusal
+from pdcov.service.settings import load_serve_config
+
+WP = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, param4=math.nan,
+                 lat_deg=47.3978, lon_deg=8.5457, z_m=10.0)
+ITEMS = (WP, MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                         lat_deg=47.3979, lon_deg=8.5458, z_m=10.0))
+
+
+def _doc(**change) -> bytes:
+    doc = json.loads(encode_retask("fuzz", ITEMS, "two waypoints"))
+    doc.update(change)
+    return json.dumps(doc).encode()
+
+
+def test_request_round_trip_keeps_nan_and_hash() -> None:
+    req = decode_retask(encode_retask("fuzz", ITEMS, "two waypoints"), vehicle_id="fuzz")
+    assert req.plan_hash == plan_hash(ITEMS)
+    assert math.isnan(req.items[0].param4) and req.items[1].param4 == 0.0
+    assert req.items[0].lat_deg == WP.lat_deg and req.description == "two waypoints"
+
+
+@pytest.mark.parametrize(("payload", "match"), [
+    (b"\xff", "not UTF-8 JSON"),
+    (_doc(version=2), "version 2"),
+    (_doc(vehicle_id="other"), "the key is vehicle 'fuzz'"),
+    (_doc(plan_hash="0" * 16), "the items hash to"),
+    (_doc(items=[]), "at least one mission item"),
+])
+def test_bad_requests_refused_with_the_field(payload: bytes, match: str) -> None:
+    with pytest.raises(BusPayloadError, match=match):
+        decode_retask(payload, "pdcov/fuzz/retask", "fuzz")
+
+
+def _with_item(**change) -> bytes:
+    doc = json.loads(encode_retask("fuzz", ITEMS, ""))
+    doc["items"][0].update(change)
+    doc["plan_hash"] = "0" * 16  # the item refusal comes before the hash check
+    return json.dumps(doc).encode()
+
+
+@pytest.mark.parametrize(("change", "match"), [
+    ({"command": 176}, r"items\[0\]\.command: 176 is not one a coverage plan uses"),  # SET_MODE
+    ({"command": 400}, "command: 400"),  # ARM_DISARM
+    ({"frame": 1}, r"items\[0\]\.frame: 1"),
+    ({"lat_deg": 91}, r"items\[0\]\.lat_deg"),
+    ({"params": [0, 0, 0]}, "params: expected 4 numbers"),
+    ({"params": [1e9, 0, 0, 0]}, "params"),
+    ({"autocontinue": 1}, "autocontinue"),
+])
+def test_items_outside_a_coverage_plan_refused(change: dict, match: str) -> None:
+    with pytest.raises(BusPayloadError, match=match):
+        decode_retask(_with_item(**change), vehicle_id="fuzz")
+
+
+def test_item_count_and_non_finite_bounded() -> None:
+    doc = json.loads(encode_retask("fuzz", ITEMS, ""))
+    doc["items"] = doc["items"][:1] * (MAX_RETASK_ITEMS + 1)
+    with pytest.raises(BusPayloadError, match="more than 1000") as e:
+        decode_retask(json.dumps(doc).encode())
+    assert e.value.reason == "over a bound"
+    with pytest.raises(BusPayloadError, match="non-finite"):
+        decode_retask(_doc().replace(b'"z_m": 10.0', b'"z_m": NaN', 1))
+
+
+# --- the daemon's decisions against a scripted autopilot ----------------------------------
+
+class Autopilot:
+    """ArduCopter's side of the mission protocol on the daemon's link: asks for every item
+    with MISSION_REQUEST (as ArduCopter 4.7 does), then acknowledges with ``result``."""
+
+    def __init__(self, result: int = mavlink.MAV_MISSION_ACCEPTED) -> None:
+        self.mav = mavlink.MAVLink(None)
+        self.result = result
+        self.count = 0
+        self.items: dict[int, mavlink.MAVLink_mission_item_int_message] = {}
+        self.sent: list[mavlink.MAVLink_message] = []
+
+    def answer(self, msgs: list) -> bytes:
+        """What the autopilot sends back to the daemon's messages."""
+        out = b""
+        for m in msgs:
+            self.sent.append(m)
+            if m.get_type() == "MISSION_COUNT":
+                self.count = m.count
+                out += pack(self.mav.mission_request_encode(1, 191, 0, 0))
+            elif m.get_type() == "MISSION_ITEM_INT":
+                self.items[m.seq] = m
+                nxt = m.seq + 1
+                out += pack(self.mav.mission_request_encode(1, 191, nxt, 0) if nxt < self.count
+                            else self.mav.mission_ack_encode(1, 191, self.result, 0))
+        return out
+
+
+def core_with(tmp_path, **service) -> ServiceCore:
+    doc = dict(MISSION, service={"state_dir": str(tmp_path / "state"), "record": False,
+                                 **service})
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
+    cfg = load_serve_config(tmp_path / "m.yaml")
+    return ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="retask")
+
+
+def feed(core: ServiceCore, data: bytes, now_s: float) -> Actions:
+    """The shell's part: a readable link's messages, the end of the pass, a tick."""
+    parser = mavlink.MAVLink(None)
+    core.receive_mavlink(parser.parse_buffer(data) or [], now_s)
+    core.process()
+    core.tick(now_s, 0.0)
+    return core.actions()
+
+
+def heard(core: ServiceCore) -> None:
+    feed(core, b"".join(pack(m) for m in Hover(seconds=0.5).messages()), 1.0)
+
+
+def fly(core: ServiceCore, autopilot: Autopilot, payload: bytes, session: str | None,
+        now_s: float = 2.0) -> tuple[list, list]:
+    """Request, then the exchange until nothing more is sent: (replies, logs)."""
+    replies, logs = [], []
+    core.receive_retask(7, payload, session, now_s)
+    a = core.actions()
+    replies += a.replies
+    logs += a.logs
+    msgs = [m for m in a.send if m.get_type().startswith("MISSION")]
+    for _ in range(50):
+        if not msgs:
+            break
+        now_s += 0.05
+        a = feed(core, autopilot.answer(msgs), now_s)
+        replies += a.replies
+        logs += a.logs
+        msgs = [m for m in a.send if m.get_type().startswith("MISSION")]
+    return replies, logs
+
+
+def test_accepted_upload_is_replied_and_never_arms_or_changes_mode(tmp_path) -> None:
+    core = core_with(tmp_path, retask=True)
+    heard(core)
+    ap = Autopilot()
+    replies, logs = fly(core, ap, encode_retask("fuzz", ITEMS, "two"), "ab12")
+    assert [t for t, _ in replies] == [7]
+    reply = decode_retask_reply(replies[0][1], vehicle_id="fuzz")
+    assert reply.accepted and reply.reason == "MAV_MISSION_ACCEPTED"
+    assert reply.items == 3 and reply.plan_hash == plan_hash(ITEMS)  # ArduPilot: home first
+    assert sorted(ap.items) == [0, 1, 2]
+    assert ap.items[1].x == round(WP.lat_deg * 1e7) and ap.items[1].frame == 3
+    assert ap.items[0].x == round(MISSION["origin"]["lat_deg"] * 1e7)  # home: the origin
+    assert {m.get_type() for m in ap.sent} == {"MISSION_COUNT", "MISSION_ITEM_INT"}
+    st, _ = core.status(3.0, LinkReport())
+    assert st["retask"]["last"]["accepted"] is True
+    assert st["retask"]["last"]["plan_hash"] == plan_hash(ITEMS)
+    assert st["faults"]["retask_refused"] == 0
+    assert any("uploading mission" in text for _, text in logs)
+
+
+def test_every_message_the_daemon_sends_stays_off_the_controls(tmp_path) -> None:
+    """Over a whole session with a re-tasking: HEARTBEAT, the stream and parameter
+    requests, the coverage messages and the upload, never SET_MODE or a COMMAND_LONG
+    that arms, takes off or sets a mode."""
+    core = core_with(tmp_path, retask=True)
+    sent = feed(core, b"".join(pack(m) for m in Hover(seconds=2.0).messages()), 1.0).send
+    ap = Autopilot()
+    fly(core, ap, encode_retask("fuzz", ITEMS, ""), None)
+    for t in np.arange(3.0, 12.0, 0.5):
+        core.tick(float(t), 0.0)
+        sent += core.actions().send
+    sent += ap.sent
+    assert {m.get_type() for m in sent} <= {"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
+                                           "NAMED_VALUE_FLOAT", "STATUSTEXT",
+                                           "MISSION_COUNT", "MISSION_ITEM_INT"}
+    assert {m.command for m in sent if m.get_type() == "COMMAND_LONG"} <= {511, 512}
+
+
+def test_refused_requests_are_answered_logged_and_counted(tmp_path) -> None:
+    off = core_with(tmp_path)  # service.retask defaults to false
+    heard(off)
+    replies, logs = fly(off, Autopilot(), encode_retask("fuzz", ITEMS, ""), "ab12")
+    r = decode_retask_reply(replies[0][1])
+    assert not r.accepted and r.reason == RetaskRefusal.DISABLED
+    assert logs == [(30, "re-tasking request from session ab12 refused: re-tasking is off "
+                         "on this vehicle (service.retask: false)")]
+    st, _ = off.status(3.0, LinkReport())
+    assert st["faults"]["retask_refused"] == 1
+    assert st["retask"]["refused"] == {"PDCOV_RETASK_DISABLED": 1}
+
+    listed = core_with(tmp_path, retask=True, retask_sessions=["ab12"])
+    heard(listed)
+    replies, logs = fly(listed, Autopilot(), encode_retask("fuzz", ITEMS, ""), "cd34")
+    assert decode_retask_reply(replies[0][1]).reason == RetaskRefusal.NOT_ALLOWED
+    assert "session cd34 refused" in logs[0][1]
+    replies, _ = fly(listed, Autopilot(), b"{}", "ab12")
+    bad = decode_retask_reply(replies[0][1])
+    assert bad.reason == RetaskRefusal.BAD_REQUEST and "schema" in bad.detail
+
+
+def test_one_upload_at_a_time_and_a_silent_autopilot_times_out(tmp_path) -> None:
+    core = core_with(tmp_path, retask=True)
+    core.receive_retask(1, encode_retask("fuzz", ITEMS, ""), None, 0.5)
+    assert decode_retask_reply(core.actions().replies[0][1]).reason \
+        == RetaskRefusal.NO_AUTOPILOT
+    heard(core)
+    core.receive_retask(2, encode_retask("fuzz", ITEMS, ""), None, 2.0)
+    first = core.actions()
+    assert [m.get_type() for m in first.send] == ["MISSION_COUNT"] and not first.replies
+    core.receive_retask(3, encode_retask("fuzz", ITEMS[:1], ""), None, 2.1)
+    busy = core.actions().replies
+    assert [t for t, _ in busy] == [3]
+    assert decode_retask_reply(busy[0][1]).reason == RetaskRefusal.BUSY
+    replies = []
+    for t in np.arange(2.0, 15.0, 0.25):  # nobody answers: 5 resends 1.5 s apart
+        core.tick(float(t), 0.0)
+        replies += core.actions().replies
+    timed_out = decode_retask_reply(replies[0][1])
+    assert [t for t, _ in replies] == [2]
+    assert not timed_out.accepted and timed_out.reason == "TIMEOUT"
+
+
+def test_autopilot_refusal_is_the_reply(tmp_path) -> None:
+    core = core_with(tmp_path, retask=True)
+    heard(core)
+    ap = Autopilot(result=mavlink.MAV_MISSION_NO_SPACE)
+    replies, _ = fly(core, ap, encode_retask("fuzz", ITEMS, ""), None)
+    r = decode_retask_reply(replies[0][1])
+    assert not r.accepted and r.reason == "MAV_MISSION_NO_SPACE"
+
+
+def test_upload_ignores_the_autopilot_talking_to_another_ground_station(tmp_path) -> None:
+    core = core_with(tmp_path, retask=True)
+    heard(core)
+    core.receive_retask(1, encode_retask("fuzz", ITEMS, ""), None, 2.0)
+    core.actions()
+    mav = mavlink.MAVLink(None)
+    # The autopilot acknowledging QGroundControl's (255/190) upload: not ours.
+    feed(core, pack(mav.mission_ack_encode(255, 190, mavlink.MAV_MISSION_ACCEPTED, 0)), 2.1)
+    assert core.actions().replies == [] and core.retasker.busy
+
+
+def test_retask_sessions_checked_in_the_config(tmp_path) -> None:
+    from pdcov.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="retask_sessions: expected a list of Zenoh"):
+        core_with(tmp_path, retask=True, retask_sessions=["NOT-HEX"])
+    with pytest.raises(ConfigError, match="retask_sessions"):
+        core_with(tmp_path, retask=True, retask_sessions="ab12")
+
+
+# --- the ground station's proposal: the same re-fly as pdcov refly --------------------
+
+def test_proposal_is_pdcov_reflys_plan_from_where_the_vehicle_is(tmp_path) -> None:
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(dict(MISSION)))
+    cfg = load_serve_config(tmp_path / "m.yaml")
+    mission = cfg.mission
+    sc = scenario_of(mission)
+    grid = mission.new_grid()
+    L = np.zeros(grid.mask.shape, dtype=np.float32)
+    L[:, : L.shape[1] // 2] = -5.0  # the west half seen well, the east half not at all
+    settings = ReflySettings(0.8, alt_agl_m=10.0, speed_mps=3.0)
+    inputs = ReflyInputs("fuzz", L, mission.origin(), (5.0, 5.0))
+    p = propose_refly(inputs, sc, settings)
+    cli = refly_of_grid(sc, L, settings, (5.0, 5.0))
+    assert p.description == cli.plan.description
+    assert len(p.waypoints_lat_lon) == len(cli.plan.waypoints)
+    assert p.gap_cells_before == cli.gaps_before.n_cells > 0
+    req = decode_retask(p.payload, vehicle_id="fuzz")
+    assert req.plan_hash == p.id and len(req.items) == len(p.items)
+    state = p.map_state()
+    assert state["id"] == p.id and state["gaps"] and all(r[0] == r[-1] for r in state["gaps"])
+    lat, lon = state["waypoints"][0]
+    assert abs(lat - mission.origin_lat_deg) < 0.01 and abs(lon - mission.origin_lon_deg) < 0.01
+    assert GridState(grid.geometry, grid.mask, L, L, np.zeros_like(L, np.int64), 1).hash \
+        == grid_hash(grid.geometry, grid.mask)
+
+
+# --- the web map: what may change something --------------------------------------------
+
+@pytest.mark.parametrize(("origin", "host", "ctype", "status"), [
+    (None, "127.0.0.1:8080", "application/json", None),  # a script (curl, Bearer)
+    ("http://127.0.0.1:8080", "127.0.0.1:8080", "application/json; charset=utf-8", None),
+    ("http://evil.example", "127.0.0.1:8080", "application/json", 403),
+    ("null", "127.0.0.1:8080", "application/json", 403),
+    (None, "127.0.0.1:8080", "application/x-www-form-urlencoded", 403),  # a cross-site form
+    (None, "127.0.0.1:8080", None, 403),
+])
+def test_post_needs_json_from_this_origin(origin, host, ctype, status) -> None:
+    verdict = post_allowed(origin, host, ctype)
+    assert (verdict is None) if status is None else verdict.status == status

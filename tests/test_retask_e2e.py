@@ -1,0 +1,166 @@
+"""Re-tasking end to end, on loopback (the router's access control on pdcov/<id>/retask:
+tests/test_security_zenoh.py): the daemon's own allow-list refuses and logs a session
+not on it; and ``pdcov watch --refly`` sends a re-fly of the live grid's gaps,
+over real Zenoh, to the daemon flying the real ArduCopter (../shared/ardupilot-sitl) in
+AUTO, which accepts it with MISSION_ACK; read back with MISSION_REQUEST_LIST it is the new
+mission, and the flight mode is still the pilot's AUTO."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from ardupilot_sitl import (
+    FLIGHT_MISSION,
+    MOUNT_SERVO_PARM,
+    ardupilot_sitl,
+    fly_mission,
+    requires_ardupilot_sitl,
+)
+from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
+
+from pdcov.bus.retask import decode_retask_reply, encode_retask
+from pdcov.bus.session import BusConfig, open_session
+from pdcov.bus.sources import source_info
+from pdcov.cli import main as pdcov_main
+from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
+from pdcov.planning.plan import read_mission
+from pdcov.telemetry.link_params import wait_autopilot
+from pdcov.telemetry.upload import mavlink2_connection
+
+pytestmark = pytest.mark.e2e
+
+ITEMS = (MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, lat_deg=-35.3631,
+                     lon_deg=149.1652, z_m=10.0),)
+
+
+# --- mid-flight, on the real ArduCopter -------------------------------------------------
+
+SPEEDUP = 10
+ALTITUDE_M = 10.0
+ARDU_MISSION = FLIGHT_MISSION
+
+
+def test_session_not_on_the_allow_list_refused_and_logged(tmp_path) -> None:
+    """No ACL (a plain router): the daemon's service.retask_sessions refuses a session not
+    listed, says so in the reply and its log, and counts it in the status's faults."""
+    zport = free_port()
+    zrouter = router(zport)
+    try:
+        cfg = serve_config(ARDU_MISSION, tmp_path / "m.yaml", zenoh_port=zport,
+                           state_dir=tmp_path / "state", retask=True,
+                           retask_sessions=["0123456789abcdef"])
+        log = tmp_path / "serve.log"
+        with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{free_port()}"),
+                     log) as daemon:
+            sub = Subscriber(zport, "ardu1")
+            s = open_session(BusConfig(mode="client", connect=(f"tcp/127.0.0.1:{zport}",),
+                                       multicast_scouting=False))
+            try:
+                sub.wait(lambda st: True, 20.0, "a status")
+                replies = [r.ok.payload.to_bytes() for r in s.get(
+                    "pdcov/ardu1/retask", payload=encode_retask("ardu1", ITEMS, ""),
+                    timeout=5.0, source_info=source_info(s.id, 1)) if r.ok is not None]
+                assert len(replies) == 1
+                reply = decode_retask_reply(replies[0])
+                assert not reply.accepted and reply.reason == "PDCOV_SESSION_NOT_ALLOWED"
+                st = sub.wait(lambda st: st["faults"].get("retask_refused") == 1, 10.0,
+                              "the refusal counted")
+                assert st["retask"]["refused"] == {"PDCOV_SESSION_NOT_ALLOWED": 1}
+            finally:
+                s.close()
+                sub.close()
+            assert stop(daemon) == 0
+        assert (f"re-tasking request from session {s.zid()} refused: the session is not on "
+                "service.retask_sessions") in log.read_text()
+    finally:
+        zrouter.close()
+
+
+def read_back(conn, target: tuple[int, int], timeout_s: float = 10.0) -> list:
+    """The autopilot's mission, MISSION_REQUEST_LIST then one MISSION_REQUEST_INT per item:
+    its MISSION_ITEM_INT messages in order (seq 0: ArduPilot's home)."""
+    conn.mav.mission_request_list_send(*target, 0)
+    count = conn.recv_match(type="MISSION_COUNT", blocking=True, timeout=timeout_s)
+    assert count is not None, "no MISSION_COUNT"
+    items = []
+    for seq in range(count.count):
+        for _ in range(3):
+            conn.mav.mission_request_int_send(*target, seq, 0)
+            item = conn.recv_match(type="MISSION_ITEM_INT", blocking=True, timeout=2.0)
+            if item is not None and item.seq == seq:
+                items.append(item)
+                break
+        else:
+            pytest.fail(f"item {seq} not read back")
+    conn.mav.mission_ack_send(*target, 0, 0)
+    return items
+
+
+def mode_of(conn, target: tuple[int, int]) -> int:
+    while True:
+        hb = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=5.0)
+        assert hb is not None, "no HEARTBEAT"
+        if hb.get_srcSystem() == target[0] and hb.get_srcComponent() == target[1]:
+            return hb.custom_mode
+
+
+@requires_ardupilot_sitl
+def test_refly_uploaded_mid_flight_to_real_arducopter(tmp_path) -> None:
+    zport = free_port()
+    config = serve_config(ARDU_MISSION, tmp_path / "mission.yaml", zenoh_port=zport,
+                          state_dir=tmp_path / "state", retask=True)
+    assert pdcov_main(["plan", "--config", str(config), "--pattern", "lawnmower",
+                       "--altitude-m", str(ALTITUDE_M), "--out", str(tmp_path / "plan"),
+                       "--no-figures"]) == 0
+    plan = tmp_path / "plan" / "plan.plan"
+    original = read_mission(plan).items
+    zrouter = router(zport)
+    try:
+        with ardupilot_sitl(tmp_path / "sitl", [MOUNT_SERVO_PARM], speedup=SPEEDUP) as sitl:
+            gcs = mavlink2_connection(sitl.serial_url(0), 255, 190)
+            try:
+                target = wait_autopilot(gcs, 30.0)
+                with process(serve_args(config, "--connect", sitl.serial_url(2)),
+                             tmp_path / "serve.log") as daemon:
+                    sub = Subscriber(zport, "ardu1")
+                    try:
+                        sub.wait(lambda s: s["link"]["state"] == "connected", 60.0,
+                                 "the daemon connected")
+                        assert pdcov_main(["upload", "--connect", sitl.serial_url(1),
+                                           str(plan)]) == 0
+                        # In AUTO, a few legs into the lawnmower: mid-flight, gaps left.
+                        fly_mission(gcs, target, 4, altitude_m=ALTITUDE_M, timeout_s=120.0)
+                        assert mode_of(gcs, target) == 3  # AUTO, set by the "pilot"
+                        sub.wait(lambda s: s["frames"]["used"] > 0, 10.0, "frames")
+                        watch = subprocess.run(
+                            [sys.executable, "-m", "pdcov.cli", "watch", "--config",
+                             str(config), "--vehicle", "ardu1", "--mode", "client",
+                             "--zenoh-connect", f"tcp/127.0.0.1:{zport}", "--refly", "ardu1",
+                             "--target-pd", "0.8", "--yes", "--wait-s", "10"],
+                            capture_output=True, text=True, timeout=120)
+                        assert watch.returncode == 0, watch.stdout + watch.stderr
+                        assert "the autopilot accepted" in watch.stdout, watch.stdout
+                        mode_after = mode_of(gcs, target)
+                        back = read_back(gcs, target)
+                        st = sub.wait(lambda s: (s.get("retask") or {}).get("last")
+                                      is not None, 10.0, "the status's retask")
+                        assert stop(daemon) == 0
+                    finally:
+                        sub.close()
+            finally:
+                gcs.close()
+    finally:
+        zrouter.close()
+    assert mode_after == 3, "the flight mode changed"
+    last = st["retask"]["last"]
+    assert last["accepted"] and last["result"] == "MAV_MISSION_ACCEPTED"
+    assert f"mission {last['plan_hash']}" in watch.stdout
+    # The new mission, item for item: as many as the daemon uploaded, not the old one.
+    assert len(back) == last["items"]
+    waypoints = [(m.x, m.y) for m in back[1:] if m.command == 16]
+    old = [(round(i.lat_deg * 1e7), round(i.lon_deg * 1e7)) for i in original
+           if i.command == 16]
+    assert waypoints and waypoints != old
+    assert "re-tasking: mission" in (tmp_path / "serve.log").read_text()
