@@ -20,9 +20,10 @@ from .measure import (
     time_updates,
 )
 from .offline import evaluate_run, optimise_run
-from .references import ReferenceGrid, r1_pixel_rays, r1_update, r2_update
+from .references import ReferenceGrid, pixel_rays, r1_update, r2_update
 from .report import Row, machine, markdown, write_readme_block
 from .scenarios import Scenario, scenarios, spaced, strided
+from .terrain import TerrainSite, s5_rows, valley_rows
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 # R1 counts pixel centres: a cell's count differs from its area by up to about its perimeter
@@ -40,12 +41,14 @@ class Sizes:
     r1_frames: int
     r2_frames: int
     memory_frames: int
+    r3_frames: int          # S5: R3 and pdcov on frames from the middle of the flight
+    valley_frames: int      # S5 valley: frames of its flight (strided), all at full size
     planner_altitudes_m: tuple[float, ...]
     planner_speeds_mps: tuple[float, ...]
 
 
-FULL = Sizes(3000, 20, 3, 200, (8.0, 10.0, 12.0), (3.0, 5.0))
-SMOKE = Sizes(200, 6, 4, 20, (10.0,), (5.0,))
+FULL = Sizes(3000, 20, 3, 200, 6, 10**6, (8.0, 10.0, 12.0), (3.0, 5.0))
+SMOKE = Sizes(200, 6, 4, 20, 4, 6, (10.0,), (5.0,))
 
 
 def compare_reference(sc: Scenario, frames: list, which: str, rays: np.ndarray,
@@ -87,7 +90,7 @@ def scenario_rows(sc: Scenario, sizes: Sizes, smoke: bool) -> list[Row]:
         Row(name, "peak memory: camera, grid, updates", f"{peak / 2**20:,.0f} MB (tracemalloc)"),
     ]
     stride = max(1, round(sc.rate_hz * 0.5))
-    rays = r1_pixel_rays(sc.camera)
+    rays = pixel_rays(sc.camera)
     for which, n, need, tol, share in (("R1", sizes.r1_frames, 20, R1_TOLERANCE_PD,
                                         R1_MIN_SHARE),
                                        ("R2", sizes.r2_frames, 10, R2_TOLERANCE_PD,
@@ -130,6 +133,21 @@ def offline_rows(sc: Scenario) -> list[Row]:
     return rows
 
 
+def terrain_rows(found: dict[str, Scenario], sizes: Sizes) -> list[Row]:
+    """S5 (its cost measured against flat S1's, timed here over as many frames) and the
+    whole valley flight against R3."""
+    s1 = found["S1"]
+    s1_frame_s = time_updates(s1.new_grid(), strided(s1.poses(), sizes.max_timed_frames)).mean_s
+    rows = []
+    for name in ("S5", "S5 valley"):
+        print(f"{name}: {found[name].describe()}", file=sys.stderr)
+        with tempfile.TemporaryDirectory(prefix="pdcov-bench-") as tmp:
+            site = TerrainSite.prepare(Path(tmp), found[name])
+            rows += (s5_rows(site, s1_frame_s, sizes.max_timed_frames, sizes.r3_frames)
+                     if name == "S5" else valley_rows(site, sizes.valley_frames))
+    return rows
+
+
 def planner_rows(sc: Scenario, sizes: Sizes) -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="pdcov-bench-") as tmp:
         run = optimise_run(Path(tmp), sc, list(sizes.planner_altitudes_m),
@@ -142,8 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
     parser.add_argument("--smoke", action="store_true",
                         help="tiny sizes, every step once (CI; timings meaningless)")
-    parser.add_argument("--scenarios", nargs="+", default=["S1", "S2", "S3", "S4"],
-                        choices=["S1", "S2", "S3", "S4"])
+    parser.add_argument("--scenarios", nargs="+", default=["S1", "S2", "S3", "S4", "S5"],
+                        choices=["S1", "S2", "S3", "S4", "S5"],
+                        help="S5: the terrain scenario and the valley flight (issue 21)")
     parser.add_argument("--no-offline", action="store_true",
                         help="skip pdcov evaluate (S1) and pdcov optimise (S2)")
     parser.add_argument("--sitl", action="store_true",
@@ -155,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
     found = scenarios(args.smoke)
     rows: list[Row] = []
     for name in args.scenarios:
+        if name == "S5":
+            rows += terrain_rows(found, sizes)
+            continue
         sc = found[name]
         print(f"{name}: {sc.describe()}", file=sys.stderr)
         rows += scenario_rows(sc, sizes, args.smoke)

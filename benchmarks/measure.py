@@ -14,6 +14,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 
 from .references import ReferenceGrid
+from .terrain_reference import TerrainReferenceGrid
 
 
 @dataclass(frozen=True)
@@ -132,4 +133,49 @@ def agreement(grid: CoverageGrid, ref: ReferenceGrid, tolerance: float) -> Agree
         cells_compared=n_same,
         p99_rel_log_miss=float(np.nanpercentile(rel, 99)) if n_same else 0.0,
         looks_differ=int((grid.n_obs != ref.n_obs)[free].sum()),
+    )
+
+
+@dataclass(frozen=True)
+class TerrainAgreement:
+    """How pdcov's grid compares with R3's (the terrain truth) over all free cells.
+
+    share_within: share of the free cells whose P_D differs by at most ``tolerance``;
+    share_within_observed: the same share of the free cells either grid observed
+    (cells_observed of them). never_seen: free cells no ray of R3 reached in any frame;
+    never_seen_counted: those of them pdcov observed. hidden: free cells whose centre was in
+    some frame's picture and range but always behind terrain (R3's ``hidden``);
+    hidden_counted: those of them pdcov observed.
+    """
+
+    share_within: float
+    share_within_observed: float
+    tolerance: float
+    cells_free: int
+    cells_observed: int
+    never_seen: int
+    never_seen_counted: int
+    hidden: int
+    hidden_counted: int
+
+
+def terrain_agreement(grid: CoverageGrid, ref: TerrainReferenceGrid,
+                      tolerance: float) -> TerrainAgreement:
+    """Compare ``grid`` (flat or with terrain) with R3's ``ref`` over the same frames."""
+    free = grid.mask
+    seen = grid.n_obs > 0
+    never = free & (ref.n_obs == 0)
+    hidden = ref.hidden
+    close = np.abs(grid.pd - ref.pd) <= tolerance
+    observed = free & (seen | (ref.n_obs > 0))
+    return TerrainAgreement(
+        share_within=float(close[free].mean()),
+        share_within_observed=float(close[observed].mean()) if observed.any() else 1.0,
+        tolerance=tolerance,
+        cells_free=int(free.sum()),
+        cells_observed=int(observed.sum()),
+        never_seen=int(never.sum()),
+        never_seen_counted=int((never & seen).sum()),
+        hidden=int(hidden.sum()),
+        hidden_counted=int((hidden & seen).sum()),
     )

@@ -7,7 +7,7 @@ cell centre is tested (in range, in the calibrated field of view, projected with
 ``projectPoints`` into the picture) and every observed cell's corners are projected; a cell
 wholly in the picture takes its corners' quadrilateral area, one straddling the picture's
 edge the area of that quadrilateral clipped to the picture (shapely). Both accumulate the
-same log-miss sums as pdcov, in float64.
+same log-miss sums as pdcov, in float64. R3, R1 over a DEM, is in ``terrain_reference``.
 """
 
 from __future__ import annotations
@@ -49,15 +49,18 @@ class ReferenceGrid:
         self.n_obs[observed] += 1
 
 
-def r1_pixel_rays(camera: CameraModel) -> np.ndarray:
-    """Unit rays (width * height, 3) float32 through every pixel centre (optical frame)."""
-    ys, xs = np.mgrid[0:camera.height_px, 0:camera.width_px]
-    px = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+def pixel_rays(camera: CameraModel, step_px: int = 1) -> np.ndarray:
+    """Unit rays (N, 3) float32 (optical frame), through every pixel centre (``step_px`` 1)
+    or through the centre of every whole block of ``step_px`` x ``step_px`` pixels, each
+    then standing for ``step_px**2`` pixels; row-major."""
+    half = (step_px - 1) / 2
+    ys, xs = np.mgrid[0:camera.height_px // step_px, 0:camera.width_px // step_px]
+    px = np.column_stack([xs.ravel(), ys.ravel()]) * float(step_px) + half
     return camera.pixel_rays(px).astype(np.float32)
 
 
 def r1_update(ref: ReferenceGrid, rays_cam: np.ndarray, pose: CameraPose) -> None:
-    """R1: cast every pixel's ray (``r1_pixel_rays``) to the ground and count rays per cell."""
+    """R1: cast every pixel's ray (``pixel_rays``) to the ground and count rays per cell."""
     g = ref.geometry
     d = rays_cam @ pose.R_enu_cam.T.astype(np.float32)
     d = d[d[:, 2] < 0].astype(np.float64)

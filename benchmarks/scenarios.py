@@ -21,6 +21,8 @@ from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.planning.patterns import lawnmower, spiral
 from pdcov.planning.trajectory import Flight, camera_poses, fly
 
+from .terrain_scene import Valley, ValleyDem
+
 MILD_PLUMB_BOB = (-0.05, 0.01, 0.0005, -0.0005, 0.0)
 FISHEYE_COEFFS = (0.01, -0.005, 0.001, 0.0)
 ORIGIN_LAT_DEG, ORIGIN_LON_DEG = 39.35, -76.33
@@ -49,6 +51,7 @@ class Scenario:
     spacing_m: float
     speed_mps: float
     duration_s: float
+    relief: ValleyDem | None = None
 
     @property
     def camera(self) -> CameraModel:
@@ -82,12 +85,13 @@ class Scenario:
         poses = camera_poses(self.flight(self.rate_hz), self.mount)
         return [p for p in poses if p.t_s <= self.duration_s]
 
-    def mission_doc(self) -> dict[str, Any]:
-        """The scenario as a mission config mapping (docs/mission-config.md)."""
+    def mission_doc(self, dem_file: str | None = None) -> dict[str, Any]:
+        """The scenario as a mission config mapping (docs/mission-config.md); with a
+        ``relief``, its origin and ``terrain.dem`` = ``dem_file``."""
         cam = self.camera
         s = self.side_m
-        return {
-            "vehicle_id": f"bench_{self.name.lower()}",
+        doc = {
+            "vehicle_id": f"bench_{self.name.lower().replace(' ', '_')}",
             "origin": {"lat_deg": ORIGIN_LAT_DEG, "lon_deg": ORIGIN_LON_DEG,
                        "ground_alt_msl_m": 0.0},
             "domain": {"polygon_enu_m": [[0, 0], [s, 0], [s, s], [0, s]],
@@ -98,20 +102,32 @@ class Scenario:
             "detector": "illustrative",
             "thresholds": [0.5, 0.7, 0.8],
         }
+        if self.relief is not None:
+            r = self.relief
+            doc["origin"] = {"lat_deg": r.origin_lat_deg, "lon_deg": r.origin_lon_deg,
+                             "ground_alt_msl_m": r.floor_alt_msl_m}
+            doc["terrain"] = {"dem": dem_file}
+        return doc
 
     def describe(self) -> str:
         w, h, fov, model, _ = self.camera_spec
         cells = round(self.side_m / self.cell_m) ** 2
-        return (f"{self.side_m:g} m square at {self.cell_m:g} m ({cells:,} cells), {w}x{h} "
+        ground = "" if self.relief is None else (
+            f"valley DEM ({self.relief.spacing_m:g} m, UTM 32N), ")
+        return (f"{ground}{self.side_m:g} m square at {self.cell_m:g} m ({cells:,} cells), {w}x{h} "
                 f"{model} {fov:g} deg, {self.alt_m:g} m, {self.off_nadir_deg:g} deg off nadir, "
                 f"{self.pattern} at {self.speed_mps:g} m/s, {self.rate_hz:g} frames/s, "
                 f"{self.duration_s:g} s")
 
 
 def scenarios(smoke: bool = False) -> dict[str, Scenario]:
-    """S1-S4 (issue 7); ``smoke``: the same shapes at a size CI runs in seconds."""
+    """S1-S4 (issue 7), S5 and S5 valley (issue 21); ``smoke``: the same shapes at a size CI
+    runs in seconds."""
     s1_cam = (1920, 1080, 80.0, "plumb_bob", MILD_PLUMB_BOB)
     s4_cam = (1920, 1080, 150.0, "fisheye", FISHEYE_COEFFS)
+    # The valley's camera: narrower than S1's, so that at 95 m above the floor a 1 m cell is
+    # ~6 detector-input pixels and the terrain's nearness moves it through several bins.
+    valley_cam = (1920, 1080, 60.0, "plumb_bob", MILD_PLUMB_BOB)
     if smoke:
         s1_cam = (480, 270, 80.0, "plumb_bob", MILD_PLUMB_BOB)
         s4_cam = (480, 270, 150.0, "fisheye", FISHEYE_COEFFS)
@@ -124,6 +140,10 @@ def scenarios(smoke: bool = False) -> dict[str, Scenario]:
                      8.0, 0.0, 30.0, "lawnmower", 8.0, 5.0, 2.0),
             Scenario("S4", "fisheye", 120.0, 1.0, s4_cam, 15.0, 20.0, 30.0, "lawnmower", 20.0,
                      10.0, 3.0),
+            Scenario("S5", "terrain", 120.0, 1.0, s1_cam, 60.0, 20.0, 30.0, "lawnmower", 40.0,
+                     10.0, 3.0, ValleyDem(Valley(120.0), 1.0, 120.0)),
+            Scenario("S5 valley", "valley", 200.0, 1.0, valley_cam, 95.0, 28.0, 1.0,
+                     "lawnmower", 100.0, 10.0, 600.0, ValleyDem(Valley(200.0), 1.0, 190.0)),
         ]
     else:
         found = [
@@ -136,6 +156,10 @@ def scenarios(smoke: bool = False) -> dict[str, Scenario]:
                      "lawnmower", 40.0, 5.0, 120.0),
             Scenario("S4", "fisheye", 1000.0, 1.0, s4_cam, 60.0, 20.0, 30.0, "lawnmower",
                      80.0, 10.0, 600.0),
+            Scenario("S5", "terrain", 1000.0, 1.0, s1_cam, 95.0, 20.0, 30.0, "lawnmower", 80.0,
+                     10.0, 600.0, ValleyDem(Valley(1000.0), 2.0, 200.0)),
+            Scenario("S5 valley", "valley", 300.0, 1.0, valley_cam, 95.0, 28.0, 2.0,
+                     "lawnmower", 120.0, 10.0, 600.0, ValleyDem(Valley(300.0), 1.0, 190.0)),
         ]
     return {s.name: s for s in found}
 

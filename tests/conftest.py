@@ -51,6 +51,9 @@ TIER_OF_TESTS: dict[str, dict[str, str]] = {
         "test_capture_frames_duplicated_or_late_evaluate_to_the_live_grid",
         "test_evaluate_of_the_recording_is_the_live_grid",
         "test_evaluate_uses_the_recorded_frames_unless_rate_is_chosen"), "e2e"),
+    "test_terrain_reference.py": dict.fromkeys((
+        "test_flat_pdcov_misjudges_the_valley", "test_pdcov_with_the_dem_agrees_with_r3"),
+        "slow"),
     "test_revisit_clock.py": {"test_row_order_and_time_origin_do_not_change_the_grid": "e2e"},
     "test_serve_e2e.py": {"test_real_flight_replay_equals_offline": "e2e"},
     "test_sitl_replay.py": dict.fromkeys((
