@@ -41,9 +41,12 @@ from shapely.geometry import box
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status
+from pdcov.config import load_mission
 from pdcov.core.geodesy import Origin
+from pdcov.core.mission import AltitudeFrame
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
+from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
 
 from .harness import child, free_port, serve_args
 from .report import Row, machine, markdown
@@ -69,8 +72,11 @@ def memory_bytes(pid: int) -> dict[str, int]:
 
 
 def write_inputs(folder: Path, sc: Scenario, mav_port: int, zenoh_port: int) -> tuple[Path, Path]:
-    """The mission config (S1 plus the daemon's sections) and S1's lawnmower plan."""
-    doc = sc.mission_doc()
+    """The mission config (the scenario plus the daemon's sections) and its lawnmower plan;
+    over a scenario's relief (S5) the DEM is written beside them and the plan follows the
+    terrain (AMSL waypoints, planning/terrain_follow.py), as the simulator then flies it."""
+    dem = None if sc.relief is None else sc.relief.write_geotiff(folder / "dem.tif")
+    doc = sc.mission_doc(None if dem is None else str(dem))
     doc["link"] = {"connect": [f"udpin:127.0.0.1:{mav_port}"], "attitude_hz": 30,
                    "position_hz": 10}
     doc["bus"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{zenoh_port}"],
@@ -81,7 +87,12 @@ def write_inputs(folder: Path, sc: Scenario, mav_port: int, zenoh_port: int) -> 
     plan = lawnmower(box(0.0, 0.0, sc.side_m, sc.side_m), sc.spacing_m, 0.0, sc.alt_m,
                      sc.speed_mps)
     origin = Origin(ORIGIN_LAT_DEG, ORIGIN_LON_DEG, 0.0)
-    return config, write_plan(folder / "s1.plan", plan, origin)
+    if dem is not None:
+        mission = load_mission(config)
+        assert mission.terrain is not None
+        plan = follow_terrain(plan, mission.terrain, TerrainFollowing(AltitudeFrame.AMSL))
+        origin = mission.origin()
+    return config, write_plan(folder / "plan.plan", plan, origin)
 
 
 @dataclass
@@ -201,27 +212,27 @@ def rows(r: DaemonRun, sc: Scenario) -> list[Row]:
     rss = r.memory.get("VmHWM", 0) / 2**20
     pace = r.autopilot_s / r.window_s
     return [
-        Row("S1 live", "setup", f"{sc.describe().rsplit(', ', 1)[0]}; pdcov-sitl fly in "
+        Row(f"{sc.name} live", "setup", f"{sc.describe().rsplit(', ', 1)[0]}; pdcov-sitl fly in "
             f"real time, measured over {r.window_s:.0f} s"),
         # The simulator must keep real time, or the daemon gets fewer frames per second
         # than the flight has and every figure below is too kind.
-        Row("S1 live", "simulator pace", f"{pace:.2f}x real time (autopilot clock "
+        Row(f"{sc.name} live", "simulator pace", f"{pace:.2f}x real time (autopilot clock "
             f"{r.autopilot_s:.1f} s in {r.window_s:.1f} s)", ">= 0.95x (else the machine is "
             "too loaded to judge the rest)", pace >= 0.95),
-        Row("S1 live", "daemon CPU (share of one core)", f"{r.cpu_share:.1%}", "<= 25 %",
+        Row(f"{sc.name} live", "daemon CPU (share of one core)", f"{r.cpu_share:.1%}", "<= 25 %",
             r.cpu_share <= 0.25),
-        Row("S1 live", "frames skipped", f"{skipped} of {r.frames_used + skipped} "
+        Row(f"{sc.name} live", "frames skipped", f"{skipped} of {r.frames_used + skipped} "
             f"({reasons}); {r.frames_expected:.0f} frame times in the window, "
             f"{r.pending} pending at its end", "0", skipped == 0),
-        Row("S1 live", "publish -> receive latency p50 / p99",
+        Row(f"{sc.name} live", "publish -> receive latency p50 / p99",
             f"status {r.latency_ms['status'][0]:.1f} / {r.latency_ms['status'][1]:.1f} ms, "
             f"tiles {r.latency_ms['tiles'][0]:.1f} / {r.latency_ms['tiles'][1]:.1f} ms",
             "p99 < 100 ms", p99 < 100.0),
-        Row("S1 live", "Zenoh status", f"{r.bytes_per_s['status']:,.0f} B/s", "< 1 kB/s",
+        Row(f"{sc.name} live", "Zenoh status", f"{r.bytes_per_s['status']:,.0f} B/s", "< 1 kB/s",
             r.bytes_per_s["status"] < 1000),
-        Row("S1 live", "Zenoh tiles", f"{r.bytes_per_s['tiles'] / 1e3:,.1f} kB/s",
+        Row(f"{sc.name} live", "Zenoh tiles", f"{r.bytes_per_s['tiles'] / 1e3:,.1f} kB/s",
             "< 64 kB/s", r.bytes_per_s["tiles"] < 64000),
-        Row("S1 live", "daemon memory (RSS peak / end)",
+        Row(f"{sc.name} live", "daemon memory (RSS peak / end)",
             f"{rss:,.0f} / {r.memory.get('VmRSS', 0) / 2**20:,.0f} MB", "< 300 MB",
             rss < 300),
     ]
@@ -232,13 +243,17 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--window-s", type=float, default=60.0,
                         help="seconds measured once frames are counted (60)")
-    parser.add_argument("--smoke", action="store_true", help="tiny S1, a few seconds")
+    parser.add_argument("--smoke", action="store_true", help="tiny scenario, a few seconds")
+    parser.add_argument("--scenario", choices=("S1", "S5"), default="S1",
+                        help="S1 on flat ground (default), or S5: the same survey over a 1 km "
+                             "valley DEM, the plan following the terrain")
     args = parser.parse_args(argv)
-    sc = scenarios(args.smoke)["S1"]
+    sc = scenarios(args.smoke)[args.scenario]
     window = 3.0 if args.smoke else args.window_s
     with tempfile.TemporaryDirectory(prefix="pdcov-bench-daemon-") as tmp:
         result = run(Path(tmp), sc, window, start_timeout_s=120.0)
-    command = "python -m benchmarks.daemon" + (" --smoke" if args.smoke else "")
+    command = ("python -m benchmarks.daemon" + (" --smoke" if args.smoke else "")
+               + ("" if args.scenario == "S1" else f" --scenario {args.scenario}"))
     print(markdown(rows(result, sc), machine(), command))
     print(json.dumps({"skipped": result.skipped, "memory": result.memory}), file=sys.stderr)
     return 0

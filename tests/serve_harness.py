@@ -201,7 +201,8 @@ def watched(zport: int):
         r.close()
 
 
-def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
+def finish(sub: Subscriber, daemon, tmp: Path, before_stop=None
+           ) -> tuple[dict, object, object]:
     """Wait until the daemon has read everything (its newest telemetry time and frames the
     same in 6 statuses in a row: a daemon behind a fast simulator may still have datagrams
     in its socket when it has no frame pending) and sent the last tiles; (final status,
@@ -223,6 +224,8 @@ def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
     sub.sync()
     st = sub.status
     snap = sub.snapshot()
+    if before_stop is not None:
+        before_stop()
     assert daemon.poll() is None, (tmp / "serve.log").read_text()[-3000:]
     assert stop(daemon) == 0
     assert not sub.errors, sub.errors
@@ -230,11 +233,12 @@ def finish(sub: Subscriber, daemon, tmp: Path) -> tuple[dict, object, object]:
 
 
 def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None,
-            sim_config: Path | None = None, **service):
+            sim_config: Path | None = None, settled=None, **service):
     """Daemon first (UDP), then the simulator. ``detector(fly, sub, zenoh_port)`` runs
     while the simulator flies and returns the frame times it published and how many it
     sent twice. ``sim_config``: the simulator's mission config (its ground) when it is not
-    the daemon's."""
+    the daemon's. ``settled(zenoh_port)`` runs once the daemon has taken everything, before
+    it stops; what it returns is ``out["settled"]``."""
     zport, mport = free_port(), free_port()
     cfg = serve_config(doc, tmp / "m.yaml", zenoh_port=zport, state_dir=tmp / "st", **service)
     out = {"cfg": cfg}
@@ -248,5 +252,7 @@ def fly_udp(tmp: Path, doc: dict, plan: Path, *fly_more: str, detector=None,
             if detector is not None:
                 out["times"], out["resent"] = detector(fly, sub, zport)
             assert fly.wait(timeout=240) == 0, (tmp / "fly.log").read_text()[-2000:]
-        out["st"], out["grid"], out["snap"] = finish(sub, daemon, tmp)
+        out["st"], out["grid"], out["snap"] = finish(
+            sub, daemon, tmp, None if settled is None else lambda: out.update(
+                settled=settled(zport)))
     return out

@@ -15,6 +15,11 @@ is GLOBAL_POSITION_INT, the simulator's true position (GPS_RAW_INT's random walk
 used); what remains is MAVLink's quantisation, the telemetry's interpolation to the frame
 time and the boxes' 1 px noise.
 
+(c) The ground station gets the same: `pdcov watch --once --record DIR`, started after the
+flight, catches up on the candidates with one query and writes exports/detections.geojson;
+its candidates equal those `pdcov evaluate` finds in the recording (ids, hits, looks, P_D
+and position).
+
 The measured numbers are in docs/simulator.md ("The model checked end to end").
 """
 
@@ -22,6 +27,8 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,8 +62,18 @@ def demo_plan(folder: Path) -> Path:
 def flight(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("search")
     doc = {**yaml.safe_load(DEMO.read_text()), "vehicle_id": "sim1"}
+    record = tmp / "watch"
+
+    def watch(zenoh_port: int) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, "-m", "pdcov.cli", "watch", "--once", "--vehicle", "sim1",
+             "--zenoh-connect", f"tcp/127.0.0.1:{zenoh_port}", "--no-multicast-scouting",
+             "--record", str(record), "--wait-s", "30"],
+            capture_output=True, text=True, timeout=120)
+
     out = fly_udp(tmp, doc, demo_plan(tmp), "--targets", str(PEOPLE), "--seed", str(SEED),
-                  frame_source="zenoh")
+                  frame_source="zenoh", settled=watch)
+    out["record"] = record
     out["fly"] = tmp / "fly"
     return out
 
@@ -121,3 +138,23 @@ def test_true_detections_geolocate_within_1_5_m_at_p90(flight, tmp_path):
     assert unmatched == 0
     assert len(err) > 500
     assert p90 <= 1.5
+
+
+def test_the_ground_station_gets_the_candidates_evaluate_finds(flight, tmp_path):
+    run = flight["settled"]
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "candidates sim1:" in run.stdout, run.stdout
+    cfg = flight["cfg"]
+    offline(cfg, recording(cfg.parent), tmp_path / "ev")
+    evaluated = json.loads((tmp_path / "ev" / "detections.json").read_text())["candidates"]
+    exported = json.loads((flight["record"] / "exports" / "detections.geojson").read_text())
+    points = [f for f in exported["features"] if f["properties"].get("kind") == "candidate"]
+    assert len(evaluated) > 20 and len(points) == len(evaluated)
+    by_id = {c["id"]: c for c in evaluated}
+    for f in points:
+        p = f["properties"]
+        c = by_id[p["candidate"]]
+        assert (p["hits"], p["looks"]) == (c["hits"], c["looks"])
+        assert abs(p["pd"] - c["pd"]) < 1e-6  # the export rounds to 1e-6
+        lon, lat = f["geometry"]["coordinates"][:2]
+        assert abs(lat - c["lat_deg"]) < 1e-7 and abs(lon - c["lon_deg"]) < 1e-7

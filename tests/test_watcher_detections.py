@@ -43,15 +43,16 @@ def pinned(watcher: Watcher | None = None) -> tuple[Watcher, TinyPublisher]:
 
 def test_candidates_are_asked_after_each_snapshot_and_replace_what_is_held():
     w, pub = pinned()
+    feed = w.feeds["uav1"]
     assert w.candidates_due(0.2) == [QueryCandidates("uav1")]
     assert w.candidates_due(0.3) == []  # once per snapshot
+    assert feed.candidates_done_at != feed.snapshots  # --once waits for the answer
     w.on_candidates_replies("uav1", [(DAEMON, doc("uav1", candidates=[
         candidate(1, 0, 0), candidate(2, 5, 5)]))], 0.4)
-    assert sorted(w.feeds["uav1"].candidates) == [1, 2]
+    assert sorted(feed.candidates) == [1, 2] and feed.candidates_done_at == feed.snapshots
     # New detections and the candidates they touched update the list.
     w.on_detections("uav1", doc("uav1", [detection(2, 5, 5)],
                                 [candidate(2, 5, 5, hits=10, looks=15)]), 1.0, DAEMON)
-    feed = w.feeds["uav1"]
     assert feed.candidates[2]["hits"] == 10 and len(feed.detections) == 1
     # A gap: the snapshot is taken again, and so is the whole candidate list.
     w.on_snapshot_replies("uav1", [(DAEMON, decode_snapshot(pub.snapshot()))], 2.0)
@@ -65,6 +66,8 @@ def test_an_unanswered_candidates_query_is_asked_again():
     w, _ = pinned(Watcher(mission_retry_s=5.0))
     assert w.candidates_due(0.2)
     w.on_candidates_replies("uav1", [], 0.5)  # timeout, or an older daemon
+    feed = w.feeds["uav1"]
+    assert feed.candidates_done_at == feed.snapshots  # --once does not wait for more
     assert w.candidates_due(4.0) == []
     assert w.candidates_due(5.6) == [QueryCandidates("uav1")]
 

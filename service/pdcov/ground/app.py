@@ -243,12 +243,14 @@ def _exports_line(exports: ExportRecorder, ok: bool) -> str:
 
 async def _grids_in(watcher: Watcher, opts: WatchOptions, stop: asyncio.Event,
                     runner: asyncio.Task[None]) -> None:
-    """Return once every vehicle seen has its grid and a status (or after wait_s)."""
+    """Return once every vehicle seen has its grid, a status and the answer (or none) to
+    the candidates query its grid asked for (or after wait_s)."""
     deadline = time.monotonic() + opts.wait_s
     while time.monotonic() < deadline and not stop.is_set() and not runner.done():
         feeds = list(watcher.feeds.values())
         if feeds and all(f.state is not None and f.awaiting_since_s is None
-                         and f.status is not None for f in feeds):
+                         and f.status is not None and f.candidates_done_at == f.snapshots
+                         for f in feeds):
             break
         await asyncio.sleep(0.1)
     if runner.done():

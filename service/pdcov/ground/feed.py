@@ -58,6 +58,9 @@ class VehicleFeed:
     detections_session: SessionId = None  # the session the candidates came from
     candidates_asked_at: int | None = None  # ``snapshots`` when candidates were last asked
     candidates_retry_at_s: float | None = None  # None while a query is out (or none needed)
+    # ``snapshots`` when the last candidates query ended (answered or not): a report taken
+    # after it holds the candidates the daemon had then.
+    candidates_done_at: int | None = None
     candidates_dropped: int = 0  # candidates forgotten beyond max_candidates
 
     def origin(self) -> Origin | None:

@@ -337,6 +337,7 @@ class Watcher:
         feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
         if feed is None:
             return
+        feed.candidates_done_at = feed.candidates_asked_at
         for source, doc in replies:
             if self._trusted(vehicle_id, source, now_s) is None:
                 continue
