@@ -10,6 +10,7 @@ side; heights do not. The benchmark (S5) and the tests build their DEMs here.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,28 +75,41 @@ class ValleyDem:
     def write_geotiff(self, path: Path) -> Path:
         """Write heights MSL (float32) at the pixel centres of a north-up UTM 32 N raster
         covering the domain and the margin."""
-        s, m, h = self.valley.side_m, self.margin_m, self.spacing_m
-        ring = np.array([[-m, -m], [s + m, -m], [s + m, s + m], [-m, s + m]])
-        lat, lon, _ = pymap3d.enu2geodetic(ring[:, 0], ring[:, 1], 0.0, self.origin_lat_deg,
-                                           self.origin_lon_deg, self.floor_alt_msl_m)
-        east, north = rasterio.warp.transform(CRS.from_epsg(4326), UTM_32N, lon, lat)
-        west_m, south_m = math.floor(min(east) / h) * h, math.floor(min(north) / h) * h
-        n_cols = math.ceil((max(east) - west_m) / h)
-        n_rows = math.ceil((max(north) - south_m) / h)
-        north_m = south_m + n_rows * h
-        e = west_m + h * (np.arange(n_cols) + 0.5)
-        n = north_m - h * (np.arange(n_rows) + 0.5)
-        E, N = np.meshgrid(e, n)
-        lon_px, lat_px = rasterio.warp.transform(UTM_32N, CRS.from_epsg(4326), E.ravel(),
-                                                 N.ravel())
-        x, y, _ = pymap3d.geodetic2enu(np.array(lat_px), np.array(lon_px),
-                                       self.floor_alt_msl_m, self.origin_lat_deg,
-                                       self.origin_lon_deg, self.floor_alt_msl_m)
-        alt_msl_m = self.floor_alt_msl_m + self.valley.height_m(x, y)
-        with rasterio.open(path, "w", driver="GTiff", width=n_cols, height=n_rows, count=1,
-                           dtype="float32", crs=UTM_32N,
-                           transform=from_origin(west_m, north_m, h, h), nodata=-9999.0,
-                           tiled=True, blockxsize=256, blockysize=256,
-                           compress="deflate") as dst:
-            dst.write(alt_msl_m.reshape(n_rows, n_cols).astype(np.float32), 1)
-        return path
+        s, m = self.valley.side_m, self.margin_m
+        return write_enu_geotiff(path, self.valley.height_m, self.origin_lat_deg,
+                                 self.origin_lon_deg, self.floor_alt_msl_m,
+                                 (-m, -m, s + m, s + m), self.spacing_m)
+
+
+def write_enu_geotiff(path: Path, height_m: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                      origin_lat_deg: float, origin_lon_deg: float, ground_alt_msl_m: float,
+                      box_enu_m: tuple[float, float, float, float], spacing_m: float) -> Path:
+    """Write analytic heights as a DEM: ``height_m(x, y)`` (m above ``ground_alt_msl_m``
+    at ENU x, y about the origin) at the pixel centres of a north-up UTM 32 N float32
+    raster of ``spacing_m`` pixels (aligned to whole multiples of it) covering the ENU box
+    (x0, y0, x1, y1) (m); heights MSL."""
+    x0, y0, x1, y1 = box_enu_m
+    h = spacing_m
+    ring = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    lat, lon, _ = pymap3d.enu2geodetic(ring[:, 0], ring[:, 1], 0.0, origin_lat_deg,
+                                       origin_lon_deg, ground_alt_msl_m)
+    east, north = rasterio.warp.transform(CRS.from_epsg(4326), UTM_32N, lon, lat)
+    west_m, south_m = math.floor(min(east) / h) * h, math.floor(min(north) / h) * h
+    n_cols = math.ceil((max(east) - west_m) / h)
+    n_rows = math.ceil((max(north) - south_m) / h)
+    north_m = south_m + n_rows * h
+    e = west_m + h * (np.arange(n_cols) + 0.5)
+    n = north_m - h * (np.arange(n_rows) + 0.5)
+    E, N = np.meshgrid(e, n)
+    lon_px, lat_px = rasterio.warp.transform(UTM_32N, CRS.from_epsg(4326), E.ravel(),
+                                             N.ravel())
+    x, y, _ = pymap3d.geodetic2enu(np.array(lat_px), np.array(lon_px), ground_alt_msl_m,
+                                   origin_lat_deg, origin_lon_deg, ground_alt_msl_m)
+    alt_msl_m = ground_alt_msl_m + height_m(x, y)
+    with rasterio.open(path, "w", driver="GTiff", width=n_cols, height=n_rows, count=1,
+                       dtype="float32", crs=UTM_32N,
+                       transform=from_origin(west_m, north_m, h, h), nodata=-9999.0,
+                       tiled=True, blockxsize=256, blockysize=256,
+                       compress="deflate") as dst:
+        dst.write(alt_msl_m.reshape(n_rows, n_cols).astype(np.float32), 1)
+    return path

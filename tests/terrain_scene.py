@@ -17,7 +17,6 @@ and the simulator's climb and return, and Dem.open's margin around the grid.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +24,11 @@ import numpy as np
 import yaml
 
 from benchmarks.harness import small_mission
-from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from benchmarks.terrain_scene import write_enu_geotiff
+from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
 from pdcov.planning.plan import wpl_text
 
-UTM32N = "EPSG:32632"
 DOMAIN_M = 60.0
 """The domain: the square [0, DOMAIN_M] east by [0, 40] north (1 m cells)."""
 DOMAIN_ENU_M = [[0.0, 0.0], [DOMAIN_M, 0.0], [DOMAIN_M, 40.0], [0.0, 40.0]]
@@ -54,24 +53,12 @@ def origin() -> Origin:
 
 def write_dem(path: Path, shift_m: float = 0.0) -> Path:
     """The scene's DEM (m MSL, ``shift_m`` added: a wrong DEM) as a float32 GeoTIFF in UTM
-    32N, 1 m pixels aligned to whole metres of easting and northing about the origin."""
-    import rasterio
-    from rasterio.transform import from_origin
-    from rasterio.warp import transform as warp_transform
-
+    32N, 1 m pixels aligned to whole metres of easting and northing."""
     o = origin()
-    (e0,), (n0,) = warp_transform("EPSG:4326", UTM32N, [o.lon_deg], [o.lat_deg])
-    west, north = math.floor(e0 - EXTENT_M), math.ceil(n0 + DOMAIN_M + EXTENT_M)
-    n = round(DOMAIN_M + 2 * EXTENT_M) + 1
-    east, south = np.meshgrid(west + 0.5 + np.arange(n), north - 0.5 - np.arange(n))
-    lon, lat = warp_transform(UTM32N, "EPSG:4326", east.ravel(), south.ravel())
-    enu = geodetic_to_enu(np.array(lat), np.array(lon), o.ground_alt_msl_m, o)
-    h = o.ground_alt_msl_m + shift_m + height_enu_m(enu[:, 0], enu[:, 1]).reshape(n, n)
-    with rasterio.open(path, "w", driver="GTiff", height=n, width=n, count=1,
-                       dtype="float32", crs=UTM32N,
-                       transform=from_origin(west, north, 1.0, 1.0)) as dst:
-        dst.write(h.astype("float32"), 1)
-    return path
+    return write_enu_geotiff(path, lambda x, y: height_enu_m(x, y) + shift_m, o.lat_deg,
+                             o.lon_deg, o.ground_alt_msl_m,
+                             (-EXTENT_M, -EXTENT_M, DOMAIN_M + EXTENT_M, DOMAIN_M + EXTENT_M),
+                             1.0)
 
 
 def terrain_mission(dem: Path, **sections: Any) -> dict[str, Any]:
