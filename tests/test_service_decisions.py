@@ -71,7 +71,7 @@ def test_link_follows_the_autopilot_and_never_sends_as_255():
     results = {mid: r.result for mid, r in proto.interval_requests.items()}
     assert results == {30: "refused", 33: "unanswered"} and sent == 3
     with pytest.raises(RuntimeError, match="never sends"):
-        proto._out(proto.mav.command_long_encode(7, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))  # ARM
+        proto.checked([proto.mav.command_long_encode(7, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)])  # ARM
 
 
 def test_link_rerequests_after_a_reboot_and_reads_params():
