@@ -90,7 +90,7 @@ def peak_update_memory_bytes(new_grid: Callable[[], CoverageGrid],
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    arrays = [grid.log_miss_d, grid.log_miss_fa, grid.n_obs, grid.mask]
+    arrays = [grid.log_miss_d, grid.log_miss_fa, grid.n_obs, grid.mask, grid.limiting]
     if grid.last_obs_s is not None:
         arrays.append(grid.last_obs_s)
     return peak, sum(a.nbytes for a in arrays)
