@@ -20,7 +20,8 @@ from pdcov.errors import DetectorModelError, where
 from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the optional ``looks`` section (per-person correlation)
+_READABLE_VERSIONS = (1, 2)
 SIZE_METRICS = ("sqrt_area",)
 
 # The keys of a model file (docs/detector-model.md): the engine's, then those `pdcov detector
@@ -36,9 +37,24 @@ MODEL_SCHEMA = Section.of(
                    "max_detections", "ground_truth", "detections", "bins",
                    status_counts=Section(open=True)),
     logistic=Section.of("link", "covariate", "degree", "fit_range_px",
-                        p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE))
+                        p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE),
+    looks=Section(open=True))
 _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
-                "confidence_threshold", "iou_threshold", "size_metric", "counts")
+                "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks")
+
+
+@dataclass(frozen=True, slots=True)
+class LooksModel:
+    """How one person's looks are correlated (version 2's ``looks`` section).
+
+    Each person has a latent detectability: in size bin i it is Beta distributed with the
+    bin's mean P_D and intra-person correlation ``correlation[i]`` (rho = 1 / (a + b + 1));
+    rho = 0 is the paper's independent looks. ``extra``: the fit's other keys (intervals,
+    tests), kept as written.
+    """
+
+    correlation: tuple[float, ...]
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,6 +84,7 @@ class DetectorModel:
     iou_threshold: float | None = None
     size_metric: str = "sqrt_area"
     counts: BinCounts | None = None
+    looks: LooksModel | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str | None = None
 
@@ -112,6 +129,13 @@ class DetectorModel:
                         f"{where(src, 'counts.' + key)}: expected {n} non-negative counts, "
                         f"got {list(c)}")
 
+        if self.looks is not None:
+            rho = np.asarray(self.looks.correlation, dtype=float)
+            if rho.shape != (n,) or not np.all((rho >= 0) & (rho < 1)):
+                raise DetectorModelError(
+                    f"{where(src, 'looks.correlation')}: expected {n} values in [0, 1) "
+                    f"(one per bin), got {list(self.looks.correlation)}")
+
     @property
     def n_bins(self) -> int:
         return len(self.bin_edges_px) - 1
@@ -150,9 +174,24 @@ class DetectorModel:
             raise DetectorModelError(f"{source or 'detector model'}: expected a mapping")
         check_keys(doc, MODEL_SCHEMA, source, "", DetectorModelError)
         version = doc.get("version")
-        if version != FORMAT_VERSION:
+        if version not in _READABLE_VERSIONS:
             raise DetectorModelError(
-                f"{where(source, 'version')}: expected {FORMAT_VERSION}, got {version!r}")
+                f"{where(source, 'version')}: expected "
+                f"{' or '.join(map(str, _READABLE_VERSIONS))}, got {version!r}")
+        looks = None
+        if doc.get("looks") is not None:
+            if version < 2:
+                raise DetectorModelError(
+                    f"{where(source, 'looks')}: needs version 2, the file says {version}")
+            lk = doc["looks"]
+            rho = lk.get("correlation") if isinstance(lk, dict) else None
+            if not isinstance(rho, list) or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in rho):
+                raise DetectorModelError(
+                    f"{where(source, 'looks.correlation')}: expected a list of numbers, "
+                    f"got {rho!r}")
+            looks = LooksModel(tuple(float(v) for v in rho),
+                               {k: v for k, v in lk.items() if k != "correlation"})
         for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
             if key not in doc:
                 raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
@@ -186,6 +225,7 @@ class DetectorModel:
             iou_threshold=_opt_float(doc, "iou_threshold", source),
             size_metric=doc.get("size_metric", "sqrt_area"),
             counts=counts,
+            looks=looks,
             extra={k: v for k, v in doc.items() if k not in _ENGINE_KEYS},
             source=source,
         )
@@ -203,7 +243,7 @@ class DetectorModel:
 
     def to_dict(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
-            "version": FORMAT_VERSION,
+            "version": FORMAT_VERSION if self.looks is not None else 1,
             "size_metric": self.size_metric,
             "input_size_px": self.input_size_px,
             "confidence_threshold": self.confidence_threshold,
@@ -216,6 +256,9 @@ class DetectorModel:
             doc["counts"] = {"n_true": list(self.counts.n_true),
                              "n_detected": list(self.counts.n_detected),
                              "n_detections": list(self.counts.n_detections)}
+        if self.looks is not None:
+            doc["looks"] = {"correlation": [float(v) for v in self.looks.correlation],
+                            **self.looks.extra}
         doc.update(self.extra)
         return doc
 
