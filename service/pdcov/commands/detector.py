@@ -12,6 +12,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import yaml
 from tqdm import tqdm
@@ -28,6 +29,7 @@ from pdcov.detection.annotations import (
     read_detections,
     read_truth,
 )
+from pdcov.detection.looks import LooksFit, collect_looks, fit_looks, found_within
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
     BIN_RULES,
@@ -38,6 +40,13 @@ from pdcov.detection.statistics import (
     fit_binned,
     fit_logistic,
     validate,
+)
+from pdcov.detection.tracks import (
+    MOT_DEFAULT_CLASSES,
+    TRACK_FORMATS,
+    TrackedSet,
+    is_tracked,
+    read_tracked,
 )
 from pdcov.errors import ConfigError, InputFileError
 
@@ -96,18 +105,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     plot.add_argument("--validation", type=Path, help="report JSON of 'detector validate'")
     plot.add_argument("--out", required=True, type=output_file, help="image to write (.png, .pdf)")
     plot.add_argument("--title", help="figure title")
+    plot.add_argument("--looks", type=output_file,
+                      help="also draw the share of people found within n looks (measured, "
+                           "independent, beta-binomial) of a model fitted on tracked "
+                           "sequences to this image")
     plot.set_defaults(func=run_plot)
 
 
 def _data_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ground-truth", required=True, type=Path,
-                   help="COCO instances JSON, or a directory of YOLO / VisDrone label files")
+                   help="COCO instances JSON, a directory of YOLO / VisDrone label files, or "
+                        "a MOTChallenge folder of tracked sequences (each with gt/gt.txt)")
     p.add_argument("--detections", required=True, type=Path,
-                   help="COCO results JSON, or a directory of YOLO / VisDrone txt files")
-    p.add_argument("--format", choices=FORMATS,
-                   help="format of both: coco, yolo, visdrone, or odm (Object-Detection-Metrics "
-                        "'class [confidence] left top width height' per image; default: .json "
-                        "is COCO, else guessed from the text)")
+                   help="COCO results JSON, a directory of YOLO / VisDrone txt files, or for "
+                        "tracked sequences the sequences' folder (det/det.txt) or a folder "
+                        "of <sequence>.txt")
+    p.add_argument("--format", choices=FORMATS + TRACK_FORMATS,
+                   help="format of both: coco, yolo, visdrone, odm (Object-Detection-Metrics "
+                        "'class [confidence] left top width height' per image), or tracked "
+                        "sequences: mot (MOTChallenge) or visdrone-mot; default: .json is "
+                        "COCO, a folder with gt/gt.txt is mot, else guessed from the text")
     p.add_argument("--detections-format", choices=FORMATS,
                    help="format of the detections if it differs from the ground truth's")
     p.add_argument("--images", type=Path, help="image directory, for image sizes")
@@ -161,7 +178,49 @@ def _classes(text: str | None) -> tuple[str, ...] | None:
     return tuple(c.strip() for c in text.split(",") if c.strip()) if text else None
 
 
+def _tracked_format(args: argparse.Namespace) -> str | None:
+    """The tracked-sequence format of the inputs, or None for a labelled image set."""
+    if args.format in TRACK_FORMATS:
+        return str(args.format)
+    return "mot" if args.format is None and is_tracked(args.ground_truth) else None
+
+
+def _read_tracked(args: argparse.Namespace, fmt: str,
+                  settings: MatchSettings) -> tuple[TrackedSet, MatchSettings]:
+    """The sequences, and the settings with the format's default class set (MOT: pedestrian,
+    since det.txt has no class)."""
+    tracked = read_tracked(args.ground_truth, args.detections, fmt, args.sizes)
+    if settings.classes is None and fmt == "mot":
+        settings = replace(settings, classes=MOT_DEFAULT_CLASSES)
+    if settings.classes is not None:
+        unknown = [c for c in settings.classes if c not in tracked.classes]
+        if unknown:
+            raise ConfigError(f"--classes: {', '.join(map(repr, unknown))} not among the "
+                              f"{fmt} classes: {', '.join(tracked.classes)}")
+    if settings.input_size_px is not None:
+        for f in tracked.frames:
+            if f.truth.width_px is None:
+                seq = f.truth.image_id.rsplit(":", 1)[0]
+                raise InputFileError(
+                    f"{args.ground_truth}: image size of sequence {seq!r} unknown; give its "
+                    f"seqinfo.ini, img1/ images or --sizes FILE ('sequence width height'), "
+                    f"or --input-size none to keep image pixels")
+    if not tracked.frames:
+        raise InputFileError(f"{tracked.source}: no frames")
+    return tracked, settings
+
+
+def _frames(args: argparse.Namespace, tracked: TrackedSet) -> Iterator[Any]:
+    return iter(tqdm(tracked.frames, desc="matching", unit="frame", disable=args.quiet,
+                     file=sys.stderr))
+
+
 def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
+    fmt = _tracked_format(args)
+    if fmt is not None:  # every frame an image
+        tracked, settings = _read_tracked(args, fmt, settings)
+        return match_images(((f.truth, f.detections) for f in _frames(args, tracked)),
+                            settings)
     truth = read_truth(args.ground_truth, args.format, args.images, args.sizes, args.names,
                        args.box_format)
     detections = read_detections(args.detections, truth, args.detections_format or args.format,
@@ -190,7 +249,16 @@ def run_fit(args: argparse.Namespace) -> int:
         args.conf, args.iou, _int_or_none(args.input_size, "--input-size", "a number of pixels"),
         _classes(args.classes),
         _int_or_none(args.max_detections, "--max-detections", "a number of detections"))
-    matches = _match(args, settings)
+    fmt = _tracked_format(args)
+    looks_fit = None
+    if fmt is not None:
+        if args.model != "binned":
+            raise ConfigError("--model logistic: tracked sequences are fitted with the binned "
+                              "model (the correlation of the looks is estimated per bin)")
+        tracked, settings = _read_tracked(args, fmt, settings)
+        matches, looks = collect_looks(_frames(args, tracked), len(tracked.people), settings)
+    else:
+        matches = _match(args, settings)
     edges = _edges(args.bins, matches)
     if args.model == "logistic":
         model = fit_logistic(matches, edges, args.fine_bins, args.logistic_degree)
@@ -199,9 +267,19 @@ def run_fit(args: argparse.Namespace) -> int:
     fit = {**model.extra["fit"], "ground_truth": str(args.ground_truth),
            "detections": str(args.detections), "bins": args.bins}
     model = replace(model, extra={**model.extra, "fit": fit})
+    if fmt is not None:
+        looks_fit = fit_looks(looks, edges)
+        model = replace(model, looks=looks_fit.to_model({
+            "format": fmt, "n_sequences": len(tracked.sequences),
+            "n_frames": len(tracked.frames), "n_people": len(tracked.people),
+            "n_track_gaps": tracked.n_track_gaps,
+            "looks_outside_bins": looks_fit.looks_outside_bins}))
     write_text_atomic(args.out, _dump(model))
     print(format_model_table(model))
-    print(f"{matches.n_images} images; {len(matches.truth_size_px)} objects, "
+    if looks_fit is not None:
+        print(format_looks_table(model, looks_fit))
+    print(f"{matches.n_images} {'frames' if fmt else 'images'}; "
+          f"{len(matches.truth_size_px)} objects, "
           f"{len(matches.detection_size_px)} detections counted; outside the bins: "
           f"{fit['truth_outside_bins']} objects, {fit['detections_outside_bins']} detections")
     dropped = {k: v for k, v in fit["status_counts"].items()
@@ -227,6 +305,38 @@ def format_model_table(model: DetectorModel) -> str:
             f"{model.p_detect[i]:6.3f} {_ci(ci_d, i):>15} "
             f"{c.n_detections[i] if c else '':>7} {model.p_false_alarm[i]:6.3f} "
             f"{_ci(ci_fa, i):>15}")
+    return "\n".join(rows)
+
+
+LOOKS_EXAMPLE = 20  # looks for the "found within n looks" column of the looks table
+
+
+def format_looks_table(model: DetectorModel, fit: LooksFit) -> str:
+    """Per bin: people and looks, the beta-binomial mean P_D and correlation with their
+    intervals, the p-value of independence, and the share found within 20 looks by the
+    independent and by the fitted model; then the bins without an estimate."""
+    n = LOOKS_EXAMPLE
+    rows = [f"{'size px':>15} {'people':>6} {'looks':>7} {'mean P_D':>8} {'95% CI':>15} "
+            f"{'rho':>6} {'95% CI':>15} {'p indep':>8} {f'{n} looks: indep':>16} "
+            f"{'fitted':>6}"]
+    missing = []
+    for i, b in enumerate(fit.bins):
+        lo, hi = model.bin_edges_px[i], model.bin_edges_px[i + 1]
+        head = f"{lo:7.1f}-{hi:<7.1f} {b.n_people:6d} {b.n_looks:7d} "
+        if not b.estimated:
+            rows.append(head + f"{'-':>8} {'':>15} {'-':>6}   no estimate: {b.reason}")
+            missing.append(i)
+            continue
+        indep, fitted = (float(found_within(n, b.mean_pd, r)) for r in (0.0, b.correlation))
+        rows.append(head + f"{b.mean_pd:8.3f} {_ci([list(b.mean_pd_ci95)], 0):>15} "
+                    f"{b.correlation:6.3f} {_ci([list(b.correlation_ci95)], 0):>15} "
+                    f"{b.p_value_independent:8.2g} {indep:16.5f} {fitted:6.3f}")
+    rows.append("mean P_D and rho (intra-person correlation) of a beta-binomial per-person "
+                "detectability, profile-likelihood 95 % intervals; p indep: likelihood-ratio "
+                "test of independent looks (rho = 0), chi-bar-square")
+    if missing:
+        rows.append(f"no estimate in {len(missing)} of {len(fit.bins)} bins: the engine takes "
+                    f"their looks as independent (rho = 0), which may overstate coverage")
     return "\n".join(rows)
 
 
@@ -287,7 +397,7 @@ def format_validation_table(report: ValidationReport) -> str:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    from pdcov.detection.figures import plot_detector_model
+    from pdcov.detection.figures import plot_detector_model, plot_looks
 
     model = DetectorModel.from_yaml(args.model)
     report = None
@@ -300,4 +410,7 @@ def run_plot(args: argparse.Namespace) -> int:
         report = ValidationReport.from_dict(doc, str(args.validation))
     plot_detector_model(model, args.out, report, args.title)
     print(f"wrote {args.out}")
+    if args.looks:
+        plot_looks(model, args.looks)
+        print(f"wrote {args.looks}")
     return 0

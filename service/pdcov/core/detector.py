@@ -38,7 +38,14 @@ MODEL_SCHEMA = Section.of(
                    status_counts=Section(open=True)),
     logistic=Section.of("link", "covariate", "degree", "fit_range_px",
                         p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE),
-    looks=Section(open=True))
+    looks=Section.of(
+        "correlation",  # the engine's; the others are the fit's (detection/looks.py)
+        "model", "estimated", "no_estimate_reason", "correlation_mle", "correlation_ci95",
+        "mean_pd", "mean_pd_ci95", "interval_method", "test", "p_value_independent",
+        "min_people", "n_people", "n_looks", "n_hits",
+        found_within=Section.of("share", "n_people"),
+        tracks=Section.of("format", "n_sequences", "n_frames", "n_people", "n_track_gaps",
+                          "looks_outside_bins")))
 _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
                 "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks")
 

@@ -169,3 +169,65 @@ def _panel(ax: Any, edges: np.ndarray, scale: str, p: np.ndarray,
             ax.text(x, 1.03, f"{t.p_value:.2g}", rotation=90, ha="center", va="bottom",
                     fontsize=7, color="tab:red" if bad else "0.2",
                     fontweight="bold" if bad else "normal")
+
+
+def plot_looks(model: DetectorModel, out_path: str | Path, title: str | None = None) -> None:
+    """Write the looks figure (``looks_figure``) to ``out_path`` (format from its suffix)."""
+    looks_figure(model, title).savefig(out_path, dpi=150)
+
+
+MIN_CURVE_PEOPLE = 5  # measured points from fewer people are not drawn
+
+
+def looks_figure(model: DetectorModel, title: str | None = None) -> Any:
+    """Per size bin with an estimate: the share of people found within n looks, measured on
+    the tracks (a person is found within n looks if any of their first n looks in the bin
+    was a hit), against the independent model 1 - (1 - mu)^n and the fitted beta-binomial
+    1 - B(a, b + n) / B(a, b). Needs a model fitted on tracked sequences."""
+    from pdcov.detection.looks import found_within
+
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise PdcovError("plotting needs matplotlib: pip install 'pdcov[plots]'") from None
+    lk = model.looks
+    curves = lk.extra.get("found_within") if lk is not None else None
+    if lk is None or not isinstance(curves, dict):
+        raise PdcovError(f"{model.source or 'detector model'}: no looks section with measured "
+                         f"curves; fit the model on tracked sequences (--format mot)")
+    mean, rho = lk.extra.get("mean_pd", []), lk.extra.get("correlation_mle", [])
+    bins = [i for i in range(model.n_bins) if i < len(mean) and mean[i] is not None]
+    if not bins:
+        raise PdcovError(f"{model.source or 'detector model'}: no bin has an estimate of the "
+                         f"correlation of the looks")
+    ncol = min(4, len(bins))
+    nrow = -(-len(bins) // ncol)
+    fig = Figure(figsize=(3.2 * ncol + 1, 2.6 * nrow + 1.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False))
+    share = np.asarray(curves["share"], dtype=float)
+    people = np.asarray(curves["n_people"], dtype=int)
+    n = np.arange(1, share.shape[1] + 1)
+    for ax, i in zip(axes.flat, bins, strict=False):
+        ok = people[i] >= MIN_CURVE_PEOPLE
+        ax.plot(n[ok], share[i][ok], "o", ms=3, color="black", label="measured")
+        ax.plot(n, found_within(n, mean[i], 0.0), "--", color="tab:orange",
+                label="independent looks")
+        ax.plot(n, found_within(n, mean[i], rho[i]), "-", color="tab:blue",
+                label="beta-binomial fit")
+        lo, hi = model.bin_edges_px[i], model.bin_edges_px[i + 1]
+        ax.set_title(f"{lo:g}–{hi:g} px: mean P_D {mean[i]:.2f}, ρ {rho[i]:.2f}", fontsize=8)
+        ax.set_ylim(0, 1.02)
+        ax.grid(color="0.9")
+        ax.set_axisbelow(True)
+    for ax in axes.flat[len(bins):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("looks n")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("share found")
+    axes.flat[0].legend(fontsize=7, loc="lower right", frameon=False)
+    fig.suptitle(textwrap.fill(title or "Found within n looks: measured per person vs "
+                               "independent looks vs beta-binomial", 90))
+    return fig

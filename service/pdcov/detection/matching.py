@@ -28,8 +28,9 @@ import shapely
 from pdcov.detection.annotations import Boxes, ImageTruth
 from pdcov.errors import ConfigError, InputFileError
 
-__all__ = ["DEFAULT_MAX_DETECTIONS", "DetectionStatus", "ImageMatch", "Matches",
-           "MatchSettings", "TruthStatus", "iou_matrix", "match_image", "match_images"]
+__all__ = ["DEFAULT_MAX_DETECTIONS", "DetectionStatus", "ImageMatch", "MatchCollector",
+           "Matches", "MatchSettings", "TruthStatus", "input_scale", "iou_matrix",
+           "match_image", "match_images"]
 
 DEFAULT_MAX_DETECTIONS = 100  # COCO's maxDets for AP and recall at 100
 
@@ -205,32 +206,60 @@ def _sqrt_area(xywh: np.ndarray) -> np.ndarray:
     return np.sqrt(xywh[:, 2] * xywh[:, 3])
 
 
+def input_scale(truth: ImageTruth, settings: MatchSettings) -> float:
+    """Factor from the image's pixels to detector-input pixels (1 without an input size)."""
+    if settings.input_size_px is None:
+        return 1.0
+    if truth.width_px is None or truth.height_px is None:
+        raise InputFileError(f"image {truth.image_id!r}: size unknown, needed to scale "
+                             f"to the {settings.input_size_px}-px detector input")
+    return settings.input_size_px / max(truth.width_px, truth.height_px)
+
+
+class MatchCollector:
+    """Matches images one at a time (``add``) and gathers the counted sizes and outcomes of
+    the whole set (``result``); for callers that also need each image's statuses."""
+
+    def __init__(self, settings: MatchSettings) -> None:
+        self.settings = settings
+        self._t_size: list[np.ndarray] = []
+        self._t_hit: list[np.ndarray] = []
+        self._d_size: list[np.ndarray] = []
+        self._d_true: list[np.ndarray] = []
+        self._counts: Counter[str] = Counter()
+        self._n_images = 0
+
+    def add(self, truth: ImageTruth, dets: Boxes) -> tuple[ImageMatch, np.ndarray]:
+        """Match one image; its statuses and the size (detector-input px) of every
+        ground-truth box, in input order."""
+        m = match_image(truth, dets, self.settings)
+        scale = input_scale(truth, self.settings)
+        size = _sqrt_area(truth.boxes.xywh) * scale
+        tk = m.truth_status <= TruthStatus.DETECTED
+        dk = m.detection_status <= DetectionStatus.TRUE
+        self._t_size.append(size[tk])
+        self._t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
+        self._d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
+        self._d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
+        self._counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
+        self._counts.update(f"detection_{DetectionStatus(s).name.lower()}"
+                            for s in m.detection_status)
+        self._n_images += 1
+        return m, size
+
+    def result(self) -> Matches:
+        def cat(parts: list[np.ndarray], dtype: type) -> np.ndarray:
+            return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+        return Matches(self.settings, cat(self._t_size, float), cat(self._t_hit, bool),
+                       cat(self._d_size, float), cat(self._d_true, bool), self._n_images,
+                       dict(sorted(self._counts.items())))
+
+
 def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
                  settings: MatchSettings) -> Matches:
     """Match every image and gather counted sizes (detector-input px) and outcomes."""
-    t_size, t_hit, d_size, d_true = [], [], [], []
-    counts: Counter[str] = Counter()
-    n_images = 0
+    collector = MatchCollector(settings)
     for truth, dets in pairs:
-        m = match_image(truth, dets, settings)
-        scale = 1.0
-        if settings.input_size_px is not None:
-            if truth.width_px is None or truth.height_px is None:
-                raise InputFileError(f"image {truth.image_id!r}: size unknown, needed to scale "
-                                     f"to the {settings.input_size_px}-px detector input")
-            scale = settings.input_size_px / max(truth.width_px, truth.height_px)
-        tk = m.truth_status <= TruthStatus.DETECTED
-        dk = m.detection_status <= DetectionStatus.TRUE
-        t_size.append(_sqrt_area(truth.boxes.xywh[tk]) * scale)
-        t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
-        d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
-        d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
-        counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
-        counts.update(f"detection_{DetectionStatus(s).name.lower()}" for s in m.detection_status)
-        n_images += 1
-
-    def cat(parts: list[np.ndarray], dtype: type) -> np.ndarray:
-        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
-
-    return Matches(settings, cat(t_size, float), cat(t_hit, bool), cat(d_size, float),
-                   cat(d_true, bool), n_images, dict(sorted(counts.items())))
+        collector.add(truth, dets)
+    return collector.result()

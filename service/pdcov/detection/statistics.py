@@ -86,7 +86,7 @@ class BinnedCounts:
     detections_outside: int
 
 
-def _bin_of(size_px: np.ndarray, edges: tuple[float, ...]) -> np.ndarray:
+def bin_of(size_px: np.ndarray, edges: tuple[float, ...]) -> np.ndarray:
     """Bin index of each size, -1 outside [edges[0], edges[-1])."""
     i = np.searchsorted(np.asarray(edges), size_px, side="right") - 1
     return np.where((i >= 0) & (i < len(edges) - 1), i, -1)
@@ -97,8 +97,8 @@ def count_in_bins(matches: Matches, edges: tuple[float, ...]) -> BinnedCounts:
     if n < 1 or np.any(np.diff(edges) <= 0):
         raise ConfigError(f"--bins: edges must be at least 2 strictly increasing sizes, "
                           f"got {list(edges)}")
-    ti = _bin_of(matches.truth_size_px, edges)
-    di = _bin_of(matches.detection_size_px, edges)
+    ti = bin_of(matches.truth_size_px, edges)
+    di = bin_of(matches.detection_size_px, edges)
 
     def count(i: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
         keep = i >= 0
@@ -231,8 +231,8 @@ def fit_logistic(matches: Matches, edges: tuple[float, ...], n_fine: int = 64,
     if not lo < edges[-1]:
         raise InputFileError("no ground-truth object inside the bins to fit")
     fine = tuple(float(v) for v in np.geomspace(lo, edges[-1], n_fine + 1))
-    ti = _bin_of(matches.truth_size_px, fine) >= 0
-    di = _bin_of(matches.detection_size_px, fine) >= 0
+    ti = bin_of(matches.truth_size_px, fine) >= 0
+    di = bin_of(matches.detection_size_px, fine) >= 0
     pd_curve = fit_logistic_curve(matches.truth_size_px[ti], matches.truth_detected[ti], degree)
     fa_curve = fit_logistic_curve(matches.detection_size_px[di], ~matches.detection_true[di],
                                   degree)
@@ -356,7 +356,7 @@ def validate(model: DetectorModel, matches: Matches, edges: tuple[float, ...] | 
     c = count_in_bins(matches, edges)
     pd, _ = model.lookup(matches.truth_size_px)
     _, pfa = model.lookup(matches.detection_size_px)
-    ti, di = _bin_of(matches.truth_size_px, edges), _bin_of(matches.detection_size_px, edges)
+    ti, di = bin_of(matches.truth_size_px, edges), bin_of(matches.detection_size_px, edges)
     exp_d = np.bincount(ti[ti >= 0], pd[ti >= 0], minlength=n)
     exp_tp = np.bincount(di[di >= 0], 1 - pfa[di >= 0], minlength=n)
     return ValidationReport(
