@@ -16,8 +16,11 @@ from __future__ import annotations
 import importlib
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import pytest
+
+from pdcov import cli
 
 # watch_fixtures: router, processes, daemons (real Zenoh on loopback); chromium: browser;
 # pytester: for tests/test_tiers.py, which runs pytest sessions of its own
@@ -137,3 +140,15 @@ def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
     with _refused(item):
         return (yield)
 
+
+
+@pytest.fixture
+def pdcov(capsys):
+    """Run the real console entry point in this process: (status, stdout, stderr)."""
+
+    def run(*argv: str | Path) -> tuple[int, str, str]:
+        status = cli.main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return status, out, err
+
+    return run

@@ -10,22 +10,9 @@ import pytest
 from PIL import Image
 from synthetic_detections import EDGES, INPUT, P_D, synthetic_set, write_coco
 
-from pdcov import cli
 from pdcov.core.detector import DetectorModel
 
 BINS = ",".join(f"{e:g}" for e in EDGES)
-
-
-@pytest.fixture
-def pdcov(capsys):
-    """Run the real console entry point, returning (status, stdout, stderr)."""
-
-    def run(*argv: str | Path) -> tuple[int, str, str]:
-        status = cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return status, out, err
-
-    return run
 
 
 def write_yolo(truth, dets, root: Path) -> tuple[Path, Path, Path, Path]:
