@@ -294,7 +294,9 @@ class LooksFit:
             "interval_method": INTERVAL_NAME,
             "test": TEST_NAME,
             "min_people": MIN_PEOPLE,
-            "p_value_independent": [num(b.p_value_independent) for b in self.bins],
+            "p_value_independent": [None if math.isnan(b.p_value_independent)
+                                    else float(f"{b.p_value_independent:.4g}")
+                                    for b in self.bins],
             "n_people": [b.n_people for b in self.bins],
             "n_looks": [b.n_looks for b in self.bins],
             "n_hits": [b.n_hits for b in self.bins],
