@@ -117,6 +117,17 @@ def test_no_estimate_without_enough_people_or_with_only_hits():
     assert all_hit.reason == "every look hit" and all_hit.n_looks == 120
 
 
+def test_people_always_or_never_seen_give_rho_near_1_and_a_valid_model():
+    n = np.full(40, 10)
+    k = np.r_[np.zeros(20, int), np.full(20, 10)]
+    fit = fit_beta_binomial(n, k)
+    assert fit.correlation > 0.99 and fit.correlation_ci95[1] == 1.0
+    assert fit.mean_pd == pytest.approx(0.5, abs=1e-6)
+    looks = LooksFit((fit,), np.zeros((1, 3)), np.ones((1, 3), int), 0).to_model()
+    assert looks.correlation[0] < 1
+    DetectorModel((8.0, 16.0), (0.5,), (0.1,), looks=looks)  # in [0, 1): accepted
+
+
 def test_counts_and_measured_curve_by_hand():
     # Rows in time order: person 0 misses, person 1 misses, person 0 hits, person 2 hits
     # (bin 1), person 0 misses, person 1 misses, a look outside the bins.

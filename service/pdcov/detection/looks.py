@@ -306,7 +306,10 @@ class LooksFit:
         }
         if record:
             extra["tracks"] = record
-        rho = tuple(round(float(b.correlation), 6) if b.estimated else 0.0 for b in self.bins)
+        # The engine takes rho in [0, 1): a fit at the bound (people always or never seen)
+        # stays just below 1 after rounding.
+        rho = tuple(min(round(float(b.correlation), 6), 0.999999) if b.estimated else 0.0
+                    for b in self.bins)
         return LooksModel(rho, extra)
 
 

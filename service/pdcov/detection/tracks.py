@@ -44,7 +44,7 @@ from pdcov.detection.annotations import (
     _read_sizes,
     _score,
 )
-from pdcov.errors import InputFileError
+from pdcov.errors import ConfigError, InputFileError
 
 TRACK_FORMATS = ("mot", "visdrone-mot")
 # MOT16 paper, table 5: class ids 1..12.
@@ -94,7 +94,7 @@ def read_tracked(gt_root: str | Path, det_root: str | Path, fmt: str = "mot",
     folder, or a folder of ``<sequence>.txt``)."""
     gt_root, det_root = Path(gt_root), Path(det_root)
     if fmt not in TRACK_FORMATS:
-        raise InputFileError(f"--format: expected one of {TRACK_FORMATS}, got {fmt!r}")
+        raise ConfigError(f"--format: expected one of {TRACK_FORMATS}, got {fmt!r}")
     for p in (gt_root, det_root):
         if not p.exists():
             raise InputFileError(f"{p}: no such file or directory")
