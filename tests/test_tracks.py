@@ -14,7 +14,7 @@ from PIL import Image
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.looks import collect_looks, fit_looks
 from pdcov.detection.matching import MatchSettings
-from pdcov.detection.tracks import read_tracked
+from pdcov.detection.tracks import read_tracked, tracked_format
 from pdcov.errors import InputFileError
 
 EDGES = (8.0, 16.0, 32.0, 48.0)
@@ -72,6 +72,26 @@ def test_visdrone_mot_columns_and_results_folder(tmp_path):
     assert tracked.frames[0].truth.ignore_regions_xywh.tolist() == [[0, 0, 50, 50]]
     _, looks = collect_looks(tracked.frames, 1, MatchSettings(classes=("pedestrian",)))
     assert looks.hit.tolist() == [True, False]  # 0.3: below the confidence threshold
+
+
+def test_visdrone_mot_split_in_its_own_layout(tmp_path):
+    split = tmp_path / "VisDrone2019-MOT-val"
+    (split / "annotations").mkdir(parents=True)
+    (split / "sequences" / "uav0001").mkdir(parents=True)
+    (split / "annotations" / "uav0001.txt").write_text(
+        "1,3,10,10,30,60,1,1,0,0\n2,3,12,10,30,60,1,1,0,0\n")
+    Image.new("RGB", (1360, 765)).save(split / "sequences" / "uav0001" / "0000001.jpg")
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "uav0001.txt").write_text("2,-1,12,10,30,60,0.8,1,-1,-1\n")
+    assert tracked_format(split) == "visdrone-mot" and tracked_format(results) is None
+    tracked = read_tracked(split, results, "visdrone-mot")
+    assert tracked.sequences == ("uav0001",) and len(tracked.frames) == 2
+    assert (tracked.frames[0].truth.width_px, tracked.frames[0].truth.height_px) == (1360, 765)
+    _, looks = collect_looks(tracked.frames, 1, PEDESTRIANS)
+    assert looks.hit.tolist() == [False, True]
+    # 30 x 60 image px at 640 / 1360
+    assert looks.size_px == pytest.approx(np.full(2, np.sqrt(1800) * 640 / 1360))
 
 
 @pytest.mark.parametrize("gt, det, message", [

@@ -45,8 +45,8 @@ from pdcov.detection.tracks import (
     MOT_DEFAULT_CLASSES,
     TRACK_FORMATS,
     TrackedSet,
-    is_tracked,
     read_tracked,
+    tracked_format,
 )
 from pdcov.errors import ConfigError, InputFileError
 
@@ -182,7 +182,7 @@ def _tracked_format(args: argparse.Namespace) -> str | None:
     """The tracked-sequence format of the inputs, or None for a labelled image set."""
     if args.format in TRACK_FORMATS:
         return str(args.format)
-    return "mot" if args.format is None and is_tracked(args.ground_truth) else None
+    return tracked_format(args.ground_truth) if args.format is None else None
 
 
 def _read_tracked(args: argparse.Namespace, fmt: str,

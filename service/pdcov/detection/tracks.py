@@ -4,9 +4,11 @@ of every box, and the detector's boxes, for the per-person statistics (``detecti
 Layout: a folder of sequences (or one sequence folder), each with ``gt/gt.txt`` and the
 detections in ``det/det.txt``, or in ``<sequence>.txt`` of a separate detections folder (the
 layout of tracker and detector results), lines ``frame,id,left,top,width,height,conf,...``
-(image pixels, frames from 1). Image sizes from ``seqinfo.ini`` (``imWidth``, ``imHeight``;
-``seqLength`` bounds the frames), else the first image in ``img1/``, else a sizes file of
-lines ``sequence width height``.
+(image pixels, frames from 1). A VisDrone-MOT split is read in its own layout too:
+``annotations/<sequence>.txt`` beside the images in ``sequences/<sequence>/``. Image sizes
+from ``seqinfo.ini`` (``imWidth``, ``imHeight``; ``seqLength`` bounds the frames), else a
+sizes file of lines ``sequence width height``, else the first image in ``img1/`` (or the
+VisDrone sequence's folder).
 
 * ``mot`` (MOT15/16/17/20): ground truth ``frame,id,l,t,w,h,consider,class,visibility``
   (9 fields; MOT15's 10 fields ``...,conf,x,y,z`` are all pedestrians). ``consider`` 0, and
@@ -80,12 +82,49 @@ class TrackedSet:
     n_track_gaps: int
 
 
-def is_tracked(path: Path) -> bool:
-    """True for a MOTChallenge sequence folder or a folder of them."""
+def tracked_format(path: Path) -> str | None:
+    """``mot`` for a MOTChallenge sequence folder or a folder of them, ``visdrone-mot`` for a
+    VisDrone-MOT split (``annotations/`` beside ``sequences/``), else None."""
     if not path.is_dir():
-        return False
-    return (path / "gt" / "gt.txt").is_file() or any(
-        (p / "gt" / "gt.txt").is_file() for p in path.iterdir() if p.is_dir())
+        return None
+    if (path / "annotations").is_dir() and (path / "sequences").is_dir():
+        return "visdrone-mot"
+    if (path / "gt" / "gt.txt").is_file() or any(
+            (p / "gt" / "gt.txt").is_file() for p in path.iterdir() if p.is_dir()):
+        return "mot"
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class _Sequence:
+    """Where one sequence's files are: its name, ground truth, and the folder of its
+    seqinfo.ini and images."""
+
+    name: str
+    gt_file: Path
+    folder: Path
+
+
+def _sequences(gt_root: Path) -> list[_Sequence]:
+    if (gt_root / "gt" / "gt.txt").is_file():
+        return [_Sequence(gt_root.name, gt_root / "gt" / "gt.txt", gt_root)]
+    if not gt_root.is_dir():
+        raise InputFileError(f"{gt_root}: expected a MOTChallenge folder of sequences (each "
+                             f"with gt/gt.txt) or a VisDrone-MOT split (annotations/)")
+    if (gt_root / "annotations").is_dir():  # VisDrone-MOT: annotations/<seq>.txt
+        files = sorted((gt_root / "annotations").glob("*.txt"))
+        if not files:
+            raise InputFileError(f"{gt_root / 'annotations'}: no <sequence>.txt annotations")
+        return [_Sequence(f.stem, f, gt_root / "sequences" / f.stem) for f in files]
+    seqs = []
+    for folder in sorted(p for p in gt_root.iterdir() if p.is_dir()):
+        if not (folder / "gt" / "gt.txt").is_file():
+            raise InputFileError(f"{folder}: sequence without ground truth (no gt/gt.txt)")
+        seqs.append(_Sequence(folder.name, folder / "gt" / "gt.txt", folder))
+    if not seqs:
+        raise InputFileError(f"{gt_root}: expected a MOTChallenge folder of sequences, each "
+                             f"with gt/gt.txt")
+    return seqs
 
 
 def read_tracked(gt_root: str | Path, det_root: str | Path, fmt: str = "mot",
@@ -98,24 +137,15 @@ def read_tracked(gt_root: str | Path, det_root: str | Path, fmt: str = "mot",
     for p in (gt_root, det_root):
         if not p.exists():
             raise InputFileError(f"{p}: no such file or directory")
-    if (gt_root / "gt" / "gt.txt").is_file():
-        seq_dirs = [gt_root]
-    else:
-        seq_dirs = sorted(p for p in gt_root.iterdir() if p.is_dir()) if gt_root.is_dir() else []
-        if not seq_dirs:
-            raise InputFileError(f"{gt_root}: expected a MOTChallenge folder of sequences, "
-                                 f"each with gt/gt.txt")
+    seqs = _sequences(gt_root)
     sizes = _read_sizes(Path(sizes_path)) if sizes_path is not None else {}
     frames: list[TrackedFrame] = []
     people: list[str] = []
     gaps = 0
-    for seq in seq_dirs:
-        gt_file = seq / "gt" / "gt.txt"
-        if not gt_file.is_file():
-            raise InputFileError(f"{seq}: sequence without ground truth (no gt/gt.txt)")
+    for seq in seqs:
         det_file = _detections_file(seq, det_root)
         width, height, length = _sequence_info(seq, sizes)
-        truth, regions, n_gaps = _read_truth(gt_file, fmt, length, people, seq.name)
+        truth, regions, n_gaps = _read_truth(seq.gt_file, fmt, length, people, seq.name)
         dets = _read_detections(det_file, fmt, length)
         gaps += n_gaps
         last = max([*truth, *regions, *dets, length or 0])
@@ -128,28 +158,30 @@ def read_tracked(gt_root: str | Path, det_root: str | Path, fmt: str = "mot",
             frames.append(TrackedFrame(image, np.array([r[0] for r in rows], int),
                                        dets.get(f, NO_BOXES)))
     classes = MOT_CLASSES if fmt == "mot" else VISDRONE_CLASSES[1:]
-    return TrackedSet(tuple(frames), tuple(people), tuple(s.name for s in seq_dirs), classes,
+    return TrackedSet(tuple(frames), tuple(people), tuple(s.name for s in seqs), classes,
                       str(gt_root), fmt, gaps)
 
 
-def _detections_file(seq: Path, det_root: Path) -> Path:
+def _detections_file(seq: _Sequence, det_root: Path) -> Path:
     """``<det_root>/<sequence>/det/det.txt`` or ``<det_root>/<sequence>.txt``; a sequence
     folder given as both roots holds its own ``det/det.txt``."""
     candidates = [det_root / seq.name / "det" / "det.txt", det_root / f"{seq.name}.txt"]
-    if det_root.resolve() == seq.resolve():
-        candidates.insert(0, seq / "det" / "det.txt")
+    if det_root.resolve() == seq.folder.resolve():
+        candidates.insert(0, seq.folder / "det" / "det.txt")
     for c in candidates:
         if c.is_file():
             return c
-    raise InputFileError(f"{seq}: no detections for sequence {seq.name!r} (looked for "
+    raise InputFileError(f"{seq.folder}: no detections for sequence {seq.name!r} (looked for "
                          f"{', '.join(map(str, candidates))})")
 
 
-def _sequence_info(seq: Path, sizes: dict[str, tuple[int, int]]
+def _sequence_info(seq: _Sequence, sizes: dict[str, tuple[int, int]]
                    ) -> tuple[int | None, int | None, int | None]:
-    """(width, height, number of frames) of a sequence, None where unknown."""
+    """(width, height, number of frames) of a sequence, None where unknown: seqinfo.ini,
+    the sizes file, or the first image in ``img1/`` (MOTChallenge) or the sequence's folder
+    (VisDrone-MOT's ``sequences/<seq>/``)."""
     width = height = length = None
-    ini = seq / "seqinfo.ini"
+    ini = seq.folder / "seqinfo.ini"
     if ini.is_file():
         cp = configparser.ConfigParser()
         try:
@@ -162,8 +194,9 @@ def _sequence_info(seq: Path, sizes: dict[str, tuple[int, int]]
                                  f"imHeight and seqLength ({exc})") from None
     if seq.name in sizes:
         width, height = sizes[seq.name]
-    if width is None and (seq / "img1").is_dir():
-        first = next((p for p in sorted((seq / "img1").iterdir())
+    images = seq.folder / "img1" if (seq.folder / "img1").is_dir() else seq.folder
+    if width is None and images.is_dir():
+        first = next((p for p in sorted(images.iterdir())
                       if p.suffix.lower() in IMAGE_SUFFIXES), None)
         if first is not None:
             try:
@@ -175,7 +208,7 @@ def _sequence_info(seq: Path, sizes: dict[str, tuple[int, int]]
                                      f"seqinfo.ini or --sizes") from None
     for key, v in (("imWidth", width), ("imHeight", height), ("seqLength", length)):
         if v is not None and v <= 0:
-            raise InputFileError(f"{seq}: {key} must be positive, got {v}")
+            raise InputFileError(f"{seq.folder}: {key} must be positive, got {v}")
     return width, height, length
 
 
