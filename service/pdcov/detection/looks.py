@@ -155,13 +155,6 @@ class BetaBinomialFit:
     def estimated(self) -> bool:
         return self.reason is None
 
-    def beta_ab(self) -> tuple[float, float]:
-        """(a, b) of the person's Beta detectability; (inf, inf) at rho = 0."""
-        if self.correlation <= 0:
-            return math.inf, math.inf
-        s = 1 / self.correlation - 1
-        return self.mean_pd * s, (1 - self.mean_pd) * s
-
 
 def fit_beta_binomial(n: np.ndarray, k: np.ndarray) -> BetaBinomialFit:
     """Maximum-likelihood (mu, rho) of people with n looks and k hits (people with n = 0 are
