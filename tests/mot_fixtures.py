@@ -1,5 +1,5 @@
 """Synthetic tracked sequences in the MOTChallenge layout, with a known per-person
-detectability, for the tests of ``pdcov detector fit`` on tracks (detection/looks.py).
+detectability, for the tests of ``pdcov detector fit`` on tracks (detection/looks_fit.py).
 
 People walk in their own slots of a 1920 x 1080 image (so that no two boxes overlap and the
 matching is unambiguous), one after the other, each for 16-40 frames, their size in

@@ -12,7 +12,7 @@ from mot_fixtures import TrueLooks, write_mot
 from PIL import Image
 
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.looks import collect_looks, fit_looks
+from pdcov.detection.looks_fit import collect_looks, fit_looks
 from pdcov.detection.matching import MatchSettings
 from pdcov.detection.tracks import read_tracked, tracked_format
 from pdcov.errors import InputFileError

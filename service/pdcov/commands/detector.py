@@ -29,7 +29,7 @@ from pdcov.detection.annotations import (
     read_detections,
     read_truth,
 )
-from pdcov.detection.looks import LooksFit, collect_looks, fit_looks, found_within
+from pdcov.detection.looks_fit import LooksFit, collect_looks, fit_looks, found_within
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
     BIN_RULES,

@@ -39,7 +39,7 @@ MODEL_SCHEMA = Section.of(
     logistic=Section.of("link", "covariate", "degree", "fit_range_px",
                         p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE),
     looks=Section.of(
-        "correlation",  # the engine's; the others are the fit's (detection/looks.py)
+        "correlation",  # the engine's; the others are the fit's (detection/looks_fit.py)
         "model", "estimated", "no_estimate_reason", "correlation_mle", "correlation_ci95",
         "mean_pd", "mean_pd_ci95", "interval_method", "test", "p_value_independent",
         "min_people", "n_people", "n_looks", "n_hits",

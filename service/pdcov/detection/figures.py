@@ -184,7 +184,7 @@ def looks_figure(model: DetectorModel, title: str | None = None) -> Any:
     the tracks (a person is found within n looks if any of their first n looks in the bin
     was a hit), against the independent model 1 - (1 - mu)^n and the fitted beta-binomial
     1 - B(a, b + n) / B(a, b). Needs a model fitted on tracked sequences."""
-    from pdcov.detection.looks import found_within
+    from pdcov.detection.looks_fit import found_within
 
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -1,5 +1,5 @@
 """Tracked sequences in the MOTChallenge layout: each frame's ground truth with the identity
-of every box, and the detector's boxes, for the per-person statistics (``detection/looks.py``).
+of every box, and the detector's boxes, for the per-person statistics (``detection/looks_fit.py``).
 
 Layout: a folder of sequences (or one sequence folder), each with ``gt/gt.txt`` and the
 detections in ``det/det.txt``, or in ``<sequence>.txt`` of a separate detections folder (the

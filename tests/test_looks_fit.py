@@ -1,4 +1,4 @@
-"""The beta-binomial statistics of a person's looks (detection/looks.py), on counts drawn
+"""The beta-binomial statistics of a person's looks (detection/looks_fit.py), on counts drawn
 with a known per-person detectability; the likelihood against scipy's beta-binomial, the
 test against Tarone's score test."""
 
@@ -12,7 +12,7 @@ import yaml
 from scipy import special, stats
 
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.looks import (
+from pdcov.detection.looks_fit import (
     MIN_PEOPLE,
     BetaBinomialLikelihood,
     LooksFit,
