@@ -184,7 +184,11 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     speed = interp(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         a_seg = np.where(ds > 0, (v[1:] ** 2 - v[:-1] ** 2) / (2 * ds), 0.0)
-    a_along = interp(np.concatenate([a_seg[:1], a_seg]))
+    # At rest on a hover the vehicle is level: no acceleration from reaching to leaving it
+    # (the arriving segment's braking would otherwise tilt it for the whole hover).
+    a_knots = np.repeat(np.concatenate([a_seg[:1], a_seg]), 2)
+    a_knots.reshape(-1, 2)[hover > 0] = 0.0
+    a_along = np.interp(t, knots_t, a_knots)
     a_across = speed ** 2 * interp(kappa)
     R = _attitudes(psi, a_along, a_across, kinematics.tilt)
     return Flight(t, r, R, speed, duration, float(ds.sum()))

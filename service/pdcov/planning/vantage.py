@@ -14,7 +14,9 @@ frame's log(1 - P_D) per cell.
 The heading at a hover is the direction the route arrives from, unknown while choosing the
 points; so a candidate is credited, per cell, only with the least it sees over
 ``HOVER_HEADINGS`` headings (a nadir camera's footprint turns with the heading): the cover
-then holds whatever the route. Frames taken in transit only add to it.
+then holds whatever the route, up to what changes between those headings (a cell at a
+footprint's corner); the whole flight's prediction is what is reported. Frames taken in
+transit only add to it.
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ from pdcov.planning.optimise import Scenario
 from pdcov.planning.plan import Plan, Waypoint
 from pdcov.planning.trajectory import Flight, camera_poses
 
-HOVER_HEADINGS = 8
-"""Headings (equally spaced over 360 deg) a candidate's view is taken as the least over."""
+HOVER_HEADINGS = 16
+"""Headings, 22.5 deg apart, over which a candidate's view is taken as the least."""
 EXACT_MAX_CANDIDATES = 5000
 """Above this many candidates the integer program is not tried (greedy only)."""
 
