@@ -323,3 +323,23 @@ def test_cli_vantage_writes_one_mission_per_vehicle(tmp_path, capsys):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["proportion_at_or_above"]["0.9"] == 1.0
     assert "vantage:" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_optimise_puts_vantage_beside_the_sweeps(tmp_path):
+    import csv
+
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(MISSION_YAML)
+    out = tmp_path / "opt"
+    assert pdcov_main(["optimise", "--config", str(cfg), "--target-pd", "0.9",
+                       "--min-proportion", "0.95", "--patterns", "lawnmower", "vantage",
+                       "--altitudes-m", "12", "--speeds-mps", "4", "--headings-deg", "0",
+                       "--overlaps", "0.2", "--processes", "1", "--out", str(out)]) == 0
+    with open(out / "candidates.csv") as f:
+        rows = {r["pattern"]: r for r in csv.DictReader(f)}
+    assert set(rows) == {"lawnmower", "vantage"}
+    v = rows["vantage"]
+    assert float(v["proportion"]) >= 0.95 and int(v["missions"]) == 1
+    assert float(v["flight_time_s"]) > 0 and float(v["path_length_m"]) > 0
+    assert v["spacing_m"] == "" and rows["lawnmower"]["missions"] == "1"

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import math
 import sys
@@ -73,7 +74,11 @@ from pdcov.planning.terrain_follow import (
 )
 from pdcov.planning.tours import Fleet
 from pdcov.planning.vantage import CoverObjective, VantageSettings
-from pdcov.planning.vantage_missions import VantageMissions, plan_vantage_missions
+from pdcov.planning.vantage_missions import (
+    VantageMissions,
+    plan_vantage_missions,
+    vantage_score,
+)
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
 
@@ -114,7 +119,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="proportion of cells that must reach the target (0.95); the best "
                         "plan is the shortest flight reaching it")
     o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"],
-                   help="patterns to try")
+                   help="patterns to try (vantage: planned for --target-pd on "
+                        "--min-proportion of the cells at each altitude and speed)")
     o.add_argument("--altitudes-m", nargs="+", type=positive, default=[8.0, 10.0, 12.0],
                    help="altitudes above ground to try, m")
     o.add_argument("--speeds-mps", nargs="+", type=positive, default=[3.0, 5.0],
@@ -414,12 +420,22 @@ def _replaced_note(replaced: bool, out: Path) -> str:
 
 def _score_row(s: Score) -> dict[str, Any]:
     p = s.params
+    vantage = p.pattern == "vantage"
     return {"pattern": p.pattern, "altitude_m": p.alt_agl_m, "speed_mps": p.speed_mps,
-            "heading_deg": round(math.degrees(p.heading_rad), 3),
-            "overlap": None if p.spacing_m is not None else p.overlap,
-            "spacing_m": round(s.spacing_m, 3), "proportion": round(s.proportion, 4),
+            "heading_deg": None if vantage else round(math.degrees(p.heading_rad), 3),
+            "overlap": None if p.spacing_m is not None or vantage else p.overlap,
+            "spacing_m": None if vantage else round(s.spacing_m, 3),
+            "proportion": round(s.proportion, 4),
             "mean_pd": round(s.mean_pd, 4), "flight_time_s": round(s.flight_time_s, 1),
-            "path_length_m": round(s.path_length_m, 1)}
+            "path_length_m": round(s.path_length_m, 1), "missions": s.missions}
+
+
+def _optimise_vantage(args: argparse.Namespace, alt_m: float, speed_mps: float
+                      ) -> VantageSettings:
+    """The vantage plan ``optimise`` scores at one altitude and speed: the target on
+    --min-proportion of the cells, hovers of 2, 4 or 8 s, a 5 s ILP."""
+    return VantageSettings(args.target_pd, (alt_m,), (2.0, 4.0, 8.0), args.min_proportion,
+                           speed_mps=speed_mps, exact_time_limit_s=5.0)
 
 
 def _table(rows: Sequence[dict[str, Any]]) -> str:
@@ -434,11 +450,21 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
 def run_optimise(args: argparse.Namespace) -> int:
     mission = load_mission_warned(args.config, "optimise")
     sc = scenario_of(mission, planning_overrides(args))
-    params = candidates(args.patterns, args.altitudes_m, args.speeds_mps,
+    swept = [p for p in args.patterns if p != "vantage"]
+    params = candidates(swept, args.altitudes_m, args.speeds_mps,
                         [math.radians(h) for h in args.headings_deg], args.spacings_m,
                         args.overlaps)
     t0 = time.monotonic()
-    scores, failures = sweep(sc, params, args.target_pd, args.processes, progress=True)
+    scores, failures = (sweep(sc, params, args.target_pd, args.processes, progress=True)
+                        if params else ([], []))
+    if "vantage" in args.patterns:
+        ROUTING.require("pdcov optimise --patterns vantage needs")
+        for alt, v in itertools.product(args.altitudes_m, args.speeds_mps):
+            try:
+                scores.append(vantage_score(sc, _optimise_vantage(args, alt, v)))
+            except ConfigError as exc:
+                failures.append(f"vantage at {alt:g} m, {v:g} m/s: {exc}")
+            params.append(PlanParams("vantage", alt, v))
     elapsed = time.monotonic() - t0
     for msg in failures:
         print(f"skipped: {msg}", file=sys.stderr)
@@ -458,11 +484,19 @@ def run_optimise(args: argparse.Namespace) -> int:
                     w.writerow({**rows[i], "on_front": i in front})
         _front_figure(out / "pareto.png", scores, front, best, args.target_pd)
         s = scores[best]
-        plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
-        pred = predict(sc, plan, s.params)
-        summary = write_prediction(out / "best", mission, pred, pred.grid,
-                                    f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                    spacing, terrain_warnings=terrain_warnings(sc, pred))
+        if s.params.pattern == "vantage":
+            t1 = time.monotonic()
+            vm = plan_vantage_missions(sc, _optimise_vantage(args, s.params.alt_agl_m,
+                                                             s.params.speed_mps))
+            summary = write_vantage(out / "best", mission, sc, vm, time.monotonic() - t1, True)
+            description = vm.missions[0].prediction.plan.description
+        else:
+            plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
+            pred = predict(sc, plan, s.params)
+            summary = write_prediction(out / "best", mission, pred, pred.grid,
+                                        f"best: {plan.description} at {s.params.alt_agl_m:g} m",
+                                        spacing, terrain_warnings=terrain_warnings(sc, pred))
+            description = plan.description
         write_text_atomic(out / "optimise.json", json.dumps({
             "target_pd": args.target_pd, "min_proportion": args.min_proportion,
             "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
@@ -473,7 +507,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     print(_table([rows[i] for i in front]))
     reached = s.proportion >= args.min_proportion
     print(f"best ({'shortest flight reaching' if reached else 'none reaches'} "
-          f"{args.min_proportion:g}): {plan.description}, {s.params.alt_agl_m:g} m, "
+          f"{args.min_proportion:g}): {description}, {s.params.alt_agl_m:g} m, "
           f"{s.params.speed_mps:g} m/s -> proportion {s.proportion:.3f}, "
           f"{s.flight_time_s:.0f} s")
     print(summary + _replaced_note(replaced, out))

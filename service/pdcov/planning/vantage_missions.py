@@ -121,9 +121,11 @@ def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet 
 def vantage_score(sc: Scenario, settings: VantageSettings, fleet: Fleet = ONE_VEHICLE,
                   routing_time_s: float = 2.0) -> Score:
     """The vantage missions on the axes of ``optimise.sweep``: the proportion of free cells
-    at the target, the longest mission's time, the total path and the number of missions."""
+    at the target, the longest mission's predicted flight (first to last waypoint, as the
+    sweep's plans are timed), the total path and the number of missions."""
     m = plan_vantage_missions(sc, settings, fleet, routing_time_s=routing_time_s)
     pd = m.grid.pd[sc.mask]
     params = PlanParams("vantage", min(settings.alts_agl_m), settings.speed_mps)
-    return Score(params, math.nan, float((pd >= settings.target_pd).mean()), m.longest_s,
+    longest = max(x.prediction.flight.duration_s for x in m.missions)
+    return Score(params, math.nan, float((pd >= settings.target_pd).mean()), longest,
                  m.path_length_m, float(pd.mean()), len(m.missions))
