@@ -343,3 +343,21 @@ def test_optimise_puts_vantage_beside_the_sweeps(tmp_path):
     assert float(v["proportion"]) >= 0.95 and int(v["missions"]) == 1
     assert float(v["flight_time_s"]) > 0 and float(v["path_length_m"]) > 0
     assert v["spacing_m"] == "" and rows["lawnmower"]["missions"] == "1"
+
+
+def test_over_a_level_terrain_the_cover_is_the_flat_one_lifted():
+    """Terrain at 3 m everywhere (amsl plans): a hover's height is 3 m + its altitude above
+    ground, and the candidates' evidence is that of the flat ground (the same geometry)."""
+    from dataclasses import replace
+
+    from pdcov.core.terrain import TerrainSurface
+    from pdcov.planning.vantage import candidate_evidence, hover_z_enu_m
+
+    flat = scene()
+    lifted = replace(flat, terrain=TerrainSurface.flat(flat.geometry, 3.0))
+    assert hover_z_enu_m(lifted, 1.0, 2.0, 10.0) == pytest.approx(13.0)
+    assert hover_z_enu_m(flat, 1.0, 2.0, 10.0) == pytest.approx(10.0)
+    pts_f, ev_f, _ = candidate_evidence(flat, GREEDY)
+    pts_l, ev_l, _ = candidate_evidence(lifted, GREEDY)
+    assert pts_f == pts_l
+    np.testing.assert_allclose(ev_l.toarray(), ev_f.toarray(), rtol=1e-4, atol=1e-6)
