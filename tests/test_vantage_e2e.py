@@ -99,9 +99,9 @@ def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path):
           f"{(pd_pred >= TARGET_PD).mean():.3f}, flown {(pd_flown >= TARGET_PD).mean():.3f}; "
           f"flown P_D median {np.median(pd_flown):.2f}; {share:.1%} of cells within "
           f"{AGREE_PD} (p95 |diff| {np.percentile(diff, 95):.3f}); "
-          f"frames flown {int(flown['frames'])}, predicted {int(pred['frames'])}; flown "
-          f"{t1 - t0:.1f} s, predicted {doc['missions'][0]['flight_time_s']} s take-off to "
-          "landing")
+          f"frames flown {int(flown['frames'])}, predicted {int(pred['frames'])}; survey "
+          f"flown in {t1 - t0:.1f} s; predicted mission {doc['missions'][0]['flight_time_s']} "
+          "s from take-off to landing")
     assert (pd_pred >= TARGET_PD).all()
     # Not saturated (the comparison says something): a third of the cells below 0.9.
     assert (pd_flown < 0.9).mean() >= 1 / 3
