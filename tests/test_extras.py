@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from pdcov.cli import main
-from pdcov.extras import DEMO, GIS, GROUND, PLOTS, SITL, Extra
+from pdcov.extras import DEMO, GIS, GROUND, PLOTS, ROUTING, SITL, Extra
 
 tomllib = pytest.importorskip("tomllib")  # Python 3.11
 ROOT = Path(__file__).resolve().parent.parent
@@ -117,11 +117,23 @@ def test_pyproject_extras_install_what_extras_py_names():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     extras = project["optional-dependencies"]
     base = {re.match(r"[A-Za-z0-9_.-]+", r).group(0).lower() for r in project["dependencies"]}
-    for extra in (PLOTS, GIS, GROUND, SITL, DEMO):
+    for extra in (PLOTS, GIS, GROUND, SITL, DEMO, ROUTING):
         installs = _requirements(extras, extra.name)
         assert set(extra.modules) <= installs, extra.name  # module and distribution alike
         assert not set(extra.modules) & base, extra.name  # the companion computer's install
     assert set(DEMO.modules) <= _requirements(extras, "test")
+    assert set(ROUTING.modules) <= _requirements(extras, "test")
+
+
+def test_vantage_plans_without_ortools_exit_2_naming_the_routing_extra(tmp_path, monkeypatch,
+                                                                      capsys):
+    without(monkeypatch, "ortools")
+    assert main(["plan", "--config", MISSION, "--pattern", "vantage", "--target-pd", "0.8",
+                 "--out", str(tmp_path / "plan")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("pdcov plan --pattern vantage needs ortools: "
+                        "pip install 'pdcov[routing]'"), err
+    assert not (tmp_path / "plan").exists()
 
 
 def test_the_simulator_without_jsbsim_exits_2_naming_the_sitl_extra(tmp_path, monkeypatch,

@@ -67,6 +67,8 @@ def test_hover_holds_position_for_its_time():
     at = np.linalg.norm(f.r_body_enu[:, :2] - [0, 20], axis=1) < 1e-6
     assert (at.sum() - 1) * 0.1 == pytest.approx(4.0, abs=0.15)
     assert np.all(f.speed_mps[at] < 1e-9)
+    # Level while it hovers (the body's z axis straight down), not tilted by the braking.
+    assert np.allclose(f.R_ned_body[at][:, :, 2], [0, 0, 1], atol=1e-9)
 
 
 def test_fixed_mount_follows_body_gimbal_holds_nadir():

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import (
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+    MAV_CMD_DO_MOUNT_CONTROL,
     MAV_CMD_NAV_WAYPOINT,
     MAV_FRAME_GLOBAL,
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
@@ -39,8 +41,6 @@ from pdcov.planning.plan import plan_from_mission_items
 
 from .terrain import LocalGround
 
-MAV_CMD_DO_MOUNT_CONTROL = 205
-MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
 NADIR_PITCH_RAD = -math.pi / 2
 MAV_FRAME_GLOBAL_INT = 5
 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6

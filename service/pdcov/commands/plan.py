@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import math
 import sys
@@ -27,6 +28,7 @@ from pdcov.atomic import atomic_write, replacing_dir, write_text_atomic
 from pdcov.commands.args import (
     finite,
     mavlink_url,
+    nonnegative,
     output_dir,
     overlap,
     positive,
@@ -40,9 +42,12 @@ from pdcov.core.mission import (
     MAV_CMD_NAV_WAYPOINT,
     MAV_FRAME_GLOBAL,
     AltitudeFrame,
+    GimbalCommand,
     MissionItem,
 )
 from pdcov.errors import ConfigError
+from pdcov.extras import ROUTING
+from pdcov.planning.cover import Cover
 from pdcov.planning.optimise import (
     PATTERN_OPTIONS,
     PATTERNS,
@@ -67,6 +72,13 @@ from pdcov.planning.terrain_follow import (
     clearance_intrusions,
     steep_legs,
 )
+from pdcov.planning.tours import Fleet
+from pdcov.planning.vantage import CoverObjective, VantageSettings
+from pdcov.planning.vantage_missions import (
+    VantageMissions,
+    plan_vantage_missions,
+    vantage_score,
+)
 from pdcov.report.outputs import summary_text, write_outputs
 from pdcov.telemetry.upload import upload_mission
 
@@ -78,7 +90,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", required=True, type=Path, help="mission config YAML")
     p.add_argument("--pattern", choices=PATTERNS, default="lawnmower",
                    help="coverage pattern (docs/planning.md)")
-    p.add_argument("--altitude-m", type=positive, required=True, help="altitude above ground")
+    p.add_argument("--altitude-m", type=positive,
+                   help="altitude above ground (required, but for vantage: --altitudes-m)")
     _spacing_args(p)
     p.add_argument("--heading-deg", type=finite,
                    help="track direction (lawnmower) or first leg, deg clockwise from "
@@ -92,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     _terrain_args(p)
+    _vantage_args(p)
     p.set_defaults(func=run_plan)
 
     o = subparsers.add_parser(
@@ -105,7 +119,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="proportion of cells that must reach the target (0.95); the best "
                         "plan is the shortest flight reaching it")
     o.add_argument("--patterns", nargs="+", choices=PATTERNS, default=["lawnmower", "spiral"],
-                   help="patterns to try")
+                   help="patterns to try (vantage: planned for --target-pd on "
+                        "--min-proportion of the cells at each altitude and speed)")
     o.add_argument("--altitudes-m", nargs="+", type=positive, default=[8.0, 10.0, 12.0],
                    help="altitudes above ground to try, m")
     o.add_argument("--speeds-mps", nargs="+", type=positive, default=[3.0, 5.0],
@@ -156,6 +171,43 @@ def _spacing_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--spacing-m", type=positive, help="track spacing (default: from the camera "
                                                    "swath and --overlap)")
     g.add_argument("--overlap", type=overlap, help="side overlap of the swath (default 0.2)")
+
+
+def _vantage_args(p: argparse.ArgumentParser) -> None:
+    """The vantage pattern's options (docs/planning.md "Vantage points")."""
+    g = p.add_argument_group("vantage points (--pattern vantage)")
+    g.add_argument("--target-pd", type=probability, help="P_D every required cell must reach")
+    g.add_argument("--target-share", type=probability,
+                   help="proportion of free cells that must reach it (default 1: all)")
+    g.add_argument("--altitudes-m", nargs="+", type=positive,
+                   help="candidate altitudes above ground, m (default --altitude-m, else 10)")
+    g.add_argument("--hover-s", nargs="+", type=positive,
+                   help="candidate hover times at a point, s (default 2)")
+    g.add_argument("--lattice-m", type=positive,
+                   help="spacing of the candidate points, m (default half the swath at the "
+                        "lowest altitude)")
+    g.add_argument("--clearance-m", type=nonnegative,
+                   help="distance points and transits keep from obstacles and the domain's "
+                        "edge, m (default planning.corner_cut_m, 2)")
+    g.add_argument("--objective", choices=list(CoverObjective),
+                   type=CoverObjective, help="minimise the number of points (default) or "
+                                            "the time they take")
+    g.add_argument("--ilp-time-limit-s", type=nonnegative,
+                   help="time for the exact integer program (HiGHS), s (default 20; 0: "
+                        "greedy only)")
+    g.add_argument("--vehicles", type=positive_int, help="routes of balanced time (default 1)")
+    g.add_argument("--max-flight-time-s", type=positive,
+                   help="split each vehicle's route into sorties of at most this, s")
+    g.add_argument("--routing-time-s", type=positive,
+                   help="time for OR-Tools' route search, s (default 2)")
+    g.add_argument("--gimbal-command", choices=list(GimbalCommand), type=GimbalCommand,
+                   help="gimbal mission item: manager (DO_GIMBAL_MANAGER_PITCHYAW, default) "
+                        "or mount (DO_MOUNT_CONTROL, older firmware)")
+
+
+_VANTAGE_FLAGS = ("target_pd", "target_share", "altitudes_m", "hover_s", "lattice_m",
+                  "clearance_m", "objective", "ilp_time_limit_s", "vehicles",
+                  "max_flight_time_s", "routing_time_s", "gimbal_command")
 
 
 def _terrain_args(p: argparse.ArgumentParser) -> None:
@@ -235,12 +287,17 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
 
 
 def run_plan(args: argparse.Namespace) -> int:
-    given = (("spacing", "--spacing-m", args.spacing_m), ("spacing", "--overlap", args.overlap),
+    given = [("spacing", "--spacing-m", args.spacing_m), ("spacing", "--overlap", args.overlap),
              ("heading", "--heading-deg", args.heading_deg),
              ("centre", "--centre-enu-m", args.centre_enu_m),
-             ("radius", "--radius-m", args.radius_m))
+             ("radius", "--radius-m", args.radius_m)]
+    given += [("vantage", "--" + k.replace("_", "-"), getattr(args, k)) for k in _VANTAGE_FLAGS]
     refuse_options(args.pattern, {name: flag for name, flag, value in given
                                   if value is not None})
+    if args.pattern == "vantage":
+        return run_plan_vantage(args)
+    if args.altitude_m is None:
+        raise ConfigError(f"--altitude-m is required for the {args.pattern} pattern")
     mission = load_mission_warned(args.config, "plan")
     sc = scenario_of(mission, planning_overrides(args))
     params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
@@ -263,18 +320,122 @@ def run_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def vantage_settings(args: argparse.Namespace, target_pd: float, target_share: float,
+                     alts_m: Sequence[float], speed_mps: float) -> VantageSettings:
+    """The vantage options of ``pdcov plan`` (their defaults where not given)."""
+    return VantageSettings(
+        target_pd, tuple(alts_m), tuple(args.hover_s or (2.0,)), target_share,
+        args.lattice_m, args.clearance_m, speed_mps,
+        args.objective or CoverObjective.POINTS,
+        20.0 if args.ilp_time_limit_s is None else args.ilp_time_limit_s)
+
+
+def run_plan_vantage(args: argparse.Namespace) -> int:
+    if args.target_pd is None:
+        raise ConfigError("--pattern vantage needs --target-pd (the P_D every required cell "
+                          "must reach)")
+    ROUTING.require("pdcov plan --pattern vantage needs")
+    if args.altitudes_m and args.altitude_m is not None:
+        raise ConfigError("give --altitude-m or --altitudes-m, not both")
+    alts = args.altitudes_m or [args.altitude_m or 10.0]
+    mission = load_mission_warned(args.config, "plan")
+    sc = scenario_of(mission, planning_overrides(args))
+    settings = vantage_settings(args, args.target_pd,
+                                1.0 if args.target_share is None else args.target_share,
+                                alts, args.speed_mps)
+    fleet = Fleet(args.vehicles or 1, args.max_flight_time_s)
+    t0 = time.monotonic()
+    m = plan_vantage_missions(sc, settings, fleet, args.gimbal_command or GimbalCommand.MANAGER,
+                              args.routing_time_s or 2.0)
+    elapsed = time.monotonic() - t0
+    with replacing_dir(args.out) as replaced:
+        summary = write_vantage(args.out, mission, sc, m, elapsed, not args.no_figures)
+    print(summary + _replaced_note(replaced, args.out))
+    return 0
+
+
+def _cover_doc(cover: Cover | None) -> dict[str, Any] | None:
+    if cover is None:
+        return None
+    return {"points": len(cover.chosen), "cost": round(cover.cost, 4),
+            "optimal": cover.optimal,
+            "mip_gap": None if math.isnan(cover.mip_gap) else round(cover.mip_gap, 6)}
+
+
+def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
+                  elapsed_s: float, figures: bool) -> str:
+    """The mission files (plan.plan / plan.waypoints for one mission, else
+    vehicle-V-sortie-S.plan / .waypoints each), vantage.json and the predicted evaluation of
+    all missions together in ``out``; returns the summary text."""
+    out.mkdir(parents=True, exist_ok=True)
+    origin = mission.origin()
+    names = []
+    for vm in m.missions:
+        r = vm.route
+        stem = "plan" if len(m.missions) == 1 else f"vehicle-{r.vehicle}-sortie-{r.sortie}"
+        write_plan(out / f"{stem}.plan", vm.prediction.plan, origin)
+        write_plan(out / f"{stem}.waypoints", vm.prediction.plan, origin)
+        names.append(stem)
+    c = m.cover
+    doc = {"candidates": c.n_candidates, "objective": str(c.objective),
+           "greedy": _cover_doc(c.greedy), "exact": _cover_doc(c.exact),
+           "greedy_gap": None if c.greedy_gap is None else round(c.greedy_gap, 4),
+           "elapsed_s": round(elapsed_s, 2),
+           "points": [{"x_enu_m": round(p.x_enu_m, 3), "y_enu_m": round(p.y_enu_m, 3),
+                       "alt_agl_m": p.alt_agl_m, "hover_s": p.hover_s, "looks": p.looks}
+                      for p in c.points],
+           "missions": [{"file": f"{name}.plan", "vehicle": vm.route.vehicle,
+                         "sortie": vm.route.sortie, "stops": list(vm.route.stops),
+                         "flight_time_s": round(vm.flight_time_s, 1),
+                         "routing_time_s": round(vm.route.time_s, 1),
+                         "path_length_m": round(vm.prediction.flight.path_length_m, 1),
+                         "waypoints": len(vm.prediction.plan.waypoints)}
+                        for name, vm in zip(names, m.missions, strict=True)]}
+    write_text_atomic(out / "vantage.json", json.dumps(doc, indent=2) + "\n")
+    tracks = [vm.prediction.flight.r_body_enu[:, :2] for vm in m.missions]
+    plans = [vm.prediction.plan.xy_enu_m for vm in m.missions]
+    run = write_outputs(out, mission, m.grid, origin,
+                        title=f"predicted: {len(c.points)} vantage points, "
+                              f"{len(m.missions)} missions",
+                        track_enu=np.vstack(tracks), plan_enu=np.vstack(plans),
+                        extra_metrics={"vantage": doc}, figures=figures)
+    gap = ("" if c.exact is None else
+           f"; exact (HiGHS) {len(c.exact.chosen)} points, cost {c.exact.cost:.3f}"
+           f"{'' if c.exact.optimal else ' (not proven optimal)'}, greedy gap "
+           f"{c.greedy_gap:.1%}")
+    pd = m.grid.pd[sc.mask]
+    lines = [f"vantage: {len(c.points)} points of {c.n_candidates} candidates; greedy "
+             f"{len(c.greedy.chosen)} points, cost {c.greedy.cost:.3f}{gap}",
+             f"predicted share of free cells at the target: "
+             f"{float((pd >= m.settings.target_pd).mean()):.3f}" if pd.size else "no free cells"]
+    for name, vm in zip(names, m.missions, strict=True):
+        lines.append(f"{name}: {len(vm.route.stops)} points, {vm.flight_time_s:.1f} s "
+                     f"(take-off to landing), {vm.prediction.flight.path_length_m:.1f} m")
+    return summary_text(run, lines)
+
+
 def _replaced_note(replaced: bool, out: Path) -> str:
     return f"\nreplaced the previous outputs in {out}" if replaced else ""
 
 
 def _score_row(s: Score) -> dict[str, Any]:
     p = s.params
+    vantage = p.pattern == "vantage"
     return {"pattern": p.pattern, "altitude_m": p.alt_agl_m, "speed_mps": p.speed_mps,
-            "heading_deg": round(math.degrees(p.heading_rad), 3),
-            "overlap": None if p.spacing_m is not None else p.overlap,
-            "spacing_m": round(s.spacing_m, 3), "proportion": round(s.proportion, 4),
+            "heading_deg": None if vantage else round(math.degrees(p.heading_rad), 3),
+            "overlap": None if p.spacing_m is not None or vantage else p.overlap,
+            "spacing_m": None if vantage else round(s.spacing_m, 3),
+            "proportion": round(s.proportion, 4),
             "mean_pd": round(s.mean_pd, 4), "flight_time_s": round(s.flight_time_s, 1),
-            "path_length_m": round(s.path_length_m, 1)}
+            "path_length_m": round(s.path_length_m, 1), "missions": s.missions}
+
+
+def _optimise_vantage(args: argparse.Namespace, alt_m: float, speed_mps: float
+                      ) -> VantageSettings:
+    """The vantage plan ``optimise`` scores at one altitude and speed: the target on
+    --min-proportion of the cells, hovers of 2, 4 or 8 s, a 5 s ILP."""
+    return VantageSettings(args.target_pd, (alt_m,), (2.0, 4.0, 8.0), args.min_proportion,
+                           speed_mps=speed_mps, exact_time_limit_s=5.0)
 
 
 def _table(rows: Sequence[dict[str, Any]]) -> str:
@@ -289,11 +450,21 @@ def _table(rows: Sequence[dict[str, Any]]) -> str:
 def run_optimise(args: argparse.Namespace) -> int:
     mission = load_mission_warned(args.config, "optimise")
     sc = scenario_of(mission, planning_overrides(args))
-    params = candidates(args.patterns, args.altitudes_m, args.speeds_mps,
+    swept = [p for p in args.patterns if p != "vantage"]
+    params = candidates(swept, args.altitudes_m, args.speeds_mps,
                         [math.radians(h) for h in args.headings_deg], args.spacings_m,
                         args.overlaps)
     t0 = time.monotonic()
-    scores, failures = sweep(sc, params, args.target_pd, args.processes, progress=True)
+    scores, failures = (sweep(sc, params, args.target_pd, args.processes, progress=True)
+                        if params else ([], []))
+    if "vantage" in args.patterns:
+        ROUTING.require("pdcov optimise --patterns vantage needs")
+        for alt, v in itertools.product(args.altitudes_m, args.speeds_mps):
+            try:
+                scores.append(vantage_score(sc, _optimise_vantage(args, alt, v)))
+            except ConfigError as exc:
+                failures.append(f"vantage at {alt:g} m, {v:g} m/s: {exc}")
+            params.append(PlanParams("vantage", alt, v))
     elapsed = time.monotonic() - t0
     for msg in failures:
         print(f"skipped: {msg}", file=sys.stderr)
@@ -313,11 +484,19 @@ def run_optimise(args: argparse.Namespace) -> int:
                     w.writerow({**rows[i], "on_front": i in front})
         _front_figure(out / "pareto.png", scores, front, best, args.target_pd)
         s = scores[best]
-        plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
-        pred = predict(sc, plan, s.params)
-        summary = write_prediction(out / "best", mission, pred, pred.grid,
-                                    f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                    spacing, terrain_warnings=terrain_warnings(sc, pred))
+        if s.params.pattern == "vantage":
+            t1 = time.monotonic()
+            vm = plan_vantage_missions(sc, _optimise_vantage(args, s.params.alt_agl_m,
+                                                             s.params.speed_mps))
+            summary = write_vantage(out / "best", mission, sc, vm, time.monotonic() - t1, True)
+            description = vm.missions[0].prediction.plan.description
+        else:
+            plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
+            pred = predict(sc, plan, s.params)
+            summary = write_prediction(out / "best", mission, pred, pred.grid,
+                                        f"best: {plan.description} at {s.params.alt_agl_m:g} m",
+                                        spacing, terrain_warnings=terrain_warnings(sc, pred))
+            description = plan.description
         write_text_atomic(out / "optimise.json", json.dumps({
             "target_pd": args.target_pd, "min_proportion": args.min_proportion,
             "candidates": len(params), "scored": len(scores), "elapsed_s": round(elapsed, 1),
@@ -328,7 +507,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     print(_table([rows[i] for i in front]))
     reached = s.proportion >= args.min_proportion
     print(f"best ({'shortest flight reaching' if reached else 'none reaches'} "
-          f"{args.min_proportion:g}): {plan.description}, {s.params.alt_agl_m:g} m, "
+          f"{args.min_proportion:g}): {description}, {s.params.alt_agl_m:g} m, "
           f"{s.params.speed_mps:g} m/s -> proportion {s.proportion:.3f}, "
           f"{s.flight_time_s:.0f} s")
     print(summary + _replaced_note(replaced, out))

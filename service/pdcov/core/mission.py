@@ -11,6 +11,9 @@ MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
 MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_CMD_DO_MOUNT_CONTROL = 205
+MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
+MAV_MOUNT_MODE_MAVLINK_TARGETING = 2
 MAV_FRAME_GLOBAL = 0
 MAV_FRAME_MISSION = 2
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
@@ -52,3 +55,30 @@ class AltitudeFrame(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
         return {AltitudeFrame.RELATIVE: MAV_FRAME_GLOBAL_RELATIVE_ALT,
                 AltitudeFrame.AMSL: MAV_FRAME_GLOBAL,
                 AltitudeFrame.TERRAIN_ALT: MAV_FRAME_GLOBAL_TERRAIN_ALT}[self]
+
+
+class GimbalCommand(str, Enum):
+    """Which mission item points the gimbal; prints as its text.
+
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000, gimbal protocol v2: ArduPilot 4.3+, PX4):
+    param1 pitch deg (positive up), param2 yaw deg (positive right; relative to the vehicle
+    with no lock flag), param3/4 rates (NaN: none), param5 GIMBAL_MANAGER_FLAGS (0: follow
+    the vehicle's yaw), param7 gimbal device id (0: the primary gimbal).
+    MAV_CMD_DO_MOUNT_CONTROL (205, older firmware): param1 pitch deg, param2 roll deg,
+    param3 yaw deg, param7 MAV_MOUNT_MODE (2: MAVLINK_TARGETING)."""
+
+    MANAGER = "manager"
+    MOUNT = "mount"
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def item(self, pitch_deg: float, yaw_deg: float = 0.0) -> MissionItem:
+        """The item pointing the gimbal at ``pitch_deg`` (-90: nadir) and ``yaw_deg`` from
+        the vehicle's heading."""
+        if self is GimbalCommand.MANAGER:
+            return MissionItem(MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_FRAME_MISSION,
+                               param1=pitch_deg, param2=yaw_deg, param3=float("nan"),
+                               param4=float("nan"))
+        return MissionItem(MAV_CMD_DO_MOUNT_CONTROL, MAV_FRAME_MISSION, param1=pitch_deg,
+                           param3=yaw_deg, z_m=float(MAV_MOUNT_MODE_MAVLINK_TARGETING))

@@ -34,8 +34,11 @@ from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
 from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
 
-PatternName = Literal["lawnmower", "spiral", "expanding-square", "sector", "sector-2"]
-"""A coverage pattern of planning/patterns.py, as `pdcov plan --pattern` names it."""
+PatternName = Literal["lawnmower", "spiral", "expanding-square", "sector", "sector-2",
+                      "vantage"]
+"""A coverage pattern of planning/patterns.py, or the vantage points of planning/vantage.py
+(planned for a target P_D, not swept: ``vantage_score``), as `pdcov plan --pattern` names
+it."""
 PATTERNS: tuple[PatternName, ...] = get_args(PatternName)
 
 
@@ -112,7 +115,8 @@ PATTERN_OPTIONS: dict[PatternName, tuple[str, ...]] = {
     "spiral": ("spacing", "centre"),
     "expanding-square": ("spacing", "heading", "centre"),
     "sector": ("heading", "centre", "radius"),
-    "sector-2": ("heading", "centre", "radius")}
+    "sector-2": ("heading", "centre", "radius"),
+    "vantage": ("vantage",)}
 
 
 def refuse_options(pattern: PatternName, given: dict[str, str]) -> None:
@@ -138,7 +142,9 @@ class Prediction:
 @dataclass(frozen=True, slots=True)
 class Score:
     """A candidate's result: the spacing actually used, the proportion of free cells at or
-    above the target P_D, flight time (s), flown path length (m), mean P_D."""
+    above the target P_D, flight time (s), flown path length (m), mean P_D, and the number
+    of missions it takes (vantage plans: one per vehicle and sortie; flight_time_s is then
+    the longest mission's, path_length_m the total)."""
 
     params: PlanParams
     spacing_m: float
@@ -146,10 +152,14 @@ class Score:
     flight_time_s: float
     path_length_m: float
     mean_pd: float
+    missions: int = 1
 
 
 def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
     """The plan for ``params`` and the track spacing it used (m)."""
+    if params.pattern == "vantage":
+        raise ConfigError("vantage points are planned for a target P_D "
+                          "(planning/vantage_missions.py), not built from parameters")
     spacing = params.spacing_m
     if spacing is None:
         swath = scenario.swath_width_m(params.alt_agl_m, params.heading_rad)

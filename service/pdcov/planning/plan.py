@@ -7,6 +7,8 @@ the uploader carry those items. Items (MAVLink common.xml):
 * MAV_CMD_NAV_TAKEOFF (22) to the first waypoint's altitude, at the origin;
 * MAV_CMD_DO_CHANGE_SPEED (178) before the first waypoint and wherever the speed changes
   (param1 = 1: ground speed, param2 = m/s, param3 = -1: throttle unchanged);
+* a gimbal plan's pointing after the take-off: MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000)
+  or, for older firmware, MAV_CMD_DO_MOUNT_CONTROL (205) (``GimbalCommand``);
 * MAV_CMD_NAV_WAYPOINT (16) per waypoint, param1 = hold time in s;
 * MAV_CMD_NAV_RETURN_TO_LAUNCH (20) at the end.
 
@@ -38,6 +40,7 @@ from pdcov.atomic import write_text_atomic
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.core.mission import (
     MAV_CMD_DO_CHANGE_SPEED,
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
     MAV_CMD_NAV_LAND,
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
@@ -47,12 +50,14 @@ from pdcov.core.mission import (
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
     MAV_FRAME_MISSION,
     AltitudeFrame,
+    GimbalCommand,
     MissionItem,
 )
 from pdcov.errors import InputFileError
 from pdcov.yaml_file import read_text
 
-_SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
+_SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH,
+                MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW)  # 1000: a DO command outside 176..252
 _FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
 _LAST_DO_COMMAND = 252
 QGC_FIRMWARE_ARDUPILOT = 3
@@ -94,11 +99,15 @@ class Waypoint:
 class Plan:
     """An ordered list of waypoints, a one-line description of how it was made, and the
     frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
-    above home)."""
+    above home). gimbal_pitch_rad: the pitch (rad, -pi/2: nadir; yaw following the
+    vehicle) the mission commands the gimbal to after the take-off, with
+    ``gimbal_command``; None: no gimbal command."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
     altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
+    gimbal_pitch_rad: float | None = None
+    gimbal_command: GimbalCommand = GimbalCommand.MANAGER
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -164,6 +173,8 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
                          z_m=takeoff_alt_m(plan))]
+    if plan.gimbal_pitch_rad is not None:
+        items.append(plan.gimbal_command.item(math.degrees(plan.gimbal_pitch_rad)))
     speed = math.nan
     for w, (lat, lon, alt_msl), written in zip(plan.waypoints, geo, plan.written(),
                                                strict=True):

@@ -105,8 +105,8 @@ def follow_terrain(plan: Plan, terrain: TerrainSurface, following: TerrainFollow
         else:
             out.append(Waypoint(float(xy[k, 0]), float(xy[k, 1]), float(alt[k]),
                                 wps[i].speed_mps, z_enu_m=float(z[k]), terrain_added=True))
-    return Plan(tuple(out), f"{plan.description}; follows terrain ({following.frame})",
-                following.frame)
+    return replace(plan, waypoints=tuple(out), altitude_frame=following.frame,
+                   description=f"{plan.description}; follows terrain ({following.frame})")
 
 
 def _samples(plan: Plan, step_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,

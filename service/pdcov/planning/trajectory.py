@@ -8,7 +8,8 @@ The model of a multicopter in an auto mission (a planning prediction, not a simu
   ArduPilot WPNAV_RADIUS / PX4 NAV_ACC_RAD) and within half of each leg, and whose radius
   is at most v^2 / a (what the leg speed needs); the speed on the arc is sqrt(a * radius),
   so a sharp corner slows the vehicle and a reversal (a U-turn at a point) stops it;
-* a waypoint with a hover time is reached exactly, at rest, and held;
+* a waypoint with a hover time is reached exactly, at rest and level, and held, turning
+  towards the next leg meanwhile;
 * speed changes at most ``max_accel_mps2`` along the path, heading (the direction of travel,
   as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
 * with ``tilt``, the body tilts so that its thrust axis carries the acceleration (no drag).
@@ -166,7 +167,13 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     v_mid = 0.5 * (v[1:] + v[:-1])
     with np.errstate(divide="ignore", invalid="ignore"):
         dt = np.where(ds > 0, ds / np.maximum(v_mid, 1e-9), 0.0)
-    dt = np.maximum(dt, np.abs(np.diff(heading)) / kinematics.max_yaw_rate_rad_s)
+    # Turning takes |dpsi| / rate; on a hover the vehicle turns towards the next leg while
+    # it holds (as the simulator's guidance, pdcov_sitl/guidance.py), the rest of the turn
+    # on the way.
+    rate = kinematics.max_yaw_rate_rad_s
+    dpsi = np.diff(heading)
+    turn_in_hover_s = np.minimum(np.abs(dpsi) / rate, hover[:-1])
+    dt = np.maximum(dt, np.abs(dpsi) / rate - turn_in_hover_s)
     t_arrive = np.concatenate([[0.0], np.cumsum(dt)])
     # Hover: the sample is reached at t_arrive (+ earlier hovers) and left after hover_s.
     hover_before = np.concatenate([[0.0], np.cumsum(hover)[:-1]])
@@ -180,11 +187,19 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
         return np.interp(t, knots_t, np.repeat(values, 2))
 
     r = np.column_stack([interp(pts[:, i]) for i in range(3)])
-    psi = interp(heading)
+    # Heading knots per sample: reached, turned during the hover, left.
+    turned = heading + np.concatenate([np.sign(dpsi) * rate * turn_in_hover_s, [0.0]])
+    t_turned = t_in + np.concatenate([turn_in_hover_s, [0.0]])
+    psi = np.interp(t, np.column_stack([t_in, t_turned, t_out]).ravel(),
+                    np.column_stack([heading, turned, turned]).ravel())
     speed = interp(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         a_seg = np.where(ds > 0, (v[1:] ** 2 - v[:-1] ** 2) / (2 * ds), 0.0)
-    a_along = interp(np.concatenate([a_seg[:1], a_seg]))
+    # At rest on a hover the vehicle is level: no acceleration from reaching to leaving it
+    # (the arriving segment's braking would otherwise tilt it for the whole hover).
+    a_knots = np.repeat(np.concatenate([a_seg[:1], a_seg]), 2)
+    a_knots.reshape(-1, 2)[hover > 0] = 0.0
+    a_along = np.interp(t, knots_t, a_knots)
     a_across = speed ** 2 * interp(kappa)
     R = _attitudes(psi, a_along, a_across, kinematics.tilt)
     return Flight(t, r, R, speed, duration, float(ds.sum()))

@@ -1,0 +1,363 @@
+"""Vantage-point plans (planning/cover.py, vantage.py, tours.py, vantage_missions.py): the
+covering program against brute force, the hover frames against the per-pixel reference,
+free-space transits, the fleet's balance, sorties, mission items and bad input."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+
+import numpy as np
+import pytest
+import shapely
+from scipy import sparse
+from shapely.geometry import LineString, Point, Polygon
+
+from benchmarks.references import ReferenceGrid, pixel_rays, r1_update
+from pdcov.cli import main as pdcov_main
+from pdcov.core.camera import CameraModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import Domain
+from pdcov.core.geodesy import Origin
+from pdcov.core.mission import (
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+    MAV_CMD_DO_MOUNT_CONTROL,
+    MAV_CMD_NAV_TAKEOFF,
+    GimbalCommand,
+)
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import FixedMount
+from pdcov.errors import ConfigError
+from pdcov.extras import ROUTING
+from pdcov.planning.cover import CoverProblem, exact_cover, greedy_cover
+from pdcov.planning.optimise import Scenario
+from pdcov.planning.plan import Plan, Waypoint, mission_items, plan_from_mission_items
+from pdcov.planning.tours import Fleet
+from pdcov.planning.trajectory import camera_poses
+from pdcov.planning.vantage import VantageSettings, hover_looks, lattice_enu_m
+from pdcov.planning.vantage_missions import plan_vantage_missions
+
+OBSTACLE = [(4, -4), (12, -4), (12, 5), (4, 5)]
+TARGET_PD = 0.9
+SETTINGS = VantageSettings(TARGET_PD, (8.0, 12.0), (1.0, 2.0), lattice_m=5.0,
+                           exact_time_limit_s=10.0)
+GREEDY = VantageSettings(TARGET_PD, (8.0, 12.0), (1.0, 2.0), lattice_m=8.0,
+                         exact_time_limit_s=0.0)
+ROUTING_S = 1.0
+
+
+def scene(mount=None) -> Scenario:
+    """40 x 30 m around home with an 8 x 9 m obstacle east of it, 1 m cells, a nadir 70 deg
+    camera at 2 frames/s, the illustrative detector."""
+    dom = Domain.from_enu([(-20, -15), (20, -15), (20, 15), (-20, 15)], [OBSTACLE])
+    geo = dom.grid_geometry(1.0)
+    return Scenario(dom.free_space, geo, dom.free_mask(geo), CameraModel.from_fov(640, 480, 70),
+                    DetectorModel.illustrative(), mount or FixedMount(), frame_rate_hz=2.0)
+
+
+@pytest.fixture(scope="module")
+def single():
+    return plan_vantage_missions(scene(), SETTINGS, routing_time_s=ROUTING_S)
+
+
+# -- the covering program ------------------------------------------------------------------
+
+def brute_force(problem: CoverProblem) -> float:
+    """The least cost of a subset reaching n_required cells, by trying them all."""
+    n = problem.evidence.shape[1]
+    best = math.inf
+    for k in range(n + 1):
+        for subset in itertools.combinations(range(n), k):
+            if problem.reached(np.array(subset, dtype=int)).sum() >= problem.n_required:
+                best = min(best, float(problem.cost[list(subset)].sum()))
+    return best
+
+
+def test_a_cell_may_need_two_candidates():
+    """tau(0.9) = 2.303: cell 0 gets 1.2 from each of A and B (only both reach it), cell 1
+    2.5 from C alone; one candidate D reaches both cells but costs 3. Plain set cover (one
+    candidate per cell) would call A or B enough for cell 0."""
+    e = sparse.csc_matrix(np.array([[1.2, 1.2, 0.0, 2.5], [0.0, 0.0, 2.5, 2.5]]))
+    p = CoverProblem.of(e, np.array([1.0, 1.0, 1.0, 3.5]), TARGET_PD)
+    exact = exact_cover(p, 5.0)
+    assert exact is not None and sorted(exact.chosen.tolist()) == [0, 1, 2]
+    assert exact.cost == pytest.approx(3.0) and exact.optimal
+    assert not p.reached(np.array([0, 2])).all() and p.reached(np.array([0, 1, 2])).all()
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("share", [1.0, 0.7])
+def test_exact_cover_is_brute_forces_optimum_and_greedy_is_feasible(seed, share):
+    rng = np.random.default_rng(seed)
+    e = sparse.random(12, 9, density=0.35, random_state=rng) * 3.0
+    cost = rng.uniform(0.5, 2.0, 9)
+    full = CoverProblem.of(e, cost, TARGET_PD)
+    n_ok = int(full.reachable().sum())
+    p = CoverProblem.of(e, cost, TARGET_PD, max(1, math.floor(share * n_ok)))
+    best = brute_force(p)
+    exact, greedy = exact_cover(p, 10.0), greedy_cover(p)
+    assert exact is not None and greedy is not None
+    assert exact.cost == pytest.approx(best)
+    assert p.reached(greedy.chosen).sum() >= p.n_required
+    assert greedy.cost >= exact.cost - 1e-9
+
+
+def test_unreachable_cells_make_greedy_refuse():
+    e = sparse.csc_matrix(np.array([[3.0, 0.0], [0.5, 0.5]]))
+    p = CoverProblem.of(e, np.ones(2), TARGET_PD)
+    assert p.reachable().tolist() == [True, False]
+    assert greedy_cover(p) is None and exact_cover(p, 5.0) is None
+
+
+def test_hover_looks_count_the_frames_sure_to_fall_in_the_hover():
+    sc = scene()
+    assert hover_looks(sc, 2.0) == 4 and hover_looks(sc, 1.9) == 3
+    from dataclasses import replace
+    slow = replace(sc, frame_rate_hz=5.0, min_revisit_s=1.0)
+    assert hover_looks(slow, 2.0) == 2  # 10 frames, one a second counts
+
+
+def test_lattice_points_lie_in_the_space_and_reach_its_corners():
+    space = Polygon([(0, 0), (10, 0), (10, 7), (0, 7)])
+    xy = lattice_enu_m(space, 3.0)
+    assert shapely.covers(space.buffer(1e-9), shapely.points(xy)).all()
+    for corner in space.exterior.coords[:-1]:
+        assert np.min(np.linalg.norm(xy - corner, axis=1)) < 1e-9
+
+
+# -- the plan -----------------------------------------------------------------------------
+
+def hover_poses(sc: Scenario, missions):
+    """Camera poses of the predicted flights' hover frames (at rest on a hover point)."""
+    poses = []
+    for m in missions.missions:
+        f = m.prediction.flight
+        stops = np.array([[w.x_enu_m, w.y_enu_m] for w in m.prediction.plan.waypoints
+                          if w.hover_s > 0])
+        d = np.linalg.norm(f.r_body_enu[:, None, :2] - stops[None], axis=2).min(axis=1)
+        at = (d < 1e-6) & (f.speed_mps < 1e-6)
+        poses += [p for p, keep in zip(camera_poses(f, sc.mount), at, strict=True) if keep]
+    return poses
+
+
+@pytest.mark.slow
+def test_hover_frames_reach_the_target_by_the_per_pixel_reference(single):
+    """R1 (benchmarks/references.py: one ray per pixel, the cell's area = rays landing in
+    it), fed only the hover frames, finds P_D >= target on >= 98 % of the free cells."""
+    sc = scene()
+    grid = sc.new_grid()
+    ref = ReferenceGrid(sc.geometry, sc.mask, sc.camera, sc.detector, grid.max_range_m)
+    rays = pixel_rays(sc.camera)
+    poses = hover_poses(sc, single)
+    looks = sum(p.looks for p in single.cover.points)
+    assert len(poses) >= looks
+    for pose in poses:
+        r1_update(ref, rays, pose)
+        grid.update(pose)
+    share_ref = float((ref.pd[sc.mask] >= TARGET_PD).mean())
+    share_grid = float((grid.pd[sc.mask] >= TARGET_PD).mean())
+    c = single.cover
+    print(f"{len(c.points)} points of {c.n_candidates} candidates (greedy "
+          f"{len(c.greedy.chosen)}, exact {len(c.exact.chosen)}, gap {c.greedy_gap:.1%}); "
+          f"hover frames {len(poses)}: share at P_D {TARGET_PD} {share_grid:.4f} (grid), "
+          f"{share_ref:.4f} (R1); flight {single.longest_s:.1f} s")
+    assert share_grid == 1.0
+    assert share_ref >= 0.98
+
+
+@pytest.mark.slow
+def test_hover_points_and_transits_stay_in_free_space(single):
+    sc = scene()
+    obstacle = Polygon(OBSTACLE)
+    for p in single.cover.points:
+        assert shapely.covers(sc.free_space, Point(p.x_enu_m, p.y_enu_m))
+    for m in single.missions:
+        planned = np.vstack([[0.0, 0.0], m.prediction.plan.xy_enu_m, [0.0, 0.0]])
+        assert not LineString(planned).intersects(obstacle)  # take-off, waypoints, return
+        flown = m.prediction.flight.r_body_enu[:, :2]  # corners rounded by the kinematics
+        assert not LineString(flown).intersects(obstacle)
+
+
+@pytest.mark.slow
+def test_two_vehicles_each_fly_at_most_60_percent_of_one(single):
+    two = plan_vantage_missions(scene(), SETTINGS, Fleet(2), routing_time_s=ROUTING_S)
+    one_s = single.missions[0].flight_time_s
+    times = [m.flight_time_s for m in two.missions]
+    print(f"one vehicle {one_s:.1f} s; two: {', '.join(f'{t:.1f}' for t in times)} s")
+    assert len(two.missions) == 2 and {m.route.vehicle for m in two.missions} == {1, 2}
+    assert max(times) <= 0.6 * one_s
+    stops = sorted(s for m in two.missions for s in m.route.stops)
+    assert stops == list(range(len(two.cover.points)))
+
+
+@pytest.mark.slow
+def test_sorties_keep_to_the_flight_time_and_visit_every_point(single):
+    limit = 0.4 * single.missions[0].flight_time_s
+    split = plan_vantage_missions(scene(), SETTINGS, Fleet(1, limit), routing_time_s=ROUTING_S)
+    assert len(split.missions) >= 3
+    assert [m.route.sortie for m in split.missions] == list(range(1, len(split.missions) + 1))
+    assert max(m.flight_time_s for m in split.missions) <= limit
+    stops = sorted(s for m in split.missions for s in m.route.stops)
+    assert stops == list(range(len(split.cover.points)))
+    pd = split.grid.pd[scene().mask]
+    assert (pd >= TARGET_PD).all()
+
+
+# -- mission items ----------------------------------------------------------------------------
+
+ORIGIN = Origin(39.35, -76.33, 5.0)
+
+
+@pytest.mark.parametrize("command, cmd, pitch_param", [
+    (GimbalCommand.MANAGER, MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, "param1"),
+    (GimbalCommand.MOUNT, MAV_CMD_DO_MOUNT_CONTROL, "param1")])
+def test_gimbal_plans_point_the_gimbal_after_take_off(command, cmd, pitch_param):
+    from pdcov_sitl.mission import flight_plan_from_items
+
+    plan = Plan((Waypoint(5.0, 0.0, 10.0, 3.0, hover_s=2.0), Waypoint(5.0, 5.0, 10.0, 3.0)),
+                gimbal_pitch_rad=math.radians(-60.0), gimbal_command=command)
+    items = mission_items(plan, ORIGIN)
+    assert items[0].command == MAV_CMD_NAV_TAKEOFF and items[1].command == cmd
+    assert getattr(items[1], pitch_param) == pytest.approx(-60.0)
+    if command is GimbalCommand.MOUNT:
+        assert items[1].z_m == 2.0  # param7 MAV_MOUNT_MODE_MAVLINK_TARGETING
+    back = plan_from_mission_items(items, ORIGIN)
+    assert [w.hover_s for w in back.waypoints] == [2.0, 0.0]
+    legs = flight_plan_from_items(items, ORIGIN, "test").survey_legs
+    assert all(leg.gimbal_pitch_rad == pytest.approx(math.radians(-60.0)) for leg in legs)
+
+
+@pytest.mark.slow
+def test_a_gimbal_mission_commands_the_scenarios_pitch():
+    sc = scene(GimbalMount())
+    m = plan_vantage_missions(sc, GREEDY, routing_time_s=0.5)
+    items = mission_items(m.missions[0].prediction.plan, ORIGIN)
+    assert items[1].command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
+    assert items[1].param1 == pytest.approx(-90.0)
+
+
+# -- bad input --------------------------------------------------------------------------------
+
+def test_a_target_no_candidate_reaches_names_the_cells_and_why():
+    with pytest.raises(ConfigError, match=r"cannot reach P_D 0.9.*too small in the picture at "
+                                          r"every height"):
+        plan_vantage_missions(scene(), VantageSettings(TARGET_PD, (150.0,), (1.0,),
+                                                       lattice_m=8.0, exact_time_limit_s=0))
+
+
+@pytest.mark.slow
+def test_more_vehicles_than_points_is_refused(single):
+    n = len(single.cover.points)
+    with pytest.raises(ConfigError, match=f"--vehicles {n + 1}: more vehicles than vantage "
+                                          f"points \\({n}\\)"):
+        plan_vantage_missions(scene(), SETTINGS, Fleet(n + 1), routing_time_s=ROUTING_S)
+
+
+def test_a_flight_time_too_short_for_one_point_is_refused():
+    with pytest.raises(ConfigError, match=r"--max-flight-time-s 5: the vantage point at .* "
+                                          r"alone takes"):
+        plan_vantage_missions(scene(), GREEDY, Fleet(1, 5.0), routing_time_s=0.5)
+
+
+def test_routing_without_ortools_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ortools", None)
+    assert ROUTING.message() == ("pdcov plan --pattern vantage needs ortools: "
+                                 "pip install 'pdcov[routing]'")
+
+
+MISSION_YAML = """\
+vehicle_id: vt
+origin: {lat_deg: 39.35, lon_deg: -76.33, ground_alt_msl_m: 5.0}
+domain:
+  polygon_enu_m: [[-20, -15], [20, -15], [20, 15], [-20, 15]]
+  obstacles_enu_m: [[[4, -4], [12, -4], [12, 5], [4, 5]]]
+  cell_size_m: 1.0
+camera:
+  width_px: 640
+  height_px: 480
+  K: [[457.0, 0.0, 319.5], [0.0, 457.0, 239.5], [0.0, 0.0, 1.0]]
+  frame_rate_hz: 2
+mount: {type: fixed, roll_deg: 0, pitch_deg: -90, yaw_deg: 0}
+detector: illustrative
+thresholds: [0.5, 0.9]
+"""
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--target-pd", "0.9", "--altitudes-m", "150", "--lattice-m", "8"],
+     "too small in the picture at every height"),
+    (["--target-pd", "0.9", "--lattice-m", "8", "--vehicles", "500"],
+     "more vehicles than vantage points"),
+    (["--target-pd", "0.9", "--lattice-m", "8", "--max-flight-time-s", "3"],
+     "alone takes"),
+    (["--lattice-m", "8"], "--pattern vantage needs --target-pd"),
+    (["--target-pd", "0.9", "--spacing-m", "5"], "--spacing-m does not apply to the vantage"),
+])
+def test_cli_bad_vantage_input_is_one_line_and_fails(tmp_path, capsys, extra, message):
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(MISSION_YAML)
+    rc = pdcov_main(["plan", "--config", str(cfg), "--pattern", "vantage", "--ilp-time-limit-s",
+                     "0", "--routing-time-s", "0.5", "--out", str(tmp_path / "out"), *extra])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert len(err) == 1 and message in err[0], err
+
+
+@pytest.mark.slow
+def test_cli_vantage_writes_one_mission_per_vehicle(tmp_path, capsys):
+    import json
+
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(MISSION_YAML)
+    out = tmp_path / "out"
+    assert pdcov_main(["plan", "--config", str(cfg), "--pattern", "vantage", "--target-pd",
+                       "0.9", "--altitudes-m", "8", "12", "--hover-s", "1", "2", "--lattice-m",
+                       "5", "--ilp-time-limit-s", "0", "--routing-time-s", "0.5",
+                       "--vehicles", "2", "--no-figures", "--out", str(out)]) == 0
+    doc = json.loads((out / "vantage.json").read_text())
+    assert [m["file"] for m in doc["missions"]] == ["vehicle-1-sortie-1.plan",
+                                                    "vehicle-2-sortie-1.plan"]
+    for name in ("vehicle-1-sortie-1", "vehicle-2-sortie-1"):
+        assert (out / f"{name}.plan").is_file() and (out / f"{name}.waypoints").is_file()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["proportion_at_or_above"]["0.9"] == 1.0
+    assert "vantage:" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_optimise_puts_vantage_beside_the_sweeps(tmp_path):
+    import csv
+
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(MISSION_YAML)
+    out = tmp_path / "opt"
+    assert pdcov_main(["optimise", "--config", str(cfg), "--target-pd", "0.9",
+                       "--min-proportion", "0.95", "--patterns", "lawnmower", "vantage",
+                       "--altitudes-m", "12", "--speeds-mps", "4", "--headings-deg", "0",
+                       "--overlaps", "0.2", "--processes", "1", "--out", str(out)]) == 0
+    with open(out / "candidates.csv") as f:
+        rows = {r["pattern"]: r for r in csv.DictReader(f)}
+    assert set(rows) == {"lawnmower", "vantage"}
+    v = rows["vantage"]
+    assert float(v["proportion"]) >= 0.95 and int(v["missions"]) == 1
+    assert float(v["flight_time_s"]) > 0 and float(v["path_length_m"]) > 0
+    assert v["spacing_m"] == "" and rows["lawnmower"]["missions"] == "1"
+
+
+def test_over_a_level_terrain_the_cover_is_the_flat_one_lifted():
+    """Terrain at 3 m everywhere (amsl plans): a hover's height is 3 m + its altitude above
+    ground, and the candidates' evidence is that of the flat ground (the same geometry)."""
+    from dataclasses import replace
+
+    from pdcov.core.terrain import TerrainSurface
+    from pdcov.planning.vantage import candidate_evidence, hover_z_enu_m
+
+    flat = scene()
+    lifted = replace(flat, terrain=TerrainSurface.flat(flat.geometry, 3.0))
+    assert hover_z_enu_m(lifted, 1.0, 2.0, 10.0) == pytest.approx(13.0)
+    assert hover_z_enu_m(flat, 1.0, 2.0, 10.0) == pytest.approx(10.0)
+    pts_f, ev_f, _ = candidate_evidence(flat, GREEDY)
+    pts_l, ev_l, _ = candidate_evidence(lifted, GREEDY)
+    assert pts_f == pts_l
+    np.testing.assert_allclose(ev_l.toarray(), ev_f.toarray(), rtol=1e-4, atol=1e-6)
