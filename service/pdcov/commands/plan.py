@@ -370,7 +370,7 @@ def run_refly(args: argparse.Namespace) -> int:
     flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
                                   max_range_m=mission.max_range_m,
                                   min_revisit_s=mission.min_revisit_s,
-                                  terrain=mission.terrain)
+                                  terrain=mission.terrain, exposure_s=mission.exposure_s)
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")

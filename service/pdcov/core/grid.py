@@ -30,6 +30,7 @@ from typing import IO
 import numpy as np
 
 from pdcov.atomic import atomic_write
+from pdcov.core.blur import BlurEffect, blur_effect, blur_px
 from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.detector import DetectorModel
@@ -96,6 +97,9 @@ class CoverageGrid:
     None: the plane z = 0).
     min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
+    exposure_s: the camera's exposure time (s); with it, a detector model with blur bins
+    and a pose with a known velocity and angular rate, each cell's P_D and P_FA are looked up
+    by its size and its motion blur (core/blur.py) at its centre. Otherwise by size only.
 
     With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
     must come in time order (``update`` refuses one earlier than the latest); times are kept
@@ -106,7 +110,8 @@ class CoverageGrid:
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
                  detector: DetectorModel, *, max_range_m: float | None = None,
                  min_revisit_s: float | None = None,
-                 terrain: TerrainSurface | None = None) -> None:
+                 terrain: TerrainSurface | None = None,
+                 exposure_s: float | None = None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != geometry.shape:
             raise ValueError(f"mask shape {mask.shape} != grid shape {geometry.shape}")
@@ -133,6 +138,12 @@ class CoverageGrid:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self.max_range_m = float(max_range_m)
         self.min_revisit_s = min_revisit_s
+        if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
+            raise ValueError(f"exposure_s must be a positive number of seconds, "
+                             f"got {exposure_s}")
+        self.exposure_s = exposure_s
+        self.blur_effect = blur_effect(exposure_s, detector)
+        self.frames_blurred = 0  # frames whose P_D took their blur into account
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
@@ -144,7 +155,9 @@ class CoverageGrid:
         # The cells (r0, r1, c0, c1) the latest update may have changed, None for none: a
         # subscriber (the daemon's tiles and status) re-reads only those.
         self.touched: tuple[int, int, int, int] | None = None
-        pd, pfa = detector.padded_tables()
+        # Indexed by the kernel's bin index: blur row * (N + 2) + size index (the detector
+        # model's padded_tables_by_blur); row 0, P by size only, when blur does not apply.
+        pd, pfa = detector.padded_tables_by_blur()
         with np.errstate(divide="ignore"):
             self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
                                      np.log1p(-pfa).astype(np.float32))
@@ -233,11 +246,32 @@ class CoverageGrid:
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
         # over the window (cheaper than masked scatters) and leave those cells unchanged.
         idx *= observed
+        if self.blur_effect is BlurEffect.APPLIED and pose.has_motion:
+            idx += self._blur_rows(pose, window, observed) * (self.detector.n_bins + 2)
+            self.frames_blurred += 1
         tab_d, tab_fa = self._log_miss_tables
         self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
         self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
         self.n_obs[r0:r1, c0:c1] += observed
         return int(np.count_nonzero(observed))
+
+    def _blur_rows(self, pose: CameraPose, window: tuple[int, int, int, int],
+                   observed: np.ndarray) -> np.ndarray:
+        """The detector model's blur row (``DetectorModel.blur_row``) of the observed cells
+        of ``window``, from the blur at their centres (on the terrain when there is one);
+        0 elsewhere."""
+        r0, r1, c0, c1 = window
+        rows, cols = np.nonzero(observed)
+        g = self.geometry
+        x = g.x0_m + g.cell_size_m * (cols + c0 + 0.5)
+        y = g.y0_m + g.cell_size_m * (rows + r0 + 0.5)
+        z = (np.zeros(len(rows)) if self._relief is None
+             else self._relief.centre_z_m(r0, r1, c0, c1)[rows, cols])
+        assert self.exposure_s is not None  # blur_effect is APPLIED
+        blur = blur_px(self.camera, pose, np.stack([x, y, z], axis=1), self.exposure_s)
+        out = np.zeros(observed.shape, dtype=np.intp)
+        out[rows, cols] = self.detector.blur_row(blur)
+        return out
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -533,6 +567,7 @@ class CoverageGrid:
         self.n_obs += other.n_obs
         np.maximum(self.limiting, other.limiting, out=self.limiting)
         self.frames += other.frames
+        self.frames_blurred += other.frames_blurred
         if self.last_obs_s is not None and other.last_obs_s is not None:
             np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
             self.latest_frame_t_s = max(self.latest_frame_t_s, other.latest_frame_t_s)
@@ -560,7 +595,8 @@ class CoverageGrid:
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
                  *, max_range_m: float | None = None, min_revisit_s: float | None = None,
-                 terrain: TerrainSurface | None = None) -> CoverageGrid:
+                 terrain: TerrainSurface | None = None,
+                 exposure_s: float | None = None) -> CoverageGrid:
         """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
@@ -581,7 +617,7 @@ class CoverageGrid:
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
         grid = cls(geometry, mask, camera, detector, max_range_m=max_range_m,
-                   min_revisit_s=min_revisit_s, terrain=terrain)
+                   min_revisit_s=min_revisit_s, terrain=terrain, exposure_s=exposure_s)
         grid.log_miss_d[:] = data["log_miss_d"]
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]

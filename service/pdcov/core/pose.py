@@ -41,11 +41,16 @@ class CameraPose:
     R_enu_cam: 3x3 rotation mapping OpenCV optical-frame vectors into ENU.
     r_cam_enu: camera centre in ENU metres (z = height above the flat ground).
     t_s: time of the frame in seconds (autopilot clock), NaN when unknown.
+    v_cam_enu_m_s: the camera centre's velocity in ENU m/s at t_s; None when unknown.
+    omega_enu_rad_s: the camera's angular rate at t_s, in ENU rad/s (dR_enu_cam/dt =
+        [omega]x R_enu_cam); None when unknown. Both feed motion blur (core/blur.py).
     """
 
     R_enu_cam: np.ndarray
     r_cam_enu: np.ndarray
     t_s: float = float("nan")
+    v_cam_enu_m_s: np.ndarray | None = None
+    omega_enu_rad_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         R = np.array(self.R_enu_cam, dtype=float)
@@ -64,6 +69,20 @@ class CameraPose:
         r.setflags(write=False)
         object.__setattr__(self, "R_enu_cam", R)
         object.__setattr__(self, "r_cam_enu", r)
+        for key in ("v_cam_enu_m_s", "omega_enu_rad_s"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            a = np.array(value, dtype=float).reshape(-1)
+            if a.shape != (3,) or not np.isfinite(a).all():
+                raise ValueError(f"{key} must be 3 finite numbers or None, got {value!r}")
+            a.setflags(write=False)
+            object.__setattr__(self, key, a)
+
+    @property
+    def has_motion(self) -> bool:
+        """Whether the velocity and the angular rate are both known."""
+        return self.v_cam_enu_m_s is not None and self.omega_enu_rad_s is not None
 
     @classmethod
     def from_quat(cls, q_enu_cam_wxyz: np.ndarray, r_cam_enu: np.ndarray,
