@@ -61,7 +61,7 @@ from pdcov.telemetry.frame_policy import (
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
-from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
+from pdcov.telemetry.pose_tracker import PoseTracker, known_motion, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -382,10 +382,11 @@ class LiveCoverage:
         _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = 0
         unjudged = 0
-        for R, r, t, R_body, judged in zip(R_enu_cam, b.r_cam_enu[use],
-                                           b.t_s[use], b.R_ned_body[use],
-                                           b.estimator_judged[use], strict=True):
-            pose = CameraPose(R, r, float(t))
+        for R, r, t, R_body, judged, v, omega in zip(
+                R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
+                b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
+                strict=True):
+            pose = CameraPose(R, r, float(t), *known_motion(v, omega))
             self.last_pose, self.last_R_ned_body = pose, R_body
             if below_min_height(pose.r_cam_enu[2], m.min_height_m):
                 self.counters.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1

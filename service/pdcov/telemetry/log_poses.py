@@ -34,7 +34,7 @@ from pdcov.telemetry.frame_policy import (
 )
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
 from pdcov.telemetry.logs import FlightLog, read_flight_log
-from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
+from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker, known_motion
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.recorded_frames import frame_source_for
 from pdcov.telemetry.terrain_check import TerrainCheck, check_flight_log
@@ -210,8 +210,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     policy = untrusted_policy(mount)
     use = frames_used(valid, b.trusted, policy)
     q_cam, R_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
-    poses = tuple(CameraPose(R, r, float(ts)) for R, r, ts in
-                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], strict=True))
+    poses = tuple(CameraPose(R, r, float(ts), *known_motion(v, omega)) for R, r, ts, v, omega in
+                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], b.v_cam_enu_m_s[use],
+                      b.omega_enu_rad_s[use], strict=True))
     rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))
 
     step = 1.0 / frame_rate_hz if frame_source == "rate" else max_gap_s
