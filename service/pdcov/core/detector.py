@@ -41,7 +41,8 @@ MODEL_SCHEMA = Section.of(
     looks=Section(open=True),
     blur=Section.of("edges_px", "p_detect", "p_false_alarm", "p_detect_ci95",
                     "p_false_alarm_ci95", "n_true", "n_detected", "n_detections",
-                    "n_true_positives", "source", "images"))
+                    "n_true_positives", "truth_outside_bins", "detections_outside_bins",
+                    "csv", "bins", "speed_to_blur"))
 _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
                 "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks",
                 "blur")
@@ -51,10 +52,11 @@ _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_s
 class BlurModel:
     """P_D and P_FA by motion-blur bin and size bin (version 3's ``blur`` section).
 
-    edges_px: M + 1 strictly increasing blur lengths in image pixels, the first 0; blur bin
-    j is [edges_px[j], edges_px[j + 1]). p_detect, p_false_alarm: M rows (blur bins) of N
-    values (the model's size bins). A blur at or above the last edge has P_D = P_FA = 0 (the
-    model claims nothing there). ``extra``: the fit's other keys (intervals, counts).
+    edges_px: M + 1 strictly increasing blur lengths in detector-input pixels (scaled from
+    image pixels as sizes are), the first 0; blur bin j is [edges_px[j], edges_px[j + 1]).
+    p_detect, p_false_alarm: M rows (blur bins) of N values (the model's size bins). A blur
+    at or above the last edge has P_D = P_FA = 0 (the model claims nothing there).
+    ``extra``: the fit's other keys (intervals, counts), kept as written.
     """
 
     edges_px: tuple[float, ...]
@@ -193,8 +195,8 @@ class DetectorModel:
         return 1 if self.blur is None else self.blur.n_bins + 2
 
     def blur_row(self, blur_px: np.ndarray) -> np.ndarray:
-        """Row of ``padded_tables_by_blur`` for blurs in image pixels: j + 1 for blur bin j,
-        M + 1 at or above the last edge or NaN. Needs blur bins (ValueError)."""
+        """Row of ``padded_tables_by_blur`` for blurs in detector-input pixels: j + 1 for
+        blur bin j, M + 1 at or above the last edge or NaN. Needs blur bins (ValueError)."""
         if self.blur is None:
             raise ValueError("blur_row needs a detector model with blur bins")
         b = np.asarray(blur_px, dtype=float)
@@ -232,8 +234,8 @@ class DetectorModel:
     def lookup(self, size_px: np.ndarray, blur_px: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
         """P_D and P_FA for sizes in detector-input pixels (vectorised; 0 outside the bins),
-        by blur bin too when ``blur_px`` (image pixels) is given and the model has blur
-        bins; otherwise by size only."""
+        by blur bin too when ``blur_px`` (detector-input pixels) is given and the model has
+        blur bins; otherwise by size only."""
         idx = self.bin_index(size_px)
         if blur_px is not None and self.blur is not None:
             idx = self.blur_row(blur_px) * (self.n_bins + 2) + idx

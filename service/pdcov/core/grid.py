@@ -258,8 +258,8 @@ class CoverageGrid:
     def _blur_rows(self, pose: CameraPose, window: tuple[int, int, int, int],
                    observed: np.ndarray) -> np.ndarray:
         """The detector model's blur row (``DetectorModel.blur_row``) of the observed cells
-        of ``window``, from the blur at their centres (on the terrain when there is one);
-        0 elsewhere."""
+        of ``window``, from the blur at their centres (on the terrain when there is one),
+        scaled to detector-input pixels as sizes are; 0 elsewhere."""
         r0, r1, c0, c1 = window
         rows, cols = np.nonzero(observed)
         g = self.geometry
@@ -268,7 +268,8 @@ class CoverageGrid:
         z = (np.zeros(len(rows)) if self._relief is None
              else self._relief.centre_z_m(r0, r1, c0, c1)[rows, cols])
         assert self.exposure_s is not None  # blur_effect is APPLIED
-        blur = blur_px(self.camera, pose, np.stack([x, y, z], axis=1), self.exposure_s)
+        blur = self.size_scale * blur_px(self.camera, pose, np.stack([x, y, z], axis=1),
+                                         self.exposure_s)
         out = np.zeros(observed.shape, dtype=np.intp)
         out[rows, cols] = self.detector.blur_row(blur)
         return out

@@ -17,8 +17,9 @@ Boxes are top-left (x, y, width, height) in image pixels.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -98,7 +99,9 @@ class ImageMatch:
 class Matches:
     """Matching outcome of a whole set: sizes (detector-input px) of the counted ground truth
     and whether it was detected; of the counted detections and whether they were true; and
-    how many boxes each status holds (e.g. ``truth_degenerate``)."""
+    how many boxes each status holds (e.g. ``truth_degenerate``). truth_blur_px,
+    detection_blur_px: the motion blur of each counted box's image, in detector-input px
+    (NaN when no blur was given)."""
 
     settings: MatchSettings
     truth_size_px: np.ndarray
@@ -107,6 +110,8 @@ class Matches:
     detection_true: np.ndarray
     n_images: int
     status_counts: dict[str, int]
+    truth_blur_px: np.ndarray
+    detection_blur_px: np.ndarray
 
 
 def iou_matrix(det_xywh: np.ndarray, truth_xywh: np.ndarray,
@@ -205,10 +210,12 @@ def _sqrt_area(xywh: np.ndarray) -> np.ndarray:
     return np.sqrt(xywh[:, 2] * xywh[:, 3])
 
 
-def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
-                 settings: MatchSettings) -> Matches:
-    """Match every image and gather counted sizes (detector-input px) and outcomes."""
-    t_size, t_hit, d_size, d_true = [], [], [], []
+def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]], settings: MatchSettings,
+                 image_blur_px: Mapping[str, float] | None = None) -> Matches:
+    """Match every image and gather counted sizes (detector-input px) and outcomes;
+    ``image_blur_px``: each image's motion blur (image px, by image id), scaled to the
+    detector input as the sizes are."""
+    t_size, t_hit, d_size, d_true, t_blur, d_blur = [], [], [], [], [], []
     counts: Counter[str] = Counter()
     n_images = 0
     for truth, dets in pairs:
@@ -225,6 +232,9 @@ def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
         t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
         d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
         d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
+        blur = (math.nan if image_blur_px is None else image_blur_px[truth.image_id]) * scale
+        t_blur.append(np.full(int(tk.sum()), blur))
+        d_blur.append(np.full(int(dk.sum()), blur))
         counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
         counts.update(f"detection_{DetectionStatus(s).name.lower()}" for s in m.detection_status)
         n_images += 1
@@ -233,4 +243,5 @@ def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
         return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
 
     return Matches(settings, cat(t_size, float), cat(t_hit, bool), cat(d_size, float),
-                   cat(d_true, bool), n_images, dict(sorted(counts.items())))
+                   cat(d_true, bool), n_images, dict(sorted(counts.items())),
+                   cat(t_blur, float), cat(d_blur, float))
