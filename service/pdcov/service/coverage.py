@@ -43,7 +43,7 @@ from pdcov.bus.grid_state import GridState
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import CameraPose
+from pdcov.core.pose import CameraPose, known_motion
 from pdcov.service import status
 from pdcov.service.detections import LiveDetections
 from pdcov.service.frame_schedule import FrameSchedule
@@ -61,7 +61,7 @@ from pdcov.telemetry.frame_policy import (
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
-from pdcov.telemetry.pose_tracker import PoseTracker, known_motion, position_jump
+from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,

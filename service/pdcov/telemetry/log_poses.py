@@ -18,7 +18,7 @@ import numpy as np
 
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
-from pdcov.core.pose import CameraPose, FixedMount
+from pdcov.core.pose import CameraPose, FixedMount, known_motion
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.errors import ConfigError, TelemetryError
 from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
@@ -34,7 +34,7 @@ from pdcov.telemetry.frame_policy import (
 )
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
 from pdcov.telemetry.logs import FlightLog, read_flight_log
-from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker, known_motion
+from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.recorded_frames import frame_source_for
 from pdcov.telemetry.terrain_check import TerrainCheck, check_flight_log

@@ -22,7 +22,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
+from pdcov.core.pose import (
+    R_ENU_NED,
+    R_GIMBAL_CAM,
+    CameraPose,
+    FixedMount,
+    camera_motion,
+    known_motion,
+)
 from pdcov.core.rotations import R_from_quat_wxyz, quat_norm, slerp_quat_wxyz
 from pdcov.errors import ConfigError
 from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
@@ -107,15 +114,6 @@ def _rate_bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
     ok = (i >= 1) & (i <= n - 1) & (gap > 0) & (gap <= max_gap_s)
     gap = np.where(ok, gap, 1.0)
     return lo, hi, (t - ts[lo]) / gap, np.where(ok, 1.0 / gap, 0.0), ok
-
-
-def known_motion(v_cam_enu_m_s: np.ndarray, omega_enu_rad_s: np.ndarray
-                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """A FrameBatch row's velocity and angular rate for CameraPose: (None, None) when they
-    are not known (NaN)."""
-    if not (np.isfinite(v_cam_enu_m_s).all() and np.isfinite(omega_enu_rad_s).all()):
-        return None, None
-    return v_cam_enu_m_s, omega_enu_rad_s
 
 
 def _gimbal_columns(g: GimbalSeries) -> tuple[np.ndarray, ...]:
@@ -380,12 +378,9 @@ class PoseTracker:
             att, pos, gim = ((lo, hi, w + sign * 0.5 * h * rate)
                              for lo, hi, w, rate, _ok in brackets)
             ends.append(self._interpolate(n, att, pos, gim, brackets[2][2]))
-        v_cam = (ends[1]["r_cam_enu"] - ends[0]["r_cam_enu"]) / h
-        # R(t + h/2) = exp([omega]x h) R(t - h/2): omega from the skew part of their ratio
-        # (its error, (omega h)^2 relative, is far below float noise for h = 1 ms).
-        A = ends[1]["R_enu_cam"] @ ends[0]["R_enu_cam"].transpose(0, 2, 1)
-        omega = 0.5 * np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0],
-                                A[:, 1, 0] - A[:, 0, 1]], axis=1) / h
+        v_cam, omega = camera_motion(ends[0]["R_enu_cam"], ends[0]["r_cam_enu"],
+                                     ends[1]["R_enu_cam"], ends[1]["r_cam_enu"],
+                                     np.full(n, h))
         v_cam[~known] = np.nan
         omega[~known] = np.nan
         return v_cam, omega
