@@ -7,7 +7,13 @@ import cv2
 import numpy as np
 import pytest
 
-from pdcov.core.blur import BlurEffect, blur_px, describe_blur
+from pdcov.core.blur import (
+    BlurEffect,
+    blur_lattice_px,
+    blur_px,
+    blur_xyz_px,
+    describe_blur,
+)
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
@@ -90,6 +96,26 @@ def test_blur_is_the_projection_jacobian_times_the_motion(cam):
     d_tvec = -R_cam_enu @ v * T
     d_px = J[:, :, 0:3] @ d_rvec + J[:, :, 3:6] @ d_tvec
     np.testing.assert_allclose(blur_px(cam, p, pts, T), np.hypot(*d_px.T), rtol=1e-4)
+
+
+@pytest.mark.parametrize("cam", [PINHOLE, DISTORTED, CameraModel.from_fov(
+    640, 480, 150, "fisheye", (0.01, -0.005, 0.001, 0.0))], ids=["pinhole", "plumb_bob",
+                                                              "fisheye"])
+def test_the_lattice_form_is_the_pointwise_one(cam):
+    """The grid's flat-ground path (OpenCV's maps over the window's lattice) gives the
+    blur of projecting each point in float64, to the maps' float32 precision."""
+    base = fixed_mount_pose(R_from_euler_zyx(0.05, -0.2, 1.0), (3.0, -4.0, 35.0),
+                            FixedMount(pitch_rad=-75 * DEG))
+    p = CameraPose(base.R_enu_cam, base.r_cam_enu, 0.0, np.array([8.0, 3.0, -0.5]),
+                   np.array([0.2, -0.1, 0.4]))
+    lattice = blur_lattice_px(cam, p, -20.0, -30.0, 0.7, 60, 80, 0.01)
+    y, x = np.mgrid[0:80, 0:60]
+    xyz = blur_xyz_px(cam, p, -20.0 + 0.7 * x.astype(float), -30.0 + 0.7 * y.astype(float),
+                      np.zeros(x.shape), 0.01)
+    seen = cam.visible((np.stack([-20.0 + 0.7 * x, -30.0 + 0.7 * y, np.zeros(x.shape)], -1)
+                        .reshape(-1, 3) - p.r_cam_enu) @ p.R_enu_cam)[1].reshape(x.shape)
+    assert seen.sum() > 1000 and np.nanmax(xyz[seen]) > 1.5
+    np.testing.assert_allclose(lattice[seen], xyz[seen], atol=2e-3)
 
 
 def test_blur_needs_a_pose_with_motion():

@@ -35,6 +35,7 @@ from pdcov.commands.args import (
 )
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.config import Mission
+from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import (
     MAV_CMD_NAV_WAYPOINT,
@@ -231,6 +232,7 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
         f"plan: {pred.plan.description}; {len(pred.plan.waypoints)} waypoints",
         f"predicted flight time: {pred.flight.duration_s:.1f} s   path length: "
         f"{pred.flight.path_length_m:.1f} m",
+        describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred, grid.frames),
         f"wrote plan.plan (QGroundControl) and plan.waypoints (WPL 110) in {out}"])
 
 

@@ -66,16 +66,48 @@ def blur_px(camera: CameraModel, pose: CameraPose, points_enu: np.ndarray,
     The pose must carry its velocity and angular rate (ValueError otherwise). Points that do
     not project at either end of the exposure (behind the camera) give NaN.
     """
+    p = np.asarray(points_enu, dtype=np.float64).reshape(-1, 3)
+    return blur_xyz_px(camera, pose, p[:, 0], p[:, 1], p[:, 2], exposure_s)
+
+
+def _exposure_ends(pose: CameraPose, exposure_s: float
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(R_cam_enu, r_cam_enu) at the start and the end of the exposure: the optical frame
+    there is p_cam = R_cam_enu (p - r_cam_enu)."""
     if pose.v_cam_enu_m_s is None or pose.omega_enu_rad_s is None:
         raise ValueError("blur_px needs a pose with v_cam_enu_m_s and omega_enu_rad_s")
     half = 0.5 * float(exposure_s)
-    p = np.asarray(points_enu, dtype=np.float64).reshape(-1, 3) - pose.r_cam_enu
+    return [((R_from_rotvec(sign * half * pose.omega_enu_rad_s) @ pose.R_enu_cam).T,
+             pose.r_cam_enu + sign * half * pose.v_cam_enu_m_s) for sign in (-1.0, 1.0)]
+
+
+def _streak_px(px: list[np.ndarray]) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.hypot(px[1][..., 0] - px[0][..., 0], px[1][..., 1] - px[0][..., 1])
+
+
+def blur_xyz_px(camera: CameraModel, pose: CameraPose, x_m: np.ndarray, y_m: np.ndarray,
+                z_m: np.ndarray, exposure_s: float) -> np.ndarray:
+    """``blur_px`` of points given as three float64 arrays of ENU coordinates (m)."""
     px = []
-    for sign in (-1.0, 1.0):
-        R = R_from_rotvec(sign * half * pose.omega_enu_rad_s) @ pose.R_enu_cam
-        p_cam = (p - sign * half * pose.v_cam_enu_m_s) @ R
+    for M, c in _exposure_ends(pose, exposure_s):
+        dx, dy, dz = x_m - c[0], y_m - c[1], z_m - c[2]
+        xyz = [M[k, 0] * dx + M[k, 1] * dy + M[k, 2] * dz for k in range(3)]
         with np.errstate(invalid="ignore", divide="ignore"):
-            uv = camera.project_xyz(p_cam[:, 0], p_cam[:, 1],
-                                    np.where(p_cam[:, 2] > 0, p_cam[:, 2], np.nan))
-        px.append(uv)
-    return np.hypot(px[1][:, 0] - px[0][:, 0], px[1][:, 1] - px[0][:, 1])
+            px.append(camera.project_xyz(xyz[0], xyz[1],
+                                         np.where(xyz[2] > 0, xyz[2], np.nan)))
+    return _streak_px(px)
+
+
+def blur_lattice_px(camera: CameraModel, pose: CameraPose, x0_m: float, y0_m: float,
+                    step_m: float, n_cols: int, n_rows: int, exposure_s: float) -> np.ndarray:
+    """``blur_px`` (n_rows, n_cols) of the ground points (x0_m + step_m j, y0_m + step_m i,
+    0) ENU m: the lattice form, through ``CameraModel.project_lattice`` (its distorted maps
+    are float32, ~1e-4 px). Only meaningful where the points project at both ends."""
+    px = []
+    for M, c in _exposure_ends(pose, exposure_s):
+        H = M @ np.array([[step_m, 0.0, x0_m - c[0]], [0.0, step_m, y0_m - c[1]],
+                          [0.0, 0.0, -c[2]]])
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            px.append(camera.project_lattice(H, n_cols, n_rows))
+    return _streak_px(px)

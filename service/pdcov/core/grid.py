@@ -30,7 +30,7 @@ from typing import IO
 import numpy as np
 
 from pdcov.atomic import atomic_write
-from pdcov.core.blur import BlurEffect, blur_effect, blur_px
+from pdcov.core.blur import BlurEffect, blur_effect, blur_lattice_px, blur_xyz_px
 from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.detector import DetectorModel
@@ -222,6 +222,8 @@ class CoverageGrid:
                                  f"after a frame at {self.latest_frame_t_s!r} s")
             self.latest_frame_t_s = max(self.latest_frame_t_s, t)
         self.frames += 1
+        blurred = self.blur_effect is BlurEffect.APPLIED and pose.has_motion
+        self.frames_blurred += blurred
         window, clipped = self._window(pose)
         if clipped:
             self._mark_too_far(pose, window)
@@ -246,9 +248,8 @@ class CoverageGrid:
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
         # over the window (cheaper than masked scatters) and leave those cells unchanged.
         idx *= observed
-        if self.blur_effect is BlurEffect.APPLIED and pose.has_motion:
+        if blurred:
             idx += self._blur_rows(pose, window, observed) * (self.detector.n_bins + 2)
-            self.frames_blurred += 1
         tab_d, tab_fa = self._log_miss_tables
         self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
         self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
@@ -261,17 +262,20 @@ class CoverageGrid:
         of ``window``, from the blur at their centres (on the terrain when there is one),
         scaled to detector-input pixels as sizes are; 0 elsewhere."""
         r0, r1, c0, c1 = window
-        rows, cols = np.nonzero(observed)
         g = self.geometry
-        x = g.x0_m + g.cell_size_m * (cols + c0 + 0.5)
-        y = g.y0_m + g.cell_size_m * (rows + r0 + 0.5)
-        z = (np.zeros(len(rows)) if self._relief is None
-             else self._relief.centre_z_m(r0, r1, c0, c1)[rows, cols])
+        cs = g.cell_size_m
         assert self.exposure_s is not None  # blur_effect is APPLIED
-        blur = self.size_scale * blur_px(self.camera, pose, np.stack([x, y, z], axis=1),
-                                         self.exposure_s)
+        if self._relief is None:  # the centres' lattice on the plane z = 0
+            blur = blur_lattice_px(self.camera, pose, g.x0_m + cs * (c0 + 0.5),
+                                   g.y0_m + cs * (r0 + 0.5), cs, c1 - c0, r1 - r0,
+                                   self.exposure_s)
+            return self.detector.blur_row(self.size_scale * blur) * observed
+        rows, cols = np.nonzero(observed)
+        z = self._relief.centre_z_m(r0, r1, c0, c1)[rows, cols]
+        blur = blur_xyz_px(self.camera, pose, g.x0_m + cs * (cols + c0 + 0.5),
+                           g.y0_m + cs * (rows + r0 + 0.5), z, self.exposure_s)
         out = np.zeros(observed.shape, dtype=np.intp)
-        out[rows, cols] = self.detector.blur_row(blur)
+        out[rows, cols] = self.detector.blur_row(self.size_scale * blur)
         return out
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
