@@ -11,13 +11,15 @@ from .report import Row
 from .scenarios import Scenario, strided
 
 
-def blur_detector() -> DetectorModel:
-    """The illustrative model with four blur bins (P_D scaled down with the blur)."""
+def blur_detector(edges_px: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0, 64.0),
+                  factors: tuple[float, ...] = (1.0, 0.8, 0.5, 0.2)) -> DetectorModel:
+    """The illustrative model with blur bins ``edges_px`` (detector-input px) whose P_D is
+    its own times ``factors`` (one per blur bin), P_FA unchanged."""
     doc = DetectorModel.illustrative().to_dict()
     doc.update(version=3, blur={
-        "edges_px": [0.0, 1.0, 2.0, 4.0, 64.0],
-        "p_detect": [[p * k for p in doc["p_detect"]] for k in (1.0, 0.8, 0.5, 0.2)],
-        "p_false_alarm": [doc["p_false_alarm"]] * 4})
+        "edges_px": list(edges_px),
+        "p_detect": [[p * k for p in doc["p_detect"]] for k in factors],
+        "p_false_alarm": [doc["p_false_alarm"]] * len(factors)})
     return DetectorModel.from_dict(doc)
 
 

@@ -28,6 +28,7 @@ from link_feed import (
 )
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from benchmarks.blur import blur_detector
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.telemetry.logs import read_flight_log
 
@@ -137,6 +138,10 @@ def test_another_component_s_attitude_and_position_are_not_the_vehicle_s(tmp_pat
                                       err_msg=key)
 
 
+# P_D falls with the blur (0-1, 1-2, 2-4, 4-8 px) in each size bin.
+BLUR_MODEL = blur_detector((0.0, 1.0, 2.0, 4.0, 8.0), (1.0, 0.8, 0.5, 0.2)).to_dict()
+
+
 def write_tlog(path: Path, data: list[bytes]) -> Path:
     """The messages as a tlog, 1 ms apart in its timestamps."""
     path.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
@@ -153,17 +158,6 @@ def live_grid(cfg, data: list[bytes]):
     return feed.live.grid
 
 
-def blur_detector() -> dict:
-    """The illustrative model with blur bins: P_D falls with the blur (px) in each size bin."""
-    from pdcov.core.detector import DetectorModel
-    doc = DetectorModel.illustrative().to_dict()
-    doc.update(version=3, blur={
-        "edges_px": [0.0, 1.0, 2.0, 4.0, 8.0],
-        "p_detect": [[p * k for p in doc["p_detect"]] for k in (1.0, 0.8, 0.5, 0.2)],
-        "p_false_alarm": [doc["p_false_alarm"]] * 4})
-    return doc
-
-
 def test_live_grid_with_motion_blur_is_the_offline_grid(tmp_path: Path) -> None:
     """With camera.exposure_s and a detector model with blur bins, the daemon's grid (the
     camera's velocity and angular rate from the telemetry it has when each frame is due)
@@ -172,7 +166,7 @@ def test_live_grid_with_motion_blur_is_the_offline_grid(tmp_path: Path) -> None:
     data = [pack(m, seq=i) for i, m in enumerate(flying_north())]
     tlog = write_tlog(tmp_path / "f.tlog", data)
     camera = {**MISSION["camera"], "exposure_s": 0.02}
-    cfg = serve_config(tmp_path, gimbal=False, camera=camera, detector=blur_detector())
+    cfg = serve_config(tmp_path, gimbal=False, camera=camera, detector=BLUR_MODEL)
     lp, off = offline_of(cfg, tlog)
     live = live_grid(cfg, data)
     assert live.frames == off.frames == len(lp.poses) > 20
@@ -187,7 +181,7 @@ def test_live_grid_with_motion_blur_is_the_offline_grid(tmp_path: Path) -> None:
                for p in lp.poses[1:])
     # Yaw (clockwise from north) grows at 0.5 rad/s: a turn of -0.5 rad/s about ENU up.
     assert all(p.omega_enu_rad_s[2] == pytest.approx(-0.5, abs=0.02) for p in lp.poses[1:])
-    sharp = serve_config(tmp_path, gimbal=False, detector=blur_detector())
+    sharp = serve_config(tmp_path, gimbal=False, detector=BLUR_MODEL)
     _, ref = offline_of(sharp, tlog)
     assert np.array_equal(ref.n_obs, off.n_obs)
     assert (off.log_miss_d >= ref.log_miss_d).all() and off.pd.mean() < 0.9 * ref.pd.mean()

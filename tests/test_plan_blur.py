@@ -9,6 +9,7 @@ from importlib import resources
 import numpy as np
 import yaml
 
+from benchmarks.blur import blur_detector
 from pdcov.cli import main
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -19,12 +20,7 @@ from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
 
 def blur_model() -> DetectorModel:
     """The illustrative model, P_D scaled down with blur (detector-input px)."""
-    doc = DetectorModel.illustrative().to_dict()
-    doc.update(version=3, blur={
-        "edges_px": [0.0, 0.5, 1.0, 2.0, 4.0, 64.0],
-        "p_detect": [[p * k for p in doc["p_detect"]] for k in (1.0, 0.9, 0.7, 0.45, 0.2)],
-        "p_false_alarm": [doc["p_false_alarm"]] * 5})
-    return DetectorModel.from_dict(doc)
+    return blur_detector((0.0, 0.5, 1.0, 2.0, 4.0, 64.0), (1.0, 0.9, 0.7, 0.45, 0.2))
 
 
 def scenario(detector: DetectorModel, exposure_s: float | None) -> Scenario:
