@@ -101,3 +101,21 @@ def test_planned_poses_carry_the_flights_velocity_and_turn_rate():
     omega_z = np.array([p.omega_enu_rad_s[2] for p in poses])
     assert np.abs(omega_z).max() <= sc.kinematics.max_yaw_rate_rad_s + 1e-6
     assert np.abs(omega_z).max() > 0.3 and (np.abs(omega_z[cruise]) < 1e-9).all()
+
+
+def test_a_bad_exposure_is_named(tmp_path):
+    import pytest
+
+    from pdcov.config import load_mission
+    from pdcov.errors import ConfigError
+    cfg = yaml.safe_load((resources.files("pdcov") / "data" / "demo_mission.yaml").read_text())
+    for bad in (0, -0.01, "fast", float("nan")):
+        cfg["camera"]["exposure_s"] = bad
+        path = tmp_path / "m.yaml"
+        path.write_text(yaml.safe_dump(cfg))
+        with pytest.raises(ConfigError, match=r"m.yaml: camera.exposure_s: expected a"):
+            load_mission(path)
+    cfg["camera"]["exposure_s"] = 0.002
+    path.write_text(yaml.safe_dump(cfg))
+    m = load_mission(path)
+    assert m.exposure_s == 0.002 and m.new_grid().exposure_s == 0.002
