@@ -215,3 +215,23 @@ def test_summary_line_says_which_rule_applied():
                                                               0, 5)
     line = describe_blur(BlurEffect.APPLIED, 0.002, 3, 5)
     assert "applied (exposure 0.002 s) to 3 of 5 frames" in line and "2 frames" in line
+
+
+def test_on_terrain_the_blur_is_at_the_cells_height():
+    """Ground raised 6 m under a camera 16 m up: the terrain path blurs by f v T / 10 m, the
+    blur of a camera 10 m above flat ground (the same size, so the same P_D)."""
+    from pdcov.core.terrain import TerrainSurface
+    dom = Domain.from_enu([[-40, -40], [40, -40], [40, 40], [-40, 40]])
+    g = dom.grid_geometry(1.0)
+    raised = CoverageGrid(g, dom.free_mask(g), PINHOLE, MODEL_2D, exposure_s=0.01,
+                          terrain=TerrainSurface.flat(g, 6.0))
+    flat = grid(MODEL_2D, exposure_s=0.01)
+    # 500 * 2.4 * 0.01 / 10 = 1.2 px: blur bin [1, 3); from 16 m (the heights ignored) it
+    # would be 0.75 px, bin [0, 1).
+    v = np.array([2.4, 0.0, 0.0])
+    raised.update(nadir((0.5, 0.5, 16.0), v=v, omega=np.zeros(3)))
+    flat.update(nadir((0.5, 0.5, 10.0), v=v, omega=np.zeros(3)))
+    assert raised.pd[40, 40] == pytest.approx(0.5, rel=1e-6)
+    seen = (raised.n_obs > 0) & (flat.n_obs > 0)
+    assert seen.sum() > 100  # the 12.8 m x 9.6 m footprint
+    np.testing.assert_allclose(raised.pd[seen], flat.pd[seen], rtol=1e-5)

@@ -15,6 +15,11 @@ camera and the terrain does not rise above the line of sight to its centre
 (``core/occlusion.py``). Without terrain, or on a surface at height 0 everywhere, the ground
 is the plane z = 0 of the paper and the grid is exactly the flat-earth one.
 
+With ``exposure_s`` and a detector model with blur bins, a cell's P_D and P_FA in a frame
+are looked up by its size and by its motion blur (core/blur.py), the flat index
+``blur_row * (N + 2) + size_index`` into ``DetectorModel.padded_tables_by_blur``; without
+them, or for a pose without a known velocity and angular rate, by size only.
+
 Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
 for it, from never in view to seen at a size the detector model covers.
 """
