@@ -93,8 +93,8 @@ def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
 
 
 RATE_STEP_S = 1e-3
-"""Time step (s) of the central difference that gives the camera's velocity and angular
-rate (PoseTracker._rates)."""
+"""Time step (s) of the difference that gives the camera's velocity and angular rate
+(PoseTracker._rates)."""
 
 
 def _rate_bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
@@ -347,7 +347,7 @@ class PoseTracker:
             check("gimbal", inside, gap_ok)
             gim = (lo, hi, w)
         c = self._interpolate(n, att, pos, gim, gim[2])
-        v_cam, omega = self._rates(t)
+        v_cam, omega = self._rates(t, c)
         c.update(t_s=t, skip_reason=reason, v_cam_enu_m_s=v_cam, omega_enu_rad_s=omega)
         # The estimator's verdict, where no rule above skipped the frame (a jump stays a jump).
         est_reason, judged = estimator_reasons(self._est, t)
@@ -358,14 +358,16 @@ class PoseTracker:
                                                                      & (reason == "")]
         return FrameBatch(**c, estimator_judged=judged)
 
-    def _rates(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rates(self, t: np.ndarray, at_t: dict[str, np.ndarray]
+               ) -> tuple[np.ndarray, np.ndarray]:
         """The camera's ENU velocity (N, 3) m/s and angular rate (N, 3) rad/s at ``t``: the
-        derivative of the interpolated camera pose, by a central difference over RATE_STEP_S
-        of each stream's interpolation between the last sample before t and the first at or
-        after it (``_rate_bracket``), so that the daemon, which has those two once the frame
-        is due, and evaluate, which has the whole log, give the same rates. NaN (unknown)
-        where a stream the mount needs has no such pair within max_gap_s (a frame at a
-        stream's first sample)."""
+        derivative of the interpolated camera pose (``at_t``: the pose at t), a difference
+        over RATE_STEP_S of each stream's interpolation between the last sample before t
+        and the first at or after it (``_rate_bracket``, continued past the later sample
+        for a frame on it), so that the daemon, which has those two once the frame is due,
+        and evaluate, which has the whole log, give the same rates. NaN (unknown) where a
+        stream the mount needs has no such pair within max_gap_s (a frame at a stream's
+        first sample)."""
         n = len(t)
         h = RATE_STEP_S
         streams = [self._att.t_s, self._pos_t, self._gim.t_s]
@@ -373,14 +375,10 @@ class PoseTracker:
         known = brackets[0][4] & brackets[1][4]
         if isinstance(self.mount, GimbalMount):
             known &= brackets[2][4]
-        ends = []
-        for sign in (-1.0, 1.0):
-            att, pos, gim = ((lo, hi, w + sign * 0.5 * h * rate)
-                             for lo, hi, w, rate, _ok in brackets)
-            ends.append(self._interpolate(n, att, pos, gim, brackets[2][2]))
-        v_cam, omega = camera_motion(ends[0]["R_enu_cam"], ends[0]["r_cam_enu"],
-                                     ends[1]["R_enu_cam"], ends[1]["r_cam_enu"],
-                                     np.full(n, h))
+        att, pos, gim = ((lo, hi, w + h * rate) for lo, hi, w, rate, _ok in brackets)
+        later = self._interpolate(n, att, pos, gim, brackets[2][2])
+        v_cam, omega = camera_motion(at_t["R_enu_cam"], at_t["r_cam_enu"],
+                                     later["R_enu_cam"], later["r_cam_enu"], np.full(n, h))
         v_cam[~known] = np.nan
         omega[~known] = np.nan
         return v_cam, omega
