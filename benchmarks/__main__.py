@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .blur import blur_rows
 from .measure import (
     Agreement,
     agreement,
@@ -180,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
         sc = found[name]
         print(f"{name}: {sc.describe()}", file=sys.stderr)
         rows += scenario_rows(sc, sizes, args.smoke)
+        if name in ("S1", "S4"):
+            rows += blur_rows(sc, sizes.max_timed_frames)
         if not args.no_offline and name == "S1":
             rows += offline_rows(sc)
         if not args.no_offline and name == "S2":

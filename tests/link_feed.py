@@ -30,8 +30,9 @@ MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_fr
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}
 
 
-def serve_config(tmp: Path, *, gimbal: bool = True) -> ServeConfig:
-    doc = dict(MISSION, mount=MISSION["mount"] if gimbal else FIXED)
+def serve_config(tmp: Path, *, gimbal: bool = True, **sections: object) -> ServeConfig:
+    """The daemon's config of MISSION (gimbal or fixed mount), ``sections`` replaced."""
+    doc = dict(MISSION, mount=MISSION["mount"] if gimbal else FIXED, **sections)
     doc["service"] = {"state_dir": str(tmp / "state"), "record": False}
     path = tmp / ("gimbal.yaml" if gimbal else "fixed.yaml")
     path.write_text(yaml.safe_dump(doc))

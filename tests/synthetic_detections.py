@@ -81,3 +81,26 @@ def write_coco(truth: dict[str, ImageTruth], dets: dict[str, Boxes], gt_path: Pa
     gt_path.write_text(json.dumps({"images": images, "annotations": anns, "categories": [
         {"id": i, "name": name} for name, i in cat_id.items()]}))
     dt_path.write_text(json.dumps(results))
+
+
+BLUR_EDGES = (0.0, 1.0, 2.0, 4.0)  # detector-input px
+P_D_BY_BLUR = (P_D, tuple(0.8 * p for p in P_D), tuple(0.4 * p for p in P_D))
+P_FA_BY_BLUR = (P_FA, P_FA, tuple(p + 0.1 for p in P_FA))
+
+
+def synthetic_blur_set(seed: int, n_per_bin: int
+                       ) -> tuple[dict[str, ImageTruth], dict[str, Boxes], dict[str, float]]:
+    """``synthetic_set`` per blur bin of BLUR_EDGES with that bin's P_D and P_FA rows
+    (P_D_BY_BLUR, P_FA_BY_BLUR), and each image's blur in image px: uniform inside its
+    bin, 5 % away from the edges (detector-input px = image px / 2)."""
+    rng = np.random.default_rng(seed)
+    truth, dets, blur = {}, {}, {}
+    for j, (p_d, p_fa) in enumerate(zip(P_D_BY_BLUR, P_FA_BY_BLUR, strict=True)):
+        t, d = synthetic_set(seed + 100 * j, n_per_bin, p_d, p_fa)
+        lo, hi = BLUR_EDGES[j] + 0.05, BLUR_EDGES[j + 1] - 0.05
+        for k in t:
+            key = f"b{j}_{k}"
+            truth[key] = ImageTruth(key, t[k].width_px, t[k].height_px, t[k].boxes)
+            dets[key] = d[k]
+            blur[key] = float(rng.uniform(lo, hi)) * IMAGE_W / INPUT
+    return truth, dets, blur

@@ -16,9 +16,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from link_feed import GROUND_M, LAT_DEG, LON_DEG, LinkFeed, offline_of, pack, serve_config
+from link_feed import (
+    GROUND_M,
+    LAT_DEG,
+    LON_DEG,
+    MISSION,
+    LinkFeed,
+    offline_of,
+    pack,
+    serve_config,
+)
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from benchmarks.blur import blur_detector
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.telemetry.logs import read_flight_log
 
@@ -116,15 +126,8 @@ def test_another_component_s_attitude_and_position_are_not_the_vehicle_s(tmp_pat
     cfg = serve_config(tmp_path, gimbal=False)
     grids = {}
     for name, data in (("own", own), ("mixed", mixed)):
-        tlog = tmp_path / f"{name}.tlog"
-        tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
-                                  for i, d in enumerate(data)))
-        _lp, off = offline_of(cfg, tlog)
-        feed = LinkFeed(cfg)
-        for i, chunk in enumerate(data):
-            feed.feed(chunk, 0.01 * i)
-        feed.tick(10.0)
-        live = feed.live.grid
+        _lp, off = offline_of(cfg, write_tlog(tmp_path / f"{name}.tlog", data))
+        live = live_grid(cfg, data)
         assert live.frames == off.frames > 20, name
         for key in ("log_miss_d", "log_miss_fa", "n_obs"):
             np.testing.assert_array_equal(getattr(live, key), getattr(off, key),
@@ -133,3 +136,52 @@ def test_another_component_s_attitude_and_position_are_not_the_vehicle_s(tmp_pat
     for key in ("log_miss_d", "log_miss_fa", "n_obs"):
         np.testing.assert_array_equal(getattr(grids["mixed"], key), getattr(grids["own"], key),
                                       err_msg=key)
+
+
+# P_D falls with the blur (0-1, 1-2, 2-4, 4-8 px) in each size bin.
+BLUR_MODEL = blur_detector((0.0, 1.0, 2.0, 4.0, 8.0), (1.0, 0.8, 0.5, 0.2)).to_dict()
+
+
+def write_tlog(path: Path, data: list[bytes]) -> Path:
+    """The messages as a tlog, 1 ms apart in its timestamps."""
+    path.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
+                              for i, d in enumerate(data)))
+    return path
+
+
+def live_grid(cfg, data: list[bytes]):
+    """The daemon's grid of the messages fed one by one, 10 ms apart."""
+    feed = LinkFeed(cfg)
+    for i, d in enumerate(data):
+        feed.feed(d, 0.01 * i)
+    feed.tick(10.0)
+    return feed.live.grid
+
+
+def test_live_grid_with_motion_blur_is_the_offline_grid(tmp_path: Path) -> None:
+    """With camera.exposure_s and a detector model with blur bins, the daemon's grid (the
+    camera's velocity and angular rate from the telemetry it has when each frame is due)
+    equals evaluate's of the same bytes, cell for cell; blur applied to every frame, and it
+    cost detection against the same flight without exposure_s."""
+    data = [pack(m, seq=i) for i, m in enumerate(flying_north())]
+    tlog = write_tlog(tmp_path / "f.tlog", data)
+    camera = {**MISSION["camera"], "exposure_s": 0.02}
+    cfg = serve_config(tmp_path, gimbal=False, camera=camera, detector=BLUR_MODEL)
+    lp, off = offline_of(cfg, tlog)
+    live = live_grid(cfg, data)
+    assert live.frames == off.frames == len(lp.poses) > 20
+    # All but the first frame, at the first attitude sample: no sample before it gives its
+    # rate, so its P_D is by size only.
+    assert live.frames_blurred == off.frames_blurred == live.frames - 1
+    assert not lp.poses[0].has_motion and all(p.has_motion for p in lp.poses[1:])
+    for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
+        np.testing.assert_array_equal(getattr(live, key), getattr(off, key), err_msg=key)
+    # 4 m/s at 12 m with f = 480 px over 20 ms: 3.2 px of blur, and the yaw rate's on top.
+    assert all(np.linalg.norm(p.v_cam_enu_m_s[:2]) == pytest.approx(4.0, abs=0.15)
+               for p in lp.poses[1:])
+    # Yaw (clockwise from north) grows at 0.5 rad/s: a turn of -0.5 rad/s about ENU up.
+    assert all(p.omega_enu_rad_s[2] == pytest.approx(-0.5, abs=0.02) for p in lp.poses[1:])
+    sharp = serve_config(tmp_path, gimbal=False, detector=BLUR_MODEL)
+    _, ref = offline_of(sharp, tlog)
+    assert np.array_equal(ref.n_obs, off.n_obs)
+    assert (off.log_miss_d >= ref.log_miss_d).all() and off.pd.mean() < 0.9 * ref.pd.mean()

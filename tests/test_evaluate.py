@@ -49,7 +49,9 @@ def test_pose_csv_gives_the_core_grid(tmp_path):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics) == {"version", "frames", "cells_free", "cells_observed",
                             "proportion_at_or_above", "mean_pd", "expected_false_alarms",
-                            "limiting_cells"}
+                            "limiting_cells", "motion_blur"}
+    assert metrics["motion_blur"] == {"effect": "no_exposure", "exposure_s": None,
+                                      "frames_blurred": 0}
     assert metrics["limiting_cells"] == grid.limiting_counts()
     assert metrics["limiting_cells"]["hidden"] == 0  # flat ground hides nothing
     assert metrics["frames"] == len(poses) and metrics["cells_free"] == 1600 - 16

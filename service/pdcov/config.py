@@ -289,7 +289,7 @@ MISSION_CONFIG = Section.of(
     "vehicle_id", "calibration", "thresholds",
     origin=Section.of_dataclass(OriginSection),
     domain=Section.of_dataclass(DomainSection),
-    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None),
+    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, exposure_s=None, calibration=None),
     mount=Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
                                      "gimbal": GIMBAL_MOUNT_CONFIG}),
     detector=MODEL_SCHEMA,
@@ -340,7 +340,8 @@ class Mission:
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
-    grouped).
+    grouped). exposure_s: camera.exposure_s, the exposure time (s) motion blur is computed
+    over (None: not given, no blur effect).
     """
 
     vehicle_id: str
@@ -353,6 +354,7 @@ class Mission:
     frame_rate_hz: float
     mount: FixedMount | GimbalMount
     detector: DetectorModel
+    exposure_s: float | None = None
     thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS
     max_range_m: float | None = None
     min_revisit_s: float | None = None
@@ -395,7 +397,7 @@ class Mission:
         g = self.domain.grid_geometry(self.cell_size_m)
         return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain)
+                            terrain=self.terrain, exposure_s=self.exposure_s)
 
 
 def load_mission(path: str | Path, sections: Mapping[str, Section] | None = None) -> Mission:
@@ -454,7 +456,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             terrain = terrain_surface(dem, g, origin_value, domain.free_mask(g))
         except PdcovError as exc:
             raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
-    camera, rate = _camera(doc, src, base)
+    camera, rate, exposure = _camera(doc, src, base)
     mount = _mount(doc.get("mount", {"type": "fixed"}), src)
     detector = _detector(doc["detector"], src, base)
 
@@ -481,7 +483,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
         ground_alt_msl_m=ground_alt,
         domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
-        detector=detector, thresholds=tuple(float(t) for t in thresholds),
+        detector=detector, exposure_s=exposure, thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
         min_height_m=cov.min_height_m,
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
@@ -567,7 +569,9 @@ def _dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None) -> float:
     return h
 
 
-def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[CameraModel, float]:
+def _camera(doc: Mapping[str, Any], src: str | None, base: Path
+            ) -> tuple[CameraModel, float, float | None]:
+    """The camera model, camera.frame_rate_hz and camera.exposure_s (None: not given)."""
     cam = doc.get("camera", {})
     if not isinstance(cam, dict):
         raise ConfigError(f"{where(src, 'camera')}: expected a mapping, got {cam!r}")
@@ -579,10 +583,10 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[Camera
                               f"calibration file (give the intrinsics in one place)")
         camera = CameraModel.from_camera_info(_resolve(calibration, base, src, "calibration"))
     else:
-        inline = {k: v for k, v in cam.items() if k != "frame_rate_hz"}
+        inline = {k: v for k, v in cam.items() if k not in ("frame_rate_hz", "exposure_s")}
         camera = CameraModel.from_config(inline, src, "camera")
     rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
-    return camera, rate
+    return camera, rate, _opt_number(cam, "exposure_s", src, "camera")
 
 
 def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:

@@ -9,11 +9,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from tqdm import tqdm
 
@@ -29,6 +30,7 @@ from pdcov.detection.annotations import (
     read_detections,
     read_truth,
 )
+from pdcov.detection.blur_sidecar import SpeedToBlur, read_blur_csv
 from pdcov.detection.looks_fit import LooksFit, collect_looks, fit_looks, found_within
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
@@ -37,7 +39,9 @@ from pdcov.detection.statistics import (
     VALIDATION_TESTS,
     ValidationReport,
     auto_bin_edges,
+    blur_bin_edges,
     fit_binned,
+    fit_binned_blur,
     fit_logistic,
     validate,
 )
@@ -51,6 +55,7 @@ from pdcov.detection.tracks import (
 from pdcov.errors import ConfigError, InputFileError
 
 DEFAULT_BINS = "quantile:20"
+DEFAULT_BLUR_BINS = "quantile:4"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -85,6 +90,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="polynomial degree in log size of the logistic model (1)")
     fit.add_argument("--fine-bins", type=int, default=64,
                      help="log-spaced bins the logistic model is written on (64)")
+    fit.add_argument("--blur-csv", type=Path,
+                     help="CSV of each image's motion blur: columns image,blur_px (image px) "
+                          "or image,speed_m_s,height_m (with --focal-px and --exposure-s); "
+                          "adds P_D and P_FA by blur and size (the model's blur section)")
+    fit.add_argument("--blur-bins", default=DEFAULT_BLUR_BINS,
+                     help="blur bin edges '0,1,2,4' (detector-input px, first 0) or a rule "
+                          f"'quantile:N' / 'log:N' on the objects' blurs ({DEFAULT_BLUR_BINS})")
+    fit.add_argument("--focal-px", type=float,
+                     help="focal length (image px) of the test set's camera, for speed_m_s")
+    fit.add_argument("--exposure-s", type=float,
+                     help="exposure time (s) of the test set's camera, for speed_m_s")
     fit.set_defaults(func=run_fit)
 
     val = sub.add_parser("validate", help="test a model against a second split")
@@ -140,27 +156,30 @@ def _data_args(p: argparse.ArgumentParser) -> None:
 # -- fit -------------------------------------------------------------------------------------
 
 
-def _parse_bins(spec: str) -> tuple[str, int] | tuple[float, ...]:
+def _parse_bins(spec: str, option: str = "--bins") -> tuple[str, int] | tuple[float, ...]:
     """'quantile:20' -> ('quantile', 20); '4,8,16' -> (4.0, 8.0, 16.0)."""
     rule, _, n = spec.partition(":")
     if rule in BIN_RULES:
         try:
             return rule, int(n)
         except ValueError:
-            raise ConfigError(f"--bins: expected {rule}:N with an integer N, got {spec!r}") \
+            raise ConfigError(f"{option}: expected {rule}:N with an integer N, got {spec!r}") \
                 from None
     try:
         return tuple(float(v) for v in spec.split(","))
     except ValueError:
-        raise ConfigError(f"--bins: expected comma-separated edges in px or "
+        raise ConfigError(f"{option}: expected comma-separated edges in px or "
                           f"{' / '.join(r + ':N' for r in BIN_RULES)}, got {spec!r}") from None
 
 
-def _edges(spec: str, matches: Matches) -> tuple[float, ...]:
-    bins = _parse_bins(spec)
+def _edges(spec: str, values_px: np.ndarray, option: str = "--bins",
+           auto: Callable[[np.ndarray, str, int], tuple[float, ...]] = auto_bin_edges
+           ) -> tuple[float, ...]:
+    """Bin edges (px) as given, or by ``auto`` from a rule on ``values_px``."""
+    bins = _parse_bins(spec, option)
     if isinstance(bins[0], str):
         rule, n = bins
-        return auto_bin_edges(matches.truth_size_px, str(rule), int(n))
+        return auto(values_px, str(rule), int(n))
     return tuple(float(v) for v in bins)
 
 
@@ -215,7 +234,9 @@ def _frames(args: argparse.Namespace, tracked: TrackedSet) -> Iterator[Any]:
                      file=sys.stderr))
 
 
-def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
+def _match(args: argparse.Namespace, settings: MatchSettings,
+           blur_csv: Path | None = None, speed: SpeedToBlur | None = None) -> Matches:
+    """The matches of the set; with each image's blur when ``blur_csv`` is given."""
     fmt = _tracked_format(args)
     if fmt is not None:  # every frame an image
         tracked, settings = _read_tracked(args, fmt, settings)
@@ -223,6 +244,7 @@ def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
                             settings)
     truth = read_truth(args.ground_truth, args.format, args.images, args.sizes, args.names,
                        args.box_format)
+    blur = read_blur_csv(blur_csv, truth, speed) if blur_csv is not None else None
     detections = read_detections(args.detections, truth, args.detections_format or args.format,
                                  args.box_format)
     if settings.classes is not None:
@@ -237,7 +259,7 @@ def _match(args: argparse.Namespace, settings: MatchSettings) -> Matches:
                                     disable=args.quiet, file=sys.stderr):
             yield image, detections.get(image_id, NO_BOXES)
 
-    return match_images(pairs(), settings)
+    return match_images(pairs(), settings, blur)
 
 
 def _dump(model: DetectorModel) -> str:
@@ -249,19 +271,39 @@ def run_fit(args: argparse.Namespace) -> int:
         args.conf, args.iou, _int_or_none(args.input_size, "--input-size", "a number of pixels"),
         _classes(args.classes),
         _int_or_none(args.max_detections, "--max-detections", "a number of detections"))
+    speed = None
+    if args.focal_px is not None or args.exposure_s is not None:
+        if args.focal_px is None or args.exposure_s is None or args.blur_csv is None:
+            raise ConfigError("--focal-px and --exposure-s go together, with a --blur-csv "
+                              "giving speed_m_s")
+        speed = SpeedToBlur(args.focal_px, args.exposure_s)
+    if args.blur_csv is not None and args.model == "logistic":
+        raise ConfigError("--blur-csv: the blur tables are binned; use --model binned")
     fmt = _tracked_format(args)
     looks_fit = None
     if fmt is not None:
         if args.model != "binned":
             raise ConfigError("--model logistic: tracked sequences are fitted with the binned "
                               "model (the correlation of the looks is estimated per bin)")
+        if args.blur_csv is not None:
+            raise ConfigError("--blur-csv: blur tables are fitted on labelled image sets, "
+                              "not on tracked sequences")
         tracked, settings = _read_tracked(args, fmt, settings)
         matches, looks = collect_looks(_frames(args, tracked), len(tracked.people), settings)
     else:
-        matches = _match(args, settings)
-    edges = _edges(args.bins, matches)
+        matches = _match(args, settings, args.blur_csv, speed)
+    edges = _edges(args.bins, matches.truth_size_px)
     if args.model == "logistic":
         model = fit_logistic(matches, edges, args.fine_bins, args.logistic_degree)
+    elif args.blur_csv is not None:
+        model = fit_binned_blur(matches, edges, _edges(args.blur_bins, matches.truth_blur_px,
+                                                       "--blur-bins", blur_bin_edges),
+                                args.interval)
+        assert model.blur is not None
+        model = replace(model, blur=replace(model.blur, extra={
+            **model.blur.extra, "csv": str(args.blur_csv), "bins": args.blur_bins,
+            **({"speed_to_blur": {"focal_px": speed.focal_px, "exposure_s": speed.exposure_s}}
+               if speed is not None else {})}))
     else:
         model = fit_binned(matches, edges, args.interval)
     fit = {**model.extra["fit"], "ground_truth": str(args.ground_truth),
@@ -278,6 +320,8 @@ def run_fit(args: argparse.Namespace) -> int:
     print(format_model_table(model))
     if looks_fit is not None:
         print(format_looks_table(model, looks_fit))
+    if model.blur is not None:
+        print(format_blur_table(model))
     print(f"{matches.n_images} {'frames' if fmt else 'images'}; "
           f"{len(matches.truth_size_px)} objects, "
           f"{len(matches.detection_size_px)} detections counted; outside the bins: "
@@ -340,6 +384,20 @@ def format_looks_table(model: DetectorModel, fit: LooksFit) -> str:
     return "\n".join(rows)
 
 
+def format_blur_table(model: DetectorModel) -> str:
+    """P_D by blur bin (rows) and size bin (columns), with each cell's object count."""
+    blur = model.blur
+    assert blur is not None
+    n_true = blur.extra.get("n_true")
+    head = " ".join(f"{model.bin_edges_px[i]:>6.1f}+" for i in range(model.n_bins))
+    rows = ["P_D by blur (rows) and size (columns, from px):", f"{'blur px':>13} {head}"]
+    for j, row in enumerate(blur.p_detect):
+        lo, hi = blur.edges_px[j], blur.edges_px[j + 1]
+        rows.append(f"{lo:6.2f}-{hi:<6.2f} " + " ".join(f"{p:7.3f}" for p in row)
+                    + (f"   (objects {sum(n_true[j])})" if n_true else ""))
+    return "\n".join(rows)
+
+
 def _ci(ci: list[list[float]] | None, i: int) -> str:
     return f"[{ci[i][0]:.3f}, {ci[i][1]:.3f}]" if ci else ""
 
@@ -359,7 +417,7 @@ def run_validate(args: argparse.Namespace) -> int:
         model.iou_threshold if model.iou_threshold is not None else 0.5,
         model.input_size_px, classes, cap)
     matches = _match(args, settings)
-    edges = _edges(args.bins, matches) if args.bins else None
+    edges = _edges(args.bins, matches.truth_size_px) if args.bins else None
     report = validate(model, matches, edges, args.test, args.alpha)
     report = replace(report, model={"path": str(args.model),
                                     "ground_truth": str(args.ground_truth),

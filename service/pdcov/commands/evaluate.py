@@ -21,6 +21,7 @@ from pdcov.commands.args import (
     probability,
 )
 from pdcov.commands.mission_file import load_mission_warned
+from pdcov.core.blur import describe_blur
 from pdcov.errors import InputFileError, PdcovError
 
 if TYPE_CHECKING:
@@ -154,6 +155,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if prior is not None:
         lines.extend(prior.notes)
     evaluate_poses(grid, poses, progress=progress, total=len(poses))
+    lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
+                               grid.frames))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections

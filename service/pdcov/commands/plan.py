@@ -37,6 +37,7 @@ from pdcov.commands.args import (
 )
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.config import Mission
+from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import (
     MAV_CMD_NAV_WAYPOINT,
@@ -283,6 +284,7 @@ def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: Covera
         f"plan: {pred.plan.description}; {len(pred.plan.waypoints)} waypoints",
         f"predicted flight time: {pred.flight.duration_s:.1f} s   path length: "
         f"{pred.flight.path_length_m:.1f} m",
+        describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred, grid.frames),
         f"wrote plan.plan (QGroundControl) and plan.waypoints (WPL 110) in {out}"])
 
 
@@ -549,7 +551,7 @@ def run_refly(args: argparse.Namespace) -> int:
     flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
                                   max_range_m=mission.max_range_m,
                                   min_revisit_s=mission.min_revisit_s,
-                                  terrain=mission.terrain)
+                                  terrain=mission.terrain, exposure_s=mission.exposure_s)
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")

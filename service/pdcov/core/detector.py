@@ -20,8 +20,8 @@ from pdcov.errors import DetectorModelError, where
 from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
-FORMAT_VERSION = 2  # 2: the optional ``looks`` section (per-person correlation)
-_READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3  # 2: the optional ``looks`` section (per-person correlation); 3: ``blur``
+_READABLE_VERSIONS = (1, 2, 3)
 SIZE_METRICS = ("sqrt_area",)
 
 # The keys of a model file (docs/detector-model.md): the engine's, then those `pdcov detector
@@ -45,9 +45,35 @@ MODEL_SCHEMA = Section.of(
         "min_people", "n_people", "n_looks", "n_hits",
         found_within=Section.of("share", "n_people"),
         tracks=Section.of("format", "n_sequences", "n_frames", "n_people", "n_track_gaps",
-                          "looks_outside_bins")))
+                          "looks_outside_bins")),
+    blur=Section.of("edges_px", "p_detect", "p_false_alarm", "p_detect_ci95",
+                    "p_false_alarm_ci95", "n_true", "n_detected", "n_detections",
+                    "n_true_positives", "truth_outside_bins", "detections_outside_bins",
+                    "csv", "bins", "speed_to_blur"))
 _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
-                "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks")
+                "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks",
+                "blur")
+
+
+@dataclass(frozen=True, slots=True)
+class BlurModel:
+    """P_D and P_FA by motion-blur bin and size bin (version 3's ``blur`` section).
+
+    edges_px: M + 1 strictly increasing blur lengths in detector-input pixels (scaled from
+    image pixels as sizes are), the first 0; blur bin j is [edges_px[j], edges_px[j + 1]).
+    p_detect, p_false_alarm: M rows (blur bins) of N values (the model's size bins). A blur
+    at or above the last edge has P_D = P_FA = 0 (the model claims nothing there).
+    ``extra``: the fit's other keys (intervals, counts), kept as written.
+    """
+
+    edges_px: tuple[float, ...]
+    p_detect: tuple[tuple[float, ...], ...]
+    p_false_alarm: tuple[tuple[float, ...], ...]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_bins(self) -> int:
+        return len(self.edges_px) - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +118,7 @@ class DetectorModel:
     size_metric: str = "sqrt_area"
     counts: BinCounts | None = None
     looks: LooksModel | None = None
+    blur: BlurModel | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str | None = None
 
@@ -142,10 +169,61 @@ class DetectorModel:
                 raise DetectorModelError(
                     f"{where(src, 'looks.correlation')}: expected {n} values in [0, 1) "
                     f"(one per bin), got {list(self.looks.correlation)}")
+        if self.blur is not None:
+            self._check_blur(self.blur, n)
+
+    def _check_blur(self, blur: BlurModel, n: int) -> None:
+        src = self.source
+        e = np.asarray(blur.edges_px, dtype=float)
+        if (len(e) < 2 or not np.all(np.isfinite(e)) or e[0] != 0
+                or np.any(np.diff(e) <= 0)):
+            raise DetectorModelError(
+                f"{where(src, 'blur.edges_px')}: expected at least 2 finite, strictly "
+                f"increasing blur lengths (px), the first 0, got {list(blur.edges_px)}")
+        for key in ("p_detect", "p_false_alarm"):
+            rows = getattr(blur, key)
+            if len(rows) != len(e) - 1 or any(len(row) != n for row in rows):
+                raise DetectorModelError(
+                    f"{where(src, 'blur.' + key)}: expected {len(e) - 1} rows (one per blur "
+                    f"bin) of {n} values (one per size bin)")
+            p = np.asarray(rows, dtype=float)
+            if not np.all((p >= 0) & (p <= 1)):
+                raise DetectorModelError(
+                    f"{where(src, 'blur.' + key)}: probabilities must lie in [0, 1], "
+                    f"got {p.tolist()}")
 
     @property
     def n_bins(self) -> int:
         return len(self.bin_edges_px) - 1
+
+    @property
+    def n_table_rows(self) -> int:
+        """Rows of ``padded_tables_by_blur``: 1 (blur unknown) + M blur bins + 1 beyond."""
+        return 1 if self.blur is None else self.blur.n_bins + 2
+
+    def blur_row(self, blur_px: np.ndarray) -> np.ndarray:
+        """Row of ``padded_tables_by_blur`` for blurs in detector-input pixels: j + 1 for
+        blur bin j, M + 1 at or above the last edge or NaN. Needs blur bins (ValueError)."""
+        if self.blur is None:
+            raise ValueError("blur_row needs a detector model with blur bins")
+        b = np.asarray(blur_px, dtype=float)
+        return np.searchsorted(np.asarray(self.blur.edges_px), b, side="right")
+
+    def padded_tables_by_blur(self) -> tuple[np.ndarray, np.ndarray]:
+        """P_D and P_FA as flat tables indexed by ``row * (N + 2) + bin_index``: row 0 is
+        ``padded_tables`` (blur unknown: P by size only), rows 1..M the blur bins, row M + 1
+        zeros (blur beyond the last edge). Without blur bins: just row 0."""
+        pd, pfa = self.padded_tables()
+        if self.blur is None:
+            return pd, pfa
+        n = self.n_bins
+        tables = []
+        for one_d, rows in ((pd, self.blur.p_detect), (pfa, self.blur.p_false_alarm)):
+            t = np.zeros((self.blur.n_bins + 2, n + 2))
+            t[0] = one_d
+            t[1:-1, 1:-1] = np.asarray(rows, dtype=float)
+            tables.append(t.ravel())
+        return tables[0], tables[1]
 
     def image_to_input_scale(self, width_px: int, height_px: int) -> float:
         """Factor from image pixels to detector-input pixels for an image of this size."""
@@ -160,10 +238,15 @@ class DetectorModel:
         idx = np.searchsorted(np.asarray(self.bin_edges_px), s, side="right")
         return np.where(np.isnan(s), 0, idx)
 
-    def lookup(self, size_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """P_D and P_FA for sizes in detector-input pixels (vectorised; 0 outside the bins)."""
+    def lookup(self, size_px: np.ndarray, blur_px: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """P_D and P_FA for sizes in detector-input pixels (vectorised; 0 outside the bins),
+        by blur bin too when ``blur_px`` (detector-input pixels) is given and the model has
+        blur bins; otherwise by size only."""
         idx = self.bin_index(size_px)
-        pd, pfa = self.padded_tables()
+        if blur_px is not None and self.blur is not None:
+            idx = self.blur_row(blur_px) * (self.n_bins + 2) + idx
+        pd, pfa = self.padded_tables_by_blur()
         return pd[idx], pfa[idx]
 
     def padded_tables(self) -> tuple[np.ndarray, np.ndarray]:
@@ -199,6 +282,12 @@ class DetectorModel:
                     f"got {rho!r}")
             looks = LooksModel(tuple(float(v) for v in rho),
                                {k: v for k, v in lk.items() if k != "correlation"})
+        blur = None
+        if doc.get("blur") is not None:
+            if version < 3:
+                raise DetectorModelError(
+                    f"{where(source, 'blur')}: needs version 3, the file says {version}")
+            blur = _blur_from_dict(doc["blur"], source)
         for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
             if key not in doc:
                 raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
@@ -233,6 +322,7 @@ class DetectorModel:
             size_metric=doc.get("size_metric", "sqrt_area"),
             counts=counts,
             looks=looks,
+            blur=blur,
             extra={k: v for k, v in doc.items() if k not in _ENGINE_KEYS},
             source=source,
         )
@@ -250,7 +340,8 @@ class DetectorModel:
 
     def to_dict(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
-            "version": FORMAT_VERSION if self.looks is not None else 1,
+            "version": (FORMAT_VERSION if self.blur is not None
+                        else 2 if self.looks is not None else 1),
             "size_metric": self.size_metric,
             "input_size_px": self.input_size_px,
             "confidence_threshold": self.confidence_threshold,
@@ -266,6 +357,12 @@ class DetectorModel:
         if self.looks is not None:
             doc["looks"] = {"correlation": [float(v) for v in self.looks.correlation],
                             **self.looks.extra}
+        if self.blur is not None:
+            doc["blur"] = {"edges_px": [float(v) for v in self.blur.edges_px],
+                           "p_detect": [[float(v) for v in row] for row in self.blur.p_detect],
+                           "p_false_alarm": [[float(v) for v in row]
+                                             for row in self.blur.p_false_alarm],
+                           **self.blur.extra}
         doc.update(self.extra)
         return doc
 
@@ -280,3 +377,28 @@ def _opt_float(doc: dict[str, Any], key: str, source: str | None) -> float | Non
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise DetectorModelError(f"{where(source, key)}: expected a number, got {v!r}")
     return float(v)
+
+
+def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:
+    """The ``blur`` section: edges_px (numbers), p_detect and p_false_alarm (rows of
+    numbers); the values are checked by DetectorModel."""
+    if not isinstance(bl, dict):
+        raise DetectorModelError(f"{where(source, 'blur')}: expected a mapping")
+
+    def numbers(v: Any) -> bool:
+        return isinstance(v, list) and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+
+    for key in ("edges_px", "p_detect", "p_false_alarm"):
+        v = bl.get(key)
+        if key == "edges_px" and not numbers(v) or key != "edges_px" and not (
+                isinstance(v, list) and all(numbers(row) for row in v)):
+            raise DetectorModelError(
+                f"{where(source, 'blur.' + key)}: expected "
+                f"{'a list of numbers' if key == 'edges_px' else 'a list of rows of numbers'}"
+                f", got {v!r}")
+    return BlurModel(tuple(float(x) for x in bl["edges_px"]),
+                     tuple(tuple(float(x) for x in row) for row in bl["p_detect"]),
+                     tuple(tuple(float(x) for x in row) for row in bl["p_false_alarm"]),
+                     {k: v for k, v in bl.items()
+                      if k not in ("edges_px", "p_detect", "p_false_alarm")})

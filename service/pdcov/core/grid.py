@@ -15,6 +15,11 @@ camera and the terrain does not rise above the line of sight to its centre
 (``core/occlusion.py``). Without terrain, or on a surface at height 0 everywhere, the ground
 is the plane z = 0 of the paper and the grid is exactly the flat-earth one.
 
+With ``exposure_s`` and a detector model with blur bins, a cell's P_D and P_FA in a frame
+are looked up by its size and by its motion blur (core/blur.py), the flat index
+``blur_row * (N + 2) + size_index`` into ``DetectorModel.padded_tables_by_blur``; without
+them, or for a pose without a known velocity and angular rate, by size only.
+
 Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
 for it, from never in view to seen at a size the detector model covers.
 """
@@ -30,6 +35,7 @@ from typing import IO
 import numpy as np
 
 from pdcov.atomic import atomic_write
+from pdcov.core.blur import BlurEffect, blur_effect, blur_lattice_px, blur_xyz_px
 from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.detector import DetectorModel
@@ -96,6 +102,9 @@ class CoverageGrid:
     None: the plane z = 0).
     min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
+    exposure_s: the camera's exposure time (s); with it, a detector model with blur bins
+    and a pose with a known velocity and angular rate, each cell's P_D and P_FA are looked up
+    by its size and its motion blur (core/blur.py) at its centre. Otherwise by size only.
 
     With ``min_revisit_s`` which look counts depends on the order of the frames, so frames
     must come in time order (``update`` refuses one earlier than the latest); times are kept
@@ -106,7 +115,8 @@ class CoverageGrid:
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
                  detector: DetectorModel, *, max_range_m: float | None = None,
                  min_revisit_s: float | None = None,
-                 terrain: TerrainSurface | None = None) -> None:
+                 terrain: TerrainSurface | None = None,
+                 exposure_s: float | None = None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != geometry.shape:
             raise ValueError(f"mask shape {mask.shape} != grid shape {geometry.shape}")
@@ -133,6 +143,12 @@ class CoverageGrid:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self.max_range_m = float(max_range_m)
         self.min_revisit_s = min_revisit_s
+        if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
+            raise ValueError(f"exposure_s must be a positive number of seconds, "
+                             f"got {exposure_s}")
+        self.exposure_s = exposure_s
+        self.blur_effect = blur_effect(exposure_s, detector)
+        self.frames_blurred = 0  # frames whose P_D took their blur into account
         self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
@@ -144,7 +160,9 @@ class CoverageGrid:
         # The cells (r0, r1, c0, c1) the latest update may have changed, None for none: a
         # subscriber (the daemon's tiles and status) re-reads only those.
         self.touched: tuple[int, int, int, int] | None = None
-        pd, pfa = detector.padded_tables()
+        # Indexed by the kernel's bin index: blur row * (N + 2) + size index (the detector
+        # model's padded_tables_by_blur); row 0, P by size only, when blur does not apply.
+        pd, pfa = detector.padded_tables_by_blur()
         with np.errstate(divide="ignore"):
             self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
                                      np.log1p(-pfa).astype(np.float32))
@@ -209,6 +227,8 @@ class CoverageGrid:
                                  f"after a frame at {self.latest_frame_t_s!r} s")
             self.latest_frame_t_s = max(self.latest_frame_t_s, t)
         self.frames += 1
+        blurred = self.blur_effect is BlurEffect.APPLIED and pose.has_motion
+        self.frames_blurred += blurred
         window, clipped = self._window(pose)
         if clipped:
             self._mark_too_far(pose, window)
@@ -233,11 +253,35 @@ class CoverageGrid:
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
         # over the window (cheaper than masked scatters) and leave those cells unchanged.
         idx *= observed
+        if blurred:
+            idx += self._blur_rows(pose, window, observed) * (self.detector.n_bins + 2)
         tab_d, tab_fa = self._log_miss_tables
         self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
         self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
         self.n_obs[r0:r1, c0:c1] += observed
         return int(np.count_nonzero(observed))
+
+    def _blur_rows(self, pose: CameraPose, window: tuple[int, int, int, int],
+                   observed: np.ndarray) -> np.ndarray:
+        """The detector model's blur row (``DetectorModel.blur_row``) of the observed cells
+        of ``window``, from the blur at their centres (on the terrain when there is one),
+        scaled to detector-input pixels as sizes are; 0 elsewhere."""
+        r0, r1, c0, c1 = window
+        g = self.geometry
+        cs = g.cell_size_m
+        assert self.exposure_s is not None  # blur_effect is APPLIED
+        if self._relief is None:  # the centres' lattice on the plane z = 0
+            blur = blur_lattice_px(self.camera, pose, g.x0_m + cs * (c0 + 0.5),
+                                   g.y0_m + cs * (r0 + 0.5), cs, c1 - c0, r1 - r0,
+                                   self.exposure_s)
+            return self.detector.blur_row(self.size_scale * blur) * observed
+        rows, cols = np.nonzero(observed)
+        z = self._relief.centre_z_m(r0, r1, c0, c1)[rows, cols]
+        blur = blur_xyz_px(self.camera, pose, g.x0_m + cs * (cols + c0 + 0.5),
+                           g.y0_m + cs * (rows + r0 + 0.5), z, self.exposure_s)
+        out = np.zeros(observed.shape, dtype=np.intp)
+        out[rows, cols] = self.detector.blur_row(self.size_scale * blur)
+        return out
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -533,6 +577,7 @@ class CoverageGrid:
         self.n_obs += other.n_obs
         np.maximum(self.limiting, other.limiting, out=self.limiting)
         self.frames += other.frames
+        self.frames_blurred += other.frames_blurred
         if self.last_obs_s is not None and other.last_obs_s is not None:
             np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
             self.latest_frame_t_s = max(self.latest_frame_t_s, other.latest_frame_t_s)
@@ -560,7 +605,8 @@ class CoverageGrid:
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
                  *, max_range_m: float | None = None, min_revisit_s: float | None = None,
-                 terrain: TerrainSurface | None = None) -> CoverageGrid:
+                 terrain: TerrainSurface | None = None,
+                 exposure_s: float | None = None) -> CoverageGrid:
         """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
@@ -581,7 +627,7 @@ class CoverageGrid:
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
         grid = cls(geometry, mask, camera, detector, max_range_m=max_range_m,
-                   min_revisit_s=min_revisit_s, terrain=terrain)
+                   min_revisit_s=min_revisit_s, terrain=terrain, exposure_s=exposure_s)
         grid.log_miss_d[:] = data["log_miss_d"]
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]

@@ -41,11 +41,16 @@ class CameraPose:
     R_enu_cam: 3x3 rotation mapping OpenCV optical-frame vectors into ENU.
     r_cam_enu: camera centre in ENU metres (z = height above the flat ground).
     t_s: time of the frame in seconds (autopilot clock), NaN when unknown.
+    v_cam_enu_m_s: the camera centre's velocity in ENU m/s at t_s; None when unknown.
+    omega_enu_rad_s: the camera's angular rate at t_s, in ENU rad/s (dR_enu_cam/dt =
+        [omega]x R_enu_cam); None when unknown. Both feed motion blur (core/blur.py).
     """
 
     R_enu_cam: np.ndarray
     r_cam_enu: np.ndarray
     t_s: float = float("nan")
+    v_cam_enu_m_s: np.ndarray | None = None
+    omega_enu_rad_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         R = np.array(self.R_enu_cam, dtype=float)
@@ -64,6 +69,20 @@ class CameraPose:
         r.setflags(write=False)
         object.__setattr__(self, "R_enu_cam", R)
         object.__setattr__(self, "r_cam_enu", r)
+        for key in ("v_cam_enu_m_s", "omega_enu_rad_s"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            a = np.array(value, dtype=float).reshape(-1)
+            if a.shape != (3,) or not np.isfinite(a).all():
+                raise ValueError(f"{key} must be 3 finite numbers or None, got {value!r}")
+            a.setflags(write=False)
+            object.__setattr__(self, key, a)
+
+    @property
+    def has_motion(self) -> bool:
+        """Whether the velocity and the angular rate are both known."""
+        return self.v_cam_enu_m_s is not None and self.omega_enu_rad_s is not None
 
     @classmethod
     def from_quat(cls, q_enu_cam_wxyz: np.ndarray, r_cam_enu: np.ndarray,
@@ -175,3 +194,28 @@ def fixed_mount_pose(R_ned_body: np.ndarray, r_body_enu: np.ndarray, mount: Fixe
     """Camera pose of a fixed mount on a vehicle with attitude ``R_ned_body``."""
     return camera_pose(R_ned_body, r_body_enu, R_ned_body @ mount.R_body_gimbal,
                        np.asarray(mount.lever_arm_frd_m), t_s)
+
+
+def camera_motion(R_enu_cam_a: np.ndarray, r_cam_enu_a: np.ndarray, R_enu_cam_b: np.ndarray,
+                  r_cam_enu_b: np.ndarray, dt_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity (N, 3) ENU m/s and angular rate (N, 3) ENU rad/s of cameras at poses a and,
+    ``dt_s`` (N,) s later, b (R (N, 3, 3), r (N, 3)): the finite difference over a short
+    step. R_b = exp([omega]x dt) R_a; omega from the skew part of R_b R_a^T, whose error,
+    (omega dt)^2 relative, is negligible for steps of milliseconds. NaN where dt_s <= 0."""
+    dt = np.asarray(dt_s, dtype=float).reshape(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_dt = np.where(dt > 0, 1.0 / np.where(dt > 0, dt, 1.0), np.nan)
+    v = (np.asarray(r_cam_enu_b) - np.asarray(r_cam_enu_a)) * inv_dt[:, None]
+    A = np.asarray(R_enu_cam_b) @ np.asarray(R_enu_cam_a).transpose(0, 2, 1)
+    omega = 0.5 * np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0],
+                            A[:, 1, 0] - A[:, 0, 1]], axis=1) * inv_dt[:, None]
+    return v, omega
+
+
+def known_motion(v_cam_enu_m_s: np.ndarray, omega_enu_rad_s: np.ndarray
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A velocity and angular rate for CameraPose: (None, None) when either is not known
+    (NaN)."""
+    if not (np.isfinite(v_cam_enu_m_s).all() and np.isfinite(omega_enu_rad_s).all()):
+        return None, None
+    return v_cam_enu_m_s, omega_enu_rad_s

@@ -112,6 +112,17 @@ def Rz(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def R_from_rotvec(rotvec_rad: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) of the rotation vector ``rotvec_rad`` (axis times angle, rad):
+    Rodrigues' formula, exp([rotvec]x)."""
+    w = np.asarray(rotvec_rad, dtype=float).reshape(3)
+    theta = float(np.sqrt(w @ w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-8:  # sin(t)/t and (1 - cos(t))/t^2 by their series
+        return _EYE3 + K + 0.5 * (K @ K)
+    return _EYE3 + (np.sin(theta) / theta) * K + ((1 - np.cos(theta)) / theta**2) * (K @ K)
+
+
 def angle_between_R(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle in radians of the rotation taking ``R_b`` to ``R_a``."""
     return float(Rotation.from_matrix(R_a.T @ R_b).magnitude())

@@ -17,8 +17,9 @@ Boxes are top-left (x, y, width, height) in image pixels.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -99,7 +100,9 @@ class ImageMatch:
 class Matches:
     """Matching outcome of a whole set: sizes (detector-input px) of the counted ground truth
     and whether it was detected; of the counted detections and whether they were true; and
-    how many boxes each status holds (e.g. ``truth_degenerate``)."""
+    how many boxes each status holds (e.g. ``truth_degenerate``). truth_blur_px,
+    detection_blur_px: the motion blur of each counted box's image, in detector-input px
+    (NaN when no blur was given)."""
 
     settings: MatchSettings
     truth_size_px: np.ndarray
@@ -108,6 +111,8 @@ class Matches:
     detection_true: np.ndarray
     n_images: int
     status_counts: dict[str, int]
+    truth_blur_px: np.ndarray
+    detection_blur_px: np.ndarray
 
 
 def iou_matrix(det_xywh: np.ndarray, truth_xywh: np.ndarray,
@@ -226,12 +231,16 @@ class MatchCollector:
         self._t_hit: list[np.ndarray] = []
         self._d_size: list[np.ndarray] = []
         self._d_true: list[np.ndarray] = []
+        self._t_blur: list[np.ndarray] = []
+        self._d_blur: list[np.ndarray] = []
         self._counts: Counter[str] = Counter()
         self._n_images = 0
 
-    def add(self, truth: ImageTruth, dets: Boxes) -> tuple[ImageMatch, np.ndarray]:
-        """Match one image; its statuses and the size (detector-input px) of every
-        ground-truth box, in input order."""
+    def add(self, truth: ImageTruth, dets: Boxes, blur_px: float = math.nan
+            ) -> tuple[ImageMatch, np.ndarray]:
+        """Match one image (motion blur ``blur_px`` in image px, NaN: not given); its
+        statuses and the size (detector-input px) of every ground-truth box, in input
+        order."""
         m = match_image(truth, dets, self.settings)
         scale = input_scale(truth, self.settings)
         size = _sqrt_area(truth.boxes.xywh) * scale
@@ -241,6 +250,8 @@ class MatchCollector:
         self._t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
         self._d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
         self._d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
+        self._t_blur.append(np.full(int(tk.sum()), blur_px * scale))
+        self._d_blur.append(np.full(int(dk.sum()), blur_px * scale))
         self._counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
         self._counts.update(f"detection_{DetectionStatus(s).name.lower()}"
                             for s in m.detection_status)
@@ -253,13 +264,17 @@ class MatchCollector:
 
         return Matches(self.settings, cat(self._t_size, float), cat(self._t_hit, bool),
                        cat(self._d_size, float), cat(self._d_true, bool), self._n_images,
-                       dict(sorted(self._counts.items())))
+                       dict(sorted(self._counts.items())), cat(self._t_blur, float),
+                       cat(self._d_blur, float))
 
 
-def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]],
-                 settings: MatchSettings) -> Matches:
-    """Match every image and gather counted sizes (detector-input px) and outcomes."""
+def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]], settings: MatchSettings,
+                 image_blur_px: Mapping[str, float] | None = None) -> Matches:
+    """Match every image and gather counted sizes (detector-input px) and outcomes;
+    ``image_blur_px``: each image's motion blur (image px, by image id), scaled to the
+    detector input as the sizes are."""
     collector = MatchCollector(settings)
     for truth, dets in pairs:
-        collector.add(truth, dets)
+        collector.add(truth, dets,
+                      math.nan if image_blur_px is None else image_blur_px[truth.image_id])
     return collector.result()

@@ -12,13 +12,13 @@ sizes in detector-input pixels), counts, models and test results out. Steps:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from scipy import optimize, special, stats
 
-from pdcov.core.detector import BinCounts, DetectorModel
+from pdcov.core.detector import BinCounts, BlurModel, DetectorModel
 from pdcov.detection.matching import Matches
 from pdcov.errors import ConfigError, DetectorModelError, InputFileError
 
@@ -139,20 +139,71 @@ def _pairs(lo: np.ndarray, hi: np.ndarray) -> list[list[float]]:
     return [[round(float(a), 6), round(float(b), 6)] for a, b in zip(lo, hi, strict=True)]
 
 
-def fit_binned(matches: Matches, edges: tuple[float, ...],
-               interval: str = "wilson") -> DetectorModel:
-    """The paper's histogram model with ``interval`` 95 % intervals. An empty bin has
-    P = 0 (the engine assumes nothing where there is no data) and the interval [0, 1]."""
-    c = count_in_bins(matches, edges)
+def _binned_rates(c: BinnedCounts, interval: str
+                  ) -> tuple[np.ndarray, np.ndarray, list[list[float]], list[list[float]]]:
+    """P_D, P_FA and their 95 % intervals (pairs) of the counts; P = 0 in an empty bin."""
     with np.errstate(divide="ignore", invalid="ignore"):
         p_d = np.where(c.n_true > 0, c.n_detected / c.n_true, 0.0)
         p_fa = np.where(c.n_detections > 0, 1 - c.n_true_positives / c.n_detections, 0.0)
     d_lo, d_hi = proportion_ci(c.n_detected, c.n_true, interval)
     prec_lo, prec_hi = proportion_ci(c.n_true_positives, c.n_detections, interval)
+    return p_d, p_fa, _pairs(d_lo, d_hi), _pairs(1 - prec_hi, 1 - prec_lo)
+
+
+def fit_binned(matches: Matches, edges: tuple[float, ...],
+               interval: str = "wilson") -> DetectorModel:
+    """The paper's histogram model with ``interval`` 95 % intervals. An empty bin has
+    P = 0 (the engine assumes nothing where there is no data) and the interval [0, 1]."""
+    c = count_in_bins(matches, edges)
+    p_d, p_fa, ci_d, ci_fa = _binned_rates(c, interval)
     return _model(matches, c, p_d, p_fa, {
         "model": "binned", "interval_method": interval, "confidence_level": CONFIDENCE_LEVEL,
-        "p_detect_ci95": _pairs(d_lo, d_hi),
-        "p_false_alarm_ci95": _pairs(1 - prec_hi, 1 - prec_lo)})
+        "p_detect_ci95": ci_d, "p_false_alarm_ci95": ci_fa})
+
+
+def blur_bin_edges(blur_px: np.ndarray, rule: str, n_bins: int) -> tuple[float, ...]:
+    """Blur bin edges (px) from a rule as ``auto_bin_edges``, the first edge 0."""
+    edges = auto_bin_edges(blur_px, rule, n_bins)
+    return (0.0, *(e for e in edges[1:] if e > 0))
+
+
+def fit_binned_blur(matches: Matches, edges: tuple[float, ...],
+                    blur_edges: tuple[float, ...], interval: str = "wilson") -> DetectorModel:
+    """``fit_binned`` over all images, and the same fit in each blur bin [blur_edges[j],
+    blur_edges[j + 1]) of the images' blur (detector-input px; the model's ``blur``
+    section, with its intervals and counts). Needs matches with blurs."""
+    b = np.asarray(blur_edges, dtype=float)
+    if len(b) < 2 or b[0] != 0 or np.any(np.diff(b) <= 0):
+        raise ConfigError(f"--blur-bins: edges must be at least 2 strictly increasing blurs "
+                          f"(px), the first 0, got {list(blur_edges)}")
+    if np.isnan(matches.truth_blur_px).any() or np.isnan(matches.detection_blur_px).any():
+        raise ValueError("fit_binned_blur needs the blur of every image")
+    model = fit_binned(matches, edges, interval)
+    ti = _bin_of(matches.truth_blur_px, blur_edges)
+    di = _bin_of(matches.detection_blur_px, blur_edges)
+    rows: dict[str, list[Any]] = {k: [] for k in (
+        "p_detect", "p_false_alarm", "p_detect_ci95", "p_false_alarm_ci95", "n_true",
+        "n_detected", "n_detections", "n_true_positives")}
+    for j in range(len(blur_edges) - 1):
+        sub = replace(matches, truth_size_px=matches.truth_size_px[ti == j],
+                      truth_detected=matches.truth_detected[ti == j],
+                      detection_size_px=matches.detection_size_px[di == j],
+                      detection_true=matches.detection_true[di == j])
+        c = count_in_bins(sub, edges)
+        p_d, p_fa, ci_d, ci_fa = _binned_rates(c, interval)
+        for key, v in (("p_detect", p_d), ("p_false_alarm", p_fa)):
+            rows[key].append(tuple(round(float(x), 6) for x in v))
+        rows["p_detect_ci95"].append(ci_d)
+        rows["p_false_alarm_ci95"].append(ci_fa)
+        for key in ("n_true", "n_detected", "n_detections", "n_true_positives"):
+            rows[key].append([int(x) for x in getattr(c, key)])
+    extra: dict[str, Any] = {k: v for k, v in rows.items()
+                             if k not in ("p_detect", "p_false_alarm")}
+    extra.update(truth_outside_bins=int((ti < 0).sum()),
+                 detections_outside_bins=int((di < 0).sum()))
+    return replace(model, blur=BlurModel(tuple(float(e) for e in blur_edges),
+                                         tuple(rows["p_detect"]), tuple(rows["p_false_alarm"]),
+                                         extra))
 
 
 @dataclass(frozen=True, slots=True)

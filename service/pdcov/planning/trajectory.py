@@ -26,11 +26,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import CameraPose, FixedMount, camera_pose, fixed_mount_pose, heading_rad
+from pdcov.core.pose import (
+    CameraPose,
+    FixedMount,
+    camera_motion,
+    camera_pose,
+    fixed_mount_pose,
+    heading_rad,
+    known_motion,
+)
 from pdcov.core.rotations import R_from_euler_zyx, Rz
 from pdcov.planning.plan import Plan
 
 G_MPS2 = 9.80665
+RATE_STEP_S = 1e-3  # the step of the difference that gives each pose's velocity and rate
 _STEP_M = 0.1
 _ARC_STEP_RAD = math.radians(3.0)
 
@@ -59,6 +68,9 @@ class Flight:
     t_s (N,): seconds from the start. r_body_enu (N, 3): ENU metres. R_ned_body (N, 3, 3):
     attitude (FRD -> NED). speed_mps (N,). duration_s: time to fly the whole plan, including
     hovers. path_length_m: length of the flown (corner-rounded) path in 3-D.
+    around: the states RATE_STEP_S / 2 before and after each sample (clipped to the
+    flight), (t_s (2, N), r_body_enu (2, N, 3), R_ned_body (2, N, 3, 3)), from which
+    ``camera_poses`` gives each pose its velocity and angular rate; None: unknown.
     """
 
     t_s: np.ndarray
@@ -67,6 +79,7 @@ class Flight:
     speed_mps: np.ndarray
     duration_s: float
     path_length_m: float
+    around: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -182,27 +195,35 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     knots_t = np.column_stack([t_in, t_out]).ravel()
     duration = float(knots_t[-1])
     t = np.arange(0.0, duration + 1e-9, 1.0 / rate_hz)
-
-    def interp(values: np.ndarray) -> np.ndarray:
-        return np.interp(t, knots_t, np.repeat(values, 2))
-
-    r = np.column_stack([interp(pts[:, i]) for i in range(3)])
-    # Heading knots per sample: reached, turned during the hover, left.
-    turned = heading + np.concatenate([np.sign(dpsi) * rate * turn_in_hover_s, [0.0]])
-    t_turned = t_in + np.concatenate([turn_in_hover_s, [0.0]])
-    psi = np.interp(t, np.column_stack([t_in, t_turned, t_out]).ravel(),
-                    np.column_stack([heading, turned, turned]).ravel())
-    speed = interp(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         a_seg = np.where(ds > 0, (v[1:] ** 2 - v[:-1] ** 2) / (2 * ds), 0.0)
     # At rest on a hover the vehicle is level: no acceleration from reaching to leaving it
     # (the arriving segment's braking would otherwise tilt it for the whole hover).
     a_knots = np.repeat(np.concatenate([a_seg[:1], a_seg]), 2)
     a_knots.reshape(-1, 2)[hover > 0] = 0.0
-    a_along = np.interp(t, knots_t, a_knots)
-    a_across = speed ** 2 * interp(kappa)
-    R = _attitudes(psi, a_along, a_across, kinematics.tilt)
-    return Flight(t, r, R, speed, duration, float(ds.sum()))
+    # Heading knots per sample: reached, turned during the hover, left.
+    turned = heading + np.concatenate([np.sign(dpsi) * rate * turn_in_hover_s, [0.0]])
+    t_turned = t_in + np.concatenate([turn_in_hover_s, [0.0]])
+    psi_t = np.column_stack([t_in, t_turned, t_out]).ravel()
+    psi_v = np.column_stack([heading, turned, turned]).ravel()
+
+    def states(tq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, attitude and speed at the times ``tq``."""
+        def interp(values: np.ndarray) -> np.ndarray:
+            return np.interp(tq, knots_t, np.repeat(values, 2))
+
+        r = np.column_stack([interp(pts[:, i]) for i in range(3)])
+        speed = interp(v)
+        R = _attitudes(np.interp(tq, psi_t, psi_v), np.interp(tq, knots_t, a_knots),
+                       speed ** 2 * interp(kappa), kinematics.tilt)
+        return r, R, speed
+
+    r, R, speed = states(t)
+    t_pm = np.stack([np.maximum(t - 0.5 * RATE_STEP_S, 0.0),
+                     np.minimum(t + 0.5 * RATE_STEP_S, duration)])
+    (r_m, R_m, _), (r_p, R_p, _) = states(t_pm[0]), states(t_pm[1])
+    return Flight(t, r, R, speed, duration, float(ds.sum()),
+                  (t_pm, np.stack([r_m, r_p]), np.stack([R_m, R_p])))
 
 
 def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.ndarray,
@@ -227,16 +248,28 @@ def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.nd
 
 def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
                  gimbal_pitch_rad: float = -math.pi / 2) -> list[CameraPose]:
-    """Camera poses along a flight. A fixed mount turns and tilts with the body; a gimbal is
-    assumed to hold ``gimbal_pitch_rad`` (-pi/2: nadir) and zero roll against the horizon,
-    with its yaw following the vehicle's heading."""
-    poses = []
-    if isinstance(mount, FixedMount):
-        for t, r, R in zip(flight.t_s, flight.r_body_enu, flight.R_ned_body, strict=True):
-            poses.append(fixed_mount_pose(R, r, mount, float(t)))
+    """Camera poses along a flight, with their velocity and angular rate when the flight
+    has its ``around`` states (core/pose.camera_motion over them). A fixed mount turns and
+    tilts with the body; a gimbal is assumed to hold ``gimbal_pitch_rad`` (-pi/2: nadir)
+    and zero roll against the horizon, with its yaw following the vehicle's heading."""
+    poses = _poses(flight.t_s, flight.r_body_enu, flight.R_ned_body, mount, gimbal_pitch_rad)
+    if flight.around is None:
         return poses
+    t_pm, r_pm, R_pm = flight.around
+    ends = [_poses(t_pm[k], r_pm[k], R_pm[k], mount, gimbal_pitch_rad) for k in (0, 1)]
+    (R_a, r_a), (R_b, r_b) = ((np.array([p.R_enu_cam for p in end]),
+                               np.array([p.r_cam_enu for p in end])) for end in ends)
+    v, omega = camera_motion(R_a, r_a, R_b, r_b, t_pm[1] - t_pm[0])
+    return [CameraPose(p.R_enu_cam, p.r_cam_enu, p.t_s, *known_motion(v_k, w_k))
+            for p, v_k, w_k in zip(poses, v, omega, strict=True)]
+
+
+def _poses(t_s: np.ndarray, r_body_enu: np.ndarray, R_ned_body: np.ndarray,
+           mount: FixedMount | GimbalMount, gimbal_pitch_rad: float) -> list[CameraPose]:
+    if isinstance(mount, FixedMount):
+        return [fixed_mount_pose(R, r, mount, float(t))
+                for t, r, R in zip(t_s, r_body_enu, R_ned_body, strict=True)]
     arm = np.asarray(mount.lever_arm_frd_m, dtype=float)
     R_level = R_from_euler_zyx(0.0, gimbal_pitch_rad, 0.0)
-    for t, r, R in zip(flight.t_s, flight.r_body_enu, flight.R_ned_body, strict=True):
-        poses.append(camera_pose(R, r, Rz(heading_rad(R)) @ R_level, arm, float(t)))
-    return poses
+    return [camera_pose(R, r, Rz(heading_rad(R)) @ R_level, arm, float(t))
+            for t, r, R in zip(t_s, r_body_enu, R_ned_body, strict=True)]

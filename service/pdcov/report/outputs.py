@@ -202,6 +202,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     pd, pfa, mask, g = grid.pd, grid.pfa, grid.mask, grid.geometry
     outcome = search_outcome(prior, pd, mask) if prior is not None else None
     doc = metrics_document(metrics, outcome)
+    doc["motion_blur"] = {"effect": grid.blur_effect.name.lower(),
+                          "exposure_s": grid.exposure_s, "frames_blurred": grid.frames_blurred}
     doc.update(extra_metrics or {})
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
     files = ["metrics.json", "grid.npz"]

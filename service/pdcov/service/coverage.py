@@ -43,7 +43,7 @@ from pdcov.bus.grid_state import GridState
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import CameraPose
+from pdcov.core.pose import CameraPose, known_motion
 from pdcov.service import status
 from pdcov.service.detections import LiveDetections
 from pdcov.service.frame_schedule import FrameSchedule
@@ -382,10 +382,11 @@ class LiveCoverage:
         _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = 0
         unjudged = 0
-        for R, r, t, R_body, judged in zip(R_enu_cam, b.r_cam_enu[use],
-                                           b.t_s[use], b.R_ned_body[use],
-                                           b.estimator_judged[use], strict=True):
-            pose = CameraPose(R, r, float(t))
+        for R, r, t, R_body, judged, v, omega in zip(
+                R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
+                b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
+                strict=True):
+            pose = CameraPose(R, r, float(t), *known_motion(v, omega))
             self.last_pose, self.last_R_ned_body = pose, R_body
             if below_min_height(pose.r_cam_enu[2], m.min_height_m):
                 self.counters.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1

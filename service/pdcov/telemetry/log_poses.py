@@ -18,7 +18,7 @@ import numpy as np
 
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
-from pdcov.core.pose import CameraPose, FixedMount
+from pdcov.core.pose import CameraPose, FixedMount, known_motion
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.errors import ConfigError, TelemetryError
 from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
@@ -210,8 +210,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     policy = untrusted_policy(mount)
     use = frames_used(valid, b.trusted, policy)
     q_cam, R_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
-    poses = tuple(CameraPose(R, r, float(ts)) for R, r, ts in
-                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], strict=True))
+    poses = tuple(CameraPose(R, r, float(ts), *known_motion(v, omega)) for R, r, ts, v, omega in
+                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], b.v_cam_enu_m_s[use],
+                      b.omega_enu_rad_s[use], strict=True))
     rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))
 
     step = 1.0 / frame_rate_hz if frame_source == "rate" else max_gap_s

@@ -22,7 +22,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
+from pdcov.core.pose import (
+    R_ENU_NED,
+    R_GIMBAL_CAM,
+    CameraPose,
+    FixedMount,
+    camera_motion,
+    known_motion,
+)
 from pdcov.core.rotations import R_from_quat_wxyz, quat_norm, slerp_quat_wxyz
 from pdcov.errors import ConfigError
 from pdcov.telemetry.estimator import estimator_reasons, merge_estimator
@@ -85,6 +92,30 @@ def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
     return lo, hi, w, inside, inside & (gap <= max_gap_s)
 
 
+RATE_STEP_S = 1e-3
+"""Time step (s) of the difference that gives the camera's velocity and angular rate
+(PoseTracker._rates)."""
+
+
+def _rate_bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For query times ``t`` in sorted sample times ``ts``: (lo, hi, w, rate, ok) with hi
+    the first sample at or after t and lo the one before it, w the fraction of t from lo to
+    hi, rate = 1 / (ts[hi] - ts[lo]) the fraction per second; ok False (rate 0) where there
+    is no such pair within max_gap_s (no sample before t or none after)."""
+    n = len(ts)
+    if n < 2:
+        z = np.zeros(len(t), int)
+        return z, z, np.zeros(len(t)), np.zeros(len(t)), np.zeros(len(t), bool)
+    i = ts.searchsorted(t, side="left")
+    hi = np.clip(i, 1, n - 1)
+    lo = hi - 1
+    gap = ts[hi] - ts[lo]
+    ok = (i >= 1) & (i <= n - 1) & (gap > 0) & (gap <= max_gap_s)
+    gap = np.where(ok, gap, 1.0)
+    return lo, hi, (t - ts[lo]) / gap, np.where(ok, 1.0 / gap, 0.0), ok
+
+
 def _gimbal_columns(g: GimbalSeries) -> tuple[np.ndarray, ...]:
     return (g.t_s, g.q_wxyz, g.flags, g.failure_flags)
 
@@ -97,7 +128,9 @@ class FrameBatch:
     r_cam_enu (N, 3) m, gimbal_q_wxyz (N, 4) as interpolated (NaN for a fixed mount),
     gimbal_flags (N,) (-1 for a fixed mount), interpretation (N,) str, at_limit (N,) a
     servo demand at its limit. estimator_judged (N,): an estimator status was in force (the
-    position-estimate rule could judge the frame)."""
+    position-estimate rule could judge the frame). v_cam_enu_m_s (N, 3): the camera centre's
+    velocity, ENU m/s; omega_enu_rad_s (N, 3): the camera's angular rate, ENU rad/s (both
+    the derivative of the interpolated pose, PoseTracker._rates; NaN when unknown)."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -112,6 +145,8 @@ class FrameBatch:
     untrusted_reason: np.ndarray
     at_limit: np.ndarray
     estimator_judged: np.ndarray
+    v_cam_enu_m_s: np.ndarray
+    omega_enu_rad_s: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -280,8 +315,9 @@ class PoseTracker:
         trusted = bool(b.trusted[0])
         if not trusted and untrusted_policy(self.mount) == "skip":
             return FrameResult(None, False, reason)
-        return FrameResult(CameraPose(b.R_enu_cam[0], b.r_cam_enu[0], float(t_s)), trusted,
-                           reason)
+        return FrameResult(CameraPose(b.R_enu_cam[0], b.r_cam_enu[0], float(t_s),
+                                      *known_motion(b.v_cam_enu_m_s[0], b.omega_enu_rad_s[0])),
+                           trusted, reason)
 
     def frames_at(self, t_s: np.ndarray) -> FrameBatch:
         """Poses at the frame times ``t_s`` (N,), vectorised."""
@@ -296,6 +332,66 @@ class PoseTracker:
 
         lo, hi, w, inside, gap_ok = _bracket(self._att.t_s, t, self.max_gap_s)
         check("attitude", inside, gap_ok)
+        att = (lo, hi, w)
+        lo, hi, w, inside, gap_ok = _bracket(self._pos_t, t, self.max_gap_s)
+        check("position", inside, gap_ok)
+        pos = (lo, hi, w)
+        if len(self._pos_t):
+            step = self._pos_enu[hi] - self._pos_enu[lo]
+            jump = np.linalg.norm(step, axis=1) > (
+                MAX_SPEED_MPS * (self._pos_t[hi] - self._pos_t[lo]) + POSITION_JUMP_SLACK_M)
+            reason[inside & jump & (reason == "")] = SkipReason.POSITION_JUMP.value
+        gim = (lo, hi, w)  # unused for a fixed mount
+        if isinstance(self.mount, GimbalMount):
+            lo, hi, w, inside, gap_ok = _bracket(self._gim.t_s, t, self.max_gap_s)
+            check("gimbal", inside, gap_ok)
+            gim = (lo, hi, w)
+        c = self._interpolate(n, att, pos, gim, gim[2])
+        v_cam, omega = self._rates(t, c)
+        c.update(t_s=t, skip_reason=reason, v_cam_enu_m_s=v_cam, omega_enu_rad_s=omega)
+        # The estimator's verdict, where no rule above skipped the frame (a jump stays a jump).
+        est_reason, judged = estimator_reasons(self._est, t)
+        if not self.use_estimator:
+            judged[:] = False
+        else:
+            reason[(est_reason != "") & (reason == "")] = est_reason[(est_reason != "")
+                                                                     & (reason == "")]
+        return FrameBatch(**c, estimator_judged=judged)
+
+    def _rates(self, t: np.ndarray, at_t: dict[str, np.ndarray]
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's ENU velocity (N, 3) m/s and angular rate (N, 3) rad/s at ``t``: the
+        derivative of the interpolated camera pose (``at_t``: the pose at t), a difference
+        over RATE_STEP_S of each stream's interpolation between the last sample before t
+        and the first at or after it (``_rate_bracket``, continued past the later sample
+        for a frame on it), so that the daemon, which has those two once the frame is due,
+        and evaluate, which has the whole log, give the same rates. NaN (unknown) where a
+        stream the mount needs has no such pair within max_gap_s (a frame at a stream's
+        first sample)."""
+        n = len(t)
+        h = RATE_STEP_S
+        streams = [self._att.t_s, self._pos_t, self._gim.t_s]
+        brackets = [_rate_bracket(ts, t, self.max_gap_s) for ts in streams]
+        known = brackets[0][4] & brackets[1][4]
+        if isinstance(self.mount, GimbalMount):
+            known &= brackets[2][4]
+        att, pos, gim = ((lo, hi, w + h * rate) for lo, hi, w, rate, _ok in brackets)
+        later = self._interpolate(n, att, pos, gim, brackets[2][2])
+        v_cam, omega = camera_motion(at_t["R_enu_cam"], at_t["r_cam_enu"],
+                                     later["R_enu_cam"], later["r_cam_enu"], np.full(n, h))
+        v_cam[~known] = np.nan
+        omega[~known] = np.nan
+        return v_cam, omega
+
+    def _interpolate(self, n: int, att: tuple[np.ndarray, np.ndarray, np.ndarray],
+                     pos: tuple[np.ndarray, np.ndarray, np.ndarray],
+                     gim: tuple[np.ndarray, np.ndarray, np.ndarray], gim_near_w: np.ndarray
+                     ) -> dict[str, np.ndarray]:
+        """The camera of N frames from each stream's bracket (lo, hi, w): attitude and
+        gimbal by slerp, position linearly; ``gim_near_w`` picks the nearer gimbal report
+        (its flags, and its attitude across a change of frame). Returns FrameBatch's arrays
+        of the pose, by field name."""
+        lo, hi, w = att
         q = self._att.q_ned_body_wxyz
         if len(q):
             q_body = slerp_quat_wxyz(q[lo], q[hi], w)
@@ -303,14 +399,9 @@ class PoseTracker:
             q_body = np.tile([1.0, 0, 0, 0], (n, 1))
         R_ned_body = R_from_quat_wxyz(q_body).reshape(n, 3, 3)
 
-        lo, hi, w, inside, gap_ok = _bracket(self._pos_t, t, self.max_gap_s)
-        check("position", inside, gap_ok)
+        lo, hi, w = pos
         if len(self._pos_t):
-            step = self._pos_enu[hi] - self._pos_enu[lo]
-            r_body = self._pos_enu[lo] + w[:, None] * step
-            jump = np.linalg.norm(step, axis=1) > (
-                MAX_SPEED_MPS * (self._pos_t[hi] - self._pos_t[lo]) + POSITION_JUMP_SLACK_M)
-            reason[inside & jump & (reason == "")] = SkipReason.POSITION_JUMP.value
+            r_body = self._pos_enu[lo] + w[:, None] * (self._pos_enu[hi] - self._pos_enu[lo])
         else:
             r_body = np.zeros((n, 3))
 
@@ -328,12 +419,11 @@ class PoseTracker:
             if interpretation is None:  # __init__ resolves one for every GimbalMount
                 raise AttributeError("PoseTracker.interpretation is None for a gimbal mount")
             g = self._gim
-            lo, hi, w, inside, gap_ok = _bracket(g.t_s, t, self.max_gap_s)
-            check("gimbal", inside, gap_ok)
+            lo, hi, w = gim
             R_ned_gimbal = np.repeat(np.eye(3)[None], n, axis=0)  # no samples: skipped
             interp = np.full(n, interpretation.frame, dtype=object)
             if len(g.t_s):
-                near = np.where(w < 0.5, lo, hi)
+                near = np.where(gim_near_w < 0.5, lo, hi)
                 q_near = g.q_wxyz[near]
                 norm = quat_norm(q_near)
                 flags_lo, flags_hi = g.flags[lo], g.flags[hi]
@@ -343,23 +433,19 @@ class PoseTracker:
                 q_i = np.where(same[:, None], q_i, q_near / norm[:, None])
                 # Carry the nearer report's norm so that a non-unit report is judged as sent.
                 gimbal_q = q_i * norm[:, None]
-                gimbal_flags = np.where(w < 0.5, flags_lo, flags_hi)
+                gimbal_flags = np.where(gim_near_w < 0.5, flags_lo, flags_hi)
                 failure = g.failure_flags[lo] | g.failure_flags[hi]
-                att = interpret_gimbal(gimbal_q, gimbal_flags, failure, R_ned_body,
-                                       interpretation)
-                R_ned_gimbal, trusted, untrusted = att.R_ned_gimbal, att.trusted, att.reasons
-                at_limit = att.at_limit
+                att_g = interpret_gimbal(gimbal_q, gimbal_flags, failure, R_ned_body,
+                                         interpretation)
+                R_ned_gimbal, trusted, untrusted = att_g.R_ned_gimbal, att_g.trusted, \
+                    att_g.reasons
+                at_limit = att_g.at_limit
                 if interpretation.frame == "flags":
                     interp = np.where(earth_frame_mask(gimbal_flags), "flags:earth",
                                       "flags:vehicle").astype(object)
-        # The estimator's verdict, where no rule above skipped the frame (a jump stays a jump).
-        est_reason, judged = estimator_reasons(self._est, t)
-        if not self.use_estimator:
-            judged[:] = False
-        else:
-            reason[(est_reason != "") & (reason == "")] = est_reason[(est_reason != "")
-                                                                     & (reason == "")]
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
-        return FrameBatch(t, reason, R_ned_body, r_body, R_enu_cam, r_cam, gimbal_q,
-                          gimbal_flags, interp, trusted, untrusted, at_limit, judged)
+        return {"R_ned_body": R_ned_body, "r_body_enu": r_body, "R_enu_cam": R_enu_cam,
+                "r_cam_enu": r_cam, "gimbal_q_wxyz": gimbal_q, "gimbal_flags": gimbal_flags,
+                "interpretation": interp, "trusted": trusted, "untrusted_reason": untrusted,
+                "at_limit": at_limit}
