@@ -106,7 +106,7 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
             grid = CoverageGrid.load_npz(path, new_grid.camera, new_grid.detector,
                                          max_range_m=new_grid.max_range_m,
                                          min_revisit_s=new_grid.min_revisit_s,
-                                         terrain=new_grid.terrain)
+                                         terrain=new_grid.terrain, looks=new_grid.looks)
             if grid.geometry != new_grid.geometry or not (grid.mask == new_grid.mask).all():
                 why = "its grid geometry differs from this mission's"
             else:
