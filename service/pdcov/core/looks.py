@@ -84,14 +84,16 @@ class ViewpointBins:
                ) -> np.ndarray:
         """Viewpoint bin (int64, 0..n_bins - 1) of the directions (ENU metres, from the cell
         to the camera): elevation bin e * azimuth_bins + azimuth bin, the cap last."""
-        horizontal = np.hypot(d_east_m, d_north_m)
-        elevation = np.arctan2(d_up_m, horizontal)
-        e = np.clip((elevation * (self.elevation_bins / (0.5 * math.pi))).astype(np.int64),
-                    0, self.elevation_bins - 1)
-        azimuth = np.arctan2(d_east_m, d_north_m) % (2.0 * math.pi)
-        a = (azimuth * (self.azimuth_bins / (2.0 * math.pi))).astype(np.int64)
-        a = np.minimum(a, self.azimuth_bins - 1)
-        return np.where(e == self.elevation_bins - 1, self.n_bins - 1,
+        # Elevation bins by the tangent (no arctan): tan(elevation) = up / horizontal.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tan_el = d_up_m / np.sqrt(d_east_m * d_east_m + d_north_m * d_north_m)
+        edges = np.tan(np.arange(1, self.elevation_bins) * (0.5 * math.pi
+                                                            / self.elevation_bins))
+        e = np.searchsorted(edges, tan_el, side="right")
+        azimuth = np.arctan2(d_east_m, d_north_m)  # -pi..pi, from north through east
+        a = np.floor(azimuth * (self.azimuth_bins / (2.0 * math.pi))).astype(np.int64)
+        a %= self.azimuth_bins
+        return np.where(e >= self.elevation_bins - 1, self.n_bins - 1,
                         e * self.azimuth_bins + a)
 
 
@@ -171,11 +173,14 @@ def log_miss_of_nodes(log_miss_nodes: np.ndarray) -> np.ndarray:
     """log P_miss (float64, <= 0) from log-misses at the ``QUADRATURE`` nodes (..., J):
     log sum_j w_j exp(L_j), shifted by the largest L_j (row by row, so a row's value does
     not depend on the others)."""
-    nodes = np.asarray(log_miss_nodes, dtype=np.float64)
+    nodes = np.array(log_miss_nodes, dtype=np.float64)  # a copy, worked on in place
     top = nodes.max(axis=-1, keepdims=True)
-    top = np.where(np.isfinite(top), top, 0.0)  # all -inf: a certain detection
+    top[~np.isfinite(top)] = 0.0  # all -inf: a certain detection
+    nodes -= top
+    np.exp(nodes, out=nodes)
+    nodes *= QUADRATURE.weights
     with np.errstate(divide="ignore"):
-        out = np.log((np.exp(nodes - top) * QUADRATURE.weights).sum(axis=-1)) + top[..., 0]
+        out = np.log(nodes.sum(axis=-1)) + top[..., 0]
     result: np.ndarray = np.minimum(out, 0.0)
     return result
 
@@ -223,7 +228,7 @@ class CorrelatedLooks:
         sum_i n_i log(1 - Q_i(q_j))."""
         r0, r1, c0, c1 = window
         counts = self.counts[r0:r1, c0:c1].astype(np.float64)
-        out: np.ndarray = counts @ self.log1m_nodes
+        out: np.ndarray = np.einsum("rci,ij->rcj", counts, self.log1m_nodes)
         return out
 
     def log_miss_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -235,10 +240,8 @@ class CorrelatedLooks:
         seen = counts.any(axis=1)
         out = np.zeros(len(rows))
         if seen.any():
-            c = counts[seen].astype(np.float64)
-            nodes = c[:, :1] * self.log1m_nodes[0]
-            for i in range(1, self.n_bins):
-                nodes += c[:, i:i + 1] * self.log1m_nodes[i]
+            # einsum's own loop (not BLAS): each cell's sum over bins in one fixed order.
+            nodes = np.einsum("ki,ij->kj", counts[seen].astype(np.float64), self.log1m_nodes)
             out[seen] = log_miss_of_nodes(nodes)
         return out
 
