@@ -104,6 +104,18 @@ class LooksConfig:
     rule: LooksRule = LooksRule.INDEPENDENT
     viewpoint: ViewpointBins = ViewpointBins()
 
+    @property
+    def summary(self) -> str:
+        """One line for a run's summary: the rule and what it assumes."""
+        if self.rule is LooksRule.CORRELATED:
+            return ("correlated (the detector model's per-person correlation; one latent "
+                    "detectability per person across sizes)")
+        if self.rule is LooksRule.VIEWPOINT:
+            v = self.viewpoint
+            return (f"viewpoint (a rule: the best look per viewpoint bin, {v.azimuth_bins} "
+                    f"azimuth x {v.elevation_bins} elevation bins)")
+        return "independent (the paper: every counted frame an independent trial)"
+
 
 # -- the latent detectability ---------------------------------------------------------------
 
