@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import integrate, stats
 from scipy.special import betaln
 
@@ -226,3 +228,18 @@ def test_config_chooses_the_rule_and_names_bad_values():
                                           "detector model's looks section"):
         mission_from_dict(dict(base, detector="illustrative", coverage={"looks": "correlated"}),
                           source="m.yaml")
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(6, 40)),
+                min_size=1, max_size=8),
+       st.floats(0.05, 0.95), st.floats(0.0, 0.9))
+def test_correlated_pd_stays_in_range_and_never_decreases(frames, mean, rho):
+    g = grid(model([mean, 0.5 * mean], [rho, 0.5 * rho], edges=[1, 30, 2000]))
+    before = g.pd
+    for xyz in frames:
+        g.update(nadir(xyz))
+        now = g.pd
+        assert ((now >= 0) & (now <= 1)).all()
+        assert (now >= before - 1e-7).all()
+        before = now

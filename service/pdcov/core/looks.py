@@ -119,6 +119,8 @@ class LooksConfig:
 
 # -- the latent detectability ---------------------------------------------------------------
 
+_MIN_RHO = 1e-16  # below it the Beta's shapes exceed 1e16: the quantiles are the mean
+
 def beta_shape(mean: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Beta (a, b) of the given mean and intra-person correlation rho = 1 / (a + b + 1)
     (0 < mean < 1, 0 < rho < 1)."""
@@ -130,11 +132,12 @@ def beta_shape(mean: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def detectability_quantile(mean: np.ndarray, rho: np.ndarray, q: np.ndarray) -> np.ndarray:
     """A person's detectability at latent quantile ``q`` in [0, 1]: the q-quantile of
     Beta(a, b) with this ``mean`` and correlation ``rho`` (broadcast together). rho = 0, or
-    a mean of 0 or 1, gives the mean for every q."""
+    a mean of 0 or 1, gives the mean for every q; so does rho below 1e-16, where the
+    quantiles lie within 1e-8 of the mean (and scipy's inverse fails for such shapes)."""
     mean, rho, q = np.broadcast_arrays(np.asarray(mean, float), np.asarray(rho, float),
                                        np.asarray(q, float))
     out = mean.copy()
-    beta = (rho > 0) & (mean > 0) & (mean < 1)
+    beta = (rho > _MIN_RHO) & (mean > 0) & (mean < 1)
     if beta.any():
         a, b = beta_shape(mean[beta], rho[beta])
         out[beta] = betaincinv(a, b, q[beta])
