@@ -321,15 +321,17 @@ class CoverageGrid:
         where not counted) in the looks state."""
         looks = self._looks
         if isinstance(looks, CorrelatedLooks):
-            looks.add(window, idx)
+            counted = looks.add(window, idx)
         elif isinstance(looks, ViewpointLooks):
             r0, r1, c0, c1 = window
             g = self.geometry
             x = g.x0_m + g.cell_size_m * (np.arange(c0, c1) + 0.5)
             y = g.y0_m + g.cell_size_m * (np.arange(r0, r1) + 0.5)
             z = 0.0 if self._relief is None else self._relief.centre_z_m(r0, r1, c0, c1)
-            looks.add(window, idx, x, y, z, pose.r_cam_enu)
-        self._mark_dirty(window, idx > 0)
+            counted = looks.add(window, idx, x, y, z, pose.r_cam_enu)
+        else:
+            return
+        self._mark_dirty(window, counted)
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:

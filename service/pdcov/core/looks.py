@@ -226,17 +226,21 @@ class CorrelatedLooks:
         with np.errstate(divide="ignore"):
             self.log1m_nodes = np.maximum(np.log1p(-p), _LOG_MISS_FLOOR)
 
-    def add(self, window: Window, idx: np.ndarray) -> None:
+    def add(self, window: Window, idx: np.ndarray) -> np.ndarray:
         """Count one look in ``window`` per cell whose padded bin index ``idx`` (the
         detector table's index: 0 below the bins and for cells not counted, N + 1 above
-        them) is a bin 1..N."""
+        them) is a bin 1..N; returns those cells (bool, the window's shape)."""
         r0, _, c0, _ = window
-        rows, cols = np.nonzero((idx > 0) & (idx <= self.n_bins))
+        # idx - 1 in 0..N-1, as unsigned: one comparison (0 and N + 1 fall outside).
+        counted = (idx - 1).view(np.uint64) < self.n_bins if idx.dtype == np.int64 \
+            else (idx > 0) & (idx <= self.n_bins)
+        rows, cols = np.nonzero(counted)
         flat = self.counts.reshape(-1)
         n_cols = self.counts.shape[1]
         # One look per cell: the targets are distinct, so a fancy += counts each once.
         flat[((rows + r0) * n_cols + (cols + c0)) * self.n_bins
              + (idx[rows, cols] - 1)] += np.uint32(1)
+        return counted
 
     def log_miss_nodes(self, window: Window) -> np.ndarray:
         """Per cell of ``window``, log P_miss given q at each node: (rows, cols, J) float64,
@@ -287,14 +291,16 @@ class ViewpointLooks:
             self.log1m_by_rank[1:] = np.log1p(-pd[ranked])
 
     def add(self, window: Window, idx: np.ndarray, x_m: np.ndarray, y_m: np.ndarray,
-            z_m: np.ndarray | float, r_cam_enu: np.ndarray) -> None:
+            z_m: np.ndarray | float, r_cam_enu: np.ndarray) -> np.ndarray:
         """Keep, per cell of ``window`` and viewpoint bin, the better of its best look and
         this one (padded bin index ``idx``, 0 for cells not counted); x_m (cols,), y_m
-        (rows,) and z_m (rows, cols or scalar): the cells' centres (ENU m)."""
+        (rows,) and z_m (rows, cols or scalar): the cells' centres (ENU m). Returns the
+        cells with a look of P_D > 0 (bool, the window's shape)."""
         rank = self.rank.take(idx)
-        rows, cols = np.nonzero(rank)
+        counted = rank != 0
+        rows, cols = np.nonzero(counted)
         if len(rows) == 0:
-            return
+            return counted
         z = z_m if np.ndim(z_m) == 0 else np.asarray(z_m)[rows, cols]
         v = self.bins.bin_of(r_cam_enu[0] - x_m[cols], r_cam_enu[1] - y_m[rows],
                              r_cam_enu[2] - z)
@@ -302,6 +308,7 @@ class ViewpointLooks:
         flat = self.best.reshape(-1)
         at = ((rows + r0) * self.best.shape[1] + (cols + c0)) * self.bins.n_bins + v
         flat[at] = np.maximum(flat[at], rank[rows, cols])
+        return counted
 
     def log_miss_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """log P_miss (float64, (k,)) of the cells (rows, cols)."""
