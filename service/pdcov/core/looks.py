@@ -119,6 +119,7 @@ class LooksConfig:
 
 # -- the latent detectability ---------------------------------------------------------------
 
+_CHUNK_CELLS = 2048  # cells per block of the quadrature on read
 _MIN_RHO = 1e-16  # below it the Beta's shapes exceed 1e16: the quantiles are the mean
 
 def beta_shape(mean: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -258,10 +259,13 @@ class CorrelatedLooks:
         counts = self.counts[rows, cols]
         seen = counts.any(axis=1)
         out = np.zeros(len(rows))
-        if seen.any():
-            # einsum's own loop (not BLAS): each cell's sum over bins in one fixed order.
-            nodes = np.einsum("ki,ij->kj", counts[seen].astype(np.float64), self.log1m_nodes)
-            out[seen] = log_miss_of_nodes(nodes)
+        at = np.flatnonzero(seen)
+        # In chunks, so the (cells, J) temporaries stay in cache (and memory small); einsum's
+        # own loop (not BLAS) sums each cell's bins in one fixed order.
+        for start in range(0, len(at), _CHUNK_CELLS):
+            k = at[start:start + _CHUNK_CELLS]
+            nodes = np.einsum("ki,ij->kj", counts[k].astype(np.float64), self.log1m_nodes)
+            out[k] = log_miss_of_nodes(nodes)
         return out
 
     def merge(self, other: CorrelatedLooks) -> None:
