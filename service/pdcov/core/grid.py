@@ -192,6 +192,11 @@ class CoverageGrid:
             self.refresh()
         return self._log_miss_d
 
+    @property
+    def looks_state(self) -> CorrelatedLooks | ViewpointLooks | None:
+        """The per-cell looks state (``core/looks.py``; None with independent looks)."""
+        return self._looks
+
     def refresh(self) -> None:
         """Derive ``log_miss_d`` of the cells whose looks changed since the last read."""
         box, looks, dirty = self._dirty_box, self._looks, self._dirty
