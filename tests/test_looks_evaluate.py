@@ -3,16 +3,8 @@ saved beside the derived P_D, the snapshot reloads), and its summary names the r
 
 from __future__ import annotations
 
+import evaluate_inputs as inputs
 import numpy as np
-from evaluate_inputs import (
-    expected_poses,
-    known_flight,
-    load_grid,
-    mission_doc,
-    run,
-    write_config,
-    write_pose_csv,
-)
 
 from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid
@@ -24,11 +16,11 @@ DETECTOR = {"version": 2, "input_size_px": None, "bin_edges_px": [4, 16, 40, 100
 
 
 def test_evaluate_with_correlated_looks(tmp_path, capsys):
-    config = write_config(tmp_path, mission_doc(detector=DETECTOR,
+    config = inputs.write_config(tmp_path, inputs.mission_doc(detector=DETECTOR,
                                                 coverage={"looks": "correlated"}))
-    poses = expected_poses(known_flight(), None)
-    csv = write_pose_csv(tmp_path / "poses.csv", poses)
-    assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
+    poses = inputs.expected_poses(inputs.known_flight(), None)
+    csv = inputs.write_pose_csv(tmp_path / "poses.csv", poses)
+    assert inputs.run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
                str(tmp_path / "run"), "--no-progress") == 0
     assert "looks: correlated (the detector model's per-person correlation" in \
         capsys.readouterr().out
@@ -38,7 +30,7 @@ def test_evaluate_with_correlated_looks(tmp_path, capsys):
     for p in poses:
         grid.update(p)
         independent.update(p)
-    out = load_grid(tmp_path / "run")
+    out = inputs.load_grid(tmp_path / "run")
     assert str(out["looks"]) == "correlated" and int(out["version"]) == 3
     state = grid.looks_state
     assert isinstance(state, CorrelatedLooks)
