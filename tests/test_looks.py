@@ -243,3 +243,39 @@ def test_correlated_pd_stays_in_range_and_never_decreases(frames, mean, rho):
         assert ((now >= 0) & (now <= 1)).all()
         assert (now >= before - 1e-7).all()
         before = now
+
+
+@pytest.mark.parametrize("rule", [LooksRule.CORRELATED, LooksRule.VIEWPOINT])
+def test_daemon_checkpoint_resumes_the_looks_and_a_changed_rule_starts_fresh(tmp_path, rule):
+    from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
+    from pdcov.service.checkpoint_meta import CheckpointMeta
+
+    det = model(*zip(of_ab(0.5, 2.0), of_ab(2.0, 1.0), strict=True), edges=[1, 30, 2000])
+    looks = LooksConfig(rule, ViewpointBins(4, 3))
+    flown = grid(det, half_m=12, looks=looks)
+    poses = [nadir((0.5 * k - 5, 0.3 * k - 3, 6.0 + 0.7 * k)) for k in range(25)]
+    for p in poses[:15]:
+        flown.update(p)
+    state = tmp_path / "state"
+    state.mkdir()
+    write_checkpoint(state / CHECKPOINT_NAME, flown, CheckpointMeta("h", "uav1"))
+    r = resume(state, "h", grid(det, half_m=12, looks=looks))
+    assert r.grid is not None, r.message
+    # Resumed, then the rest of the flight: the grid of the whole flight, bit for bit,
+    # and two halves merged in either order give it too.
+    whole = grid(det, half_m=12, looks=looks)
+    later = grid(det, half_m=12, looks=looks)
+    for p in poses:
+        whole.update(p)
+    for p in poses[15:]:
+        r.grid.update(p)
+        later.update(p)
+    np.testing.assert_array_equal(r.grid.pd, whole.pd)
+    later.merge(flown)
+    np.testing.assert_array_equal(later.pd, whole.pd)
+    assert (whole.pd > 0).sum() > 100
+    # Another rule: the checkpoint cannot be read as it, and is set aside.
+    other = grid(det, half_m=12, looks=None)
+    r = resume(state, "h", other)
+    assert r.grid is None and r.set_aside is not None
+    assert f"coverage.looks: {rule}, the mission says independent" in r.message
