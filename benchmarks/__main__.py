@@ -6,10 +6,13 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from pdcov.core.looks import LooksConfig, LooksRule
 
 from .blur import blur_rows
 from .measure import (
@@ -90,6 +93,7 @@ def scenario_rows(sc: Scenario, sizes: Sizes, smoke: bool) -> list[Row]:
         Row(name, "grid memory", f"{per_cell:.0f} B/cell", "<= 24 B/cell", per_cell <= 24),
         Row(name, "peak memory: camera, grid, updates", f"{peak / 2**20:,.0f} MB (tracemalloc)"),
     ]
+    rows += looks_rows(sc, timed, t.mean_s)
     stride = max(1, round(sc.rate_hz * 0.5))
     rays = pixel_rays(sc.camera)
     for which, n, need, tol, share in (("R1", sizes.r1_frames, 20, R1_TOLERANCE_PD,
@@ -113,6 +117,33 @@ def scenario_rows(sc: Scenario, sizes: Sizes, smoke: bool) -> list[Row]:
                         f"{agree.looks_differ} cells seen a different number of times{note}",
                         f">= {share:.1%} within {tol:g}",
                         ok if (is_s1 or which == "R2") else None))
+    return rows
+
+
+LOOKS_COST_MAX = 1.5  # per-frame update with correlated or viewpoint looks over independent
+
+
+def looks_rows(sc: Scenario, poses: list, independent_s: float) -> list[Row]:
+    """coverage.looks correlated and viewpoint beside independent (``independent_s``, the
+    mean update of the same ``poses`` just timed): per-frame update, and the read that
+    derives P_D (the first ``pd`` after the flight: every cell seen)."""
+    rows = []
+    for rule in (LooksRule.CORRELATED, LooksRule.VIEWPOINT):
+        grid = sc.new_grid(LooksConfig(rule))
+        t = time_updates(grid, poses)
+        t0 = time.perf_counter()
+        grid.refresh()
+        read_s = time.perf_counter() - t0
+        seen = int((grid.n_obs > 0).sum())
+        ratio = t.mean_s / independent_s
+        rows += [
+            Row(sc.name, f"update, looks {rule} / independent, per frame",
+                f"{ratio:.2f}x ({t.mean_s * 1e3:.3f} vs {independent_s * 1e3:.3f} ms)",
+                f"<= {LOOKS_COST_MAX}x", ratio <= LOOKS_COST_MAX),
+            Row(sc.name, f"read P_D, looks {rule}",
+                f"{read_s * 1e3:,.0f} ms for {seen:,} seen cells "
+                f"({read_s / max(seen, 1) * 1e9:,.0f} ns/cell)"),
+        ]
     return rows
 
 

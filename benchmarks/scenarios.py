@@ -7,6 +7,7 @@ benchmark flies what a user would plan.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -14,9 +15,10 @@ from typing import Any
 from shapely.geometry import box
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.detector import DetectorModel
+from pdcov.core.detector import DetectorModel, LooksModel
 from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.looks import LooksConfig
 from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.planning.patterns import lawnmower, spiral
 from pdcov.planning.trajectory import Flight, camera_poses, fly
@@ -26,6 +28,7 @@ from .terrain_scene import Valley, ValleyDem
 MILD_PLUMB_BOB = (-0.05, 0.01, 0.0005, -0.0005, 0.0)
 FISHEYE_COEFFS = (0.01, -0.005, 0.001, 0.0)
 ORIGIN_LAT_DEG, ORIGIN_LON_DEG = 39.35, -76.33
+LOOKS_CORRELATION = 0.3  # rho of every bin in the correlated-looks rows
 
 
 @dataclass(frozen=True)
@@ -66,10 +69,15 @@ class Scenario:
         s = self.side_m
         return Domain.from_enu([[0, 0], [s, 0], [s, s], [0, s]])
 
-    def new_grid(self) -> CoverageGrid:
+    def new_grid(self, looks: LooksConfig | None = None) -> CoverageGrid:
+        """An empty grid of the illustrative detector; with ``looks`` (correlated), the
+        model with a correlation of 0.3 in every bin."""
         g = self.domain.grid_geometry(self.cell_m)
-        return CoverageGrid(g, self.domain.free_mask(g), self.camera,
-                            DetectorModel.illustrative())
+        detector = DetectorModel.illustrative()
+        if looks is not None:
+            detector = dataclasses.replace(
+                detector, looks=LooksModel((LOOKS_CORRELATION,) * detector.n_bins))
+        return CoverageGrid(g, self.domain.free_mask(g), self.camera, detector, looks=looks)
 
     def flight(self, rate_hz: float) -> Flight:
         """The vehicle's states at ``rate_hz`` while flying the plan (all of it)."""

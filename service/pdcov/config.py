@@ -23,6 +23,7 @@ from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.geolocate import Geolocation
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.looks import LooksConfig, LooksRule, ViewpointBins
 from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
@@ -119,19 +120,50 @@ class FixedMountSection:
 
 @dataclass(frozen=True, slots=True)
 class CoverageSection:
-    """``coverage``: CoverageGrid's max_range_m and min_revisit_s (None: its defaults), and
+    """``coverage``: CoverageGrid's max_range_m and min_revisit_s (None: its defaults),
     min_height_m: frames with the camera lower than this above the ground are not
-    evaluated."""
+    evaluated, looks: how one person's looks combine (core/looks.py) and viewpoint: the
+    bins of ``looks: viewpoint``."""
 
     max_range_m: float | None = None
     min_revisit_s: float | None = None
     min_height_m: float = 1.0
+    looks: LooksRule = LooksRule.INDEPENDENT
+    viewpoint: ViewpointBins | None = None
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> CoverageSection:
+        rule = doc.get("looks", str(LooksRule.INDEPENDENT))
+        if rule not in tuple(str(r) for r in LooksRule):
+            raise ConfigError(f"{where(src, 'coverage.looks')}: expected one of "
+                              f"{', '.join(str(r) for r in LooksRule)}, got {rule!r}")
+        view = doc.get("viewpoint")
+        bins = None
+        if view is not None:
+            if rule != LooksRule.VIEWPOINT:
+                raise ConfigError(f"{where(src, 'coverage.viewpoint')}: only used with "
+                                  f"coverage.looks: viewpoint (it says {rule})")
+            if not isinstance(view, dict):
+                raise ConfigError(f"{where(src, 'coverage.viewpoint')}: expected a mapping "
+                                  f"of azimuth_bins and elevation_bins, got {view!r}")
+            try:
+                bins = ViewpointBins(**view)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"{where(src, 'coverage.viewpoint')}: {exc}") from None
         return cls(_opt_number(doc, "max_range_m", src, "coverage"),
                    _opt_number(doc, "min_revisit_s", src, "coverage"),
-                   _number(doc, "min_height_m", src, "coverage", default=1.0))
+                   _number(doc, "min_height_m", src, "coverage", default=1.0),
+                   LooksRule(rule), bins)
+
+    def looks_config(self, detector: DetectorModel, src: str | None) -> LooksConfig:
+        """The grid's looks; ``correlated`` needs the detector model's looks section."""
+        if self.looks is LooksRule.CORRELATED and detector.looks is None:
+            raise ConfigError(
+                f"{where(src, 'coverage.looks')}: correlated needs the detector model's "
+                f"looks section (looks.correlation per size bin, written by pdcov detector "
+                f"fit from tracked sequences); {detector.source or 'the detector model'} has "
+                "none. Use looks: independent or viewpoint, or fit the model on tracks")
+        return LooksConfig(self.looks, self.viewpoint or ViewpointBins())
 
 
 @dataclass(frozen=True, slots=True)
@@ -331,7 +363,7 @@ class Mission:
     corners (ENU), dem: the DEM it came from (heights MSL at any lat/lon near the domain),
     both None without a ``terrain`` section; terrain_check_margin_m: terrain.check_margin_m.
     warnings: what loading found that the commands must show (a DEM that disagrees with
-    origin.ground_alt_msl_m). max_range_m / min_revisit_s: CoverageGrid
+    origin.ground_alt_msl_m). max_range_m / min_revisit_s / looks: CoverageGrid
     options (None = its defaults). min_height_m: frames with the camera lower than this above
     the ground (on the ground, taking off) are not evaluated. frame_source: 'rate' or
     'capture' ('rate' when log.frame_source is not set); frame_source_set: whether the
@@ -359,6 +391,7 @@ class Mission:
     max_range_m: float | None = None
     min_revisit_s: float | None = None
     min_height_m: float = 1.0
+    looks: LooksConfig = LooksConfig()
     frame_source: str = "rate"
     frame_source_set: bool = False
     max_gap_s: float = 1.0
@@ -397,7 +430,8 @@ class Mission:
         g = self.domain.grid_geometry(self.cell_size_m)
         return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=self.exposure_s)
+                            terrain=self.terrain, exposure_s=self.exposure_s,
+                            looks=self.looks)
 
 
 def load_mission(path: str | Path, sections: Mapping[str, Section] | None = None) -> Mission:
@@ -485,7 +519,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
         detector=detector, exposure_s=exposure, thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
-        min_height_m=cov.min_height_m,
+        min_height_m=cov.min_height_m, looks=cov.looks_config(detector, src),
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,

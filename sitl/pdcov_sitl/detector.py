@@ -11,7 +11,11 @@ At each camera frame, given the true camera pose:
   the terrain, or the flat ground) are projected with ``CameraModel.project`` and the size
   is the square root of the area of that quadrilateral inside the picture, scaled to
   detector-input pixels (``DetectorModel.image_to_input_scale``), as the detector model
-  bins sizes. The person is detected with P_D(size).
+  bins sizes. The person is detected with P_D(size); with a model whose ``looks`` section
+  gives the per-bin correlation, each person draws one latent quantile q ~ U(0, 1) and is
+  detected with their own detectability ``core.looks.detectability_quantile`` (the Beta
+  quantile of the bin's mean and correlation at q, the rule ``coverage.looks: correlated``
+  integrates over): a person hard to see stays hard to see.
 * **False alarms.** Each free cell the grid observes gives a false alarm with its P_FA(size)
   (the model's own quantity, so the grid's ``observe`` gives the cells and their sizes),
   placed uniformly inside the cell.
@@ -42,6 +46,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.looks import detectability_quantile
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
 
@@ -111,6 +116,13 @@ class SimulatedDetector:
         n = len(targets)
         self._person_last_s = np.full(n, -np.inf)
         self._person_found = np.zeros(n, dtype=bool)
+        looks = self.detector.looks
+        # Each person's latent quantile, from its own stream (the other draws stay as they
+        # were without a looks section); and the correlation per padded bin index.
+        self.person_q = (None if looks is None
+                         else np.random.default_rng([seed, 0x1A7E]).random(n))
+        self._rho = (None if looks is None
+                     else np.concatenate(([0.0], looks.correlation, [0.0])))
         shape = grid.geometry.shape
         self._fa_on = np.zeros(shape, dtype=bool)
         self._fa_enu_m = np.zeros((*shape, 3))
@@ -146,9 +158,18 @@ class SimulatedDetector:
             size[k] = np.where(ok, np.sqrt(area) * self.scale, np.nan)
         return in_view, size
 
+    def person_p_detect(self, size_px: np.ndarray) -> np.ndarray:
+        """Per person, their P_D at this apparent size (detector-input px; NaN: 0): the
+        model's, or with its looks section their own detectability at their latent q."""
+        p_d, _ = self.detector.lookup(size_px)
+        if self.person_q is None or self._rho is None:
+            return p_d
+        rho = self._rho[self.detector.bin_index(size_px)]
+        return detectability_quantile(p_d, rho, self.person_q)
+
     def _people(self, pose: CameraPose, t_s: float) -> list[SimulatedDetection]:
         in_view, size = self.person_sizes_px(pose)
-        p_d, _ = self.detector.lookup(size)
+        p_d = self.person_p_detect(size)
         if self.interval_s is None:
             found = in_view & (self.rng.random(len(size)) < p_d)
         else:

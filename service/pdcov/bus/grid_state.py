@@ -25,7 +25,7 @@ import numpy as np
 
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import SNAPSHOT_VERSION, CoverageGrid
+from pdcov.core.grid import READABLE_SNAPSHOT_VERSIONS, CoverageGrid
 from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 
@@ -119,9 +119,9 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
         raise bad(f"{len(data)} bytes, more than {MAX_SNAPSHOT_BYTES}", Refusal.TOO_LARGE)
     arrays = _read_arrays(data, max_cells, bad)
     version = _scalar(arrays, "version", "iu", bad)
-    if version not in (1, SNAPSHOT_VERSION):
-        raise bad(f"snapshot version {version:g}, expected 1 or {SNAPSHOT_VERSION}",
-                  Refusal.MALFORMED)
+    if version not in READABLE_SNAPSHOT_VERSIONS:
+        raise bad(f"snapshot version {version:g}, expected "
+                  f"{', '.join(map(str, READABLE_SNAPSHOT_VERSIONS))}", Refusal.MALFORMED)
     mask = arrays["mask"]
     if mask.dtype != np.bool_:
         raise bad(f"mask: expected a 2-D bool array, got {mask.dtype} {mask.shape}")

@@ -130,6 +130,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             lines.append(terrain_check.summary_line())
             if terrain_check.mismatches:
                 log_warnings += (terrain_check.summary_line(),)
+    lines.append(f"looks: {mission.looks.summary}")
     _check_near_origin(poses, args.poses or args.log, mission.source)
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)

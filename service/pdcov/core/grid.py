@@ -22,6 +22,12 @@ them, or for a pose without a known velocity and angular rate, by size only.
 
 Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
 for it, from never in view to seen at a size the detector model covers.
+
+How one person's looks combine is ``looks`` (``core/looks.py``): independent (the paper, the
+log-miss sums above), correlated (per cell the counts of its looks in each size bin, P_D
+computed from them when read) or viewpoint (per cell and viewpoint bin the best look). With
+the last two ``log_miss_d`` is derived from that state when read, only where frames changed
+it since (``refresh``); P_FA is the independent sum under every rule.
 """
 
 from __future__ import annotations
@@ -41,14 +47,21 @@ from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_rings_enu
+from pdcov.core.looks import (
+    QUADRATURE,
+    CorrelatedLooks,
+    LooksConfig,
+    LooksRule,
+    ViewpointLooks,
+)
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import BLOCK, TerrainSurface
 from pdcov.errors import InputFileError
 from pdcov.npz_file import read_npz
 
-SNAPSHOT_VERSION = 2  # 2: the revisit clock (last_obs_s) in float64; 1: float32
-_READABLE_VERSIONS = (1, 2)
+SNAPSHOT_VERSION = 3  # 3: the looks state; 2: the revisit clock in float64; 1: float32
+READABLE_SNAPSHOT_VERSIONS = (1, 2, 3)
 # Frame times closer than this count as equal in the revisit test: decimal times read from a
 # file (0.1 s steps, or epoch times near 1.7e9 s with 2.4e-7 s float64 spacing) differ from
 # their true differences by rounding well below it, so the same poses give the same grid
@@ -110,13 +123,17 @@ class CoverageGrid:
     must come in time order (``update`` refuses one earlier than the latest); times are kept
     in float64 seconds (any clock: boot time or Unix epoch give the same grid), and two times
     within 1 microsecond count as equal.
+
+    looks: how one person's looks combine (``core/looks.py``; None: independent, the paper).
+    ``min_revisit_s`` decides which looks count under every rule.
     """
 
     def __init__(self, geometry: GridGeometry, mask: np.ndarray, camera: CameraModel,
                  detector: DetectorModel, *, max_range_m: float | None = None,
                  min_revisit_s: float | None = None,
                  terrain: TerrainSurface | None = None,
-                 exposure_s: float | None = None) -> None:
+                 exposure_s: float | None = None,
+                 looks: LooksConfig | None = None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != geometry.shape:
             raise ValueError(f"mask shape {mask.shape} != grid shape {geometry.shape}")
@@ -149,7 +166,13 @@ class CoverageGrid:
         self.exposure_s = exposure_s
         self.blur_effect = blur_effect(exposure_s, detector)
         self.frames_blurred = 0  # frames whose P_D took their blur into account
-        self.log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
+        self._log_miss_d = np.zeros(geometry.shape, dtype=np.float32)
+        self.looks = LooksConfig() if looks is None else looks
+        self._looks = _looks_state(self.looks, geometry.shape, detector)
+        # Cells whose looks changed since log_miss_d was last derived, and their bounding
+        # window (None: none); only with a looks state.
+        self._dirty = np.zeros(geometry.shape, dtype=bool) if self._looks else None
+        self._dirty_box: tuple[int, int, int, int] | None = None
         self.log_miss_fa = np.zeros(geometry.shape, dtype=np.float32)
         self.n_obs = np.zeros(geometry.shape, dtype=np.int32)
         self.limiting = np.zeros(geometry.shape, dtype=np.uint8)  # LimitingFactor per cell
@@ -177,6 +200,61 @@ class CoverageGrid:
         self._seen_code[-1] = LimitingFactor.TOO_LARGE
 
     # -- results ----------------------------------------------------------------------------
+
+    @property
+    def log_miss_d(self) -> np.ndarray:
+        """log(1 - P_D) per cell (float32, <= 0): the running sum with independent looks,
+        else derived from the looks state (``refresh`` first). The same array every time:
+        a holder of it sees it change in place."""
+        if self._dirty_box is not None:
+            self.refresh()
+        return self._log_miss_d
+
+    @property
+    def looks_state(self) -> CorrelatedLooks | ViewpointLooks | None:
+        """The per-cell looks state (``core/looks.py``; None with independent looks)."""
+        return self._looks
+
+    def refresh(self) -> None:
+        """Derive ``log_miss_d`` of the cells whose looks changed since the last read."""
+        box, looks, dirty = self._dirty_box, self._looks, self._dirty
+        if box is None or looks is None or dirty is None:
+            return
+        r0, r1, c0, c1 = box
+        rows, cols = np.nonzero(dirty[r0:r1, c0:c1])
+        rows += r0
+        cols += c0
+        self._log_miss_d[rows, cols] = looks.log_miss_at(rows, cols)
+        dirty[r0:r1, c0:c1] = False
+        self._dirty_box = None
+
+    def log_miss_nodes(self, window: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Per cell of ``window`` (r0, r1, c0, c1; None: the whole grid), log P_miss given the
+        person's latent quantile at each ``looks.QUADRATURE`` node: (rows, cols, J) float64.
+        For grids of different cameras or detectors seeing the same person: sum theirs and
+        take ``looks.pd_of_node_log_miss``. Independent and viewpoint grids do not depend
+        on the latent: their log-miss at every node."""
+        r0, r1, c0, c1 = window or (0, self.geometry.n_rows, 0, self.geometry.n_cols)
+        if isinstance(self._looks, CorrelatedLooks):
+            return self._looks.log_miss_nodes((r0, r1, c0, c1))
+        flat = self.log_miss_d[r0:r1, c0:c1].astype(np.float64)
+        return np.repeat(flat[..., None], len(QUADRATURE.q), axis=2)
+
+    def _mark_dirty(self, window: tuple[int, int, int, int],
+                    cells: np.ndarray | None = None) -> None:
+        """The looks of ``cells`` (bool, the window's shape; None: all) of ``window``
+        changed."""
+        r0, r1, c0, c1 = window
+        if self._dirty is None:
+            raise TypeError("only a grid with a looks state has cells to refresh")
+        dirty = self._dirty[r0:r1, c0:c1]
+        if cells is None:
+            dirty[:] = True
+        else:
+            dirty |= cells
+        box = self._dirty_box
+        self._dirty_box = window if box is None else (
+            min(box[0], r0), max(box[1], r1), min(box[2], c0), max(box[3], c1))
 
     @property
     def pd(self) -> np.ndarray:
@@ -256,7 +334,10 @@ class CoverageGrid:
         if blurred:
             idx += self._blur_rows(pose, window, observed) * (self.detector.n_bins + 2)
         tab_d, tab_fa = self._log_miss_tables
-        self.log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
+        if self._looks is None:
+            self._log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
+        else:
+            self._add_looks(pose, window, idx)
         self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
         self.n_obs[r0:r1, c0:c1] += observed
         return int(np.count_nonzero(observed))
@@ -282,6 +363,24 @@ class CoverageGrid:
         out = np.zeros(observed.shape, dtype=np.intp)
         out[rows, cols] = self.detector.blur_row(self.size_scale * blur)
         return out
+
+    def _add_looks(self, pose: CameraPose, window: tuple[int, int, int, int],
+                   idx: np.ndarray) -> None:
+        """Count the looks of a frame (padded bin index ``idx`` per cell of ``window``, 0
+        where not counted) in the looks state."""
+        looks = self._looks
+        if isinstance(looks, CorrelatedLooks):
+            counted = looks.add(window, idx)
+        elif isinstance(looks, ViewpointLooks):
+            r0, r1, c0, c1 = window
+            g = self.geometry
+            x = g.x0_m + g.cell_size_m * (np.arange(c0, c1) + 0.5)
+            y = g.y0_m + g.cell_size_m * (np.arange(r0, r1) + 0.5)
+            z = 0.0 if self._relief is None else self._relief.centre_z_m(r0, r1, c0, c1)
+            counted = looks.add(window, idx, x, y, z, pose.r_cam_enu)
+        else:
+            return
+        self._mark_dirty(window, counted)
 
     def observe(self, pose: CameraPose, window: tuple[int, int, int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -569,10 +668,32 @@ class CoverageGrid:
     # -- combine and persist ----------------------------------------------------------------
 
     def merge(self, other: CoverageGrid) -> None:
-        """Add another grid of the same geometry (another flight or vehicle) into this one."""
+        """Add another grid of the same geometry (another flight or vehicle) into this one.
+
+        With correlated or viewpoint looks both grids must have the same looks rule and
+        detector model (their states add up only then); grids of different detectors
+        combine at the quadrature nodes instead (``log_miss_nodes``)."""
         if other.geometry != self.geometry or not np.array_equal(other.mask, self.mask):
             raise ValueError("cannot merge grids of different geometry or free-space mask")
-        self.log_miss_d += other.log_miss_d
+        if other.looks != self.looks:
+            raise ValueError(f"cannot merge a grid of coverage.looks {other.looks.rule} "
+                             f"into one of {self.looks.rule} (or of other viewpoint bins)")
+        if self._looks is not None and not _same_looks_tables(self.detector, other.detector):
+            raise ValueError(
+                f"cannot merge {self.looks.rule} looks of different detector models (their "
+                "bins' P_D or correlation differ): combine them per person at the "
+                "quadrature nodes, looks.pd_of_node_log_miss(a.log_miss_nodes() + "
+                "b.log_miss_nodes())")
+        if isinstance(self._looks, CorrelatedLooks) and isinstance(other._looks,
+                                                                   CorrelatedLooks):
+            self._looks.merge(other._looks)
+        elif isinstance(self._looks, ViewpointLooks) and isinstance(other._looks,
+                                                                    ViewpointLooks):
+            self._looks.merge(other._looks)
+        else:
+            self._log_miss_d += other._log_miss_d
+        if self._looks is not None:
+            self._mark_dirty((0, self.geometry.n_rows, 0, self.geometry.n_cols))
         self.log_miss_fa += other.log_miss_fa
         self.n_obs += other.n_obs
         np.maximum(self.limiting, other.limiting, out=self.limiting)
@@ -594,22 +715,30 @@ class CoverageGrid:
         """Write the snapshot ``save_npz`` writes to an open binary file (the daemon sends
         these bytes over Zenoh: np.load reads them)."""
         g = self.geometry
-        revisit = {} if self.last_obs_s is None else {"last_obs_s": self.last_obs_s}
+        revisit: dict[str, np.ndarray] = (
+            {} if self.last_obs_s is None else {"last_obs_s": self.last_obs_s})
+        looks = self._looks
+        if isinstance(looks, CorrelatedLooks):
+            revisit["looks_counts"] = looks.counts
+        elif isinstance(looks, ViewpointLooks):
+            revisit["looks_best"] = looks.best
         np.savez_compressed(
             fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
             mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
             limiting=self.limiting, x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m,
-            frames=self.frames,
+            frames=self.frames, looks=str(self.looks.rule),
             **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
                  *, max_range_m: float | None = None, min_revisit_s: float | None = None,
                  terrain: TerrainSurface | None = None,
-                 exposure_s: float | None = None) -> CoverageGrid:
-        """Restore a snapshot written by ``save_npz`` (version 2, or 1). A version-1 revisit
+                 exposure_s: float | None = None,
+                 looks: LooksConfig | None = None) -> CoverageGrid:
+        """Restore a snapshot written by ``save_npz`` (version 3, 2 or 1). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
-        more, e.g. Unix epoch times) when ``min_revisit_s`` would use it."""
+        more, e.g. Unix epoch times) when ``min_revisit_s`` would use it. A snapshot of
+        another looks rule than ``looks`` is refused (versions 1 and 2 are independent)."""
         path = Path(path)
         data = read_npz(path, lambda why: InputFileError(
             f"{path}: cannot read grid snapshot ({why})"))
@@ -619,16 +748,18 @@ class CoverageGrid:
             raise InputFileError(f"{path}: not a pdcov grid snapshot (missing "
                                  f"{', '.join(sorted(missing))})")
         version = int(data.get("version", 1))
-        if version not in _READABLE_VERSIONS:
+        if version not in READABLE_SNAPSHOT_VERSIONS:
             raise InputFileError(f"{path}: grid snapshot version {version}, expected "
-                                 f"{' or '.join(map(str, _READABLE_VERSIONS))}")
+                                 f"{' or '.join(map(str, READABLE_SNAPSHOT_VERSIONS))}")
         _check_snapshot_values(path, data)
         mask = data["mask"].astype(bool)
         geometry = GridGeometry(float(data["x0_m"]), float(data["y0_m"]),
                                 float(data["cell_size_m"]), *mask.shape)
         grid = cls(geometry, mask, camera, detector, max_range_m=max_range_m,
-                   min_revisit_s=min_revisit_s, terrain=terrain, exposure_s=exposure_s)
-        grid.log_miss_d[:] = data["log_miss_d"]
+                   min_revisit_s=min_revisit_s, terrain=terrain, exposure_s=exposure_s,
+                   looks=looks)
+        grid._log_miss_d[:] = data["log_miss_d"]
+        _load_looks(path, data, grid)
         grid.log_miss_fa[:] = data["log_miss_fa"]
         grid.n_obs[:] = data["n_obs"]
         if "limiting" in data:
@@ -695,3 +826,49 @@ def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
             raise bad(f"{key}: expected one finite number")
     if int(data.get("frames", 0)) < 0:
         raise bad("frames: negative")
+
+
+def _looks_state(config: LooksConfig, shape: tuple[int, int], detector: DetectorModel
+                 ) -> CorrelatedLooks | ViewpointLooks | None:
+    """The per-cell looks state a rule keeps (None: independent, the log-miss sums)."""
+    if config.rule is LooksRule.CORRELATED:
+        return CorrelatedLooks(shape, detector)
+    if config.rule is LooksRule.VIEWPOINT:
+        return ViewpointLooks(shape, detector, config.viewpoint)
+    return None
+
+
+def _same_looks_tables(a: DetectorModel, b: DetectorModel) -> bool:
+    """Whether two detector models give a look in each bin the same meaning for the looks
+    state: the same P_D and correlation per bin."""
+    rho = [None if m.looks is None else m.looks.correlation for m in (a, b)]
+    return a.p_detect == b.p_detect and rho[0] == rho[1]
+
+
+def _load_looks(path: Path, data: dict[str, np.ndarray], grid: CoverageGrid) -> None:
+    """Restore a snapshot's looks state into ``grid``, refusing a snapshot of another rule
+    (InputFileError)."""
+    written = str(data["looks"]) if "looks" in data else str(LooksRule.INDEPENDENT)
+    rule = grid.looks.rule
+    if written != str(rule):
+        raise InputFileError(f"{path}: the grid snapshot was made with coverage.looks: "
+                             f"{written}, the mission says {rule}; load it with the same "
+                             "looks rule")
+    looks = grid._looks
+    key, target = (("looks_counts", looks.counts) if isinstance(looks, CorrelatedLooks)
+                   else ("looks_best", looks.best) if isinstance(looks, ViewpointLooks)
+                   else (None, None))
+    if key is None or target is None:
+        return
+    a = data.get(key)
+    if a is None or a.shape != target.shape or a.dtype != target.dtype:
+        raise InputFileError(
+            f"{path}: {key}: expected {target.dtype} {target.shape} (the {rule} looks of "
+            f"this mission's grid and detector model), got "
+            f"{'nothing' if a is None else f'{a.dtype} {a.shape}'}")
+    if isinstance(looks, ViewpointLooks) and a.size and int(a.max()) >= len(
+            looks.log1m_by_rank):
+        raise InputFileError(f"{path}: looks_best: ranks above the detector model's "
+                             f"{len(looks.log1m_by_rank) - 1}")
+    target[:] = a
+    grid._mark_dirty((0, grid.geometry.n_rows, 0, grid.geometry.n_cols))

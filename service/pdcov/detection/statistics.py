@@ -179,8 +179,8 @@ def fit_binned_blur(matches: Matches, edges: tuple[float, ...],
     if np.isnan(matches.truth_blur_px).any() or np.isnan(matches.detection_blur_px).any():
         raise ValueError("fit_binned_blur needs the blur of every image")
     model = fit_binned(matches, edges, interval)
-    ti = _bin_of(matches.truth_blur_px, blur_edges)
-    di = _bin_of(matches.detection_blur_px, blur_edges)
+    ti = bin_of(matches.truth_blur_px, blur_edges)
+    di = bin_of(matches.detection_blur_px, blur_edges)
     rows: dict[str, list[Any]] = {k: [] for k in (
         "p_detect", "p_false_alarm", "p_detect_ci95", "p_false_alarm_ci95", "n_true",
         "n_detected", "n_detections", "n_true_positives")}

@@ -26,7 +26,7 @@ import struct
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.bus.grid_state import GridState, grid_hash
 from pdcov.config import Mission
 from pdcov.core.grid import SNAPSHOT_VERSION
+from pdcov.core.looks import LooksConfig
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 
@@ -250,7 +251,10 @@ class Recording:
             return [f"record: {self.out}: no grid was received"]
         fleet = self.out / "fleet"
         fleet.mkdir(exist_ok=True)
-        grid = mission.new_grid() if mission is not None else None
+        # The fleet's state is the vehicles' derived log-misses added: an independent-looks
+        # grid holds it (a correlated one would write zero counts beside it).
+        grid = replace(mission, looks=LooksConfig()).new_grid() if mission is not None \
+            else None
         if mission is not None and grid is not None \
                 and grid_hash(grid.geometry, grid.mask) == merged.hash:
             from pdcov.report.outputs import summary_text, write_outputs

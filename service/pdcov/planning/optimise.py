@@ -23,6 +23,7 @@ from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_polygon
 from pdcov.core.grid import CoverageGrid, default_max_range_m
+from pdcov.core.looks import LooksConfig
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import Rz
@@ -48,7 +49,8 @@ class Scenario:
     mount, frame rate (Hz), the grid's range limit (m; None = the grid's default) and the
     vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold;
     terrain: the ground under the grid (ENU; None: the plane z = 0) and how plans follow it;
-    exposure_s: the camera's exposure time (s), for motion blur (None: no blur effect)."""
+    exposure_s: the camera's exposure time (s), for motion blur (None: no blur effect);
+    looks: how a person's looks combine in the predicted grids (coverage.looks)."""
 
     free_space: Polygon | MultiPolygon
     geometry: GridGeometry
@@ -64,6 +66,7 @@ class Scenario:
     terrain: TerrainSurface | None = None
     following: TerrainFollowing = TerrainFollowing()
     exposure_s: float | None = None
+    looks: LooksConfig = LooksConfig()
 
     def over_terrain(self, plan: Plan) -> Plan:
         """``plan`` following the scenario's terrain (``follow_terrain``); without terrain,
@@ -75,7 +78,8 @@ class Scenario:
     def new_grid(self) -> CoverageGrid:
         return CoverageGrid(self.geometry, self.mask, self.camera, self.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=self.exposure_s)
+                            terrain=self.terrain, exposure_s=self.exposure_s,
+                            looks=self.looks)
 
     def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0) -> float:
         """Ground strip seen across the track by a level vehicle at ``alt_agl_m`` flying

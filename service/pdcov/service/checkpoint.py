@@ -107,7 +107,8 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
                                          max_range_m=new_grid.max_range_m,
                                          min_revisit_s=new_grid.min_revisit_s,
                                          terrain=new_grid.terrain,
-                                         exposure_s=new_grid.exposure_s)
+                                         exposure_s=new_grid.exposure_s,
+                                         looks=new_grid.looks)
             if grid.geometry != new_grid.geometry or not (grid.mask == new_grid.mask).all():
                 why = "its grid geometry differs from this mission's"
             else:

@@ -159,7 +159,8 @@ class LiveCoverage:
         self._next_value_s = now_s
         self._frames_at_checkpoint = grid.frames
         self.target_pd = cfg.target_pd
-        self.metrics = TileMetrics(self.state, ts, (*m.thresholds, self.target_pd))
+        self.metrics = TileMetrics(self.state, ts, (*m.thresholds, self.target_pd),
+                                   grid.refresh)
         share = self.share_at_target()
         self._milestones = [x for x in MILESTONES if share < x - 1e-12]
 
@@ -420,6 +421,9 @@ class LiveCoverage:
 
     def poll(self, now_s: float) -> Due:
         """What is due at ``now_s`` (the daemon's monotonic clock, s)."""
+        # With correlated or viewpoint looks the P_D of the cells frames changed since the
+        # last poll is derived now: the status, tiles and checkpoint below read it.
+        self.grid.refresh()
         bus, svc = self.cfg.bus, self.cfg.service
         due = Due(notes=[] if self._note is None else [self._note])
         self._note = None

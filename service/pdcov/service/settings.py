@@ -21,6 +21,7 @@ import numpy as np
 from pdcov.bus.session import BusConfig, bus_config_from_dict
 from pdcov.config import Mission, load_mission
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, where
 from pdcov.ids import valid_system_id
 from pdcov.schema import Section
@@ -200,7 +201,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     id (another vehicle's frames resumed here would count twice in the fleet), the origin,
     the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
     heights when it has them), the camera (size, intrinsics, distortion) and the detector
-    model (bins, P_D, P_FA, input size)."""
+    model (bins, P_D, P_FA, input size), and the looks rule when not independent (rule,
+    viewpoint bins, the model's correlation)."""
     cam, det, g = mission.camera, mission.detector, grid.geometry
     doc = {"vehicle_id": mission.vehicle_id,
            "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
@@ -212,6 +214,9 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
                         det.input_size_px, det.size_metric]}
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
     h.update(np.packbits(grid.mask).tobytes())
+    if grid.looks != LooksConfig():  # independent looks: hashed as before looks existed
+        rho = None if mission.detector.looks is None else mission.detector.looks.correlation
+        h.update(repr((str(grid.looks.rule), grid.looks.viewpoint, rho)).encode())
     if grid.terrain is not None:  # none: the flat ground, hashed as before terrain existed
         h.update(grid.terrain.z_corner_m.tobytes())
     return h.hexdigest()[:16]

@@ -13,7 +13,7 @@ differ from a whole-grid ``sum`` only by rounding (about 1e-16 relative).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,10 +45,13 @@ class GridSummary:
 
 class TileMetrics:
     """Per-tile status metrics of ``state`` (whose arrays the grid updates in place) for
-    ``thresholds`` (P_D values)."""
+    ``thresholds`` (P_D values). ``refresh``: called before the state is read (the grid's
+    ``CoverageGrid.refresh``, which derives P_D with correlated or viewpoint looks)."""
 
-    def __init__(self, state: GridState, tile_size: int, thresholds: Iterable[float]) -> None:
+    def __init__(self, state: GridState, tile_size: int, thresholds: Iterable[float],
+                 refresh: Callable[[], None] | None = None) -> None:
         self.state = state
+        self._refresh_state = refresh
         self.tile_size = tile_size
         self.thresholds = tuple(sorted({float(t) for t in thresholds}))
         shape = tile_grid_shape(tile_size, *state.geometry.shape)
@@ -67,6 +70,8 @@ class TileMetrics:
 
     def summary(self) -> GridSummary:
         """The metrics now, recomputing the stale tiles first."""
+        if self._refresh_state is not None:
+            self._refresh_state()
         for tr, tc in zip(*np.nonzero(self._stale), strict=True):
             self._refresh(int(tr), int(tc))
         self._stale[:] = False
