@@ -27,7 +27,8 @@ from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.terrain import TerrainSurface
-from pdcov.errors import ConfigError, PdcovError, where
+from pdcov.core.zoom import FovLens, LensQuantity, TableLens, Zoom, ZoomLens
+from pdcov.errors import CalibrationError, ConfigError, PdcovError, where
 from pdcov.ids import SYSTEM_IDS, VEHICLE_ID_RULE, valid_system_id, valid_vehicle_id
 from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
@@ -115,6 +116,104 @@ class FixedMountSection:
     def mount(self) -> FixedMount:
         return FixedMount(math.radians(self.roll_deg), math.radians(self.pitch_deg),
                           math.radians(self.yaw_deg), tuple(self.lever_arm_frd_m))
+
+
+ZOOM_MODES = ("none", "fov_status", "table")
+_TABLE_KEYS = ("zoom_level", "focal_length_mm")
+
+
+@dataclass(frozen=True, slots=True)
+class ZoomLensSection:
+    """``camera.zoom_lens``: the zoom lens (core/zoom.py) for ``camera.zoom`` fov_status or
+    table. min_hfov_deg: the narrowest horizontal field of view (fov_status; deg);
+    fov_tolerance_deg: how far a report may lie outside the calibrated range and be taken as
+    its end; max_zoom_rate_per_s: the fastest the lens zooms (|d ln f / dt|, 1/s);
+    max_report_age_s: how long a report stays in force (s); component_id /
+    camera_device_id: the camera whose reports count (None: the first heard); table_by:
+    zoom_level (CAMERA_SETTINGS) or focal_length_mm (CAMERA_INFORMATION); table: entries of
+    that key, K and distortion_coeffs (the size and distortion model are the camera's)."""
+
+    min_hfov_deg: float | None = None
+    fov_tolerance_deg: float = 1.0
+    max_zoom_rate_per_s: float = 2.0
+    max_report_age_s: float = 2.0
+    component_id: int | None = None
+    camera_device_id: int = 0
+    table_by: str = "zoom_level"
+    table: Any = None
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> ZoomLensSection:
+        sec = "camera.zoom_lens"
+        default = _defaults(cls)
+        nums = {k: _number(doc, k, src, sec, default=default[k], positive=True)
+                for k in ("max_zoom_rate_per_s", "max_report_age_s")}
+        tol = _number(doc, "fov_tolerance_deg", src, sec, default=1.0)
+        if tol < 0:
+            raise ConfigError(f"{where(src, sec + '.fov_tolerance_deg')}: expected >= 0 deg, "
+                              f"got {tol!r}")
+        ids: dict[str, int | None] = {}
+        for key, lo, dflt in (("component_id", 1, None), ("camera_device_id", 0, 0)):
+            v = doc.get(key, dflt)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int)
+                                  or not lo <= v <= 255):
+                raise ConfigError(f"{where(src, sec + '.' + key)}: expected an integer "
+                                  f"{lo}..255, got {v!r}")
+            ids[key] = v
+        table_by = doc.get("table_by", "zoom_level")
+        if table_by not in _TABLE_KEYS:
+            raise ConfigError(f"{where(src, sec + '.table_by')}: expected one of "
+                              f"{', '.join(_TABLE_KEYS)}, got {table_by!r}")
+        return cls(_opt_number(doc, "min_hfov_deg", src, sec), tol, **nums,
+                   component_id=ids["component_id"],
+                   camera_device_id=int(ids["camera_device_id"] or 0), table_by=table_by,
+                   table=doc.get("table"))
+
+    def zoom(self, mode: str, camera: CameraModel, src: str | None) -> Zoom:
+        """The mission's Zoom for ``camera.zoom`` = mode (fov_status or table)."""
+        sec = "camera.zoom_lens"
+        lens: ZoomLens
+        if mode == "fov_status":
+            if self.min_hfov_deg is None:
+                raise ConfigError(f"{where(src, sec + '.min_hfov_deg')}: missing: camera.zoom "
+                                  "fov_status needs the narrowest field of view the lens "
+                                  "reaches (deg)")
+            try:
+                lens = FovLens(camera, math.radians(self.min_hfov_deg),
+                               math.radians(self.fov_tolerance_deg), self.max_zoom_rate_per_s)
+            except CalibrationError as exc:
+                raise CalibrationError(f"{src}: {exc}" if src else str(exc)) from None
+        else:
+            lens = self._table(camera, src)
+        camera_id = (None if self.component_id is None
+                     else (self.component_id, self.camera_device_id))
+        return Zoom(lens, self.max_report_age_s, camera_id)
+
+    def _table(self, camera: CameraModel, src: str | None) -> TableLens:
+        sec = "camera.zoom_lens.table"
+        rows = self.table
+        if not isinstance(rows, list) or len(rows) < 2:
+            raise ConfigError(f"{where(src, sec)}: camera.zoom table needs a list of at least "
+                              f"two entries ({self.table_by}, K, distortion_coeffs), got "
+                              f"{rows!r}")
+        keys, cams = [], []
+        for i, row in enumerate(rows):
+            at = f"{sec}[{i}]"
+            if not isinstance(row, dict):
+                raise ConfigError(f"{where(src, at)}: expected a mapping, got {row!r}")
+            extra = sorted(set(row) - {self.table_by, "K", "distortion_coeffs"})
+            if extra:
+                raise ConfigError(f"{where(src, at + '.' + str(extra[0]))}: unknown key; "
+                                  f"expected {self.table_by}, K, distortion_coeffs")
+            keys.append(_number(row, self.table_by, src, at))
+            cams.append(CameraModel.from_config(
+                {"width_px": camera.width_px, "height_px": camera.height_px,
+                 "distortion_model": camera.distortion_model,
+                 "distortion_coeffs": row.get("distortion_coeffs",
+                                              camera.dist_coeffs.tolist()),
+                 "K": row.get("K")}, src, at))
+        return TableLens(LensQuantity(self.table_by), tuple(keys), tuple(cams),
+                         self.max_zoom_rate_per_s, where(src, sec))
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,7 +388,8 @@ MISSION_CONFIG = Section.of(
     "vehicle_id", "calibration", "thresholds",
     origin=Section.of_dataclass(OriginSection),
     domain=Section.of_dataclass(DomainSection),
-    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None),
+    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None, zoom=None,
+                                  zoom_lens=Section.of_dataclass(ZoomLensSection)),
     mount=Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
                                      "gimbal": GIMBAL_MOUNT_CONFIG}),
     detector=MODEL_SCHEMA,
@@ -340,7 +440,8 @@ class Mission:
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
-    grouped).
+    grouped). zoom: the camera's zoom lens and reports (core/zoom.py; None: camera.zoom
+    none, the configured K for every frame).
     """
 
     vehicle_id: str
@@ -369,6 +470,7 @@ class Mission:
     geolocation: Geolocation = Geolocation()
     gate_sigmas: float = 3.0
     warnings: tuple[str, ...] = ()
+    zoom: Zoom | None = None
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -455,6 +557,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         except PdcovError as exc:
             raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
     camera, rate = _camera(doc, src, base)
+    zoom = _zoom(doc.get("camera", {}), camera, src)
     mount = _mount(doc.get("mount", {"type": "fixed"}), src)
     detector = _detector(doc["detector"], src, base)
 
@@ -489,7 +592,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
         dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
-        warnings=tuple(warnings), source=src, raw=doc)
+        warnings=tuple(warnings), zoom=zoom, source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
@@ -579,10 +682,29 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[Camera
                               f"calibration file (give the intrinsics in one place)")
         camera = CameraModel.from_camera_info(_resolve(calibration, base, src, "calibration"))
     else:
-        inline = {k: v for k, v in cam.items() if k != "frame_rate_hz"}
+        inline = {k: v for k, v in cam.items()
+                  if k not in ("frame_rate_hz", "zoom", "zoom_lens")}
         camera = CameraModel.from_config(inline, src, "camera")
     rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
     return camera, rate
+
+
+def _zoom(cam: Mapping[str, Any], camera: CameraModel, src: str | None) -> Zoom | None:
+    """camera.zoom (none, fov_status, table) and camera.zoom_lens."""
+    mode = cam.get("zoom", "none")
+    if mode not in ZOOM_MODES:
+        raise ConfigError(f"{where(src, 'camera.zoom')}: expected one of "
+                          f"{', '.join(ZOOM_MODES)}, got {mode!r}")
+    lens_doc = cam.get("zoom_lens") or {}
+    if not isinstance(lens_doc, dict):
+        raise ConfigError(f"{where(src, 'camera.zoom_lens')}: expected a mapping, got "
+                          f"{lens_doc!r}")
+    if mode == "none":
+        if lens_doc:
+            raise ConfigError(f"{where(src, 'camera.zoom_lens')}: given with camera.zoom none; "
+                              "set camera.zoom to fov_status or table, or remove it")
+        return None
+    return ZoomLensSection.from_mapping(lens_doc, src).zoom(mode, camera, src)
 
 
 def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:

@@ -104,6 +104,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
+        if mission.zoom is not None:
+            raise PdcovError(f"{args.poses}: camera.zoom {mission.zoom.lens.quantity} follows "
+                             "the camera's zoom reports, which a pose CSV does not hold: give "
+                             "the flight log (--log), or set camera.zoom none")
         log_poses = None
         poses: Sequence[CameraPose] = read_pose_csv(args.poses)
         origin = mission.origin()
@@ -121,7 +125,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             frame_source=args.frame_source or mission.chosen_frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            terrain_check=terrain_check)
+            terrain_check=terrain_check, zoom=mission.zoom)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -134,9 +138,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
     # The daemon's filter (frame_policy.below_min_height), applied to the poses of a CSV too.
     low = sum(1 for p in poses if below_min_height(p.r_cam_enu[2], mission.min_height_m))
+    cameras = log_poses.cameras if log_poses is not None else ()
     if low:
-        poses = [p for p in poses if not below_min_height(p.r_cam_enu[2],
-                                                          mission.min_height_m)]
+        high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in poses]
+        poses = [p for p, h in zip(poses, high, strict=True) if h]
+        cameras = tuple(c for c, h in zip(cameras, high, strict=False) if h)
         lines.append(f"{low} frames with the camera below coverage.min_height_m = "
                      f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:
@@ -153,7 +159,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
              if args.prior is not None else None)
     if prior is not None:
         lines.extend(prior.notes)
-    evaluate_poses(grid, poses, progress=progress, total=len(poses))
+    evaluate_poses(grid, poses, progress=progress, total=len(poses), cameras=cameras)
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections

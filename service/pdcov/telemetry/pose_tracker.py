@@ -35,7 +35,14 @@ from pdcov.telemetry.gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from pdcov.telemetry.samples import AttitudeSample, EstimatorSample, GimbalSample, PositionSample
+from pdcov.telemetry.lens_reports import LensReports
+from pdcov.telemetry.samples import (
+    AttitudeSample,
+    EstimatorSample,
+    GimbalSample,
+    LensSample,
+    PositionSample,
+)
 from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
@@ -97,7 +104,8 @@ class FrameBatch:
     r_cam_enu (N, 3) m, gimbal_q_wxyz (N, 4) as interpolated (NaN for a fixed mount),
     gimbal_flags (N,) (-1 for a fixed mount), interpretation (N,) str, at_limit (N,) a
     servo demand at its limit. estimator_judged (N,): an estimator status was in force (the
-    position-estimate rule could judge the frame)."""
+    position-estimate rule could judge the frame). lens_value (N,): the zoom report in force
+    (lens_reports.py; NaN without a zoom lens or where none is)."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -112,6 +120,7 @@ class FrameBatch:
     untrusted_reason: np.ndarray
     at_limit: np.ndarray
     estimator_judged: np.ndarray
+    lens_value: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -136,11 +145,13 @@ class PoseTracker:
     None resolves a GimbalMount without autopilot parameters (its auto_fallback).
     history_s: live use keeps only this much history behind the newest sample.
     use_estimator: skip frames by the estimator status (telemetry/estimator.py).
+    lens: the zoom reports (lens_reports.py; None: the camera does not zoom).
     """
 
     def __init__(self, origin: Origin, mount: FixedMount | GimbalMount, *,
                  interpretation: GimbalInterpretation | None = None, max_gap_s: float = 1.0,
-                 history_s: float | None = None, use_estimator: bool = True) -> None:
+                 history_s: float | None = None, use_estimator: bool = True,
+                 lens: LensReports | None = None) -> None:
         if not (math.isfinite(max_gap_s) and max_gap_s > 0):
             raise ConfigError(f"max_gap_s: expected a positive number of seconds, "
                               f"got {max_gap_s!r}")
@@ -164,14 +175,18 @@ class PoseTracker:
         self._gimbal_flags_seen: dict[tuple[int, int, int], int] = {}
         self.gimbal_source: tuple[int, int, int] | None = None
         self.dropped_gimbal_reports = 0
+        self.lens = lens
 
     @classmethod
     def from_flight_log(cls, log: FlightLog, origin: Origin, mount: FixedMount | GimbalMount,
                         interpretation: GimbalInterpretation | None,
-                        max_gap_s: float = 1.0, use_estimator: bool = True) -> PoseTracker:
+                        max_gap_s: float = 1.0, use_estimator: bool = True,
+                        lens: LensReports | None = None) -> PoseTracker:
         """A tracker holding a whole log's series (offline evaluation)."""
         tracker = cls(origin, mount, interpretation=interpretation, max_gap_s=max_gap_s,
-                      use_estimator=use_estimator)
+                      use_estimator=use_estimator, lens=lens)
+        for sample in log.lens:
+            tracker.add_lens(sample)
         tracker._est = log.estimator
         tracker._att = log.attitude
         tracker._set_positions(log.position)
@@ -189,6 +204,11 @@ class PoseTracker:
 
     def add_estimator(self, sample: EstimatorSample) -> None:
         self._pending_est.append(sample)
+
+    def add_lens(self, sample: LensSample) -> None:
+        """Add a zoom report (ignored when the camera does not zoom)."""
+        if self.lens is not None:
+            self.lens.add(sample)
 
     def add_gimbal(self, sample: GimbalSample) -> None:
         """Add a gimbal status; reports of other sources than the preferred one (gimbal.
@@ -359,7 +379,13 @@ class PoseTracker:
         else:
             reason[(est_reason != "") & (reason == "")] = est_reason[(est_reason != "")
                                                                      & (reason == "")]
+        lens_value = np.full(n, np.nan)
+        if self.lens is not None:
+            lens_value, lens_reason = self.lens.at(t)
+            late = (lens_reason != "") & (reason == "")
+            reason[late] = lens_reason[late]
         R_enu_cam = R_ENU_NED @ R_ned_gimbal @ R_GIMBAL_CAM
         r_cam = r_body + np.einsum("ij,njk,k->ni", R_ENU_NED, R_ned_body, lever)
         return FrameBatch(t, reason, R_ned_body, r_body, R_enu_cam, r_cam, gimbal_q,
-                          gimbal_flags, interp, trusted, untrusted, at_limit, judged)
+                          gimbal_flags, interp, trusted, untrusted, at_limit, judged,
+                          lens_value)
