@@ -253,3 +253,45 @@ def test_a_zoom_table_follows_camera_settings(tmp_path):
     value, reason = reports.at(np.array([1.5]))
     assert reason[0] == "" and value[0] == 100.0
     assert m.zoom.lens.camera(50.0).K[0, 0] == pytest.approx(2 * f0)
+
+
+def test_a_two_camera_flight_combines_both_cameras_looks(tmp_path, hover):
+    """A visible camera (fixed lens, P_D 0.3 per look) and a zooming thermal camera (P_D 0.5)
+    on one hover: each cell's P_D is 1 - 0.7^n_visible 0.5^n_thermal over the looks each
+    camera's own grid counts; metrics and maps per camera beside the combined ones."""
+    base = DetectorModel.illustrative().to_dict()
+    n = len(base["p_detect"])
+    primary = zf.mission("none")
+    thermal_cam = dict(zf.mission()["camera"], width_px=160, height_px=120,
+                       K=[[123.2, 0, 79.5], [0, 123.2, 59.5], [0, 0, 1]], frame_rate_hz=1.0)
+    doc = {k: v for k, v in primary.items() if k not in ("camera", "mount", "detector")}
+    doc["cameras"] = [
+        {"name": "visible", "camera": primary["camera"], "mount": primary["mount"],
+         "detector": dict(base, p_detect=[0.3] * n)},
+        {"name": "thermal", "camera": thermal_cam, "mount": primary["mount"],
+         "detector": dict(base, p_detect=[0.5] * n)}]
+    out = _evaluate(tmp_path, doc, hover, "two")
+    vis = load_grid(tmp_path / "two" / "cameras" / "visible")
+    th = load_grid(tmp_path / "two" / "cameras" / "thermal")
+    m = out["mask"]
+    both = m & (vis["n_obs"] > 0) & (th["n_obs"] > 0)
+    assert both.sum() > 100 and th["n_obs"].max() > vis["n_obs"].max()  # 1 Hz against 0.5
+    expected = 1 - 0.7 ** vis["n_obs"] * 0.5 ** th["n_obs"]
+    np.testing.assert_allclose(out["pd"][m], expected[m], atol=1e-5)
+    np.testing.assert_array_equal(out["n_obs"], vis["n_obs"] + th["n_obs"])
+    import json
+    metrics = json.loads((tmp_path / "two" / "metrics.json").read_text())
+    assert set(metrics["cameras"]) == {"visible", "thermal"}
+    assert metrics["cameras"]["thermal"]["frames"] == int(th["frames"]) > 15
+
+
+def test_serve_refuses_a_mission_of_several_cameras(tmp_path):
+    doc = zf.mission("none")
+    doc = {**{k: v for k, v in doc.items() if k not in ("camera", "mount", "detector")},
+           "cameras": [{"name": "a", "camera": doc["camera"], "detector": "illustrative"},
+                       {"name": "b", "camera": doc["camera"], "detector": "illustrative"}]}
+    with pytest.raises(ConfigError, match="pdcov serve follows one camera"):
+        load_serve_config(zf.write_mission(tmp_path / "two.yaml", doc, service=True))
+    doc["camera"] = doc["cameras"][0]["camera"]
+    with pytest.raises(ConfigError, match="camera: not allowed with a cameras list"):
+        load_mission(zf.write_mission(tmp_path / "both.yaml", doc))

@@ -384,15 +384,21 @@ def _defaults(section: type) -> dict[str, Any]:
     return {f.name: f.default for f in fields(section) if f.default is not MISSING}
 
 
+_CAMERA_SECTIONS: dict[str, Section | Variants | None] = {
+    "camera": CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None, zoom=None,
+                                     zoom_lens=Section.of_dataclass(ZoomLensSection)),
+    "mount": Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
+                                        "gimbal": GIMBAL_MOUNT_CONFIG}),
+    "detector": MODEL_SCHEMA}
+CAMERA_ENTRY = Section.of("name", **_CAMERA_SECTIONS)
+"""One entry of the mission's ``cameras`` list: a name, and the camera, mount and detector
+sections of the single-camera form."""
+
 MISSION_CONFIG = Section.of(
-    "vehicle_id", "calibration", "thresholds",
+    "vehicle_id", "calibration", "thresholds", "cameras",
     origin=Section.of_dataclass(OriginSection),
     domain=Section.of_dataclass(DomainSection),
-    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, calibration=None, zoom=None,
-                                  zoom_lens=Section.of_dataclass(ZoomLensSection)),
-    mount=Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
-                                     "gimbal": GIMBAL_MOUNT_CONFIG}),
-    detector=MODEL_SCHEMA,
+    **_CAMERA_SECTIONS,
     coverage=Section.of_dataclass(CoverageSection),
     terrain=Section.of_dataclass(TerrainSection),
     log=Section.of_dataclass(LogSection),
@@ -422,6 +428,19 @@ def mission_schema(sections: Mapping[str, Section] | None = None) -> Section:
 
 
 @dataclass(frozen=True, slots=True)
+class MissionCamera:
+    """One camera of the mission: its name (outputs per camera), calibration, frame rate
+    (Hz), mount (or gimbal device), detector model and zoom (None: a fixed lens)."""
+
+    name: str
+    camera: CameraModel
+    frame_rate_hz: float
+    mount: FixedMount | GimbalMount
+    detector: DetectorModel
+    zoom: Zoom | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Mission:
     """A parsed mission config.
 
@@ -441,7 +460,9 @@ class Mission:
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
     grouped). zoom: the camera's zoom lens and reports (core/zoom.py; None: camera.zoom
-    none, the configured K for every frame).
+    none, the configured K for every frame). extra_cameras: the ``cameras`` list's entries
+    after the first (whose camera, mount, detector and zoom are the fields above, named
+    camera_name); their looks go into the same cells (``all_cameras``).
     """
 
     vehicle_id: str
@@ -471,6 +492,8 @@ class Mission:
     gate_sigmas: float = 3.0
     warnings: tuple[str, ...] = ()
     zoom: Zoom | None = None
+    extra_cameras: tuple[MissionCamera, ...] = ()
+    camera_name: str = "camera"
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -487,15 +510,24 @@ class Mission:
         daemon = service.get("frame_source") if isinstance(service, Mapping) else None
         return daemon if daemon in ("rate", "capture") else None
 
+    @property
+    def all_cameras(self) -> tuple[MissionCamera, ...]:
+        """Every camera of the mission, the primary (the fields above) first."""
+        return (MissionCamera(self.camera_name, self.camera, self.frame_rate_hz, self.mount,
+                              self.detector, self.zoom), *self.extra_cameras)
+
     def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
         """The ENU origin; the ground altitude given here overrides the configured one."""
         alt = ground_alt_msl_m if ground_alt_msl_m is not None else self.ground_alt_msl_m
         return Origin(self.origin_lat_deg, self.origin_lon_deg, alt or 0.0)
 
-    def new_grid(self) -> CoverageGrid:
-        """An empty coverage grid over the domain's free cells."""
+    def new_grid(self, camera: MissionCamera | None = None) -> CoverageGrid:
+        """An empty coverage grid over the domain's free cells, for ``camera`` (one of
+        ``all_cameras``; None: the primary)."""
         g = self.domain.grid_geometry(self.cell_size_m)
-        return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
+        cam, det = (self.camera, self.detector) if camera is None else (camera.camera,
+                                                                         camera.detector)
+        return CoverageGrid(g, self.domain.free_mask(g), cam, det,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
                             terrain=self.terrain)
 
@@ -515,7 +547,10 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     src = source
     base = base_dir or Path(".")
     check_keys(doc, mission_schema(sections), src or "mission config")
+    listed = _camera_list(doc, src)
     for key in ("origin", "domain", "camera", "detector"):
+        if listed and key in ("camera", "detector"):
+            continue
         if key not in doc and not (key == "camera" and "calibration" in doc):
             raise ConfigError(f"{where(src, key)}: missing (see docs/mission-config.md)")
 
@@ -556,10 +591,12 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             terrain = terrain_surface(dem, g, origin_value, domain.free_mask(g))
         except PdcovError as exc:
             raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
-    camera, rate = _camera(doc, src, base)
-    zoom = _zoom(doc.get("camera", {}), camera, src)
-    mount = _mount(doc.get("mount", {"type": "fixed"}), src)
-    detector = _detector(doc["detector"], src, base)
+    cameras = ([_mission_camera(e, f"cameras[{i}].", str(e.get("name", f"camera{i + 1}")),
+                                src, base) for i, e in enumerate(listed)]
+               if listed else [_mission_camera(doc, "", "camera", src, base)])
+    first = cameras[0]
+    camera, rate, mount, detector, zoom = (first.camera, first.frame_rate_hz, first.mount,
+                                           first.detector, first.zoom)
 
     thresholds = doc.get("thresholds", list(DEFAULT_THRESHOLDS))
     if (not isinstance(thresholds, list) or not thresholds or not all(
@@ -592,7 +629,8 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
         dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
-        warnings=tuple(warnings), zoom=zoom, source=src, raw=doc)
+        warnings=tuple(warnings), zoom=zoom, extra_cameras=tuple(cameras[1:]),
+        camera_name=first.name, source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
@@ -668,6 +706,51 @@ def _dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None) -> float:
                           f"({origin.lat_deg:.6f}, {origin.lon_deg:.6f}): it is outside the "
                           "DEM or on nodata; set origin.ground_alt_msl_m")
     return h
+
+
+def _camera_list(doc: Mapping[str, Any], src: str | None) -> list[Mapping[str, Any]]:
+    """The ``cameras`` list's entries, keys checked (empty without one)."""
+    listed = doc.get("cameras")
+    if listed is None:
+        return []
+    if not isinstance(listed, list) or not listed:
+        raise ConfigError(f"{where(src, 'cameras')}: expected a non-empty list of cameras "
+                          f"(name, camera, mount, detector), got {listed!r}")
+    both = sorted({"camera", "mount", "detector", "calibration"} & set(doc))
+    if both:
+        raise ConfigError(f"{where(src, both[0])}: not allowed with a cameras list (give each "
+                          "camera's camera, mount and detector in its entry)")
+    names = []
+    for i, entry in enumerate(listed):
+        check_keys(entry, CAMERA_ENTRY, src, f"cameras[{i}]")
+        name = entry.get("name", f"camera{i + 1}")
+        if not valid_vehicle_id(name) or name in names:
+            raise ConfigError(f"{where(src, f'cameras[{i}].name')}: expected a unique name "
+                              f"({VEHICLE_ID_RULE}), got {name!r}")
+        names.append(name)
+        for key in ("camera", "detector"):
+            if key not in entry:
+                raise ConfigError(f"{where(src, f'cameras[{i}].{key}')}: missing")
+    return listed
+
+
+def _mission_camera(entry: Mapping[str, Any], at: str, name: str, src: str | None,
+                    base: Path) -> MissionCamera:
+    """One camera from a ``cameras`` entry (``at``: its key path, e.g. 'cameras[1].'), or
+    from the single-camera form's top-level camera, mount and detector (``at`` '')."""
+    try:
+        camera, rate = _camera(entry, src, base)
+        zoom = _zoom(entry.get("camera", {}), camera, src)
+        mount = _mount(entry.get("mount", {"type": "fixed"}), src)
+        detector = _detector(entry["detector"], src, base)
+    except ConfigError as exc:
+        if not at:
+            raise
+        text, lead = str(exc), f"{src}: " if src else ""
+        if not text.startswith(lead):
+            raise
+        raise type(exc)(f"{lead}{at}{text[len(lead):]}") from None
+    return MissionCamera(name, camera, rate, mount, detector, zoom)
 
 
 def _camera(doc: Mapping[str, Any], src: str | None, base: Path) -> tuple[CameraModel, float]:
