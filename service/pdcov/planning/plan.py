@@ -42,6 +42,7 @@ from pdcov.core.mission import (
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
+    MAV_CMD_SET_CAMERA_ZOOM,
     MAV_FRAME_GLOBAL,
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
@@ -193,11 +194,13 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
             if it.param2 > 0:
                 speed = it.param2
             continue
-        if it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND:
+        if (it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND
+                or it.command == MAV_CMD_SET_CAMERA_ZOOM):  # the camera's, not the path's
             continue
         if it.command != MAV_CMD_NAV_WAYPOINT:
             raise InputFileError(f"{source}: item {k}: command {it.command} is not supported "
-                                 f"(waypoints, take-off, landing, return and DO commands are)")
+                                 f"(waypoints, take-off, landing, return, DO commands and "
+                                 "MAV_CMD_SET_CAMERA_ZOOM are)")
         if it.frame == MAV_FRAME_GLOBAL:
             alt_agl = it.z_m - origin.ground_alt_msl_m
         elif it.frame in (MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_GLOBAL_TERRAIN_ALT):
