@@ -53,6 +53,7 @@ from pdcov.core.mission import (
 from pdcov.errors import InputFileError
 from pdcov.yaml_file import read_text
 
+ZOOM_TYPE_HORIZONTAL_FOV = 4  # CAMERA_ZOOM_TYPE (common.xml): param2 the field of view, deg
 _SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH)
 _FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
 _LAST_DO_COMMAND = 252
@@ -95,11 +96,13 @@ class Waypoint:
 class Plan:
     """An ordered list of waypoints, a one-line description of how it was made, and the
     frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
-    above home)."""
+    above home); camera_zoom_hfov_deg: the camera's zoom commanded for the whole plan, as a
+    horizontal field of view (deg; None: none commanded)."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
     altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
+    camera_zoom_hfov_deg: float | None = None
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -154,8 +157,9 @@ def takeoff_alt_m(plan: Plan) -> float:
 
 
 def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
-    """Take-off, speed changes, waypoints and return to launch (no home item); waypoint
-    altitudes in the plan's frame (module doc)."""
+    """Take-off, the camera zoom (MAV_CMD_SET_CAMERA_ZOOM, ZOOM_TYPE_HORIZONTAL_FOV, when
+    the plan commands one), speed changes, waypoints and return to launch (no home item);
+    waypoint altitudes in the plan's frame (module doc)."""
     frame = plan.altitude_frame
     amsl = frame is AltitudeFrame.AMSL
     enu = plan.xyz_enu_m
@@ -165,6 +169,10 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
                          z_m=takeoff_alt_m(plan))]
+    if plan.camera_zoom_hfov_deg is not None:
+        items.append(MissionItem(MAV_CMD_SET_CAMERA_ZOOM, MAV_FRAME_MISSION,
+                                 param1=float(ZOOM_TYPE_HORIZONTAL_FOV),
+                                 param2=float(plan.camera_zoom_hfov_deg)))
     speed = math.nan
     for w, (lat, lon, alt_msl), written in zip(plan.waypoints, geo, plan.written(),
                                                strict=True):
@@ -189,7 +197,12 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     accepted. ``default_speed_mps`` applies before the first speed change."""
     speed = default_speed_mps
     rows: list[tuple[float, float, float, float, float]] = []
+    zoom_hfov_deg: float | None = None
     for k, it in enumerate(items):
+        if (it.command == MAV_CMD_SET_CAMERA_ZOOM and not rows
+                and int(it.param1) == ZOOM_TYPE_HORIZONTAL_FOV):
+            zoom_hfov_deg = float(it.param2)  # the whole plan's zoom, as mission_items writes
+            continue
         if it.command == MAV_CMD_DO_CHANGE_SPEED:
             if it.param2 > 0:
                 speed = it.param2
@@ -218,7 +231,8 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     enu = geodetic_to_enu(a[:, 0], a[:, 1], np.full(len(a), origin.ground_alt_msl_m), origin)
     try:
         return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]))
-                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}")
+                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}",
+                    camera_zoom_hfov_deg=zoom_hfov_deg)
     except ValueError as exc:
         raise InputFileError(f"{source}: {exc}") from None
 
