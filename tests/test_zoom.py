@@ -338,3 +338,25 @@ def test_a_plan_zooms_its_camera_and_predicts_with_the_zoomed_k(tmp_path):
     fixed = scenario_of(mission_from_dict(zf.mission("none")))
     with pytest.raises(ConfigError, match="needs camera.zoom fov_status"):
         fixed.swath_width_m(60.0, zoom_hfov_deg=28.0)
+
+
+def test_the_daemon_counts_zoom_reports_of_another_camera(tmp_path):
+    """A second camera (component 101) reporting its own field of view changes nothing in
+    the grid; its reports are counted in the status's faults."""
+    cfg = load_serve_config(zf.write_mission(
+        tmp_path / "serve.yaml", zf.mission(component_id=100), service=True))
+    grids = []
+    other = zf.frames(lambda t: 40.0, camera_component=101)
+    for extra in (False, True):
+        data = []
+        for ours, theirs in zip(zf.frames(), other, strict=True):
+            data.append(ours)
+            if extra and theirs[6] == 101:  # MAVLink 2: byte 6 is the sender's component
+                data.append(theirs)
+        feed = LinkFeed(cfg)
+        for i, frame in enumerate(data):
+            feed.feed(frame, 0.01 * i)
+        feed.tick(100.0)
+        grids.append(feed.live)
+    assert grids[1].counters.faults["zoom_reports_other_camera"] == 201
+    np.testing.assert_array_equal(grids[0].grid.log_miss_d, grids[1].grid.log_miss_d)

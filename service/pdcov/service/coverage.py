@@ -299,6 +299,8 @@ class LiveCoverage:
                 continue
             elif isinstance(s, LensSample):  # lens_reports.py: the estimator's rule
                 tr.add_lens(s)
+                if tr.lens is not None and tr.lens.other_camera:
+                    self.counters.faults["zoom_reports_other_camera"] = tr.lens.other_camera
                 continue
             else:
                 before = tr.gimbal_source
