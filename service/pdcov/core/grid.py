@@ -15,6 +15,12 @@ camera and the terrain does not rise above the line of sight to its centre
 (``core/occlusion.py``). Without terrain, or on a surface at height 0 everywhere, the ground
 is the plane z = 0 of the paper and the grid is exactly the flat-earth one.
 
+A frame may be taken with another camera than the grid's own (``update_with``): a zoomed
+lens (core/zoom.py) or another camera of the mission with its own detector model. Its looks
+add into the same cells' sums, as do another grid's (``merge``: another flight, vehicle or
+camera): looks are combined as independent, two cameras giving p1 and p2 on a cell give
+1 - (1 - p1)(1 - p2). These additions are the one place a model of correlated looks changes.
+
 Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
 for it, from never in view to seen at a size the detector model covers.
 """
