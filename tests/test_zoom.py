@@ -360,3 +360,12 @@ def test_the_daemon_counts_zoom_reports_of_another_camera(tmp_path):
         grids.append(feed.live)
     assert grids[1].counters.faults["zoom_reports_other_camera"] == 201
     np.testing.assert_array_equal(grids[0].grid.log_miss_d, grids[1].grid.log_miss_d)
+
+
+def test_the_daemon_asks_for_the_zoom_report_it_follows(tmp_path):
+    from pdcov.service.core import link_requests
+
+    for doc, expected in ((zf.mission(), {271}), (zf.mission("none"), set())):
+        cfg = load_serve_config(zf.write_mission(tmp_path / "s.yaml", doc, service=True))
+        asked = set(link_requests(cfg)[0])
+        assert asked & {259, 260, 271} == expected
