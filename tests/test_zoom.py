@@ -369,3 +369,25 @@ def test_the_daemon_asks_for_the_zoom_report_it_follows(tmp_path):
         cfg = load_serve_config(zf.write_mission(tmp_path / "s.yaml", doc, service=True))
         asked = set(link_requests(cfg)[0])
         assert asked & {259, 260, 271} == expected
+
+
+def test_boxes_of_a_zoomed_frame_are_located_with_its_camera():
+    """A box centred 140 px right of the principal point, seen straight down from 60 m:
+    60 * 140 / f on the ground, f the frame's focal length (the wide one would put it 2.6x
+    farther out)."""
+    from pdcov.core.detections import Box
+    from pdcov.detection.candidates import DetectionTracker
+
+    m = mission_from_dict(zf.mission())
+    assert m.zoom is not None
+    narrow = m.zoom.lens.camera(math.radians(28.0))
+    R_down = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])
+    pose = CameraPose(R_down, np.array([40.0, 40.0, 60.0]), 1.0)
+    box = Box("person", 0.9, 159.5 + 140 - 2.0, 119.5 - 2.0, 4.0, 4.0)
+    xs = []
+    for camera in (narrow, None):
+        (det,) = DetectionTracker.for_mission(m).frame(pose, 1.0, [box], camera=camera)
+        xs.append(det.r_enu_m[0] - 40.0)
+    f_narrow = 160 / math.tan(math.radians(14.0))
+    assert xs[0] == pytest.approx(60 * 140 / f_narrow, abs=0.1)
+    assert xs[1] == pytest.approx(60 * 140 / m.camera.K[0, 0], abs=0.3)

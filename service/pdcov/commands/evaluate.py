@@ -171,7 +171,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
-        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes)
+        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes,
+                                       cameras)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)

@@ -405,7 +405,7 @@ class LiveCoverage:
             self.grid.update_with(pose, camera)
             if self.grid.touched is not None:
                 self._touch(self.grid.touched)
-            self.detections.frame(pose)
+            self.detections.frame(pose, camera)
             added += 1
             unjudged += not judged
         self.state.frames = self.grid.frames
