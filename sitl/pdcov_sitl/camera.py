@@ -110,7 +110,8 @@ class ZoomCamera:
             return []
         extra: list[mav.MAVLink_message] = []
         if msg.command == mav.MAV_CMD_SET_CAMERA_ZOOM:
-            ok = self.zoom(int(msg.param1), float(msg.param2))
+            zoom_type = msg.param1 if math.isfinite(msg.param1) else -1.0  # NaN: refused
+            ok = self.zoom(int(zoom_type), float(msg.param2))
             result = mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_DENIED
             if ok:  # common.xml: "Camera must respond with a CAMERA_SETTINGS message"
                 extra.append(self.message("CAMERA_SETTINGS", time_boot_ms))

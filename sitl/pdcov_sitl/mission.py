@@ -137,7 +137,8 @@ def _zoom_commands(items: tuple[MissionItem, ...]) -> list[tuple[int, float] | N
     pending: tuple[int, float] | None = None
     for it in items:
         if it.command == MAV_CMD_SET_CAMERA_ZOOM:
-            pending = (int(it.param1), float(it.param2))
+            zoom_type = it.param1 if math.isfinite(it.param1) else -1.0  # refused by the camera
+            pending = (int(zoom_type), float(it.param2))
         elif it.command == MAV_CMD_NAV_WAYPOINT:
             out.append(pending)
             pending = None

@@ -200,7 +200,11 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     zoom_hfov_deg: float | None = None
     for k, it in enumerate(items):
         if (it.command == MAV_CMD_SET_CAMERA_ZOOM and not rows
-                and int(it.param1) == ZOOM_TYPE_HORIZONTAL_FOV):
+                and it.param1 == ZOOM_TYPE_HORIZONTAL_FOV):
+            if not (math.isfinite(it.param2) and 0 < it.param2 < 180):
+                raise InputFileError(f"{source}: item {k}: MAV_CMD_SET_CAMERA_ZOOM to a "
+                                     f"horizontal field of view of {it.param2!r} deg "
+                                     "(expected 0-180)")
             zoom_hfov_deg = float(it.param2)  # the whole plan's zoom, as mission_items writes
             continue
         if it.command == MAV_CMD_DO_CHANGE_SPEED:
@@ -312,7 +316,7 @@ def mission_from_qgc_document(doc: Any, source: str) -> MissionFile:
                                            for v in params]
             out.append(MissionItem(int(e["command"]), int(e["frame"]), p1, p2, p3, p4,
                                    lat, lon, z, autocontinue=bool(e.get("autoContinue", True))))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:  # inf: Overflow
             raise InputFileError(f"{key}: bad command, frame or params ({exc})") from None
     home = None
     planned = mission.get("plannedHomePosition")
