@@ -28,7 +28,8 @@ from pdcov.core.mission import AltitudeFrame
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.terrain import TerrainSurface
-from pdcov.errors import ConfigError, PdcovError, where
+from pdcov.core.zoom import FovLens, LensQuantity, TableLens, Zoom, ZoomLens
+from pdcov.errors import CalibrationError, ConfigError, PdcovError, where
 from pdcov.ids import SYSTEM_IDS, VEHICLE_ID_RULE, valid_system_id, valid_vehicle_id
 from pdcov.schema import Section, Variants, check_keys
 from pdcov.yaml_file import load_yaml
@@ -116,6 +117,104 @@ class FixedMountSection:
     def mount(self) -> FixedMount:
         return FixedMount(math.radians(self.roll_deg), math.radians(self.pitch_deg),
                           math.radians(self.yaw_deg), tuple(self.lever_arm_frd_m))
+
+
+ZOOM_MODES = ("none", "fov_status", "table")
+_TABLE_KEYS = ("zoom_level", "focal_length_mm")
+
+
+@dataclass(frozen=True, slots=True)
+class ZoomLensSection:
+    """``camera.zoom_lens``: the zoom lens (core/zoom.py) for ``camera.zoom`` fov_status or
+    table. min_hfov_deg: the narrowest horizontal field of view (fov_status; deg);
+    fov_tolerance_deg: how far a report may lie outside the calibrated range and be taken as
+    its end; max_zoom_rate_per_s: the fastest the lens zooms (|d ln f / dt|, 1/s);
+    max_report_age_s: how long a report stays in force (s); component_id /
+    camera_device_id: the camera whose reports count (None: the first heard); table_by:
+    zoom_level (CAMERA_SETTINGS) or focal_length_mm (CAMERA_INFORMATION); table: entries of
+    that key, K and distortion_coeffs (the size and distortion model are the camera's)."""
+
+    min_hfov_deg: float | None = None
+    fov_tolerance_deg: float = 1.0
+    max_zoom_rate_per_s: float = 2.0
+    max_report_age_s: float = 2.0
+    component_id: int | None = None
+    camera_device_id: int = 0
+    table_by: str = "zoom_level"
+    table: Any = None
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> ZoomLensSection:
+        sec = "camera.zoom_lens"
+        default = _defaults(cls)
+        nums = {k: _number(doc, k, src, sec, default=default[k], positive=True)
+                for k in ("max_zoom_rate_per_s", "max_report_age_s")}
+        tol = _number(doc, "fov_tolerance_deg", src, sec, default=1.0)
+        if tol < 0:
+            raise ConfigError(f"{where(src, sec + '.fov_tolerance_deg')}: expected >= 0 deg, "
+                              f"got {tol!r}")
+        ids: dict[str, int | None] = {}
+        for key, lo, dflt in (("component_id", 1, None), ("camera_device_id", 0, 0)):
+            v = doc.get(key, dflt)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int)
+                                  or not lo <= v <= 255):
+                raise ConfigError(f"{where(src, sec + '.' + key)}: expected an integer "
+                                  f"{lo}..255, got {v!r}")
+            ids[key] = v
+        table_by = doc.get("table_by", "zoom_level")
+        if table_by not in _TABLE_KEYS:
+            raise ConfigError(f"{where(src, sec + '.table_by')}: expected one of "
+                              f"{', '.join(_TABLE_KEYS)}, got {table_by!r}")
+        return cls(_opt_number(doc, "min_hfov_deg", src, sec), tol, **nums,
+                   component_id=ids["component_id"],
+                   camera_device_id=int(ids["camera_device_id"] or 0), table_by=table_by,
+                   table=doc.get("table"))
+
+    def zoom(self, mode: str, camera: CameraModel, src: str | None) -> Zoom:
+        """The mission's Zoom for ``camera.zoom`` = mode (fov_status or table)."""
+        sec = "camera.zoom_lens"
+        lens: ZoomLens
+        if mode == "fov_status":
+            if self.min_hfov_deg is None:
+                raise ConfigError(f"{where(src, sec + '.min_hfov_deg')}: missing: camera.zoom "
+                                  "fov_status needs the narrowest field of view the lens "
+                                  "reaches (deg)")
+            try:
+                lens = FovLens(camera, math.radians(self.min_hfov_deg),
+                               math.radians(self.fov_tolerance_deg), self.max_zoom_rate_per_s)
+            except CalibrationError as exc:
+                raise CalibrationError(f"{src}: {exc}" if src else str(exc)) from None
+        else:
+            lens = self._table(camera, src)
+        camera_id = (None if self.component_id is None
+                     else (self.component_id, self.camera_device_id))
+        return Zoom(lens, self.max_report_age_s, camera_id)
+
+    def _table(self, camera: CameraModel, src: str | None) -> TableLens:
+        sec = "camera.zoom_lens.table"
+        rows = self.table
+        if not isinstance(rows, list) or len(rows) < 2:
+            raise ConfigError(f"{where(src, sec)}: camera.zoom table needs a list of at least "
+                              f"two entries ({self.table_by}, K, distortion_coeffs), got "
+                              f"{rows!r}")
+        keys, cams = [], []
+        for i, row in enumerate(rows):
+            at = f"{sec}[{i}]"
+            if not isinstance(row, dict):
+                raise ConfigError(f"{where(src, at)}: expected a mapping, got {row!r}")
+            extra = sorted(set(row) - {self.table_by, "K", "distortion_coeffs"})
+            if extra:
+                raise ConfigError(f"{where(src, at + '.' + str(extra[0]))}: unknown key; "
+                                  f"expected {self.table_by}, K, distortion_coeffs")
+            keys.append(_number(row, self.table_by, src, at))
+            cams.append(CameraModel.from_config(
+                {"width_px": camera.width_px, "height_px": camera.height_px,
+                 "distortion_model": camera.distortion_model,
+                 "distortion_coeffs": row.get("distortion_coeffs",
+                                              camera.dist_coeffs.tolist()),
+                 "K": row.get("K")}, src, at))
+        return TableLens(LensQuantity(self.table_by), tuple(keys), tuple(cams),
+                         self.max_zoom_rate_per_s, where(src, sec))
 
 
 @dataclass(frozen=True, slots=True)
@@ -317,14 +416,22 @@ def _defaults(section: type) -> dict[str, Any]:
     return {f.name: f.default for f in fields(section) if f.default is not MISSING}
 
 
+_CAMERA_SECTIONS: dict[str, Section | Variants | None] = {
+    "camera": CAMERA_CONFIG.extended(frame_rate_hz=None, exposure_s=None, calibration=None,
+                                     zoom=None,
+                                     zoom_lens=Section.of_dataclass(ZoomLensSection)),
+    "mount": Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
+                                        "gimbal": GIMBAL_MOUNT_CONFIG}),
+    "detector": MODEL_SCHEMA}
+CAMERA_ENTRY = Section.of("name", **_CAMERA_SECTIONS)
+"""One entry of the mission's ``cameras`` list: a name, and the camera, mount and detector
+sections of the single-camera form."""
+
 MISSION_CONFIG = Section.of(
-    "vehicle_id", "calibration", "thresholds",
+    "vehicle_id", "calibration", "thresholds", "cameras",
     origin=Section.of_dataclass(OriginSection),
     domain=Section.of_dataclass(DomainSection),
-    camera=CAMERA_CONFIG.extended(frame_rate_hz=None, exposure_s=None, calibration=None),
-    mount=Variants("type", "fixed", {"fixed": Section.of_dataclass(FixedMountSection),
-                                     "gimbal": GIMBAL_MOUNT_CONFIG}),
-    detector=MODEL_SCHEMA,
+    **_CAMERA_SECTIONS,
     coverage=Section.of_dataclass(CoverageSection),
     terrain=Section.of_dataclass(TerrainSection),
     log=Section.of_dataclass(LogSection),
@@ -354,6 +461,21 @@ def mission_schema(sections: Mapping[str, Section] | None = None) -> Section:
 
 
 @dataclass(frozen=True, slots=True)
+class MissionCamera:
+    """One camera of the mission: its name (outputs per camera), calibration, frame rate
+    (Hz), mount (or gimbal device), detector model, zoom (None: a fixed lens) and exposure
+    time (s; None: not given, no motion blur effect)."""
+
+    name: str
+    camera: CameraModel
+    frame_rate_hz: float
+    mount: FixedMount | GimbalMount
+    detector: DetectorModel
+    zoom: Zoom | None = None
+    exposure_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Mission:
     """A parsed mission config.
 
@@ -374,6 +496,10 @@ class Mission:
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
     grouped). exposure_s: camera.exposure_s, the exposure time (s) motion blur is computed
     over (None: not given, no blur effect).
+    zoom: the camera's zoom lens and reports (core/zoom.py; None: camera.zoom
+    none, the configured K for every frame). extra_cameras: the ``cameras`` list's entries
+    after the first (whose camera, mount, detector and zoom are the fields above, named
+    camera_name); their looks go into the same cells (``all_cameras``).
     """
 
     vehicle_id: str
@@ -404,6 +530,9 @@ class Mission:
     geolocation: Geolocation = Geolocation()
     gate_sigmas: float = 3.0
     warnings: tuple[str, ...] = ()
+    zoom: Zoom | None = None
+    extra_cameras: tuple[MissionCamera, ...] = ()
+    camera_name: str = "camera"
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -420,17 +549,25 @@ class Mission:
         daemon = service.get("frame_source") if isinstance(service, Mapping) else None
         return daemon if daemon in ("rate", "capture") else None
 
+    @property
+    def all_cameras(self) -> tuple[MissionCamera, ...]:
+        """Every camera of the mission, the primary (the fields above) first."""
+        return (MissionCamera(self.camera_name, self.camera, self.frame_rate_hz, self.mount,
+                              self.detector, self.zoom, self.exposure_s), *self.extra_cameras)
+
     def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
         """The ENU origin; the ground altitude given here overrides the configured one."""
         alt = ground_alt_msl_m if ground_alt_msl_m is not None else self.ground_alt_msl_m
         return Origin(self.origin_lat_deg, self.origin_lon_deg, alt or 0.0)
 
-    def new_grid(self) -> CoverageGrid:
-        """An empty coverage grid over the domain's free cells."""
+    def new_grid(self, camera: MissionCamera | None = None) -> CoverageGrid:
+        """An empty coverage grid over the domain's free cells, for ``camera`` (one of
+        ``all_cameras``; None: the primary)."""
         g = self.domain.grid_geometry(self.cell_size_m)
-        return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
+        cam = self.all_cameras[0] if camera is None else camera
+        return CoverageGrid(g, self.domain.free_mask(g), cam.camera, cam.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=self.exposure_s,
+                            terrain=self.terrain, exposure_s=cam.exposure_s,
                             looks=self.looks)
 
 
@@ -449,7 +586,10 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     src = source
     base = base_dir or Path(".")
     check_keys(doc, mission_schema(sections), src or "mission config")
+    listed = _camera_list(doc, src)
     for key in ("origin", "domain", "camera", "detector"):
+        if listed and key in ("camera", "detector"):
+            continue
         if key not in doc and not (key == "camera" and "calibration" in doc):
             raise ConfigError(f"{where(src, key)}: missing (see docs/mission-config.md)")
 
@@ -490,9 +630,13 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             terrain = terrain_surface(dem, g, origin_value, domain.free_mask(g))
         except PdcovError as exc:
             raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
-    camera, rate, exposure = _camera(doc, src, base)
-    mount = _mount(doc.get("mount", {"type": "fixed"}), src)
-    detector = _detector(doc["detector"], src, base)
+    cameras = ([_mission_camera(e, f"cameras[{i}].", str(e.get("name", f"camera{i + 1}")),
+                                src, base) for i, e in enumerate(listed)]
+               if listed else [_mission_camera(doc, "", "camera", src, base)])
+    first = cameras[0]
+    camera, rate, mount, detector, zoom, exposure = (
+        first.camera, first.frame_rate_hz, first.mount, first.detector, first.zoom,
+        first.exposure_s)
 
     thresholds = doc.get("thresholds", list(DEFAULT_THRESHOLDS))
     if (not isinstance(thresholds, list) or not thresholds or not all(
@@ -513,19 +657,25 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     if not valid_vehicle_id(vehicle_id):
         raise ConfigError(f"{where(src, 'vehicle_id')}: expected {VEHICLE_ID_RULE}, "
                           f"got {vehicle_id!r}")
+    looks = cov.looks_config(detector, src)
+    if len(cameras) > 1 and looks.rule is not LooksRule.INDEPENDENT:
+        raise ConfigError(f"{where(src, 'coverage.looks')}: {looks.rule} with a cameras list "
+                          "is not supported yet (the cameras' looks are combined as "
+                          "independent); use independent, or one camera")
     return Mission(
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
         ground_alt_msl_m=ground_alt,
         domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
         detector=detector, exposure_s=exposure, thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
-        min_height_m=cov.min_height_m, looks=cov.looks_config(detector, src),
+        min_height_m=cov.min_height_m, looks=looks,
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
         dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
-        warnings=tuple(warnings), source=src, raw=doc)
+        warnings=tuple(warnings), zoom=zoom, extra_cameras=tuple(cameras[1:]),
+        camera_name=first.name, source=src, raw=doc)
 
 
 def _mapping(doc: Mapping[str, Any], key: str, src: str | None,
@@ -603,6 +753,51 @@ def _dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None) -> float:
     return h
 
 
+def _camera_list(doc: Mapping[str, Any], src: str | None) -> list[Mapping[str, Any]]:
+    """The ``cameras`` list's entries, keys checked (empty without one)."""
+    listed = doc.get("cameras")
+    if listed is None:
+        return []
+    if not isinstance(listed, list) or not listed:
+        raise ConfigError(f"{where(src, 'cameras')}: expected a non-empty list of cameras "
+                          f"(name, camera, mount, detector), got {listed!r}")
+    both = sorted({"camera", "mount", "detector", "calibration"} & set(doc))
+    if both:
+        raise ConfigError(f"{where(src, both[0])}: not allowed with a cameras list (give each "
+                          "camera's camera, mount and detector in its entry)")
+    names = []
+    for i, entry in enumerate(listed):
+        check_keys(entry, CAMERA_ENTRY, src, f"cameras[{i}]")
+        name = entry.get("name", f"camera{i + 1}")
+        if not valid_vehicle_id(name) or name in names:
+            raise ConfigError(f"{where(src, f'cameras[{i}].name')}: expected a unique name "
+                              f"({VEHICLE_ID_RULE}), got {name!r}")
+        names.append(name)
+        for key in ("camera", "detector"):
+            if key not in entry:
+                raise ConfigError(f"{where(src, f'cameras[{i}].{key}')}: missing")
+    return listed
+
+
+def _mission_camera(entry: Mapping[str, Any], at: str, name: str, src: str | None,
+                    base: Path) -> MissionCamera:
+    """One camera from a ``cameras`` entry (``at``: its key path, e.g. 'cameras[1].'), or
+    from the single-camera form's top-level camera, mount and detector (``at`` '')."""
+    try:
+        camera, rate, exposure = _camera(entry, src, base)
+        zoom = _zoom(entry.get("camera", {}), camera, src)
+        mount = _mount(entry.get("mount", {"type": "fixed"}), src)
+        detector = _detector(entry["detector"], src, base)
+    except ConfigError as exc:
+        if not at:
+            raise
+        text, lead = str(exc), f"{src}: " if src else ""
+        if not text.startswith(lead):
+            raise
+        raise type(exc)(f"{lead}{at}{text[len(lead):]}") from None
+    return MissionCamera(name, camera, rate, mount, detector, zoom, exposure)
+
+
 def _camera(doc: Mapping[str, Any], src: str | None, base: Path
             ) -> tuple[CameraModel, float, float | None]:
     """The camera model, camera.frame_rate_hz and camera.exposure_s (None: not given)."""
@@ -617,10 +812,29 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path
                               f"calibration file (give the intrinsics in one place)")
         camera = CameraModel.from_camera_info(_resolve(calibration, base, src, "calibration"))
     else:
-        inline = {k: v for k, v in cam.items() if k not in ("frame_rate_hz", "exposure_s")}
+        inline = {k: v for k, v in cam.items()
+                  if k not in ("frame_rate_hz", "exposure_s", "zoom", "zoom_lens")}
         camera = CameraModel.from_config(inline, src, "camera")
     rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
     return camera, rate, _opt_number(cam, "exposure_s", src, "camera")
+
+
+def _zoom(cam: Mapping[str, Any], camera: CameraModel, src: str | None) -> Zoom | None:
+    """camera.zoom (none, fov_status, table) and camera.zoom_lens."""
+    mode = cam.get("zoom", "none")
+    if mode not in ZOOM_MODES:
+        raise ConfigError(f"{where(src, 'camera.zoom')}: expected one of "
+                          f"{', '.join(ZOOM_MODES)}, got {mode!r}")
+    lens_doc = cam.get("zoom_lens") or {}
+    if not isinstance(lens_doc, dict):
+        raise ConfigError(f"{where(src, 'camera.zoom_lens')}: expected a mapping, got "
+                          f"{lens_doc!r}")
+    if mode == "none":
+        if lens_doc:
+            raise ConfigError(f"{where(src, 'camera.zoom_lens')}: given with camera.zoom none; "
+                              "set camera.zoom to fov_status or table, or remove it")
+        return None
+    return ZoomLensSection.from_mapping(lens_doc, src).zoom(mode, camera, src)
 
 
 def _mount(doc: Any, src: str | None) -> FixedMount | GimbalMount:

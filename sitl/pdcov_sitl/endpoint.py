@@ -18,6 +18,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from .camera import CAMERA_COMPONENT, ZoomCamera
 from .faults import FaultInjector, FaultSpec, GimbalHealth
 from .link import open_link
 from .protocol import AUTOPILOT_COMPONENT, Autopilot, AutopilotProtocol, StreamSchedule
@@ -86,6 +87,7 @@ class AutopilotEndpoint:
         self._down_until_s = -math.inf
         self.n_sent = 0
         self.n_received = 0
+        self.camera: ZoomCamera | None = None  # fly.py sets it for a zoom mission
         self._next_read_wall_s = -math.inf
         self._tlog: BinaryIO | None = None
         self.link = open_link(url)
@@ -187,6 +189,9 @@ class AutopilotEndpoint:
                 self.n_received += 1
                 for reply in self.protocol.receive(msg, now_s, wall_s):
                     self.send(reply, now_s)
+                if self.camera is not None:  # a camera component on the same link
+                    for reply in self.camera.receive(msg, self.time_boot_ms(now_s)):
+                        self.send(reply, now_s, component_id=CAMERA_COMPONENT)
         if not down:
             for msg in self.protocol.poll(wall_s):
                 self.send(msg, now_s)

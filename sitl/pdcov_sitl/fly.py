@@ -38,10 +38,12 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
 from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R, slerp_quat_wxyz
+from pdcov.core.zoom import FovLens, hfov_rad
 from pdcov.errors import InputFileError
 from pdcov.planning.plan import read_mission
 from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
+from .camera import CAMERA_COMPONENT, ZoomCamera
 from .control import Controller
 from .detector import DetectorOptions, SimulatedDetector
 from .detector_out import DetectionOutput
@@ -235,6 +237,7 @@ def fly(opts: FlyOptions) -> FlightResult:
                                 opts.rangefinder if ground is not None else None),
         streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog,
         signing_key=opts.signing_key)
+    endpoint.camera = _zoom_camera(m, endpoint, opts.seed)
     detect = None
     try:
         if opts.people is not None:
@@ -245,6 +248,20 @@ def fly(opts: FlyOptions) -> FlightResult:
         endpoint.close()
         if detect is not None:
             detect.output.close()
+
+
+def _zoom_camera(m: Mission, endpoint, seed: int) -> ZoomCamera | None:
+    """The camera component of a mission whose camera zooms by its field of view
+    (camera.zoom fov_status): from the configured K's field of view (the widest) to
+    camera.zoom_lens.min_hfov_deg; None otherwise."""
+    if m.zoom is None or not isinstance(m.zoom.lens, FovLens):
+        return None
+    lens = m.zoom.lens
+    return ZoomCamera(endpoint.mav, system_id=endpoint.mav.srcSystem,
+                      width_px=m.camera.width_px, height_px=m.camera.height_px,
+                      wide_hfov_deg=math.degrees(hfov_rad(lens.wide)),
+                      narrow_hfov_deg=math.degrees(lens.min_hfov_rad),
+                      zoom_rate_per_s=0.5 * lens.max_rate_per_s, seed=seed)
 
 
 @dataclass(frozen=True, slots=True)
@@ -364,6 +381,7 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
     frame_index = 0
     k = 0
     landed_s = math.inf
+    zoom_done: tuple[int, float] | None = None  # the mission's last zoom command carried out
     while True:
         s = vehicle.state()
         t = s.t_s
@@ -401,6 +419,16 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
         gimbal.step(dt, s.roll_rad, s.pitch_rad, s.yaw_rad)
         if guidance.leg is not None:
             gimbal.command(guidance.leg.gimbal_pitch_rad, guidance.leg.gimbal_yaw_rad)
+        camera = endpoint.camera
+        if camera is not None:
+            if guidance.leg is not None and guidance.leg.camera_zoom is not None \
+                    and guidance.leg.camera_zoom != zoom_done:
+                zoom_done = guidance.leg.camera_zoom
+                camera.zoom(*zoom_done)
+            camera.step(dt)
+            if not endpoint.is_down(t):
+                for msg in camera.due(t, endpoint.time_boot_ms(t)):
+                    endpoint.send(msg, t, component_id=CAMERA_COMPONENT)
         vehicle.step()
         k += 1
         if opts.speed > 0:

@@ -4,7 +4,8 @@ Mission items (of a QGC ``.plan`` or WPL 110 file as ``pdcov plan`` writes them,
 are read with ``pdcov.planning.plan``: take-off at home, the waypoints with their speeds and
 hover times, return to launch. The gimbal commands of the mission (MAV_CMD_DO_MOUNT_CONTROL 205 and
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW 1000) set the camera's pitch/yaw from the next waypoint
-on; without any the camera looks straight down.
+on; without any the camera looks straight down. MAV_CMD_SET_CAMERA_ZOOM items (531: param1
+CAMERA_ZOOM_TYPE, param2 its value) zoom the camera (camera.py) from the next waypoint on.
 
 The legs: climb vertically at home to the first waypoint's altitude, the waypoints with their
 speeds and hold times, the return to launch (``ReturnRule``: ArduCopter's RTL altitude), descend
@@ -31,6 +32,7 @@ from pdcov.core.mission import (
     MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
     MAV_CMD_DO_MOUNT_CONTROL,
     MAV_CMD_NAV_WAYPOINT,
+    MAV_CMD_SET_CAMERA_ZOOM,
     MAV_FRAME_GLOBAL,
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
@@ -109,6 +111,9 @@ class Leg:
     gimbal_pitch_rad: float = NADIR_PITCH_RAD
     gimbal_yaw_rad: float = 0.0
     kind: str = "waypoint"   # takeoff | waypoint | return | land
+    camera_zoom: tuple[int, float] | None = None
+    """The camera zoom in force from the leg's start (CAMERA_ZOOM_TYPE, value); None: none
+    commanded yet."""
     above_terrain: bool = False
     """Flown at a height above the terrain under the vehicle (module docstring)."""
 
@@ -123,6 +128,21 @@ class FlightPlan:
     @property
     def survey_legs(self) -> tuple[Leg, ...]:
         return tuple(leg for leg in self.legs if leg.kind == "waypoint")
+
+
+def _zoom_commands(items: tuple[MissionItem, ...]) -> list[tuple[int, float] | None]:
+    """Per navigation waypoint: the (zoom type, value) of the MAV_CMD_SET_CAMERA_ZOOM just
+    before it, or None where none precedes it."""
+    out: list[tuple[int, float] | None] = []
+    pending: tuple[int, float] | None = None
+    for it in items:
+        if it.command == MAV_CMD_SET_CAMERA_ZOOM:
+            zoom_type = it.param1 if math.isfinite(it.param1) else -1.0  # refused by the camera
+            pending = (int(zoom_type), float(it.param2))
+        elif it.command == MAV_CMD_NAV_WAYPOINT:
+            out.append(pending)
+            pending = None
+    return out
 
 
 def _gimbal_commands(items: tuple[MissionItem, ...]) -> list[tuple[float, float] | None]:
@@ -155,6 +175,7 @@ def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], o
                   for it in items)
     plan = plan_from_mission_items(items, origin, source, default_speed_mps)
     gimbal = _gimbal_commands(items)
+    zooms = _zoom_commands(items)
     nav = [(k, it) for k, it in enumerate(items) if it.command == MAV_CMD_NAV_WAYPOINT]
 
     def terrain_m(n_m: float, e_m: float, what: str) -> float:
@@ -173,15 +194,18 @@ def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], o
     legs.append(Leg((0.0, 0.0, 0.0), (0.0, 0.0, -alt0), takeoff_speed_mps, 1.0, kind="takeoff"))
     here = (0.0, 0.0, -alt0)
     pitch, yaw = NADIR_PITCH_RAD, 0.0
+    zoom: tuple[int, float] | None = None
     for k, (w, (seq, it)) in enumerate(zip(plan.waypoints, nav, strict=True)):
         if k < len(gimbal) and gimbal[k] is not None:
             pitch, yaw = gimbal[k]  # type: ignore[misc]
+        zoom = zooms[k] if k < len(zooms) and zooms[k] is not None else zoom
         terrain = it.frame == MAV_FRAME_GLOBAL_TERRAIN_ALT
         n, e = w.y_enu_m, w.x_enu_m
         up = w.alt_agl_m + (terrain_m(n, e, f"item {seq}: the terrain-frame waypoint")
                             if terrain else 0.0)
         end = (n, e, -up)
-        legs.append(Leg(here, end, w.speed_mps, w.hover_s, pitch, yaw, above_terrain=terrain))
+        legs.append(Leg(here, end, w.speed_mps, w.hover_s, pitch, yaw, above_terrain=terrain,
+                        camera_zoom=zoom))
         here = end
     rtl_speed = plan.waypoints[-1].speed_mps
     under = terrain_m(here[0], here[1], "the start of the return") if rtl.above_terrain else 0.0

@@ -88,6 +88,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.report.outputs import (
         evaluate_poses,
         finite_track,
+        metrics_document,
         read_prior,
         summary_text,
         write_outputs,
@@ -105,6 +106,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
+        if mission.zoom is not None:
+            raise PdcovError(f"{args.poses}: camera.zoom {mission.zoom.lens.quantity} follows "
+                             "the camera's zoom reports, which a pose CSV does not hold: give "
+                             "the flight log (--log), or set camera.zoom none")
         log_poses = None
         poses: Sequence[CameraPose] = read_pose_csv(args.poses)
         origin = mission.origin()
@@ -122,7 +127,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             frame_source=args.frame_source or mission.chosen_frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            terrain_check=terrain_check)
+            terrain_check=terrain_check, zoom=mission.zoom)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -136,9 +141,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
     # The daemon's filter (frame_policy.below_min_height), applied to the poses of a CSV too.
     low = sum(1 for p in poses if below_min_height(p.r_cam_enu[2], mission.min_height_m))
+    cameras = log_poses.cameras if log_poses is not None else ()
     if low:
-        poses = [p for p in poses if not below_min_height(p.r_cam_enu[2],
-                                                          mission.min_height_m)]
+        high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in poses]
+        poses = [p for p, h in zip(poses, high, strict=True) if h]
+        cameras = tuple(c for c, h in zip(cameras, high, strict=False) if h)
         lines.append(f"{low} frames with the camera below coverage.min_height_m = "
                      f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:
@@ -155,13 +162,21 @@ def run_evaluate(args: argparse.Namespace) -> int:
              if args.prior is not None else None)
     if prior is not None:
         lines.extend(prior.notes)
-    evaluate_poses(grid, poses, progress=progress, total=len(poses))
+    evaluate_poses(grid, poses, progress=progress, total=len(poses), cameras=cameras)
     lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
                                grid.frames))
+    per_camera = _other_cameras(args, mission, lines) if mission.extra_cameras else {}
+    if per_camera:
+        # Each camera's looks in the same cells, independent: the grids' log-miss sums add.
+        own, grid = grid, mission.new_grid()
+        for g in (own, *per_camera.values()):
+            grid.merge(g)
+        per_camera = {mission.camera_name: own, **per_camera}
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
-        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes)
+        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes,
+                                       cameras)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)
@@ -176,6 +191,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
         extra["warnings"] = [*log_warnings, *warnings]
     if terrain_check is not None:
         extra["terrain_check"] = terrain_check.as_dict()
+    if per_camera:
+        extra["cameras"] = {name: metrics_document(g.metrics(mission.thresholds))
+                            for name, g in per_camera.items()}
     with replacing_dir(args.out) as replaced:
         run = write_outputs(args.out, mission, grid, origin,
                             title=f"{mission.vehicle_id}: {source}",
@@ -188,6 +206,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)
+        for name, g in per_camera.items():
+            write_outputs(args.out / "cameras" / name, mission, g, origin,
+                          title=f"{mission.vehicle_id} {name}: {source}",
+                          track_enu=finite_track(track), plan_enu=plan_enu,
+                          outline_threshold=args.outline_threshold)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:
@@ -195,6 +218,38 @@ def run_evaluate(args: argparse.Namespace) -> int:
         lines.append(f"camera poses written to {args.export_poses}")
     print(summary_text(run, lines + [f"WARNING: {w}" for w in warnings]))
     return 0
+
+
+def _other_cameras(args: argparse.Namespace, mission: Mission, lines: list[str]
+                   ) -> dict[str, CoverageGrid]:
+    """The grids of the mission's cameras after the first, each from the log's frames at its
+    own rate, with its own mount, zoom and detector (the primary's frame rules)."""
+    from pdcov.report.outputs import evaluate_poses
+    from pdcov.telemetry.frame_policy import below_min_height
+    from pdcov.telemetry.log_poses import poses_from_log
+
+    if args.log is None:
+        raise PdcovError(f"{args.poses}: the mission lists {len(mission.all_cameras)} "
+                         "cameras; a pose CSV holds one camera's poses: give the flight log "
+                         "(--log)")
+    grids = {}
+    for cam in mission.extra_cameras:
+        lp = poses_from_log(
+            args.log, origin_lat_deg=mission.origin_lat_deg,
+            origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
+            mount=cam.mount, frame_rate_hz=cam.frame_rate_hz,
+            frame_source=args.frame_source or mission.chosen_frame_source,
+            max_gap_s=mission.max_gap_s, system_id=mission.system_id,
+            estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
+            zoom=cam.zoom)
+        high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in lp.poses]
+        grid = mission.new_grid(cam)
+        evaluate_poses(grid, [p for p, h in zip(lp.poses, high, strict=True) if h],
+                       cameras=[c for c, h in zip(lp.cameras, high, strict=False) if h])
+        grids[cam.name] = grid
+        lines.append(f"camera {cam.name}: {grid.frames} frames "
+                     f"({next((x for x in lp.summary_lines if x.startswith('frames:')), '')})")
+    return grids
 
 
 def _why_no_frame(n_read: int, top_m: float, min_height_m: float) -> str:

@@ -103,6 +103,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: docs/planning.md)")
     p.add_argument("--radius-m", type=positive, help="sector search radius (default: the "
                                                   "largest keeping the triangles inside)")
+    p.add_argument("--zoom-hfov-deg", type=positive, metavar="DEG",
+                   help="zoom the camera to this horizontal field of view for the whole plan "
+                        "(a MAV_CMD_SET_CAMERA_ZOOM item; needs camera.zoom fov_status)")
     p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     _terrain_args(p)
@@ -132,6 +135,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="track spacings (default: from the swath and --overlaps)")
     o.add_argument("--overlaps", nargs="+", type=overlap, default=[0.0, 0.2, 0.4],
                    help="side overlaps of the swath to try")
+    o.add_argument("--zooms-hfov-deg", nargs="+", type=positive, metavar="DEG",
+                   help="camera zooms to try with each altitude, as horizontal fields of view "
+                        "(deg; needs camera.zoom fov_status; default: not zoomed)")
     o.add_argument("--processes", type=positive_int, help="worker processes (default: all cores)")
     _terrain_args(o)
     o.add_argument("--out", required=True, type=output_dir, help="folder to write")
@@ -305,10 +311,11 @@ def run_plan(args: argparse.Namespace) -> int:
     params = PlanParams(args.pattern, args.altitude_m, args.speed_mps,
                         math.radians(args.heading_deg or 0.0), args.spacing_m,
                         _overlap(args),
-                        tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m)
+                        tuple(args.centre_enu_m) if args.centre_enu_m else None, args.radius_m,
+                        args.zoom_hfov_deg)
     if "spacing" in PATTERN_OPTIONS[args.pattern]:
-        spacing_m = args.spacing_m or track_spacing_m(sc.swath_width_m(args.altitude_m),
-                                                      _overlap(args))
+        spacing_m = args.spacing_m or track_spacing_m(
+            sc.swath_width_m(args.altitude_m, zoom_hfov_deg=args.zoom_hfov_deg), _overlap(args))
         check_plan_size(sc, spacing_m, args.speed_mps)
     plan, spacing = build_plan(sc, params)
     pred = predict(sc, plan, params, progress=True)
@@ -428,6 +435,7 @@ def _score_row(s: Score) -> dict[str, Any]:
             "overlap": None if p.spacing_m is not None or vantage else p.overlap,
             "spacing_m": None if vantage else round(s.spacing_m, 3),
             "proportion": round(s.proportion, 4),
+            **({} if p.zoom_hfov_deg is None else {"zoom_hfov_deg": p.zoom_hfov_deg}),
             "mean_pd": round(s.mean_pd, 4), "flight_time_s": round(s.flight_time_s, 1),
             "path_length_m": round(s.path_length_m, 1), "missions": s.missions}
 
@@ -455,7 +463,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     swept = [p for p in args.patterns if p != "vantage"]
     params = candidates(swept, args.altitudes_m, args.speeds_mps,
                         [math.radians(h) for h in args.headings_deg], args.spacings_m,
-                        args.overlaps)
+                        args.overlaps, args.zooms_hfov_deg or (None,))
     t0 = time.monotonic()
     scores, failures = (sweep(sc, params, args.target_pd, args.processes, progress=True)
                         if params else ([], []))

@@ -20,6 +20,13 @@ are looked up by its size and by its motion blur (core/blur.py), the flat index
 ``blur_row * (N + 2) + size_index`` into ``DetectorModel.padded_tables_by_blur``; without
 them, or for a pose without a known velocity and angular rate, by size only.
 
+A frame may be taken with another camera than the grid's own (``update_with``): a zoomed
+lens (core/zoom.py) or another camera of the mission with its own detector model. Its looks
+add into the same cells' sums, as do another grid's (``merge``: another flight, vehicle or
+camera): looks are combined as independent, two cameras giving p1 and p2 on a cell give
+1 - (1 - p1)(1 - p2), or by the looks rule below (grids of different detectors combine at
+its quadrature nodes, ``log_miss_nodes``).
+
 Beside the probabilities each cell keeps its ``LimitingFactor``: the best that any frame did
 for it, from never in view to seen at a size the detector model covers.
 
@@ -70,6 +77,7 @@ _REVISIT_TOL_S = 1e-6
 # A version-1 revisit clock (float32) is used only where it resolves 1 ms: times below 2^13 s.
 _FLOAT32_CLOCK_LIMIT_S = 2.0**13
 _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
+_MAX_CAMERAS = 256  # GridCamera values kept (each distinct zoom of a frame is one)
 
 
 def default_max_range_m(camera: CameraModel, detector: DetectorModel,
@@ -90,6 +98,53 @@ class LimitingFactor(enum.IntEnum):
     TOO_SMALL = 3  # seen, but always smaller than the detector model's smallest size bin
     TOO_LARGE = 4  # seen, but only larger than its largest bin
     SEEN = 5  # seen at a size the detector model covers
+
+
+@dataclass(frozen=True, slots=True)
+class GridCamera:
+    """What ``CoverageGrid.update`` needs of one camera and its detector model, computed once
+    (``build``): the calibrated field of view's bounding pyramid (the border rays' x / z and
+    y / z extremes in the optical frame), the image-to-detector-input scale, the slant range
+    beyond which cells are not observed (m), the detector's bin edges as image areas (px^2;
+    (float64, float32), indexed by ``area dtype is float32``, so that areas are compared with
+    edges of their own dtype), the LimitingFactor of an observed cell by its size bin index
+    (0: below the first edge, len(edges): above the last) and the log-miss tables (P_D,
+    P_FA) by the kernel's bin index (with blur bins, blur row * (N + 2) + size index)."""
+
+    camera: CameraModel
+    detector: DetectorModel
+    fov_box: tuple[float, float, float, float]
+    size_scale: float
+    max_range_m: float
+    area_edges_px2: tuple[np.ndarray, np.ndarray]
+    seen_code: np.ndarray
+    log_miss_tables: tuple[np.ndarray, np.ndarray]
+
+    @classmethod
+    def build(cls, camera: CameraModel, detector: DetectorModel, cell_size_m: float,
+              max_range_m: float | None = None) -> GridCamera:
+        """max_range_m: None chooses ``default_max_range_m`` (so it follows a zoomed
+        camera's focal length)."""
+        rays = camera.border_rays_cam
+        x_z, y_z = rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]
+        fov_box = (float(x_z.min()), float(x_z.max()), float(y_z.min()), float(y_z.max()))
+        size_scale = detector.image_to_input_scale(camera.width_px, camera.height_px)
+        if max_range_m is None:
+            max_range_m = default_max_range_m(camera, detector, cell_size_m)
+        if not max_range_m > 0:
+            raise ValueError(f"max_range_m must be positive, got {max_range_m}")
+        # Indexed by the kernel's bin index: blur row * (N + 2) + size index (the detector
+        # model's padded_tables_by_blur); row 0, P by size only, when blur does not apply.
+        pd, pfa = detector.padded_tables_by_blur()
+        with np.errstate(divide="ignore"):
+            tables = (np.log1p(-pd).astype(np.float32), np.log1p(-pfa).astype(np.float32))
+        # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
+        area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / size_scale) ** 2
+        seen_code = np.full(len(area_edges) + 1, LimitingFactor.SEEN, dtype=np.uint8)
+        seen_code[0] = LimitingFactor.TOO_SMALL
+        seen_code[-1] = LimitingFactor.TOO_LARGE
+        return cls(camera, detector, fov_box, size_scale, float(max_range_m),
+                   (area_edges, area_edges.astype(np.float32)), seen_code, tables)
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,23 +197,14 @@ class CoverageGrid:
         self.terrain = terrain
         # The kernel's terrain: None on the plane z = 0, which takes the flat-earth path.
         self._relief = None if terrain is None or terrain.is_level_zero else terrain
-        # The calibrated field of view's bounding pyramid: the border rays' x / z and y / z
-        # extremes in the optical frame.
-        rays = camera.border_rays_cam
-        self._fov_box = (float((rays[:, 0] / rays[:, 2]).min()),
-                         float((rays[:, 0] / rays[:, 2]).max()),
-                         float((rays[:, 1] / rays[:, 2]).min()),
-                         float((rays[:, 1] / rays[:, 2]).max()))
         self.geometry = geometry
         self.mask = mask
-        self.camera = camera
-        self.detector = detector
-        self.size_scale = detector.image_to_input_scale(camera.width_px, camera.height_px)
-        if max_range_m is None:
-            max_range_m = default_max_range_m(camera, detector, geometry.cell_size_m)
-        if not max_range_m > 0:
+        if max_range_m is not None and not max_range_m > 0:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
-        self.max_range_m = float(max_range_m)
+        self._max_range_given = max_range_m
+        self._cameras: dict[tuple[int, int], GridCamera] = {}
+        self._base = self._grid_camera(camera, detector)
+        self._use(self._base)
         self.min_revisit_s = min_revisit_s
         if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
             raise ValueError(f"exposure_s must be a positive number of seconds, "
@@ -183,21 +229,6 @@ class CoverageGrid:
         # The cells (r0, r1, c0, c1) the latest update may have changed, None for none: a
         # subscriber (the daemon's tiles and status) re-reads only those.
         self.touched: tuple[int, int, int, int] | None = None
-        # Indexed by the kernel's bin index: blur row * (N + 2) + size index (the detector
-        # model's padded_tables_by_blur); row 0, P by size only, when blur does not apply.
-        pd, pfa = detector.padded_tables_by_blur()
-        with np.errstate(divide="ignore"):
-            self._log_miss_tables = (np.log1p(-pd).astype(np.float32),
-                                     np.log1p(-pfa).astype(np.float32))
-        # Bin edges as image areas (px^2), indexed by ``area dtype is float32``: (float64
-        # edges, float32 edges), so that update compares areas with edges of their own dtype.
-        area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / self.size_scale) ** 2
-        self._area_edges_px2 = (area_edges, area_edges.astype(np.float32))
-        # LimitingFactor of an observed cell by its size bin index (0: below the first edge,
-        # len(edges): above the last).
-        self._seen_code = np.full(len(area_edges) + 1, LimitingFactor.SEEN, dtype=np.uint8)
-        self._seen_code[0] = LimitingFactor.TOO_SMALL
-        self._seen_code[-1] = LimitingFactor.TOO_LARGE
 
     # -- results ----------------------------------------------------------------------------
 
@@ -285,6 +316,44 @@ class CoverageGrid:
         """Free cells per LimitingFactor, by lower-case name, in code order."""
         counts = np.bincount(self.limiting[self.mask], minlength=len(LimitingFactor))
         return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
+
+    # -- the camera of a frame --------------------------------------------------------------
+
+    def update_with(self, pose: CameraPose, camera: CameraModel | None = None,
+                    detector: DetectorModel | None = None, t_s: float | None = None) -> int:
+        """``update`` for a frame taken with another camera (a zoomed lens: core/zoom.py)
+        and/or another detector model (another camera of the mission) than the grid's own;
+        None keeps the grid's. Its looks add into the same cells' log-miss sums: the looks of
+        all cameras are combined as independent (module docstring). The per-camera values
+        are computed once per (camera, detector) object pair (``GridCamera``); with
+        ``max_range_m`` not given, each camera has its own default range."""
+        base = self._base
+        frame = self._grid_camera(camera or base.camera, detector or base.detector)
+        if frame is base:
+            return self.update(pose, t_s)
+        self._use(frame)
+        try:
+            return self.update(pose, t_s)
+        finally:
+            self._use(base)
+
+    def _grid_camera(self, camera: CameraModel, detector: DetectorModel) -> GridCamera:
+        key = (id(camera), id(detector))  # the objects are kept in the value: ids stay theirs
+        found = self._cameras.get(key)
+        if found is None:
+            if len(self._cameras) >= _MAX_CAMERAS:  # a long zoom: keep the grid's own
+                self._cameras = {k: v for k, v in self._cameras.items() if v is self._base}
+            found = GridCamera.build(camera, detector, self.geometry.cell_size_m,
+                                     self._max_range_given)
+            self._cameras[key] = found
+        return found
+
+    def _use(self, c: GridCamera) -> None:
+        """Make ``c`` the camera ``update`` evaluates frames with."""
+        self.camera, self.detector = c.camera, c.detector
+        self.size_scale, self.max_range_m = c.size_scale, c.max_range_m
+        self._fov_box, self._area_edges_px2 = c.fov_box, c.area_edges_px2
+        self._seen_code, self._log_miss_tables = c.seen_code, c.log_miss_tables
 
     # -- update -----------------------------------------------------------------------------
 

@@ -92,13 +92,14 @@ class DetectionTracker:
     def __len__(self) -> int:
         return len(self._groups)
 
-    def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box]
-              ) -> list[Detection]:
+    def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box],
+              camera: CameraModel | None = None) -> list[Detection]:
         """The detections of one decided frame's ``boxes`` (its time ``t_boot_s``, autopilot
-        boot clock, s; ``pose`` the one the grid took), each grouped into a candidate; the
-        boxes not geolocated are counted in ``skipped``."""
+        boot clock, s; ``pose`` the one the grid took; ``camera`` the frame's own, a zoomed
+        lens, None: the tracker's), each grouped into a candidate; the boxes not geolocated
+        are counted in ``skipped``."""
         boxes = tuple(boxes)
-        points, sigmas = locate_boxes(self.camera, pose, boxes, self.geolocation,
+        points, sigmas = locate_boxes(camera or self.camera, pose, boxes, self.geolocation,
                                       self.terrain)
         out = []
         for box, r, sigma in zip(boxes, points, sigmas, strict=True):

@@ -28,6 +28,7 @@ from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import Rz
 from pdcov.core.terrain import TerrainSurface
+from pdcov.core.zoom import FovLens, Zoom
 from pdcov.errors import ConfigError
 from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
@@ -50,7 +51,8 @@ class Scenario:
     vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold;
     terrain: the ground under the grid (ENU; None: the plane z = 0) and how plans follow it;
     exposure_s: the camera's exposure time (s), for motion blur (None: no blur effect);
-    looks: how a person's looks combine in the predicted grids (coverage.looks)."""
+    looks: how a person's looks combine in the predicted grids (coverage.looks);
+    zoom: the camera's zoom lens (core/zoom.py; None: a fixed lens), for plans that zoom."""
 
     free_space: Polygon | MultiPolygon
     geometry: GridGeometry
@@ -67,6 +69,22 @@ class Scenario:
     following: TerrainFollowing = TerrainFollowing()
     exposure_s: float | None = None
     looks: LooksConfig = LooksConfig()
+    zoom: Zoom | None = None
+
+    def camera_at(self, zoom_hfov_deg: float | None) -> CameraModel:
+        """The camera zoomed to a horizontal field of view (deg; None: the configured
+        camera), through the mission's zoom lens (camera.zoom fov_status); ConfigError
+        without one or outside its calibrated range."""
+        if zoom_hfov_deg is None:
+            return self.camera
+        lens = None if self.zoom is None else self.zoom.lens
+        if not isinstance(lens, FovLens):
+            raise ConfigError(f"a zoom of {zoom_hfov_deg:g} deg needs camera.zoom fov_status "
+                              "(the lens the field of view maps to a focal length through)")
+        why = lens.refusal(math.radians(zoom_hfov_deg))
+        if why:
+            raise ConfigError(f"zoom {zoom_hfov_deg:g} deg: {why}")
+        return lens.camera(math.radians(zoom_hfov_deg))
 
     def over_terrain(self, plan: Plan) -> Plan:
         """``plan`` following the scenario's terrain (``follow_terrain``); without terrain,
@@ -81,15 +99,18 @@ class Scenario:
                             terrain=self.terrain, exposure_s=self.exposure_s,
                             looks=self.looks)
 
-    def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0) -> float:
+    def swath_width_m(self, alt_agl_m: float, heading_rad: float = 0.0,
+                      zoom_hfov_deg: float | None = None) -> float:
         """Ground strip seen across the track by a level vehicle at ``alt_agl_m`` flying
-        ``heading_rad``, within the grid's range limit (metres)."""
+        ``heading_rad``, within the grid's range limit (metres), with the camera zoomed to
+        ``zoom_hfov_deg`` (None: as configured)."""
+        camera = self.camera_at(zoom_hfov_deg)
         level = Flight(np.zeros(1), np.array([[0.0, 0.0, alt_agl_m]]),
                        Rz(heading_rad)[None], np.zeros(1), 0.0, 0.0)
         (pose,) = camera_poses(level, self.mount, self.gimbal_pitch_rad)
         max_range_m = self.max_range_m or default_max_range_m(
-            self.camera, self.detector, self.geometry.cell_size_m)
-        fp = footprint_polygon(self.camera, pose, max_range_m)
+            camera, self.detector, self.geometry.cell_size_m)
+        fp = footprint_polygon(camera, pose, max_range_m)
         return patterns.swath_width_m(fp, heading_rad)
 
 
@@ -98,7 +119,8 @@ class PlanParams:
     """One candidate: pattern, altitude above ground (m), track spacing (m; None: from the
     swath and ``overlap``), speed (m/s), heading (rad; first leg or track direction), centre
     of a spiral or datum of the IAMSAR patterns (ENU m; None: automatic), sector radius (m;
-    None: reach the whole free space)."""
+    None: reach the whole free space), the camera's zoom for the whole plan as a horizontal
+    field of view (deg; None: no zoom command, the configured camera)."""
 
     pattern: PatternName
     alt_agl_m: float
@@ -108,6 +130,7 @@ class PlanParams:
     overlap: float = 0.2
     centre_enu_m: tuple[float, float] | None = None
     radius_m: float | None = None
+    zoom_hfov_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
@@ -168,7 +191,8 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
                           "(planning/vantage_missions.py), not built from parameters")
     spacing = params.spacing_m
     if spacing is None:
-        swath = scenario.swath_width_m(params.alt_agl_m, params.heading_rad)
+        swath = scenario.swath_width_m(params.alt_agl_m, params.heading_rad,
+                                       params.zoom_hfov_deg)
         spacing = patterns.track_spacing_m(swath, params.overlap)
     free, alt, v, h = (scenario.free_space, params.alt_agl_m, params.speed_mps,
                        params.heading_rad)
@@ -183,19 +207,24 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
         plan = patterns.sector_search(free, alt, v, datum_enu_m=c, heading_rad=h,
                                       radius_m=params.radius_m,
                                       second=params.pattern == "sector-2")
+    if params.zoom_hfov_deg is not None:
+        scenario.camera_at(params.zoom_hfov_deg)  # refused before anything is flown
+        plan = replace(plan, camera_zoom_hfov_deg=params.zoom_hfov_deg)
     return plan, spacing
 
 
 def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
             progress: bool = False) -> Prediction:
     """Fly ``plan``, over the scenario's terrain (``Scenario.over_terrain``), at the frame
-    rate and accumulate every frame in a fresh grid."""
+    rate and accumulate every frame in a fresh grid, with the camera zoomed as the plan
+    commands (``Plan.camera_zoom_hfov_deg``)."""
+    camera = scenario.camera_at(plan.camera_zoom_hfov_deg)
     plan = scenario.over_terrain(plan)
     flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
     grid = scenario.new_grid()
     poses = camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad)
     for pose in show_progress(poses, desc="frames", unit="frame", enabled=progress):
-        grid.update(pose)
+        grid.update_with(pose, camera)
     return Prediction(params or PlanParams("lawnmower", plan.waypoints[0].alt_agl_m,
                                            plan.waypoints[0].speed_mps), plan, flight, grid)
 
@@ -211,15 +240,20 @@ def score(scenario: Scenario, params: PlanParams, target_pd: float) -> Score:
 
 def candidates(patterns_: Sequence[PatternName], alts_m: Sequence[float],
                speeds_mps: Sequence[float], headings_rad: Sequence[float],
-               spacings_m: Sequence[float] | None, overlaps: Sequence[float]
-               ) -> list[PlanParams]:
-    """Every combination; heading is dropped for the spiral (it has none), so no duplicates."""
+               spacings_m: Sequence[float] | None, overlaps: Sequence[float],
+               zooms_hfov_deg: Sequence[float | None] = (None,)) -> list[PlanParams]:
+    """Every combination; heading is dropped for the spiral (it has none), so no duplicates.
+    zooms_hfov_deg: the camera zooms to try with each altitude (None: not zoomed): flying
+    higher at a longer focal length keeps people in the detector's best size bin over a
+    narrower strip."""
     out: dict[PlanParams, None] = {}
     spacing_opts: list[tuple[float | None, float]] = (
         [(s, 0.0) for s in spacings_m] if spacings_m else [(None, o) for o in overlaps])
-    for pat, alt, v, h, (s, o) in itertools.product(patterns_, alts_m, speeds_mps,
-                                                    headings_rad, spacing_opts):
-        out[PlanParams(pat, alt, v, 0.0 if pat == "spiral" else h, s, o)] = None
+    for pat, alt, v, h, (s, o), z in itertools.product(patterns_, alts_m, speeds_mps,
+                                                       headings_rad, spacing_opts,
+                                                       zooms_hfov_deg):
+        out[PlanParams(pat, alt, v, 0.0 if pat == "spiral" else h, s, o,
+                       zoom_hfov_deg=z)] = None
     return list(out)
 
 

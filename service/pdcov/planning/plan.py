@@ -45,6 +45,7 @@ from pdcov.core.mission import (
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
+    MAV_CMD_SET_CAMERA_ZOOM,
     MAV_FRAME_GLOBAL,
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
@@ -56,6 +57,7 @@ from pdcov.core.mission import (
 from pdcov.errors import InputFileError
 from pdcov.yaml_file import read_text
 
+ZOOM_TYPE_HORIZONTAL_FOV = 4  # CAMERA_ZOOM_TYPE (common.xml): param2 the field of view, deg
 _SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH,
                 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW)  # 1000: a DO command outside 176..252
 _FIRST_DO_COMMAND = 176  # MAV_CMD_DO_* occupy 176..252 in common.xml
@@ -101,13 +103,16 @@ class Plan:
     frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
     above home). gimbal_pitch_rad: the pitch (rad, -pi/2: nadir; yaw following the
     vehicle) the mission commands the gimbal to after the take-off, with
-    ``gimbal_command``; None: no gimbal command."""
+    ``gimbal_command``; None: no gimbal command. camera_zoom_hfov_deg: the camera's zoom
+    commanded for the whole plan, as a horizontal field of view (deg; None: none
+    commanded)."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
     altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
     gimbal_pitch_rad: float | None = None
     gimbal_command: GimbalCommand = GimbalCommand.MANAGER
+    camera_zoom_hfov_deg: float | None = None
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -162,8 +167,9 @@ def takeoff_alt_m(plan: Plan) -> float:
 
 
 def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
-    """Take-off, speed changes, waypoints and return to launch (no home item); waypoint
-    altitudes in the plan's frame (module doc)."""
+    """Take-off, the camera zoom (MAV_CMD_SET_CAMERA_ZOOM, ZOOM_TYPE_HORIZONTAL_FOV, when
+    the plan commands one), speed changes, waypoints and return to launch (no home item);
+    waypoint altitudes in the plan's frame (module doc)."""
     frame = plan.altitude_frame
     amsl = frame is AltitudeFrame.AMSL
     enu = plan.xyz_enu_m
@@ -175,6 +181,10 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
                          z_m=takeoff_alt_m(plan))]
     if plan.gimbal_pitch_rad is not None:
         items.append(plan.gimbal_command.item(math.degrees(plan.gimbal_pitch_rad)))
+    if plan.camera_zoom_hfov_deg is not None:
+        items.append(MissionItem(MAV_CMD_SET_CAMERA_ZOOM, MAV_FRAME_MISSION,
+                                 param1=float(ZOOM_TYPE_HORIZONTAL_FOV),
+                                 param2=float(plan.camera_zoom_hfov_deg)))
     speed = math.nan
     for w, (lat, lon, alt_msl), written in zip(plan.waypoints, geo, plan.written(),
                                                strict=True):
@@ -199,16 +209,27 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     accepted. ``default_speed_mps`` applies before the first speed change."""
     speed = default_speed_mps
     rows: list[tuple[float, float, float, float, float]] = []
+    zoom_hfov_deg: float | None = None
     for k, it in enumerate(items):
+        if (it.command == MAV_CMD_SET_CAMERA_ZOOM and not rows
+                and it.param1 == ZOOM_TYPE_HORIZONTAL_FOV):
+            if not (math.isfinite(it.param2) and 0 < it.param2 < 180):
+                raise InputFileError(f"{source}: item {k}: MAV_CMD_SET_CAMERA_ZOOM to a "
+                                     f"horizontal field of view of {it.param2!r} deg "
+                                     "(expected 0-180)")
+            zoom_hfov_deg = float(it.param2)  # the whole plan's zoom, as mission_items writes
+            continue
         if it.command == MAV_CMD_DO_CHANGE_SPEED:
             if it.param2 > 0:
                 speed = it.param2
             continue
-        if it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND:
+        if (it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND
+                or it.command == MAV_CMD_SET_CAMERA_ZOOM):  # the camera's, not the path's
             continue
         if it.command != MAV_CMD_NAV_WAYPOINT:
             raise InputFileError(f"{source}: item {k}: command {it.command} is not supported "
-                                 f"(waypoints, take-off, landing, return and DO commands are)")
+                                 f"(waypoints, take-off, landing, return, DO commands and "
+                                 "MAV_CMD_SET_CAMERA_ZOOM are)")
         if it.frame == MAV_FRAME_GLOBAL:
             alt_agl = it.z_m - origin.ground_alt_msl_m
         elif it.frame in (MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_GLOBAL_TERRAIN_ALT):
@@ -226,7 +247,8 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     enu = geodetic_to_enu(a[:, 0], a[:, 1], np.full(len(a), origin.ground_alt_msl_m), origin)
     try:
         return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]))
-                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}")
+                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}",
+                    camera_zoom_hfov_deg=zoom_hfov_deg)
     except ValueError as exc:
         raise InputFileError(f"{source}: {exc}") from None
 
@@ -306,7 +328,7 @@ def mission_from_qgc_document(doc: Any, source: str) -> MissionFile:
                                            for v in params]
             out.append(MissionItem(int(e["command"]), int(e["frame"]), p1, p2, p3, p4,
                                    lat, lon, z, autocontinue=bool(e.get("autoContinue", True))))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:  # inf: Overflow
             raise InputFileError(f"{key}: bad command, frame or params ({exc})") from None
     home = None
     planned = mission.get("plannedHomePosition")

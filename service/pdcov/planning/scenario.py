@@ -48,7 +48,7 @@ def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Sc
     return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
                     mission.detector, mission.mount, mission.frame_rate_hz,
                     mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain,
-                    following, mission.exposure_s, mission.looks)
+                    following, mission.exposure_s, mission.looks, mission.zoom)
 
 
 # Refused above this many predicted camera frames (the flight is sampled at the camera's

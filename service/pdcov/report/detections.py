@@ -6,13 +6,14 @@ document is the one the daemon answered on the bus (bus/detections.py)."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from pdcov.atomic import write_text_atomic
 from pdcov.bus.detections import detections_document
 from pdcov.config import Mission
+from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
@@ -26,17 +27,18 @@ DETECTIONS_FILE = "detections.json"
 
 def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                       poses: Iterable[CameraPose],
-                      frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]]
-                      ) -> dict[str, Any]:
+                      frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
+                      cameras: Sequence[CameraModel | None] = ()) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
-    in time order) with boxes in ``frame_boxes`` ({t_s: (t_boot_s, boxes)}), and every
-    candidate with ``grid``'s looks, P_D and P_FA at its cell."""
+    in time order, with ``cameras`` their zoomed cameras, if any) with boxes in
+    ``frame_boxes`` ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s looks,
+    P_D and P_FA at its cell."""
     tracker = DetectionTracker.for_mission(mission)
     detections: list[Detection] = []
-    for pose in poses:
+    for i, pose in enumerate(poses):
         held = frame_boxes.get(pose.t_s)
         if held is not None:
-            detections += tracker.frame(pose, *held)
+            detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id)
 

@@ -22,6 +22,7 @@ import shapely
 
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.config import Mission
+from pdcov.core.camera import CameraModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.grid import CoverageGrid, LimitingFactor, Metrics
@@ -37,13 +38,16 @@ _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to
 
 
 def evaluate_poses(grid: CoverageGrid, poses: Iterable[CameraPose], progress: bool = False,
-                   total: int | None = None) -> CoverageGrid:
-    """``grid`` (e.g. ``Mission.new_grid()``) updated with every pose (each a camera frame)."""
+                   total: int | None = None,
+                   cameras: Sequence[CameraModel | None] = ()) -> CoverageGrid:
+    """``grid`` (e.g. ``Mission.new_grid()``) updated with every pose (each a camera frame);
+    ``cameras``: per pose, the camera it was taken with (a zoomed lens; None or none given:
+    the grid's own)."""
     if progress:
         from tqdm import tqdm
         poses = tqdm(poses, desc="frames", unit="frame", total=total, mininterval=0.5)
-    for pose in poses:
-        grid.update(pose)
+    for i, pose in enumerate(poses):
+        grid.update_with(pose, cameras[i] if cameras else None)
     return grid
 
 

@@ -49,6 +49,7 @@ from pdcov.service.link_protocol import (
     GIMBAL_DEVICE_ATTITUDE_STATUS,
     GLOBAL_POSITION_INT,
     HOME_POSITION,
+    ZOOM_MESSAGES,
     LinkProtocol,
     LinkState,
 )
@@ -65,6 +66,9 @@ if TYPE_CHECKING:  # a value handed in: the decisions never load a config or ope
 EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
 HOME_POSITION_HZ = 0.2
+ZOOM_REPORT_HZ = 5.0
+"""The rate the zoom report camera.zoom follows is asked for, of the autopilot (ArduPilot
+sends its cameras' messages when asked; a MAVLink camera component streams its own)."""
 DROPS_WARNING_PERIOD_S = 60.0
 """The kernel-drop warning is logged at most once in this long (the count is always in the
 status)."""
@@ -107,11 +111,15 @@ class Actions:
 def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
                                              Callable[[Mapping[str, float]], bool] | None]:
     """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, and for a gimbal its reports
+    are complete): the streams a frame needs, HOME_POSITION, the zoom report camera.zoom
+    follows (ZOOM_MESSAGES), and for a gimbal its reports
     and the one list of mount parameters (gimbal.mount_params_to_read, as mount-check)."""
     link, mount = cfg.link, cfg.mission.mount
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
                  HOME_POSITION: HOME_POSITION_HZ}
+    zoom = cfg.mission.zoom
+    if zoom is not None:
+        intervals[ZOOM_MESSAGES[zoom.lens.quantity]] = ZOOM_REPORT_HZ
     if not isinstance(mount, GimbalMount):
         return intervals, (), None
     intervals[GIMBAL_DEVICE_ATTITUDE_STATUS] = link.gimbal_hz

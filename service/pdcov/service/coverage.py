@@ -56,11 +56,13 @@ from pdcov.telemetry.frame_policy import (
     FrameSource,
     SkipReason,
     below_min_height,
+    frame_cameras,
     frames_used,
     rebuilt_R_enu_cam,
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
+from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
@@ -69,6 +71,7 @@ from pdcov.telemetry.samples import (
     GimbalSample,
     HeartbeatSample,
     HomeSample,
+    LensSample,
     PositionSample,
     Sample,
     usable_quaternion,
@@ -86,7 +89,7 @@ TERRAIN_WARNING_PERIOD_S = 60.0
 count is always in the status)."""
 MAX_WAITING_SAMPLES = 2_000_000
 """Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
-TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample
+TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
 """The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
 
 
@@ -214,7 +217,8 @@ class LiveCoverage:
                 return
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
-        if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample)):
+        if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample,
+                               LensSample)):
             if len(self._waiting) >= MAX_WAITING_SAMPLES:
                 self._waiting.popleft()
                 self.counters.faults["samples_dropped_waiting"] += 1
@@ -269,7 +273,8 @@ class LiveCoverage:
             return
         self.tracker = PoseTracker(self.origin, m.mount, interpretation=self.interpretation,
                                    max_gap_s=self.max_gap_s, history_s=self.history_s,
-                                   use_estimator=m.estimator_status)
+                                   use_estimator=m.estimator_status,
+                                   lens=None if m.zoom is None else LensReports(m.zoom))
 
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting
@@ -292,6 +297,11 @@ class LiveCoverage:
                 # Not a stream a frame waits for: a report carries no time of its own and is
                 # stamped at arrival, so none can come for a frame whose attitude is in.
                 tr.add_estimator(s)
+                continue
+            elif isinstance(s, LensSample):  # lens_reports.py: the estimator's rule
+                tr.add_lens(s)
+                if tr.lens is not None and tr.lens.other_camera:
+                    self.counters.faults["zoom_reports_other_camera"] = tr.lens.other_camera
                 continue
             else:
                 before = tr.gimbal_source
@@ -383,19 +393,20 @@ class LiveCoverage:
         _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = 0
         unjudged = 0
-        for R, r, t, R_body, judged, v, omega in zip(
+        cameras = frame_cameras(m.zoom, b.lens_value[use])
+        for R, r, t, R_body, judged, v, omega, camera in zip(
                 R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
                 b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
-                strict=True):
+                cameras, strict=True):
             pose = CameraPose(R, r, float(t), *known_motion(v, omega))
             self.last_pose, self.last_R_ned_body = pose, R_body
             if below_min_height(pose.r_cam_enu[2], m.min_height_m):
                 self.counters.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
                 continue
-            self.grid.update(pose)
+            self.grid.update_with(pose, camera)
             if self.grid.touched is not None:
                 self._touch(self.grid.touched)
-            self.detections.frame(pose)
+            self.detections.frame(pose, camera)
             added += 1
             unjudged += not judged
         self.state.frames = self.grid.frames

@@ -21,6 +21,7 @@ from collections import Counter
 from typing import TYPE_CHECKING
 
 from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_detections
+from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
@@ -63,14 +64,15 @@ class LiveDetections:
             self._n_held -= dropped
             self.faults["boxes_dropped_waiting"] += dropped
 
-    def frame(self, pose: CameraPose) -> None:
-        """The grid took the frame at ``pose.t_s`` with ``pose``: its boxes, geolocated."""
+    def frame(self, pose: CameraPose, camera: CameraModel | None = None) -> None:
+        """The grid took the frame at ``pose.t_s`` with ``pose`` (and ``camera``, a zoomed
+        lens; None: the mission's): its boxes, geolocated."""
         held = self._held.pop(pose.t_s, None)
         if held is None:
             return
         self._n_held -= len(held[1])
         before = Counter(self.tracker.skipped)
-        self._new += self.tracker.frame(pose, *held)
+        self._new += self.tracker.frame(pose, *held, camera=camera)
         self.faults.update(self.tracker.skipped - before)
 
     def decided(self, last_frame_t_s: float) -> None:

@@ -190,6 +190,11 @@ def load_serve_config(path: str | Path) -> ServeConfig:
     """Read the mission config with the daemon's sections checked and parsed."""
     path = Path(path)
     mission = load_mission(path, sections=SECTIONS)
+    if mission.extra_cameras:
+        raise ConfigError(f"{where(mission.source, 'cameras')}: pdcov serve follows one camera; "
+                          f"this mission lists {len(mission.all_cameras)} (evaluate their "
+                          "flight log with pdcov evaluate, or run one daemon per camera with "
+                          "its own config)")
     raw = mission.raw
     return ServeConfig(mission, _section(raw, "link", LinkConfig, mission.source),
                        bus_config_from_dict(raw.get("bus"), mission.source),
@@ -212,6 +217,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
                       cam.distortion_model, np.asarray(cam.dist_coeffs, float).tolist()],
            "detector": [list(det.bin_edges_px), list(det.p_detect), list(det.p_false_alarm),
                         det.input_size_px, det.size_metric]}
+    if mission.zoom is not None:  # none: hashed as before zoom existed
+        doc["zoom"] = repr(mission.zoom)
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
     h.update(np.packbits(grid.mask).tobytes())
     if grid.looks != LooksConfig():  # independent looks: hashed as before looks existed

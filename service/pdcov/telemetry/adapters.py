@@ -23,6 +23,7 @@ from pdcov.telemetry.samples import (
     GimbalSample,
     HeartbeatSample,
     HomeSample,
+    LensSample,
     MountTargetSample,
     ParamSample,
     PositionSample,
@@ -169,6 +170,35 @@ def _distance_sensor(msg: Any, t_s: float) -> RangefinderSample:
     return RangefinderSample(t_s, d_cm / 100.0, int(msg.orientation), valid, int(msg.id))
 
 
+def _camera_id(msg: Any) -> dict[str, int]:
+    # camera_device_id: a MAVLink 2 extension (0 when absent: the component is the camera).
+    return {"system_id": msg.get_srcSystem(), "component_id": msg.get_srcComponent(),
+            "camera_device_id": int(getattr(msg, "camera_device_id", 0) or 0)}
+
+
+def _finite_or_nan(v: float) -> float:
+    v = float(v)
+    return v if math.isfinite(v) else math.nan
+
+
+def _camera_fov_status(msg: Any, t_s: float) -> LensSample:
+    # hfov, vfov: deg, NaN if unknown (common.xml CAMERA_FOV_STATUS).
+    return LensSample(t_s, math.radians(_finite_or_nan(msg.hfov)),
+                      math.radians(_finite_or_nan(msg.vfov)), **_camera_id(msg))
+
+
+def _camera_settings(msg: Any, t_s: float) -> LensSample:
+    # zoomLevel: "Current zoom level as a percentage of the full range (0.0 to 100.0, NaN if
+    # not known)" (common.xml CAMERA_SETTINGS, a MAVLink 2 extension: NaN when absent).
+    return LensSample(t_s, zoom_level=_finite_or_nan(getattr(msg, "zoomLevel", math.nan)),
+                      **_camera_id(msg))
+
+
+def _camera_information(msg: Any, t_s: float) -> LensSample:
+    # focal_length: mm, NaN if not known (common.xml CAMERA_INFORMATION).
+    return LensSample(t_s, focal_length_mm=_finite_or_nan(msg.focal_length), **_camera_id(msg))
+
+
 _MAVLINK = {
     "ATTITUDE": _attitude,
     "ATTITUDE_QUATERNION": _attitude_quaternion,
@@ -183,6 +213,9 @@ _MAVLINK = {
     "ESTIMATOR_STATUS": _estimator_status,
     "TERRAIN_REPORT": _terrain_report,
     "DISTANCE_SENSOR": _distance_sensor,
+    "CAMERA_FOV_STATUS": _camera_fov_status,
+    "CAMERA_SETTINGS": _camera_settings,
+    "CAMERA_INFORMATION": _camera_information,
 }
 MAVLINK_TYPES = tuple(_MAVLINK)
 

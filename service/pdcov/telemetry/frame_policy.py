@@ -15,7 +15,9 @@ because two copies are kept equal:
   so that a pose CSV reads back bit-identical and both drivers add the same rotation);
 * which frames are evaluated: ``below_min_height``;
 * the ENU origin's ground altitude: ``home_ground_alt`` and ``position_ground_alt``;
-* the reasons a frame is skipped: ``SkipReason``.
+* the reasons a frame is skipped: ``SkipReason``;
+* the camera a frame is evaluated with: ``frame_cameras`` (the zoom report in force,
+  lens_reports.py, through the mission's zoom lens, core/zoom.py).
 
 Pure: numpy and the core only.
 """
@@ -30,9 +32,11 @@ from typing import Literal
 
 import numpy as np
 
+from pdcov.core.camera import CameraModel
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
+from pdcov.core.zoom import Zoom
 from pdcov.telemetry.samples import (
     AttitudeSample,
     EstimatorSample,
@@ -70,6 +74,10 @@ class SkipReason(TextEnum):
     POSITION_JUMP = "position jump"
     BELOW_MIN_HEIGHT = "below min height"
     LATE_FRAME_TIME = "late frame time"
+    ZOOM_MISSING = "no camera zoom report"
+    ZOOM_STALE = "camera zoom report stale"
+    ZOOM_OUT_OF_RANGE = "camera zoom outside calibration"
+    ZOOM_JUMP = "camera zoom jump"
 
 
 AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample,
@@ -180,3 +188,11 @@ def home_ground_alt(homes: Sequence[HomeSample]) -> tuple[float, str] | None:
 def position_ground_alt(alt_msl_m: float, relative_alt_m: float) -> tuple[float, str]:
     """The ground altitude (m MSL) from the first position with a height above home."""
     return float(alt_msl_m - relative_alt_m), POSITION_GROUND
+
+
+def frame_cameras(zoom: Zoom | None, lens_value: np.ndarray) -> list[CameraModel | None]:
+    """The camera of each used frame from the zoom report in force (FrameBatch.lens_value,
+    accepted by lens_reports), or None (the mission's configured camera) without a zoom."""
+    if zoom is None:
+        return [None] * len(lens_value)
+    return [zoom.lens.camera(float(v)) for v in lens_value]

@@ -16,16 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
+from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
 from pdcov.core.pose import CameraPose, FixedMount, known_motion
 from pdcov.core.rotations import euler_zyx_from_R_many
+from pdcov.core.zoom import Zoom
 from pdcov.errors import ConfigError, TelemetryError
 from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
 from pdcov.telemetry.estimator import describe as describe_estimator
 from pdcov.telemetry.frame_policy import (
     FrameLattice,
     FrameSource,
+    frame_cameras,
     frames_used,
     home_ground_alt,
     position_ground_alt,
@@ -33,6 +36,7 @@ from pdcov.telemetry.frame_policy import (
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
+from pdcov.telemetry.lens_reports import LensReports, describe_lens
 from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
@@ -56,7 +60,8 @@ class LogPoses:
     frame times skipped by gaps. warnings: what the user should not miss (also among the
     summary lines). frame_boxes: {frame time t_s: (the detector's t_boot_s, its boxes)} of
     the frames ``pdcov serve`` recorded with boxes, when those frames are the ones
-    evaluated (recorded_frames).
+    evaluated (recorded_frames). cameras: per used frame, the camera of its zoom report
+    (frame_policy.frame_cameras; None: the configured camera), empty without a zoom.
     """
 
     poses: tuple[CameraPose, ...]
@@ -74,6 +79,7 @@ class LogPoses:
     skipped_t_s: np.ndarray
     warnings: tuple[str, ...] = ()
     frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]] = field(default_factory=dict)
+    cameras: tuple[CameraModel | None, ...] = ()
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -152,7 +158,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                    system_id: int | None = None, progress: bool = False,
                    estimator_status: bool = True,
                    ground_alt_how: str = "configured",
-                   terrain_check: TerrainCheck | None = None) -> LogPoses:
+                   terrain_check: TerrainCheck | None = None,
+                   zoom: Zoom | None = None) -> LogPoses:
     """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
@@ -164,8 +171,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     Frames whose telemetry has a gap longer than max_gap_s are skipped; untrusted gimbal
     frames follow mount.untrusted. estimator_status: skip frames the autopilot's estimator
     calls bad (estimator.py). terrain_check: fed the log's samples
-    (terrain_check.check_flight_log), when given. Raises TelemetryError / ConfigError with a
-    message naming the file.
+    (terrain_check.check_flight_log), when given. zoom: the camera's zoom (lens_reports.py
+    picks each frame's report; None: the configured camera for every frame). Raises
+    TelemetryError / ConfigError with a message naming the file.
     """
     log = read_flight_log(path, system_id=system_id,
                           gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
@@ -190,8 +198,9 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                  "dataflash": "the DataFlash PARM records",
                  "ulog": "the ULog parameters"}[log.format]
         interp = resolve_interpretation(mount, log.params, where)
+    lens = None if zoom is None else LensReports(zoom)
     tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s,
-                                          use_estimator=estimator_status)
+                                          use_estimator=estimator_status, lens=lens)
     choice = frame_source_for(frame_source,
                               sum(c.source == RECORDED_SOURCE for c in log.captures))
     frame_source = choice.source
@@ -236,6 +245,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     lines.append(describe_estimator(log.estimator, log.estimator_source,
                                     int((b.estimator_judged & checkable).sum()),
                                     int(checkable.sum()), estimator_status))
+    if lens is not None:
+        lines.append(describe_lens(lens, b.lens_value[use]))
     if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
@@ -260,7 +271,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
                     skipped, tuple(x for x in (choice.warning,) if x),
-                    _frame_boxes(log) if frame_source == "capture" else {})
+                    _frame_boxes(log) if frame_source == "capture" else {},
+                    tuple(frame_cameras(zoom, b.lens_value[use])) if zoom is not None else ())
 
 
 def _frame_boxes(log: FlightLog) -> dict[float, tuple[float, tuple[Box, ...]]]:

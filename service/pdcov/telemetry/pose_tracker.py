@@ -42,7 +42,14 @@ from pdcov.telemetry.gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
-from pdcov.telemetry.samples import AttitudeSample, EstimatorSample, GimbalSample, PositionSample
+from pdcov.telemetry.lens_reports import LensReports
+from pdcov.telemetry.samples import (
+    AttitudeSample,
+    EstimatorSample,
+    GimbalSample,
+    LensSample,
+    PositionSample,
+)
 from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
@@ -130,7 +137,9 @@ class FrameBatch:
     servo demand at its limit. estimator_judged (N,): an estimator status was in force (the
     position-estimate rule could judge the frame). v_cam_enu_m_s (N, 3): the camera centre's
     velocity, ENU m/s; omega_enu_rad_s (N, 3): the camera's angular rate, ENU rad/s (both
-    the derivative of the interpolated pose, PoseTracker._rates; NaN when unknown)."""
+    the derivative of the interpolated pose, PoseTracker._rates; NaN when unknown).
+    lens_value (N,): the zoom report in force (lens_reports.py; NaN without a zoom lens or
+    where none is)."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -147,6 +156,7 @@ class FrameBatch:
     estimator_judged: np.ndarray
     v_cam_enu_m_s: np.ndarray
     omega_enu_rad_s: np.ndarray
+    lens_value: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -171,11 +181,13 @@ class PoseTracker:
     None resolves a GimbalMount without autopilot parameters (its auto_fallback).
     history_s: live use keeps only this much history behind the newest sample.
     use_estimator: skip frames by the estimator status (telemetry/estimator.py).
+    lens: the zoom reports (lens_reports.py; None: the camera does not zoom).
     """
 
     def __init__(self, origin: Origin, mount: FixedMount | GimbalMount, *,
                  interpretation: GimbalInterpretation | None = None, max_gap_s: float = 1.0,
-                 history_s: float | None = None, use_estimator: bool = True) -> None:
+                 history_s: float | None = None, use_estimator: bool = True,
+                 lens: LensReports | None = None) -> None:
         if not (math.isfinite(max_gap_s) and max_gap_s > 0):
             raise ConfigError(f"max_gap_s: expected a positive number of seconds, "
                               f"got {max_gap_s!r}")
@@ -199,14 +211,18 @@ class PoseTracker:
         self._gimbal_flags_seen: dict[tuple[int, int, int], int] = {}
         self.gimbal_source: tuple[int, int, int] | None = None
         self.dropped_gimbal_reports = 0
+        self.lens = lens
 
     @classmethod
     def from_flight_log(cls, log: FlightLog, origin: Origin, mount: FixedMount | GimbalMount,
                         interpretation: GimbalInterpretation | None,
-                        max_gap_s: float = 1.0, use_estimator: bool = True) -> PoseTracker:
+                        max_gap_s: float = 1.0, use_estimator: bool = True,
+                        lens: LensReports | None = None) -> PoseTracker:
         """A tracker holding a whole log's series (offline evaluation)."""
         tracker = cls(origin, mount, interpretation=interpretation, max_gap_s=max_gap_s,
-                      use_estimator=use_estimator)
+                      use_estimator=use_estimator, lens=lens)
+        for sample in log.lens:
+            tracker.add_lens(sample)
         tracker._est = log.estimator
         tracker._att = log.attitude
         tracker._set_positions(log.position)
@@ -224,6 +240,11 @@ class PoseTracker:
 
     def add_estimator(self, sample: EstimatorSample) -> None:
         self._pending_est.append(sample)
+
+    def add_lens(self, sample: LensSample) -> None:
+        """Add a zoom report (ignored when the camera does not zoom)."""
+        if self.lens is not None:
+            self.lens.add(sample)
 
     def add_gimbal(self, sample: GimbalSample) -> None:
         """Add a gimbal status; reports of other sources than the preferred one (gimbal.
@@ -356,7 +377,12 @@ class PoseTracker:
         else:
             reason[(est_reason != "") & (reason == "")] = est_reason[(est_reason != "")
                                                                      & (reason == "")]
-        return FrameBatch(**c, estimator_judged=judged)
+        lens_value = np.full(n, np.nan)
+        if self.lens is not None:
+            lens_value, lens_reason = self.lens.at(t)
+            late = (lens_reason != "") & (reason == "")
+            reason[late] = lens_reason[late]
+        return FrameBatch(**c, estimator_judged=judged, lens_value=lens_value)
 
     def _rates(self, t: np.ndarray, at_t: dict[str, np.ndarray]
                ) -> tuple[np.ndarray, np.ndarray]:

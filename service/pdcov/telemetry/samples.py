@@ -171,6 +171,30 @@ class RangefinderSample:
     sensor_id: int = 0
 
 
+@dataclass(frozen=True, slots=True)
+class LensSample:
+    """A camera's zoom report: CAMERA_FOV_STATUS (hfov_rad, vfov_rad: fields of view, rad),
+    CAMERA_SETTINGS (zoom_level: zoomLevel as sent) or CAMERA_INFORMATION (focal_length_mm);
+    the fields a message does not carry are NaN. The camera is (system_id, component_id,
+    camera_device_id): a MAVLink camera component (100-105) with device id 0, or an
+    autopilot-attached camera (ArduPilot AP_Camera: the autopilot's component, device id =
+    instance, 1 for the first)."""
+
+    t_s: float
+    hfov_rad: float = float("nan")
+    vfov_rad: float = float("nan")
+    zoom_level: float = float("nan")
+    focal_length_mm: float = float("nan")
+    system_id: int = 1
+    component_id: int = 100
+    camera_device_id: int = 0
+
+    @property
+    def camera_id(self) -> tuple[int, int]:
+        """(component_id, camera_device_id)."""
+        return (self.component_id, self.camera_device_id)
+
+
 Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
           | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample
-          | TerrainReportSample | RangefinderSample)
+          | TerrainReportSample | RangefinderSample | LensSample)

@@ -18,6 +18,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     HomeSample,
+    LensSample,
     RangefinderSample,
     TerrainReportSample,
 )
@@ -47,7 +48,8 @@ class FlightLog:
     database reports and rangefinder readings (any orientation), in log order, for the
     DEM cross-check (``terrain_check``). boxes: the detector boxes ``pdcov serve``
     recorded with its frames (recorded_frames; a tlog's only), stamped as their frames'
-    capture events.
+    capture events. lens: the cameras' zoom reports (CAMERA_FOV_STATUS, CAMERA_SETTINGS,
+    CAMERA_INFORMATION; a tlog's only), in log order.
     """
 
     path: str
@@ -70,6 +72,7 @@ class FlightLog:
     terrain_reports: tuple[TerrainReportSample, ...] = ()
     rangefinder: tuple[RangefinderSample, ...] = ()
     boxes: tuple[RecordedBox, ...] = ()
+    lens: tuple[LensSample, ...] = ()
 
 
 
@@ -104,4 +107,5 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                                          for r in log.terrain_reports),
                    rangefinder=tuple(replace(r, t_s=r.t_s + dt_s) for r in log.rangefinder),
                    boxes=tuple(replace(b, t_s=b.t_s + dt_s) for b in log.boxes),
+                   lens=tuple(replace(s, t_s=s.t_s + dt_s) for s in log.lens),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))

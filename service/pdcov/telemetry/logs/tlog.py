@@ -39,6 +39,7 @@ from pdcov.telemetry.samples import (
     GimbalSample,
     HeartbeatSample,
     HomeSample,
+    LensSample,
     ParamSample,
     PositionSample,
     RangefinderSample,
@@ -223,7 +224,7 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         *estimator_series(taken(EstimatorSample), "EKF_STATUS_REPORT / "
                           "ESTIMATOR_STATUS"),
         tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample)),
-        tuple(frame_boxes)),
+        tuple(frame_boxes), tuple(sorted(taken(LensSample), key=lambda s: s.t_s))),
         -ap.clock.offset_s)
 
 
