@@ -2,8 +2,14 @@
 when"): ``pdcov plan --pattern vantage`` on a domain with an obstacle, ``pdcov-sitl fly``
 of its mission at full speed, ``pdcov evaluate`` of the frames from reaching its first
 waypoint to the end of its last hover (what the prediction flies) against the predicted
-grid. The simulator settles about a second longer at each stop than the mission's hold (its
-guidance, pdcov_sitl/guidance.py), so the flight has a few more looks than predicted."""
+grid: a nadir fixed camera with waypoint holds, and an oblique gimbal (-45 deg at eight
+earth-frame yaws, DO_GIMBAL_MANAGER_PITCHYAW with YAW_LOCK before each point) with
+NAV_LOITER_TIME hovers. The simulator settles about a second longer at each stop than the
+mission's hold (its guidance, pdcov_sitl/guidance.py), so the flight has a few more looks
+than predicted: never fewer. An oblique frame covers many more cells than a nadir one, so
+those extra looks move more cells by more than 0.05 (measured: 88 % of the cells within
+0.05, every one of the others above the prediction; predicted with the holds 0.5 s longer,
+97 % within 0.05): the oblique case asks for 85 % two-sided and 99 % one-sided."""
 
 from __future__ import annotations
 
@@ -25,7 +31,9 @@ from pdcov_sitl.cli import main as sitl_main
 pytestmark = pytest.mark.e2e
 
 AGREE_PD = 0.05
-AGREE_SHARE = 0.95
+AGREE_SHARE = {"nadir": 0.95, "oblique": 0.85}
+NOT_BELOW_SHARE = 0.99
+"""Cells whose flown P_D is at least the prediction's less AGREE_PD."""
 TARGET_PD = 0.3
 DETECTOR_SCALE = 0.08
 """The illustrative detector's P_D per look scaled down, so that hovers of 8 looks bring
@@ -55,15 +63,29 @@ def evaluate(cfg: Path, out: Path, *source: str) -> dict:
         return {k: z[k] for k in z.files}
 
 
-def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path):
+OBLIQUE = ["--gimbal-pitches-deg", "-45", "--gimbal-yaws", "8", "--hover-item", "loiter-time"]
+
+
+@pytest.mark.parametrize("case, mount, extra", [
+    ("nadir", {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}, []),
+    ("oblique", {"type": "gimbal"}, OBLIQUE)], ids=["nadir", "oblique"])
+def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path, case, mount, extra):
     cfg = tmp_path / "m.yaml"
-    cfg.write_text(yaml.safe_dump(mission_doc()))
+    cfg.write_text(yaml.safe_dump({**mission_doc(), "mount": mount}))
     plan_dir = tmp_path / "plan"
     assert pdcov_main(["plan", "--config", str(cfg), "--pattern", "vantage", "--target-pd",
                        str(TARGET_PD), "--altitudes-m", "10", "--hover-s", "4", "8",
                        "--lattice-m", "6", "--speed-mps", "4", "--ilp-time-limit-s", "5",
-                       "--routing-time-s", "1", "--no-figures", "--out", str(plan_dir)]) == 0
+                       "--routing-time-s", "1", "--no-figures", "--out", str(plan_dir),
+                       *extra]) == 0
     plan = plan_dir / "plan.plan"
+    doc = json.loads((plan_dir / "vantage.json").read_text())
+    if extra:  # every point oblique, at a locked yaw, each commanded before its hover
+        assert {p["gimbal_pitch_deg"] for p in doc["points"]} == {-45.0}
+        assert all(p["gimbal_yaw_deg"] is not None for p in doc["points"])
+        cmds = [e["command"] for e in json.loads(plan.read_text())["mission"]["items"]]
+        assert cmds.count(19) == len(doc["points"])  # the hovers; corners are 16
+        assert 1 <= cmds.count(1000) <= len(doc["points"])
     assert sitl_main(["fly", "--config", str(cfg), "--plan", str(plan), "--out",
                       str(tmp_path / "fly"), "--connect", "udpout:127.0.0.1:9",
                       "--speed", "0"]) == 0
@@ -77,7 +99,10 @@ def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path):
         return float(truth[np.argmax(near), 0])
 
     t0 = reached(wps[0], 0.0)
-    t1 = reached(wps[-1], t0) + wps[-1].hover_s
+    t1 = t0 + wps[0].hover_s
+    # The stops in order (the last waypoint may lie on an earlier transit), then it.
+    for wp in [w for w in wps[1:-1] if w.hover_s > 0] + [wps[-1]]:
+        t1 = reached(wp, t1) + wp.hover_s
     evaluate(cfg, tmp_path / "all", "--log", str(tmp_path / "fly" / "flight.tlog"),
              "--export-poses", str(tmp_path / "poses.csv"))
     header = (tmp_path / "poses.csv").read_text().splitlines()[0].split(",")[:8]
@@ -94,15 +119,17 @@ def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path):
     pd_pred = 1 - np.exp(pred["log_miss_d"][mask])
     diff = np.abs(pd_flown - pd_pred)
     share = float((diff <= AGREE_PD).mean())
-    doc = json.loads((plan_dir / "vantage.json").read_text())
+    not_below = float((pd_flown >= pd_pred - AGREE_PD).mean())
     print(f"{len(doc['points'])} points; predicted share at {TARGET_PD}: "
           f"{(pd_pred >= TARGET_PD).mean():.3f}, flown {(pd_flown >= TARGET_PD).mean():.3f}; "
           f"flown P_D median {np.median(pd_flown):.2f}; {share:.1%} of cells within "
-          f"{AGREE_PD} (p95 |diff| {np.percentile(diff, 95):.3f}); "
+          f"{AGREE_PD} (p95 |diff| {np.percentile(diff, 95):.3f}), {not_below:.1%} not "
+          f"below it by more; "
           f"frames flown {int(flown['frames'])}, predicted {int(pred['frames'])}; survey "
           f"flown in {t1 - t0:.1f} s; predicted mission {doc['missions'][0]['flight_time_s']} "
           "s from take-off to landing")
     assert (pd_pred >= TARGET_PD).all()
     # Not saturated (the comparison says something): a third of the cells below 0.9.
     assert (pd_flown < 0.9).mean() >= 1 / 3
-    assert share >= AGREE_SHARE
+    assert share >= AGREE_SHARE[case]
+    assert not_below >= NOT_BELOW_SHARE

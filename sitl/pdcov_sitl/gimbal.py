@@ -8,7 +8,8 @@ pitch (rad, -pi/2 = nadir) and a yaw relative to the vehicle's heading (rad), or
 * ``stabilised``: the gimbal holds roll 0 and the commanded pitch against the horizon, and
   its yaw at the commanded angle from the vehicle's heading, or locked at the commanded
   earth-frame yaw whatever the heading (it stabilises yaw as it does pitch: the lag is on
-  the earth-frame yaw; a 2-axis gimbal has no yaw motor: yaw 0 from the heading). Each axis follows its target with a first-order lag (``tau_s``) limited to
+  the earth-frame yaw; a 2-axis gimbal has no yaw motor: yaw 0 from the heading). Each
+  axis follows its target with a first-order lag (``tau_s``) limited to
   ``rate_limit_rps``, plus a small seeded random tracking error (Ornstein-Uhlenbeck,
   ``noise_rad`` standard deviation). It measures its own attitude, so what it reports is
   its true attitude. True attitude: Rz(heading + yaw) Ry(pitch) Rx(roll).
