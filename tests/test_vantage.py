@@ -528,6 +528,27 @@ def test_cli_vantage_writes_one_mission_per_vehicle(tmp_path, capsys):
     assert "vantage:" in capsys.readouterr().out
 
 
+def test_cli_oblique_pitches_default_to_eight_earth_frame_yaws(tmp_path):
+    import json
+
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(MISSION_YAML.replace("mount: {type: fixed, roll_deg: 0, pitch_deg: -90, "
+                                        "yaw_deg: 0}", "mount: {type: gimbal}"))
+    out = tmp_path / "out"
+    assert pdcov_main(["plan", "--config", str(cfg), "--pattern", "vantage", "--target-pd",
+                       "0.5", "--altitudes-m", "10", "--lattice-m", "10",
+                       "--gimbal-pitches-deg", "-45", "--hover-item", "loiter-time",
+                       "--ilp-time-limit-s", "0", "--routing-time-s", "0.5", "--no-figures",
+                       "--out", str(out)]) == 0
+    doc = json.loads((out / "vantage.json").read_text())
+    assert {p["gimbal_pitch_deg"] for p in doc["points"]} == {-45.0}
+    assert {p["gimbal_yaw_deg"] for p in doc["points"]} <= {45.0 * k for k in range(8)}
+    items = json.loads((out / "plan.plan").read_text())["mission"]["items"]
+    locked = [e["params"][4] for e in items if e["command"] == 1000]
+    assert locked and set(locked) == {16}
+    assert sum(e["command"] == 19 for e in items) == len(doc["points"])
+
+
 @pytest.mark.slow
 def test_optimise_puts_vantage_beside_the_sweeps(tmp_path):
     import csv

@@ -75,7 +75,7 @@ from pdcov.planning.terrain_follow import (
     steep_legs,
 )
 from pdcov.planning.tours import Fleet
-from pdcov.planning.vantage import CoverObjective, VantageSettings
+from pdcov.planning.vantage import CoverObjective, VantageSettings, is_nadir
 from pdcov.planning.vantage_missions import (
     VantageMissions,
     plan_vantage_missions,
@@ -349,7 +349,7 @@ def vantage_settings(args: argparse.Namespace, target_pd: float, target_share: f
     pitches = args.gimbal_pitches_deg
     yaws = args.gimbal_yaws
     if yaws is None:
-        yaws = DEFAULT_GIMBAL_YAWS if pitches and any(p != -90.0 for p in pitches) else 0
+        yaws = DEFAULT_GIMBAL_YAWS if pitches and not all(map(is_nadir, pitches)) else 0
     return VantageSettings(
         target_pd, tuple(alts_m), tuple(args.hover_s or (2.0,)), target_share,
         args.lattice_m, args.clearance_m, speed_mps,

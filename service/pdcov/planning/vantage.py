@@ -51,6 +51,11 @@ NADIR_TOLERANCE_DEG = 1e-6
 """A pitch this close to -90 deg is nadir: its yaw only turns the footprint."""
 
 
+def is_nadir(pitch_deg: float) -> bool:
+    """Whether a gimbal pitch (deg) looks straight down (within NADIR_TOLERANCE_DEG)."""
+    return abs(pitch_deg + 90.0) <= NADIR_TOLERANCE_DEG
+
+
 class CoverObjective(str, Enum):
     """What the cover minimises: the number of points (fewer hovers first, then shorter
     ones), or the time they take (hover plus the stop: v / a, decelerating and accelerating
@@ -204,7 +209,7 @@ def candidate_pointings(sc: Scenario, settings: VantageSettings
             raise ConfigError(f"--gimbal-pitches-deg {' '.join(f'{p:g}' for p in given)}: a "
                               f"fixed mount points at its own pitch ({own:g} deg); plan "
                               "other pitches with a gimbal (mount: {type: gimbal})")
-        if settings.gimbal_yaws and abs(own + 90.0) > NADIR_TOLERANCE_DEG:
+        if settings.gimbal_yaws and not is_nadir(own):
             raise ConfigError(f"--gimbal-yaws {settings.gimbal_yaws}: a fixed mount turns "
                               "with the vehicle and holds no earth-frame yaw; give "
                               "--gimbal-yaws 0")
@@ -217,7 +222,7 @@ def candidate_pointings(sc: Scenario, settings: VantageSettings
             raise ConfigError(f"{what} {pitch:g}: outside the mount's pitch_limits_deg "
                               f"{list(limits)}")
     n = settings.gimbal_yaws
-    oblique = [p for p in pitches if abs(p + 90.0) > NADIR_TOLERANCE_DEG]
+    oblique = [p for p in pitches if not is_nadir(p)]
     yaw_limits = mount.yaw_limits_deg
     if n and oblique and yaw_limits is not None and yaw_limits[1] - yaw_limits[0] < 360 - 1e-6:
         raise ConfigError(f"--gimbal-yaws {n}: the mount's yaw_limits_deg {list(yaw_limits)} "
@@ -324,7 +329,8 @@ _WHY = {LimitingFactor.NEVER_IN_VIEW: "in no candidate's view",
         LimitingFactor.TOO_SMALL: "too small in the picture at every height",
         LimitingFactor.TOO_LARGE: "too large in the picture at every height"}
 _SOME_HEADINGS = ("in view of candidates only at some headings (a hover's heading is its "
-                  "route's: a finer --lattice-m or a lower --clearance-m helps)")
+                  "route's: a finer --lattice-m, a lower --clearance-m or, for oblique "
+                  "pitches, earth-frame --gimbal-yaws help)")
 _TOO_FEW_LOOKS = ("seen, but all candidates' looks together stay below the target (hover "
                   "longer: --hover-s)")
 
