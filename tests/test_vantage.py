@@ -35,7 +35,7 @@ from pdcov.core.pose import FixedMount, heading_rad
 from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
 from pdcov.planning.cover import CoverProblem, exact_cover, greedy_cover
-from pdcov.planning.optimise import Scenario, flight_poses
+from pdcov.planning.optimise import Scenario, flight_poses, predict
 from pdcov.planning.plan import (
     GimbalPointing,
     Plan,
@@ -300,6 +300,9 @@ def test_pointing_items_where_it_changes_and_the_files_round_trip(tmp_path, hove
             np.testing.assert_allclose([x.param1, x.param2, x.lat_deg, x.lon_deg, x.z_m],
                                        [y.param1, y.param2, y.lat_deg, y.lon_deg, y.z_m],
                                        atol=1e-6)
+    sc = scene(GimbalMount())  # the plan read back predicts as the plan written
+    np.testing.assert_allclose(predict(sc, back).grid.log_miss_d,
+                               predict(sc, plan).grid.log_miss_d, atol=1e-5)
     legs = flight_plan_from_items(items, ORIGIN, "test").survey_legs
     assert [leg.gimbal_earth_yaw for leg in legs] == [False, True, True, True]
     assert [leg.hover_s for leg in legs] == [0.0, 0.0, 4.0, 2.0]
