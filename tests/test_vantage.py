@@ -587,3 +587,30 @@ def test_over_a_level_terrain_the_cover_is_the_flat_one_lifted():
     pts_l, ev_l, _ = candidate_evidence(lifted, GREEDY)
     assert pts_f == pts_l
     np.testing.assert_allclose(ev_l.toarray(), ev_f.toarray(), rtol=1e-4, atol=1e-6)
+
+
+def test_points_added_along_the_terrain_carry_their_legs_pointing():
+    """Over waves (amsl), the points added along a leg hold the pointing of the waypoint
+    the leg flies to, so the mission still commands each pointing once, before its leg."""
+    from pdcov.core.mission import AltitudeFrame
+    from pdcov.core.terrain import TerrainSurface
+    from pdcov.planning.terrain_follow import TerrainFollowing
+
+    flat = scene(GimbalMount())
+    g = flat.geometry
+    x = np.arange(g.n_cols + 1, dtype=float) * g.cell_size_m
+    y = np.arange(g.n_rows + 1, dtype=float)[:, None] * g.cell_size_m
+    bumps = 2.0 * np.sin(x / 3.0) * np.cos(y / 4.0)  # m: waves both ways
+    hilly = replace(flat, terrain=TerrainSurface(g, bumps),
+                    following=TerrainFollowing(AltitudeFrame.AMSL, 0.2))
+    plan = pointed_plan(HoverItem.WAYPOINT)
+    over = hilly.over_terrain(plan)
+    assert sum(w.terrain_added for w in over.waypoints) >= 2
+    seen = 0  # the plan's waypoints passed: an added point lies on the leg to the next
+    for w in over.waypoints:
+        if w.terrain_added:
+            assert w.gimbal == plan.waypoints[seen].gimbal
+        else:
+            assert w.gimbal == plan.waypoints[seen].gimbal
+            seen += 1
+    assert [it.command for it in mission_items(over, ORIGIN)].count(1000) == 3
