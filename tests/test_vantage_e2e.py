@@ -9,7 +9,8 @@ mission's hold (its guidance, pdcov_sitl/guidance.py), so the flight has a few m
 than predicted: never fewer. An oblique frame covers many more cells than a nadir one, so
 those extra looks move more cells by more than 0.05 (measured: 88 % of the cells within
 0.05, every one of the others above the prediction; predicted with the holds 0.5 s longer,
-97 % within 0.05): the oblique case asks for 85 % two-sided and 99 % one-sided."""
+97 % within 0.05): the oblique case asks for 85 % two-sided and 99 % one-sided, and flies
+the same mission with the yaw lock cleared as a control that must not agree."""
 
 from __future__ import annotations
 
@@ -66,6 +67,49 @@ def evaluate(cfg: Path, out: Path, *source: str) -> dict:
 OBLIQUE = ["--gimbal-pitches-deg", "-45", "--gimbal-yaws", "8", "--hover-item", "loiter-time"]
 
 
+def flown_survey(tmp_path: Path, cfg: Path, plan: Path, name: str) -> dict:
+    """``pdcov-sitl fly`` of ``plan`` and ``pdcov evaluate`` of its frames from reaching the
+    first waypoint to the end of the last hover (what the prediction flies): the grid, and
+    the survey's duration (s)."""
+    out = tmp_path / name
+    assert sitl_main(["fly", "--config", str(cfg), "--plan", str(plan), "--out",
+                      str(out / "fly"), "--connect", "udpout:127.0.0.1:9", "--speed", "0"]) == 0
+    truth = np.loadtxt(out / "fly" / "truth.csv", delimiter=",", skiprows=1)
+    wps = read_plan(plan, load_mission(cfg).origin()).waypoints
+
+    def reached(wp, after_s: float) -> float:
+        near = (np.hypot(truth[:, 1] - wp.x_enu_m, truth[:, 2] - wp.y_enu_m) < 0.5) \
+            & (truth[:, 0] > after_s)
+        assert near.any(), f"the flight never came within 0.5 m of {wp}"
+        return float(truth[np.argmax(near), 0])
+
+    t0 = reached(wps[0], 0.0)
+    t1 = t0 + wps[0].hover_s
+    # The stops in order (the last waypoint may lie on an earlier transit), then it.
+    for wp in [w for w in wps[1:-1] if w.hover_s > 0] + [wps[-1]]:
+        t1 = reached(wp, t1) + wp.hover_s
+    evaluate(cfg, out / "all", "--log", str(out / "fly" / "flight.tlog"),
+             "--export-poses", str(out / "poses.csv"))
+    header = (out / "poses.csv").read_text().splitlines()[0].split(",")[:8]
+    poses = np.loadtxt(out / "poses.csv", delimiter=",", skiprows=1, usecols=range(8))
+    survey = poses[(poses[:, 0] >= t0) & (poses[:, 0] <= t1)]
+    np.savetxt(out / "survey.csv", survey, delimiter=",", header=",".join(header),
+               comments="", fmt="%.10g")
+    return {**evaluate(cfg, out / "survey", "--poses", str(out / "survey.csv")),
+            "survey_s": t1 - t0}
+
+
+def agreement(flown: dict, pred: dict) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Flown and predicted P_D of the free cells, the share within AGREE_PD both ways and
+    the share not below the prediction by more."""
+    mask = flown["mask"]
+    np.testing.assert_array_equal(mask, pred["mask"])
+    pd_flown = 1 - np.exp(flown["log_miss_d"][mask])
+    pd_pred = 1 - np.exp(pred["log_miss_d"][mask])
+    share = float((np.abs(pd_flown - pd_pred) <= AGREE_PD).mean())
+    return pd_flown, pd_pred, share, float((pd_flown >= pd_pred - AGREE_PD).mean())
+
+
 @pytest.mark.parametrize("case, mount, extra", [
     ("nadir", {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}, []),
     ("oblique", {"type": "gimbal"}, OBLIQUE)], ids=["nadir", "oblique"])
@@ -80,56 +124,42 @@ def test_flown_vantage_plan_evaluates_to_its_prediction(tmp_path, case, mount, e
                        *extra]) == 0
     plan = plan_dir / "plan.plan"
     doc = json.loads((plan_dir / "vantage.json").read_text())
+    qgc = json.loads(plan.read_text())
     if extra:  # every point oblique, at a locked yaw, each commanded before its hover
         assert {p["gimbal_pitch_deg"] for p in doc["points"]} == {-45.0}
         assert all(p["gimbal_yaw_deg"] is not None for p in doc["points"])
-        cmds = [e["command"] for e in json.loads(plan.read_text())["mission"]["items"]]
+        cmds = [e["command"] for e in qgc["mission"]["items"]]
         assert cmds.count(19) == len(doc["points"])  # the hovers; corners are 16
         assert 1 <= cmds.count(1000) <= len(doc["points"])
-    assert sitl_main(["fly", "--config", str(cfg), "--plan", str(plan), "--out",
-                      str(tmp_path / "fly"), "--connect", "udpout:127.0.0.1:9",
-                      "--speed", "0"]) == 0
-    truth = np.loadtxt(tmp_path / "fly" / "truth.csv", delimiter=",", skiprows=1)
-    wps = read_plan(plan, load_mission(cfg).origin()).waypoints
-
-    def reached(wp, after_s: float) -> float:
-        near = (np.hypot(truth[:, 1] - wp.x_enu_m, truth[:, 2] - wp.y_enu_m) < 0.5) \
-            & (truth[:, 0] > after_s)
-        assert near.any(), f"the flight never came within 0.5 m of {wp}"
-        return float(truth[np.argmax(near), 0])
-
-    t0 = reached(wps[0], 0.0)
-    t1 = t0 + wps[0].hover_s
-    # The stops in order (the last waypoint may lie on an earlier transit), then it.
-    for wp in [w for w in wps[1:-1] if w.hover_s > 0] + [wps[-1]]:
-        t1 = reached(wp, t1) + wp.hover_s
-    evaluate(cfg, tmp_path / "all", "--log", str(tmp_path / "fly" / "flight.tlog"),
-             "--export-poses", str(tmp_path / "poses.csv"))
-    header = (tmp_path / "poses.csv").read_text().splitlines()[0].split(",")[:8]
-    poses = np.loadtxt(tmp_path / "poses.csv", delimiter=",", skiprows=1, usecols=range(8))
-    survey = poses[(poses[:, 0] >= t0) & (poses[:, 0] <= t1)]
-    np.savetxt(tmp_path / "survey.csv", survey, delimiter=",", header=",".join(header),
-               comments="", fmt="%.10g")
-    flown = evaluate(cfg, tmp_path / "survey", "--poses", str(tmp_path / "survey.csv"))
+    flown = flown_survey(tmp_path, cfg, plan, "flown")
     with np.load(plan_dir / "grid.npz") as z:
         pred = {k: z[k] for k in z.files}
-    mask = flown["mask"]
-    np.testing.assert_array_equal(mask, pred["mask"])
-    pd_flown = 1 - np.exp(flown["log_miss_d"][mask])
-    pd_pred = 1 - np.exp(pred["log_miss_d"][mask])
+    pd_flown, pd_pred, share, not_below = agreement(flown, pred)
     diff = np.abs(pd_flown - pd_pred)
-    share = float((diff <= AGREE_PD).mean())
-    not_below = float((pd_flown >= pd_pred - AGREE_PD).mean())
     print(f"{len(doc['points'])} points; predicted share at {TARGET_PD}: "
           f"{(pd_pred >= TARGET_PD).mean():.3f}, flown {(pd_flown >= TARGET_PD).mean():.3f}; "
           f"flown P_D median {np.median(pd_flown):.2f}; {share:.1%} of cells within "
           f"{AGREE_PD} (p95 |diff| {np.percentile(diff, 95):.3f}), {not_below:.1%} not "
           f"below it by more; "
           f"frames flown {int(flown['frames'])}, predicted {int(pred['frames'])}; survey "
-          f"flown in {t1 - t0:.1f} s; predicted mission {doc['missions'][0]['flight_time_s']} "
-          "s from take-off to landing")
+          f"flown in {flown['survey_s']:.1f} s; predicted mission "
+          f"{doc['missions'][0]['flight_time_s']} s from take-off to landing")
     assert (pd_pred >= TARGET_PD).all()
     # Not saturated (the comparison says something): a third of the cells below 0.9.
     assert (pd_flown < 0.9).mean() >= 1 / 3
     assert share >= AGREE_SHARE[case]
     assert not_below >= NOT_BELOW_SHARE
+    if extra:
+        # The control: the same mission with the yaw lock cleared (param5 0: the yaw
+        # relative to the vehicle) does not fly what was predicted, so the check above
+        # depends on the simulator holding the earth-frame yaw.
+        for e in qgc["mission"]["items"]:
+            if e["command"] == 1000:
+                e["params"][4] = 0
+        unlocked = tmp_path / "unlocked.plan"
+        unlocked.write_text(json.dumps(qgc))
+        _, _, share_u, not_below_u = agreement(
+            flown_survey(tmp_path, cfg, unlocked, "unlocked"), pred)
+        print(f"without the lock: {share_u:.1%} within {AGREE_PD}, {not_below_u:.1%} not "
+              "below it by more")
+        assert not_below_u < NOT_BELOW_SHARE - 0.1
