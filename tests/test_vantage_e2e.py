@@ -24,6 +24,8 @@ import yaml
 
 pytest.importorskip("jsbsim")
 
+from evaluate_inputs import survey_poses_csv
+
 from pdcov.cli import main as pdcov_main
 from pdcov.config import load_mission
 from pdcov.planning.plan import read_plan
@@ -88,15 +90,8 @@ def flown_survey(tmp_path: Path, cfg: Path, plan: Path, name: str) -> dict:
     # The stops in order (the last waypoint may lie on an earlier transit), then it.
     for wp in [w for w in wps[1:-1] if w.hover_s > 0] + [wps[-1]]:
         t1 = reached(wp, t1) + wp.hover_s
-    evaluate(cfg, out / "all", "--log", str(out / "fly" / "flight.tlog"),
-             "--export-poses", str(out / "poses.csv"))
-    header = (out / "poses.csv").read_text().splitlines()[0].split(",")[:8]
-    poses = np.loadtxt(out / "poses.csv", delimiter=",", skiprows=1, usecols=range(8))
-    survey = poses[(poses[:, 0] >= t0) & (poses[:, 0] <= t1)]
-    np.savetxt(out / "survey.csv", survey, delimiter=",", header=",".join(header),
-               comments="", fmt="%.10g")
-    return {**evaluate(cfg, out / "survey", "--poses", str(out / "survey.csv")),
-            "survey_s": t1 - t0}
+    survey = survey_poses_csv(cfg, out / "fly" / "flight.tlog", out, t0, t1)
+    return {**evaluate(cfg, out / "survey", "--poses", str(survey)), "survey_s": t1 - t0}
 
 
 def agreement(flown: dict, pred: dict) -> tuple[np.ndarray, np.ndarray, float, float]:
