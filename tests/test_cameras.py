@@ -251,27 +251,50 @@ def test_the_daemon_follows_both_cameras_as_evaluate_does(tmp_path, looks):
 
 def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
     """The checkpoint holds the combined grid (what np.load and evaluate read) and each
-    camera's own; resumed, the daemon's cameras continue from theirs."""
-    feed, _out, config = _fly(tmp_path)
+    camera's own grid, lattice and count; a daemon stopped half-way and resumed from it
+    continues every camera where it was."""
+    from pdcov.service.core import ServiceCore
+
+    config = tcf.write_mission(tmp_path / "m.yaml", tcf.mission())
     cfg = load_serve_config(config)
     m = cfg.mission
     fresh = new_serve_grid(m)
     mhash = mission_hash(m, fresh)
+    data = tcf.frames()
+    half = len(data) // 2  # 0.02 s apart: the mount parameters' wait ends before it
+    whole, first = LinkFeed(cfg), LinkFeed(cfg)
+    for i, d in enumerate(data):
+        whole.feed(d, 0.02 * i)
+        if i < half:
+            first.feed(d, 0.02 * i)
+    whole.tick(1e4)
     state = tmp_path / "ck"
     state.mkdir()
-    live = feed.live
-    meta = dataclasses.replace(feed.core.checkpoint_meta(0.0), mission_hash=mhash)
-    write_checkpoint(state / "checkpoint.npz", live.grid, meta, live.checkpoint_cameras)
+    meta = dataclasses.replace(first.core.checkpoint_meta(0.0), mission_hash=mhash)
+    assert meta.cameras is not None and meta.cameras["visible"].frames_used > 10
+    write_checkpoint(state / "checkpoint.npz", first.live.grid, meta,
+                     first.live.checkpoint_cameras)
     r = resume(state, mhash, fresh, {c.name: m.new_grid(c) for c in m.all_cameras})
-    assert r.grid is not None and r.cameras is not None, r.message
-    for cam in live.cameras:
-        np.testing.assert_array_equal(r.cameras[cam.cam.name].log_miss_d, cam.grid.log_miss_d)
-    from pdcov.service.core import ServiceCore
-
-    core = ServiceCore(cfg, r.grid, 0.0, mission_hash=mhash, resumed=r.meta,
-                       camera_grids=r.cameras)
-    np.testing.assert_array_equal(core.coverage.grid.log_miss_d, live.grid.log_miss_d)
-    assert core.coverage.grid.frames == live.grid.frames
+    assert r.grid is not None and r.cameras is not None and r.meta is not None, r.message
+    second = LinkFeed(cfg)
+    second.core = ServiceCore(cfg, r.grid, 0.0, mission_hash=mhash, resumed=r.meta,
+                              camera_grids=r.cameras)
+    for i, d in enumerate(data[half:], start=half):
+        second.feed(d, 0.02 * i)
+    second.tick(1e4)
+    # Each camera continues its own lattice (its last frame is the uninterrupted one's);
+    # the frame whose samples straddle the restart is lost, as with one camera.
+    for done, cam in zip(second.live.cameras, whole.live.cameras, strict=True):
+        before = meta.cameras[cam.cam.name].frames_used
+        assert done.schedule.last_frame_t_s == cam.schedule.last_frame_t_s, cam.cam.name
+        assert before < done.grid.frames <= cam.grid.frames <= done.grid.frames + 1
+        assert done.used == done.grid.frames
+    check = new_serve_grid(m)
+    combine_cameras(check, second.live.camera_grids)
+    for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
+        np.testing.assert_array_equal(getattr(second.live.grid, key), getattr(check, key))
+    assert second.status()["frames"]["by_camera"] == {
+        c.cam.name: c.grid.frames for c in second.live.cameras}
     # Another camera list is another mission: its checkpoint is set aside.
     other = mission_from_dict(dict(tcf.mission(), cameras=tcf.cameras()[:1]))
     assert mission_hash(other, new_serve_grid(other)) != mhash

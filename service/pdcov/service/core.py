@@ -189,7 +189,9 @@ class ServiceCore:
 
     def _resume(self, meta: CheckpointMeta) -> None:
         live = self.coverage
-        if meta.last_frame_t_s is not None:
+        if meta.cameras is not None:
+            live.resume_cameras(meta.cameras)
+        elif meta.last_frame_t_s is not None:
             live.resume_lattice(meta.t0_s, meta.last_frame_t_s)
         if meta.clock_offset_s is not None and meta.clock_boot_s is not None:
             self.protocol.prime_clock(meta.clock_offset_s, meta.clock_boot_s)
@@ -437,7 +439,7 @@ class ServiceCore:
             t0_s=live.t0_s, last_frame_t_s=finite_or_none(live.last_frame_t_s),
             clock_offset_s=offset if known else None, clock_boot_s=boot if known else None,
             tiles_seq=live.tiles_seq - 1, frames_used=live.counters.used,
-            written_unix_s=unix_s)
+            written_unix_s=unix_s, cameras=live.camera_resume())
 
     def checkpoint_written(self, meta: CheckpointMeta, error: str | None) -> None:
         """The shell wrote the checkpoint ``meta`` of the current grid, or failed with

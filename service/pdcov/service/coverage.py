@@ -45,6 +45,7 @@ from pdcov.core.grid import CoverageGrid, combine_cameras
 from pdcov.core.pose import CameraPose
 from pdcov.service import status
 from pdcov.service.camera_frames import CameraFrames
+from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
 from pdcov.service.frame_schedule import FrameSchedule
 from pdcov.service.origin import GroundAltitude
@@ -344,10 +345,27 @@ class LiveCoverage:
 
     def resume_lattice(self, t0_s: float | None, last_frame_t_s: float) -> None:
         """Continue a checkpointed run: the frame lattice anchored at ``t0_s`` (rate mode),
-        the frames after ``last_frame_t_s`` (autopilot clock, s, continued by the link).
-        A cameras list: every camera's lattice, on the primary's anchor and last frame."""
+        the frames after ``last_frame_t_s`` (autopilot clock, s, continued by the link)."""
+        self.schedule.resume_lattice(t0_s, last_frame_t_s)
+
+    def camera_resume(self) -> dict[str, CameraResume] | None:
+        """With a cameras list, what a checkpoint keeps of each camera to continue it."""
+        if len(self.cameras) == 1:
+            return None
+        return {c.cam.name: CameraResume(c.schedule.t0_s,
+                                         finite_or_none(c.schedule.last_frame_t_s), c.used)
+                for c in self.cameras}
+
+    def resume_cameras(self, cameras: dict[str, CameraResume]) -> None:
+        """Continue every camera of a cameras list from its checkpointed lattice, last
+        frame and count (a camera the checkpoint lacks starts anew)."""
         for cam in self.cameras:
-            cam.schedule.resume_lattice(t0_s, last_frame_t_s)
+            r = cameras.get(cam.cam.name)
+            if r is None:
+                continue
+            if r.last_frame_t_s is not None:
+                cam.schedule.resume_lattice(r.t0_s, r.last_frame_t_s)
+            cam.used = r.frames_used
 
     def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel) -> None:
         """A camera's grid took a frame: the published grid's cells it may have changed
