@@ -215,7 +215,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
     heights when it has them), the camera (size, intrinsics, distortion) and the detector
     model (bins, P_D, P_FA, input size), and the looks rule when not independent (rule,
-    viewpoint bins, the model's correlation)."""
+    viewpoint bins, the model's correlation; each camera's with a cameras list), and with a
+    cameras list every camera (``_camera_doc``)."""
     cam, det, g = mission.camera, mission.detector, grid.geometry
     doc = {"vehicle_id": mission.vehicle_id,
            "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
