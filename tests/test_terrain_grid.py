@@ -142,6 +142,37 @@ def test_limiting_factors_on_flat_ground_and_their_merge():
     assert counts["too_far"] == int((far.limiting == LimitingFactor.TOO_FAR).sum())
 
 
+def test_too_far_marks_every_cell_in_view_beyond_the_range_whatever_was_marked_before():
+    """A wide camera looking out past its 12 m range, three frames: after each, the cells
+    outside the frame's own window are the earlier codes raised to TOO_FAR exactly where a
+    free cell's centre, in the window out to twice the range, is in the picture and further
+    than the range (the rule judged per cell here, by projecting each centre)."""
+    grid = grid_on(camera=WIDE, max_range_m=12.0)
+    xs, ys = GEOMETRY.centres_enu()
+    X, Y = np.meshgrid(xs, ys)
+    for xyz, pitch, yaw in [((0.0, 0.0, 8.0), -30.0, 90.0), ((5.0, -3.0, 8.0), -30.0, 60.0),
+                            ((-6.0, 4.0, 8.0), -25.0, 200.0)]:
+        p = pose(xyz, pitch, yaw)
+        expected = grid.limiting.copy()
+        (r0, r1, c0, c1), _ = grid._window(p, 24.0)
+        p_cam = (np.stack([X, Y, np.zeros_like(X)], axis=-1) - p.r_cam_enu) @ p.R_enu_cam
+        sl = (slice(r0, r1), slice(c0, c1))
+        pc = p_cam[sl].reshape(-1, 3)
+        ahead = pc[:, 2] > 0
+        seen = np.zeros(len(pc), dtype=bool)
+        seen[ahead] = (WIDE.in_picture(WIDE.project(pc[ahead]))
+                       & WIDE.in_fov_xyz(*pc[ahead].T))
+        far = np.linalg.norm(pc, axis=1) > 12.0
+        mark = (seen & far).reshape(r1 - r0, c1 - c0) & grid.mask[sl]
+        expected[sl] = np.maximum(expected[sl], mark * np.uint8(LimitingFactor.TOO_FAR))
+        grid.update(p)
+        outside = np.ones(grid.mask.shape, dtype=bool)
+        w0, w1, v0, v1 = grid.touched
+        outside[w0:w1, v0:v1] = False
+        assert (expected == LimitingFactor.TOO_FAR).sum() > 100
+        np.testing.assert_array_equal(grid.limiting[outside], expected[outside])
+
+
 def test_snapshot_keeps_the_limiting_factor(tmp_path):
     grid = grid_on(np.where(X_CORNER > 10, 4.0, 0.0), camera=WIDE)
     grid.update(pose((0.0, 0.0, 12.0), -30.0, 90.0))

@@ -89,6 +89,10 @@ def default_max_range_m(camera: CameraModel, detector: DetectorModel,
     return 2.0 * camera.focal_px * cell_size_m * scale / max(detector.bin_edges_px[0], 1e-3)
 
 
+_TOO_FAR_BAND_ROWS = 32
+"""Rows per band in which ``_mark_too_far`` bounds the cells it judges."""
+
+
 class LimitingFactor(enum.IntEnum):
     """What limited a cell's P_D: the best that any frame did for it (the largest code over
     its frames, so grids merge by the maximum). A cell in the picture is 'in view'."""
@@ -556,11 +560,21 @@ class CoverageGrid:
         wide, _ = self._window(pose, 2.0 * self.max_range_m)
         if wide is None or wide == window:
             return
-        _, in_view, in_range = self._centres(pose, wide)
         r0, r1, c0, c1 = wide
-        limiting = self.limiting[r0:r1, c0:c1]
-        np.maximum(limiting, (in_view & ~in_range).view(np.uint8) * np.uint8(
-            LimitingFactor.TOO_FAR), out=limiting)
+        # Only free cells below TOO_FAR can change: each band of rows is judged over the
+        # columns that hold such cells.
+        unmarked = self.mask[r0:r1, c0:c1] & (self.limiting[r0:r1, c0:c1]
+                                              < LimitingFactor.TOO_FAR)
+        for b0 in range(0, r1 - r0, _TOO_FAR_BAND_ROWS):
+            band = unmarked[b0:b0 + _TOO_FAR_BAND_ROWS]
+            cols = np.flatnonzero(band.any(axis=0))
+            if not len(cols):
+                continue
+            sub = (r0 + b0, r0 + b0 + len(band), c0 + int(cols[0]), c0 + int(cols[-1]) + 1)
+            _, in_view, in_range = self._centres(pose, sub)
+            limiting = self.limiting[sub[0]:sub[1], sub[2]:sub[3]]
+            np.maximum(limiting, (in_view & ~in_range).view(np.uint8) * np.uint8(
+                LimitingFactor.TOO_FAR), out=limiting)
 
     def _centres(self, pose: CameraPose, window: tuple[int, int, int, int]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
