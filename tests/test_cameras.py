@@ -15,6 +15,7 @@ import zoom_flight as zf
 from evaluate_inputs import load_grid, run
 from link_feed import LinkFeed
 
+from pdcov.bus.status import decode_status, encode_status
 from pdcov.config import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -241,7 +242,7 @@ def test_the_daemon_follows_both_cameras_as_evaluate_does(tmp_path, looks):
     assert open_.sum() > 50
     assert (pd[open_] > vis.pd[open_] + 1e-3).all() and (pd[open_] > th.pd[open_] + 1e-3).all()
     np.testing.assert_allclose(pd, 1 - (1 - vis.pd) * (1 - th.pd), atol=2e-6)
-    status = feed.status()
+    status = decode_status(encode_status(feed.status()))  # what a watcher reads
     assert status["frames"]["by_camera"] == {"visible": vis.frames, "thermal": th.frames}
     assert status["frames"]["used"] == vis.frames + th.frames == status["frames"]["grid"]
     assert status["faults"]["zoom_reports_other_camera"] == int(tcf.SECONDS * 10) + 1
@@ -298,3 +299,16 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
     # Another camera list is another mission: its checkpoint is set aside.
     other = mission_from_dict(dict(tcf.mission(), cameras=tcf.cameras()[:1]))
     assert mission_hash(other, new_serve_grid(other)) != mhash
+
+
+def test_a_watcher_refuses_a_bad_frames_by_camera(tmp_path):
+    """frames.by_camera is checked like the other counts: a negative one is refused."""
+    from pdcov.bus.errors import BusPayloadError
+
+    feed = LinkFeed(load_serve_config(tcf.write_mission(tmp_path / "m.yaml", tcf.mission())))
+    fields = feed.status()
+    assert fields["frames"]["by_camera"] == {"visible": 0, "thermal": 0}
+    decode_status(encode_status(fields))
+    fields["frames"]["by_camera"] = {"visible": -1}
+    with pytest.raises(BusPayloadError, match="by_camera"):
+        decode_status(encode_status(fields))
