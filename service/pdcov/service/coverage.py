@@ -24,8 +24,11 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 ``pdcov evaluate`` feeds a log), and its mismatches are logged, the first at once, then at
 most one every TERRAIN_WARNING_PERIOD_S.
 
-``LiveCoverage`` holds these decisions together and delegates: where frames fall and when
-they can be decided to ``frame_schedule.FrameSchedule``, the ground altitude to
+``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
+frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
+whose grids ``grid.combine_cameras`` combines into the published one after every frame, as
+``pdcov evaluate`` combines them), where frames fall and when they can be decided to
+``frame_schedule.FrameSchedule``, the ground altitude to
 ``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
 """
@@ -101,7 +104,9 @@ class Counters:
 
 
 class LiveCoverage:
-    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid."""
+    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid (with a
+    cameras list, the combination, ``Mission.new_combined_grid``); ``camera_grids``: a
+    cameras list's resumed grids by name (None: new ones)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
                  tiles_seq: int = 0,
@@ -382,7 +387,8 @@ class LiveCoverage:
 
     @property
     def frames_pending(self) -> int:
-        return self.schedule.frames_pending
+        """Frames waiting for telemetry, every camera's."""
+        return sum(cam.schedule.frames_pending for cam in self.cameras)
 
     # --- output ---------------------------------------------------------------------------
 
