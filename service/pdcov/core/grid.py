@@ -915,9 +915,10 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
     g = into.geometry
     r0, r1, c0, c1 = window or (0, g.n_rows, 0, g.n_cols)
     cells = np.s_[r0:r1, c0:c1]
-    for grid in grids:
-        if grid.geometry != g:
-            raise ValueError("cannot combine grids of different geometry")
+    for grid in grids:  # the masks compared once, when the whole grid is combined
+        if grid.geometry != g or (window is None and not np.array_equal(grid.mask,
+                                                                         into.mask)):
+            raise ValueError("cannot combine grids of different geometry or free-space mask")
     log_miss_d = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
     for group in _detector_groups(grids):
         looks = [grid.looks_state for grid in group]
