@@ -84,6 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    from pdcov.core.grid import combine_cameras
     from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
@@ -167,11 +168,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                grid.frames))
     per_camera = _other_cameras(args, mission, lines) if mission.extra_cameras else {}
     if per_camera:
-        # Each camera's looks in the same cells, independent: the grids' log-miss sums add.
-        own, grid = grid, mission.new_grid()
-        for g in (own, *per_camera.values()):
-            grid.merge(g)
+        # Each camera's looks in the same cells, by the one rule the daemon applies too.
+        own, grid = grid, mission.new_combined_grid()
         per_camera = {mission.camera_name: own, **per_camera}
+        combine_cameras(grid, list(per_camera.values()))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
