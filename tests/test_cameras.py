@@ -193,6 +193,21 @@ def test_serve_refuses_capture_frames_with_a_cameras_list(tmp_path):
         load_serve_config(tcf.write_mission(tmp_path / "capture.yaml", doc))
 
 
+@pytest.mark.parametrize("log_doc, option, named", [
+    ({"frame_source": "capture"}, [], "m.yaml: log.frame_source: capture"),
+    ({}, ["--frame-source", "capture"], "--frame-source: capture")])
+def test_evaluate_refuses_capture_frames_with_a_cameras_list(tmp_path, capsys, log_doc, option,
+                                                              named):
+    """The daemon's rule: one line naming where the capture source was asked for, exit 2,
+    before the log is read (the log given does not exist)."""
+    config = tcf.write_mission(tmp_path / "m.yaml", dict(tcf.mission(), log=log_doc))
+    assert run("evaluate", "--config", str(config), "--log", str(tmp_path / "none.tlog"),
+               "--out", str(tmp_path / "out"), "--no-progress", *option) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and named in err and "cameras list" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 # -- the daemon and pdcov evaluate ------------------------------------------------------------
 
 def _fly(tmp_path, looks: str = "independent"):

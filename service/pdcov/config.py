@@ -553,6 +553,21 @@ class Mission:
         daemon = service.get("frame_source") if isinstance(service, Mapping) else None
         return daemon if daemon in ("rate", "capture") else None
 
+    def cameras_frame_source(self, frame_source: str | None, key: str) -> str | None:
+        """The frame source to frame the mission's cameras by: ``frame_source`` itself with
+        one camera; with a cameras list 'rate' (also when None: not set), and ConfigError
+        naming ``key`` (a config key, or a command-line option '--...') for any other:
+        capture events and detector frames do not say which camera took them."""
+        if not self.extra_cameras:
+            return frame_source
+        if frame_source not in (None, "rate"):
+            at = key if key.startswith("--") else where(self.source, key)
+            raise ConfigError(f"{at}: {frame_source} with a cameras list: capture events and "
+                              "detector frames do not say which camera took them; several "
+                              "cameras are framed at their camera.frame_rate_hz (frame_source "
+                              "rate)")
+        return "rate"
+
     @property
     def all_cameras(self) -> tuple[MissionCamera, ...]:
         """Every camera of the mission, the primary (the fields above) first."""

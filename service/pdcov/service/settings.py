@@ -194,12 +194,8 @@ def load_serve_config(path: str | Path) -> ServeConfig:
     cfg = ServeConfig(mission, _section(raw, "link", LinkConfig, mission.source),
                       bus_config_from_dict(raw.get("bus"), mission.source),
                       _section(raw, "service", ServiceConfig, mission.source), path.parent)
-    if mission.extra_cameras and cfg.frame_source != "rate":
-        key = "service.frame_source" if cfg.service.frame_source else "log.frame_source"
-        raise ConfigError(f"{where(mission.source, key)}: {cfg.frame_source} with a cameras "
-                          "list: capture events and detector frames do not say which camera "
-                          "took them; pdcov serve follows several cameras at their "
-                          "camera.frame_rate_hz (frame_source rate)")
+    mission.cameras_frame_source(cfg.frame_source, "service.frame_source"
+                                 if cfg.service.frame_source else "log.frame_source")
     return cfg
 
 
