@@ -108,3 +108,18 @@ def assert_clean_failure(proc: subprocess.CompletedProcess, *words: str) -> None
     assert "Traceback" not in proc.stderr, proc.stderr
     for w in words:
         assert w in proc.stderr, proc.stderr
+
+
+def survey_poses_csv(cfg: Path, tlog: Path, out: Path, t0_s: float, t1_s: float) -> Path:
+    """The poses ``pdcov evaluate --log`` finds in a simulated flight's ``tlog`` between
+    ``t0_s`` and ``t1_s`` (boot seconds: what a plan's prediction flies), as a pose CSV in
+    ``out`` (with the whole flight's evaluation in out/all)."""
+    assert run("evaluate", "--config", str(cfg), "--log", str(tlog), "--out",
+               str(out / "all"), "--export-poses", str(out / "poses.csv"),
+               "--no-progress") == 0
+    header = (out / "poses.csv").read_text().splitlines()[0].split(",")[:8]
+    poses = np.loadtxt(out / "poses.csv", delimiter=",", skiprows=1, usecols=range(8))
+    survey = poses[(poses[:, 0] >= t0_s) & (poses[:, 0] <= t1_s)]
+    np.savetxt(out / "survey.csv", survey, delimiter=",", header=",".join(header),
+               comments="", fmt="%.10g")
+    return out / "survey.csv"

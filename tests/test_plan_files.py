@@ -122,7 +122,7 @@ def test_wpl_from_other_tools_with_msl_frame_and_default_speed(tmp_path):
     ("not a plan", "line 1: expected the header"),
     ("QGC WPL 110\n0\t1\t0\t16\t0\t0\t0\t0\t1\t2\n", "line 2: expected 12 fields"),
     ("QGC WPL 110\n0\t1\t0\t16\t0\t0\t0\t0\t1\t2\t3\t1\n"
-     "1\t0\t3\t19\t0\t0\t0\t0\t1\t2\t3\t1\n", "item 0: command 19 is not supported"),
+     "1\t0\t3\t18\t0\t0\t0\t0\t1\t2\t3\t1\n", "item 0: command 18 is not supported"),
     ('{"fileType": "Plan", "mission": {"items": [{"type": "ComplexItem"}]}}',
      r"mission.items\[0\]: only SimpleItem"),
     ('{"fileType": "Plan"}', "not a QGroundControl plan"),

@@ -216,6 +216,30 @@ def test_mission_upload_with_pdcov_uploader(autopilot, feed):
         assert g.param1 == pytest.approx(i.param1)
 
 
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_an_uploaded_gimbal_lock_reaches_the_simulator(autopilot):
+    """A DO_GIMBAL_MANAGER_PITCHYAW with YAW_LOCK (param5 16) and a NAV_LOITER_TIME hover,
+    uploaded as MISSION_ITEM_INT (x = param5 itself), arrive as written and fly locked."""
+    from pdcov.core.mission import HoverItem
+    from pdcov.planning.plan import GimbalPointing
+    from pdcov_sitl.mission import flight_plan_from_items
+
+    aim = GimbalPointing(-0.8, 2.0, earth_yaw=True)
+    plan = Plan((Waypoint(0.0, 0.0, 10.0, 5.0, gimbal=GimbalPointing(-1.5)),
+                 Waypoint(0.0, 40.0, 10.0, 5.0, 3.0, gimbal=aim)),
+                hover_item=HoverItem.LOITER_TIME)
+    items = mission_items(plan, ORIGIN)
+    proto = make_protocol(autopilot)
+    result = run_upload(proto, items)
+    assert result is not None and result.accepted, result
+    got = proto.missions.mission
+    assert [(g.command, g.lat_deg) for g in got if g.command == 1000] == [(1000, 0.0),
+                                                                       (1000, 16.0)]
+    legs = flight_plan_from_items(tuple(got), ORIGIN, "uploaded").survey_legs
+    assert [(leg.gimbal_earth_yaw, leg.hover_s) for leg in legs] == [(False, 0.0), (True, 3.0)]
+    assert legs[1].gimbal_yaw_rad == pytest.approx(2.0, abs=1e-6)
+
+
 def test_mission_upload_survives_lost_messages():
     proto = make_protocol("px4")
     items = mission_items(PLAN, ORIGIN)

@@ -25,6 +25,7 @@ pytest.importorskip("jsbsim")
 pytest.importorskip("rasterio")
 
 import terrain_scene as scene
+from evaluate_inputs import survey_poses_csv
 from serve_harness import fly_udp, offline, same
 
 from pdcov.cli import main as pdcov_main
@@ -184,18 +185,12 @@ def followed(request, tmp_path_factory, dems) -> dict:
     # The first corner is cut by ~1 m; the pattern ends on arriving at the last waypoint.
     t0 = reached(wps[0], 0.0, 2.0)
     t1 = reached(wps[-1], t0, 0.5)
-    evaluate(cfg, tmp / "off-all", "--log", str(tmp / "fly" / "flight.tlog"),
-             "--export-poses", str(tmp / "poses.csv"))
-    header = (tmp / "poses.csv").read_text().splitlines()[0].split(",")[:8]
-    poses = np.loadtxt(tmp / "poses.csv", delimiter=",", skiprows=1, usecols=range(8))
-    survey = poses[(poses[:, 0] >= t0) & (poses[:, 0] <= t1)]
-    np.savetxt(tmp / "survey.csv", survey, delimiter=",", header=",".join(header),
-               comments="", fmt="%.10g")
+    survey = survey_poses_csv(cfg, tmp / "fly" / "flight.tlog", tmp, t0, t1)
     with np.load(tmp / "plan" / "grid.npz") as z:
         predicted = {k: z[k] for k in z.files}
     on_legs = (truth[:, 0] >= t0) & (truth[:, 0] <= t1)
     return {"frame": request.param, "mission": mission, "truth": truth[on_legs],
-            "flown": evaluate(cfg, tmp / "off-survey", "--poses", str(tmp / "survey.csv")),
+            "flown": evaluate(cfg, tmp / "off-survey", "--poses", str(survey)),
             "predicted": predicted}
 
 

@@ -418,7 +418,8 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
                                               s.r_rps))
         gimbal.step(dt, s.roll_rad, s.pitch_rad, s.yaw_rad)
         if guidance.leg is not None:
-            gimbal.command(guidance.leg.gimbal_pitch_rad, guidance.leg.gimbal_yaw_rad)
+            gimbal.command(guidance.leg.gimbal_pitch_rad, guidance.leg.gimbal_yaw_rad,
+                           guidance.leg.gimbal_earth_yaw)
         camera = endpoint.camera
         if camera is not None:
             if guidance.leg is not None and guidance.leg.camera_zoom is not None \

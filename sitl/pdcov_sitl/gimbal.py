@@ -2,11 +2,14 @@
 
 Frames (docs/frames.md): gimbal x along the optical axis, y right, z down; R_ned_gimbal maps
 it into NED; R_ned_body is the vehicle attitude (FRD -> NED). The command is an earth-frame
-pitch (rad, -pi/2 = nadir) and a yaw relative to the vehicle's heading (rad).
+pitch (rad, -pi/2 = nadir) and a yaw relative to the vehicle's heading (rad), or, locked
+(GIMBAL_MANAGER_FLAGS_YAW_LOCK), relative to north.
 
 * ``stabilised``: the gimbal holds roll 0 and the commanded pitch against the horizon, and
-  its yaw at the commanded angle from the vehicle's heading (a 2-axis gimbal has no yaw
-  motor: yaw 0). Each axis follows its target with a first-order lag (``tau_s``) limited to
+  its yaw at the commanded angle from the vehicle's heading, or locked at the commanded
+  earth-frame yaw whatever the heading (it stabilises yaw as it does pitch: the lag is on
+  the earth-frame yaw; a 2-axis gimbal has no yaw motor: yaw 0 from the heading). Each
+  axis follows its target with a first-order lag (``tau_s``) limited to
   ``rate_limit_rps``, plus a small seeded random tracking error (Ornstein-Uhlenbeck,
   ``noise_rad`` standard deviation). It measures its own attitude, so what it reports is
   its true attitude. True attitude: Rz(heading + yaw) Ry(pitch) Rx(roll).
@@ -55,6 +58,11 @@ class GimbalConfig:
             raise ValueError(f"gimbal mode: expected one of {MODES}, got {self.mode!r}")
         if self.axes not in (2, 3):
             raise ValueError(f"gimbal axes: expected 2 or 3, got {self.axes!r}")
+
+
+def _wrap(a: float) -> float:
+    """An angle in [-pi, pi) (rad)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -136,6 +144,8 @@ class GimbalModel:
         self._rng = random.Random(seed)
         self.target_pitch_rad = -math.pi / 2
         self.target_yaw_rad = 0.0
+        self.target_earth_yaw = False
+        self._earth_yaw_rad: float | None = None  # stabilised, locked: the earth-frame yaw
         # stabilised: earth roll, earth pitch, yaw from heading (actual, without noise)
         self._angles = [0.0, -math.pi / 2, 0.0]
         self._noise = [0.0, 0.0, 0.0]
@@ -145,10 +155,13 @@ class GimbalModel:
         self._servo_due_s = 0.0
         self._t_s = 0.0
 
-    def command(self, pitch_rad: float, yaw_rad: float = 0.0) -> None:
-        """Earth-frame pitch (-pi/2 nadir) and yaw from the vehicle's heading."""
+    def command(self, pitch_rad: float, yaw_rad: float = 0.0, earth_yaw: bool = False) -> None:
+        """Earth-frame pitch (-pi/2 nadir) and yaw from the vehicle's heading, or from north
+        with ``earth_yaw``."""
+        three = self.cfg.axes == 3
         self.target_pitch_rad = pitch_rad
-        self.target_yaw_rad = yaw_rad if self.cfg.axes == 3 else 0.0
+        self.target_yaw_rad = yaw_rad if three else 0.0
+        self.target_earth_yaw = earth_yaw and three
 
     def step(self, dt_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> None:
         cfg = self.cfg
@@ -157,7 +170,15 @@ class GimbalModel:
             a = self._angles
             a[0] = _follow(a[0], 0.0, dt_s, cfg.tau_s, cfg.rate_limit_rps)
             a[1] = _follow(a[1], self.target_pitch_rad, dt_s, cfg.tau_s, cfg.rate_limit_rps)
-            a[2] = _follow(a[2], self.target_yaw_rad, dt_s, cfg.tau_s, cfg.rate_limit_rps)
+            if self.target_earth_yaw:
+                e = yaw_rad + a[2] if self._earth_yaw_rad is None else self._earth_yaw_rad
+                e = _follow(e, e + _wrap(self.target_yaw_rad - e), dt_s, cfg.tau_s,
+                            cfg.rate_limit_rps)
+                self._earth_yaw_rad = e
+                a[2] = _wrap(e - yaw_rad)
+            else:
+                self._earth_yaw_rad = None
+                a[2] = _follow(a[2], self.target_yaw_rad, dt_s, cfg.tau_s, cfg.rate_limit_rps)
             # Ornstein-Uhlenbeck tracking error, correlation time 0.5 s.
             k = dt_s / 0.5
             s = cfg.noise_rad * math.sqrt(2 * k)
@@ -177,7 +198,8 @@ class GimbalModel:
     def _servo_demand(self, roll_rad: float, pitch_rad: float, yaw_rad: float
                       ) -> tuple[float, float, float]:
         R_ned_body = _Rz(yaw_rad) @ _Ry(pitch_rad) @ _Rx(roll_rad)
-        R_target = _Rz(yaw_rad + self.target_yaw_rad) @ _Ry(self.target_pitch_rad)
+        yaw = self.target_yaw_rad + (0.0 if self.target_earth_yaw else yaw_rad)
+        R_target = _Rz(yaw) @ _Ry(self.target_pitch_rad)
         r, p, y = servo_angles_yrp(R_ned_body.T @ R_target)
         (r0, r1), (p0, p1), (y0, y1) = self.cfg.limits_rad
         return _clip(r, r0, r1), _clip(p, p0, p1), _clip(y, y0, y1)

@@ -1,10 +1,14 @@
 """The flight plan the simulator flies: its legs from take-off to landing.
 
 Mission items (of a QGC ``.plan`` or WPL 110 file as ``pdcov plan`` writes them, or uploaded)
-are read with ``pdcov.planning.plan``: take-off at home, the waypoints with their speeds and
-hover times, return to launch. The gimbal commands of the mission (MAV_CMD_DO_MOUNT_CONTROL 205 and
-MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW 1000) set the camera's pitch/yaw from the next waypoint
-on; without any the camera looks straight down. MAV_CMD_SET_CAMERA_ZOOM items (531: param1
+are read with ``pdcov.planning.plan``: take-off at home, the waypoints (MAV_CMD_NAV_WAYPOINT
+16 with its hold time, or MAV_CMD_NAV_LOITER_TIME 19: fly to its position and hover there
+for param1 s) with their speeds, return to launch. The gimbal commands of the mission
+(MAV_CMD_DO_MOUNT_CONTROL 205 and MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW 1000, read by
+``plan.pointing_of_item``) set the camera's pitch/yaw from the next waypoint on: the yaw
+relative to the vehicle's heading, or to north with 1000's GIMBAL_MANAGER_FLAGS_YAW_LOCK
+(param5 16), as ArduPilot's AP_Mission passes it to AP_Mount; without any the camera looks
+straight down. MAV_CMD_SET_CAMERA_ZOOM items (531: param1
 CAMERA_ZOOM_TYPE, param2 its value) zoom the camera (camera.py) from the next waypoint on.
 
 The legs: climb vertically at home to the first waypoint's altitude, the waypoints with their
@@ -29,17 +33,15 @@ from dataclasses import dataclass
 
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import (
-    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
-    MAV_CMD_DO_MOUNT_CONTROL,
-    MAV_CMD_NAV_WAYPOINT,
     MAV_CMD_SET_CAMERA_ZOOM,
     MAV_FRAME_GLOBAL,
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
+    NAV_POSITION_COMMANDS,
     MissionItem,
 )
 from pdcov.errors import InputFileError
-from pdcov.planning.plan import plan_from_mission_items
+from pdcov.planning.plan import GimbalPointing, plan_from_mission_items
 
 from .terrain import LocalGround
 
@@ -102,7 +104,8 @@ AT_CURRENT_ALTITUDE = ReturnRule(alt_m=0.0, cone_slope=0.0, loiter_s=1.0)
 class Leg:
     """A straight segment from ``start`` to ``end`` (NED m about home) flown at
     ``speed_mps``, then ``hover_s`` seconds of hover at its end; gimbal pitch/yaw (rad; yaw
-    relative to the vehicle's heading) commanded from its start."""
+    relative to the vehicle's heading, or to north with ``gimbal_earth_yaw``) commanded
+    from its start."""
 
     start_ned_m: tuple[float, float, float]
     end_ned_m: tuple[float, float, float]
@@ -110,6 +113,7 @@ class Leg:
     hover_s: float = 0.0
     gimbal_pitch_rad: float = NADIR_PITCH_RAD
     gimbal_yaw_rad: float = 0.0
+    gimbal_earth_yaw: bool = False
     kind: str = "waypoint"   # takeoff | waypoint | return | land
     camera_zoom: tuple[int, float] | None = None
     """The camera zoom in force from the leg's start (CAMERA_ZOOM_TYPE, value); None: none
@@ -139,23 +143,7 @@ def _zoom_commands(items: tuple[MissionItem, ...]) -> list[tuple[int, float] | N
         if it.command == MAV_CMD_SET_CAMERA_ZOOM:
             zoom_type = it.param1 if math.isfinite(it.param1) else -1.0  # refused by the camera
             pending = (int(zoom_type), float(it.param2))
-        elif it.command == MAV_CMD_NAV_WAYPOINT:
-            out.append(pending)
-            pending = None
-    return out
-
-
-def _gimbal_commands(items: tuple[MissionItem, ...]) -> list[tuple[float, float] | None]:
-    """Per navigation waypoint: the (pitch, yaw) rad commanded by the DO items just before
-    it, or None where none precedes it."""
-    out: list[tuple[float, float] | None] = []
-    pending: tuple[float, float] | None = None
-    for it in items:
-        if it.command == MAV_CMD_DO_MOUNT_CONTROL:  # param1 pitch, param3 yaw, deg
-            pending = (math.radians(it.param1), math.radians(it.param3 or 0.0))
-        elif it.command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:  # param1 pitch, param2 yaw
-            pending = (math.radians(it.param1), math.radians(it.param2 or 0.0))
-        elif it.command == MAV_CMD_NAV_WAYPOINT:
+        elif it.command in NAV_POSITION_COMMANDS:
             out.append(pending)
             pending = None
     return out
@@ -174,9 +162,8 @@ def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], o
     items = tuple(dataclasses.replace(it, frame=_FRAME_OF_INT.get(it.frame, it.frame))
                   for it in items)
     plan = plan_from_mission_items(items, origin, source, default_speed_mps)
-    gimbal = _gimbal_commands(items)
     zooms = _zoom_commands(items)
-    nav = [(k, it) for k, it in enumerate(items) if it.command == MAV_CMD_NAV_WAYPOINT]
+    nav = [(k, it) for k, it in enumerate(items) if it.command in NAV_POSITION_COMMANDS]
 
     def terrain_m(n_m: float, e_m: float, what: str) -> float:
         """Terrain height above home (m) at NED (n, e); 0 on level ground."""
@@ -193,28 +180,30 @@ def flight_plan_from_items(items: tuple[MissionItem, ...] | list[MissionItem], o
     alt0 = plan.waypoints[0].alt_agl_m
     legs.append(Leg((0.0, 0.0, 0.0), (0.0, 0.0, -alt0), takeoff_speed_mps, 1.0, kind="takeoff"))
     here = (0.0, 0.0, -alt0)
-    pitch, yaw = NADIR_PITCH_RAD, 0.0
+    aim = GimbalPointing(NADIR_PITCH_RAD)
     zoom: tuple[int, float] | None = None
-    for k, (w, (seq, it)) in enumerate(zip(plan.waypoints, nav, strict=True)):
-        if k < len(gimbal) and gimbal[k] is not None:
-            pitch, yaw = gimbal[k]  # type: ignore[misc]
+    for k, (w, (seq, it), now) in enumerate(zip(plan.waypoints, nav, plan.pointings(),
+                                                strict=True)):
+        aim = now or aim
         zoom = zooms[k] if k < len(zooms) and zooms[k] is not None else zoom
         terrain = it.frame == MAV_FRAME_GLOBAL_TERRAIN_ALT
         n, e = w.y_enu_m, w.x_enu_m
         up = w.alt_agl_m + (terrain_m(n, e, f"item {seq}: the terrain-frame waypoint")
                             if terrain else 0.0)
         end = (n, e, -up)
-        legs.append(Leg(here, end, w.speed_mps, w.hover_s, pitch, yaw, above_terrain=terrain,
-                        camera_zoom=zoom))
+        legs.append(Leg(here, end, w.speed_mps, w.hover_s, aim.pitch_rad, aim.yaw_rad,
+                        aim.earth_yaw, above_terrain=terrain, camera_zoom=zoom))
         here = end
     rtl_speed = plan.waypoints[-1].speed_mps
     under = terrain_m(here[0], here[1], "the start of the return") if rtl.above_terrain else 0.0
     alt = rtl.return_alt_m(-here[2] - under, math.hypot(here[0], here[1]))
     climbed = (here[0], here[1], -(alt + under))
     if climbed != here:  # climb first, unless already at the return altitude
-        legs.append(Leg(here, climbed, rtl_speed, 0.0, pitch, yaw, kind="return"))
+        legs.append(Leg(here, climbed, rtl_speed, 0.0, aim.pitch_rad, aim.yaw_rad,
+                        aim.earth_yaw, kind="return"))
     top = (0.0, 0.0, -alt)
-    legs.append(Leg(climbed, top, rtl_speed, rtl.loiter_s, pitch, yaw, kind="return",
-                    above_terrain=rtl.above_terrain))
-    legs.append(Leg(top, (0.0, 0.0, 0.0), land_speed_mps, 0.0, pitch, yaw, kind="land"))
+    legs.append(Leg(climbed, top, rtl_speed, rtl.loiter_s, aim.pitch_rad, aim.yaw_rad,
+                    aim.earth_yaw, kind="return", above_terrain=rtl.above_terrain))
+    legs.append(Leg(top, (0.0, 0.0, 0.0), land_speed_mps, 0.0, aim.pitch_rad, aim.yaw_rad,
+                    aim.earth_yaw, kind="land"))
     return FlightPlan(origin, tuple(legs))

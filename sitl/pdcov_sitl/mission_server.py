@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov.core.mission import MissionItem
+from pdcov.core.mission import MissionItem, mission_item_int_params56, mission_item_int_xy
 
 MAV_MISSION_TYPE_MISSION = 0
 
@@ -116,7 +116,7 @@ class MissionServer:
 
 def _item_from_message(msg: mavlink2.MAVLink_message) -> MissionItem:
     if msg.get_type() == "MISSION_ITEM_INT":
-        lat_deg, lon_deg = msg.x * 1e-7, msg.y * 1e-7
+        lat_deg, lon_deg = mission_item_int_params56(msg.frame, msg.x, msg.y)
     else:
         lat_deg, lon_deg = float(msg.x), float(msg.y)
     return MissionItem(msg.command, msg.frame, msg.param1, msg.param2, msg.param3,
@@ -128,8 +128,7 @@ def _item_message(mav: mavlink2.MAVLink, client: tuple[int, int], seq: int, it: 
     args = (*client, seq, it.frame, it.command, int(seq == 0), int(it.autocontinue),
             it.param1, it.param2, it.param3, it.param4)
     if as_int:
-        return mav.mission_item_int_encode(*args, round(it.lat_deg * 1e7),
-                                           round(it.lon_deg * 1e7), it.z_m,
+        return mav.mission_item_int_encode(*args, *mission_item_int_xy(it), it.z_m,
                                            MAV_MISSION_TYPE_MISSION)
     return mav.mission_item_encode(*args, it.lat_deg, it.lon_deg, it.z_m,
                                    MAV_MISSION_TYPE_MISSION)

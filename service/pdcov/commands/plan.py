@@ -44,6 +44,7 @@ from pdcov.core.mission import (
     MAV_FRAME_GLOBAL,
     AltitudeFrame,
     GimbalCommand,
+    HoverItem,
     MissionItem,
 )
 from pdcov.errors import ConfigError
@@ -66,7 +67,7 @@ from pdcov.planning.optimise import (
     with_spacing,
 )
 from pdcov.planning.patterns import track_spacing_m
-from pdcov.planning.plan import read_mission, write_plan
+from pdcov.planning.plan import GimbalPointing, read_mission, write_plan
 from pdcov.planning.refly import ReflySettings, refly_of_grid
 from pdcov.planning.scenario import check_plan_size, scenario_of
 from pdcov.planning.terrain_follow import (
@@ -74,7 +75,7 @@ from pdcov.planning.terrain_follow import (
     steep_legs,
 )
 from pdcov.planning.tours import Fleet
-from pdcov.planning.vantage import CoverObjective, VantageSettings
+from pdcov.planning.vantage import CoverObjective, VantageSettings, is_nadir
 from pdcov.planning.vantage_missions import (
     VantageMissions,
     plan_vantage_missions,
@@ -209,12 +210,25 @@ def _vantage_args(p: argparse.ArgumentParser) -> None:
                    help="time for OR-Tools' route search, s (default 2)")
     g.add_argument("--gimbal-command", choices=list(GimbalCommand), type=GimbalCommand,
                    help="gimbal mission item: manager (DO_GIMBAL_MANAGER_PITCHYAW, default) "
-                        "or mount (DO_MOUNT_CONTROL, older firmware)")
+                        "or mount (DO_MOUNT_CONTROL, older firmware: no earth-frame yaw)")
+    g.add_argument("--gimbal-pitches-deg", nargs="+", type=finite, metavar="DEG",
+                   help="candidate gimbal pitches, deg (-90 nadir; within the mount's "
+                        "pitch_limits_deg; default planning.gimbal_pitch_deg)")
+    g.add_argument("--gimbal-yaws", type=int, metavar="N",
+                   help="earth-frame gimbal yaws per non-nadir pitch, 360/N deg apart from "
+                        "north (YAW_LOCK; 0: the yaw follows the vehicle; default 8 with an "
+                        "oblique --gimbal-pitches-deg, else 0)")
+    g.add_argument("--hover-item", choices=list(HoverItem), type=HoverItem,
+                   help="write hovers as waypoint (NAV_WAYPOINT hold time, default) or "
+                        "loiter-time (NAV_LOITER_TIME) items")
 
 
 _VANTAGE_FLAGS = ("target_pd", "target_share", "altitudes_m", "hover_s", "lattice_m",
                   "clearance_m", "objective", "ilp_time_limit_s", "vehicles",
-                  "max_flight_time_s", "routing_time_s", "gimbal_command")
+                  "max_flight_time_s", "routing_time_s", "gimbal_command",
+                  "gimbal_pitches_deg", "gimbal_yaws", "hover_item")
+DEFAULT_GIMBAL_YAWS = 8
+"""Earth-frame yaws per oblique pitch when --gimbal-pitches-deg names one."""
 
 
 def _terrain_args(p: argparse.ArgumentParser) -> None:
@@ -332,11 +346,16 @@ def run_plan(args: argparse.Namespace) -> int:
 def vantage_settings(args: argparse.Namespace, target_pd: float, target_share: float,
                      alts_m: Sequence[float], speed_mps: float) -> VantageSettings:
     """The vantage options of ``pdcov plan`` (their defaults where not given)."""
+    pitches = args.gimbal_pitches_deg
+    yaws = args.gimbal_yaws
+    if yaws is None:
+        yaws = DEFAULT_GIMBAL_YAWS if pitches and not all(map(is_nadir, pitches)) else 0
     return VantageSettings(
         target_pd, tuple(alts_m), tuple(args.hover_s or (2.0,)), target_share,
         args.lattice_m, args.clearance_m, speed_mps,
         args.objective or CoverObjective.POINTS,
-        20.0 if args.ilp_time_limit_s is None else args.ilp_time_limit_s)
+        20.0 if args.ilp_time_limit_s is None else args.ilp_time_limit_s,
+        None if pitches is None else tuple(pitches), yaws)
 
 
 def run_plan_vantage(args: argparse.Namespace) -> int:
@@ -355,7 +374,7 @@ def run_plan_vantage(args: argparse.Namespace) -> int:
     fleet = Fleet(args.vehicles or 1, args.max_flight_time_s)
     t0 = time.monotonic()
     m = plan_vantage_missions(sc, settings, fleet, args.gimbal_command or GimbalCommand.MANAGER,
-                              args.routing_time_s or 2.0)
+                              args.routing_time_s or 2.0, args.hover_item or HoverItem.WAYPOINT)
     elapsed = time.monotonic() - t0
     with replacing_dir(args.out) as replaced:
         summary = write_vantage(args.out, mission, sc, m, elapsed, not args.no_figures)
@@ -369,6 +388,15 @@ def _cover_doc(cover: Cover | None) -> dict[str, Any] | None:
     return {"points": len(cover.chosen), "cost": round(cover.cost, 4),
             "optimal": cover.optimal,
             "mip_gap": None if math.isnan(cover.mip_gap) else round(cover.mip_gap, 6)}
+
+
+def _pointing_doc(aim: GimbalPointing | None) -> dict[str, Any]:
+    """A vantage point's gimbal pointing in vantage.json: pitch and earth-frame yaw (deg;
+    yaw null: it follows the vehicle); nothing for a fixed mount."""
+    if aim is None:
+        return {}
+    return {"gimbal_pitch_deg": round(math.degrees(aim.pitch_rad), 3),
+            "gimbal_yaw_deg": round(math.degrees(aim.yaw_rad), 3) if aim.earth_yaw else None}
 
 
 def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
@@ -391,7 +419,8 @@ def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
            "greedy_gap": None if c.greedy_gap is None else round(c.greedy_gap, 4),
            "elapsed_s": round(elapsed_s, 2),
            "points": [{"x_enu_m": round(p.x_enu_m, 3), "y_enu_m": round(p.y_enu_m, 3),
-                       "alt_agl_m": p.alt_agl_m, "hover_s": p.hover_s, "looks": p.looks}
+                       "alt_agl_m": p.alt_agl_m, "hover_s": p.hover_s, "looks": p.looks,
+                       **_pointing_doc(p.pointing)}
                       for p in c.points],
            "missions": [{"file": f"{name}.plan", "vehicle": vm.route.vehicle,
                          "sortie": vm.route.sortie, "stops": list(vm.route.stops),

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 MAV_CMD_NAV_WAYPOINT = 16
+MAV_CMD_NAV_LOITER_TIME = 19  # param1 seconds to hover at the item's position
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
@@ -14,11 +15,14 @@ MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_CMD_DO_MOUNT_CONTROL = 205
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
 MAV_MOUNT_MODE_MAVLINK_TARGETING = 2
+GIMBAL_MANAGER_FLAGS_YAW_LOCK = 16  # param5 of 1000: the yaw is relative to north
 MAV_CMD_SET_CAMERA_ZOOM = 531  # param1 CAMERA_ZOOM_TYPE, param2 its value (common.xml)
 MAV_FRAME_GLOBAL = 0
 MAV_FRAME_MISSION = 2
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 MAV_FRAME_GLOBAL_TERRAIN_ALT = 10
+NAV_POSITION_COMMANDS = (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LOITER_TIME)
+"""The navigation items a plan's waypoints are written as (a hover: either)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,6 +39,23 @@ class MissionItem:
     lon_deg: float = 0.0
     z_m: float = 0.0
     autocontinue: bool = True
+
+
+def mission_item_int_xy(it: MissionItem) -> tuple[int, int]:
+    """MISSION_ITEM_INT x, y of an item: degrees * 1e7 for a position, but param5 and
+    param6 themselves for a MAV_FRAME_MISSION item (e.g. the gimbal manager's flags), as
+    ArduPilot (AP_Mission) and PX4 read them."""
+    if it.frame == MAV_FRAME_MISSION:
+        return round(it.lat_deg), round(it.lon_deg)
+    return round(it.lat_deg * 1e7), round(it.lon_deg * 1e7)
+
+
+def mission_item_int_params56(frame: int, x: int, y: int) -> tuple[float, float]:
+    """MissionItem lat_deg, lon_deg (param5, param6) of MISSION_ITEM_INT x, y: the inverse
+    of ``mission_item_int_xy``."""
+    if frame == MAV_FRAME_MISSION:
+        return float(x), float(y)
+    return x * 1e-7, y * 1e-7
 
 
 class AltitudeFrame(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
@@ -58,15 +79,29 @@ class AltitudeFrame(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
                 AltitudeFrame.TERRAIN_ALT: MAV_FRAME_GLOBAL_TERRAIN_ALT}[self]
 
 
+class HoverItem(str, Enum):
+    """How a hover is written; prints as its text. WAYPOINT: MAV_CMD_NAV_WAYPOINT with
+    param1 the hold time (s); LOITER_TIME: MAV_CMD_NAV_LOITER_TIME, param1 the time (s)."""
+
+    WAYPOINT = "waypoint"
+    LOITER_TIME = "loiter-time"
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+
 class GimbalCommand(str, Enum):
     """Which mission item points the gimbal; prints as its text.
 
     MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000, gimbal protocol v2: ArduPilot 4.3+, PX4):
     param1 pitch deg (positive up), param2 yaw deg (positive right; relative to the vehicle
-    with no lock flag), param3/4 rates (NaN: none), param5 GIMBAL_MANAGER_FLAGS (0: follow
-    the vehicle's yaw), param7 gimbal device id (0: the primary gimbal).
+    without the lock flag, to north with it), param3/4 rates (NaN: none), param5
+    GIMBAL_MANAGER_FLAGS (0: the yaw follows the vehicle; 16 YAW_LOCK: an earth-frame yaw),
+    param7 gimbal device id (0: the primary gimbal).
     MAV_CMD_DO_MOUNT_CONTROL (205, older firmware): param1 pitch deg, param2 roll deg,
-    param3 yaw deg, param7 MAV_MOUNT_MODE (2: MAVLINK_TARGETING)."""
+    param3 yaw deg (relative to the vehicle: ArduPilot's AP_Mount takes it in the body
+    frame, so it cannot hold an earth-frame yaw), param7 MAV_MOUNT_MODE (2:
+    MAVLINK_TARGETING)."""
 
     MANAGER = "manager"
     MOUNT = "mount"
@@ -74,12 +109,17 @@ class GimbalCommand(str, Enum):
     def __str__(self) -> str:
         return str(self.value)
 
-    def item(self, pitch_deg: float, yaw_deg: float = 0.0) -> MissionItem:
-        """The item pointing the gimbal at ``pitch_deg`` (-90: nadir) and ``yaw_deg`` from
-        the vehicle's heading."""
+    def item(self, pitch_deg: float, yaw_deg: float = 0.0, earth_yaw: bool = False
+             ) -> MissionItem:
+        """The item pointing the gimbal at ``pitch_deg`` (-90: nadir) and ``yaw_deg``
+        (clockwise) from the vehicle's heading, or from north with ``earth_yaw`` (the
+        manager's YAW_LOCK; ValueError for the mount command, which has no such flag)."""
         if self is GimbalCommand.MANAGER:
             return MissionItem(MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_FRAME_MISSION,
                                param1=pitch_deg, param2=yaw_deg, param3=float("nan"),
-                               param4=float("nan"))
+                               param4=float("nan"),
+                               lat_deg=float(GIMBAL_MANAGER_FLAGS_YAW_LOCK if earth_yaw else 0))
+        if earth_yaw:
+            raise ValueError("MAV_CMD_DO_MOUNT_CONTROL has no earth-frame yaw")
         return MissionItem(MAV_CMD_DO_MOUNT_CONTROL, MAV_FRAME_MISSION, param1=pitch_deg,
                            param3=yaw_deg, z_m=float(MAV_MOUNT_MODE_MAVLINK_TARGETING))

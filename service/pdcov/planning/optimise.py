@@ -25,7 +25,7 @@ from pdcov.core.footprint import footprint_polygon
 from pdcov.core.grid import CoverageGrid, default_max_range_m
 from pdcov.core.looks import LooksConfig
 from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import FixedMount
+from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.core.rotations import Rz
 from pdcov.core.terrain import TerrainSurface
 from pdcov.core.zoom import FovLens, Zoom
@@ -34,7 +34,7 @@ from pdcov.planning import patterns
 from pdcov.planning.plan import Plan
 from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
-from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, fly
+from pdcov.planning.trajectory import Flight, Kinematics, camera_poses, flight_pointing, fly
 
 PatternName = Literal["lawnmower", "spiral", "expanding-square", "sector", "sector-2",
                       "vantage"]
@@ -216,17 +216,25 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
 def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
             progress: bool = False) -> Prediction:
     """Fly ``plan``, over the scenario's terrain (``Scenario.over_terrain``), at the frame
-    rate and accumulate every frame in a fresh grid, with the camera zoomed as the plan
-    commands (``Plan.camera_zoom_hfov_deg``)."""
+    rate and accumulate every frame (``flight_poses``) in a fresh grid, with the camera
+    zoomed as the plan commands (``Plan.camera_zoom_hfov_deg``)."""
     camera = scenario.camera_at(plan.camera_zoom_hfov_deg)
     plan = scenario.over_terrain(plan)
     flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
     grid = scenario.new_grid()
-    poses = camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad)
+    poses = flight_poses(scenario, plan, flight)
     for pose in show_progress(poses, desc="frames", unit="frame", enabled=progress):
         grid.update_with(pose, camera)
     return Prediction(params or PlanParams("lawnmower", plan.waypoints[0].alt_agl_m,
                                            plan.waypoints[0].speed_mps), plan, flight, grid)
+
+
+def flight_poses(scenario: Scenario, plan: Plan, flight: Flight) -> list[CameraPose]:
+    """The camera poses of ``plan`` flown as ``flight``: the scenario's mount, a gimbal
+    holding the pointings the plan's mission commands (before any: the scenario's pitch,
+    the yaw following the heading)."""
+    return camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad,
+                        flight_pointing(plan, flight))
 
 
 def score(scenario: Scenario, params: PlanParams, target_pd: float) -> Score:

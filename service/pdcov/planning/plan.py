@@ -7,9 +7,13 @@ the uploader carry those items. Items (MAVLink common.xml):
 * MAV_CMD_NAV_TAKEOFF (22) to the first waypoint's altitude, at the origin;
 * MAV_CMD_DO_CHANGE_SPEED (178) before the first waypoint and wherever the speed changes
   (param1 = 1: ground speed, param2 = m/s, param3 = -1: throttle unchanged);
-* a gimbal plan's pointing after the take-off: MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000)
-  or, for older firmware, MAV_CMD_DO_MOUNT_CONTROL (205) (``GimbalCommand``);
-* MAV_CMD_NAV_WAYPOINT (16) per waypoint, param1 = hold time in s;
+* a gimbal plan's pointing before the first waypoint and wherever it changes (the pointing
+  a waypoint carries is commanded on leaving the previous one):
+  MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000; param5 GIMBAL_MANAGER_FLAGS_YAW_LOCK for an
+  earth-frame yaw) or, for older firmware, MAV_CMD_DO_MOUNT_CONTROL (205)
+  (``GimbalCommand``);
+* MAV_CMD_NAV_WAYPOINT (16) per waypoint, param1 = hold time in s; or, for a hover of a
+  ``HoverItem.LOITER_TIME`` plan, MAV_CMD_NAV_LOITER_TIME (19), param1 = the hover in s;
 * MAV_CMD_NAV_RETURN_TO_LAUNCH (20) at the end.
 
 Waypoint altitudes are written in the plan's ``altitude_frame``:
@@ -22,8 +26,9 @@ the terrain (the autopilot follows its own terrain data between waypoints). The 
 climbs to the first waypoint's height above home, at least its altitude above ground.
 
 Reading accepts frames 0 (MSL, converted with the origin's ground altitude), 3 and 10
-(terrain), ignores take-off, landing, return and DO commands other than the speed change,
-and refuses other navigation commands, naming the file and item.
+(terrain), waypoints and loiter-time hovers, takes the gimbal items as the pointing of the
+waypoint after them, ignores take-off, landing, return and other DO commands than the speed
+change, and refuses other navigation commands, naming the file and item.
 """
 
 from __future__ import annotations
@@ -39,9 +44,12 @@ import numpy as np
 from pdcov.atomic import write_text_atomic
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.core.mission import (
+    GIMBAL_MANAGER_FLAGS_YAW_LOCK,
     MAV_CMD_DO_CHANGE_SPEED,
     MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+    MAV_CMD_DO_MOUNT_CONTROL,
     MAV_CMD_NAV_LAND,
+    MAV_CMD_NAV_LOITER_TIME,
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
@@ -50,8 +58,10 @@ from pdcov.core.mission import (
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
     MAV_FRAME_MISSION,
+    NAV_POSITION_COMMANDS,
     AltitudeFrame,
     GimbalCommand,
+    HoverItem,
     MissionItem,
 )
 from pdcov.errors import InputFileError
@@ -67,13 +77,52 @@ QGC_VEHICLE_MULTIROTOR = 2
 
 
 @dataclass(frozen=True, slots=True)
+class GimbalPointing:
+    """Where a gimbal points: pitch against the horizon (rad, -pi/2: nadir) and yaw (rad,
+    clockwise) from the vehicle's heading, or from north when ``earth_yaw``."""
+
+    pitch_rad: float
+    yaw_rad: float = 0.0
+    earth_yaw: bool = False
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.pitch_rad) and math.isfinite(self.yaw_rad)):
+            raise ValueError(f"gimbal pointing must be finite, got {self}")
+
+    def item(self, command: GimbalCommand) -> MissionItem:
+        """The mission item commanding it; yaw written in (-180, 180] deg."""
+        yaw_deg = math.degrees(math.remainder(self.yaw_rad, 2 * math.pi))
+        return command.item(math.degrees(self.pitch_rad), yaw_deg, self.earth_yaw)
+
+
+def pointing_of_item(it: MissionItem) -> GimbalPointing | None:
+    """The pointing a gimbal item (1000 or 205) commands; None for other items and for one
+    without a pitch angle (rates only: not predicted)."""
+    if not math.isfinite(it.param1):
+        return None
+    if it.command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:  # p1 pitch, p2 yaw, p5 flags
+        lock = math.isfinite(it.lat_deg) and int(it.lat_deg) & GIMBAL_MANAGER_FLAGS_YAW_LOCK
+        return GimbalPointing(math.radians(it.param1), math.radians(_or_zero(it.param2)),
+                              bool(lock))
+    if it.command == MAV_CMD_DO_MOUNT_CONTROL:  # p1 pitch, p3 yaw (body frame)
+        return GimbalPointing(math.radians(it.param1), math.radians(_or_zero(it.param3)))
+    return None
+
+
+def _or_zero(v: float) -> float:
+    return v if math.isfinite(v) else 0.0
+
+
+@dataclass(frozen=True, slots=True)
 class Waypoint:
     """One waypoint: ENU metres, altitude above ground (m; above the terrain when the plan
     follows it), speed to fly towards it (m/s), and the time to hover on reaching it (s).
 
     z_enu_m: ENU height of the path at the waypoint (m; default ``alt_agl_m``: the flat
     ground z = 0). terrain_added: a point added along a leg to follow the terrain, not a
-    turn of the pattern (a MAV_FRAME_GLOBAL_TERRAIN_ALT mission leaves it out)."""
+    turn of the pattern (a MAV_FRAME_GLOBAL_TERRAIN_ALT mission leaves it out). gimbal:
+    the pointing commanded on leaving the previous waypoint, held on the way here and
+    while here (None: the one in force)."""
 
     x_enu_m: float
     y_enu_m: float
@@ -82,6 +131,7 @@ class Waypoint:
     hover_s: float = 0.0
     z_enu_m: float = math.nan
     terrain_added: bool = False
+    gimbal: GimbalPointing | None = None
 
     def __post_init__(self) -> None:
         if math.isnan(self.z_enu_m):
@@ -101,18 +151,16 @@ class Waypoint:
 class Plan:
     """An ordered list of waypoints, a one-line description of how it was made, and the
     frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
-    above home). gimbal_pitch_rad: the pitch (rad, -pi/2: nadir; yaw following the
-    vehicle) the mission commands the gimbal to after the take-off, with
-    ``gimbal_command``; None: no gimbal command. camera_zoom_hfov_deg: the camera's zoom
-    commanded for the whole plan, as a horizontal field of view (deg; None: none
-    commanded)."""
+    above home). gimbal_command: the item the waypoints' gimbal pointings are written as.
+    camera_zoom_hfov_deg: the camera's zoom commanded for the whole plan, as a horizontal
+    field of view (deg; None: none commanded). hover_item: how hovers are written."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
     altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
-    gimbal_pitch_rad: float | None = None
     gimbal_command: GimbalCommand = GimbalCommand.MANAGER
     camera_zoom_hfov_deg: float | None = None
+    hover_item: HoverItem = HoverItem.WAYPOINT
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -133,6 +181,16 @@ class Plan:
         """(N, 3) waypoint positions with the path's height (z_enu_m), ENU metres."""
         return np.array([[w.x_enu_m, w.y_enu_m, w.z_enu_m] for w in self.waypoints],
                         dtype=float)
+
+    def pointings(self) -> list[GimbalPointing | None]:
+        """Per waypoint, the gimbal pointing in force on the way to it and at it (None:
+        before any is commanded)."""
+        out: list[GimbalPointing | None] = []
+        now = None
+        for w in self.waypoints:
+            now = w.gimbal or now
+            out.append(now)
+        return out
 
     def written(self) -> np.ndarray:
         """bool (N,): the waypoints a mission carries; a MAV_FRAME_GLOBAL_TERRAIN_ALT one
@@ -168,8 +226,9 @@ def takeoff_alt_m(plan: Plan) -> float:
 
 def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     """Take-off, the camera zoom (MAV_CMD_SET_CAMERA_ZOOM, ZOOM_TYPE_HORIZONTAL_FOV, when
-    the plan commands one), speed changes, waypoints and return to launch (no home item);
-    waypoint altitudes in the plan's frame (module doc)."""
+    the plan commands one), gimbal pointings and speed changes where they change,
+    waypoints (or loiter-time hovers) and return to launch (no home item); waypoint
+    altitudes in the plan's frame (module doc)."""
     frame = plan.altitude_frame
     amsl = frame is AltitudeFrame.AMSL
     enu = plan.xyz_enu_m
@@ -179,22 +238,26 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
                          z_m=takeoff_alt_m(plan))]
-    if plan.gimbal_pitch_rad is not None:
-        items.append(plan.gimbal_command.item(math.degrees(plan.gimbal_pitch_rad)))
     if plan.camera_zoom_hfov_deg is not None:
         items.append(MissionItem(MAV_CMD_SET_CAMERA_ZOOM, MAV_FRAME_MISSION,
                                  param1=float(ZOOM_TYPE_HORIZONTAL_FOV),
                                  param2=float(plan.camera_zoom_hfov_deg)))
     speed = math.nan
-    for w, (lat, lon, alt_msl), written in zip(plan.waypoints, geo, plan.written(),
-                                               strict=True):
+    pointing: GimbalPointing | None = None
+    loiter = plan.hover_item is HoverItem.LOITER_TIME
+    for w, (lat, lon, alt_msl), written, now in zip(plan.waypoints, geo, plan.written(),
+                                                    plan.pointings(), strict=True):
+        if now != pointing and now is not None:  # a skipped waypoint's passes to the next
+            pointing = now
+            items.append(now.item(plan.gimbal_command))
         if not written:
             continue
         if w.speed_mps != speed:
             speed = w.speed_mps
             items.append(MissionItem(MAV_CMD_DO_CHANGE_SPEED, MAV_FRAME_MISSION, param1=1.0,
                                      param2=speed, param3=-1.0))
-        items.append(MissionItem(MAV_CMD_NAV_WAYPOINT, frame.mav_frame,
+        cmd = MAV_CMD_NAV_LOITER_TIME if loiter and w.hover_s > 0 else MAV_CMD_NAV_WAYPOINT
+        items.append(MissionItem(cmd, frame.mav_frame,
                                  param1=w.hover_s, param4=math.nan, lat_deg=float(lat),
                                  lon_deg=float(lon),
                                  z_m=float(alt_msl) if amsl else w.alt_agl_m))
@@ -209,8 +272,17 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     accepted. ``default_speed_mps`` applies before the first speed change."""
     speed = default_speed_mps
     rows: list[tuple[float, float, float, float, float]] = []
+    gimbals: list[GimbalPointing | None] = []
+    pending: GimbalPointing | None = None
+    command, hover_item = GimbalCommand.MANAGER, HoverItem.WAYPOINT
     zoom_hfov_deg: float | None = None
     for k, it in enumerate(items):
+        pointing = pointing_of_item(it)
+        if pointing is not None:
+            pending = pointing
+            command = (GimbalCommand.MANAGER if it.command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
+                       else GimbalCommand.MOUNT)
+            continue
         if (it.command == MAV_CMD_SET_CAMERA_ZOOM and not rows
                 and it.param1 == ZOOM_TYPE_HORIZONTAL_FOV):
             if not (math.isfinite(it.param2) and 0 < it.param2 < 180):
@@ -226,10 +298,12 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
         if (it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND
                 or it.command == MAV_CMD_SET_CAMERA_ZOOM):  # the camera's, not the path's
             continue
-        if it.command != MAV_CMD_NAV_WAYPOINT:
+        if it.command not in NAV_POSITION_COMMANDS:
             raise InputFileError(f"{source}: item {k}: command {it.command} is not supported "
-                                 f"(waypoints, take-off, landing, return, DO commands and "
-                                 "MAV_CMD_SET_CAMERA_ZOOM are)")
+                                 f"(waypoints, loiter-time hovers, take-off, landing, return, "
+                                 "DO commands and MAV_CMD_SET_CAMERA_ZOOM are)")
+        if it.command == MAV_CMD_NAV_LOITER_TIME:
+            hover_item = HoverItem.LOITER_TIME
         if it.frame == MAV_FRAME_GLOBAL:
             alt_agl = it.z_m - origin.ground_alt_msl_m
         elif it.frame in (MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_GLOBAL_TERRAIN_ALT):
@@ -241,14 +315,18 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
             raise InputFileError(f"{source}: item {k}: no speed before the first waypoint "
                                  f"(add MAV_CMD_DO_CHANGE_SPEED or give a default speed)")
         rows.append((it.lat_deg, it.lon_deg, alt_agl, speed, it.param1))
+        gimbals.append(pending)
+        pending = None
     if not rows:
         raise InputFileError(f"{source}: no waypoints (MAV_CMD_NAV_WAYPOINT) found")
     a = np.array(rows, dtype=float)
     enu = geodetic_to_enu(a[:, 0], a[:, 1], np.full(len(a), origin.ground_alt_msl_m), origin)
     try:
-        return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]))
-                          for (e, n, _), r in zip(enu, a, strict=True)), f"read from {source}",
-                    camera_zoom_hfov_deg=zoom_hfov_deg)
+        return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]),
+                                   gimbal=g)
+                          for (e, n, _), r, g in zip(enu, a, gimbals, strict=True)),
+                    f"read from {source}", gimbal_command=command,
+                    camera_zoom_hfov_deg=zoom_hfov_deg, hover_item=hover_item)
     except ValueError as exc:
         raise InputFileError(f"{source}: {exc}") from None
 
@@ -270,7 +348,7 @@ def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
                       cruise_speed_mps: float) -> dict[str, Any]:
     """A QGroundControl plan (file version 1, mission version 2) of simple mission items."""
     simple = []
-    wp_frames = {it.frame for it in items if it.command == MAV_CMD_NAV_WAYPOINT}
+    wp_frames = {it.frame for it in items if it.command in NAV_POSITION_COMMANDS}
     plan_mode = _QGC_ALTITUDE_MODE.get(wp_frames.pop(), 0) if len(wp_frames) == 1 else 0
     for k, it in enumerate(items):
         entry: dict[str, Any] = {

@@ -10,6 +10,8 @@ The model of a multicopter in an auto mission (a planning prediction, not a simu
   so a sharp corner slows the vehicle and a reversal (a U-turn at a point) stops it;
 * a waypoint with a hover time is reached exactly, at rest and level, and held, turning
   towards the next leg meanwhile;
+* a gimbal holds the pointing its waypoint carries (``Plan.pointings``) from leaving the
+  previous waypoint, as the mission's gimbal items command it (the slew is not modelled);
 * speed changes at most ``max_accel_mps2`` along the path, heading (the direction of travel,
   as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
 * with ``tilt``, the body tilts so that its thrust axis carries the acceleration (no drag).
@@ -21,6 +23,7 @@ terrain-following plan is flown along its profile), times seconds from the start
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +39,7 @@ from pdcov.core.pose import (
     known_motion,
 )
 from pdcov.core.rotations import R_from_euler_zyx, Rz
-from pdcov.planning.plan import Plan
+from pdcov.planning.plan import GimbalPointing, Plan
 
 G_MPS2 = 9.80665
 RATE_STEP_S = 1e-3  # the step of the difference that gives each pose's velocity and rate
@@ -71,6 +74,8 @@ class Flight:
     around: the states RATE_STEP_S / 2 before and after each sample (clipped to the
     flight), (t_s (2, N), r_body_enu (2, N, 3), R_ned_body (2, N, 3, 3)), from which
     ``camera_poses`` gives each pose its velocity and angular rate; None: unknown.
+    waypoint_index (N,): the plan's waypoint each sample flies towards, rounds or holds at
+    (where the gimbal pointing it carries is in force); None: unknown.
     """
 
     t_s: np.ndarray
@@ -80,12 +85,14 @@ class Flight:
     duration_s: float
     path_length_m: float
     around: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    waypoint_index: np.ndarray | None = None
 
 
-def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                 np.ndarray]:
+def _path_samples(plan: Plan, a: float, cut_m: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Dense samples of the rounded path: points (K, 3), speed limit (K,), hover time (K,),
-    signed curvature (K,) (positive turning left)."""
+    signed curvature (K,) (positive turning left), waypoint index (K,: the waypoint a
+    sample flies towards, rounds or holds at)."""
     P = plan.xyz_enu_m
     n = len(P)
     # Per corner: tangent distance d, radius, turn sign, corner speed limit.
@@ -119,6 +126,7 @@ def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.nd
     vlim: list[float] = [0.0]
     hover: list[float] = [plan.waypoints[0].hover_s]
     kappa: list[float] = [0.0]
+    wp: list[int] = [0]
     for i in range(n - 1):
         u = P[i + 1, :2] - P[i, :2]
         lh = np.linalg.norm(u)
@@ -132,6 +140,7 @@ def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.nd
         vlim.extend([speed] * m)
         hover.extend([0.0] * m)
         kappa.extend([0.0] * m)
+        wp.extend([i + 1] * m)
         j = i + 1
         if radius[j] > 0:
             u_out = P[j + 1, :2] - P[j, :2]
@@ -147,10 +156,11 @@ def _path_samples(plan: Plan, a: float, cut_m: float) -> tuple[np.ndarray, np.nd
             vlim.extend([min(speed, v_corner[j])] * k)
             hover.extend([0.0] * k)
             kappa.extend([turn[j] / radius[j]] * k)
+            wp.extend([j] * k)
         else:
             vlim[-1] = min(vlim[-1], v_corner[j])
             hover[-1] = plan.waypoints[j].hover_s
-    return np.array(pts), np.array(vlim), np.array(hover), np.array(kappa)
+    return np.array(pts), np.array(vlim), np.array(hover), np.array(kappa), np.array(wp)
 
 
 def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Flight:
@@ -158,7 +168,7 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     if not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate_hz must be positive, got {rate_hz}")
     a = kinematics.max_accel_mps2
-    pts, vlim, hover, kappa = _path_samples(plan, a, kinematics.corner_cut_m)
+    pts, vlim, hover, kappa, wp = _path_samples(plan, a, kinematics.corner_cut_m)
     ds = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     v = vlim.copy()
     for k in range(1, len(v)):
@@ -222,8 +232,11 @@ def fly(plan: Plan, rate_hz: float, kinematics: Kinematics = Kinematics()) -> Fl
     t_pm = np.stack([np.maximum(t - 0.5 * RATE_STEP_S, 0.0),
                      np.minimum(t + 0.5 * RATE_STEP_S, duration)])
     (r_m, R_m, _), (r_p, R_p, _) = states(t_pm[0]), states(t_pm[1])
+    # At a sample while t_in <= t <= t_out, else on the way to the next sample.
+    at = np.clip(np.searchsorted(t_in, t, side="right") - 1, 0, len(pts) - 1)
+    ahead = np.where(t <= t_out[at] + 1e-9, wp[at], wp[np.minimum(at + 1, len(pts) - 1)])
     return Flight(t, r, R, speed, duration, float(ds.sum()),
-                  (t_pm, np.stack([r_m, r_p]), np.stack([R_m, R_p])))
+                  (t_pm, np.stack([r_m, r_p]), np.stack([R_m, R_p])), ahead)
 
 
 def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.ndarray,
@@ -247,16 +260,20 @@ def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.nd
 
 
 def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
-                 gimbal_pitch_rad: float = -math.pi / 2) -> list[CameraPose]:
+                 gimbal_pitch_rad: float = -math.pi / 2,
+                 pointing: Sequence[GimbalPointing | None] | None = None) -> list[CameraPose]:
     """Camera poses along a flight, with their velocity and angular rate when the flight
     has its ``around`` states (core/pose.camera_motion over them). A fixed mount turns and
-    tilts with the body; a gimbal is assumed to hold ``gimbal_pitch_rad`` (-pi/2: nadir)
-    and zero roll against the horizon, with its yaw following the vehicle's heading."""
-    poses = _poses(flight.t_s, flight.r_body_enu, flight.R_ned_body, mount, gimbal_pitch_rad)
+    tilts with the body; a gimbal holds zero roll against the horizon and, per sample, the
+    ``pointing`` given (a sample's None, or no ``pointing``: ``gimbal_pitch_rad``, -pi/2
+    nadir, with the yaw following the vehicle's heading)."""
+    n = len(flight.t_s)
+    aims = [p or GimbalPointing(gimbal_pitch_rad) for p in (pointing or [None] * n)]
+    poses = _poses(flight.t_s, flight.r_body_enu, flight.R_ned_body, mount, aims)
     if flight.around is None:
         return poses
     t_pm, r_pm, R_pm = flight.around
-    ends = [_poses(t_pm[k], r_pm[k], R_pm[k], mount, gimbal_pitch_rad) for k in (0, 1)]
+    ends = [_poses(t_pm[k], r_pm[k], R_pm[k], mount, aims) for k in (0, 1)]
     (R_a, r_a), (R_b, r_b) = ((np.array([p.R_enu_cam for p in end]),
                                np.array([p.r_cam_enu for p in end])) for end in ends)
     v, omega = camera_motion(R_a, r_a, R_b, r_b, t_pm[1] - t_pm[0])
@@ -265,11 +282,22 @@ def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
 
 
 def _poses(t_s: np.ndarray, r_body_enu: np.ndarray, R_ned_body: np.ndarray,
-           mount: FixedMount | GimbalMount, gimbal_pitch_rad: float) -> list[CameraPose]:
+           mount: FixedMount | GimbalMount, aims: Sequence[GimbalPointing]
+           ) -> list[CameraPose]:
     if isinstance(mount, FixedMount):
         return [fixed_mount_pose(R, r, mount, float(t))
                 for t, r, R in zip(t_s, r_body_enu, R_ned_body, strict=True)]
     arm = np.asarray(mount.lever_arm_frd_m, dtype=float)
-    R_level = R_from_euler_zyx(0.0, gimbal_pitch_rad, 0.0)
-    return [camera_pose(R, r, Rz(heading_rad(R)) @ R_level, arm, float(t))
-            for t, r, R in zip(t_s, r_body_enu, R_ned_body, strict=True)]
+    tilt = {aim: R_from_euler_zyx(0.0, aim.pitch_rad, 0.0) for aim in set(aims)}
+    return [camera_pose(R, r, Rz(aim.yaw_rad + (0.0 if aim.earth_yaw else heading_rad(R)))
+                        @ tilt[aim], arm, float(t))
+            for t, r, R, aim in zip(t_s, r_body_enu, R_ned_body, aims, strict=True)]
+
+
+def flight_pointing(plan: Plan, flight: Flight) -> list[GimbalPointing | None]:
+    """Per sample of ``flight`` (flown from ``plan``), the gimbal pointing the plan's
+    mission commands there (``Plan.pointings`` at the sample's waypoint)."""
+    if flight.waypoint_index is None:
+        raise ValueError("the flight has no waypoint index (not flown by fly)")
+    per_wp = plan.pointings()
+    return [per_wp[int(k)] for k in flight.waypoint_index]

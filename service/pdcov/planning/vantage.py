@@ -3,24 +3,28 @@ free cells to a target P_D, chosen by a covering integer program (planning/cover
 
 Candidates: points of a square lattice in the free space kept ``clearance_m`` from its
 boundary (planning/tours.py routes through the same space), at each given altitude above
-ground, hovering each given time. A candidate is scored with the prediction every plan uses:
-the scenario's CoverageGrid (camera, detector model, terrain, range limit) fed the camera
-pose of a level vehicle at rest there (``camera_poses``: the mount, or the gimbal at the
-scenario's pitch). A hover of ``hover_s`` gives ``looks`` frames at the camera's rate (at
-least floor(hover_s * rate) of them fall in it; with the mission's ``min_revisit_s``, one in
-every ceil(min_revisit_s * rate)); under independent looks they add ``looks`` times the
-frame's log(1 - P_D) per cell.
+ground, hovering each given time, and on a gimbal at each given pitch, with an oblique pitch
+at each given earth-frame yaw (``candidate_pointings``). A candidate is scored with the
+prediction every plan uses: the scenario's CoverageGrid (camera, detector model, terrain,
+range limit) fed the camera pose of a level vehicle at rest there (``camera_poses``: the
+mount, or the gimbal at the candidate's pointing). A hover of ``hover_s`` gives ``looks``
+frames at the camera's rate (at least floor(hover_s * rate) of them fall in it; with the
+mission's ``min_revisit_s``, one in every ceil(min_revisit_s * rate)); under independent
+looks they add ``looks`` times the frame's log(1 - P_D) per cell.
 
 The heading at a hover is the direction the route arrives from, unknown while choosing the
-points; so a candidate is credited, per cell, only with the least it sees over
-``HOVER_HEADINGS`` headings (a nadir camera's footprint turns with the heading): the cover
-then holds whatever the route, up to what changes between those headings (a cell at a
-footprint's corner); the whole flight's prediction is what is reported. Frames taken in
-transit only add to it.
+points. A gimbal holding an earth-frame yaw (GIMBAL_MANAGER_FLAGS_YAW_LOCK) sees the same
+footprint whatever the heading: such a candidate is credited with exactly its frame. Any
+other (a fixed mount, a gimbal whose yaw follows the vehicle, nadir) is credited, per cell,
+only with the least it sees over ``HOVER_HEADINGS`` headings (a footprint turns with the
+heading): the cover then holds whatever the route, up to what changes between those
+headings (a cell at a footprint's corner); the whole flight's prediction is what is
+reported. Frames taken in transit only add to it.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 from enum import Enum
@@ -31,17 +35,25 @@ from scipy import sparse
 from shapely.geometry import MultiPolygon, Polygon
 
 from pdcov.core.grid import LimitingFactor
+from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError
 from pdcov.planning.cover import Cover, CoverProblem, exact_cover, greedy_cover
 from pdcov.planning.decomposition import polygons_of
 from pdcov.planning.optimise import Scenario
-from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan import GimbalPointing, Plan, Waypoint
 from pdcov.planning.trajectory import Flight, camera_poses
 
 HOVER_HEADINGS = 16
 """Headings, 22.5 deg apart, over which a candidate's view is taken as the least."""
 EXACT_MAX_CANDIDATES = 5000
 """Above this many candidates the integer program is not tried (greedy only)."""
+NADIR_TOLERANCE_DEG = 1e-6
+"""A pitch this close to -90 deg is nadir: its yaw only turns the footprint."""
+
+
+def is_nadir(pitch_deg: float) -> bool:
+    """Whether a gimbal pitch (deg) looks straight down (within NADIR_TOLERANCE_DEG)."""
+    return abs(pitch_deg + 90.0) <= NADIR_TOLERANCE_DEG
 
 
 class CoverObjective(str, Enum):
@@ -63,7 +75,11 @@ class VantageSettings:
     lattice_m: candidate spacing (m; None: half the swath at the lowest altitude);
     clearance_m: distance kept from obstacles and the domain's edge (m; None: the
     kinematics' corner cut, so that rounded corners stay clear); speed_mps: transit speed;
-    objective; exact_time_limit_s: the integer program's time (0: greedy only)."""
+    objective; exact_time_limit_s: the integer program's time (0: greedy only);
+    gimbal_pitches_deg: candidate gimbal pitches (deg, -90: nadir; None: the scenario's
+    planning.gimbal_pitch_deg, or the fixed mount's own); gimbal_yaws: earth-frame yaws
+    per non-nadir pitch, 360 / gimbal_yaws deg apart from north (0: the yaw follows the
+    vehicle, credited as the least over headings)."""
 
     target_pd: float
     alts_agl_m: tuple[float, ...]
@@ -74,8 +90,16 @@ class VantageSettings:
     speed_mps: float = 5.0
     objective: CoverObjective = CoverObjective.POINTS
     exact_time_limit_s: float = 20.0
+    gimbal_pitches_deg: tuple[float, ...] | None = None
+    gimbal_yaws: int = 0
 
     def __post_init__(self) -> None:
+        if self.gimbal_pitches_deg is not None and not (self.gimbal_pitches_deg and all(
+                math.isfinite(p) and -90.0 <= p <= 90.0 for p in self.gimbal_pitches_deg)):
+            raise ConfigError(f"--gimbal-pitches-deg: expected pitches in [-90, 90] deg, got "
+                              f"{list(self.gimbal_pitches_deg)}")
+        if self.gimbal_yaws < 0:
+            raise ConfigError(f"--gimbal-yaws: expected a count >= 0, got {self.gimbal_yaws}")
         if not 0.0 < self.target_pd < 1.0:
             raise ConfigError(f"--target-pd: expected a probability in (0, 1), got "
                               f"{self.target_pd}")
@@ -90,13 +114,14 @@ class VantageSettings:
 @dataclass(frozen=True, slots=True)
 class VantagePoint:
     """A hover: ENU position (m), altitude above ground (m), hover time (s), frames it
-    counts (``looks``)."""
+    counts (``looks``), and the gimbal's pointing there (None: a fixed mount)."""
 
     x_enu_m: float
     y_enu_m: float
     alt_agl_m: float
     hover_s: float
     looks: int
+    pointing: GimbalPointing | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,25 +194,64 @@ def hover_z_enu_m(sc: Scenario, x_m: float, y_m: float, alt_agl_m: float) -> flo
     return plan.waypoints[0].z_enu_m
 
 
-def _check_gimbal_pitch(sc: Scenario) -> None:
-    limits = getattr(sc.mount, "pitch_limits_deg", None)
-    pitch = math.degrees(sc.gimbal_pitch_rad)
-    if limits is not None and not limits[0] - 1e-6 <= pitch <= limits[1] + 1e-6:
-        raise ConfigError(f"planning.gimbal_pitch_deg = {pitch:g}: outside the mount's "
-                          f"pitch_limits_deg {list(limits)}")
+def candidate_pointings(sc: Scenario, settings: VantageSettings
+                        ) -> list[GimbalPointing | None]:
+    """The gimbal pointings candidates take (module doc): each pitch, a non-nadir one at
+    each earth-frame yaw; [None] for a fixed mount. ConfigError (one line) for a pitch
+    outside the mount's pitch_limits_deg, a fixed mount given another pitch than its own or
+    earth-frame yaws, and earth-frame yaws on a gimbal whose yaw_limits_deg do not turn
+    all round (it could hold them only at some of the route's headings)."""
+    given = settings.gimbal_pitches_deg
+    mount = sc.mount
+    if not isinstance(mount, GimbalMount):
+        own = math.degrees(mount.pitch_rad)
+        if given is not None and any(abs(p - own) > NADIR_TOLERANCE_DEG for p in given):
+            raise ConfigError(f"--gimbal-pitches-deg {' '.join(f'{p:g}' for p in given)}: a "
+                              f"fixed mount points at its own pitch ({own:g} deg); plan "
+                              "other pitches with a gimbal (mount: {type: gimbal})")
+        if settings.gimbal_yaws and not is_nadir(own):
+            raise ConfigError(f"--gimbal-yaws {settings.gimbal_yaws}: a fixed mount turns "
+                              "with the vehicle and holds no earth-frame yaw; give "
+                              "--gimbal-yaws 0")
+        return [None]
+    what = "--gimbal-pitches-deg" if given is not None else "planning.gimbal_pitch_deg"
+    pitches = given if given is not None else (math.degrees(sc.gimbal_pitch_rad),)
+    limits = mount.pitch_limits_deg
+    for pitch in pitches:
+        if limits is not None and not limits[0] - 1e-6 <= pitch <= limits[1] + 1e-6:
+            raise ConfigError(f"{what} {pitch:g}: outside the mount's pitch_limits_deg "
+                              f"{list(limits)}")
+    n = settings.gimbal_yaws
+    oblique = [p for p in pitches if not is_nadir(p)]
+    yaw_limits = mount.yaw_limits_deg
+    if n and oblique and yaw_limits is not None and yaw_limits[1] - yaw_limits[0] < 360 - 1e-6:
+        raise ConfigError(f"--gimbal-yaws {n}: the mount's yaw_limits_deg {list(yaw_limits)} "
+                          "cannot hold an earth-frame yaw at every heading of the route; "
+                          "give --gimbal-yaws 0 (the yaw follows the vehicle)")
+    out: list[GimbalPointing | None] = []
+    for pitch in dict.fromkeys(pitches):
+        if pitch in oblique and n:
+            out += [GimbalPointing(math.radians(pitch), 2 * math.pi * k / n, earth_yaw=True)
+                    for k in range(n)]
+        else:
+            out.append(GimbalPointing(math.radians(pitch)))
+    return out
 
 
-def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float
+def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float,
+                    aim: GimbalPointing | None
                     ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
     """The least log-miss (closest to 0) per cell over HOVER_HEADINGS of one frame at rest
-    at (x, y, z): its window (r0, r1, c0, c1) and values; None when it sees nothing."""
-    headings = 2 * math.pi * np.arange(HOVER_HEADINGS) / HOVER_HEADINGS
+    at (x, y, z) with the gimbal at ``aim`` (an earth-frame yaw: its one frame): its window
+    (r0, r1, c0, c1) and values; None when it sees nothing."""
+    n = 1 if aim is not None and aim.earth_yaw else HOVER_HEADINGS
+    headings = 2 * math.pi * np.arange(n) / n
     R = np.array([[[math.cos(h), -math.sin(h), 0.0], [math.sin(h), math.cos(h), 0.0],
                    [0.0, 0.0, 1.0]] for h in headings])  # Rz(heading): level, at rest
     at_rest = Flight(np.zeros(len(headings)), np.tile([x, y, z], (len(headings), 1)), R,
                      np.zeros(len(headings)), 0.0, 0.0)
     views = []
-    for pose in camera_poses(at_rest, sc.mount, sc.gimbal_pitch_rad):
+    for pose in camera_poses(at_rest, sc.mount, sc.gimbal_pitch_rad, [aim] * n):
         scratch_grid.update(pose)
         w = scratch_grid.touched
         if w is None:
@@ -212,7 +276,7 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
     """The candidates, their evidence (n_free_cells, n_candidates: -log-miss of their hover,
     rows the free cells in row-major order) and the best LimitingFactor any candidate frame
     gave each free cell."""
-    _check_gimbal_pitch(sc)
+    aims = candidate_pointings(sc, settings)
     space = flight_space(sc.free_space, clearance_of(sc, settings))
     spacing = settings.lattice_m or 0.5 * sc.swath_width_m(min(settings.alts_agl_m))
     if not (spacing > 0 and math.isfinite(spacing)):
@@ -233,23 +297,22 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
     points: list[VantagePoint] = []
     rows: list[np.ndarray] = []
     vals: list[np.ndarray] = []
-    for alt in settings.alts_agl_m:
-        for x, y in xy:
-            seen = _frame_log_miss(sc, scratch, float(x), float(y),
-                                   hover_z_enu_m(sc, float(x), float(y), alt))
-            if seen is None:
+    for alt, (x, y), aim in itertools.product(settings.alts_agl_m, xy, aims):
+        seen = _frame_log_miss(sc, scratch, float(x), float(y),
+                               hover_z_enu_m(sc, float(x), float(y), alt), aim)
+        if seen is None:
+            continue
+        (r0, r1, c0, c1), least = seen
+        idx = row_of[r0:r1, c0:c1]
+        keep = (idx >= 0) & (least < 0)
+        if not keep.any():
+            continue
+        for hover, n in zip(settings.hover_s, looks, strict=True):
+            if n == 0:
                 continue
-            (r0, r1, c0, c1), least = seen
-            idx = row_of[r0:r1, c0:c1]
-            keep = (idx >= 0) & (least < 0)
-            if not keep.any():
-                continue
-            for hover, n in zip(settings.hover_s, looks, strict=True):
-                if n == 0:
-                    continue
-                points.append(VantagePoint(float(x), float(y), alt, hover, n))
-                rows.append(idx[keep])
-                vals.append(-n * least[keep])
+            points.append(VantagePoint(float(x), float(y), alt, hover, n, aim))
+            rows.append(idx[keep])
+            vals.append(-n * least[keep])
     n_cells = int(sc.mask.sum())
     if not points:
         evidence = sparse.csc_matrix((n_cells, 0))
@@ -266,7 +329,8 @@ _WHY = {LimitingFactor.NEVER_IN_VIEW: "in no candidate's view",
         LimitingFactor.TOO_SMALL: "too small in the picture at every height",
         LimitingFactor.TOO_LARGE: "too large in the picture at every height"}
 _SOME_HEADINGS = ("in view of candidates only at some headings (a hover's heading is its "
-                  "route's: a finer --lattice-m or a lower --clearance-m helps)")
+                  "route's: a finer --lattice-m, a lower --clearance-m or, for oblique "
+                  "pitches, earth-frame --gimbal-yaws help)")
 _TOO_FEW_LOOKS = ("seen, but all candidates' looks together stay below the target (hover "
                   "longer: --hover-s)")
 

@@ -16,8 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.mission import GimbalCommand
-from pdcov.core.mount import GimbalMount
+from pdcov.core.mission import GimbalCommand, HoverItem
 from pdcov.errors import ConfigError
 from pdcov.planning.optimise import PlanParams, Prediction, Scenario, Score, predict
 from pdcov.planning.tours import Fleet, Route, Transits, leg_time_s, plan_routes, route_plan
@@ -73,8 +72,16 @@ def sortie_overhead_s(sc: Scenario, alt_agl_m: float) -> float:
 
 def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet = ONE_VEHICLE,
                           gimbal_command: GimbalCommand = GimbalCommand.MANAGER,
-                          routing_time_s: float = 2.0) -> VantageMissions:
-    """Choose the points, route the fleet from home (ENU 0, 0) and predict each mission."""
+                          routing_time_s: float = 2.0,
+                          hover_item: HoverItem = HoverItem.WAYPOINT) -> VantageMissions:
+    """Choose the points, route the fleet from home (ENU 0, 0) and predict each mission:
+    each point's gimbal pointing commanded with ``gimbal_command`` (the mount command has
+    no earth-frame yaw: ConfigError), its hover written as ``hover_item``."""
+    if gimbal_command is GimbalCommand.MOUNT and settings.gimbal_yaws:
+        raise ConfigError(f"--gimbal-yaws {settings.gimbal_yaws}: MAV_CMD_DO_MOUNT_CONTROL "
+                          "takes the yaw relative to the vehicle (ArduPilot AP_Mount), so "
+                          "earth-frame yaws need --gimbal-command manager (or give "
+                          "--gimbal-yaws 0)")
     cover = choose_vantage_points(sc, settings)
     space = flight_space(sc.free_space, clearance_of(sc, settings))
     points = cover.points
@@ -84,7 +91,6 @@ def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet 
     accel = sc.kinematics.max_accel_mps2
     v = settings.speed_mps
     overhead = sortie_overhead_s(sc, max(settings.alts_agl_m))
-    pitch = sc.gimbal_pitch_rad if isinstance(sc.mount, GimbalMount) else None
     # The routing's leg times leave out the turns at the stops (the heading rate): when a
     # predicted sortie overruns the limit, route again within a budget shrunk by as much.
     budget = fleet
@@ -96,8 +102,8 @@ def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet 
             what = (f"vantage: {len(r.stops)} of {len(points)} points, P_D "
                     f"{settings.target_pd:g} on {settings.target_share:.0%} of the cells"
                     + (f"; vehicle {r.vehicle} sortie {r.sortie}" if len(routes) > 1 else ""))
-            plan = replace(route_plan(r, points, transits, v, what), gimbal_pitch_rad=pitch,
-                           gimbal_command=gimbal_command)
+            plan = replace(route_plan(r, points, transits, v, what),
+                           gimbal_command=gimbal_command, hover_item=hover_item)
             pred = predict(sc, plan, PlanParams("vantage", points[r.stops[0]].alt_agl_m, v))
             ends = leg_time_s(np.linalg.norm(pred.plan.xy_enu_m[[0, -1]], axis=1), v, accel)
             missions.append(VantageMission(r, pred, pred.flight.duration_s

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov.core.mission import MissionItem
+from pdcov.core.mission import MissionItem, mission_item_int_xy
 
 MAV_MISSION_TYPE_MISSION = 0
 
@@ -95,8 +95,8 @@ class MissionUpload:
         it = self.items[seq]
         return self._mav.mission_item_int_encode(
             *self.target, seq, it.frame, it.command, 0, int(it.autocontinue), it.param1,
-            it.param2, it.param3, it.param4, round(it.lat_deg * 1e7), round(it.lon_deg * 1e7),
-            it.z_m, MAV_MISSION_TYPE_MISSION)
+            it.param2, it.param3, it.param4, *mission_item_int_xy(it), it.z_m,
+            MAV_MISSION_TYPE_MISSION)
 
     def _fail(self, result: str, detail: str) -> list[mavlink2.MAVLink_message]:
         seq = self._last_seq
