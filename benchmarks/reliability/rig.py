@@ -142,10 +142,7 @@ class WatcherThread:
         def copy() -> GridState | None:
             feed = self.watcher.feeds.get(VEHICLE)
             s = feed.state if feed is not None and feed.awaiting_since_s is None else None
-            return None if s is None else GridState(s.geometry, s.mask.copy(),
-                                                    s.log_miss_d.copy(),
-                                                    s.log_miss_fa.copy(), s.n_obs.copy(),
-                                                    s.frames)
+            return None if s is None else s.copy()
         return self._on_loop(copy)
 
     def status(self) -> dict | None:
