@@ -198,10 +198,12 @@ def load(path: Path) -> dict[str, np.ndarray]:
 
 
 def cells_differing(a, b) -> int:
-    """Cells where log_miss_d, log_miss_fa or n_obs differ (any of a/b a dict or GridState)."""
+    """Cells where log_miss_d, log_miss_fa, n_obs or limiting differ (any of a/b a dict or
+    GridState; a limiting factor missing or unknown differs everywhere)."""
     def get(x, k):
-        return x[k] if isinstance(x, dict) else getattr(x, k)
+        return x.get(k) if isinstance(x, dict) else getattr(x, k)
     diff = np.zeros(np.shape(get(a, "n_obs")), bool)
-    for k in ("log_miss_d", "log_miss_fa", "n_obs"):
-        diff |= np.asarray(get(a, k)) != np.asarray(get(b, k))
+    for k in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
+        va, vb = get(a, k), get(b, k)
+        diff |= True if va is None or vb is None else np.asarray(va) != np.asarray(vb)
     return int(diff.sum())
