@@ -32,6 +32,9 @@ E2E_FIXTURES = frozenset({"router", "processes", "daemons", "browser"})
 TIER_OF_TESTS: dict[str, dict[str, str]] = {
     # module -> {test function (all its parameters): tier}
     "test_benchmarks_smoke.py": {"test_smoke_run_completes": "e2e"},
+    "test_cameras.py": dict.fromkeys((
+        "test_the_daemon_follows_both_cameras_as_evaluate_does",
+        "test_a_two_camera_checkpoint_resumes_every_camera"), "slow"),
     "test_cli_inputs.py": {"test_full_disk_and_read_only_are_one_line_errors": "e2e"},
     "test_config_schema.py": {
         "test_cli_refuses_a_misspelt_key_with_exit_2_and_writes_nothing": "e2e"},

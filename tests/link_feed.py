@@ -20,7 +20,7 @@ from benchmarks.harness import small_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
-from pdcov.service.settings import ServeConfig, load_serve_config
+from pdcov.service.settings import ServeConfig, load_serve_config, new_serve_grid
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.log_poses import LogPoses, poses_from_log
 
@@ -46,7 +46,7 @@ class LinkFeed:
 
     def __init__(self, cfg: ServeConfig) -> None:
         self.cfg = cfg
-        self.core = ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="fuzz")
+        self.core = ServiceCore(cfg, new_serve_grid(cfg.mission), 0.0, mission_hash="fuzz")
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.messages = 0
@@ -129,6 +129,32 @@ def pack(msg: mavlink.MAVLink_message, system_id: int = 1, component_id: int = 1
     mav = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
     mav.seq = seq & 0xFF
     return bytes(msg.pack(mav, force_mavlink1=False))
+
+
+class Frames:
+    """MAVLink frames in sending order (``out``), numbered as one link sends them."""
+
+    def __init__(self) -> None:
+        self.out: list[bytes] = []
+
+    def send(self, msg: mavlink.MAVLink_message, component: int = 1) -> None:
+        """``msg`` as sent by the autopilot's system, from ``component``."""
+        self.out.append(pack(msg, component_id=component, seq=len(self.out)))
+
+
+def feed_tlog(cfg: ServeConfig, tlog: Path) -> LinkFeed:
+    """A daemon's decisions fed every message of ``tlog`` as it arrived (1 ms apart), then
+    a tick far later (every frame decided)."""
+    from pymavlink import mavutil
+
+    feed = LinkFeed(cfg)
+    log = mavutil.mavlink_connection(str(tlog), dialect="common")
+    i = 0
+    while (msg := log.recv_msg()) is not None:
+        feed.feed(bytes(msg.get_msgbuf()), 0.001 * i)
+        i += 1
+    feed.tick(1e4)
+    return feed
 
 
 def grid_is_sane(live: LiveCoverage) -> None:

@@ -262,7 +262,7 @@ def test_a_two_camera_flight_combines_both_cameras_looks(tmp_path, hover):
     base = DetectorModel.illustrative().to_dict()
     n = len(base["p_detect"])
     primary = zf.mission("none")
-    thermal_cam = dict(zf.mission()["camera"], width_px=160, height_px=120,
+    thermal_cam = dict(zf.mission(component_id=100)["camera"], width_px=160, height_px=120,
                        K=[[123.2, 0, 79.5], [0, 123.2, 59.5], [0, 0, 1]], frame_rate_hz=1.0)
     doc = {k: v for k, v in primary.items() if k not in ("camera", "mount", "detector")}
     doc["cameras"] = [
@@ -285,13 +285,11 @@ def test_a_two_camera_flight_combines_both_cameras_looks(tmp_path, hover):
     assert metrics["cameras"]["thermal"]["frames"] == int(th["frames"]) > 15
 
 
-def test_serve_refuses_a_mission_of_several_cameras(tmp_path):
+def test_a_cameras_list_refuses_the_top_level_camera(tmp_path):
     doc = zf.mission("none")
     doc = {**{k: v for k, v in doc.items() if k not in ("camera", "mount", "detector")},
            "cameras": [{"name": "a", "camera": doc["camera"], "detector": "illustrative"},
                        {"name": "b", "camera": doc["camera"], "detector": "illustrative"}]}
-    with pytest.raises(ConfigError, match="pdcov serve follows one camera"):
-        load_serve_config(zf.write_mission(tmp_path / "two.yaml", doc, service=True))
     doc["camera"] = doc["cameras"][0]["camera"]
     with pytest.raises(ConfigError, match="camera: not allowed with a cameras list"):
         load_mission(zf.write_mission(tmp_path / "both.yaml", doc))

@@ -10,8 +10,7 @@ import math
 import numpy as np
 import pytest
 import zoom_flight as zf
-from link_feed import LinkFeed
-from pymavlink import mavutil
+from link_feed import feed_tlog
 from pymavlink.dialects.v20 import common as mav
 
 from pdcov.config import load_mission
@@ -101,13 +100,7 @@ def test_a_simulated_hover_zooming_gives_the_same_grid_live_and_offline(tmp_path
     assert fx[0] == pytest.approx(mission.camera.K[0, 0])
     assert fx[-1] == pytest.approx(160 / math.tan(math.radians(10.0)), rel=1e-4)  # 20 deg
 
-    feed = LinkFeed(load_serve_config(config))
-    log = mavutil.mavlink_connection(str(tlog), dialect="common")
-    i = 0
-    while (msg := log.recv_msg()) is not None:
-        feed.feed(bytes(msg.get_msgbuf()), 0.001 * i)
-        i += 1
-    feed.tick(1e4)
+    feed = feed_tlog(load_serve_config(config), tlog)
     live = feed.live.grid
     assert live.frames == offline.frames > 50
     for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):

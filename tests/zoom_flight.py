@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from link_feed import GROUND_M, LAT_DEG, LON_DEG, pack
+from link_feed import GROUND_M, LAT_DEG, LON_DEG, Frames
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 WIDE_DEG, NARROW_DEG = 66.0, 28.0
@@ -68,13 +68,8 @@ def frames(hfov: Any = hfov_deg, camera_component: int = 100) -> list[bytes]:
     lat_e7 = round((LAT_DEG + CENTRE_ENU_M[1] * deg_per_m) * 1e7)
     lon_e7 = round((LON_DEG + CENTRE_ENU_M[0] * deg_per_m / math.cos(math.radians(LAT_DEG)))
                    * 1e7)
-    out: list[bytes] = []
-    seq = 0
-
-    def send(msg: Any, component: int = 1) -> None:
-        nonlocal seq
-        out.append(pack(msg, component_id=component, seq=seq))
-        seq += 1
+    link = Frames()
+    send = link.send
 
     send(mav.heartbeat_encode(2, 3, 128 | 1, 4, 4))
     for k in range(int(SECONDS * 10) + 1):
@@ -91,7 +86,7 @@ def frames(hfov: Any = hfov_deg, camera_component: int = 100) -> list[bytes]:
         v = math.degrees(2 * math.atan(math.tan(math.radians(h) / 2) * HEIGHT_PX / WIDTH_PX))
         send(mav.camera_fov_status_encode(ms, lat_e7, lon_e7, 0, lat_e7, lon_e7, 0,
                                           [1, 0, 0, 0], h, v, 0), camera_component)
-    return out
+    return link.out
 
 
 def write_tlog(path: Path, data: list[bytes]) -> Path:

@@ -5,6 +5,7 @@ file, the key and what was expected.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from collections.abc import Mapping
@@ -254,11 +255,14 @@ class CoverageSection:
                    _number(doc, "min_height_m", src, "coverage", default=1.0),
                    LooksRule(rule), bins)
 
-    def looks_config(self, detector: DetectorModel, src: str | None) -> LooksConfig:
-        """The grid's looks; ``correlated`` needs the detector model's looks section."""
+    def looks_config(self, detector: DetectorModel, src: str | None,
+                     at: str = "coverage.looks") -> LooksConfig:
+        """The grid's looks; ``correlated`` needs the detector model's looks section (``at``:
+        the key the error names, e.g. cameras[1].detector)."""
         if self.looks is LooksRule.CORRELATED and detector.looks is None:
+            rule = "correlated" if at == "coverage.looks" else "coverage.looks correlated"
             raise ConfigError(
-                f"{where(src, 'coverage.looks')}: correlated needs the detector model's "
+                f"{where(src, at)}: {rule} needs the detector model's "
                 f"looks section (looks.correlation per size bin, written by pdcov detector "
                 f"fit from tracked sequences); {detector.source or 'the detector model'} has "
                 "none. Use looks: independent or viewpoint, or fit the model on tracks")
@@ -549,6 +553,21 @@ class Mission:
         daemon = service.get("frame_source") if isinstance(service, Mapping) else None
         return daemon if daemon in ("rate", "capture") else None
 
+    def cameras_frame_source(self, frame_source: str | None, key: str) -> str | None:
+        """The frame source to frame the mission's cameras by: ``frame_source`` itself with
+        one camera; with a cameras list 'rate' (also when None: not set), and ConfigError
+        naming ``key`` (a config key, or a command-line option '--...') for any other:
+        capture events and detector frames do not say which camera took them."""
+        if not self.extra_cameras:
+            return frame_source
+        if frame_source not in (None, "rate"):
+            at = key if key.startswith("--") else where(self.source, key)
+            raise ConfigError(f"{at}: {frame_source} with a cameras list: capture events and "
+                              "detector frames do not say which camera took them; several "
+                              "cameras are framed at their camera.frame_rate_hz (frame_source "
+                              "rate)")
+        return "rate"
+
     @property
     def all_cameras(self) -> tuple[MissionCamera, ...]:
         """Every camera of the mission, the primary (the fields above) first."""
@@ -569,6 +588,15 @@ class Mission:
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
                             terrain=self.terrain, exposure_s=cam.exposure_s,
                             looks=self.looks)
+
+    def new_combined_grid(self) -> CoverageGrid:
+        """An empty grid for the looks of all the mission's cameras together
+        (``grid.combine_cameras`` writes them; independent looks: it holds the derived
+        log-miss)."""
+        g = self.domain.grid_geometry(self.cell_size_m)
+        return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
+                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
+                            terrain=self.terrain, exposure_s=self.exposure_s)
 
 
 def load_mission(path: str | Path, sections: Mapping[str, Section] | None = None) -> Mission:
@@ -657,11 +685,11 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     if not valid_vehicle_id(vehicle_id):
         raise ConfigError(f"{where(src, 'vehicle_id')}: expected {VEHICLE_ID_RULE}, "
                           f"got {vehicle_id!r}")
+    if listed:
+        for i, cam in enumerate(cameras):
+            cov.looks_config(cam.detector, src, f"cameras[{i}].detector")
+        _check_camera_ids(cameras, src)
     looks = cov.looks_config(detector, src)
-    if len(cameras) > 1 and looks.rule is not LooksRule.INDEPENDENT:
-        raise ConfigError(f"{where(src, 'coverage.looks')}: {looks.rule} with a cameras list "
-                          "is not supported yet (the cameras' looks are combined as "
-                          "independent); use independent, or one camera")
     return Mission(
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
         ground_alt_msl_m=ground_alt,
@@ -777,6 +805,45 @@ def _camera_list(doc: Mapping[str, Any], src: str | None) -> list[Mapping[str, A
             if key not in entry:
                 raise ConfigError(f"{where(src, f'cameras[{i}].{key}')}: missing")
     return listed
+
+
+MAVLINK_CAMERA_COMPONENTS = range(100, 106)
+"""MAV_COMP_ID_CAMERA .. MAV_COMP_ID_CAMERA6: a MAVLink camera's own component."""
+
+
+def _check_camera_ids(cameras: list[MissionCamera], src: str | None) -> None:
+    """In a cameras list, each zoom camera names the camera whose reports it follows
+    (zoom_lens.component_id: 100-105 for a MAVLink camera, camera_device_id 0; any with an
+    autopilot-attached camera, camera_device_id 1-6), no two the same; and cameras on one
+    gimbal device (mount.instance) read it alike (their mounts differ at most in the lever
+    arm)."""
+    followed: dict[tuple[int, int], int] = {}
+    gimbals: dict[int, tuple[int, GimbalMount]] = {}
+    for i, cam in enumerate(cameras):
+        lens_at = where(src, f"cameras[{i}].camera.zoom_lens.component_id")
+        if cam.zoom is not None:
+            ident = cam.zoom.camera_id
+            if ident is None:
+                raise ConfigError(f"{lens_at}: missing: with a cameras list each zoom camera "
+                                  "names the camera component whose reports it follows "
+                                  "(100-105 for a MAVLink camera)")
+            if ident[1] == 0 and ident[0] not in MAVLINK_CAMERA_COMPONENTS:
+                raise ConfigError(f"{lens_at}: expected a MAVLink camera component 100..105 "
+                                  f"(camera_device_id 0), got {ident[0]}")
+            if ident in followed:
+                raise ConfigError(f"{lens_at}: component {ident[0]}, camera_device_id "
+                                  f"{ident[1]} is also cameras[{followed[ident]}]'s: each "
+                                  "camera follows its own reports")
+            followed[ident] = i
+        if isinstance(cam.mount, GimbalMount):
+            bare = dataclasses.replace(cam.mount, lever_arm_frd_m=(0.0, 0.0, 0.0))
+            other = gimbals.setdefault(cam.mount.instance, (i, bare))
+            if other[1] != bare:
+                raise ConfigError(
+                    f"{where(src, f'cameras[{i}].mount')}: gimbal device "
+                    f"{cam.mount.instance} (mount.instance) is also cameras[{other[0]}]'s, "
+                    "with other settings: cameras on one gimbal read it alike (only "
+                    "lever_arm_frd_m may differ); give this camera's gimbal its own instance")
 
 
 def _mission_camera(entry: Mapping[str, Any], at: str, name: str, src: str | None,

@@ -190,6 +190,8 @@ def decode_status(payload: bytes, key: str = "status",
     frames.integer_or_null("grid", 0, _U32)
     frames.integer_or_null("pending", 0, _U32)
     frames.counts("skipped", MAX_NAMED_COUNTS, _U64)
+    if "by_camera" in frames.doc:  # a cameras list only
+        frames.counts("by_camera", MAX_NAMED_COUNTS, _U32)
     frames.string_or_null("source")
     frames.number_or_null("last_t_s")
     link = f.obj("link")

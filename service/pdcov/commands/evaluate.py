@@ -84,6 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
+    from pdcov.core.grid import combine_cameras
     from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
@@ -99,6 +100,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.telemetry.terrain_check import terrain_check_for
 
     mission = load_mission_warned(args.config, "evaluate")
+    frame_source = mission.cameras_frame_source(
+        args.frame_source or mission.chosen_frame_source,
+        "--frame-source" if args.frame_source else
+        "log.frame_source" if mission.frame_source_set else "service.frame_source")
     terrain_check = None
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
@@ -124,7 +129,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             args.log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
-            frame_source=args.frame_source or mission.chosen_frame_source,
+            frame_source=frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
             terrain_check=terrain_check, zoom=mission.zoom)
@@ -165,13 +170,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
     evaluate_poses(grid, poses, progress=progress, total=len(poses), cameras=cameras)
     lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
                                grid.frames))
-    per_camera = _other_cameras(args, mission, lines) if mission.extra_cameras else {}
+    per_camera = _other_cameras(args, mission, frame_source, lines) if mission.extra_cameras else {}
     if per_camera:
-        # Each camera's looks in the same cells, independent: the grids' log-miss sums add.
-        own, grid = grid, mission.new_grid()
-        for g in (own, *per_camera.values()):
-            grid.merge(g)
+        # Each camera's looks in the same cells, by the one rule the daemon applies too.
+        own, grid = grid, mission.new_combined_grid()
         per_camera = {mission.camera_name: own, **per_camera}
+        combine_cameras(grid, list(per_camera.values()))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
@@ -220,8 +224,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _other_cameras(args: argparse.Namespace, mission: Mission, lines: list[str]
-                   ) -> dict[str, CoverageGrid]:
+def _other_cameras(args: argparse.Namespace, mission: Mission, frame_source: str | None,
+                   lines: list[str]) -> dict[str, CoverageGrid]:
     """The grids of the mission's cameras after the first, each from the log's frames at its
     own rate, with its own mount, zoom and detector (the primary's frame rules)."""
     from pdcov.report.outputs import evaluate_poses
@@ -238,7 +242,7 @@ def _other_cameras(args: argparse.Namespace, mission: Mission, lines: list[str]
             args.log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=cam.mount, frame_rate_hz=cam.frame_rate_hz,
-            frame_source=args.frame_source or mission.chosen_frame_source,
+            frame_source=frame_source,
             max_gap_s=mission.max_gap_s, system_id=mission.system_id,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
             zoom=cam.zoom)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -246,6 +247,12 @@ class CoverageGrid:
         return self._log_miss_d
 
     @property
+    def base_detector(self) -> DetectorModel:
+        """The grid's own detector model (``update_with`` may evaluate a frame with
+        another)."""
+        return self._base.detector
+
+    @property
     def looks_state(self) -> CorrelatedLooks | ViewpointLooks | None:
         """The per-cell looks state (``core/looks.py``; None with independent looks)."""
         return self._looks
@@ -332,6 +339,12 @@ class CoverageGrid:
         are computed once per (camera, detector) object pair (``GridCamera``); with
         ``max_range_m`` not given, each camera has its own default range."""
         base = self._base
+        if (detector is not None and detector.blur is None
+                and self.blur_effect is BlurEffect.APPLIED):
+            raise ValueError(f"{detector.source or 'the frame detector model'} has no blur "
+                             f"bins, the grid's ({base.detector.source or 'its own'}) has: "
+                             "a frame's P_D would mix two blur rules; give the camera a "
+                             "grid of its own (Mission.new_grid(camera))")
         frame = self._grid_camera(camera or base.camera, detector or base.detector)
         if frame is base:
             return self.update(pose, t_s)
@@ -817,14 +830,25 @@ class CoverageGrid:
                  *, max_range_m: float | None = None, min_revisit_s: float | None = None,
                  terrain: TerrainSurface | None = None,
                  exposure_s: float | None = None,
-                 looks: LooksConfig | None = None) -> CoverageGrid:
-        """Restore a snapshot written by ``save_npz`` (version 3, 2 or 1). A version-1 revisit
+                 looks: LooksConfig | None = None, data: bytes | None = None
+                 ) -> CoverageGrid:
+        """Restore a snapshot written by ``save_npz`` (version 3, 2 or 1), from ``path``, or
+        from its bytes ``data`` (``path`` then names it in messages). A version-1 revisit
         clock (float32) is refused where it cannot resolve a millisecond (times of 2^13 s and
         more, e.g. Unix epoch times) when ``min_revisit_s`` would use it. A snapshot of
         another looks rule than ``looks`` is refused (versions 1 and 2 are independent)."""
         path = Path(path)
-        data = read_npz(path, lambda why: InputFileError(
+        arrays = read_npz(path if data is None else data, lambda why: InputFileError(
             f"{path}: cannot read grid snapshot ({why})"))
+        return cls._from_arrays(path, arrays, camera, detector, max_range_m=max_range_m,
+                                min_revisit_s=min_revisit_s, terrain=terrain,
+                                exposure_s=exposure_s, looks=looks)
+
+    @classmethod
+    def _from_arrays(cls, path: Path, data: dict[str, np.ndarray], camera: CameraModel,
+                     detector: DetectorModel, *, max_range_m: float | None,
+                     min_revisit_s: float | None, terrain: TerrainSurface | None,
+                     exposure_s: float | None, looks: LooksConfig | None) -> CoverageGrid:
         missing = {"mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m",
                    "cell_size_m"} - set(data)
         if missing:
@@ -868,6 +892,78 @@ class CoverageGrid:
             grid.last_obs_s[:] = last
             grid.latest_frame_t_s = float(data.get("latest_frame_t_s", latest))
         return grid
+
+
+def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
+                    window: tuple[int, int, int, int] | None = None) -> None:
+    """Set the cells of ``window`` (r0, r1, c0, c1; None: the whole grid) of ``into`` (a
+    grid of independent looks, over the same cells) to the looks of ``grids`` together: the
+    grids of one mission's cameras, one person seen by all of them. The one rule both
+    drivers use (``pdcov evaluate`` once, the daemon per frame on its window).
+
+    Each detector model has its own latent: the cameras of the same model (the same P_D
+    and correlation per bin) are one sensor, their looks state merged (correlated: counts
+    added; viewpoint: the best look per bin), so two cameras give the grid of one camera
+    with all their frames; cameras of different models are independent of each other, their
+    log-misses add, P_D = 1 - prod over models of P_miss. With independent looks every
+    camera's log-miss adds. P_FA and the observation counts add; the limiting factor is the
+    best (over the whole grid, whatever the window); the frame counts are the sums
+    (``min_revisit_s`` applies per camera, in its own grid)."""
+    if into.looks_state is not None:
+        raise ValueError("combine_cameras writes derived log-misses: into must be a grid of "
+                         "independent looks")
+    g = into.geometry
+    r0, r1, c0, c1 = window or (0, g.n_rows, 0, g.n_cols)
+    cells = np.s_[r0:r1, c0:c1]
+    for grid in grids:  # the masks compared once, when the whole grid is combined
+        if grid.geometry != g or (window is None and not np.array_equal(grid.mask,
+                                                                         into.mask)):
+            raise ValueError("cannot combine grids of different geometry or free-space mask")
+    log_miss_d = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+    for group in _detector_groups(grids):
+        looks = [grid.looks_state for grid in group]
+        first = looks[0]
+        if len(group) == 1 or first is None:
+            for grid in group:
+                log_miss_d += grid.log_miss_d[cells]
+            continue
+        if isinstance(first, CorrelatedLooks):
+            state = sum(s.counts[cells] for s in looks if isinstance(s, CorrelatedLooks))
+        else:
+            state = np.maximum.reduce([s.best[cells] for s in looks
+                                       if isinstance(s, ViewpointLooks)])
+        flat = np.asarray(state).reshape(-1, np.shape(state)[-1])
+        log_miss_d += first.log_miss_of(flat).reshape(r1 - r0, c1 - c0).astype(np.float32)
+    into._log_miss_d[cells] = log_miss_d
+    into.log_miss_fa[cells] = 0.0
+    into.n_obs[cells] = 0
+    # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
+    # outside its window (``_mark_too_far``).
+    np.maximum.reduce([grid.limiting for grid in grids], out=into.limiting)
+    for grid in grids:
+        into.log_miss_fa[cells] += grid.log_miss_fa[cells]
+        into.n_obs[cells] += grid.n_obs[cells]
+        if into.last_obs_s is not None and grid.last_obs_s is not None:
+            np.maximum(into.last_obs_s[cells], grid.last_obs_s[cells],
+                       out=into.last_obs_s[cells])
+            into.latest_frame_t_s = max(into.latest_frame_t_s, grid.latest_frame_t_s)
+    into.frames = sum(grid.frames for grid in grids)
+    into.frames_blurred = sum(grid.frames_blurred for grid in grids)
+
+
+def _detector_groups(grids: Sequence[CoverageGrid]) -> list[list[CoverageGrid]]:
+    """The grids by detector model (``_same_looks_tables``), in order of first appearance;
+    with independent looks each grid alone (their log-misses add either way)."""
+    groups: list[list[CoverageGrid]] = []
+    for grid in grids:
+        same = next((grp for grp in groups if grid.looks_state is not None
+                     and grp[0].looks == grid.looks
+                     and _same_looks_tables(grp[0].base_detector, grid.base_detector)), None)
+        if same is None:
+            groups.append([grid])
+        else:
+            same.append(grid)
+    return groups
 
 
 def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:

@@ -268,9 +268,14 @@ class CorrelatedLooks:
         counted. Each cell's value depends on its counts only, not on which other cells
         are computed with it (a fixed order of operations): the daemon, reading windows as
         frames come, and ``pdcov evaluate``, reading once, get the same bits."""
-        counts = self.counts[rows, cols]
+        return self.log_miss_of(self.counts[rows, cols])
+
+    def log_miss_of(self, counts: np.ndarray) -> np.ndarray:
+        """log P_miss (float64, (k,)) of cells with these counts ((k, K), one row a cell, as
+        ``counts`` holds them): 0 where no look was counted. The counts of two grids of
+        this detector model added give the P_miss of one person seen by both."""
         seen = counts.any(axis=1)
-        out = np.zeros(len(rows))
+        out = np.zeros(len(counts))
         at = np.flatnonzero(seen)
         # In chunks, so the (cells, J) temporaries stay in cache (and memory small); einsum's
         # own loop (not BLAS) sums each cell's bins in one fixed order.
@@ -329,7 +334,13 @@ class ViewpointLooks:
 
     def log_miss_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """log P_miss (float64, (k,)) of the cells (rows, cols)."""
-        out: np.ndarray = self.log1m_by_rank.take(self.best[rows, cols]).sum(axis=1)
+        return self.log_miss_of(self.best[rows, cols])
+
+    def log_miss_of(self, best: np.ndarray) -> np.ndarray:
+        """log P_miss (float64, (k,)) of cells with these best ranks ((k, V), one row a
+        cell): the maximum of two grids' ranks of this detector model is the best look of
+        one person seen by both."""
+        out: np.ndarray = self.log1m_by_rank.take(best).sum(axis=1)
         return out
 
     def merge(self, other: ViewpointLooks) -> None:

@@ -40,18 +40,31 @@ class Resumed:
     meta: CheckpointMeta | None
     message: str
     set_aside: Path | None = None
+    cameras: dict[str, CoverageGrid] | None = None  # a cameras list: each camera's grid
+
+
+def camera_member(name: str) -> str:
+    """The zip member holding camera ``name``'s own grid (a cameras list)."""
+    return f"pdcov_camera_{name}.npz"
 
 
 def write_checkpoint(path: Path, grid: CoverageGrid,
-                     meta: CheckpointMeta | Mapping[str, Any]) -> None:
+                     meta: CheckpointMeta | Mapping[str, Any],
+                     cameras: Mapping[str, CoverageGrid] | None = None) -> None:
     """Write the grid and ``meta`` atomically to ``path`` (a mapping is written as it is,
-    with the format version: tests write damaged metadata so)."""
+    with the format version: tests write damaged metadata so); with a cameras list, each
+    camera's own grid too (``cameras``, by name: one more member each, the snapshot
+    ``save_npz`` writes)."""
     doc = meta.to_json() if isinstance(meta, CheckpointMeta) else {"version": META_VERSION,
                                                                    **meta}
     buf = io.BytesIO()
     grid.write_npz(buf)
     with zipfile.ZipFile(buf, "a") as zf:
         zf.writestr(META_MEMBER, json.dumps(doc))
+        for name, g in (cameras or {}).items():
+            member = io.BytesIO()
+            g.write_npz(member)
+            zf.writestr(camera_member(name), member.getvalue())
     with atomic_write(path, "wb") as fh:
         fh.write(buf.getvalue())
 
@@ -83,10 +96,12 @@ def _read_doc(path: Path) -> Any:
     return doc
 
 
-def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resumed:
+def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid,
+           new_cameras: Mapping[str, CoverageGrid] | None = None) -> Resumed:
     """The checkpoint in ``state_dir`` if it belongs to this mission and vehicle (same
     hash); otherwise (another mission or vehicle, or unreadable) it is renamed aside with a
-    time stamp and the daemon starts fresh."""
+    time stamp and the daemon starts fresh. ``new_cameras``: with a cameras list, each
+    camera's new grid (by name), whose grids the checkpoint must hold too."""
     path = state_dir / CHECKPOINT_NAME
     # A kill during a write leaves atomic_write's temporary file: never read, removed here
     # (else every crash would leave a grid-sized file behind).
@@ -103,20 +118,35 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid) -> Resume
                    f"hash {meta.mission_hash}, this daemon's is {mission_hash} (the "
                    "vehicle id, domain, camera, detector or grid settings differ)")
         else:
-            grid = CoverageGrid.load_npz(path, new_grid.camera, new_grid.detector,
-                                         max_range_m=new_grid.max_range_m,
-                                         min_revisit_s=new_grid.min_revisit_s,
-                                         terrain=new_grid.terrain,
-                                         exposure_s=new_grid.exposure_s,
-                                         looks=new_grid.looks)
-            if grid.geometry != new_grid.geometry or not (grid.mask == new_grid.mask).all():
+            grid = _load_like(path, new_grid)
+            cameras = {name: _load_camera(path, name, g)
+                       for name, g in (new_cameras or {}).items()}
+            if any(g.geometry != new_grid.geometry or not (g.mask == new_grid.mask).all()
+                   for g in (grid, *cameras.values())):
                 why = "its grid geometry differs from this mission's"
             else:
                 return Resumed(grid, meta, f"resumed from {path}: {grid.frames} frames, "
-                                           f"last frame at t = {meta.last_frame_t_s} s")
+                                           f"last frame at t = {meta.last_frame_t_s} s",
+                               cameras=cameras or None)
     except PdcovError as exc:  # InputFileError, or a DomainError from its geometry
         why = f"it cannot be read ({exc})"
     aside = path.with_name(f"checkpoint-{time.strftime('%Y%m%dT%H%M%S')}.set-aside.npz")
     path.replace(aside)
     return Resumed(None, None, f"checkpoint {path} set aside as {aside.name}: {why}; "
                              "starting a new grid", aside)
+
+
+def _load_like(path: Path, new: CoverageGrid, data: bytes | None = None) -> CoverageGrid:
+    """The snapshot at ``path`` (or its member's bytes ``data``) as a grid of ``new``'s
+    camera, detector and options."""
+    return CoverageGrid.load_npz(path, new.camera, new.base_detector,
+                                 max_range_m=new.max_range_m,
+                                 min_revisit_s=new.min_revisit_s, terrain=new.terrain,
+                                 exposure_s=new.exposure_s, looks=new.looks, data=data)
+
+
+def _load_camera(path: Path, name: str, new: CoverageGrid) -> CoverageGrid:
+    """Camera ``name``'s own grid in the checkpoint at ``path``."""
+    data = read_zip_member(path, camera_member(name), lambda why: InputFileError(
+        f"{path}: no grid of camera {name} ({why})"))
+    return _load_like(path, new, data)

@@ -38,7 +38,21 @@ _CHECKS = {"mission_hash": lambda v: isinstance(v, str),
                                             and all(_finite(x) for x in v)),
            "tiles_seq": lambda v: _count(v, -1),
            "frames_used": lambda v: _count(v, 0),
-           "written_unix_s": lambda v: v is None or _finite(v)}
+           "written_unix_s": lambda v: v is None or _finite(v),
+           "cameras": lambda v: isinstance(v, dict) and all(
+               isinstance(k, str) and isinstance(x, list) and len(x) == 3
+               and all(t is None or _finite(t) for t in x[:2]) and _count(x[2], 0)
+               for k, x in v.items())}
+
+
+@dataclass(frozen=True, slots=True)
+class CameraResume:
+    """One camera of a cameras list in a checkpoint: its frame lattice's anchor t0_s and
+    last decided frame (autopilot clock, s; None: none) and the frames its grid took."""
+
+    t0_s: float | None
+    last_frame_t_s: float | None
+    frames_used: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,7 +62,8 @@ class CheckpointMeta:
     clock_offset_s / clock_boot_s, the autopilot clock to continue (None: not known yet);
     mission_hash None only in a file written by hand (then it belongs to no mission);
     tiles_seq, the last tiles message sent (-1: none); frames_used; written_unix_s (wall
-    clock, for people only)."""
+    clock, for people only); cameras: with a cameras list, each camera's lattice and frames
+    (``CameraResume``; the fields above are the first camera's)."""
 
     mission_hash: str | None
     vehicle_id: str | None = None
@@ -59,6 +74,7 @@ class CheckpointMeta:
     tiles_seq: int = -1
     frames_used: int = 0
     written_unix_s: float | None = None
+    cameras: dict[str, CameraResume] | None = None  # a cameras list's, by name
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object written (format version 1, docs/service.md)."""
@@ -68,7 +84,10 @@ class CheckpointMeta:
                 "vehicle_id": self.vehicle_id, "t0_s": self.t0_s,
                 "last_frame_t_s": self.last_frame_t_s, "clock": clock,
                 "tiles_seq": self.tiles_seq, "frames_used": self.frames_used,
-                "written_unix_s": self.written_unix_s}
+                "written_unix_s": self.written_unix_s,
+                **({} if self.cameras is None else {"cameras": {
+                    name: [c.t0_s, c.last_frame_t_s, c.frames_used]
+                    for name, c in self.cameras.items()}})}
 
     @classmethod
     def from_json(cls, path: Path, doc: Any) -> CheckpointMeta:
@@ -94,7 +113,11 @@ class CheckpointMeta:
                    clock_boot_s=None if clock is None else float(clock[1]),
                    tiles_seq=int(doc.get("tiles_seq", -1)),
                    frames_used=int(doc.get("frames_used", 0)),
-                   written_unix_s=num("written_unix_s"))
+                   written_unix_s=num("written_unix_s"),
+                   cameras=None if "cameras" not in doc else {
+                       name: CameraResume(None if x[0] is None else float(x[0]),
+                                          None if x[1] is None else float(x[1]), int(x[2]))
+                       for name, x in doc["cameras"].items()})
 
 
 @dataclass(slots=True)

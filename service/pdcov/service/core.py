@@ -111,22 +111,25 @@ class Actions:
 def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
                                              Callable[[Mapping[str, float]], bool] | None]:
     """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, the zoom report camera.zoom
-    follows (ZOOM_MESSAGES), and for a gimbal its reports
-    and the one list of mount parameters (gimbal.mount_params_to_read, as mount-check)."""
-    link, mount = cfg.link, cfg.mission.mount
+    are complete): the streams a frame needs, HOME_POSITION, the zoom reports the cameras'
+    camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the one list of
+    mount parameters of each gimbal device (gimbal.mount_params_to_read, as mount-check)."""
+    link, cams = cfg.link, cfg.mission.all_cameras
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
                  HOME_POSITION: HOME_POSITION_HZ}
-    zoom = cfg.mission.zoom
-    if zoom is not None:
-        intervals[ZOOM_MESSAGES[zoom.lens.quantity]] = ZOOM_REPORT_HZ
-    if not isinstance(mount, GimbalMount):
+    for cam in cams:
+        if cam.zoom is not None:
+            intervals[ZOOM_MESSAGES[cam.zoom.lens.quantity]] = ZOOM_REPORT_HZ
+    instances = sorted({c.mount.instance for c in cams if isinstance(c.mount, GimbalMount)})
+    if not instances:
         return intervals, (), None
     intervals[GIMBAL_DEVICE_ATTITUDE_STATUS] = link.gimbal_hz
-    names, legacy = mount_params_to_read(mount.instance)
-    instance = mount.instance
-    return (intervals, tuple(dict.fromkeys((*names, *legacy))),
-            lambda values: mount_params_complete(values, instance))
+    names: list[str] = []
+    for instance in instances:
+        current, legacy = mount_params_to_read(instance)
+        names += [*current, *legacy]
+    return (intervals, tuple(dict.fromkeys(names)),
+            lambda values: all(mount_params_complete(values, i) for i in instances))
 
 
 def link_state(states: Iterable[LinkState], autopilot_known: bool) -> LinkState:
@@ -141,14 +144,16 @@ def link_state(states: Iterable[LinkState], autopilot_known: bool) -> LinkState:
 
 
 class ServiceCore:
-    """The decisions of one ``pdcov serve`` (module docstring). ``grid``: a new grid, or the
-    resumed one with its ``resumed`` metadata; ``checkpoint``: the checkpoint's state to
-    report (its path, whether it resumed or was set aside); ``now_s``: the shell's
-    monotonic clock at start."""
+    """The decisions of one ``pdcov serve`` (module docstring). ``grid``: a new grid
+    (``settings.new_serve_grid``), or the resumed one with its ``resumed`` metadata (and,
+    with a cameras list, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
+    checkpoint's state to report (its path, whether it resumed or was set aside);
+    ``now_s``: the shell's monotonic clock at start."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
                  mission_hash: str, resumed: CheckpointMeta | None = None,
-                 checkpoint: CheckpointState | None = None) -> None:
+                 checkpoint: CheckpointState | None = None,
+                 camera_grids: dict[str, CoverageGrid] | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
         self.mission_hash = mission_hash
@@ -164,7 +169,8 @@ class ServiceCore:
                                      if m.estimator_status else None,
                                      params_complete=complete)
         self.coverage = LiveCoverage(cfg, grid, now_s, tiles_seq=resumed.tiles_seq + 1
-                                     if resumed is not None else 0)
+                                     if resumed is not None else 0,
+                                     camera_grids=camera_grids)
         if resumed is not None:
             self._resume(resumed)
         self.checkpoint = checkpoint or CheckpointState(path="")
@@ -183,7 +189,9 @@ class ServiceCore:
 
     def _resume(self, meta: CheckpointMeta) -> None:
         live = self.coverage
-        if meta.last_frame_t_s is not None:
+        if meta.cameras is not None:
+            live.resume_cameras(meta.cameras)
+        elif meta.last_frame_t_s is not None:
             live.resume_lattice(meta.t0_s, meta.last_frame_t_s)
         if meta.clock_offset_s is not None and meta.clock_boot_s is not None:
             self.protocol.prime_clock(meta.clock_offset_s, meta.clock_boot_s)
@@ -431,7 +439,7 @@ class ServiceCore:
             t0_s=live.t0_s, last_frame_t_s=finite_or_none(live.last_frame_t_s),
             clock_offset_s=offset if known else None, clock_boot_s=boot if known else None,
             tiles_seq=live.tiles_seq - 1, frames_used=live.counters.used,
-            written_unix_s=unix_s)
+            written_unix_s=unix_s, cameras=live.camera_resume())
 
     def checkpoint_written(self, meta: CheckpointMeta, error: str | None) -> None:
         """The shell wrote the checkpoint ``meta`` of the current grid, or failed with

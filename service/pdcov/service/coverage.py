@@ -24,8 +24,11 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 ``pdcov evaluate`` feeds a log), and its mismatches are logged, the first at once, then at
 most one every TERRAIN_WARNING_PERIOD_S.
 
-``LiveCoverage`` holds these decisions together and delegates: where frames fall and when
-they can be decided to ``frame_schedule.FrameSchedule``, the ground altitude to
+``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
+frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
+whose grids ``grid.combine_cameras`` combines into the published one after every frame, as
+``pdcov evaluate`` combines them), where frames fall and when they can be decided to
+``frame_schedule.FrameSchedule``, the ground altitude to
 ``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
 """
@@ -33,7 +36,7 @@ they can be decided to ``frame_schedule.FrameSchedule``, the ground altitude to
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -41,28 +44,18 @@ import numpy as np
 
 from pdcov.bus.grid_state import GridState
 from pdcov.core.geodesy import Origin
-from pdcov.core.grid import CoverageGrid
-from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import CameraPose, known_motion
+from pdcov.core.grid import CoverageGrid, combine_cameras
+from pdcov.core.pose import CameraPose
 from pdcov.service import status
+from pdcov.service.camera_frames import CameraFrames
+from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
 from pdcov.service.frame_schedule import FrameSchedule
 from pdcov.service.origin import GroundAltitude
 from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
-from pdcov.telemetry.frame_policy import (
-    UNTRUSTED_PREFIX,
-    FrameLattice,
-    FrameSource,
-    SkipReason,
-    below_min_height,
-    frame_cameras,
-    frames_used,
-    rebuilt_R_enu_cam,
-    untrusted_policy,
-)
-from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
-from pdcov.telemetry.lens_reports import LensReports
+from pdcov.telemetry.frame_policy import FrameLattice, FrameSource
+from pdcov.telemetry.gimbal import GimbalInterpretation
 from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
 from pdcov.telemetry.samples import (
     AttitudeSample,
@@ -79,18 +72,14 @@ from pdcov.telemetry.samples import (
 from pdcov.telemetry.terrain_check import terrain_check_for
 
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
+    from pdcov.core.camera import CameraModel
     from pdcov.service.settings import ServeConfig
 
 MILESTONES = (0.25, 0.5, 0.75, 0.9, 1.0)
 NAMED_VALUE_PERIOD_S = 1.0
-PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 TERRAIN_WARNING_PERIOD_S = 60.0
 """A terrain check mismatch is logged at most once in this long (the first at once; the
 count is always in the status)."""
-MAX_WAITING_SAMPLES = 2_000_000
-"""Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
-TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
-"""The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
 
 
 @dataclass(slots=True)
@@ -115,10 +104,13 @@ class Counters:
 
 
 class LiveCoverage:
-    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid."""
+    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid (with a
+    cameras list, the combination, ``Mission.new_combined_grid``); ``camera_grids``: a
+    cameras list's resumed grids by name (None: new ones)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
-                 tiles_seq: int = 0) -> None:
+                 tiles_seq: int = 0,
+                 camera_grids: dict[str, CoverageGrid] | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
         self.grid = grid
@@ -126,18 +118,13 @@ class LiveCoverage:
                                grid.n_obs, grid.frames)  # views: always current
         self.grid_hash = self.state.hash  # the geometry and mask never change
         self.frame_source = FrameSource(cfg.frame_source)
-        self.rate_hz = m.frame_rate_hz
         self.max_gap_s = m.max_gap_s
-        self.history_s = max(20.0, 8.0 * m.max_gap_s)
         self.counters = Counters()
         self.detections = LiveDetections(m, grid, self.counters.faults)
         self.origin: Origin | None = None
         self.origin_how = ""
         self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
                                       m.ground_alt_how)
-        self.interpretation: GimbalInterpretation | None = None
-        self.tracker: PoseTracker | None = None
-        self._waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
         self._last_position: PositionSample | None = None
         self._estimator_seen = False  # an estimator status came over the link
         self._note: str | None = None  # said once by poll (Due.note)
@@ -145,13 +132,25 @@ class LiveCoverage:
         self.terrain_check = terrain_check_for(m)  # the DEM against the aircraft, or None
         self._terrain_said = 0  # mismatches counted when the last warning was logged
         self._next_terrain_warning_s = -math.inf
-        needed = ("attitude", "position") + (
-            ("gimbal",) if isinstance(m.mount, GimbalMount) else ())
-        self.schedule = FrameSchedule(self.frame_source, self.rate_hz, self.max_gap_s,
-                                      cfg.service.reorder_s, needed, self._waiting,
-                                      self.counters.skipped)
-        self.last_pose: CameraPose | None = None
-        self.last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
+        # One camera: its grid is the published one. A cameras list: each camera its own
+        # grid, the published one their combination (grid.combine_cameras, as evaluate).
+        several = bool(m.extra_cameras)
+        if several and grid.looks_state is not None:
+            raise ValueError("a cameras list publishes Mission.new_combined_grid()")
+        grids = camera_grids or {}
+        self.cameras = [
+            CameraFrames(cam, (grids.get(cam.name) or m.new_grid(cam)) if several else grid,
+                         frame_source=self.frame_source, max_gap_s=m.max_gap_s,
+                         reorder_s=cfg.service.reorder_s, min_height_m=m.min_height_m,
+                         use_estimator=m.estimator_status, skipped=self.counters.skipped,
+                         faults=self.counters.faults, took=self._took)
+            for cam in m.all_cameras]
+        self.primary = self.cameras[0]  # frame times, detections, the status's pose
+        self._zoom_followers = {cam.cam.zoom.camera_id: cam for cam in self.cameras
+                                if cam.cam.zoom is not None}
+        if several:
+            combine_cameras(grid, self.camera_grids)
+            self.state.frames = grid.frames
         ts = cfg.bus.tile_size
         self.tile_size = ts
         self.tile_sender = TileSender(grid, self.state, self.grid_hash, ts,
@@ -217,12 +216,57 @@ class LiveCoverage:
                 return
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
+        if isinstance(sample, LensSample) and len(self.cameras) > 1:
+            # A cameras list: each report to the camera that follows its camera component;
+            # a report of a camera none follows is counted, not used.
+            follower = self._zoom_followers.get(sample.camera_id)
+            if follower is None:
+                self.counters.faults["zoom_reports_other_camera"] += 1
+            else:
+                follower.add(sample)
+            return
         if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample,
                                LensSample)):
-            if len(self._waiting) >= MAX_WAITING_SAMPLES:
-                self._waiting.popleft()
-                self.counters.faults["samples_dropped_waiting"] += 1
-            self._waiting.append(sample)
+            for cam in self.cameras:
+                cam.add(sample)
+
+    @property
+    def camera_grids(self) -> list[CoverageGrid]:
+        """Each camera's own grid, the mission's order (one camera: the published grid)."""
+        return [cam.grid for cam in self.cameras]
+
+    @property
+    def checkpoint_cameras(self) -> dict[str, CoverageGrid] | None:
+        """With a cameras list, each camera's own grid by name (a checkpoint holds them: the
+        published grid is their combination); None with one camera."""
+        if len(self.cameras) == 1:
+            return None
+        return {cam.cam.name: cam.grid for cam in self.cameras}
+
+    @property
+    def schedule(self) -> FrameSchedule:
+        """The primary camera's frame schedule (capture and detector frame times go there:
+        a cameras list has rate frames only)."""
+        return self.primary.schedule
+
+    @property
+    def interpretation(self) -> GimbalInterpretation | None:
+        """The primary camera's gimbal reading, once resolved."""
+        return self.primary.interpretation
+
+    @property
+    def tracker(self) -> PoseTracker | None:
+        """The primary camera's pose tracker, once started."""
+        return self.primary.tracker
+
+    @property
+    def last_pose(self) -> CameraPose | None:
+        """The primary camera's last frame (the status's pose and footprint)."""
+        return self.primary.last_pose
+
+    @property
+    def last_R_ned_body(self) -> np.ndarray:
+        return self.primary.last_R_ned_body
 
     def add_frame_times(self, t_s: list[float] | tuple[float, ...]) -> list[float]:
         """Frame times (autopilot clock, s) from capture events or the detector; returns
@@ -251,15 +295,14 @@ class LiveCoverage:
 
     def set_params(self, params: dict[str, float], done: bool) -> None:
         """The mount parameters read so far; ``done`` when no more will come."""
-        mount = self.cfg.mission.mount
-        if self.interpretation is None and isinstance(mount, GimbalMount) and done:
-            self.interpretation = resolve_interpretation(mount, params, PARAMS_ORIGIN)
+        for cam in self.cameras:
+            cam.set_params(params, done)
 
     # --- frames ---------------------------------------------------------------------------
 
     @property
     def ready(self) -> bool:
-        return self.tracker is not None
+        return all(cam.tracker is not None for cam in self.cameras)
 
     def _try_start(self) -> None:
         m = self.cfg.mission
@@ -269,49 +312,14 @@ class LiveCoverage:
                 self.origin, self.origin_how = m.origin(alt), how
         if self.origin is None:
             return
-        if isinstance(m.mount, GimbalMount) and self.interpretation is None:
-            return
-        self.tracker = PoseTracker(self.origin, m.mount, interpretation=self.interpretation,
-                                   max_gap_s=self.max_gap_s, history_s=self.history_s,
-                                   use_estimator=m.estimator_status,
-                                   lens=None if m.zoom is None else LensReports(m.zoom))
+        for cam in self.cameras:
+            cam.start(self.origin)
 
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting
         (origin.GroundAltitude)."""
-        return self._ground.ground_alt(self._waiting[-1].t_s if self._waiting else -math.inf)
-
-    def _feed(self, tr: PoseTracker, until_s: float) -> None:
-        """Give the tracker the waiting samples up to ``until_s`` (all when live; a backlog
-        bit by bit, so that its history window never drops what a frame needs)."""
-        w = self._waiting
-        while w and w[0].t_s <= until_s:
-            s = w.popleft()
-            if isinstance(s, AttitudeSample):
-                tr.add_attitude(s)
-                stream = "attitude"
-            elif isinstance(s, PositionSample):
-                tr.add_position(s)
-                stream = "position"
-            elif isinstance(s, EstimatorSample):
-                # Not a stream a frame waits for: a report carries no time of its own and is
-                # stamped at arrival, so none can come for a frame whose attitude is in.
-                tr.add_estimator(s)
-                continue
-            elif isinstance(s, LensSample):  # lens_reports.py: the estimator's rule
-                tr.add_lens(s)
-                if tr.lens is not None and tr.lens.other_camera:
-                    self.counters.faults["zoom_reports_other_camera"] = tr.lens.other_camera
-                continue
-            else:
-                before = tr.gimbal_source
-                tr.add_gimbal(s)
-                if tr.gimbal_source != before:
-                    self.schedule.forget("gimbal")
-                if s.source != tr.gimbal_source:
-                    continue
-                stream = "gimbal"
-            self.schedule.saw(stream, s.t_s)
+        w = self.primary.waiting
+        return self._ground.ground_alt(w[-1].t_s if w else -math.inf)
 
     @property
     def t0_s(self) -> float | None:
@@ -319,111 +327,68 @@ class LiveCoverage:
         return self.schedule.t0_s
 
     def process(self) -> int:
-        """Decide every frame that can be decided; returns how many were added. Frames are
-        evaluated in batches (one vectorised PoseTracker call) spanning at most a quarter
-        of the tracker's history; the boxes of the frames used are geolocated with their
-        poses (``detections``)."""
-        added = self._process()
+        """Decide every frame that can be decided, camera by camera; returns how many were
+        added. The boxes of the frames used are geolocated with their poses
+        (``detections``)."""
+        if not self.ready:
+            self._try_start()
+        added = sum(cam.process() for cam in self.cameras)
+        other = self.primary.zoom_reports_other_camera
+        if other and len(self.cameras) == 1:  # a cameras list counts them in add_sample
+            self.counters.faults["zoom_reports_other_camera"] = other
+        self.state.frames = self.grid.frames
+        self.counters.used += added
+        if (self.counters.faults["frames_without_estimator_status"]
+                and not self._estimator_seen and not self._noted_no_estimator):
+            self._noted_no_estimator = True
+            self._note = ("no estimator status (EKF_STATUS_REPORT / ESTIMATOR_STATUS) on "
+                          "the link: frames are not checked against the autopilot's "
+                          "position estimate (counted in faults."
+                          "frames_without_estimator_status)")
         self.detections.decided(self.last_frame_t_s)
         return added
-
-    def _process(self) -> int:
-        if self.tracker is None:
-            self._try_start()
-        tr = self.tracker
-        if tr is None:
-            return 0
-        sched = self.schedule
-        added = 0
-        while True:
-            t = sched.next_frame_t()
-            if t is None and self.frame_source == FrameSource.RATE:
-                t = sched.start_lattice(tr)
-            if t is None:
-                if not self._waiting:
-                    return added
-                self._feed(tr, self._waiting[0].t_s + 0.5 * self.history_s)
-                continue
-            if sched.skip_hole(t):  # before deciding a long hole batch by batch
-                continue
-            first_t = t
-            batch: list[float] = []
-            while t is not None and t - (batch[0] if batch else t) <= 0.25 * self.history_s:
-                self._feed(tr, t + 0.5 * self.history_s)
-                if not sched.decidable(t):
-                    break
-                batch.append(t)
-                sched.advance()
-                t = sched.next_frame_t()
-            if not batch:
-                if not sched.skip_hole(first_t):
-                    return added
-                continue
-            added += self._evaluate(tr, np.array(batch))
 
     def resume_lattice(self, t0_s: float | None, last_frame_t_s: float) -> None:
         """Continue a checkpointed run: the frame lattice anchored at ``t0_s`` (rate mode),
         the frames after ``last_frame_t_s`` (autopilot clock, s, continued by the link)."""
         self.schedule.resume_lattice(t0_s, last_frame_t_s)
 
-    def _touch(self, window: tuple[int, int, int, int]) -> None:
-        """Cells rows r0:r1, columns c0:c1 may have changed: their tiles are compared and
-        their status metrics recomputed when next due."""
-        self.tile_sender.touch(window)
-        self.metrics.mark(window)
+    def camera_resume(self) -> dict[str, CameraResume] | None:
+        """With a cameras list, what a checkpoint keeps of each camera to continue it."""
+        if len(self.cameras) == 1:
+            return None
+        return {c.cam.name: CameraResume(c.schedule.t0_s,
+                                         finite_or_none(c.schedule.last_frame_t_s), c.used)
+                for c in self.cameras}
 
-    def _evaluate(self, tr: PoseTracker, t_s: np.ndarray) -> int:
-        """Add the frames at times ``t_s`` (increasing) that are valid, trusted (or the
-        mount says to use untrusted ones) and high enough; count the others by reason."""
-        m = self.cfg.mission
-        self.schedule.last_frame_t_s = float(t_s[-1])
-        b = tr.frames_at(t_s)
-        policy = untrusted_policy(m.mount)
-        valid = b.valid
-        use = frames_used(valid, b.trusted, policy)
-        for reason in b.skip_reason[~valid]:
-            self.counters.skipped[str(reason)] += 1
-        untrusted = valid & ~b.trusted
-        self.counters.faults["frames_untrusted"] += int(untrusted.sum())
-        if policy != "use":
-            for reason in b.untrusted_reason[untrusted]:
-                self.counters.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
-        if not use.any():
-            return 0
-        _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
-        added = 0
-        unjudged = 0
-        cameras = frame_cameras(m.zoom, b.lens_value[use])
-        for R, r, t, R_body, judged, v, omega, camera in zip(
-                R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
-                b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
-                cameras, strict=True):
-            pose = CameraPose(R, r, float(t), *known_motion(v, omega))
-            self.last_pose, self.last_R_ned_body = pose, R_body
-            if below_min_height(pose.r_cam_enu[2], m.min_height_m):
-                self.counters.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
+    def resume_cameras(self, cameras: dict[str, CameraResume]) -> None:
+        """Continue every camera of a cameras list from its checkpointed lattice, last
+        frame and count (a camera the checkpoint lacks starts anew)."""
+        for cam in self.cameras:
+            r = cameras.get(cam.cam.name)
+            if r is None:
                 continue
-            self.grid.update_with(pose, camera)
-            if self.grid.touched is not None:
-                self._touch(self.grid.touched)
+            if r.last_frame_t_s is not None:
+                cam.schedule.resume_lattice(r.t0_s, r.last_frame_t_s)
+            cam.used = r.frames_used
+
+    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel) -> None:
+        """A camera's grid took a frame: the published grid's cells it may have changed
+        (the combination, with a cameras list), their tiles and status metrics marked; the
+        primary's boxes geolocated."""
+        window = cam.grid.touched
+        if cam.grid is not self.grid:  # limiting over the whole grid, even with no window
+            combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
+        if window is not None:
+            self.tile_sender.touch(window)
+            self.metrics.mark(window)
+        if cam is self.primary:
             self.detections.frame(pose, camera)
-            added += 1
-            unjudged += not judged
-        self.state.frames = self.grid.frames
-        self.counters.used += added
-        if unjudged and m.estimator_status:
-            self.counters.faults["frames_without_estimator_status"] += unjudged
-            if not self._estimator_seen and not self._noted_no_estimator:
-                self._noted_no_estimator = True
-                self._note = ("no estimator status (EKF_STATUS_REPORT / ESTIMATOR_STATUS) on "
-                              "the link: frames are not checked against the autopilot's "
-                              "position estimate (counted in faults."
-                              "frames_without_estimator_status)")
-        return added
 
     @property
     def frames_pending(self) -> int:
-        return self.schedule.frames_pending
+        """Frames waiting for telemetry, every camera's."""
+        return sum(cam.schedule.frames_pending for cam in self.cameras)
 
     # --- output ---------------------------------------------------------------------------
 

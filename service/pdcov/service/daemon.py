@@ -48,7 +48,7 @@ from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
-from pdcov.service.settings import ServeConfig, mission_hash
+from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.frame_policy import FrameSource
 
@@ -115,15 +115,17 @@ class Daemon:
         """The core with the grid resumed from the state dir's checkpoint when it belongs
         to this mission, else a new one."""
         m = self.cfg.mission
-        grid = m.new_grid()
+        grid = new_serve_grid(m)
         mhash = mission_hash(m, grid)
-        r = resume(self.state_dir, mhash, grid)
+        cameras = {c.name: m.new_grid(c) for c in m.all_cameras} if m.extra_cameras else None
+        r = resume(self.state_dir, mhash, grid, cameras)
         (log.warning if r.set_aside else log.info)("%s", r.message)
         state = CheckpointState(path=str(self.state_dir / CHECKPOINT_NAME),
                                 resumed=r.grid is not None,
                                 set_aside=str(r.set_aside) if r.set_aside else None)
         return ServiceCore(self.cfg, r.grid or grid, self._clock(), mission_hash=mhash,
-                           resumed=r.meta if r.grid is not None else None, checkpoint=state)
+                           resumed=r.meta if r.grid is not None else None, checkpoint=state,
+                           camera_grids=r.cameras)
 
     @property
     def live(self) -> LiveCoverage:
@@ -422,7 +424,8 @@ class Daemon:
     def _write_checkpoint(self, meta: CheckpointMeta) -> None:
         error = None
         try:
-            write_checkpoint(self.state_dir / CHECKPOINT_NAME, self.live.grid, meta)
+            write_checkpoint(self.state_dir / CHECKPOINT_NAME, self.live.grid, meta,
+                             self.live.checkpoint_cameras)
         except (OSError, PdcovError) as exc:  # atomic_write: OutputError (disk full, ...)
             error = str(exc)
         self.core.checkpoint_written(meta, error)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from pdcov.bus.session import BusConfig, bus_config_from_dict
-from pdcov.config import Mission, load_mission
+from pdcov.config import Mission, MissionCamera, load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, where
@@ -190,15 +190,19 @@ def load_serve_config(path: str | Path) -> ServeConfig:
     """Read the mission config with the daemon's sections checked and parsed."""
     path = Path(path)
     mission = load_mission(path, sections=SECTIONS)
-    if mission.extra_cameras:
-        raise ConfigError(f"{where(mission.source, 'cameras')}: pdcov serve follows one camera; "
-                          f"this mission lists {len(mission.all_cameras)} (evaluate their "
-                          "flight log with pdcov evaluate, or run one daemon per camera with "
-                          "its own config)")
     raw = mission.raw
-    return ServeConfig(mission, _section(raw, "link", LinkConfig, mission.source),
-                       bus_config_from_dict(raw.get("bus"), mission.source),
-                       _section(raw, "service", ServiceConfig, mission.source), path.parent)
+    cfg = ServeConfig(mission, _section(raw, "link", LinkConfig, mission.source),
+                      bus_config_from_dict(raw.get("bus"), mission.source),
+                      _section(raw, "service", ServiceConfig, mission.source), path.parent)
+    mission.cameras_frame_source(cfg.frame_source, "service.frame_source"
+                                 if cfg.service.frame_source else "log.frame_source")
+    return cfg
+
+
+def new_serve_grid(mission: Mission) -> CoverageGrid:
+    """The grid the daemon publishes, new: the camera's; with a cameras list, the grid of
+    their looks combined (each camera's own grid is the daemon's, ``LiveCoverage``)."""
+    return mission.new_combined_grid() if mission.extra_cameras else mission.new_grid()
 
 
 def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
@@ -207,7 +211,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
     heights when it has them), the camera (size, intrinsics, distortion) and the detector
     model (bins, P_D, P_FA, input size), and the looks rule when not independent (rule,
-    viewpoint bins, the model's correlation)."""
+    viewpoint bins, the model's correlation; each camera's with a cameras list), and with a
+    cameras list every camera (``_camera_doc``)."""
     cam, det, g = mission.camera, mission.detector, grid.geometry
     doc = {"vehicle_id": mission.vehicle_id,
            "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
@@ -219,14 +224,29 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
                         det.input_size_px, det.size_metric]}
     if mission.zoom is not None:  # none: hashed as before zoom existed
         doc["zoom"] = repr(mission.zoom)
+    if mission.extra_cameras:  # one camera: hashed as before cameras lists existed
+        doc["cameras"] = [_camera_doc(c) for c in mission.all_cameras]
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
     h.update(np.packbits(grid.mask).tobytes())
-    if grid.looks != LooksConfig():  # independent looks: hashed as before looks existed
-        rho = None if mission.detector.looks is None else mission.detector.looks.correlation
-        h.update(repr((str(grid.looks.rule), grid.looks.viewpoint, rho)).encode())
+    if mission.looks != LooksConfig():  # independent looks: hashed as before looks existed
+        rho = [None if c.detector.looks is None else c.detector.looks.correlation
+               for c in mission.all_cameras]
+        h.update(repr((str(mission.looks.rule), mission.looks.viewpoint,
+                       rho[0] if len(rho) == 1 else rho)).encode())
     if grid.terrain is not None:  # none: the flat ground, hashed as before terrain existed
         h.update(grid.terrain.z_corner_m.tobytes())
     return h.hexdigest()[:16]
+
+
+def _camera_doc(cam: MissionCamera) -> list[Any]:
+    """What a checkpoint must match of one camera of a cameras list: name, rate, size,
+    intrinsics, distortion, mount, zoom, exposure and detector model."""
+    c, det = cam.camera, cam.detector
+    return [cam.name, cam.frame_rate_hz, c.width_px, c.height_px,
+            np.asarray(c.K, float).tolist(), c.distortion_model,
+            np.asarray(c.dist_coeffs, float).tolist(), repr(cam.mount), repr(cam.zoom),
+            cam.exposure_s, list(det.bin_edges_px), list(det.p_detect),
+            list(det.p_false_alarm), det.input_size_px, det.size_metric]
 
 
 def replace_endpoints(cfg: ServeConfig, *, connect: list[str] | None,

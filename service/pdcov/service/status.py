@@ -67,6 +67,8 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
                "describe": interp.describe() if interp else "waiting for the mount "
                                                             "parameters"})
     faults = dict(live.counters.faults)
+    by_camera = ({} if len(live.cameras) == 1 else  # a cameras list: each one's frames
+                 {"by_camera": {cam.cam.name: cam.used for cam in live.cameras}})
     check = live.terrain_check
     terrain: dict[str, Any] = {}
     if check is not None:  # only with a DEM: the statuses of a flat mission are unchanged
@@ -84,7 +86,7 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
                    "skipped": dict(live.counters.skipped),
                    "pending": live.frames_pending, "source": str(live.frame_source),
                    "last_t_s": live.last_frame_t_s if live.last_frame_t_s > -math.inf
-                   else None},
+                   else None, **by_camera},
         "link": link, "pose": pose, "gimbal": gimbal,
         "grid": {"hash": live.grid_hash, "x0_m": g.x0_m, "y0_m": g.y0_m,
                  "cell_size_m": g.cell_size_m, "n_rows": g.n_rows, "n_cols": g.n_cols,

@@ -1,0 +1,223 @@
+"""One camera's frames in the daemon, with no I/O: ``CameraFrames``.
+
+Each camera of the mission (the single camera, or each entry of a ``cameras`` list) has
+its own PoseTracker (its mount or gimbal device, the gimbal reading of that device's
+parameters, the zoom reports of its own camera component), its own ``FrameSchedule`` (its
+frame rate's lattice) and its own grid, as ``pdcov evaluate`` builds one per camera. Every
+tracked sample of the link is given to every camera; what one camera takes of them (its
+gimbal device, its zoom reports) is its tracker's choice, offline as live.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.mount import GimbalMount
+from pdcov.core.pose import CameraPose, known_motion
+from pdcov.service.frame_schedule import FrameSchedule
+from pdcov.telemetry.frame_policy import (
+    UNTRUSTED_PREFIX,
+    FrameSource,
+    SkipReason,
+    below_min_height,
+    frame_cameras,
+    frames_used,
+    rebuilt_R_enu_cam,
+    untrusted_policy,
+)
+from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
+from pdcov.telemetry.lens_reports import LensReports
+from pdcov.telemetry.pose_tracker import PoseTracker
+from pdcov.telemetry.samples import (
+    AttitudeSample,
+    EstimatorSample,
+    GimbalSample,
+    LensSample,
+    PositionSample,
+)
+
+if TYPE_CHECKING:
+    from collections import Counter
+
+    from pdcov.config import MissionCamera
+    from pdcov.core.camera import CameraModel
+    from pdcov.core.geodesy import Origin
+
+__all__ = ["MAX_WAITING_SAMPLES", "PARAMS_ORIGIN", "CameraFrames", "FrameSink",
+           "TrackedSample"]
+
+PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
+MAX_WAITING_SAMPLES = 2_000_000
+"""Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
+TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
+"""The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
+FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel"], None]
+"""Told of every frame a camera's grid took (after ``grid.update_with``)."""
+
+
+class CameraFrames:
+    """One camera's tracker, schedule and grid (module docstring). ``skipped`` / ``faults``:
+    the daemon's counters (counted into); ``took``: called with each frame taken."""
+
+    def __init__(self, cam: MissionCamera, grid: CoverageGrid, *, frame_source: FrameSource,
+                 max_gap_s: float, reorder_s: float, min_height_m: float,
+                 use_estimator: bool, skipped: Counter, faults: Counter,
+                 took: FrameSink) -> None:
+        self.cam = cam
+        self.grid = grid
+        self.frame_source = frame_source
+        self.max_gap_s = max_gap_s
+        self.history_s = max(20.0, 8.0 * max_gap_s)
+        self.min_height_m = min_height_m
+        self.use_estimator = use_estimator
+        self.skipped, self.faults = skipped, faults
+        self._took = took
+        self.used = 0  # frames this camera's grid took
+        self.interpretation: GimbalInterpretation | None = None
+        self.tracker: PoseTracker | None = None
+        self.waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
+        needed = ("attitude", "position") + (
+            ("gimbal",) if isinstance(cam.mount, GimbalMount) else ())
+        self.schedule = FrameSchedule(frame_source, cam.frame_rate_hz, max_gap_s, reorder_s,
+                                      needed, self.waiting, skipped)
+        self.last_pose: CameraPose | None = None
+        self.last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
+
+    def add(self, sample: TrackedSample) -> None:
+        """A tracked sample of the link (checked by LiveCoverage), kept until fed."""
+        if len(self.waiting) >= MAX_WAITING_SAMPLES:
+            self.waiting.popleft()
+            self.faults["samples_dropped_waiting"] += 1
+        self.waiting.append(sample)
+
+    def set_params(self, params: dict[str, float], done: bool) -> None:
+        """The mount parameters read so far; ``done`` when no more will come."""
+        mount = self.cam.mount
+        if self.interpretation is None and isinstance(mount, GimbalMount) and done:
+            self.interpretation = resolve_interpretation(mount, params, PARAMS_ORIGIN)
+
+    def start(self, origin: Origin) -> bool:
+        """Start the tracker once the origin (and for a gimbal its reading) is known."""
+        if self.tracker is None and not (isinstance(self.cam.mount, GimbalMount)
+                                         and self.interpretation is None):
+            zoom = self.cam.zoom
+            self.tracker = PoseTracker(origin, self.cam.mount,
+                                       interpretation=self.interpretation,
+                                       max_gap_s=self.max_gap_s, history_s=self.history_s,
+                                       use_estimator=self.use_estimator,
+                                       lens=None if zoom is None else LensReports(zoom))
+        return self.tracker is not None
+
+    def _feed(self, tr: PoseTracker, until_s: float) -> None:
+        """Give the tracker the waiting samples up to ``until_s`` (all when live; a backlog
+        bit by bit, so that its history window never drops what a frame needs)."""
+        w = self.waiting
+        while w and w[0].t_s <= until_s:
+            s = w.popleft()
+            if isinstance(s, AttitudeSample):
+                tr.add_attitude(s)
+                stream = "attitude"
+            elif isinstance(s, PositionSample):
+                tr.add_position(s)
+                stream = "position"
+            elif isinstance(s, EstimatorSample):
+                # Not a stream a frame waits for: a report carries no time of its own and is
+                # stamped at arrival, so none can come for a frame whose attitude is in.
+                tr.add_estimator(s)
+                continue
+            elif isinstance(s, LensSample):  # lens_reports.py: the estimator's rule
+                tr.add_lens(s)
+                continue
+            else:
+                before = tr.gimbal_source
+                tr.add_gimbal(s)
+                if tr.gimbal_source != before:
+                    self.schedule.forget("gimbal")
+                if s.source != tr.gimbal_source:
+                    continue
+                stream = "gimbal"
+            self.schedule.saw(stream, s.t_s)
+
+    @property
+    def zoom_reports_other_camera(self) -> int:
+        """Zoom reports of other cameras this camera's lens refused (0 without a zoom)."""
+        tr = self.tracker
+        return tr.lens.other_camera if tr is not None and tr.lens is not None else 0
+
+    def process(self) -> int:
+        """Decide every frame that can be decided; returns how many were added. Frames are
+        evaluated in batches (one vectorised PoseTracker call) spanning at most a quarter
+        of the tracker's history."""
+        tr = self.tracker
+        if tr is None:
+            return 0
+        sched = self.schedule
+        added = 0
+        while True:
+            t = sched.next_frame_t()
+            if t is None and self.frame_source == FrameSource.RATE:
+                t = sched.start_lattice(tr)
+            if t is None:
+                if not self.waiting:
+                    return added
+                self._feed(tr, self.waiting[0].t_s + 0.5 * self.history_s)
+                continue
+            if sched.skip_hole(t):  # before deciding a long hole batch by batch
+                continue
+            first_t = t
+            batch: list[float] = []
+            while t is not None and t - (batch[0] if batch else t) <= 0.25 * self.history_s:
+                self._feed(tr, t + 0.5 * self.history_s)
+                if not sched.decidable(t):
+                    break
+                batch.append(t)
+                sched.advance()
+                t = sched.next_frame_t()
+            if not batch:
+                if not sched.skip_hole(first_t):
+                    return added
+                continue
+            added += self._evaluate(tr, np.array(batch))
+
+    def _evaluate(self, tr: PoseTracker, t_s: np.ndarray) -> int:
+        """Add the frames at times ``t_s`` (increasing) that are valid, trusted (or the
+        mount says to use untrusted ones) and high enough; count the others by reason."""
+        self.schedule.last_frame_t_s = float(t_s[-1])
+        b = tr.frames_at(t_s)
+        policy = untrusted_policy(self.cam.mount)
+        valid = b.valid
+        use = frames_used(valid, b.trusted, policy)
+        for reason in b.skip_reason[~valid]:
+            self.skipped[str(reason)] += 1
+        untrusted = valid & ~b.trusted
+        self.faults["frames_untrusted"] += int(untrusted.sum())
+        if policy != "use":
+            for reason in b.untrusted_reason[untrusted]:
+                self.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
+        if not use.any():
+            return 0
+        _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
+        added = unjudged = 0
+        cameras = frame_cameras(self.cam.zoom, b.lens_value[use])
+        for R, r, t, R_body, judged, v, omega, camera in zip(
+                R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
+                b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
+                cameras, strict=True):
+            pose = CameraPose(R, r, float(t), *known_motion(v, omega))
+            self.last_pose, self.last_R_ned_body = pose, R_body
+            if below_min_height(pose.r_cam_enu[2], self.min_height_m):
+                self.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
+                continue
+            self.grid.update_with(pose, camera)
+            self._took(self, pose, camera)
+            added += 1
+            unjudged += not judged
+        self.used += added
+        if unjudged and self.use_estimator:
+            self.faults["frames_without_estimator_status"] += unjudged
+        return added
