@@ -112,7 +112,7 @@ def test_refly_finds_the_gaps_and_lifts_them_to_the_target():
     assert 0 < gaps.n_cells < sc.mask.sum()
     assert sum(r.area for r in gaps.regions) == pytest.approx(gaps.n_cells * 1.0)
     assert np.all(first.grid.pd[gaps.mask] < 0.8) and np.all(first.grid.pd[~gaps.mask] >= 0.8)
-    r = plan_refly(sc, first.grid.log_miss_d, 0.8, 10.0, 3.0, 8.0, start_enu_m=(20.0, 20.0))
+    r = plan_refly(sc, first.grid, 0.8, 10.0, 3.0, 8.0, start_enu_m=(20.0, 20.0))
     assert r.gaps_before.n_cells == gaps.n_cells
     assert r.gaps_after.n_cells <= 0.01 * gaps.n_cells
     # P_D only grows with a second flight; the follow-up stays in the free space, and beats

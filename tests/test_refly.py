@@ -5,16 +5,18 @@ legs or transits across the other tracks."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
+from pdcov.core.looks import LooksConfig, LooksRule
 from pdcov.core.pose import FixedMount
 from pdcov.planning.optimise import Scenario, predict
 from pdcov.planning.patterns import lawnmower
-from pdcov.planning.refly import Track, plan_refly, sweep_order
+from pdcov.planning.refly import Track, independent_grid, plan_refly, sweep_order
 
 TARGET = 0.8
 ALT_M, SPEED_MPS = 10.0, 5.0
@@ -39,7 +41,7 @@ def test_whole_area_pass_wins_over_scattered_gaps():
     spacing = 0.8 * sc.swath_width_m(ALT_M)
     rng = np.random.default_rng(1)
     L = log_miss(sc, rng.random(sc.geometry.shape) < 0.5)  # half the cells, scattered
-    r = plan_refly(sc, L, TARGET, ALT_M, SPEED_MPS, spacing)
+    r = plan_refly(sc, independent_grid(sc, L), TARGET, ALT_M, SPEED_MPS, spacing)
     whole = predict(sc, lawnmower(sc.free_space, spacing, 0.0, ALT_M, SPEED_MPS))
     assert r.gaps_after.n_cells == 0
     # Never longer than re-flying the whole area at the same spacing, which reaches the
@@ -62,7 +64,8 @@ def test_one_strip_of_gaps_is_reflown_alone_as_straight_tracks():
     xs, ys = sc.geometry.centres_enu()
     X, _ = np.meshgrid(xs, ys)
     L = log_miss(sc, (X > 40) & (X < 44))  # one 4 m strip, north-south
-    r = plan_refly(sc, L, TARGET, ALT_M, SPEED_MPS, spacing, start_enu_m=(0.0, 0.0))
+    r = plan_refly(sc, independent_grid(sc, L), TARGET, ALT_M, SPEED_MPS, spacing,
+                   start_enu_m=(0.0, 0.0))
     whole = [o for o in r.compared if "whole-area pass" in o.description]
     assert r.gaps_after.n_cells == 0
     assert r.plan.path_length_m < 0.4 * min(o.path_length_m for o in whole)
@@ -87,3 +90,30 @@ def test_chosen_tracks_are_flown_part_by_part_as_a_boustrophedon():
     order = sweep_order(picked, np.array([0.0, 0.0]))
     assert [s[0].tolist() for s in order] == [[10, 0], [20, 30], [30, 0], [60, 50], [70, 80]]
     assert [s[1].tolist() for s in order] == [[10, 30], [20, 0], [30, 30], [60, 80], [70, 50]]
+
+
+def test_under_correlated_looks_the_gaps_after_are_the_merged_grids():
+    """A first pass at the spacing, then its re-fly, with a detector whose looks at one
+    person are correlated (rho 0.5 in every bin): P_D after both flights is the flown grid
+    merged with the prediction (their look counts add, CoverageGrid.merge), which is below
+    the independent combination of the two grids' P_D wherever both saw the cell; the gaps
+    counted after are those of that merged grid."""
+    base = square_scenario(40.0, frame_rate_hz=1.0)
+    doc = base.detector.to_dict()
+    doc["version"] = 2
+    doc["looks"] = {"correlation": [0.5] * base.detector.n_bins}
+    sc = replace(base, detector=DetectorModel.from_dict(doc),
+                 looks=LooksConfig(LooksRule.CORRELATED))
+    spacing = 0.8 * sc.swath_width_m(ALT_M)
+    first = predict(sc, lawnmower(sc.free_space, 2 * spacing, 0.0, ALT_M, SPEED_MPS))
+    r = plan_refly(sc, first.grid, TARGET, ALT_M, SPEED_MPS, spacing)
+    merged = sc.new_grid()
+    merged.merge(first.grid)
+    merged.merge(r.prediction.grid)
+    np.testing.assert_allclose(r.pd_after, merged.pd, atol=2e-6)
+    independent = -np.expm1(first.grid.log_miss_d.astype(np.float64)
+                            + r.prediction.grid.log_miss_d)
+    both = (first.grid.n_obs > 0) & (r.prediction.grid.n_obs > 0) & (independent < 0.999)
+    assert both.sum() > 100
+    assert (r.pd_after[both] < independent[both] - 1e-3).mean() > 0.9
+    assert r.gaps_after.n_cells == int((sc.mask & (merged.pd < TARGET)).sum())

@@ -26,7 +26,7 @@ from pdcov.bus.retask import (
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.ground.retask import ReflyInputs, propose_refly
 from pdcov.ground.web_auth import post_allowed
-from pdcov.planning.refly import ReflySettings, refly_of_grid
+from pdcov.planning.refly import ReflySettings, independent_grid, refly_of_grid
 from pdcov.planning.scenario import scenario_of
 from pdcov.service.core import Actions, LinkReport, ServiceCore
 from pdcov.service.retask import RetaskRefusal
@@ -288,7 +288,7 @@ def test_proposal_is_pdcov_reflys_plan_from_where_the_vehicle_is(tmp_path) -> No
     settings = ReflySettings(0.8, alt_agl_m=10.0, speed_mps=3.0)
     inputs = ReflyInputs("fuzz", L, mission.origin(), (5.0, 5.0))
     p = propose_refly(inputs, sc, settings)
-    cli = refly_of_grid(sc, L, settings, (5.0, 5.0))
+    cli = refly_of_grid(sc, independent_grid(sc, L), settings, (5.0, 5.0))
     assert p.description == cli.plan.description
     assert len(p.waypoints_lat_lon) == len(cli.plan.waypoints)
     assert p.gap_cells_before == cli.gaps_before.n_cells > 0

@@ -606,7 +606,7 @@ def run_refly(args: argparse.Namespace) -> int:
                           f"{sc.geometry} (same domain and cell_size_m?)")
     settings = ReflySettings(args.target_pd, args.altitude_m, args.speed_mps, args.spacing_m,
                              _overlap(args), tuple(args.headings_deg))
-    r = refly_of_grid(sc, flown.log_miss_d, settings, tuple(args.start_enu_m), progress=True)
+    r = refly_of_grid(sc, flown, settings, tuple(args.start_enu_m), progress=True)
     spacing = settings.spacing_for(sc)
     flown.merge(r.prediction.grid)
     out: Path = args.out

@@ -919,6 +919,41 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
         if grid.geometry != g or (window is None and not np.array_equal(grid.mask,
                                                                          into.mask)):
             raise ValueError("cannot combine grids of different geometry or free-space mask")
+    into._log_miss_d[cells] = _combined_log_miss(grids, (r0, r1, c0, c1))
+    into.log_miss_fa[cells] = 0.0
+    into.n_obs[cells] = 0
+    # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
+    # outside its window (``_mark_too_far``).
+    np.maximum.reduce([grid.limiting for grid in grids], out=into.limiting)
+    for grid in grids:
+        into.log_miss_fa[cells] += grid.log_miss_fa[cells]
+        into.n_obs[cells] += grid.n_obs[cells]
+        if into.last_obs_s is not None and grid.last_obs_s is not None:
+            np.maximum(into.last_obs_s[cells], grid.last_obs_s[cells],
+                       out=into.last_obs_s[cells])
+            into.latest_frame_t_s = max(into.latest_frame_t_s, grid.latest_frame_t_s)
+    into.frames = sum(grid.frames for grid in grids)
+    into.frames_blurred = sum(grid.frames_blurred for grid in grids)
+
+
+def combined_pd(grids: Sequence[CoverageGrid]) -> np.ndarray:
+    """P_D per cell (float64) of one person seen in all of ``grids`` (the same cells),
+    by ``combine_cameras``'s rule, none of them changed: the grids of one looks rule and
+    detector model as one sensor (two flights of a mission: their counts add, as ``merge``
+    adds them), the others independent."""
+    g = grids[0].geometry
+    if any(grid.geometry != g or not np.array_equal(grid.mask, grids[0].mask)
+           for grid in grids):
+        raise ValueError("cannot combine grids of different geometry or free-space mask")
+    L = _combined_log_miss(grids, (0, g.n_rows, 0, g.n_cols))
+    return 0.0 - np.expm1(L.astype(np.float64))
+
+
+def _combined_log_miss(grids: Sequence[CoverageGrid], window: tuple[int, int, int, int]
+                       ) -> np.ndarray:
+    """log(1 - P_D) (float32) over ``window`` of ``grids`` together (``combine_cameras``)."""
+    r0, r1, c0, c1 = window
+    cells = np.s_[r0:r1, c0:c1]
     log_miss_d = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
     for group in _detector_groups(grids):
         looks = [grid.looks_state for grid in group]
@@ -934,21 +969,7 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
                                        if isinstance(s, ViewpointLooks)])
         flat = np.asarray(state).reshape(-1, np.shape(state)[-1])
         log_miss_d += first.log_miss_of(flat).reshape(r1 - r0, c1 - c0).astype(np.float32)
-    into._log_miss_d[cells] = log_miss_d
-    into.log_miss_fa[cells] = 0.0
-    into.n_obs[cells] = 0
-    # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
-    # outside its window (``_mark_too_far``).
-    np.maximum.reduce([grid.limiting for grid in grids], out=into.limiting)
-    for grid in grids:
-        into.log_miss_fa[cells] += grid.log_miss_fa[cells]
-        into.n_obs[cells] += grid.n_obs[cells]
-        if into.last_obs_s is not None and grid.last_obs_s is not None:
-            np.maximum(into.last_obs_s[cells], grid.last_obs_s[cells],
-                       out=into.last_obs_s[cells])
-            into.latest_frame_t_s = max(into.latest_frame_t_s, grid.latest_frame_t_s)
-    into.frames = sum(grid.frames for grid in grids)
-    into.frames_blurred = sum(grid.frames_blurred for grid in grids)
+    return log_miss_d
 
 
 def _detector_groups(grids: Sequence[CoverageGrid]) -> list[list[CoverageGrid]]:

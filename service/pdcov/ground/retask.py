@@ -25,7 +25,7 @@ from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.optimise import Scenario
 from pdcov.planning.plan import mission_items
-from pdcov.planning.refly import Refly, ReflySettings, refly_of_grid
+from pdcov.planning.refly import Refly, ReflySettings, independent_grid, refly_of_grid
 
 __all__ = ["ReflyError", "ReflyInputs", "ReflyProposal", "propose_refly", "refly_inputs",
            "reply_line"]
@@ -141,7 +141,8 @@ def propose_refly(inputs: ReflyInputs, scenario: Scenario, settings: ReflySettin
     """The re-fly of the merged grid's gaps (``refly_of_grid``, as ``pdcov refly``) from
     where the vehicle is; ConfigError from the planner (no gaps, a plan too large). Pure:
     it may run off the event loop."""
-    r: Refly = refly_of_grid(scenario, inputs.log_miss_d, settings, inputs.start_enu_m)
+    r: Refly = refly_of_grid(scenario, independent_grid(scenario, inputs.log_miss_d), settings,
+                             inputs.start_enu_m)
     origin = inputs.origin
     items = mission_items(r.plan, origin)
     description = r.plan.description

@@ -15,7 +15,11 @@ Several follow-ups are built and predicted, and the shortest flight that reaches
 * a lawnmower over the whole free space, at the spacing and at half of it (re-flying
   everything can be shorter than chasing scattered gaps).
 
-Every plan is predicted whole (its transits and turns see cells too).
+Every plan is predicted whole (its transits and turns see cells too), and P_D after both
+flights is the flown grid and the prediction combined by the grid's rule
+(``grid.combined_pd``: under correlated or viewpoint looks their looks states add, as
+``CoverageGrid.merge`` adds them; the greedy's per-track gains are independent-looks sums,
+which choose, never judge, an option).
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 
+from pdcov.core.grid import CoverageGrid, combined_pd
+from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of
 from pdcov.planning.optimise import Prediction, Scenario, predict
@@ -201,20 +207,20 @@ def greedy_tracks(tracks: list[Track], gain: list[np.ndarray], cost_s: list[floa
     return chosen
 
 
-def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
+def plan_refly(scenario: Scenario, flown: CoverageGrid, target_pd: float,
                alt_agl_m: float, speed_mps: float, spacing_m: float,
                headings_rad: tuple[float, ...] = (0.0, math.pi / 2),
                start_enu_m: tuple[float, float] = (0.0, 0.0), progress: bool = False
                ) -> Refly:
-    """A follow-up plan lifting the gap cells of a grid (log-miss sums ``log_miss_now``,
-    float (n_rows, n_cols)) to ``target_pd``; starts from ``start_enu_m`` (home).
+    """A follow-up plan lifting the gap cells of the ``flown`` grid (the scenario's cells)
+    to ``target_pd``; starts from ``start_enu_m`` (home).
 
     Options built and predicted, per heading: the greedy tracks over the gaps, a lawnmower
     over the gaps, and a lawnmower over the whole free space at the spacing and at half
     of it. The shortest flight that lifts every gap cell to the target is kept, else the
     one leaving the fewest gap cells (then the shortest); ``compared`` lists them all."""
-    L_now = np.asarray(log_miss_now, dtype=np.float64)
-    gaps = find_gaps(-np.expm1(L_now), scenario, target_pd)
+    L_now = flown.log_miss_d.astype(np.float64)
+    gaps = find_gaps(flown.pd, scenario, target_pd)
     if gaps.n_cells == 0:
         raise ConfigError(f"no gaps: every free cell already has P_D >= {target_pd}")
     start = np.asarray(start_enu_m, dtype=float)
@@ -257,7 +263,7 @@ def plan_refly(scenario: Scenario, log_miss_now: np.ndarray, target_pd: float,
     results = []
     for plan in options:
         pred = predict(scenario, plan, progress=progress)
-        pd_after = -np.expm1(L_now + pred.grid.log_miss_d.astype(np.float64))
+        pd_after = combined_pd([flown, pred.grid])
         results.append(Refly(plan, pred, pd_after, gaps,
                              find_gaps(pd_after, scenario, target_pd)))
     compared = tuple(Option(r.plan.description, r.prediction.flight.duration_s,
@@ -298,7 +304,16 @@ class ReflySettings:
         return track_spacing_m(scenario.swath_width_m(self.alt_agl_m), self.overlap)
 
 
-def refly_of_grid(scenario: Scenario, log_miss_now: np.ndarray, settings: ReflySettings,
+def independent_grid(scenario: Scenario, log_miss_d: np.ndarray) -> CoverageGrid:
+    """An independent-looks grid of the scenario's cells holding the log-miss sums
+    ``log_miss_d`` (float (n_rows, n_cols), <= 0): what the ground station's fleet merge
+    gives (it adds the vehicles' derived log-misses)."""
+    grid = replace(scenario, looks=LooksConfig()).new_grid()
+    grid.log_miss_d[...] = log_miss_d
+    return grid
+
+
+def refly_of_grid(scenario: Scenario, flown: CoverageGrid, settings: ReflySettings,
                   start_enu_m: tuple[float, float] = (0.0, 0.0), progress: bool = False
                   ) -> Refly:
     """The re-fly of a grid's gaps as ``pdcov refly`` and the ground station (``pdcov watch
@@ -307,7 +322,7 @@ def refly_of_grid(scenario: Scenario, log_miss_now: np.ndarray, settings: ReflyS
     where the vehicle is now)."""
     spacing = settings.spacing_for(scenario)
     check_plan_size(scenario, spacing, settings.speed_mps)
-    return plan_refly(scenario, log_miss_now, settings.target_pd, settings.alt_agl_m,
+    return plan_refly(scenario, flown, settings.target_pd, settings.alt_agl_m,
                       settings.speed_mps, spacing,
                       tuple(math.radians(h) for h in settings.headings_deg), start_enu_m,
                       progress=progress)
