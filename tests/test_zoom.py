@@ -311,12 +311,15 @@ def test_a_plan_zooms_its_camera_and_predicts_with_the_zoomed_k(tmp_path):
     assert narrow / wide == pytest.approx(ratio, rel=0.02)
     params = PlanParams("lawnmower", 60.0, 5.0, zoom_hfov_deg=28.0)
     plan, spacing = build_plan(sc, params)
-    assert plan.camera_zoom_hfov_deg == 28.0 and spacing < 0.5 * build_plan(
+    assert plan.zooms_hfov_deg() == [28.0] * len(plan.waypoints)
+    assert [w.zoom_hfov_deg for w in plan.waypoints[1:]] == [None] * (len(plan.waypoints) - 1)
+    assert spacing < 0.5 * build_plan(
         sc, PlanParams("lawnmower", 60.0, 5.0))[1]
     items = mission_items(plan, m.origin())
     zoom = [it for it in items if it.command == MAV_CMD_SET_CAMERA_ZOOM]
     assert [(z.param1, z.param2) for z in zoom] == [(4.0, 28.0)]
-    assert plan_from_mission_items(items, m.origin()).camera_zoom_hfov_deg == 28.0
+    assert items[1] == zoom[0]  # after the take-off
+    assert plan_from_mission_items(items, m.origin()).zooms_hfov_deg() == plan.zooms_hfov_deg()
     # The prediction evaluates every frame with the zoomed camera: fewer looks per cell
     # (a narrower footprint over the same tracks), each more likely to detect (a 2 m cell at
     # 60 m: 8 px wide, 21 px zoomed; the illustrative detector's P_D ~0.28 and ~0.43).

@@ -106,7 +106,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                                   "largest keeping the triangles inside)")
     p.add_argument("--zoom-hfov-deg", type=positive, metavar="DEG",
                    help="zoom the camera to this horizontal field of view for the whole plan "
-                        "(a MAV_CMD_SET_CAMERA_ZOOM item; needs camera.zoom fov_status)")
+                        "(a MAV_CMD_SET_CAMERA_ZOOM item before the first waypoint; needs "
+                        "camera.zoom fov_status; vantage: --zooms-hfov-deg)")
     p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     _terrain_args(p)
@@ -218,6 +219,10 @@ def _vantage_args(p: argparse.ArgumentParser) -> None:
                    help="earth-frame gimbal yaws per non-nadir pitch, 360/N deg apart from "
                         "north (YAW_LOCK; 0: the yaw follows the vehicle; default 8 with an "
                         "oblique --gimbal-pitches-deg, else 0)")
+    g.add_argument("--zooms-hfov-deg", nargs="+", type=positive, metavar="DEG",
+                   help="candidate camera zooms as horizontal fields of view, deg (needs "
+                        "camera.zoom fov_status; include the configured camera's to keep "
+                        "unzoomed candidates; default: not zoomed, no zoom item)")
     g.add_argument("--hover-item", choices=list(HoverItem), type=HoverItem,
                    help="write hovers as waypoint (NAV_WAYPOINT hold time, default) or "
                         "loiter-time (NAV_LOITER_TIME) items")
@@ -226,7 +231,7 @@ def _vantage_args(p: argparse.ArgumentParser) -> None:
 _VANTAGE_FLAGS = ("target_pd", "target_share", "altitudes_m", "hover_s", "lattice_m",
                   "clearance_m", "objective", "ilp_time_limit_s", "vehicles",
                   "max_flight_time_s", "routing_time_s", "gimbal_command",
-                  "gimbal_pitches_deg", "gimbal_yaws", "hover_item")
+                  "gimbal_pitches_deg", "gimbal_yaws", "hover_item", "zooms_hfov_deg")
 DEFAULT_GIMBAL_YAWS = 8
 """Earth-frame yaws per oblique pitch when --gimbal-pitches-deg names one."""
 
@@ -355,7 +360,8 @@ def vantage_settings(args: argparse.Namespace, target_pd: float, target_share: f
         args.lattice_m, args.clearance_m, speed_mps,
         args.objective or CoverObjective.POINTS,
         20.0 if args.ilp_time_limit_s is None else args.ilp_time_limit_s,
-        None if pitches is None else tuple(pitches), yaws)
+        None if pitches is None else tuple(pitches), yaws,
+        None if args.zooms_hfov_deg is None else tuple(args.zooms_hfov_deg))
 
 
 def run_plan_vantage(args: argparse.Namespace) -> int:
@@ -365,6 +371,9 @@ def run_plan_vantage(args: argparse.Namespace) -> int:
     ROUTING.require("pdcov plan --pattern vantage needs")
     if args.altitudes_m and args.altitude_m is not None:
         raise ConfigError("give --altitude-m or --altitudes-m, not both")
+    if args.zoom_hfov_deg is not None:
+        raise ConfigError("--zoom-hfov-deg does not apply to the vantage pattern: give its "
+                          "candidate zooms with --zooms-hfov-deg")
     alts = args.altitudes_m or [args.altitude_m or 10.0]
     mission = load_mission_warned(args.config, "plan")
     sc = scenario_of(mission, planning_overrides(args))
@@ -390,13 +399,16 @@ def _cover_doc(cover: Cover | None) -> dict[str, Any] | None:
             "mip_gap": None if math.isnan(cover.mip_gap) else round(cover.mip_gap, 6)}
 
 
-def _pointing_doc(aim: GimbalPointing | None) -> dict[str, Any]:
+def _pointing_doc(aim: GimbalPointing | None, zoom_hfov_deg: float | None) -> dict[str, Any]:
     """A vantage point's gimbal pointing in vantage.json: pitch and earth-frame yaw (deg;
-    yaw null: it follows the vehicle); nothing for a fixed mount."""
+    yaw null: it follows the vehicle), nothing for a fixed mount; its zoom (deg), nothing
+    unzoomed."""
+    doc: dict[str, Any] = {} if zoom_hfov_deg is None else {"zoom_hfov_deg": zoom_hfov_deg}
     if aim is None:
-        return {}
+        return doc
     return {"gimbal_pitch_deg": round(math.degrees(aim.pitch_rad), 3),
-            "gimbal_yaw_deg": round(math.degrees(aim.yaw_rad), 3) if aim.earth_yaw else None}
+            "gimbal_yaw_deg": round(math.degrees(aim.yaw_rad), 3) if aim.earth_yaw else None,
+            **doc}
 
 
 def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
@@ -420,7 +432,7 @@ def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
            "elapsed_s": round(elapsed_s, 2),
            "points": [{"x_enu_m": round(p.x_enu_m, 3), "y_enu_m": round(p.y_enu_m, 3),
                        "alt_agl_m": p.alt_agl_m, "hover_s": p.hover_s, "looks": p.looks,
-                       **_pointing_doc(p.pointing)}
+                       **_pointing_doc(p.pointing, p.zoom_hfov_deg)}
                       for p in c.points],
            "missions": [{"file": f"{name}.plan", "vehicle": vm.route.vehicle,
                          "sortie": vm.route.sortie, "stops": list(vm.route.stops),

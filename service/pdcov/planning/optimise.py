@@ -120,7 +120,8 @@ class PlanParams:
     swath and ``overlap``), speed (m/s), heading (rad; first leg or track direction), centre
     of a spiral or datum of the IAMSAR patterns (ENU m; None: automatic), sector radius (m;
     None: reach the whole free space), the camera's zoom for the whole plan as a horizontal
-    field of view (deg; None: no zoom command, the configured camera)."""
+    field of view (deg; commanded at the first waypoint; None: no zoom command, the
+    configured camera)."""
 
     pattern: PatternName
     alt_agl_m: float
@@ -207,26 +208,51 @@ def build_plan(scenario: Scenario, params: PlanParams) -> tuple[Plan, float]:
         plan = patterns.sector_search(free, alt, v, datum_enu_m=c, heading_rad=h,
                                       radius_m=params.radius_m,
                                       second=params.pattern == "sector-2")
-    if params.zoom_hfov_deg is not None:
+    if params.zoom_hfov_deg is not None:  # commanded on leaving home, held throughout
         scenario.camera_at(params.zoom_hfov_deg)  # refused before anything is flown
-        plan = replace(plan, camera_zoom_hfov_deg=params.zoom_hfov_deg)
+        first = replace(plan.waypoints[0], zoom_hfov_deg=params.zoom_hfov_deg)
+        plan = replace(plan, waypoints=(first, *plan.waypoints[1:]))
     return plan, spacing
 
 
 def predict(scenario: Scenario, plan: Plan, params: PlanParams | None = None,
             progress: bool = False) -> Prediction:
     """Fly ``plan``, over the scenario's terrain (``Scenario.over_terrain``), at the frame
-    rate and accumulate every frame (``flight_poses``) in a fresh grid, with the camera
-    zoomed as the plan commands (``Plan.camera_zoom_hfov_deg``)."""
-    camera = scenario.camera_at(plan.camera_zoom_hfov_deg)
+    rate and accumulate every frame (``flight_poses``) in a fresh grid, each with the camera
+    zoomed as the plan commands at its waypoint (``flight_cameras``)."""
     plan = scenario.over_terrain(plan)
     flight = fly(plan, scenario.frame_rate_hz, scenario.kinematics)
+    cameras = flight_cameras(scenario, plan, flight)
     grid = scenario.new_grid()
     poses = flight_poses(scenario, plan, flight)
-    for pose in show_progress(poses, desc="frames", unit="frame", enabled=progress):
+    for pose, camera in show_progress(zip(poses, cameras, strict=True), desc="frames",
+                                      unit="frame", total=len(poses), enabled=progress):
         grid.update_with(pose, camera)
     return Prediction(params or PlanParams("lawnmower", plan.waypoints[0].alt_agl_m,
                                            plan.waypoints[0].speed_mps), plan, flight, grid)
+
+
+def flight_cameras(scenario: Scenario, plan: Plan, flight: Flight) -> list[CameraModel]:
+    """Per sample of ``flight`` (flown from ``plan``), the camera zoomed as the plan's
+    mission commands there (``Plan.zooms_hfov_deg`` at the sample's waypoint; the zoom
+    taken as instant on leaving the previous waypoint), one camera per zoom
+    (``Scenario.camera_at``). ConfigError (one line) for a zoom outside the lens's
+    calibrated range, naming the waypoint, and for a plan with a zoom item it cannot
+    predict (``Plan.zoom_not_predicted``)."""
+    if plan.zoom_not_predicted:
+        raise ConfigError(f"{plan.zoom_not_predicted}: not predicted")
+    if flight.waypoint_index is None:
+        raise ValueError("the flight has no waypoint index (not flown by fly)")
+    per_wp = plan.zooms_hfov_deg()
+    by_zoom: dict[float | None, CameraModel] = {}
+    for k, z in enumerate(per_wp):
+        if z not in by_zoom:
+            try:
+                by_zoom[z] = scenario.camera_at(z)
+            except ConfigError as exc:
+                raise ConfigError(f"{plan.description or 'plan'}: waypoint {k}: {exc}"
+                                  ) from None
+    return [by_zoom[per_wp[int(k)]] for k in flight.waypoint_index]
 
 
 def flight_poses(scenario: Scenario, plan: Plan, flight: Flight) -> list[CameraPose]:

@@ -7,6 +7,9 @@ the uploader carry those items. Items (MAVLink common.xml):
 * MAV_CMD_NAV_TAKEOFF (22) to the first waypoint's altitude, at the origin;
 * MAV_CMD_DO_CHANGE_SPEED (178) before the first waypoint and wherever the speed changes
   (param1 = 1: ground speed, param2 = m/s, param3 = -1: throttle unchanged);
+* the camera's zoom before the first waypoint and wherever it changes (as the pointing:
+  commanded on leaving the previous waypoint): MAV_CMD_SET_CAMERA_ZOOM (531), param1 4 =
+  ZOOM_TYPE_HORIZONTAL_FOV, param2 the horizontal field of view in deg;
 * a gimbal plan's pointing before the first waypoint and wherever it changes (the pointing
   a waypoint carries is commanded on leaving the previous one):
   MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (1000; param5 GIMBAL_MANAGER_FLAGS_YAW_LOCK for an
@@ -26,9 +29,13 @@ the terrain (the autopilot follows its own terrain data between waypoints). The 
 climbs to the first waypoint's height above home, at least its altitude above ground.
 
 Reading accepts frames 0 (MSL, converted with the origin's ground altitude), 3 and 10
-(terrain), waypoints and loiter-time hovers, takes the gimbal items as the pointing of the
-waypoint after them, ignores take-off, landing, return and other DO commands than the speed
-change, and refuses other navigation commands, naming the file and item.
+(terrain), waypoints and loiter-time hovers, takes the gimbal items as the pointing and the
+ZOOM_TYPE_HORIZONTAL_FOV zoom items as the zoom of the waypoint after them, ignores take-off,
+landing, return and other DO commands than the speed change, and refuses other navigation
+commands and a field of view outside 0-180 deg, naming the file and item. A zoom item of
+another zoom type (step, continuous, range, focal length) is kept as
+``Plan.zoom_not_predicted``: the prediction refuses such a plan (it cannot know the field
+of view), the simulator carries it out.
 """
 
 from __future__ import annotations
@@ -122,7 +129,9 @@ class Waypoint:
     ground z = 0). terrain_added: a point added along a leg to follow the terrain, not a
     turn of the pattern (a MAV_FRAME_GLOBAL_TERRAIN_ALT mission leaves it out). gimbal:
     the pointing commanded on leaving the previous waypoint, held on the way here and
-    while here (None: the one in force)."""
+    while here (None: the one in force). zoom_hfov_deg: the camera's zoom commanded there
+    too, as a horizontal field of view (deg; None: the one in force, at first the
+    configured camera)."""
 
     x_enu_m: float
     y_enu_m: float
@@ -132,6 +141,7 @@ class Waypoint:
     z_enu_m: float = math.nan
     terrain_added: bool = False
     gimbal: GimbalPointing | None = None
+    zoom_hfov_deg: float | None = None
 
     def __post_init__(self) -> None:
         if math.isnan(self.z_enu_m):
@@ -145,6 +155,8 @@ class Waypoint:
             raise ValueError(f"speed_mps must be > 0, got {self.speed_mps}")
         if not (self.hover_s >= 0 and math.isfinite(self.hover_s)):
             raise ValueError(f"hover_s must be >= 0 s, got {self.hover_s}")
+        if self.zoom_hfov_deg is not None and not 0 < self.zoom_hfov_deg < 180:
+            raise ValueError(f"zoom_hfov_deg must be in (0, 180) deg, got {self.zoom_hfov_deg}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,15 +164,16 @@ class Plan:
     """An ordered list of waypoints, a one-line description of how it was made, and the
     frame its altitudes are written in (RELATIVE: the flat ground, or a constant altitude
     above home). gimbal_command: the item the waypoints' gimbal pointings are written as.
-    camera_zoom_hfov_deg: the camera's zoom commanded for the whole plan, as a horizontal
-    field of view (deg; None: none commanded). hover_item: how hovers are written."""
+    hover_item: how hovers are written. zoom_not_predicted: a plan read from a mission
+    with a zoom item of another type than the field of view, that item ('' none: module
+    doc)."""
 
     waypoints: tuple[Waypoint, ...]
     description: str = ""
     altitude_frame: AltitudeFrame = AltitudeFrame.RELATIVE
     gimbal_command: GimbalCommand = GimbalCommand.MANAGER
-    camera_zoom_hfov_deg: float | None = None
     hover_item: HoverItem = HoverItem.WAYPOINT
+    zoom_not_predicted: str = ""
 
     def __post_init__(self) -> None:
         if len(self.waypoints) < 1:
@@ -189,6 +202,16 @@ class Plan:
         now = None
         for w in self.waypoints:
             now = w.gimbal or now
+            out.append(now)
+        return out
+
+    def zooms_hfov_deg(self) -> list[float | None]:
+        """Per waypoint, the camera zoom (horizontal field of view, deg) in force on the way
+        to it and at it (None: before any is commanded, the configured camera)."""
+        out: list[float | None] = []
+        now = None
+        for w in self.waypoints:
+            now = now if w.zoom_hfov_deg is None else w.zoom_hfov_deg
             out.append(now)
         return out
 
@@ -225,10 +248,9 @@ def takeoff_alt_m(plan: Plan) -> float:
 
 
 def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
-    """Take-off, the camera zoom (MAV_CMD_SET_CAMERA_ZOOM, ZOOM_TYPE_HORIZONTAL_FOV, when
-    the plan commands one), gimbal pointings and speed changes where they change,
-    waypoints (or loiter-time hovers) and return to launch (no home item); waypoint
-    altitudes in the plan's frame (module doc)."""
+    """Take-off, the camera zoom (MAV_CMD_SET_CAMERA_ZOOM, ZOOM_TYPE_HORIZONTAL_FOV), gimbal
+    pointings and speed changes where they change, waypoints (or loiter-time hovers) and
+    return to launch (no home item); waypoint altitudes in the plan's frame (module doc)."""
     frame = plan.altitude_frame
     amsl = frame is AltitudeFrame.AMSL
     enu = plan.xyz_enu_m
@@ -238,15 +260,16 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     items = [MissionItem(MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          param4=math.nan, lat_deg=origin.lat_deg, lon_deg=origin.lon_deg,
                          z_m=takeoff_alt_m(plan))]
-    if plan.camera_zoom_hfov_deg is not None:
-        items.append(MissionItem(MAV_CMD_SET_CAMERA_ZOOM, MAV_FRAME_MISSION,
-                                 param1=float(ZOOM_TYPE_HORIZONTAL_FOV),
-                                 param2=float(plan.camera_zoom_hfov_deg)))
     speed = math.nan
     pointing: GimbalPointing | None = None
+    zoom: float | None = None
     loiter = plan.hover_item is HoverItem.LOITER_TIME
-    for w, (lat, lon, alt_msl), written, now in zip(plan.waypoints, geo, plan.written(),
-                                                    plan.pointings(), strict=True):
+    for w, (lat, lon, alt_msl), written, now, zoom_now in zip(
+            plan.waypoints, geo, plan.written(), plan.pointings(), plan.zooms_hfov_deg(),
+            strict=True):
+        if zoom_now != zoom and zoom_now is not None:  # a skipped waypoint's passes on
+            zoom = zoom_now
+            items.append(zoom_item(zoom_now))
         if now != pointing and now is not None:  # a skipped waypoint's passes to the next
             pointing = now
             items.append(now.item(plan.gimbal_command))
@@ -265,6 +288,12 @@ def mission_items(plan: Plan, origin: Origin) -> tuple[MissionItem, ...]:
     return tuple(items)
 
 
+def zoom_item(hfov_deg: float) -> MissionItem:
+    """MAV_CMD_SET_CAMERA_ZOOM to a horizontal field of view (deg)."""
+    return MissionItem(MAV_CMD_SET_CAMERA_ZOOM, MAV_FRAME_MISSION,
+                       param1=float(ZOOM_TYPE_HORIZONTAL_FOV), param2=float(hfov_deg))
+
+
 def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
                             origin: Origin, source: str = "mission",
                             default_speed_mps: float | None = None) -> Plan:
@@ -273,9 +302,11 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
     speed = default_speed_mps
     rows: list[tuple[float, float, float, float, float]] = []
     gimbals: list[GimbalPointing | None] = []
+    zooms: list[float | None] = []
     pending: GimbalPointing | None = None
+    pending_zoom: float | None = None
     command, hover_item = GimbalCommand.MANAGER, HoverItem.WAYPOINT
-    zoom_hfov_deg: float | None = None
+    not_predicted = ""
     for k, it in enumerate(items):
         pointing = pointing_of_item(it)
         if pointing is not None:
@@ -283,20 +314,24 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
             command = (GimbalCommand.MANAGER if it.command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
                        else GimbalCommand.MOUNT)
             continue
-        if (it.command == MAV_CMD_SET_CAMERA_ZOOM and not rows
-                and it.param1 == ZOOM_TYPE_HORIZONTAL_FOV):
+        if it.command == MAV_CMD_SET_CAMERA_ZOOM:
+            if it.param1 != ZOOM_TYPE_HORIZONTAL_FOV:
+                not_predicted = not_predicted or (
+                    f"{source}: item {k}: MAV_CMD_SET_CAMERA_ZOOM of zoom type {it.param1:g} "
+                    f"(only {ZOOM_TYPE_HORIZONTAL_FOV}, ZOOM_TYPE_HORIZONTAL_FOV, gives the "
+                    "field of view a prediction needs)")
+                continue
             if not (math.isfinite(it.param2) and 0 < it.param2 < 180):
                 raise InputFileError(f"{source}: item {k}: MAV_CMD_SET_CAMERA_ZOOM to a "
                                      f"horizontal field of view of {it.param2!r} deg "
                                      "(expected 0-180)")
-            zoom_hfov_deg = float(it.param2)  # the whole plan's zoom, as mission_items writes
+            pending_zoom = float(it.param2)  # the next waypoint's, as mission_items writes
             continue
         if it.command == MAV_CMD_DO_CHANGE_SPEED:
             if it.param2 > 0:
                 speed = it.param2
             continue
-        if (it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND
-                or it.command == MAV_CMD_SET_CAMERA_ZOOM):  # the camera's, not the path's
+        if it.command in _SKIPPED_NAV or _FIRST_DO_COMMAND <= it.command <= _LAST_DO_COMMAND:
             continue
         if it.command not in NAV_POSITION_COMMANDS:
             raise InputFileError(f"{source}: item {k}: command {it.command} is not supported "
@@ -316,17 +351,18 @@ def plan_from_mission_items(items: tuple[MissionItem, ...] | list[MissionItem],
                                  f"(add MAV_CMD_DO_CHANGE_SPEED or give a default speed)")
         rows.append((it.lat_deg, it.lon_deg, alt_agl, speed, it.param1))
         gimbals.append(pending)
-        pending = None
+        zooms.append(pending_zoom)
+        pending, pending_zoom = None, None
     if not rows:
         raise InputFileError(f"{source}: no waypoints (MAV_CMD_NAV_WAYPOINT) found")
     a = np.array(rows, dtype=float)
     enu = geodetic_to_enu(a[:, 0], a[:, 1], np.full(len(a), origin.ground_alt_msl_m), origin)
     try:
         return Plan(tuple(Waypoint(float(e), float(n), float(r[2]), float(r[3]), float(r[4]),
-                                   gimbal=g)
-                          for (e, n, _), r, g in zip(enu, a, gimbals, strict=True)),
-                    f"read from {source}", gimbal_command=command,
-                    camera_zoom_hfov_deg=zoom_hfov_deg, hover_item=hover_item)
+                                   gimbal=g, zoom_hfov_deg=z)
+                          for (e, n, _), r, g, z in zip(enu, a, gimbals, zooms, strict=True)),
+                    f"read from {source}", gimbal_command=command, hover_item=hover_item,
+                    zoom_not_predicted=not_predicted)
     except ValueError as exc:
         raise InputFileError(f"{source}: {exc}") from None
 

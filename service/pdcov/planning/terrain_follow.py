@@ -105,7 +105,8 @@ def follow_terrain(plan: Plan, terrain: TerrainSurface, following: TerrainFollow
         else:
             out.append(Waypoint(float(xy[k, 0]), float(xy[k, 1]), float(alt[k]),
                                 wps[i].speed_mps, z_enu_m=float(z[k]), terrain_added=True,
-                                gimbal=wps[i].gimbal))  # in force from the leg's start
+                                gimbal=wps[i].gimbal,  # in force from the leg's start
+                                zoom_hfov_deg=wps[i].zoom_hfov_deg))
     return replace(plan, waypoints=tuple(out), altitude_frame=following.frame,
                    description=f"{plan.description}; follows terrain ({following.frame})")
 

@@ -195,7 +195,7 @@ def route_plan(route: Route, points: Sequence[VantagePoint], transits: Transits,
     """The waypoints of a route: the transit corners and the hover points (from home's first
     corner to the last corner before home; the take-off and the return to launch fly the
     straight ends, which lie in the flight space); the transit to a point and the point
-    carry its gimbal pointing (commanded on leaving the previous point)."""
+    carry its gimbal pointing and zoom (commanded on leaving the previous point)."""
     nodes = [0, *(s + 1 for s in route.stops), 0]
     wps: list[Waypoint] = []
     for a, b in zip(nodes[:-1], nodes[1:], strict=True):
@@ -206,5 +206,6 @@ def route_plan(route: Route, points: Sequence[VantagePoint], transits: Transits,
         for k, (x, y) in enumerate(corners):
             stop = not last and k == len(corners) - 1
             wps.append(Waypoint(float(x), float(y), p.alt_agl_m, speed_mps,
-                                p.hover_s if stop else 0.0, gimbal=p.pointing))
+                                p.hover_s if stop else 0.0, gimbal=p.pointing,
+                                zoom_hfov_deg=p.zoom_hfov_deg))
     return Plan(tuple(wps), description)

@@ -11,7 +11,8 @@ The model of a multicopter in an auto mission (a planning prediction, not a simu
 * a waypoint with a hover time is reached exactly, at rest and level, and held, turning
   towards the next leg meanwhile;
 * a gimbal holds the pointing its waypoint carries (``Plan.pointings``) from leaving the
-  previous waypoint, as the mission's gimbal items command it (the slew is not modelled);
+  previous waypoint, as the mission's gimbal items command it (the slew is not modelled),
+  and the camera its zoom likewise (``Plan.zooms_hfov_deg``, optimise.flight_cameras);
 * speed changes at most ``max_accel_mps2`` along the path, heading (the direction of travel,
   as with ArduPilot's WP_YAW_BEHAVIOR default) at most ``max_yaw_rate_rad_s``;
 * with ``tilt``, the body tilts so that its thrust axis carries the acceleration (no drag).

@@ -3,14 +3,18 @@ free cells to a target P_D, chosen by a covering integer program (planning/cover
 
 Candidates: points of a square lattice in the free space kept ``clearance_m`` from its
 boundary (planning/tours.py routes through the same space), at each given altitude above
-ground, hovering each given time, and on a gimbal at each given pitch, with an oblique pitch
-at each given earth-frame yaw (``candidate_pointings``). A candidate is scored with the
-prediction every plan uses: the scenario's CoverageGrid (camera, detector model, terrain,
-range limit) fed the camera pose of a level vehicle at rest there (``camera_poses``: the
-mount, or the gimbal at the candidate's pointing). A hover of ``hover_s`` gives ``looks``
-frames at the camera's rate (at least floor(hover_s * rate) of them fall in it; with the
-mission's ``min_revisit_s``, one in every ceil(min_revisit_s * rate)); under independent
-looks they add ``looks`` times the frame's log(1 - P_D) per cell.
+ground, hovering each given time, on a gimbal at each given pitch, with an oblique pitch
+at each given earth-frame yaw (``candidate_pointings``), and with the camera zoomed to each
+given field of view (``zooms_hfov_deg``; none given: the configured camera, no zoom
+command). A candidate is scored with the prediction every plan uses: the scenario's
+CoverageGrid (camera, detector model, terrain, range limit) fed the camera pose of a level
+vehicle at rest there (``camera_poses``: the mount, or the gimbal at the candidate's
+pointing), with the camera at the candidate's zoom (``Scenario.camera_at``: core/zoom.py's
+focal-length scaling; its own default range limit, which grows with the focal length).
+A hover of ``hover_s`` gives ``looks`` frames at the camera's rate (at least
+floor(hover_s * rate) of them fall in it; with the mission's ``min_revisit_s``, one in every
+ceil(min_revisit_s * rate)); under independent looks they add ``looks`` times the frame's
+log(1 - P_D) per cell.
 
 The heading at a hover is the direction the route arrives from, unknown while choosing the
 points. A gimbal holding an earth-frame yaw (GIMBAL_MANAGER_FLAGS_YAW_LOCK) sees the same
@@ -34,6 +38,7 @@ import shapely
 from scipy import sparse
 from shapely.geometry import MultiPolygon, Polygon
 
+from pdcov.core.camera import CameraModel
 from pdcov.core.grid import LimitingFactor
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError
@@ -79,7 +84,8 @@ class VantageSettings:
     gimbal_pitches_deg: candidate gimbal pitches (deg, -90: nadir; None: the scenario's
     planning.gimbal_pitch_deg, or the fixed mount's own); gimbal_yaws: earth-frame yaws
     per non-nadir pitch, 360 / gimbal_yaws deg apart from north (0: the yaw follows the
-    vehicle, credited as the least over headings)."""
+    vehicle, credited as the least over headings); zooms_hfov_deg: candidate camera zooms
+    as horizontal fields of view (deg; None: the configured camera, no zoom command)."""
 
     target_pd: float
     alts_agl_m: tuple[float, ...]
@@ -92,8 +98,13 @@ class VantageSettings:
     exact_time_limit_s: float = 20.0
     gimbal_pitches_deg: tuple[float, ...] | None = None
     gimbal_yaws: int = 0
+    zooms_hfov_deg: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
+        if self.zooms_hfov_deg is not None and not (self.zooms_hfov_deg and all(
+                math.isfinite(z) and 0 < z < 180 for z in self.zooms_hfov_deg)):
+            raise ConfigError(f"--zooms-hfov-deg: expected fields of view in (0, 180) deg, "
+                              f"got {list(self.zooms_hfov_deg)}")
         if self.gimbal_pitches_deg is not None and not (self.gimbal_pitches_deg and all(
                 math.isfinite(p) and -90.0 <= p <= 90.0 for p in self.gimbal_pitches_deg)):
             raise ConfigError(f"--gimbal-pitches-deg: expected pitches in [-90, 90] deg, got "
@@ -114,7 +125,8 @@ class VantageSettings:
 @dataclass(frozen=True, slots=True)
 class VantagePoint:
     """A hover: ENU position (m), altitude above ground (m), hover time (s), frames it
-    counts (``looks``), and the gimbal's pointing there (None: a fixed mount)."""
+    counts (``looks``), the gimbal's pointing there (None: a fixed mount) and the camera's
+    zoom, a horizontal field of view (deg; None: the configured camera)."""
 
     x_enu_m: float
     y_enu_m: float
@@ -122,6 +134,7 @@ class VantagePoint:
     hover_s: float
     looks: int
     pointing: GimbalPointing | None = None
+    zoom_hfov_deg: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -238,12 +251,26 @@ def candidate_pointings(sc: Scenario, settings: VantageSettings
     return out
 
 
+def candidate_cameras(sc: Scenario, settings: VantageSettings
+                      ) -> dict[float | None, CameraModel]:
+    """The camera at each candidate zoom (``Scenario.camera_at``); {None: the configured
+    camera} without zooms. ConfigError (one line) for a zoom outside the lens's calibrated
+    range or without camera.zoom fov_status."""
+    zooms = settings.zooms_hfov_deg
+    if zooms is None:
+        return {None: sc.camera}
+    try:
+        return {z: sc.camera_at(z) for z in zooms}
+    except ConfigError as exc:
+        raise ConfigError(f"--zooms-hfov-deg: {exc}") from None
+
+
 def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float,
-                    aim: GimbalPointing | None
+                    aim: GimbalPointing | None, camera: CameraModel
                     ) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
     """The least log-miss (closest to 0) per cell over HOVER_HEADINGS of one frame at rest
-    at (x, y, z) with the gimbal at ``aim`` (an earth-frame yaw: its one frame): its window
-    (r0, r1, c0, c1) and values; None when it sees nothing."""
+    at (x, y, z) with the gimbal at ``aim`` (an earth-frame yaw: its one frame), taken with
+    ``camera``: its window (r0, r1, c0, c1) and values; None when it sees nothing."""
     n = 1 if aim is not None and aim.earth_yaw else HOVER_HEADINGS
     headings = 2 * math.pi * np.arange(n) / n
     R = np.array([[[math.cos(h), -math.sin(h), 0.0], [math.sin(h), math.cos(h), 0.0],
@@ -252,7 +279,7 @@ def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float,
                      np.zeros(len(headings)), 0.0, 0.0)
     views = []
     for pose in camera_poses(at_rest, sc.mount, sc.gimbal_pitch_rad, [aim] * n):
-        scratch_grid.update(pose)
+        scratch_grid.update_with(pose, camera)
         w = scratch_grid.touched
         if w is None:
             return None
@@ -277,6 +304,7 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
     rows the free cells in row-major order) and the best LimitingFactor any candidate frame
     gave each free cell."""
     aims = candidate_pointings(sc, settings)
+    cameras = candidate_cameras(sc, settings)
     space = flight_space(sc.free_space, clearance_of(sc, settings))
     spacing = settings.lattice_m or 0.5 * sc.swath_width_m(min(settings.alts_agl_m))
     if not (spacing > 0 and math.isfinite(spacing)):
@@ -297,9 +325,10 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
     points: list[VantagePoint] = []
     rows: list[np.ndarray] = []
     vals: list[np.ndarray] = []
-    for alt, (x, y), aim in itertools.product(settings.alts_agl_m, xy, aims):
+    for alt, (x, y), aim, (zoom, camera) in itertools.product(settings.alts_agl_m, xy, aims,
+                                                              cameras.items()):
         seen = _frame_log_miss(sc, scratch, float(x), float(y),
-                               hover_z_enu_m(sc, float(x), float(y), alt), aim)
+                               hover_z_enu_m(sc, float(x), float(y), alt), aim, camera)
         if seen is None:
             continue
         (r0, r1, c0, c1), least = seen
@@ -310,7 +339,7 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
         for hover, n in zip(settings.hover_s, looks, strict=True):
             if n == 0:
                 continue
-            points.append(VantagePoint(float(x), float(y), alt, hover, n, aim))
+            points.append(VantagePoint(float(x), float(y), alt, hover, n, aim, zoom))
             rows.append(idx[keep])
             vals.append(-n * least[keep])
     n_cells = int(sc.mask.sum())
