@@ -573,14 +573,15 @@ class CoverageGrid:
                 continue
             sub = (r0 + b0, r0 + b0 + len(band), c0 + int(cols[0]), c0 + int(cols[-1]) + 1)
             _, in_view, in_range = self._centres(pose, sub)
-            limiting = self.limiting[sub[0]:sub[1], sub[2]:sub[3]]
-            marked = in_view & ~in_range & (limiting < LimitingFactor.TOO_FAR)
-            mr, mc = np.nonzero(marked)
+            marked = in_view & ~in_range & band[:, cols[0]:cols[-1] + 1]
+            mr, mc = np.flatnonzero(marked.any(axis=1)), np.flatnonzero(marked.any(axis=0))
             if not len(mr):
                 continue
-            limiting[marked] = LimitingFactor.TOO_FAR
-            changed = _union(changed, (sub[0] + int(mr.min()), sub[0] + int(mr.max()) + 1,
-                                       sub[2] + int(mc.min()), sub[2] + int(mc.max()) + 1))
+            limiting = self.limiting[sub[0]:sub[1], sub[2]:sub[3]]
+            np.maximum(limiting, marked.view(np.uint8) * np.uint8(LimitingFactor.TOO_FAR),
+                       out=limiting)
+            changed = _union(changed, (sub[0] + int(mr[0]), sub[0] + int(mr[-1]) + 1,
+                                       sub[2] + int(mc[0]), sub[2] + int(mc[-1]) + 1))
         return changed
 
     def _centres(self, pose: CameraPose, window: tuple[int, int, int, int]
