@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import Plan, Waypoint, mission_items
+from pdcov.planning.plan import GimbalPointing, Plan, Waypoint, mission_items
 from pdcov.planning.trajectory import fly as planner_fly
 from pdcov_sitl.guidance import Guidance
 from pdcov_sitl.mission import flight_plan_from_items
@@ -114,3 +114,29 @@ def test_pattern_time_agrees_with_the_planner(speed_mps: float) -> None:
     predicted_s = planner_fly(plan, 5.0).duration_s
     print(f"{speed_mps} m/s: guidance {flown_s:.1f} s, planner {predicted_s:.1f} s")
     assert abs(flown_s - predicted_s) < 0.1 * predicted_s
+
+
+def test_a_second_hover_at_the_same_point_holds_its_own_pointing() -> None:
+    """Two hovers at one point with other gimbal pointings (a vantage point seen at two
+    yaws): the leg of no length keeps its own hold and pointing. Before, its hold was added
+    to the previous leg's, which kept the gimbal at the first yaw through both hovers."""
+    south, north_west = (GimbalPointing(-math.pi / 4, math.pi, True),
+                         GimbalPointing(-math.pi / 4, -math.pi / 4, True))
+    plan = Plan((Waypoint(0.0, 10.0, 10.0, 4.0, 6.0, gimbal=south),
+                 Waypoint(0.0, 10.0, 10.0, 4.0, 3.0, gimbal=north_west),
+                 Waypoint(10.0, 10.0, 10.0, 4.0)))
+    g = Guidance(flight_plan_from_items(mission_items(plan, ORIGIN), ORIGIN, "test"),
+                 start_s=0.0)
+    held: dict[float, float] = {}  # gimbal yaw (deg) -> seconds at the point in force
+    k = 0
+    while not g.done:
+        sp = g.setpoint(k / RATE_HZ)
+        leg = g.leg
+        if leg is not None and math.hypot(sp.r_ned_m[0] - 10.0, sp.r_ned_m[1]) < 0.05 \
+                and np.linalg.norm(sp.v_ned_mps) < 0.05:
+            yaw = round(math.degrees(leg.gimbal_yaw_rad))
+            held[yaw] = held.get(yaw, 0.0) + 1 / RATE_HZ
+        k += 1
+    assert set(held) == {180, -45}
+    assert held[180] >= 6.0 and held[-45] >= 3.0
+    assert held[-45] < 6.0  # its own hold, not the first one's again

@@ -9,8 +9,16 @@ import pytest
 
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
-from pdcov.planning.plan import Plan, Waypoint
-from pdcov.planning.trajectory import G_MPS2, Kinematics, camera_poses, fly
+from pdcov.planning.plan import GimbalPointing, Plan, Waypoint
+from pdcov.planning.trajectory import (
+    G_MPS2,
+    Flight,
+    Kinematics,
+    camera_poses,
+    fly,
+    slew_time_s,
+    slewed,
+)
 
 KIN = Kinematics(max_accel_mps2=2.0, max_yaw_rate_rad_s=math.radians(90), tilt=True,
                  corner_cut_m=20.0)
@@ -94,3 +102,42 @@ def test_gimbal_pitch_forward():
     f = fly(plan, 5.0, Kinematics(tilt=False))
     p = camera_poses(f, GimbalMount(), gimbal_pitch_rad=math.radians(-45))[3]
     assert np.allclose(p.optical_axis_enu, [0, math.sqrt(0.5), -math.sqrt(0.5)], atol=1e-9)
+
+
+def _at_rest(n: int, dt_s: float, heading_deg: float = 0.0) -> Flight:
+    h = math.radians(heading_deg)
+    R = np.array([[[math.cos(h), -math.sin(h), 0.0], [math.sin(h), math.cos(h), 0.0],
+                   [0.0, 0.0, 1.0]]] * n)
+    return Flight(dt_s * np.arange(n), np.tile([0.0, 0.0, 10.0], (n, 1)), R, np.zeros(n),
+                  dt_s * (n - 1), 0.0)
+
+
+def test_gimbal_slews_at_its_rate_the_short_way_round():
+    """From an earth yaw of 180 deg to -45 deg (= 315) at 90 deg/s, samples 0.1 s apart:
+    9 deg per sample clockwise through 270 (135 deg, 1.5 s), the pitch from -45 to -60 deg
+    reached after 0.2 s on the way; written as 225 deg or -135 deg, a half turn from 45 deg
+    goes the same way."""
+    south = GimbalPointing(math.radians(-45), math.pi, True)
+    north_west = GimbalPointing(math.radians(-60), math.radians(-45), True)
+    aims = slewed([south] + [north_west] * 20, _at_rest(21, 0.1), math.radians(90))
+    yaw_deg = [math.degrees(a.yaw_rad) % 360 for a in aims]
+    np.testing.assert_allclose(yaw_deg[:17], [180 + 9 * k for k in range(15)] + [315, 315],
+                               atol=1e-9)
+    assert [round(math.degrees(a.pitch_rad), 6) for a in aims[:4]] == [-45, -54, -60, -60]
+    assert all(a is north_west for a in aims[16:])  # reached (to a rounding) at 1.5 s
+    assert slew_time_s(south, north_west, math.radians(90)) == pytest.approx(1.5)
+    for written in (225.0, -135.0):
+        to = GimbalPointing(-math.pi / 4, math.radians(written), True)
+        a = slewed([GimbalPointing(-math.pi / 4, math.radians(45), True), to],
+                   _at_rest(2, 0.1), math.radians(90))
+        assert math.degrees(a[1].yaw_rad) == pytest.approx(36.0)  # 45 - 9: anticlockwise
+
+
+def test_a_following_yaw_turns_with_the_vehicle_and_a_lock_converts_at_the_heading():
+    """A yaw following the vehicle (body frame) needs no slew while the vehicle turns; a
+    change to a locked earth yaw starts from the gimbal's earth yaw at that heading."""
+    follow = GimbalPointing(-math.pi / 4, 0.0, False)
+    assert slewed([follow] * 5, _at_rest(5, 0.1, 90.0), 1.0) == [follow] * 5
+    lock = GimbalPointing(-math.pi / 4, math.radians(100), True)
+    a = slewed([follow, lock], _at_rest(2, 0.1, 90.0), math.radians(50))
+    assert math.degrees(a[1].yaw_rad) == pytest.approx(95.0) and a[1].earth_yaw

@@ -7,9 +7,10 @@ earth-frame yaws, DO_GIMBAL_MANAGER_PITCHYAW with YAW_LOCK before each point) wi
 NAV_LOITER_TIME hovers. The simulator settles about a second longer at each stop than the
 mission's hold (its guidance, pdcov_sitl/guidance.py), so the flight has a few more looks
 than predicted: never fewer. An oblique frame covers many more cells than a nadir one, so
-those extra looks move more cells by more than 0.05 (measured: 88 % of the cells within
+those extra looks move more cells by more than 0.05 (measured: 90 % of the cells within
 0.05, every one of the others above the prediction; predicted with the holds 0.5 s longer,
-97 % within 0.05): the oblique case asks for 85 % two-sided and 99 % one-sided, and flies
+97 % within 0.05; the greedy's 8-point cover, when the integer program runs out of time,
+95 %): the oblique case asks for 85 % two-sided and 99 % one-sided, and flies
 the same mission with the yaw lock cleared as a control that must not agree."""
 
 from __future__ import annotations

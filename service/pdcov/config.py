@@ -339,7 +339,8 @@ class LogSection:
 @dataclass(frozen=True, slots=True)
 class PlanningSection:
     """``planning`` (read by ``pdcov plan`` only): the flight kinematics of the prediction
-    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m), the gimbal pitch (deg), and
+    (planning.trajectory.Kinematics: m/s^2, deg/s, tilt, m, the gimbal's slew rate deg/s),
+    the gimbal pitch (deg), and
     how plans meet the terrain (planning.terrain_follow.TerrainFollowing): the frame
     (None: amsl with a terrain, relative without), tolerance (m), climb and descent rates
     (m/s; 0: no limit) and clearance (m)."""
@@ -348,6 +349,7 @@ class PlanningSection:
     max_yaw_rate_deg_s: float = 60.0
     tilt: bool = True
     corner_cut_m: float = 2.0
+    gimbal_rate_deg_s: float = 90.0
     gimbal_pitch_deg: float = -90.0
     terrain_frame: AltitudeFrame | None = None
     terrain_tolerance_m: float = 2.0
@@ -369,7 +371,7 @@ class PlanningSection:
         try:
             return cls(float(given["max_accel_mps2"]), float(given["max_yaw_rate_deg_s"]),
                        bool(given["tilt"]), float(given["corner_cut_m"]),
-                       float(given["gimbal_pitch_deg"]),
+                       float(given["gimbal_rate_deg_s"]), float(given["gimbal_pitch_deg"]),
                        None if frame is None else AltitudeFrame(frame),
                        *(float(given[k]) for k in (
                            "terrain_tolerance_m", "terrain_max_climb_mps",

@@ -122,7 +122,9 @@ def _sample_path(plan: FlightPlan, accel: float, cut_m: float, stop_s: float):
         d_out = out[0] if out is not None else 0.0
         a, b = p0 + d_in * u, p1 - d_out * u
         straight = max(0.0, length - d_in - d_out)
-        m = math.ceil(straight / PATH_STEP_M)
+        # At least its end: a leg of no length (a second hover at the same point, with
+        # another gimbal pointing or zoom) keeps its own sample, hold and pointing.
+        m = max(1, math.ceil(straight / PATH_STEP_M))
         for f in np.linspace(0.0, 1.0, m + 1)[1:]:
             add(a + f * (b - a), u, v_leg, a_leg, k)
         if out is not None and out[0] > 0:

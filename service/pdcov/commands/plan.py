@@ -4,9 +4,9 @@ of parameters, the follow-up flight over the gaps, and the upload to a vehicle.
 Algorithms, limits and file formats: docs/planning.md. The mission config's optional
 ``planning`` section sets the vehicle's kinematic limits for the predictions:
 ``{max_accel_mps2: 2.5, max_yaw_rate_deg_s: 60, tilt: true, corner_cut_m: 2,
-gimbal_pitch_deg: -90}``, and how plans meet the mission's terrain: ``{terrain_frame: amsl,
-terrain_tolerance_m: 2, terrain_max_climb_mps: 2.5, terrain_max_descent_mps: 1.5,
-terrain_clearance_m: 10}`` (``--terrain-*`` flags override them).
+gimbal_rate_deg_s: 90, gimbal_pitch_deg: -90}``, and how plans meet the mission's terrain:
+``{terrain_frame: amsl, terrain_tolerance_m: 2, terrain_max_climb_mps: 2.5,
+terrain_max_descent_mps: 1.5, terrain_clearance_m: 10}`` (``--terrain-*`` flags override them).
 """
 
 from __future__ import annotations

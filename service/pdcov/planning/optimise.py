@@ -257,10 +257,10 @@ def flight_cameras(scenario: Scenario, plan: Plan, flight: Flight) -> list[Camer
 
 def flight_poses(scenario: Scenario, plan: Plan, flight: Flight) -> list[CameraPose]:
     """The camera poses of ``plan`` flown as ``flight``: the scenario's mount, a gimbal
-    holding the pointings the plan's mission commands (before any: the scenario's pitch,
-    the yaw following the heading)."""
+    slewing at the kinematics' rate to the pointings the plan's mission commands (before
+    any: the scenario's pitch, the yaw following the heading)."""
     return camera_poses(flight, scenario.mount, scenario.gimbal_pitch_rad,
-                        flight_pointing(plan, flight))
+                        flight_pointing(plan, flight), scenario.kinematics.gimbal_rate_rad_s)
 
 
 def score(scenario: Scenario, params: PlanParams, target_pd: float) -> Score:

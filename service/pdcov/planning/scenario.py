@@ -38,7 +38,7 @@ def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Sc
                           "amsl waypoints are written above mean sea level from it")
     try:
         kin = Kinematics(cfg.max_accel_mps2, math.radians(cfg.max_yaw_rate_deg_s), cfg.tilt,
-                         cfg.corner_cut_m)
+                         cfg.corner_cut_m, math.radians(cfg.gimbal_rate_deg_s))
         following = TerrainFollowing(frame, cfg.terrain_tolerance_m, cfg.terrain_max_climb_mps,
                                      cfg.terrain_max_descent_mps, cfg.terrain_clearance_m)
     except (TypeError, ValueError) as exc:

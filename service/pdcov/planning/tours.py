@@ -31,6 +31,7 @@ from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
 from pdcov.planning.plan import Plan, Waypoint
 from pdcov.planning.routing import FreeSpaceRouter
+from pdcov.planning.trajectory import slew_time_s
 from pdcov.planning.vantage import VantagePoint
 
 _MS = 1000.0  # OR-Tools works in integers: milliseconds
@@ -191,11 +192,15 @@ def _renumber(routes: list[Route]) -> list[Route]:
 
 
 def route_plan(route: Route, points: Sequence[VantagePoint], transits: Transits,
-               speed_mps: float, description: str) -> Plan:
+               speed_mps: float, accel_mps2: float, gimbal_rate_rad_s: float,
+               description: str) -> Plan:
     """The waypoints of a route: the transit corners and the hover points (from home's first
     corner to the last corner before home; the take-off and the return to launch fly the
     straight ends, which lie in the flight space); the transit to a point and the point
-    carry its gimbal pointing and zoom (commanded on leaving the previous point)."""
+    carry its gimbal pointing and zoom (commanded on leaving the previous point). A hover
+    holds longer by the part of the gimbal's slew from the previous point's pointing
+    (``slew_time_s``) that the transit's stop-to-stop time does not cover, so that its
+    frames are the ones it was chosen for."""
     nodes = [0, *(s + 1 for s in route.stops), 0]
     wps: list[Waypoint] = []
     for a, b in zip(nodes[:-1], nodes[1:], strict=True):
@@ -203,9 +208,15 @@ def route_plan(route: Route, points: Sequence[VantagePoint], transits: Transits,
         last = b == 0
         p = points[(b if not last else a) - 1]
         corners = path[1:-1] if last else path[1:]
+        hover_s = p.hover_s
+        if not last and a != 0:
+            transit_s = float(leg_time_s(np.array([transits.length_m[a, b]]), speed_mps,
+                                         accel_mps2)[0])
+            hover_s += max(0.0, slew_time_s(points[a - 1].pointing, p.pointing,
+                                            gimbal_rate_rad_s) - transit_s)
         for k, (x, y) in enumerate(corners):
             stop = not last and k == len(corners) - 1
             wps.append(Waypoint(float(x), float(y), p.alt_agl_m, speed_mps,
-                                p.hover_s if stop else 0.0, gimbal=p.pointing,
+                                hover_s if stop else 0.0, gimbal=p.pointing,
                                 zoom_hfov_deg=p.zoom_hfov_deg))
     return Plan(tuple(wps), description)

@@ -51,17 +51,18 @@ _ARC_STEP_RAD = math.radians(3.0)
 @dataclass(frozen=True, slots=True)
 class Kinematics:
     """Limits of the vehicle: acceleration along and across the path (m/s^2), heading rate
-    (rad/s), whether the body tilts with the acceleration, and how far before a waypoint a
-    turn may begin (m)."""
+    (rad/s), whether the body tilts with the acceleration, how far before a waypoint a
+    turn may begin (m), and the gimbal's slew rate per axis (rad/s)."""
 
     max_accel_mps2: float = 2.5
     max_yaw_rate_rad_s: float = math.radians(60.0)
     tilt: bool = True
     corner_cut_m: float = 2.0
+    gimbal_rate_rad_s: float = math.radians(90.0)
 
     def __post_init__(self) -> None:
         if not (self.max_accel_mps2 > 0 and self.max_yaw_rate_rad_s > 0
-                and self.corner_cut_m >= 0):
+                and self.corner_cut_m >= 0 and self.gimbal_rate_rad_s > 0):
             raise ValueError(f"kinematic limits must be positive, got {self}")
 
 
@@ -262,14 +263,18 @@ def _attitudes(yaw_rad: np.ndarray, a_along_mps2: np.ndarray, a_left_mps2: np.nd
 
 def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
                  gimbal_pitch_rad: float = -math.pi / 2,
-                 pointing: Sequence[GimbalPointing | None] | None = None) -> list[CameraPose]:
+                 pointing: Sequence[GimbalPointing | None] | None = None,
+                 gimbal_rate_rad_s: float | None = None) -> list[CameraPose]:
     """Camera poses along a flight, with their velocity and angular rate when the flight
     has its ``around`` states (core/pose.camera_motion over them). A fixed mount turns and
     tilts with the body; a gimbal holds zero roll against the horizon and, per sample, the
     ``pointing`` given (a sample's None, or no ``pointing``: ``gimbal_pitch_rad``, -pi/2
-    nadir, with the yaw following the vehicle's heading)."""
+    nadir, with the yaw following the vehicle's heading), reached at most at
+    ``gimbal_rate_rad_s`` per axis (``slewed``; None: at once)."""
     n = len(flight.t_s)
     aims = [p or GimbalPointing(gimbal_pitch_rad) for p in (pointing or [None] * n)]
+    if isinstance(mount, GimbalMount) and gimbal_rate_rad_s is not None:
+        aims = slewed(aims, flight, gimbal_rate_rad_s)
     poses = _poses(flight.t_s, flight.r_body_enu, flight.R_ned_body, mount, aims)
     if flight.around is None:
         return poses
@@ -280,6 +285,53 @@ def camera_poses(flight: Flight, mount: FixedMount | GimbalMount,
     v, omega = camera_motion(R_a, r_a, R_b, r_b, t_pm[1] - t_pm[0])
     return [CameraPose(p.R_enu_cam, p.r_cam_enu, p.t_s, *known_motion(v_k, w_k))
             for p, v_k, w_k in zip(poses, v, omega, strict=True)]
+
+
+def slewed(aims: Sequence[GimbalPointing], flight: Flight, rate_rad_s: float
+           ) -> list[GimbalPointing]:
+    """Per sample, where a gimbal commanded ``aims`` points when it slews at most
+    ``rate_rad_s`` per axis from the first sample's aim: the pitch, and the yaw the short
+    way round in the frame of the sample's aim (a change between a locked and a following
+    yaw converts the gimbal's yaw with the vehicle's heading there). A sample whose aim is
+    reached keeps it (the same object)."""
+    out = [aims[0]]
+    pitch, yaw, earth = aims[0].pitch_rad, aims[0].yaw_rad, aims[0].earth_yaw
+    for k in range(1, len(aims)):
+        aim = aims[k]
+        if aim.earth_yaw != earth:
+            h = heading_rad(flight.R_ned_body[k])
+            yaw, earth = (yaw + h, True) if aim.earth_yaw else (yaw - h, False)
+        step = rate_rad_s * float(flight.t_s[k] - flight.t_s[k - 1])
+        d_pitch = aim.pitch_rad - pitch
+        d_yaw = _turn_rad(yaw, aim.yaw_rad)
+        if abs(d_pitch) <= step and abs(d_yaw) <= step:
+            out.append(aim)
+            pitch, yaw = aim.pitch_rad, aim.yaw_rad
+        else:
+            pitch += math.copysign(min(abs(d_pitch), step), d_pitch)
+            yaw += math.copysign(min(abs(d_yaw), step), d_yaw)
+            out.append(GimbalPointing(pitch, yaw, earth))
+    return out
+
+
+def _turn_rad(from_rad: float, to_rad: float) -> float:
+    """The turn (rad, in [-pi, pi)) from one angle to another the short way round, of the
+    angles taken in [-pi, pi) first, so that half a turn goes the same way whichever turn
+    the angles are written in."""
+    def wrap(a: float) -> float:
+        return (a + math.pi) % (2 * math.pi) - math.pi
+    return wrap(wrap(to_rad) - wrap(from_rad))
+
+
+def slew_time_s(a: GimbalPointing | None, b: GimbalPointing | None, rate_rad_s: float
+                ) -> float:
+    """Time (s) a gimbal slewing at ``rate_rad_s`` per axis takes from pointing ``a`` to
+    ``b`` (None: not known, 0 s): the larger axis' change, the yaw's the short way round
+    when both are in one frame, else half a turn at most."""
+    if a is None or b is None:
+        return 0.0
+    d_yaw = abs(_turn_rad(a.yaw_rad, b.yaw_rad)) if a.earth_yaw == b.earth_yaw else math.pi
+    return max(abs(b.pitch_rad - a.pitch_rad), d_yaw) / rate_rad_s
 
 
 def _poses(t_s: np.ndarray, r_body_enu: np.ndarray, R_ned_body: np.ndarray,

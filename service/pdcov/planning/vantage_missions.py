@@ -102,7 +102,8 @@ def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet 
             what = (f"vantage: {len(r.stops)} of {len(points)} points, P_D "
                     f"{settings.target_pd:g} on {settings.target_share:.0%} of the cells"
                     + (f"; vehicle {r.vehicle} sortie {r.sortie}" if len(routes) > 1 else ""))
-            plan = replace(route_plan(r, points, transits, v, what),
+            plan = replace(route_plan(r, points, transits, v, accel,
+                                      sc.kinematics.gimbal_rate_rad_s, what),
                            gimbal_command=gimbal_command, hover_item=hover_item)
             pred = predict(sc, plan, PlanParams("vantage", points[r.stops[0]].alt_agl_m, v))
             ends = leg_time_s(np.linalg.norm(pred.plan.xy_enu_m[[0, -1]], axis=1), v, accel)
