@@ -163,7 +163,7 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
 
 MISSION = small_mission(coverage={"min_revisit_s": 1.0})
 ORIGIN = MISSION["origin"]
-GRID_ARRAYS = ("log_miss_d", "log_miss_fa", "n_obs")
+GRID_ARRAYS = ("log_miss_d", "log_miss_fa", "n_obs", "limiting")
 SETTLE_S = 3.0
 
 
@@ -272,6 +272,8 @@ def compare(watcher_dir: Path, state_dir: Path, vid: str) -> str | None:
         return f"{got} missing"
     with np.load(got) as a, np.load(want) as b:
         for key in GRID_ARRAYS:
+            if key not in a.files:
+                return f"{key} missing from {got}"
             if a[key].shape != b[key].shape or not np.array_equal(a[key], b[key]):
                 return f"{key} differs ({int(np.sum(a[key] != b[key]))} cells)" \
                     if a[key].shape == b[key].shape else f"{key} shape {a[key].shape}"

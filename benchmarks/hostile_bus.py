@@ -26,6 +26,7 @@ from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.core.domain import GridGeometry
+from pdcov.core.grid import LimitingFactor
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
 
@@ -67,7 +68,8 @@ def forged_tiles_case() -> Finding:
     g = pub.grid
     state = GridState(g.geometry, g.mask.copy(), np.full(g.geometry.shape, -20.0, np.float32),
                       np.zeros(g.geometry.shape, np.float32),
-                      np.ones(g.geometry.shape, np.int32), g.frames + 1)
+                      np.ones(g.geometry.shape, np.int32), g.frames + 1,
+                      np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
     rows, cols = tile_grid_shape(pub.tile_size, *g.geometry.shape)
     forged = encode_tiles(state, [(r, c) for r in range(rows) for c in range(cols)],
                           seq=pub.seq + 1, t_s=pub.t_s, tile_size=pub.tile_size)

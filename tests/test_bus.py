@@ -36,6 +36,7 @@ from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
 from pdcov.config import load_mission
 from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
+from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.errors import ConfigError
@@ -62,6 +63,7 @@ def random_state(rng, shape=(70, 45)) -> GridState:
     state.log_miss_d[:] = -rng.exponential(1.0, shape).astype(np.float32) * mask
     state.log_miss_fa[:] = -rng.exponential(0.1, shape).astype(np.float32) * mask
     state.n_obs[:] = rng.integers(0, 50, shape) * mask
+    state.limiting[:] = rng.integers(0, len(LimitingFactor), shape) * mask
     state.frames = 1234
     return state
 
@@ -142,7 +144,7 @@ def test_hostile_tiles_are_refused():
     good = encode_tiles(src, [(0, 0), (1, 1)], seq=7, t_s=1.0, tile_size=32)
     cases = {
         "magic": _with_header(good, magic=b"XXXX"),
-        "version": _with_header(good, version=2),
+        "version": _with_header(good, version=3),
         "outside": _with_header(good, n_rows=20),
         "count": _with_header(good, n_tiles=3),
         "truncated": good[:-5],
@@ -151,11 +153,11 @@ def test_hostile_tiles_are_refused():
         "bomb": good[:48] + zlib.compress(b"\x00" * (40 << 20)),
     }
     nan = GridState(src.geometry, src.mask, src.log_miss_d.copy(), src.log_miss_fa,
-                    src.n_obs)
+                    src.n_obs, limiting=src.limiting)
     nan.log_miss_d[0, 0] = np.nan
     cases["nan"] = encode_tiles(nan, [(0, 0)], seq=0, t_s=0.0, tile_size=32)
     pos = GridState(src.geometry, src.mask, np.abs(src.log_miss_d) + 1, src.log_miss_fa,
-                    src.n_obs)
+                    src.n_obs, limiting=src.limiting)
     cases["positive"] = encode_tiles(pos, [(0, 0)], seq=0, t_s=0.0, tile_size=32)
     for name, payload in cases.items():
         with pytest.raises(BusPayloadError, match="tiles"):

@@ -311,9 +311,7 @@ def payloads(grid_and_checkpoint):
 def watcher_with_grid(state: GridState) -> Watcher:
     w = Watcher()
     w.on_alive("fuzz", True, 0.0)
-    w.on_snapshot("fuzz", GridState(state.geometry, state.mask.copy(),
-                                    state.log_miss_d.copy(), state.log_miss_fa.copy(),
-                                    state.n_obs.copy(), state.frames), 0.0)
+    w.on_snapshot("fuzz", state.copy(), 0.0)
     return w
 
 

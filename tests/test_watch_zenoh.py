@@ -45,9 +45,11 @@ def test_fleet_grid_is_the_sum_of_the_two_vehicles(router, processes, daemons, t
     np.testing.assert_array_equal(fleet["log_miss_d"], a.log_miss_d + b.log_miss_d)
     np.testing.assert_array_equal(fleet["log_miss_fa"], a.log_miss_fa + b.log_miss_fa)
     np.testing.assert_array_equal(fleet["n_obs"], a.n_obs + b.n_obs)
+    np.testing.assert_array_equal(fleet["limiting"], np.maximum(a.limiting, b.limiting))
     for d in daemons:
         mine = load(tmp_path / "rec" / d.pub.vehicle_id / "grid.npz")
         np.testing.assert_array_equal(mine["log_miss_d"], d.pub.grid.log_miss_d)
+        np.testing.assert_array_equal(mine["limiting"], d.pub.grid.limiting)
         assert (tmp_path / "rec" / d.pub.vehicle_id / "tiles.bin").stat().st_size > 0
         assert len((tmp_path / "rec" / d.pub.vehicle_id / "status.jsonl").read_text()
                    .splitlines()) >= 40

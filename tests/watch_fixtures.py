@@ -18,6 +18,7 @@ from pdcov.bus.sources import SourcedPublisher
 from pdcov.bus.status import encode_status
 from pdcov.bus.tiles import encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
+from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
@@ -44,13 +45,14 @@ class TinyPublisher:
         """Add ``n`` frames 0.5 s apart, moving 1.5 m east per frame."""
         ts = self.tile_size
         for _ in range(n):
-            before = self.grid.log_miss_d.copy()
+            before = self.grid.log_miss_d.copy(), self.grid.limiting.copy()
             x = -58.0 + 1.5 * (self.grid.frames % 26)
             self.grid.update(CameraPose(R_ENU_CAM_NADIR, np.array([x, self.y_m, 10.0]),
                                         self.t_s), self.t_s)
             self.t_s += 0.5
             self.uptime_s += 0.5
-            rows, cols = np.nonzero(before != self.grid.log_miss_d)
+            rows, cols = np.nonzero((before[0] != self.grid.log_miss_d)
+                                    | (before[1] != self.grid.limiting))
             self._changed.update(zip((rows // ts).tolist(), (cols // ts).tolist(),
                                      strict=True))
 
@@ -100,7 +102,8 @@ def forged_tiles(pub: TinyPublisher, seq: int, frames: int | None = None) -> byt
     g = pub.grid
     state = GridState(g.geometry, g.mask.copy(), np.full(g.geometry.shape, -20.0, np.float32),
                       np.zeros(g.geometry.shape, np.float32), np.ones(g.geometry.shape, np.int32),
-                      g.frames + 1 if frames is None else frames)
+                      g.frames + 1 if frames is None else frames,
+                      np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
     rows, cols = tile_grid_shape(pub.tile_size, *g.geometry.shape)
     return encode_tiles(state, [(r, c) for r in range(rows) for c in range(cols)], seq=seq,
                         t_s=pub.t_s, tile_size=pub.tile_size)

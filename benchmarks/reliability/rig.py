@@ -142,10 +142,7 @@ class WatcherThread:
         def copy() -> GridState | None:
             feed = self.watcher.feeds.get(VEHICLE)
             s = feed.state if feed is not None and feed.awaiting_since_s is None else None
-            return None if s is None else GridState(s.geometry, s.mask.copy(),
-                                                    s.log_miss_d.copy(),
-                                                    s.log_miss_fa.copy(), s.n_obs.copy(),
-                                                    s.frames)
+            return None if s is None else s.copy()
         return self._on_loop(copy)
 
     def status(self) -> dict | None:
@@ -201,10 +198,12 @@ def load(path: Path) -> dict[str, np.ndarray]:
 
 
 def cells_differing(a, b) -> int:
-    """Cells where log_miss_d, log_miss_fa or n_obs differ (any of a/b a dict or GridState)."""
+    """Cells where log_miss_d, log_miss_fa, n_obs or limiting differ (any of a/b a dict or
+    GridState; a limiting factor missing or unknown differs everywhere)."""
     def get(x, k):
-        return x[k] if isinstance(x, dict) else getattr(x, k)
+        return x.get(k) if isinstance(x, dict) else getattr(x, k)
     diff = np.zeros(np.shape(get(a, "n_obs")), bool)
-    for k in ("log_miss_d", "log_miss_fa", "n_obs"):
-        diff |= np.asarray(get(a, k)) != np.asarray(get(b, k))
+    for k in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
+        va, vb = get(a, k), get(b, k)
+        diff |= True if va is None or vb is None else np.asarray(va) != np.asarray(vb)
     return int(diff.sum())

@@ -2,9 +2,10 @@
 
 A ``GridState`` is what a watcher needs to draw and merge coverage without the camera or
 detector: the geometry, the free mask, the log-miss sums ``L`` (float32, ``P = 1 - exp(L)``)
-of detection and false alarm, observation counts and the daemon's frame count. The daemon's
-``CoverageGrid`` holds the same arrays, so a state rebuilt from a snapshot or from tiles
-equals the daemon's grid cell for cell (the float32 values travel unchanged).
+of detection and false alarm, observation counts, the limiting factor per cell and the
+daemon's frame count. The daemon's ``CoverageGrid`` holds the same arrays, so a state
+rebuilt from a snapshot or from tiles equals the daemon's grid cell for cell (the float32
+values travel unchanged).
 
 The snapshot payload is the bytes of the grid.npz that ``CoverageGrid.save_npz`` (and so
 ``pdcov evaluate``) writes; ``decode_snapshot`` validates it before building anything.
@@ -25,7 +26,7 @@ import numpy as np
 
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import READABLE_SNAPSHOT_VERSIONS, CoverageGrid
+from pdcov.core.grid import READABLE_SNAPSHOT_VERSIONS, CoverageGrid, LimitingFactor
 from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 
@@ -54,7 +55,8 @@ def grid_hash(geometry: GridGeometry, mask: np.ndarray) -> str:
 @dataclass(slots=True)
 class GridState:
     """A coverage grid's arrays: mask bool, log_miss_d / log_miss_fa float32 (<= 0), n_obs
-    int32, all (n_rows, n_cols); frames counted by the daemon."""
+    int32, limiting uint8 (LimitingFactor codes), all (n_rows, n_cols); frames counted by
+    the daemon. limiting None: unknown (a pdcov before tiles version 2 does not send it)."""
 
     geometry: GridGeometry
     mask: np.ndarray
@@ -62,18 +64,27 @@ class GridState:
     log_miss_fa: np.ndarray
     n_obs: np.ndarray
     frames: int = 0
+    limiting: np.ndarray | None = None
 
     @classmethod
     def empty(cls, geometry: GridGeometry, mask: np.ndarray) -> GridState:
         shape = geometry.shape
         return cls(geometry, np.asarray(mask, bool).copy(), np.zeros(shape, np.float32),
-                   np.zeros(shape, np.float32), np.zeros(shape, np.int32))
+                   np.zeros(shape, np.float32), np.zeros(shape, np.int32),
+                   limiting=np.zeros(shape, np.uint8))
 
     @classmethod
     def from_grid(cls, grid: CoverageGrid) -> GridState:
         """A copy of a CoverageGrid's arrays."""
         return cls(grid.geometry, grid.mask.copy(), grid.log_miss_d.copy(),
-                   grid.log_miss_fa.copy(), grid.n_obs.copy(), grid.frames)
+                   grid.log_miss_fa.copy(), grid.n_obs.copy(), grid.frames,
+                   grid.limiting.copy())
+
+    def copy(self) -> GridState:
+        """A copy of the arrays (the geometry is immutable)."""
+        return GridState(self.geometry, self.mask.copy(), self.log_miss_d.copy(),
+                         self.log_miss_fa.copy(), self.n_obs.copy(), self.frames,
+                         None if self.limiting is None else self.limiting.copy())
 
     @property
     def hash(self) -> str:
@@ -110,9 +121,10 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
     MAX_SNAPSHOT_BYTES, a zip of .npy arrays (no pickles) whose headers declare a grid of
     at most ``max_cells`` cells (read before any array is inflated; ``pd`` and ``pfa`` are
     not read), the snapshot version, every array present with the mask's shape and a
-    numeric dtype, finite log-miss sums <= 0, observation counts >= 0, a frame count in
-    0..2**32 - 1, a valid geometry. Raises BusPayloadError naming ``key`` (its ``reason``
-    says why)."""
+    numeric dtype, finite log-miss sums <= 0, observation counts >= 0, limiting codes in
+    0..5 (when present: snapshots before version 3 lack them, the state's limiting is then
+    None), a frame count in 0..2**32 - 1, a valid geometry. Raises BusPayloadError naming
+    ``key`` (its ``reason`` says why)."""
     bad = Refuser(f"{key}: not a usable grid snapshot")
     data = bytes(payload)
     if len(data) > MAX_SNAPSHOT_BYTES:
@@ -125,8 +137,11 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
     mask = arrays["mask"]
     if mask.dtype != np.bool_:
         raise bad(f"mask: expected a 2-D bool array, got {mask.dtype} {mask.shape}")
-    for name, kind in (("log_miss_d", "f"), ("log_miss_fa", "f"), ("n_obs", "iu")):
-        a = arrays[name]
+    for name, kind in (("log_miss_d", "f"), ("log_miss_fa", "f"), ("n_obs", "iu"),
+                       ("limiting", "iu")):
+        a = arrays.get(name)
+        if a is None:  # limiting, optional (_read_arrays checks the others are there)
+            continue
         if a.shape != mask.shape or a.dtype.kind not in kind:
             raise bad(f"{name}: expected {mask.shape} numbers, got {a.dtype} {a.shape}")
     scalars = {name: _scalar(arrays, name, "fiu", bad)
@@ -141,20 +156,24 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
                                 *mask.shape)
     except DomainError as exc:
         raise bad(str(exc)) from None
+    limiting = arrays.get("limiting")
     state = GridState(geometry, mask.copy(), arrays["log_miss_d"].astype(np.float32),
                       arrays["log_miss_fa"].astype(np.float32),
-                      arrays["n_obs"].astype(np.int64), int(frames))
-    check_values(state.log_miss_d, state.log_miss_fa, state.n_obs, bad)
+                      arrays["n_obs"].astype(np.int64), int(frames), limiting)
+    check_values(state.log_miss_d, state.log_miss_fa, state.n_obs, bad, limiting)
     state.n_obs = state.n_obs.astype(np.int32)
+    if limiting is not None:
+        state.limiting = limiting.astype(np.uint8)
     return state
 
 
 def _read_arrays(data: bytes, max_cells: int, bad: Refuser) -> dict[str, np.ndarray]:
-    """The arrays of _NPZ_ARRAYS (and ``version``, ``frames`` when present) of an .npz;
+    """The arrays of _NPZ_ARRAYS (and ``version``, ``frames``, ``limiting`` when present) of
+    an .npz;
     every .npy header is read and bounded (the mask 2-D and at most ``max_cells``, the
     others at most as many values, none of objects or wider than 8 bytes) before any array
     is inflated, so a small payload cannot declare a huge grid."""
-    wanted = set(_NPZ_ARRAYS) | {"version", "frames"}
+    wanted = set(_NPZ_ARRAYS) | {"version", "frames", "limiting"}
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
             members = {i.filename.removesuffix(".npy"): i for i in zf.infolist()
@@ -199,11 +218,16 @@ def _scalar(arrays: dict[str, np.ndarray], name: str, kinds: str, bad: Refuser,
 
 
 def check_values(log_miss_d: np.ndarray, log_miss_fa: np.ndarray, n_obs: np.ndarray,
-                 bad: Refuser) -> None:
+                 bad: Refuser, limiting: np.ndarray | None = None) -> None:
     """Raise ``bad(why)`` unless the log-miss sums are <= 0 (-inf allowed: a cell with
-    P = 1) and not NaN, and the counts lie in 0..2**31 - 1."""
+    P = 1) and not NaN, the counts lie in 0..2**31 - 1 and the limiting codes (when given)
+    are LimitingFactor values."""
     for name, a in (("log_miss_d", log_miss_d), ("log_miss_fa", log_miss_fa)):
         if np.isnan(a).any() or (a > 0).any():
             raise bad(f"{name}: values must be <= 0 and not NaN")
     if n_obs.size and (int(n_obs.min()) < 0 or int(n_obs.max()) > 2**31 - 1):
         raise bad("n_obs: counts must lie in 0..2**31-1")
+    top = int(max(LimitingFactor))
+    if limiting is not None and limiting.size and (int(limiting.min()) < 0
+                                                   or int(limiting.max()) > top):
+        raise bad(f"limiting: codes must lie in 0..{top} (LimitingFactor)")

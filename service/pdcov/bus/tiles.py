@@ -13,7 +13,9 @@ Layout (little-endian; docs/protocol.md "tiles"): a 48-byte header
 
 then a zlib stream of n_tiles records: tile_row u16, tile_col u16, then for the tile's
 h x w cells in row-major order log_miss_d float32[h*w], log_miss_fa float32[h*w],
-n_obs uint32[h*w] and pd_q uint16[h*w] (P_D quantised as round(P_D * 65535), for display).
+n_obs uint32[h*w], pd_q uint16[h*w] (P_D quantised as round(P_D * 65535), for display)
+and, from version 2, limiting uint8[h*w] (LimitingFactor codes). The daemon sends version
+2; version 1 (older daemons) still decodes, its tiles' limiting None (unknown).
 """
 
 from __future__ import annotations
@@ -30,10 +32,13 @@ from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
 from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
 
 MAGIC = b"PDTL"
-TILES_VERSION = 1
+TILES_VERSION = 2
+READABLE_TILES_VERSIONS = (1, 2)
 _HEADER = struct.Struct("<4sHHQ8sdIHHII")
 _TILE_ID = struct.Struct("<HH")
-BYTES_PER_CELL = 4 + 4 + 4 + 2
+_CELL_DTYPES = {1: ("<f4", "<f4", "<u4", "<u2"), 2: ("<f4", "<f4", "<u4", "<u2", "u1")}
+"""Per version, the dtypes of a record's per-cell arrays, in order."""
+BYTES_PER_CELL = {v: sum(np.dtype(d).itemsize for d in ds) for v, ds in _CELL_DTYPES.items()}
 MAX_TILE_SIZE = 1024
 MAX_BODY_BYTES = 64 << 20
 """Largest inflated tiles body a decoder accepts (the daemon sends far less per message)."""
@@ -44,7 +49,8 @@ MAX_TILES_BYTES = 4 << 20
 
 @dataclass(frozen=True, slots=True)
 class Tile:
-    """One tile's cells: its (tile_row, tile_col) and (h, w) arrays as the grid holds them."""
+    """One tile's cells: its (tile_row, tile_col) and (h, w) arrays as the grid holds them;
+    limiting None from a version-1 message (unknown)."""
 
     tile_row: int
     tile_col: int
@@ -52,13 +58,15 @@ class Tile:
     log_miss_fa: np.ndarray
     n_obs: np.ndarray
     pd_q: np.ndarray
+    limiting: np.ndarray | None
 
 
 @dataclass(frozen=True, slots=True)
 class TileUpdate:
     """A decoded tiles message. t_s: autopilot time (s) of the newest frame in it; frames:
-    the daemon's frame count then."""
+    the daemon's frame count then; version: the message's layout (1: no limiting)."""
 
+    version: int
     seq: int
     grid_hash: str
     t_s: float
@@ -81,9 +89,9 @@ def tile_grid_shape(tile_size: int, n_rows: int, n_cols: int) -> tuple[int, int]
     return -(-n_rows // tile_size), -(-n_cols // tile_size)
 
 
-def tile_wire_bytes(tile_size: int) -> int:
+def tile_wire_bytes(tile_size: int, version: int = TILES_VERSION) -> int:
     """Uncompressed bytes of one full tile record (the compressed size is less)."""
-    return _TILE_ID.size + BYTES_PER_CELL * tile_size * tile_size
+    return _TILE_ID.size + BYTES_PER_CELL[version] * tile_size * tile_size
 
 
 def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int,
@@ -91,8 +99,10 @@ def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int
                  grid_hash: str | None = None) -> bytes:
     """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col)).
     ``grid_hash``: ``state.hash`` when the caller keeps it (it reads the whole mask); the
-    cost otherwise follows the tiles sent, not the grid."""
+    cost otherwise follows the tiles sent, not the grid. ``state.limiting`` must be known."""
     g = state.geometry
+    if state.limiting is None:
+        raise ValueError("encode_tiles needs the grid's limiting factors")
     ids = list(dict.fromkeys((int(r), int(c)) for r, c in tiles))
     if not 1 <= tile_size <= MAX_TILE_SIZE:
         raise ValueError(f"tile_size {tile_size}: expected 1..{MAX_TILE_SIZE}")
@@ -109,7 +119,8 @@ def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int
                   state.n_obs[win].astype("<u4").tobytes(),
                   # P_D as GridState.pd, over the tile only
                   np.rint((0.0 - np.expm1(state.log_miss_d[win].astype(np.float64)))
-                          * 65535.0).astype("<u2").tobytes()]
+                          * 65535.0).astype("<u2").tobytes(),
+                  state.limiting[win].astype("u1").tobytes()]
     header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(grid_hash or state.hash),
                           float(t_s), min(state.frames, 0xFFFFFFFF), tile_size, len(ids),
                           g.n_rows, g.n_cols)
@@ -121,7 +132,8 @@ def decode_tiles(payload: bytes, key: str = "tiles",
     """Validate and decode a tiles message: at most MAX_TILES_BYTES, magic, version, a t_s
     not NaN nor +inf, header sizes, a grid of at most MAX_CELLS (checked before inflating),
     tile indices inside the grid and not repeated, the exact body length (the inflated size
-    is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN. Raises
+    is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN, counts and
+    (version 2) limiting codes in range. Version 1 decodes with limiting None. Raises
     BusPayloadError naming ``key`` (its ``reason`` says why)."""
     bad = Refuser(f"{key}: not a usable tiles message")
     data = bytes(payload)
@@ -134,8 +146,10 @@ def decode_tiles(payload: bytes, key: str = "tiles",
      n_cols) = _HEADER.unpack_from(data)
     if magic != MAGIC:
         raise bad(f"magic {magic!r}, expected {MAGIC!r}", Refusal.MALFORMED)
-    if version != TILES_VERSION:
-        raise bad(f"version {version}, expected {TILES_VERSION}", Refusal.MALFORMED)
+    if version not in READABLE_TILES_VERSIONS:
+        raise bad(f"version {version}, expected "
+                  f"{' or '.join(map(str, READABLE_TILES_VERSIONS))}", Refusal.MALFORMED)
+    cell_bytes, dtypes = BYTES_PER_CELL[version], _CELL_DTYPES[version]
     if math.isnan(t_s) or t_s == math.inf:  # -inf: no frame yet (the daemon's start value)
         raise bad(f"t_s {t_s}: expected a time (s)", Refusal.NON_FINITE)
     if not 1 <= tile_size <= MAX_TILE_SIZE or n_rows < 1 or n_cols < 1:
@@ -147,8 +161,8 @@ def decode_tiles(payload: bytes, key: str = "tiles",
     n_tr, n_tc = tile_grid_shape(tile_size, n_rows, n_cols)
     if n_tiles > n_tr * n_tc:
         raise bad(f"{n_tiles} tiles, the grid has {n_tr * n_tc}", Refusal.OVER_BOUND)
-    bound = min(n_tiles * tile_wire_bytes(tile_size),
-                n_tiles * _TILE_ID.size + BYTES_PER_CELL * n_rows * n_cols, max_body_bytes)
+    bound = min(n_tiles * tile_wire_bytes(tile_size, version),
+                n_tiles * _TILE_ID.size + cell_bytes * n_rows * n_cols, max_body_bytes)
     d = zlib.decompressobj()
     try:
         body = d.decompress(data[_HEADER.size:], bound + 1)
@@ -173,24 +187,28 @@ def decode_tiles(payload: bytes, key: str = "tiles",
         shape = (r1 - r0, c1 - c0)
         n = shape[0] * shape[1]
         at += _TILE_ID.size
-        if at + BYTES_PER_CELL * n > len(body):
+        if at + cell_bytes * n > len(body):
             raise bad("body ends inside a tile record")
         arrays = []
-        for dtype in ("<f4", "<f4", "<u4", "<u2"):
+        for dtype in dtypes:
             a = np.frombuffer(body, dtype=dtype, count=n, offset=at)
-            arrays.append(a.reshape(shape).astype(dtype[1:]))
+            arrays.append(a.reshape(shape).astype(dtype.lstrip("<")))
             at += a.nbytes
-        tiles.append(Tile(tr, tc, arrays[0], arrays[1], arrays[2].astype(np.int64), arrays[3]))
+        tiles.append(Tile(tr, tc, arrays[0], arrays[1], arrays[2].astype(np.int64), arrays[3],
+                          arrays[4] if version >= 2 else None))
     if at != len(body):
         raise bad(f"{len(body) - at} bytes after the last tile")
     for t in tiles:
-        check_values(t.log_miss_d, t.log_miss_fa, t.n_obs, bad)
-    return TileUpdate(seq, ghash.hex(), t_s, frames, tile_size, n_rows, n_cols, tuple(tiles))
+        check_values(t.log_miss_d, t.log_miss_fa, t.n_obs, bad, t.limiting)
+    return TileUpdate(version, seq, ghash.hex(), t_s, frames, tile_size, n_rows, n_cols,
+                      tuple(tiles))
 
 
 def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles") -> None:
     """Write the update's tiles into ``state``; checks first that it is meant for this grid
-    (hash and shape), so that a mismatched update changes nothing (BusPayloadError)."""
+    (hash and shape), so that a mismatched update changes nothing (BusPayloadError). A
+    version-1 update leaves the state's limiting unknown (None): the cells it rewrites may
+    have changed their limiting factor."""
     g = state.geometry
     if update.grid_hash != state.hash or (update.n_rows, update.n_cols) != g.shape:
         raise BusPayloadError(f"{key}: tiles for grid {update.grid_hash} "
@@ -202,4 +220,8 @@ def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles") -> Non
         state.log_miss_d[r0:r1, c0:c1] = t.log_miss_d
         state.log_miss_fa[r0:r1, c0:c1] = t.log_miss_fa
         state.n_obs[r0:r1, c0:c1] = t.n_obs
+        if state.limiting is not None and t.limiting is not None:
+            state.limiting[r0:r1, c0:c1] = t.limiting
+    if update.version < 2:
+        state.limiting = None
     state.frames = update.frames

@@ -325,8 +325,7 @@ class CoverageGrid:
 
     def limiting_counts(self) -> dict[str, int]:
         """Free cells per LimitingFactor, by lower-case name, in code order."""
-        counts = np.bincount(self.limiting[self.mask], minlength=len(LimitingFactor))
-        return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
+        return limiting_counts(self.limiting, self.mask)
 
     # -- the camera of a frame --------------------------------------------------------------
 
@@ -376,7 +375,8 @@ class CoverageGrid:
 
     def update(self, pose: CameraPose, t_s: float | None = None) -> int:
         """Add one camera frame; returns the number of free cells it observed, and sets
-        ``touched`` to the window of cells it may have changed.
+        ``touched`` to the window of cells it may have changed (its window, and the cells
+        it marked TOO_FAR beyond it).
 
         t_s (s, autopilot clock) defaults to ``pose.t_s``; it is only used with
         ``min_revisit_s``, and must then not go back in time (ValueError, nothing counted).
@@ -394,12 +394,11 @@ class CoverageGrid:
         blurred = self.blur_effect is BlurEffect.APPLIED and pose.has_motion
         self.frames_blurred += blurred
         window, clipped = self._window(pose)
-        if clipped:
-            self._mark_too_far(pose, window)
+        far = self._mark_too_far(pose, window) if clipped else None
+        self.touched = _union(window, far)
         if window is None:
             return 0
         r0, r1, c0, c1 = window
-        self.touched = window
         observed, area_px2, reach = self._observe_area(pose, window)
         # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
         edges = self._area_edges_px2[area_px2.dtype == np.float32]
@@ -553,13 +552,15 @@ class CoverageGrid:
         return observed, area, reach
 
     def _mark_too_far(self, pose: CameraPose, window: tuple[int, int, int, int] | None
-                      ) -> None:
+                      ) -> tuple[int, int, int, int] | None:
         """Mark TOO_FAR the cells in view beyond the maximum range, out to twice it, outside
         ``window`` (the window's own cells are judged by ``_observe_area``); the terrain's
-        line of sight is not tested there. For frames whose picture reaches past the range."""
+        line of sight is not tested there. For frames whose picture reaches past the range.
+        Returns the window (r0, r1, c0, c1) of the cells it marked, None for none."""
         wide, _ = self._window(pose, 2.0 * self.max_range_m)
         if wide is None or wide == window:
-            return
+            return None
+        changed: tuple[int, int, int, int] | None = None
         r0, r1, c0, c1 = wide
         # Only free cells below TOO_FAR can change: each band of rows is judged over the
         # columns that hold such cells.
@@ -572,9 +573,16 @@ class CoverageGrid:
                 continue
             sub = (r0 + b0, r0 + b0 + len(band), c0 + int(cols[0]), c0 + int(cols[-1]) + 1)
             _, in_view, in_range = self._centres(pose, sub)
+            marked = in_view & ~in_range & band[:, cols[0]:cols[-1] + 1]
+            mr, mc = np.flatnonzero(marked.any(axis=1)), np.flatnonzero(marked.any(axis=0))
+            if not len(mr):
+                continue
             limiting = self.limiting[sub[0]:sub[1], sub[2]:sub[3]]
-            np.maximum(limiting, (in_view & ~in_range).view(np.uint8) * np.uint8(
-                LimitingFactor.TOO_FAR), out=limiting)
+            np.maximum(limiting, marked.view(np.uint8) * np.uint8(LimitingFactor.TOO_FAR),
+                       out=limiting)
+            changed = _union(changed, (sub[0] + int(mr[0]), sub[0] + int(mr[-1]) + 1,
+                                       sub[2] + int(mc[0]), sub[2] + int(mc[-1]) + 1))
+        return changed
 
     def _centres(self, pose: CameraPose, window: tuple[int, int, int, int]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -799,31 +807,34 @@ class CoverageGrid:
             np.maximum(self.last_obs_s, other.last_obs_s, out=self.last_obs_s)
             self.latest_frame_t_s = max(self.latest_frame_t_s, other.latest_frame_t_s)
 
-    def save_npz(self, path: str | Path) -> None:
+    def save_npz(self, path: str | Path, *, with_limiting: bool = True) -> None:
         """Write a snapshot atomically (temp file, fsync, rename): pd, pfa, n_obs, mask, the
-        log-miss sums, limiting (LimitingFactor per cell), x0_m, y0_m (south-west corner of
+        log-miss sums, limiting (LimitingFactor per cell; not with ``with_limiting`` False,
+        for a grid whose limiting factors are unknown), x0_m, y0_m (south-west corner of
         cell [0, 0]), cell_size_m, frames, and with ``min_revisit_s`` each cell's last
         counted look, last_obs_s."""
         with atomic_write(path, "wb") as fh:
-            self.write_npz(fh)
+            self.write_npz(fh, with_limiting=with_limiting)
 
-    def write_npz(self, fh: IO[bytes]) -> None:
+    def write_npz(self, fh: IO[bytes], *, with_limiting: bool = True) -> None:
         """Write the snapshot ``save_npz`` writes to an open binary file (the daemon sends
         these bytes over Zenoh: np.load reads them)."""
         g = self.geometry
-        revisit: dict[str, np.ndarray] = (
+        optional: dict[str, np.ndarray] = (
             {} if self.last_obs_s is None else {"last_obs_s": self.last_obs_s})
+        if with_limiting:
+            optional["limiting"] = self.limiting
         looks = self._looks
         if isinstance(looks, CorrelatedLooks):
-            revisit["looks_counts"] = looks.counts
+            optional["looks_counts"] = looks.counts
         elif isinstance(looks, ViewpointLooks):
-            revisit["looks_best"] = looks.best
+            optional["looks_best"] = looks.best
         np.savez_compressed(
             fh, version=SNAPSHOT_VERSION, pd=self.pd, pfa=self.pfa, n_obs=self.n_obs,
             mask=self.mask, log_miss_d=self.log_miss_d, log_miss_fa=self.log_miss_fa,
-            limiting=self.limiting, x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m,
+            x0_m=g.x0_m, y0_m=g.y0_m, cell_size_m=g.cell_size_m,
             frames=self.frames, looks=str(self.looks.rule),
-            **revisit)  # type: ignore[arg-type]  # mypy matches **revisit to allow_pickle
+            **optional)  # type: ignore[arg-type]  # mypy matches **optional to allow_pickle
 
     @classmethod
     def load_npz(cls, path: str | Path, camera: CameraModel, detector: DetectorModel,
@@ -892,6 +903,21 @@ class CoverageGrid:
             grid.last_obs_s[:] = last
             grid.latest_frame_t_s = float(data.get("latest_frame_t_s", latest))
         return grid
+
+
+def limiting_counts(limiting: np.ndarray, mask: np.ndarray) -> dict[str, int]:
+    """Cells of ``mask`` per LimitingFactor code of ``limiting``, by lower-case name, in
+    code order."""
+    counts = np.bincount(limiting[mask], minlength=len(LimitingFactor))
+    return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
+
+
+def _union(a: tuple[int, int, int, int] | None, b: tuple[int, int, int, int] | None
+           ) -> tuple[int, int, int, int] | None:
+    """The smallest window (r0, r1, c0, c1) holding windows ``a`` and ``b`` (None: none)."""
+    if a is None or b is None:
+        return a or b
+    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
 
 def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],

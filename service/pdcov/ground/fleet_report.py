@@ -153,7 +153,8 @@ def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
                 ) -> tuple[GridState | None, tuple[str, ...]]:
     """The merged grid of the ready vehicles that share the fleet's grid, and their ids
     (sorted): log-miss sums added as float32, as the daemons hold them; counts added in
-    int64, which cannot overflow. The fleet's grid is ``grid_hash`` (the ground station's)
+    int64, which cannot overflow; the limiting factor the maximum (as CoverageGrid.merge),
+    unknown (None) when a vehicle's is. The fleet's grid is ``grid_hash`` (the ground station's)
     when a vehicle flies it, else the one most vehicles fly (ties: the vehicle heard
     first)."""
     ready = [f for f in feeds
@@ -174,6 +175,9 @@ def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
     base = states[0]
     merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
                        base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
+    limits = [s.limiting for s in states]
+    merged.limiting = (None if any(a is None for a in limits)
+                       else np.maximum.reduce([a for a in limits if a is not None]))
     for s in states[1:]:
         merged.log_miss_d += s.log_miss_d
         merged.log_miss_fa += s.log_miss_fa

@@ -34,12 +34,14 @@ import numpy as np
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.bus.grid_state import GridState, grid_hash
 from pdcov.config import Mission
-from pdcov.core.grid import SNAPSHOT_VERSION
+from pdcov.core.grid import SNAPSHOT_VERSION, limiting_counts
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 
 TILE_RECORD = struct.Struct("<dI")
+LIMITING_NOT_SENT = "not sent by the vehicle (pdcov before tiles v2)"
+"""The report's limiting factor when a vehicle's daemon sends tiles version 1."""
 MAX_BACKLOG_BYTES = 64 << 20
 """Most bytes of received payloads kept while the disk refuses them (Recording)."""
 
@@ -60,15 +62,17 @@ def _json_line(t: float, kind: str, payload: bytes) -> bytes:
 
 def write_state_npz(path: Path, state: GridState) -> None:
     """A grid.npz of ``state`` with the arrays CoverageGrid.save_npz writes (no revisit
-    clock: a watcher does not receive one)."""
+    clock: a watcher does not receive one; no limiting when the state's is unknown)."""
     buf = io.BytesIO()
     g = state.geometry
     pd = 0.0 - np.expm1(state.log_miss_d.astype(np.float64))
     pfa = 0.0 - np.expm1(state.log_miss_fa.astype(np.float64))
+    limiting = {} if state.limiting is None else {"limiting": state.limiting}
     np.savez_compressed(buf, version=SNAPSHOT_VERSION, pd=pd, pfa=pfa, n_obs=state.n_obs,
                         mask=state.mask, log_miss_d=state.log_miss_d,
                         log_miss_fa=state.log_miss_fa, x0_m=g.x0_m, y0_m=g.y0_m,
-                        cell_size_m=g.cell_size_m, frames=state.frames)
+                        cell_size_m=g.cell_size_m, frames=state.frames,
+                        **limiting)  # type: ignore[arg-type]  # **limiting to allow_pickle
     with atomic_write(path, "wb") as fh:
         fh.write(buf.getvalue())
 
@@ -262,18 +266,26 @@ class Recording:
             grid.log_miss_d[:] = merged.log_miss_d
             grid.log_miss_fa[:] = merged.log_miss_fa
             grid.n_obs[:] = merged.n_obs
+            if merged.limiting is not None:
+                grid.limiting[:] = merged.limiting
             grid.frames = merged.frames
             track = _track_enu(watcher, ids, mission) if len(ids) == 1 else None
             run = write_outputs(fleet, mission, grid, mission.origin(),
                                 title=f"pdcov watch: {', '.join(ids)}", track_enu=track,
-                                extra_metrics={"vehicles": list(ids)})
+                                extra_metrics={"vehicles": list(ids)},
+                                limiting_unknown=None if merged.limiting is not None
+                                else LIMITING_NOT_SENT)
             lines.append(summary_text(run))
         else:
             write_state_npz(fleet / "grid.npz", merged)
             doc = {"vehicles": list(ids), "frames": merged.frames,
                    "proportion_at_or_above": {
                        str(t): merged.proportion_at_or_above(t)
-                       for t in watcher.report(0.0).thresholds}}
+                       for t in watcher.report(0.0).thresholds},
+                   "limiting_cells": None if merged.limiting is None
+                   else limiting_counts(merged.limiting, merged.mask)}
+            if merged.limiting is None:
+                doc["limiting_unknown"] = LIMITING_NOT_SENT
             write_text_atomic(fleet / "metrics.json", json.dumps(doc, indent=2) + "\n")
             why = ("no --config" if mission is None
                    else "the mission config's grid is not the vehicles' grid")

@@ -425,9 +425,9 @@ class Watcher:
     def fleet_state(self) -> tuple[GridState | None, tuple[str, ...]]:
         """The merged grid of the ready vehicles that share the fleet's grid (log-miss sums
         added as float32, as the daemons hold them; counts added in int64, which cannot
-        overflow), and their ids (sorted). The fleet's grid is the ground station's
-        (grid_hash) when a vehicle flies it, else the one most vehicles fly (ties: the
-        vehicle heard first)."""
+        overflow; limiting factors by the maximum), and their ids (sorted). The fleet's
+        grid is the ground station's (grid_hash) when a vehicle flies it, else the one most
+        vehicles fly (ties: the vehicle heard first)."""
         return merge_fleet(self.feeds.values(), self.grid_hash)
 
     def report(self, now_s: float) -> FleetReport:

@@ -188,6 +188,7 @@ class RunOutputs:
     metrics: Metrics
     outcome: SearchOutcome | None
     not_written: tuple[str, ...] = ()  # "heatmap.png, ...: figures need ...", one a line
+    limiting_unknown: str | None = None  # why the grid's limiting factors are unknown
 
 
 def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, origin: Origin,
@@ -195,11 +196,14 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   plan_enu: np.ndarray | None = None, outline_threshold: float | None = None,
                   prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
                   figures: bool = True,
-                  exports: Sequence[VehicleDetections] | None = None) -> RunOutputs:
+                  exports: Sequence[VehicleDetections] | None = None,
+                  limiting_unknown: str | None = None) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
     not installed are named in ``not_written`` instead. ``exports``: the detections to
     export with the coverage (report/exports.py; gaps below the outline threshold), None
-    for no exports."""
+    for no exports. ``limiting_unknown``: why the grid's limiting factors are unknown (None:
+    they are known); metrics.json's limiting_cells is then null, with this reason under
+    limiting_unknown, and grid.npz and pd.tif hold no limiting factor."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -208,20 +212,25 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     doc = metrics_document(metrics, outcome)
     doc["motion_blur"] = {"effect": grid.blur_effect.name.lower(),
                           "exposure_s": grid.exposure_s, "frames_blurred": grid.frames_blurred}
+    if limiting_unknown is not None:
+        doc["limiting_cells"] = None
+        doc["limiting_unknown"] = limiting_unknown
     doc.update(extra_metrics or {})
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
     files = ["metrics.json", "grid.npz"]
     not_written = []
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
-    grid.save_npz(out / "grid.npz")
+    grid.save_npz(out / "grid.npz", with_limiting=limiting_unknown is None)
     gis_missing = GIS.message()
     outline: list[list[list[list[float]]]] = []
     if gis_missing is None:
         from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
 
         outline = threshold_outline(pd, mask, g, threshold)
-        write_geotiff(out / "pd.tif", {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs,
-                                       "limiting": grid.limiting}, g, origin, mask)
+        bands = {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}
+        if limiting_unknown is None:
+            bands["limiting"] = grid.limiting
+        write_geotiff(out / "pd.tif", bands, g, origin, mask)
         write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
         files += ["pd.tif", "outline.geojson"]
     if outcome is not None:
@@ -252,13 +261,15 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                            plan_enu=plan_enu,
                            terrain_z_m=None if terrain is None
                            else terrain.centre_z_m(0, g.n_rows, 0, g.n_cols),
-                           hidden=grid.limiting == LimitingFactor.HIDDEN)
+                           hidden=None if limiting_unknown is not None
+                           else grid.limiting == LimitingFactor.HIDDEN)
             thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds,
                               title=title)
             files += figure_files
         else:
             not_written.append(f"{', '.join(figure_files)}: {plots_missing}")
-    return RunOutputs(out, tuple(files), metrics, outcome, tuple(not_written))
+    return RunOutputs(out, tuple(files), metrics, outcome, tuple(not_written),
+                      limiting_unknown)
 
 
 def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
@@ -270,8 +281,8 @@ def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:
            f"mean P_D: {m.mean_pd:.3f}   expected false alarms: {m.expected_false_alarms:.2f}",
            "proportion of free cells with P_D at or above: " + "   ".join(
                f"{t:g}: {p:.3f}" for t, p in m.proportion_at_or_above.items()),
-           "limiting factor of free cells: " + "   ".join(
-               f"{name.replace('_', ' ')}: {n}" for name, n in m.limiting_cells.items())]
+           "limiting factor of free cells: " + (run.limiting_unknown or "   ".join(
+               f"{name.replace('_', ' ')}: {n}" for name, n in m.limiting_cells.items()))]
     if run.outcome is not None:
         out.append(f"probability of success POS: {run.outcome.probability_of_success:.3f} "
                    f"(prior mass in grid {run.outcome.prior_mass:.3f}); posterior written")

@@ -115,7 +115,7 @@ class LiveCoverage:
         self.cfg = cfg
         self.grid = grid
         self.state = GridState(grid.geometry, grid.mask, grid.log_miss_d, grid.log_miss_fa,
-                               grid.n_obs, grid.frames)  # views: always current
+                               grid.n_obs, grid.frames, grid.limiting)  # views: current
         self.grid_hash = self.state.hash  # the geometry and mask never change
         self.frame_source = FrameSource(cfg.frame_source)
         self.max_gap_s = m.max_gap_s

@@ -34,6 +34,7 @@ class TileSender:
         # when each tile first changed unsent.
         self._tile_shape = tile_grid_shape(tile_size, *grid.geometry.shape)
         self.sent_n_obs = np.zeros_like(grid.n_obs)
+        self.sent_limiting = np.zeros_like(grid.limiting)
         self._touched_tiles = np.ones(self._tile_shape, bool)
         self._dirty_since: dict[tuple[int, int], float] = {}
         self._rate = float(max_bytes_per_s)
@@ -61,12 +62,15 @@ class TileSender:
         self._allowance = min(rate, self._allowance + rate * (now_s - self._last_tiles_s))
         self._last_tiles_s = now_s
         ts = self.tile_size
-        n_obs, sent = self.grid.n_obs, self.sent_n_obs
+        grid = self.grid
         # Only tiles frames touched can differ from what was sent (row-major, as the
-        # whole-grid comparison this replaces).
+        # whole-grid comparison this replaces); a frame can change a cell's limiting factor
+        # (in view too far, hidden) without a look.
         for tr, tc in zip(*np.nonzero(self._touched_tiles), strict=True):
             win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-            if (int(tr), int(tc)) not in self._dirty_since and (n_obs[win] != sent[win]).any():
+            if (int(tr), int(tc)) not in self._dirty_since and (
+                    (grid.n_obs[win] != self.sent_n_obs[win]).any()
+                    or (grid.limiting[win] != self.sent_limiting[win]).any()):
                 self._dirty_since[(int(tr), int(tc))] = now_s
         self._touched_tiles[:] = False
         if not self._dirty_since or self._allowance <= 0:
@@ -83,5 +87,6 @@ class TileSender:
         for tr, tc in ids:
             del self._dirty_since[(tr, tc)]
             win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-            self.sent_n_obs[win] = self.grid.n_obs[win]
+            self.sent_n_obs[win] = grid.n_obs[win]
+            self.sent_limiting[win] = grid.limiting[win]
         return payload
