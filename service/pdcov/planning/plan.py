@@ -44,7 +44,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -73,6 +73,8 @@ from pdcov.core.mission import (
 )
 from pdcov.errors import InputFileError
 from pdcov.yaml_file import read_text
+
+T = TypeVar("T")
 
 ZOOM_TYPE_HORIZONTAL_FOV = 4  # CAMERA_ZOOM_TYPE (common.xml): param2 the field of view, deg
 _SKIPPED_NAV = (MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH,
@@ -198,22 +200,12 @@ class Plan:
     def pointings(self) -> list[GimbalPointing | None]:
         """Per waypoint, the gimbal pointing in force on the way to it and at it (None:
         before any is commanded)."""
-        out: list[GimbalPointing | None] = []
-        now = None
-        for w in self.waypoints:
-            now = w.gimbal or now
-            out.append(now)
-        return out
+        return _held([w.gimbal for w in self.waypoints])
 
     def zooms_hfov_deg(self) -> list[float | None]:
         """Per waypoint, the camera zoom (horizontal field of view, deg) in force on the way
         to it and at it (None: before any is commanded, the configured camera)."""
-        out: list[float | None] = []
-        now = None
-        for w in self.waypoints:
-            now = now if w.zoom_hfov_deg is None else w.zoom_hfov_deg
-            out.append(now)
-        return out
+        return _held([w.zoom_hfov_deg for w in self.waypoints])
 
     def written(self) -> np.ndarray:
         """bool (N,): the waypoints a mission carries; a MAV_FRAME_GLOBAL_TERRAIN_ALT one
@@ -238,6 +230,17 @@ def home_item(origin: Origin) -> MissionItem:
     """The home position item (seq 0 in WPL files and on ArduPilot): origin on the ground."""
     return MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, lat_deg=origin.lat_deg,
                        lon_deg=origin.lon_deg, z_m=origin.ground_alt_msl_m)
+
+
+def _held(commanded: list[T | None]) -> list[T | None]:
+    """Per waypoint, what a mission item commanded there or before it is in force (None:
+    nothing yet): each value, or the last one given before it."""
+    out: list[T | None] = []
+    now: T | None = None
+    for value in commanded:
+        now = now if value is None else value
+        out.append(now)
+    return out
 
 
 def takeoff_alt_m(plan: Plan) -> float:
