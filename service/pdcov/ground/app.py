@@ -6,6 +6,7 @@ until the re-fly is sent or declined)."""
 from __future__ import annotations
 
 import asyncio
+import secrets
 import signal
 import sys
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pdcov.bus.grid_state import grid_hash
+from pdcov.bus.operator_keys import OperatorKey
 from pdcov.bus.session import (
     BusConfig,
     bus_security,
@@ -37,6 +39,7 @@ from pdcov.ground.retask import (
     propose_refly,
     refly_inputs,
     reply_line,
+    signed_request,
 )
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
@@ -60,7 +63,7 @@ class WatchOptions:
     basemap: the tiles under the web map (closed when the watcher ends); plans: the plans
     it draws. record: the recording folder (its exports in record/exports/ every
     exports_period_s). cot: the Cursor-on-Target destination URL (ground/cot_feed.py), or
-    None."""
+    None. operator_key: signs re-flies (none: they are not sent)."""
 
     bus: BusConfig
     vehicle: str | None = None
@@ -79,6 +82,7 @@ class WatchOptions:
     refly: str | None = None
     refly_settings: ReflySettings | None = None
     yes: bool = False
+    operator_key: OperatorKey | None = None
 
     def __post_init__(self) -> None:
         if (self.web is None) != (self.web_access is None):
@@ -94,8 +98,10 @@ class ReflyDesk:
     ``confirm`` sends the held proposal to its vehicle and returns the daemon's verdict."""
 
     def __init__(self, watcher: Watcher, shell: WatchShell, mission: Mission,
-                 config_hash: str, settings: ReflySettings) -> None:
+                 config_hash: str, settings: ReflySettings,
+                 operator_key: OperatorKey | None = None) -> None:
         self.watcher, self.shell, self.mission = watcher, shell, mission
+        self.operator_key = operator_key
         self.config_hash = config_hash
         self.settings = settings
         self.scenario = scenario_of(mission)
@@ -114,11 +120,14 @@ class ReflyDesk:
         return proposal
 
     async def confirm(self, proposal_id: str) -> tuple[bool, str]:
-        """Send the held proposal ``proposal_id``: (accepted by the autopilot, the line)."""
+        """Sign and send the held proposal ``proposal_id``: (accepted by the autopilot, the
+        line); RetaskNotSent without an operator key or out of bounds."""
         p = self.current
         if p is None or p.id != proposal_id:
             raise ReflyError(f"re-fly {proposal_id}: not the proposal shown (ask again)")
-        reply = await self.shell.retask(p.vehicle_id, p.payload)
+        payload = signed_request(self.operator_key, p.vehicle_id, p.items, p.description,
+                                 self.mission, p.home, time.time(), secrets.token_hex(16))
+        reply = await self.shell.retask(p.vehicle_id, payload)
         self.outcome = reply_line(p, reply)
         return reply is not None and reply.accepted, self.outcome
 
@@ -158,7 +167,7 @@ async def _main(opts: WatchOptions) -> int:
     desk = None
     if opts.mission is not None and config_hash is not None:
         desk = ReflyDesk(watcher, shell, opts.mission, config_hash, opts.refly_settings
-                         or ReflySettings(max(opts.mission.thresholds)))
+                         or ReflySettings(max(opts.mission.thresholds)), opts.operator_key)
 
     def report() -> FleetReport:
         """The watcher's report as of now, with the recording's, the exports' and the CoT

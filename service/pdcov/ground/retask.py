@@ -17,18 +17,20 @@ from typing import Any
 
 import numpy as np
 
-from pdcov.bus.retask import RetaskReply, encode_retask, plan_hash
+from pdcov.bus.operator_keys import OperatorKey
+from pdcov.bus.retask import RetaskReply, encode_signed_retask, plan_hash
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.core.mission import MissionItem
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
+from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
 from pdcov.planning.optimise import Scenario
 from pdcov.planning.plan import mission_items
 from pdcov.planning.refly import Refly, ReflySettings, independent_grid, refly_of_grid
 
-__all__ = ["ReflyError", "ReflyInputs", "ReflyProposal", "propose_refly", "refly_inputs",
-           "reply_line"]
+__all__ = ["ReflyError", "ReflyInputs", "ReflyProposal", "RetaskNotSent", "propose_refly",
+           "refly_inputs", "reply_line", "signed_request"]
 
 LatLon = tuple[float, float]
 
@@ -37,11 +39,36 @@ class ReflyError(PdcovError):
     """No re-fly can be proposed now (the message says why and what to wait for)."""
 
 
+class RetaskNotSent(PdcovError):
+    """The ground station refuses to send a mission: no operator key, or items outside
+    the mission's bounds (the message names them)."""
+
+
+def signed_request(key: OperatorKey | None, vehicle_id: str, items: tuple[MissionItem, ...],
+                   description: str, mission: Mission, home: Origin, unix_s: float,
+                   nonce: str) -> bytes:
+    """The signed request for ``items`` once they pass the bounds the vehicle enforces
+    (the mission's ``service.retask_limits`` around its domain, home ``home``): the same
+    rule as the daemon's (planning/mission_bounds.py). ``unix_s``: now, UTC s; ``nonce``:
+    32 fresh random hex digits. RetaskNotSent saying why otherwise."""
+    if key is None:
+        raise RetaskNotSent(f"mission for {vehicle_id} not sent: no operator key (give "
+                            "--operator-key KEYFILE; `pdcov keys new` makes one): the vehicle "
+                            "obeys signed requests only")
+    limits = RetaskLimits.from_service(mission.raw.get("service"))
+    verdict = check_mission_bounds(items, mission.domain.boundary, home, limits)
+    if not verdict.ok:
+        raise RetaskNotSent(f"mission for {vehicle_id} not sent: out of the mission's bounds "
+                            f"(service.retask_limits): {verdict.text()}")
+    return encode_signed_retask(key, vehicle_id, items, description, unix_s, nonce)
+
+
 @dataclass(frozen=True, slots=True)
 class ReflyProposal:
     """A re-fly shown to the operator before it is sent. ``id``: the plan hash of its
     items (what the daemon's reply and log name); waypoints and gap rings (closed) as
-    (lat, lon) degrees WGS84; gap cells before and predicted after; the request payload."""
+    (lat, lon) degrees WGS84; gap cells before and predicted after; ``home``: the origin
+    the items are written about (its ground altitude the vehicle's)."""
 
     id: str
     vehicle_id: str
@@ -55,7 +82,7 @@ class ReflyProposal:
     flight_time_s: float
     path_length_m: float
     start_enu_m: tuple[float, float]
-    payload: bytes
+    home: Origin
 
     def lines(self) -> list[str]:
         """What the operator reads before confirming."""
@@ -155,7 +182,7 @@ def propose_refly(inputs: ReflyInputs, scenario: Scenario, settings: ReflySettin
         gap_cells_after=r.gaps_after.n_cells,
         flight_time_s=r.prediction.flight.duration_s,
         path_length_m=r.prediction.flight.path_length_m, start_enu_m=inputs.start_enu_m,
-        payload=encode_retask(inputs.vehicle_id, items, description))
+        home=origin)
 
 
 def reply_line(proposal: ReflyProposal, reply: RetaskReply | None) -> str:

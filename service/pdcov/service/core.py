@@ -40,7 +40,6 @@ from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
-from pdcov.planning.plan import home_item
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.detections import MAX_HELD_BOXES
@@ -55,6 +54,7 @@ from pdcov.service.link_protocol import (
 )
 from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.retask import Retasker, RetaskPolicy
+from pdcov.service.retask_auth import NonceBook, RetaskAuthority
 from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
@@ -95,8 +95,9 @@ class Actions:
     link; write these bytes to the recording; publish these tiles and detections (on
     pdcov/<id>/detections); if ``status_due``, flush
     the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
-    and report it back; answer these re-tasking queries (ticket, reply payload); log these
-    (level, text) lines."""
+    and report it back; answer these re-tasking queries (ticket, reply payload); write the
+    re-tasking nonces seen (``nonces``, to read back at start); log these (level, text)
+    lines."""
 
     send: list[Any] = field(default_factory=list)
     record: list[bytes] = field(default_factory=list)
@@ -105,6 +106,7 @@ class Actions:
     status_due: bool = False
     checkpoint: CheckpointMeta | None = None
     replies: list[tuple[int, bytes]] = field(default_factory=list)
+    nonces: bytes | None = None
     logs: list[tuple[int, str]] = field(default_factory=list)
 
 
@@ -148,12 +150,14 @@ class ServiceCore:
     (``settings.new_serve_grid``), or the resumed one with its ``resumed`` metadata (and,
     with a cameras list, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
     checkpoint's state to report (its path, whether it resumed or was set aside);
-    ``now_s``: the shell's monotonic clock at start."""
+    ``now_s``: the shell's monotonic clock at start; ``nonces``: the re-tasking nonces seen
+    before (read back from the state dir)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
                  mission_hash: str, resumed: CheckpointMeta | None = None,
                  checkpoint: CheckpointState | None = None,
-                 camera_grids: dict[str, CoverageGrid] | None = None) -> None:
+                 camera_grids: dict[str, CoverageGrid] | None = None,
+                 nonces: NonceBook | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
         self.mission_hash = mission_hash
@@ -182,8 +186,11 @@ class ServiceCore:
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
         self.snapshot_limiter = QueryLimiter()
+        svc = cfg.service
+        authority = RetaskAuthority(m.vehicle_id, {k.id: k for k in cfg.operator_keys},
+                                    svc.retask_window_s) if cfg.operator_keys else None
         self.retasker = Retasker(m.vehicle_id, RetaskPolicy(
-            cfg.service.retask, frozenset(cfg.service.retask_sessions)), now_s)
+            svc.retask, authority, svc.retask_limits, m.domain.boundary), now_s, nonces)
         self.candidates_limiter = QueryLimiter()
         self._out = Actions()
 
@@ -325,21 +332,24 @@ class ServiceCore:
         return min(self.coverage.next_timer_s(), self.protocol.next_timer_s(),
                    self.retasker.next_timer_s())
 
-    def receive_retask(self, ticket: int, payload: bytes, session: str | None,
-                       now_s: float) -> None:
-        """A re-tasking query's payload from Zenoh session ``session``, named ``ticket``
-        by the shell: refused or uploaded (service/retask.py); its answer comes out in
-        ``Actions.replies`` once known."""
+    def receive_retask(self, ticket: int, payload: bytes, key_expr: str,
+                       session: str | None, now_s: float, unix_s: float) -> None:
+        """A re-tasking query's payload on ``key_expr`` (the query's own) from Zenoh
+        session ``session``, named ``ticket`` by the shell, at ``now_s`` (monotonic) and
+        ``unix_s`` (UTC, for the request's time window): refused or uploaded
+        (service/retask.py); its answer comes out in ``Actions.replies`` once known."""
         origin = self.coverage.origin or self.cfg.mission.origin()
-        self._out.send += self.retasker.request(ticket, payload, session, now_s,
-                                                self.protocol, home_item(origin))
+        self._out.send += self.retasker.request(ticket, payload, key_expr, session, now_s,
+                                                unix_s, self.protocol, origin)
         self._collect_retask()
 
     def _collect_retask(self) -> None:
-        out = self._out
-        out.replies += self.retasker.replies()
-        out.logs += self.retasker.logs
-        self.retasker.logs = []
+        out, retasker = self._out, self.retasker
+        out.replies += retasker.replies()
+        out.logs += retasker.logs
+        retasker.logs = []
+        if retasker.nonces.changed:
+            out.nonces = retasker.nonces.to_bytes()
 
     def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
         """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
@@ -412,6 +422,8 @@ class ServiceCore:
         faults["other_systems_messages"] = proto.stats.other_systems
         faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
         faults["retask_refused"] = sum(self.retasker.refused.values())
+        for reason, n in self.retasker.refused.items():
+            faults[f"retask_refused_{reason.name.lower()}"] = n
         if self.candidates_limiter.refused:
             faults["candidates_queries_refused"] = sum(self.candidates_limiter.refused.values())
         self.checkpoint.recording_error = report.recording_error

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pdcov.atomic import atomic_write
 from pdcov.bus.footprint import encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
@@ -48,12 +49,15 @@ from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
+from pdcov.service.retask_auth import NonceBook
 from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.frame_policy import FrameSource
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
+NONCES_NAME = "retask_nonces.json"
+"""The re-tasking nonces seen, in service.state_dir (service/retask_auth.py)."""
 OPEN_ATTEMPT_S = 2.0
 """Longest wait of one attempt to open a client session (for a router to answer)."""
 OPEN_RETRY_S = 1.0
@@ -125,7 +129,27 @@ class Daemon:
                                 set_aside=str(r.set_aside) if r.set_aside else None)
         return ServiceCore(self.cfg, r.grid or grid, self._clock(), mission_hash=mhash,
                            resumed=r.meta if r.grid is not None else None, checkpoint=state,
-                           camera_grids=r.cameras)
+                           camera_grids=r.cameras, nonces=self._read_nonces())
+
+    def _read_nonces(self) -> NonceBook:
+        """The re-tasking nonces seen before this start (none when the file is missing; a
+        damaged file is logged and set aside: its nonces are older than a restart, and a
+        request older than the window is refused anyway)."""
+        path = self.state_dir / NONCES_NAME
+        try:
+            return NonceBook.from_bytes(path.read_bytes())
+        except FileNotFoundError:
+            return NonceBook()
+        except (OSError, ValueError) as exc:
+            log.warning("%s: not read (%s); re-tasking nonces start empty", path, exc)
+            return NonceBook()
+
+    def _write_nonces(self, data: bytes) -> None:
+        try:
+            with atomic_write(self.state_dir / NONCES_NAME, "wb") as f:
+                f.write(data)
+        except PdcovError as exc:
+            log.error("re-tasking nonces not written: %s", exc)
 
     @property
     def live(self) -> LiveCoverage:
@@ -304,7 +328,10 @@ class Daemon:
         ticket, self._next_ticket = self._next_ticket, self._next_ticket + 1
         self._retask_queries[ticket] = query
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        self.core.receive_retask(ticket, payload, source_session(query), self._clock())
+        # query.key_expr is the query's own expression (a wildcard that reached this
+        # queryable stays one): the core refuses anything but pdcov/<id>/retask.
+        self.core.receive_retask(ticket, payload, str(query.key_expr), source_session(query),
+                                 self._clock(), time.time())
         self._do(self.core.actions())
 
     def _reply_retask(self, ticket: int, payload: bytes) -> None:
@@ -385,6 +412,8 @@ class Daemon:
             self._publish_status()
         if a.checkpoint is not None:
             self._write_checkpoint(a.checkpoint)
+        if a.nonces is not None:  # before the replies: a replay after a crash is refused
+            self._write_nonces(a.nonces)
         for ticket, payload in a.replies:
             self._reply_retask(ticket, payload)
         for level, text in a.logs:

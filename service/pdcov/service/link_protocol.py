@@ -44,7 +44,9 @@ MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_IN_PROGRESS = 5
+MAV_SEVERITY_NOTICE = 5
 MAV_SEVERITY_INFO = 6
+STATUSTEXT_CHARS = 50
 # Message ids (common.xml; EKF_STATUS_REPORT: ardupilotmega.xml).
 ATTITUDE, GLOBAL_POSITION_INT, HOME_POSITION = 30, 33, 242
 GIMBAL_DEVICE_ATTITUDE_STATUS = 285
@@ -365,8 +367,17 @@ class LinkProtocol:
             out.append(self.mav.named_value_float_encode(t_boot_ms & 0xFFFFFFFF, b"PDCOV",
                                                          float(value)))
         if text is not None:
-            out.append(self.mav.statustext_encode(MAV_SEVERITY_INFO, text.encode()[:50]))
+            out.append(self.mav.statustext_encode(MAV_SEVERITY_INFO,
+                                                  text.encode()[:STATUSTEXT_CHARS]))
         return self.checked(out)
+
+    def notice(self, text: str) -> list[Any]:
+        """A STATUSTEXT of severity NOTICE (the ground station shows it to the pilot),
+        ``text`` cut to 50 characters."""
+        if not self.autopilot_known:
+            return []
+        return self.checked([self.mav.statustext_encode(
+            MAV_SEVERITY_NOTICE, text.encode()[:STATUSTEXT_CHARS])])
 
     @staticmethod
     def checked(msgs: list[Any]) -> list[Any]:

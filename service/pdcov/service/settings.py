@@ -10,7 +10,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,16 +17,17 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.bus.operator_keys import OperatorPublicKey, load_public_key
 from pdcov.bus.session import BusConfig, bus_config_from_dict
 from pdcov.config import Mission, MissionCamera, load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, where
 from pdcov.ids import valid_system_id
+from pdcov.planning.mission_bounds import RetaskLimits
 from pdcov.schema import Section
 
 FRAME_SOURCES = ("rate", "capture", "zenoh")
-_ZID = re.compile(r"[0-9a-f]{1,32}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,9 +99,11 @@ class ServiceConfig:
     home_wait_s: autopilot seconds to wait for HOME_POSITION before taking the ground
     altitude from the first position (when origin.ground_alt_msl_m is not set).
     retask: upload the missions ground stations send on pdcov/<id>/retask to the autopilot
-    (default false: every request is refused and logged); retask_sessions: the Zenoh
-    session ids (hex) allowed to (empty: any session the bus lets through; what protects
-    the key: docs/ground-station.md "Securing the bus")."""
+    (default false: every request is refused and logged); retask_operator_keys: the
+    operator public keys (PEM files, relative to the config's folder) whose signed requests
+    are obeyed (required with retask); retask_window_s: how far a request's issue time may
+    be from this computer's UTC clock, s; retask_limits: where a mission may send the
+    aircraft (planning/mission_bounds.py)."""
 
     state_dir: str = "/var/lib/pdcov"
     checkpoint_period_s: float = 10.0
@@ -115,15 +117,23 @@ class ServiceConfig:
     record_keep_bytes: int = 4 << 30
     home_wait_s: float = 5.0
     retask: bool = False
-    retask_sessions: tuple[str, ...] = ()
+    retask_operator_keys: tuple[str, ...] = ()
+    retask_window_s: float = 120.0
+    retask_limits: RetaskLimits = RetaskLimits()
 
     def __post_init__(self) -> None:
-        if isinstance(self.retask_sessions, str) or not all(
-                isinstance(z, str) and _ZID.fullmatch(z) for z in self.retask_sessions):
-            raise ConfigError("service.retask_sessions: expected a list of Zenoh session ids "
-                              "(1 to 32 lowercase hex digits, as `pdcov watch` prints its "
-                              f"own), got {list(self.retask_sessions)!r}"[:300])
-        for name in ("checkpoint_period_s", "home_wait_s"):
+        if isinstance(self.retask_operator_keys, str) or not all(
+                isinstance(k, str) and k for k in self.retask_operator_keys):
+            raise ConfigError("service.retask_operator_keys: expected a list of public key "
+                              "files (`pdcov keys new` writes operator.pub), got "
+                              f"{self.retask_operator_keys!r}"[:300])
+        if self.retask is True and not self.retask_operator_keys:
+            raise ConfigError("service.retask_operator_keys: service.retask is true but no "
+                              "operator key is listed: list the operator.pub of each "
+                              "operator who may re-task (`pdcov keys new`)")
+        if not isinstance(self.retask_limits, RetaskLimits):
+            raise ConfigError("service.retask_limits: expected a mapping")
+        for name in ("checkpoint_period_s", "home_wait_s", "retask_window_s"):
             _positive(name, getattr(self, name), "service")
         if not (isinstance(self.reorder_s, (int, float)) and 0 <= self.reorder_s <= 10):
             raise ConfigError(f"service.reorder_s: expected 0..10 s, got {self.reorder_s!r}")
@@ -162,6 +172,8 @@ class ServeConfig:
     bus: BusConfig
     service: ServiceConfig
     base_dir: Path
+    operator_keys: tuple[OperatorPublicKey, ...] = ()
+    """The keys of service.retask_operator_keys, read."""
 
     @property
     def frame_source(self) -> str:
@@ -176,11 +188,13 @@ def _section(doc: Mapping[str, Any], key: str, cls: type, src: str | None) -> An
     raw = doc.get(key) or {}
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where(src, key)}: expected a mapping")
-    kw = {k: tuple(v) if isinstance(v, list) and k in ("connect", "retask_sessions") else v
-          for k, v in raw.items()}
+    kw = {k: tuple(v) if isinstance(v, list) and k in ("connect", "retask_operator_keys")
+          else v for k, v in raw.items()}
     if isinstance(kw.get("connect"), str):
         kw["connect"] = (kw["connect"],)
     try:
+        if isinstance(kw.get("retask_limits"), Mapping):
+            kw["retask_limits"] = RetaskLimits.from_service(raw)
         return cls(**kw)
     except ConfigError as exc:
         raise ConfigError(f"{src}: {exc}" if src else str(exc)) from None
@@ -191,9 +205,13 @@ def load_serve_config(path: str | Path) -> ServeConfig:
     path = Path(path)
     mission = load_mission(path, sections=SECTIONS)
     raw = mission.raw
+    service = _section(raw, "service", ServiceConfig, mission.source)
+    keys = tuple(load_public_key(path.parent / k, f"{mission.source}: "
+                                 "service.retask_operator_keys:")
+                 for k in service.retask_operator_keys)
     cfg = ServeConfig(mission, _section(raw, "link", LinkConfig, mission.source),
-                      bus_config_from_dict(raw.get("bus"), mission.source),
-                      _section(raw, "service", ServiceConfig, mission.source), path.parent)
+                      bus_config_from_dict(raw.get("bus"), mission.source), service,
+                      path.parent, keys)
     mission.cameras_frame_source(cfg.frame_source, "service.frame_source"
                                  if cfg.service.frame_source else "log.frame_source")
     return cfg
