@@ -24,10 +24,11 @@ COMMANDS = {
     "plan": "pdcov.commands.plan",
     "optimise": "pdcov.commands.plan",
     "refly": "pdcov.commands.plan",
-    "upload": "pdcov.commands.plan",
+    "upload": "pdcov.commands.upload",
     "mount-check": "pdcov.commands.mount",
     "serve": "pdcov.commands.serve",
     "watch": "pdcov.commands.watch",
+    "keys": "pdcov.commands.keys",
 }
 
 

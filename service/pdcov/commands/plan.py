@@ -1,5 +1,5 @@
-"""``pdcov plan | optimise | refly | upload``: coverage plans, their predicted P_D, the choice
-of parameters, the follow-up flight over the gaps, and the upload to a vehicle.
+"""``pdcov plan | optimise | refly``: coverage plans, their predicted P_D, the choice
+of parameters and the follow-up flight over the gaps (the upload: commands/upload.py).
 
 Algorithms, limits and file formats: docs/planning.md. The mission config's optional
 ``planning`` section sets the vehicle's kinematic limits for the predictions:
@@ -27,7 +27,6 @@ import numpy as np
 from pdcov.atomic import atomic_write, replacing_dir, write_text_atomic
 from pdcov.commands.args import (
     finite,
-    mavlink_url,
     nonnegative,
     output_dir,
     overlap,
@@ -40,12 +39,9 @@ from pdcov.config import Mission
 from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import (
-    MAV_CMD_NAV_WAYPOINT,
-    MAV_FRAME_GLOBAL,
     AltitudeFrame,
     GimbalCommand,
     HoverItem,
-    MissionItem,
 )
 from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
@@ -67,7 +63,7 @@ from pdcov.planning.optimise import (
     with_spacing,
 )
 from pdcov.planning.patterns import track_spacing_m
-from pdcov.planning.plan import GimbalPointing, read_mission, write_plan
+from pdcov.planning.plan import GimbalPointing, write_plan
 from pdcov.planning.refly import ReflySettings, refly_of_grid
 from pdcov.planning.scenario import check_plan_size, scenario_of
 from pdcov.planning.terrain_follow import (
@@ -82,7 +78,6 @@ from pdcov.planning.vantage_missions import (
     vantage_score,
 )
 from pdcov.report.outputs import summary_text, write_outputs
-from pdcov.telemetry.upload import upload_mission
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -162,17 +157,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _terrain_args(r)
     r.add_argument("--out", required=True, type=output_dir, help="folder to write")
     r.set_defaults(func=run_refly)
-
-    u = subparsers.add_parser("upload", help="upload a plan to a vehicle (MAVLink mission)",
-                              description="Upload a .plan or WPL file with the MAVLink "
-                                          "mission protocol and report what the vehicle said.")
-    u.add_argument("plan", type=Path, help=".plan or WPL 110 file")
-    u.add_argument("--connect", required=True, type=mavlink_url,
-                   help="pymavlink URL, e.g. udpin:0.0.0.0:14550, udpout:192.168.1.10:14555, "
-                        "tcp:127.0.0.1:5760, /dev/ttyUSB0")
-    u.add_argument("--timeout-s", type=positive, default=10.0,
-                   help="wait this long for the vehicle's heartbeat, s")
-    u.set_defaults(func=run_upload)
 
 
 def _spacing_args(p: argparse.ArgumentParser) -> None:
@@ -635,17 +619,3 @@ def run_refly(args: argparse.Namespace) -> int:
               f"{o.gaps_after:6d} gap cells after  {o.description}")
     print(summary + _replaced_note(replaced, out))
     return 0
-
-
-def run_upload(args: argparse.Namespace) -> int:
-    mission = read_mission(args.plan)
-    home = mission.home
-    if home is None:
-        first = next((i for i in mission.items if i.command == MAV_CMD_NAV_WAYPOINT), None)
-        if first is None:
-            raise ConfigError(f"{args.plan}: no waypoint to upload")
-        home = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, lat_deg=first.lat_deg,
-                           lon_deg=first.lon_deg)
-    result = upload_mission(mission.items, args.connect, home, timeout_s=args.timeout_s)
-    print(result.report(), file=sys.stdout if result.accepted else sys.stderr)
-    return 0 if result.accepted else 1

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pdcov.commands.bus_args import add_bus_args, bus_of
 from pdcov.errors import ConfigError
 from pdcov.extras import COT, GROUND
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
@@ -26,20 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path,
                    help="mission config YAML: its bus section (mode, endpoints, TLS) and "
                         "domain (drawn on the web map, report figures with --record)")
-    p.add_argument("--mode", choices=("auto", "peer", "client"),
-                   help="Zenoh session mode (default: the config's bus.mode, else auto: a "
-                        "client when connecting somewhere and listening nowhere, as to a "
-                        "router, else a peer with multicast scouting)")
-    p.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
-                   help="Zenoh endpoint to connect to, e.g. tcp/192.168.10.1:7447 "
-                        "(repeatable; replaces the config's)")
-    p.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                   help="Zenoh endpoint to listen on (repeatable; replaces the config's)")
-    p.add_argument("--zenoh-config", type=Path, metavar="FILE",
-                   help="Zenoh JSON5 config read first (TLS certificates of this ground "
-                        "station; replaces the config's bus.config_file)")
-    p.add_argument("--no-multicast-scouting", action="store_true",
-                   help="do not look for peers and routers by multicast")
+    add_bus_args(p)
     p.add_argument("--web", metavar="HOST:PORT",
                    help="serve the live map, e.g. 127.0.0.1:8080, to whoever has its access "
                         "token: the address to open, token included, is printed at start")
@@ -79,6 +67,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--target-pd", type=float, metavar="P",
                    help="with --refly and the web map: the P_D every free cell should reach "
                         "(default: the mission's largest threshold)")
+    p.add_argument("--operator-key", type=Path, metavar="KEYFILE",
+                   help="with --refly and the web map: the operator key that signs re-flies "
+                        "(operator.key of `pdcov keys new`; without it none is sent)")
     p.add_argument("--yes", action="store_true",
                    help="with --refly: send without asking (scripts)")
     p.add_argument("--plain", action="store_true",
@@ -88,10 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     GROUND.require()
-    from pdcov.bus.session import BusConfig, bus_config_from_dict
     from pdcov.commands.mission_file import load_mission_warned
     from pdcov.ground.app import WatchOptions, parse_web_address, run_watch, stdout_is_terminal
 
@@ -99,19 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if vehicle is not None and not valid_vehicle_id(vehicle):
         raise ConfigError(f"--vehicle {args.vehicle!r}: expected {VEHICLE_ID_RULE}, or 'all'")
     mission = load_mission_warned(args.config, "watch") if args.config else None
-    bus = (bus_config_from_dict(mission.raw.get("bus"), mission.source) if mission
-           else BusConfig())
-    bus = bus.with_endpoints(args.zenoh_connect, args.zenoh_listen)
-    if args.zenoh_config is not None:
-        if not args.zenoh_config.is_file():
-            raise ConfigError(f"--zenoh-config {args.zenoh_config}: no such file")
-        bus = replace(bus, config_file=str(args.zenoh_config))
-    if args.mode:
-        bus = replace(bus, mode=args.mode)
-    if bus.mode == "router":
-        bus = replace(bus, mode="auto")  # the daemon's config may say router; we follow
-    if args.no_multicast_scouting:
-        bus = replace(bus, multicast_scouting=False)
+    bus = bus_of(args, mission)
     web = parse_web_address(args.web) if args.web else None
     access = None
     if web is not None:
@@ -145,6 +121,11 @@ def run(args: argparse.Namespace) -> int:
     if mission is not None:
         settings = ReflySettings(args.target_pd if args.target_pd is not None
                                  else max(mission.thresholds))
+    operator_key = None
+    if args.operator_key is not None:
+        from pdcov.bus.operator_keys import load_private_key
+
+        operator_key = load_private_key(args.operator_key)
     plans: tuple[PlanLayer, ...] = ()
     basemap = None
     if web is not None:
@@ -158,4 +139,4 @@ def run(args: argparse.Namespace) -> int:
         basemap=basemap, plans=plans,
         record=args.record, once=args.once, wait_s=args.wait_s, cot=args.cot,
         plain=args.plain or not stdout_is_terminal(), refly=args.refly,
-        refly_settings=settings, yes=args.yes))
+        refly_settings=settings, yes=args.yes, operator_key=operator_key))
