@@ -12,15 +12,16 @@ import numpy as np
 import pytest
 import yaml
 from link_feed import MISSION, Hover, pack
+from retask_keys import KEY, UNIX_S, signed, write_pub
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, grid_hash
 from pdcov.bus.retask import (
     MAX_RETASK_ITEMS,
-    decode_retask,
+    decode_retask_body,
     decode_retask_reply,
-    encode_retask,
+    open_envelope,
     plan_hash,
 )
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
@@ -38,33 +39,41 @@ ITEMS = (WP, MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT,
                          lat_deg=47.3979, lon_deg=8.5458, z_m=10.0))
 
 
+def _body_doc() -> dict:
+    return json.loads(open_envelope(signed(ITEMS, description="two waypoints")).body)
+
+
 def _doc(**change) -> bytes:
-    doc = json.loads(encode_retask("fuzz", ITEMS, "two waypoints"))
+    doc = _body_doc()
     doc.update(change)
     return json.dumps(doc).encode()
 
 
 def test_request_round_trip_keeps_nan_and_hash() -> None:
-    req = decode_retask(encode_retask("fuzz", ITEMS, "two waypoints"), vehicle_id="fuzz")
-    assert req.plan_hash == plan_hash(ITEMS)
+    env = open_envelope(signed(ITEMS, description="two waypoints"))
+    assert env.key_id == KEY.id and len(env.signature) == 64
+    req = decode_retask_body(env.body)
+    assert req.plan_hash == plan_hash(ITEMS) and req.key_id == KEY.id
+    assert req.issued_unix_s == UNIX_S and len(req.nonce) == 32
     assert math.isnan(req.items[0].param4) and req.items[1].param4 == 0.0
     assert req.items[0].lat_deg == WP.lat_deg and req.description == "two waypoints"
 
 
 @pytest.mark.parametrize(("payload", "match"), [
     (b"\xff", "not UTF-8 JSON"),
-    (_doc(version=2), "version 2"),
-    (_doc(vehicle_id="other"), "the key is vehicle 'fuzz'"),
+    (_doc(version=1), "version 1"),
+    (_doc(vehicle_id="no/slash"), "vehicle_id"),
+    (_doc(nonce="short"), "nonce"),
     (_doc(plan_hash="0" * 16), "the items hash to"),
     (_doc(items=[]), "at least one mission item"),
 ])
 def test_bad_requests_refused_with_the_field(payload: bytes, match: str) -> None:
     with pytest.raises(BusPayloadError, match=match):
-        decode_retask(payload, "pdcov/fuzz/retask", "fuzz")
+        decode_retask_body(payload, "pdcov/fuzz/retask")
 
 
 def _with_item(**change) -> bytes:
-    doc = json.loads(encode_retask("fuzz", ITEMS, ""))
+    doc = _body_doc()
     doc["items"][0].update(change)
     doc["plan_hash"] = "0" * 16  # the item refusal comes before the hash check
     return json.dumps(doc).encode()
@@ -81,17 +90,17 @@ def _with_item(**change) -> bytes:
 ])
 def test_items_outside_a_coverage_plan_refused(change: dict, match: str) -> None:
     with pytest.raises(BusPayloadError, match=match):
-        decode_retask(_with_item(**change), vehicle_id="fuzz")
+        decode_retask_body(_with_item(**change))
 
 
 def test_item_count_and_non_finite_bounded() -> None:
-    doc = json.loads(encode_retask("fuzz", ITEMS, ""))
+    doc = _body_doc()
     doc["items"] = doc["items"][:1] * (MAX_RETASK_ITEMS + 1)
     with pytest.raises(BusPayloadError, match="more than 1000") as e:
-        decode_retask(json.dumps(doc).encode())
+        decode_retask_body(json.dumps(doc).encode())
     assert e.value.reason == "over a bound"
     with pytest.raises(BusPayloadError, match="non-finite"):
-        decode_retask(_doc().replace(b'"z_m": 10.0', b'"z_m": NaN', 1))
+        decode_retask_body(_doc().replace(b'"z_m": 10.0', b'"z_m": NaN', 1))
 
 
 # --- the daemon's decisions against a scripted autopilot ----------------------------------
@@ -123,12 +132,15 @@ class Autopilot:
         return out
 
 
-def core_with(tmp_path, **service) -> ServiceCore:
+def core_with(tmp_path, nonces=None, **service) -> ServiceCore:
+    write_pub(tmp_path / "keys")
+    if service.get("retask"):
+        service.setdefault("retask_operator_keys", ["keys/operator.pub"])
     doc = dict(MISSION, service={"state_dir": str(tmp_path / "state"), "record": False,
                                  **service})
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
     cfg = load_serve_config(tmp_path / "m.yaml")
-    return ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="retask")
+    return ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="retask", nonces=nonces)
 
 
 def feed(core: ServiceCore, data: bytes, now_s: float) -> Actions:
@@ -144,14 +156,20 @@ def heard(core: ServiceCore) -> None:
     feed(core, b"".join(pack(m) for m in Hover(seconds=0.5).messages()), 1.0)
 
 
+KEY_EXPR = "pdcov/fuzz/retask"
+
+
 def fly(core: ServiceCore, autopilot: Autopilot, payload: bytes, session: str | None,
-        now_s: float = 2.0) -> tuple[list, list]:
-    """Request, then the exchange until nothing more is sent: (replies, logs)."""
+        now_s: float = 2.0, key_expr: str = KEY_EXPR, unix_s: float = UNIX_S
+        ) -> tuple[list, list]:
+    """Request, then the exchange until nothing more is sent: (replies, logs); the
+    messages the autopilot got are in ``autopilot.sent``."""
     replies, logs = [], []
-    core.receive_retask(7, payload, session, now_s)
+    core.receive_retask(7, payload, key_expr, session, now_s, unix_s)
     a = core.actions()
     replies += a.replies
     logs += a.logs
+    autopilot.sent += [m for m in a.send if m.get_type() == "STATUSTEXT"]
     msgs = [m for m in a.send if m.get_type().startswith("MISSION")]
     for _ in range(50):
         if not msgs:
@@ -160,6 +178,8 @@ def fly(core: ServiceCore, autopilot: Autopilot, payload: bytes, session: str | 
         a = feed(core, autopilot.answer(msgs), now_s)
         replies += a.replies
         logs += a.logs
+        autopilot.sent += [m for m in a.send if m.get_type() == "STATUSTEXT"
+                           and m.severity == 5]
         msgs = [m for m in a.send if m.get_type().startswith("MISSION")]
     return replies, logs
 
@@ -168,7 +188,7 @@ def test_accepted_upload_is_replied_and_never_arms_or_changes_mode(tmp_path) -> 
     core = core_with(tmp_path, retask=True)
     heard(core)
     ap = Autopilot()
-    replies, logs = fly(core, ap, encode_retask("fuzz", ITEMS, "two"), "ab12")
+    replies, logs = fly(core, ap, signed(ITEMS, description="two"), "ab12")
     assert [t for t, _ in replies] == [7]
     reply = decode_retask_reply(replies[0][1], vehicle_id="fuzz")
     assert reply.accepted and reply.reason == "MAV_MISSION_ACCEPTED"
@@ -176,7 +196,8 @@ def test_accepted_upload_is_replied_and_never_arms_or_changes_mode(tmp_path) -> 
     assert sorted(ap.items) == [0, 1, 2]
     assert ap.items[1].x == round(WP.lat_deg * 1e7) and ap.items[1].frame == 3
     assert ap.items[0].x == round(MISSION["origin"]["lat_deg"] * 1e7)  # home: the origin
-    assert {m.get_type() for m in ap.sent} == {"MISSION_COUNT", "MISSION_ITEM_INT"}
+    assert {m.get_type() for m in ap.sent} == {"MISSION_COUNT", "MISSION_ITEM_INT",
+                                               "STATUSTEXT"}  # the pilot's notice
     st, _ = core.status(3.0, LinkReport())
     assert st["retask"]["last"]["accepted"] is True
     assert st["retask"]["last"]["plan_hash"] == plan_hash(ITEMS)
@@ -191,7 +212,7 @@ def test_every_message_the_daemon_sends_stays_off_the_controls(tmp_path) -> None
     core = core_with(tmp_path, retask=True)
     sent = feed(core, b"".join(pack(m) for m in Hover(seconds=2.0).messages()), 1.0).send
     ap = Autopilot()
-    fly(core, ap, encode_retask("fuzz", ITEMS, ""), None)
+    fly(core, ap, signed(ITEMS), None)
     for t in np.arange(3.0, 12.0, 0.5):
         core.tick(float(t), 0.0)
         sent += core.actions().send
@@ -205,35 +226,27 @@ def test_every_message_the_daemon_sends_stays_off_the_controls(tmp_path) -> None
 def test_refused_requests_are_answered_logged_and_counted(tmp_path) -> None:
     off = core_with(tmp_path)  # service.retask defaults to false
     heard(off)
-    replies, logs = fly(off, Autopilot(), encode_retask("fuzz", ITEMS, ""), "ab12")
+    replies, logs = fly(off, Autopilot(), signed(ITEMS), "ab12")
     r = decode_retask_reply(replies[0][1])
     assert not r.accepted and r.reason == RetaskRefusal.DISABLED
-    assert logs == [(30, "re-tasking request from session ab12 refused: re-tasking is off "
-                         "on this vehicle (service.retask: false)")]
+    assert logs == [(30, "re-tasking request from session ab12 refused (PDCOV_RETASK_DISABLED): "
+                         "re-tasking is off on this vehicle (service.retask: false)")]
     st, _ = off.status(3.0, LinkReport())
     assert st["faults"]["retask_refused"] == 1
+    assert st["faults"]["retask_refused_disabled"] == 1
     assert st["retask"]["refused"] == {"PDCOV_RETASK_DISABLED": 1}
-
-    listed = core_with(tmp_path, retask=True, retask_sessions=["ab12"])
-    heard(listed)
-    replies, logs = fly(listed, Autopilot(), encode_retask("fuzz", ITEMS, ""), "cd34")
-    assert decode_retask_reply(replies[0][1]).reason == RetaskRefusal.NOT_ALLOWED
-    assert "session cd34 refused" in logs[0][1]
-    replies, _ = fly(listed, Autopilot(), b"{}", "ab12")
-    bad = decode_retask_reply(replies[0][1])
-    assert bad.reason == RetaskRefusal.BAD_REQUEST and "schema" in bad.detail
 
 
 def test_one_upload_at_a_time_and_a_silent_autopilot_times_out(tmp_path) -> None:
     core = core_with(tmp_path, retask=True)
-    core.receive_retask(1, encode_retask("fuzz", ITEMS, ""), None, 0.5)
+    core.receive_retask(1, signed(ITEMS), KEY_EXPR, None, 0.5, UNIX_S)
     assert decode_retask_reply(core.actions().replies[0][1]).reason \
         == RetaskRefusal.NO_AUTOPILOT
     heard(core)
-    core.receive_retask(2, encode_retask("fuzz", ITEMS, ""), None, 2.0)
+    core.receive_retask(2, signed(ITEMS), KEY_EXPR, None, 2.0, UNIX_S)
     first = core.actions()
     assert [m.get_type() for m in first.send] == ["MISSION_COUNT"] and not first.replies
-    core.receive_retask(3, encode_retask("fuzz", ITEMS[:1], ""), None, 2.1)
+    core.receive_retask(3, signed(ITEMS[:1]), KEY_EXPR, None, 2.1, UNIX_S)
     busy = core.actions().replies
     assert [t for t, _ in busy] == [3]
     assert decode_retask_reply(busy[0][1]).reason == RetaskRefusal.BUSY
@@ -250,7 +263,7 @@ def test_autopilot_refusal_is_the_reply(tmp_path) -> None:
     core = core_with(tmp_path, retask=True)
     heard(core)
     ap = Autopilot(result=mavlink.MAV_MISSION_NO_SPACE)
-    replies, _ = fly(core, ap, encode_retask("fuzz", ITEMS, ""), None)
+    replies, _ = fly(core, ap, signed(ITEMS), None)
     r = decode_retask_reply(replies[0][1])
     assert not r.accepted and r.reason == "MAV_MISSION_NO_SPACE"
 
@@ -258,7 +271,7 @@ def test_autopilot_refusal_is_the_reply(tmp_path) -> None:
 def test_upload_ignores_the_autopilot_talking_to_another_ground_station(tmp_path) -> None:
     core = core_with(tmp_path, retask=True)
     heard(core)
-    core.receive_retask(1, encode_retask("fuzz", ITEMS, ""), None, 2.0)
+    core.receive_retask(1, signed(ITEMS), KEY_EXPR, None, 2.0, UNIX_S)
     core.actions()
     mav = mavlink.MAVLink(None)
     # The autopilot acknowledging QGroundControl's (255/190) upload: not ours.
@@ -266,13 +279,21 @@ def test_upload_ignores_the_autopilot_talking_to_another_ground_station(tmp_path
     assert core.actions().replies == [] and core.retasker.busy
 
 
-def test_retask_sessions_checked_in_the_config(tmp_path) -> None:
+def test_retask_needs_readable_operator_keys(tmp_path) -> None:
     from pdcov.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="retask_sessions: expected a list of Zenoh"):
-        core_with(tmp_path, retask=True, retask_sessions=["NOT-HEX"])
-    with pytest.raises(ConfigError, match="retask_sessions"):
-        core_with(tmp_path, retask=True, retask_sessions="ab12")
+    with pytest.raises(ConfigError, match="service.retask_operator_keys: service.retask is "
+                                          "true but no operator key is listed"):
+        core_with(tmp_path, retask=True, retask_operator_keys=[])
+    with pytest.raises(ConfigError, match=r"retask_operator_keys: .*nokey.pub: cannot read"):
+        core_with(tmp_path, retask=True, retask_operator_keys=["nokey.pub"])
+    (tmp_path / "junk.pub").write_text("not a key")
+    with pytest.raises(ConfigError, match=r"junk.pub: not a PEM public key"):
+        core_with(tmp_path, retask=True, retask_operator_keys=["junk.pub"])
+    with pytest.raises(ConfigError, match="retask_limits.max_alt: unknown key; did you mean 'max_alt_m'"):
+        core_with(tmp_path, retask=True, retask_limits={"max_alt": 5})
+    with pytest.raises(ConfigError, match="min_alt_m < max_alt_m"):
+        core_with(tmp_path, retask=True, retask_limits={"min_alt_m": 50, "max_alt_m": 10})
 
 
 # --- the ground station's proposal: the same re-fly as pdcov refly --------------------
@@ -292,8 +313,7 @@ def test_proposal_is_pdcov_reflys_plan_from_where_the_vehicle_is(tmp_path) -> No
     assert p.description == cli.plan.description
     assert len(p.waypoints_lat_lon) == len(cli.plan.waypoints)
     assert p.gap_cells_before == cli.gaps_before.n_cells > 0
-    req = decode_retask(p.payload, vehicle_id="fuzz")
-    assert req.plan_hash == p.id and len(req.items) == len(p.items)
+    assert plan_hash(p.items) == p.id and p.home == mission.origin()
     state = p.map_state()
     assert state["id"] == p.id and state["gaps"] and all(r[0] == r[-1] for r in state["gaps"])
     lat, lon = state["waypoints"][0]

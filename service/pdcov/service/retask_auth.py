@@ -149,6 +149,7 @@ class RetaskAuthority:
 
     def _judge(self, req: RetaskRequest, key_id: str, unix_s: float, nonces: NonceBook
                ) -> RetaskRequest | Refused:
+        nonces.prune(unix_s)
         if req.key_id != key_id:
             return Refused(RetaskRefusal.BAD_SIGNATURE, f"the body names key {req.key_id}, "
                            f"the envelope {key_id}", req.plan_hash)
@@ -160,7 +161,6 @@ class RetaskAuthority:
             when = f"{age_s:.0f} s ago" if age_s > 0 else f"{-age_s:.0f} s in the future"
             return Refused(RetaskRefusal.STALE, f"issued {when}, the window is "
                            f"±{self.window_s:g} s of the vehicle's clock", req.plan_hash)
-        nonces.prune(unix_s)
         if req.nonce in nonces:
             return Refused(RetaskRefusal.REPLAYED, f"nonce {req.nonce} was seen before",
                            req.plan_hash)
