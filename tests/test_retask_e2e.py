@@ -1,6 +1,6 @@
 """Re-tasking end to end, on loopback (the router's access control on pdcov/<id>/retask:
-tests/test_security_zenoh.py): the daemon's own allow-list refuses and logs a session
-not on it; and ``pdcov watch --refly`` sends a re-fly of the live grid's gaps,
+tests/test_security_zenoh.py; the signed requests' refusals: tests/test_retask_signed_e2e.py):
+``pdcov watch --refly --operator-key`` sends a signed re-fly of the live grid's gaps,
 over real Zenoh, to the daemon flying the real ArduCopter (../shared/ardupilot-sitl) in
 AUTO, which accepts it with MISSION_ACK; read back with MISSION_REQUEST_LIST it is the new
 mission, and the flight mode is still the pilot's AUTO."""
@@ -18,11 +18,9 @@ from ardupilot_sitl import (
     fly_mission,
     requires_ardupilot_sitl,
 )
+from retask_keys import write_key, write_pub
 from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
 
-from pdcov.bus.retask import decode_retask_reply, encode_retask
-from pdcov.bus.session import BusConfig, open_session
-from pdcov.bus.sources import source_info
 from pdcov.cli import main as pdcov_main
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.planning.plan import read_mission
@@ -40,42 +38,6 @@ ITEMS = (MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, lat_de
 SPEEDUP = 10
 ALTITUDE_M = 10.0
 ARDU_MISSION = FLIGHT_MISSION
-
-
-def test_session_not_on_the_allow_list_refused_and_logged(tmp_path) -> None:
-    """No ACL (a plain router): the daemon's service.retask_sessions refuses a session not
-    listed, says so in the reply and its log, and counts it in the status's faults."""
-    zport = free_port()
-    zrouter = router(zport)
-    try:
-        cfg = serve_config(ARDU_MISSION, tmp_path / "m.yaml", zenoh_port=zport,
-                           state_dir=tmp_path / "state", retask=True,
-                           retask_sessions=["0123456789abcdef"])
-        log = tmp_path / "serve.log"
-        with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{free_port()}"),
-                     log) as daemon:
-            sub = Subscriber(zport, "ardu1")
-            s = open_session(BusConfig(mode="client", connect=(f"tcp/127.0.0.1:{zport}",),
-                                       multicast_scouting=False))
-            try:
-                sub.wait(lambda st: True, 20.0, "a status")
-                replies = [r.ok.payload.to_bytes() for r in s.get(
-                    "pdcov/ardu1/retask", payload=encode_retask("ardu1", ITEMS, ""),
-                    timeout=5.0, source_info=source_info(s.id, 1)) if r.ok is not None]
-                assert len(replies) == 1
-                reply = decode_retask_reply(replies[0])
-                assert not reply.accepted and reply.reason == "PDCOV_SESSION_NOT_ALLOWED"
-                st = sub.wait(lambda st: st["faults"].get("retask_refused") == 1, 10.0,
-                              "the refusal counted")
-                assert st["retask"]["refused"] == {"PDCOV_SESSION_NOT_ALLOWED": 1}
-            finally:
-                s.close()
-                sub.close()
-            assert stop(daemon) == 0
-        assert (f"re-tasking request from session {s.zid()} refused: the session is not on "
-                "service.retask_sessions") in log.read_text()
-    finally:
-        zrouter.close()
 
 
 def read_back(conn, target: tuple[int, int], timeout_s: float = 10.0) -> list:
@@ -109,8 +71,10 @@ def mode_of(conn, target: tuple[int, int]) -> int:
 @requires_ardupilot_sitl
 def test_refly_uploaded_mid_flight_to_real_arducopter(tmp_path) -> None:
     zport = free_port()
+    write_pub(tmp_path)
     config = serve_config(ARDU_MISSION, tmp_path / "mission.yaml", zenoh_port=zport,
-                          state_dir=tmp_path / "state", retask=True)
+                          state_dir=tmp_path / "state", retask=True,
+                          retask_operator_keys=["operator.pub"])
     assert pdcov_main(["plan", "--config", str(config), "--pattern", "lawnmower",
                        "--altitude-m", str(ALTITUDE_M), "--out", str(tmp_path / "plan"),
                        "--no-figures"]) == 0
@@ -138,7 +102,8 @@ def test_refly_uploaded_mid_flight_to_real_arducopter(tmp_path) -> None:
                             [sys.executable, "-m", "pdcov.cli", "watch", "--config",
                              str(config), "--vehicle", "ardu1", "--mode", "client",
                              "--zenoh-connect", f"tcp/127.0.0.1:{zport}", "--refly", "ardu1",
-                             "--target-pd", "0.8", "--yes", "--wait-s", "10"],
+                             "--target-pd", "0.8", "--yes", "--wait-s", "10",
+                             "--operator-key", str(write_key(tmp_path / "ground"))],
                             capture_output=True, text=True, timeout=120)
                         assert watch.returncode == 0, watch.stdout + watch.stderr
                         assert "the autopilot accepted" in watch.stdout, watch.stdout

@@ -15,10 +15,11 @@ from pathlib import Path
 
 import pytest
 import yaml
+from retask_keys import signed, write_pub
 from serve_harness import ROOT, free_port, process, serve_args, stop
 from tls_certs import Authority
 
-from pdcov.bus.retask import decode_retask_reply, encode_retask
+from pdcov.bus.retask import decode_retask_reply
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.errors import ConfigError
@@ -248,11 +249,12 @@ def test_only_the_authorised_ground_station_reaches_the_retask_key(tmp_path, pki
     doc = dict(MISSION, bus={"mode": "peer", "connect": [router], "listen": [],
                                  "multicast_scouting": False, "config_file": "aircraft.json5",
                                  "status_period_s": 0.2},
-               service={"state_dir": str(tmp_path / "state"), "retask": True})
+               service={"state_dir": str(tmp_path / "state"), "retask": True,
+                        "retask_operator_keys": [write_pub(tmp_path).name]})
     cfg = tmp_path / "uav1.yaml"
     cfg.write_text(yaml.safe_dump(doc))
     log = tmp_path / "serve.log"
-    request = encode_retask("uav1", ITEMS, "two waypoints")
+    request = signed(ITEMS, "uav1", time.time())
     with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{free_port()}"),
                  log) as daemon:
         sessions = {cn: open_session(tls_bus(pki, router, cn)) for cn in

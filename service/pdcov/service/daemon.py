@@ -285,11 +285,12 @@ class Daemon:
         loop.call_soon_threadsafe(handle, query)
 
     @staticmethod
-    def _reply(query: Any, make: Callable[[], bytes]) -> int:
-        """On the loop: build the reply, send it, finish the query; the bytes sent."""
+    def _reply(query: Any, make: Callable[[], bytes], key: str | None = None) -> int:
+        """On the loop: build the reply, send it (on ``key``, default the query's), finish
+        the query; the bytes sent."""
         try:
             payload = make()
-            query.reply(query.key_expr, payload)
+            query.reply(key or query.key_expr, payload)
             return len(payload)
         except Exception as exc:  # noqa: BLE001 - a failed reply must not stop the daemon
             log.warning("query %s not answered: %s", query.key_expr, exc)
@@ -336,8 +337,8 @@ class Daemon:
 
     def _reply_retask(self, ticket: int, payload: bytes) -> None:
         query = self._retask_queries.pop(ticket, None)
-        if query is not None:
-            self._reply(query, lambda: payload)
+        if query is not None:  # on the own key: a wildcard query's refusal is answered too
+            self._reply(query, lambda: payload, self.keys.retask)
 
     def _snapshot_bytes(self) -> bytes:
         """The grid's snapshot, encoded again only once the grid took another frame."""
