@@ -225,6 +225,7 @@ def decode_status(payload: bytes, key: str = "status",
         last = retask.obj_or_null("last")
         if last is not None:
             last.string("plan_hash", max_len=16)
+            last.string_or_null("key_id", max_len=16)  # absent: a daemon before signing
             last.boolean_or_null("accepted")
             last.string("result", max_len=64)
             last.integer("items", 0, _U32)

@@ -209,8 +209,9 @@ class Daemon:
             if self.cfg.service.retask and bus_security(self.cfg.bus) \
                     is not BusSecurity.MUTUAL_TLS:
                 log.warning("re-tasking is on (service.retask) but this bus is not mutual "
-                            "TLS: only a router's access control keeps others from sending "
-                            "missions (docs/ground-station.md \"Securing the bus\")")
+                            "TLS: requests are signed, but anyone on the bus sees the "
+                            "missions and can flood the queryable (docs/ground-station.md "
+                            "\"Securing the bus\")")
             self.notifier.ready("pdcov serve: running")
             while not self.stop_event.is_set():
                 self._tick()
