@@ -2,7 +2,8 @@
 stand-in on its MAVLink link (tests/autopilot_standin.py) over a real Zenoh router on
 loopback. ``pdcov upload --bus`` sends a signed in-bounds plan, which the autopilot
 accepts and the pilot is told of (STATUSTEXT); an out-of-bounds plan, queries through
-wildcard key expressions and a replay are refused and never reach the autopilot."""
+wildcard key expressions and a replay (also after the daemon restarted) are refused and
+never reach the autopilot."""
 
 from __future__ import annotations
 
@@ -95,6 +96,20 @@ def test_signed_plan_flies_others_never_reach_the_autopilot(tmp_path, capsys) ->
                 s.close()
                 sub.close()
                 ap.close()
+            assert stop(daemon) == 0
+        # A restarted daemon reads the nonces back: the replay is still refused.
+        with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{mport}"),
+                     tmp_path / "serve2.log") as daemon:
+            s = open_session(BusConfig(mode="client", connect=(f"tcp/127.0.0.1:{zport}",),
+                                       multicast_scouting=False))
+            try:
+                answered: list[str] = []
+                deadline = time.monotonic() + 20.0
+                while not answered and time.monotonic() < deadline:  # until it declared it
+                    answered = ask(s, "pdcov/fuzz/retask", again)
+                assert answered == ["PDCOV_REPLAYED"]
+            finally:
+                s.close()
             assert stop(daemon) == 0
     finally:
         zrouter.close()
