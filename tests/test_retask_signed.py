@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import base64
 import json
-import math
 import re
 import stat
 
 import pytest
+from retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
 from retask_keys import KEY, OTHER, UNIX_S, signed
 from shapely.geometry import Polygon
-from test_retask import ITEMS, KEY_EXPR, WP, Autopilot, core_with, fly, heard
 
 from pdcov.bus.operator_keys import load_private_key, load_public_key
 from pdcov.bus.retask import decode_retask_reply
@@ -104,10 +103,6 @@ def test_a_forged_or_unknown_request_uses_no_nonce(tmp_path) -> None:
     assert reason(core, payload) == "ACCEPTED"
 
 
-FAR = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, lat_deg=47.397742 + 0.9,
-                  lon_deg=8.5457, z_m=10.0)  # 100 km north
-
-
 def _at(z_m: float, frame: int = MAV_FRAME_GLOBAL_RELATIVE_ALT) -> MissionItem:
     return MissionItem(MAV_CMD_NAV_WAYPOINT, frame, lat_deg=WP.lat_deg, lon_deg=WP.lon_deg,
                        z_m=z_m)
@@ -186,4 +181,3 @@ def test_keys_new_writes_a_private_key_only_its_owner_reads(tmp_path, capsys) ->
     assert load_private_key(private).id == key.id
     with pytest.raises(ConfigError, match="not an unencrypted PEM private key"):
         load_private_key(public)
-    assert math.isfinite(UNIX_S) and KEY_EXPR == "pdcov/fuzz/retask"

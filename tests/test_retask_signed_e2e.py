@@ -14,9 +14,9 @@ import pytest
 import zenoh
 from autopilot_standin import AutopilotStandIn
 from link_feed import MISSION
+from retask_harness import FAR, WP
 from retask_keys import KEY, signed, write_key, write_pub
 from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
-from test_retask_signed import FAR, WP
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.retask import decode_retask_reply
