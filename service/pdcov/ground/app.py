@@ -38,6 +38,7 @@ from pdcov.ground.retask import (
     refly_inputs,
     reply_line,
 )
+from pdcov.ground.roster import Roster, roster_of
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_auth import WebAccess
@@ -141,7 +142,8 @@ async def _main(opts: WatchOptions) -> int:
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
         quiet_hint=quiet_hint(opts.bus),
-        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
+        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S,
+        roster=roster_of(opts.mission.raw, opts.mission.source) if opts.mission else Roster())
     if opts.once or not opts.plain:  # else the "following ..." line below names it
         print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
               flush=True)

@@ -350,6 +350,7 @@ function show(s) {
   document.getElementById("target").textContent = f.target ?? "-";
   document.getElementById("domain-source").textContent = s.domain ? s.domain.source : "not known";
   document.getElementById("domain-note").textContent = s.domain_note || "";
+  document.getElementById("roster-note").textContent = s.roster_note || "";
   document.getElementById("layer-notes").textContent = (s.grid && s.grid.outline_note) || "";
   const warnings = document.getElementById("warnings");
   warnings.replaceChildren(...(s.warnings || []).map((text) => el("li", text)));
