@@ -260,10 +260,11 @@ def load(path) -> dict[str, np.ndarray]:
 
 
 class ThreadedWebMap:
-    """A WebMap on 127.0.0.1 (free port) serving ``state()`` (version 7 throughout), run by
-    an event loop in a thread; stopped, and its basemap closed, in ``close``."""
+    """A WebMap on 127.0.0.1 (free port) serving ``state()`` (version 7 throughout) with
+    ``desk`` for re-tasking, run by an event loop in a thread; stopped, and its basemap
+    closed, in ``close``."""
 
-    def __init__(self, state, access, basemap=None) -> None:
+    def __init__(self, state, access, basemap=None, desk=None) -> None:
         import asyncio
         import threading
 
@@ -272,7 +273,8 @@ class ThreadedWebMap:
         self.state = state
         self.basemap = basemap
         self.loop = asyncio.new_event_loop()
-        self.web = WebMap("127.0.0.1", 0, state, lambda: 7, access, basemap, period_s=0.05)
+        self.web = WebMap("127.0.0.1", 0, state, lambda: 7, access, basemap, period_s=0.05,
+                          desk=desk)
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
         asyncio.run_coroutine_threadsafe(self.web.start(), self.loop).result(timeout=10)

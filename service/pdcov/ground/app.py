@@ -41,7 +41,7 @@ from pdcov.ground.retask import (
 from pdcov.ground.roster import Roster, roster_of
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
-from pdcov.ground.web_auth import WebAccess
+from pdcov.ground.web_auth import NO_OPERATOR, WebAccess
 from pdcov.planning.refly import ReflySettings
 from pdcov.planning.scenario import scenario_of
 
@@ -184,6 +184,10 @@ async def _main(opts: WatchOptions) -> int:
         await web.start()
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
+        print("pdcov watch: " + ("operators: the same address with ?token= the operator "
+                                 "token (--web-operator-token-file); the view token may "
+                                 "not command" if opts.web_access.operator_token
+                                 else NO_OPERATOR), file=sys.stderr, flush=True)
     runner = asyncio.create_task(shell.run(stop))
     helpers = []
     if cot is not None:
