@@ -37,6 +37,9 @@ def test_each_token_grants_its_role_by_query_cookie_or_bearer():
         assert BOTH.token_of(role) == token
     for wrong in (OPERATOR[:-1], OPERATOR + "x", "", VIEW.upper()):
         assert isinstance(BOTH.check("127.0.0.1", wrong, None, None), Refusal)
+    # The operator's address in a browser holding the view cookie: the operator's.
+    assert BOTH.check("127.0.0.1", OPERATOR, VIEW, None) == Granted(True, Role.OPERATOR)
+    assert BOTH.check("127.0.0.1", VIEW, VIEW, None) == Granted(False, Role.VIEWER)
     assert VIEW_ONLY.check("127.0.0.1", OPERATOR, None, None).status == 401
     assert VIEW_ONLY.token_of(Role.OPERATOR) == VIEW  # no operator token: nothing to set
 
@@ -132,3 +135,27 @@ def test_every_command_endpoint_needs_the_operator_token(access):
         assert request(port, "GET", "/state.json", VIEW)[0] == 200  # the viewer reads
     finally:
         s.close()
+
+
+def test_the_page_shows_commands_to_the_operator_only(browser):
+    from chromium import wait_for
+
+    for access in (BOTH, VIEW_ONLY):
+        s = ThreadedWebMap(lambda: {"version": 7, "vehicles": [], "grid": None}, access)
+        base = f"http://127.0.0.1:{s.web.port}/"
+        try:
+            for token, commands in ((VIEW, False), (OPERATOR, access is BOTH), (VIEW, False)):
+                # Without an operator token, OPERATOR is a wrong token: the view cookie
+                # of the first visit serves the page, as a viewer's.
+                browser.get(f"{base}?token={token}")
+                note = wait_for(lambda: browser.execute_script(
+                    "const n = document.getElementById('command-note');"
+                    "return n && (n.textContent || (!document.getElementById("
+                    "'refly-commands').hidden && 'commands'));"), 30, "the page asked whoami")
+                shown = browser.find_element("id", "refly-ask").is_displayed()
+                assert shown is commands, (token, note)
+                if not commands:
+                    assert note.startswith("view only: "), note
+                    assert (NO_OPERATOR if access is VIEW_ONLY else "view token") in note
+        finally:
+            s.close()

@@ -127,11 +127,15 @@ class WebAccess:
         bearer = None
         if authorization is not None and authorization[:7].lower() == "bearer ":
             bearer = authorization[7:].strip()
-        for presented, set_cookie in ((cookie_token, False), (bearer, False),
-                                      (query_token, True)):
-            role = self._role(presented)
+        # A valid ?token= wins over the cookie (the operator's address opened in a browser
+        # that holds the view cookie makes it the operator's); the cookie is set when it
+        # does not already grant that role.
+        query_role, cookie_role = self._role(query_token), self._role(cookie_token)
+        if query_role is not None:
+            return Granted(cookie_role is not query_role, query_role)
+        for role in (cookie_role, self._role(bearer)):
             if role is not None:
-                return Granted(set_cookie, role)
+                return Granted(False, role)
         if (query_token, cookie_token, bearer) == (None, None, None):
             return Refusal(401, f"pdcov watch: this web map needs its access token: {_HINT}.\n")
         return Refusal(401, f"pdcov watch: wrong or expired access token: {_HINT} (a new "
