@@ -63,3 +63,14 @@ def test_roster_of_the_mission_config():
                        ({"fleet": ["uav1"]}, "expected a mapping")):
         with pytest.raises(ConfigError, match=match):
             roster_of(bad, "m.yaml")
+
+
+def test_unknown_vehicles_are_listed_up_to_the_vehicle_limit_then_counted():
+    w = Watcher(roster=Roster(frozenset({"uav1"})), max_vehicles=3)
+    for k in range(10):
+        w.on_alive(f"rogue{k}", True, 1.0)
+    w.on_alive("rogue0", True, 2.0)
+    report = w.report(2.0)
+    assert list(report.unknown) == ["rogue0", "rogue1", "rogue2"] and w.feeds == {}
+    assert "2 samples refused" in report.unknown["rogue0"]
+    assert report.refused == {"not on fleet.vehicles, beyond 3 ids": 7}

@@ -468,8 +468,11 @@ class Watcher:
         or beyond max_vehicles."""
         feed = self.feeds.get(vehicle_id)
         if feed is None:
-            if not self.roster.admits(vehicle_id):
-                self.unknown[vehicle_id] += 1
+            if not self.roster.admits(vehicle_id):  # at most max_vehicles ids listed
+                if vehicle_id in self.unknown or len(self.unknown) < self.max_vehicles:
+                    self.unknown[vehicle_id] += 1
+                else:
+                    self.refused[f"{NOT_ON_ROSTER}, beyond {self.max_vehicles} ids"] += 1
                 return None
             if len(self.feeds) >= self.max_vehicles:
                 self.refused[f"vehicles beyond the limit of {self.max_vehicles}"] += 1
