@@ -27,7 +27,7 @@ class Roster:
     def __post_init__(self) -> None:
         bad = sorted(v for v in self.vehicles or () if not valid_vehicle_id(v))
         if bad:
-            raise ConfigError(f"fleet.vehicles: {bad[0]!r}: expected {VEHICLE_ID_RULE}")
+            raise ConfigError(f"{bad[0]!r}: expected {VEHICLE_ID_RULE}")
 
     def admits(self, vehicle_id: str) -> bool:
         return self.vehicles is None or vehicle_id in self.vehicles
