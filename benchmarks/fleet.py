@@ -73,7 +73,12 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      "(`ground`) receives uav1's and uav2's status, gets uav1's snapshot reply and "
      'liveliness token; its puts into `pdcov/uav1/frames` and `/tiles` reach nobody; '
      "uav2's put into `pdcov/uav1/status` reaches nobody; a certificate of the CA with "
-     'another name (`stranger`) receives, queries and sees nothing'),
+     'another name (`stranger`) receives, queries and sees nothing; no query of `ground` '
+     'or `stranger` on `pdcov/**`, `pdcov/*/retask`, `pdcov/uav1/*`, `pdcov/uav1/ret$*`, '
+     '`pdcov/uav1/retask`, `**`, `pdcov/*/*` nor a put on the key reaches uav1\'s retask '
+     'queryable (the ACL allows exact keys only: Zenoh passes a query whose key '
+     'expression a rule *includes*, so a deny of `pdcov/*/retask` beside an allow of '
+     '`pdcov/**` let wildcards through); `ops` reaches it by `pdcov/uav1/retask` only'),
     ('Config passed through',
      '`pdcov serve` with `bus.config_file` = `systemd/zenoh/aircraft.json5` and `pdcov '
      'watch --once --zenoh-config systemd/zenoh/ground.json5` through that router: the '

@@ -120,7 +120,10 @@ def test_access_control_lets_vehicles_publish_their_keys_and_the_ground_only_rea
         ground, ground2, stranger = session("ground"), session("ground"), session("stranger")
         uav1, uav2 = session("uav1", "peer"), session("uav2", "peer")  # as the daemons
         at_ground, at_stranger, at_uav1 = Heard(), Heard(), Heard()
-        keep = [ground.declare_subscriber("pdcov/**", at_ground),
+        # The ground subscribes as pdcov watch does; pdcov/** is no key it may follow.
+        keep = [ground.declare_subscriber("pdcov/*/status", at_ground),
+                ground.declare_subscriber("pdcov/*/tiles", at_ground),
+                stranger.declare_subscriber("pdcov/*/status", at_stranger),
                 stranger.declare_subscriber("pdcov/**", at_stranger),
                 uav1.declare_subscriber("pdcov/uav1/**", at_uav1),  # e.g. its frames input
                 uav1.declare_queryable("pdcov/uav1/snapshot",
@@ -273,3 +276,69 @@ def test_only_the_authorised_ground_station_reaches_the_retask_key(tmp_path, pki
         assert stop(daemon) == 0
     text = log.read_text()
     assert text.count("re-tasking request") == 1, text  # the daemon never saw the others
+
+
+WILDCARDS = ("pdcov/**", "pdcov/*/retask", "pdcov/uav1/*", "pdcov/uav1/ret$*",
+             "pdcov/uav1/retask", "**", "pdcov/*/*", "pdcov/uav1/**", "pdcov/uav1/$*t$*")
+
+
+def test_no_key_expression_of_the_readers_or_a_stranger_reaches_the_retask_queryable(
+        pki, router):
+    """The shipped ACL allows exact keys only, so no wildcard of a query's own reaches a
+    vehicle's retask queryable: Zenoh lets a query through when a rule's key expression
+    includes the query's (a deny on pdcov/*/retask does not stop pdcov/**). "ground" and
+    a stranger try every key expression above and a put on the key: nothing reaches the
+    queryable nor a subscriber on it; "ops" reaches it by its exact key only; "ground"
+    still gets the snapshot, mission, footprint and candidates replies."""
+    sessions = []
+    reached: list[tuple[str, str]] = []  # (kind, key expression) that reached uav1
+    lock = threading.Lock()
+
+    def session(cn: str, mode: str = "client"):
+        s = open_session(tls_bus(pki, router, cn, mode))
+        sessions.append(s)
+        return s
+
+    def answer(kind: str):
+        def on_query(query) -> None:
+            with lock:
+                reached.append((kind, str(query.key_expr)))
+            query.reply(f"pdcov/uav1/{kind}", kind.encode())
+            query.drop()
+        return on_query
+
+    def asked(s, key: str, timeout_s: float = 1.5) -> list[tuple[str, str]]:
+        with lock:
+            reached.clear()
+        replies = [r for r in s.get(key, payload=b"mission", timeout=timeout_s) if r.ok]
+        with lock:
+            assert len(replies) <= len(reached)
+            return list(reached)
+
+    kinds = ("retask", "snapshot", "mission", "footprint", "candidates", "status")
+    try:
+        uav1 = session("uav1", "peer")
+        heard = Heard()
+        keep = [uav1.declare_queryable(f"pdcov/uav1/{k}", answer(k)) for k in kinds]
+        keep.append(uav1.declare_subscriber("pdcov/uav1/retask", heard))
+        ground, stranger, ops = session("ground"), session("stranger"), session("ops")
+        time.sleep(1.0)  # declarations reach the router
+        for who, s in (("ground", ground), ("stranger", stranger)):
+            for key in WILDCARDS:
+                assert asked(s, key) == [], f"{who}'s query on {key} reached uav1"
+            s.put("pdcov/uav1/retask", b"mission")
+        for key in WILDCARDS:
+            if key != "pdcov/uav1/retask":
+                assert asked(ops, key) == [], f"ops's query on {key} reached uav1"
+        assert asked(ops, "pdcov/uav1/retask", 3.0) == [("retask", "pdcov/uav1/retask")]
+        for kind in ("snapshot", "mission", "footprint", "candidates"):
+            assert asked(ground, f"pdcov/uav1/{kind}", 3.0) == [(kind, f"pdcov/uav1/{kind}")]
+            assert asked(stranger, f"pdcov/uav1/{kind}") == []
+        assert asked(ground, "pdcov/uav1/status") == []  # published, never queried
+        time.sleep(0.5)
+        assert heard.payloads() == []
+        for e in keep:
+            e.undeclare()
+    finally:
+        for s in reversed(sessions):
+            s.close()

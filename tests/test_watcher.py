@@ -5,52 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from watch_fixtures import TinyPublisher
+from watch_fixtures import Link, TinyPublisher
 
 from pdcov.bus.grid_state import decode_snapshot
-from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
 from pdcov.ground.watcher import QuerySnapshot, Watcher
-
-
-class Link:
-    """Carries the publisher's messages to a watcher; drop= seqs of tiles to lose."""
-
-    def __init__(self, pub: TinyPublisher, watcher: Watcher, drop=()) -> None:
-        self.pub, self.w, self.drop = pub, watcher, set(drop)
-        self.now_s = 0.0
-        self.queries = 0
-
-    def do(self, actions) -> None:
-        for a in actions:
-            assert isinstance(a, QuerySnapshot) and a.vehicle_id == self.pub.vehicle_id
-            self.queries += 1
-            self.do(self.w.on_snapshot(a.vehicle_id, decode_snapshot(self.pub.snapshot()),
-                                       self.now_s))
-
-    def fly(self, frames: int, status_every: int = 4) -> None:
-        for k in range(frames):
-            self.pub.step()
-            self.now_s += 0.25
-            payload = self.pub.tiles()
-            if payload is not None and self.pub.seq not in self.drop:
-                self.do(self.w.on_tiles(self.pub.vehicle_id, decode_tiles(payload),
-                                        self.now_s))
-            if k % status_every == 0:
-                self.status()
-            self.do(self.w.poll(self.now_s))
-
-    def status(self) -> None:
-        self.do(self.w.on_status(self.pub.vehicle_id, decode_status(self.pub.status()),
-                                 self.now_s))
-
-    def idle(self, seconds: float) -> None:
-        """Nothing new flies; status keeps coming once a second."""
-        end = self.now_s + seconds
-        while self.now_s < end:
-            self.now_s += 1.0
-            self.status()
-            self.do(self.w.poll(self.now_s))
 
 
 def assert_same_grid(state, grid) -> None:

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from benchmarks.harness import free_port as free_port  # re-exported for the watch tests
-from pdcov.bus.grid_state import GridState, encode_snapshot, grid_hash
+from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.sources import SourcedPublisher
-from pdcov.bus.status import encode_status
-from pdcov.bus.tiles import encode_tiles, tile_grid_shape
+from pdcov.bus.status import decode_status, encode_status
+from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
+from pdcov.ground.watcher import QuerySnapshot, Watcher
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
@@ -259,10 +260,11 @@ def load(path) -> dict[str, np.ndarray]:
 
 
 class ThreadedWebMap:
-    """A WebMap on 127.0.0.1 (free port) serving ``state()`` (version 7 throughout), run by
-    an event loop in a thread; stopped, and its basemap closed, in ``close``."""
+    """A WebMap on 127.0.0.1 (free port) serving ``state()`` (version 7 throughout) with
+    ``desk`` for re-tasking, run by an event loop in a thread; stopped, and its basemap
+    closed, in ``close``."""
 
-    def __init__(self, state, access, basemap=None) -> None:
+    def __init__(self, state, access, basemap=None, desk=None) -> None:
         import asyncio
         import threading
 
@@ -271,7 +273,8 @@ class ThreadedWebMap:
         self.state = state
         self.basemap = basemap
         self.loop = asyncio.new_event_loop()
-        self.web = WebMap("127.0.0.1", 0, state, lambda: 7, access, basemap, period_s=0.05)
+        self.web = WebMap("127.0.0.1", 0, state, lambda: 7, access, basemap, period_s=0.05,
+                          desk=desk)
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
         asyncio.run_coroutine_threadsafe(self.web.start(), self.loop).result(timeout=10)
@@ -287,3 +290,43 @@ class ThreadedWebMap:
             self.loop.close()
             if self.basemap is not None:
                 self.basemap.close()
+
+
+class Link:
+    """Carries the publisher's messages to a watcher; drop= seqs of tiles to lose."""
+
+    def __init__(self, pub: TinyPublisher, watcher: Watcher, drop=()) -> None:
+        self.pub, self.w, self.drop = pub, watcher, set(drop)
+        self.now_s = 0.0
+        self.queries = 0
+
+    def do(self, actions) -> None:
+        for a in actions:
+            assert isinstance(a, QuerySnapshot) and a.vehicle_id == self.pub.vehicle_id
+            self.queries += 1
+            self.do(self.w.on_snapshot(a.vehicle_id, decode_snapshot(self.pub.snapshot()),
+                                       self.now_s))
+
+    def fly(self, frames: int, status_every: int = 4) -> None:
+        for k in range(frames):
+            self.pub.step()
+            self.now_s += 0.25
+            payload = self.pub.tiles()
+            if payload is not None and self.pub.seq not in self.drop:
+                self.do(self.w.on_tiles(self.pub.vehicle_id, decode_tiles(payload),
+                                        self.now_s))
+            if k % status_every == 0:
+                self.status()
+            self.do(self.w.poll(self.now_s))
+
+    def status(self) -> None:
+        self.do(self.w.on_status(self.pub.vehicle_id, decode_status(self.pub.status()),
+                                 self.now_s))
+
+    def idle(self, seconds: float) -> None:
+        """Nothing new flies; status keeps coming once a second."""
+        end = self.now_s + seconds
+        while self.now_s < end:
+            self.now_s += 1.0
+            self.status()
+            self.do(self.w.poll(self.now_s))

@@ -41,9 +41,10 @@ MAX_THRESHOLDS = 64
 more; bus/status.py)."""
 _FLOAT_MAX = sys.float_info.max
 
-# Sections of the onboard daemon (`pdcov serve`), declared by its own modules: see
-# ``mission_schema``. Until a schema is passed for one, any mapping is accepted there.
-RESERVED_SECTIONS = ("link", "bus", "service")
+# Sections of the onboard daemon (`pdcov serve`) and the ground station (`fleet`), declared
+# by their own modules: see ``mission_schema``. Until a schema is passed for one, any
+# mapping is accepted there.
+RESERVED_SECTIONS = ("link", "bus", "service", "fleet")
 
 
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------

@@ -36,6 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "characters A-Z a-z 0-9 _ . ~ -) instead of making a new one at each "
                         "start; also from the environment variable PDCOV_WEB_TOKEN, never "
                         "from the command line (which other users see in ps)")
+    p.add_argument("--web-operator-token-file", type=Path, metavar="PATH",
+                   help="the operator's token (chmod 600, another than the view token's): "
+                        "only a page opened with it may re-task; without it no one commands "
+                        "from the web map")
     p.add_argument("--web-allow-host", action="append", metavar="NAME",
                    help="a host name the web map answers to (repeatable), e.g. the name a "
                         "reverse proxy forwards; IP addresses, localhost and this machine's "
@@ -97,11 +101,11 @@ def run(args: argparse.Namespace) -> int:
         from pdcov.ground.web_auth import web_access
 
         access = web_access(web[0], args.web_token_file, args.web_allow_host or (),
-                            os.environ, socket.gethostname())
-    elif args.web_token_file is not None or args.web_allow_host or args.basemap is not None \
-            or args.plan:
-        raise ConfigError("--web-token-file, --web-allow-host, --basemap and --plan go with "
-                          "--web HOST:PORT")
+                            os.environ, socket.gethostname(), args.web_operator_token_file)
+    elif args.web_token_file is not None or args.web_operator_token_file is not None \
+            or args.web_allow_host or args.basemap is not None or args.plan:
+        raise ConfigError("--web-token-file, --web-operator-token-file, --web-allow-host, "
+                          "--basemap and --plan go with --web HOST:PORT")
     if args.cot is not None:
         from pdcov.ground.cot_feed import parse_cot_url
 

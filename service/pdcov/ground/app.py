@@ -41,9 +41,10 @@ from pdcov.ground.retask import (
     reply_line,
     signed_request,
 )
+from pdcov.ground.roster import Roster, roster_of
 from pdcov.ground.terminal import headline, plain_lines, render
 from pdcov.ground.watcher import Watcher
-from pdcov.ground.web_auth import WebAccess
+from pdcov.ground.web_auth import NO_OPERATOR, WebAccess
 from pdcov.planning.refly import ReflySettings
 from pdcov.planning.scenario import scenario_of
 
@@ -150,7 +151,8 @@ async def _main(opts: WatchOptions) -> int:
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
         quiet_hint=quiet_hint(opts.bus),
-        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S)
+        quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S,
+        roster=roster_of(opts.mission.raw, opts.mission.source) if opts.mission else Roster())
     if opts.once or not opts.plain:  # else the "following ..." line below names it
         print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
               flush=True)
@@ -191,6 +193,10 @@ async def _main(opts: WatchOptions) -> int:
         await web.start()
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
+        print("pdcov watch: " + ("operators: the same address with ?token= the operator "
+                                 "token (--web-operator-token-file); the view token may "
+                                 "not command" if opts.web_access.operator_token
+                                 else NO_OPERATOR), file=sys.stderr, flush=True)
     runner = asyncio.create_task(shell.run(stop))
     helpers = []
     if cot is not None:

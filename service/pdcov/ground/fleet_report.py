@@ -83,11 +83,18 @@ class FleetReport:
     refused: dict[str, int] = field(default_factory=dict)
     station: tuple[str, ...] = ()
     """The ground station's own warnings (its bus, its recording)."""
+    unknown: dict[str, str] = field(default_factory=dict)
+    """Vehicles heard but not merged (not on the roster), with why."""
+    notes: tuple[str, ...] = ()
+    """What the views say without warning (there is no fleet roster)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """The station's warnings, every vehicle's, then the payloads refused."""
-        out = [*self.station, *(w for v in self.vehicles for w in v.warnings)]
+        """The station's warnings, the unknown vehicles, every vehicle's, then the payloads
+        refused."""
+        out = [*self.station, *(f"unknown vehicle {vid}: {why}"
+                                for vid, why in self.unknown.items()),
+               *(w for v in self.vehicles for w in v.warnings)]
         if self.refused:
             out.append("refused: " + ", ".join(f"{n} {why}" for why, n in
                                                sorted(self.refused.items())))
@@ -184,3 +191,24 @@ def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
         merged.n_obs += s.n_obs
         merged.frames += s.frames
     return merged, tuple(f.vehicle_id for f in group)
+
+
+STATUS_PD_TOLERANCE = 1e-6
+"""How far a status's mean P_D may be from the rebuilt grid's (the daemon sums per tile in
+float64: about 1e-16 apart; the status carries full float64 digits)."""
+
+
+def status_agrees(state: GridState, doc: dict[str, Any]) -> bool:
+    """Whether a status's figures are those of the rebuilt grid (same frames, every changed
+    tile sent): each share at a threshold within half a cell, mean P_D within
+    STATUS_PD_TOLERANCE."""
+    free = int(state.mask.sum())
+    if doc["cells_free"] != free:
+        return False
+    if not free:
+        return True
+    shares = doc["proportion_at_or_above"]
+    mine = state.proportions_at_or_above(float(name) for name in shares)
+    if any(abs(mine[float(name)] - share) > 0.5 / free for name, share in shares.items()):
+        return False
+    return abs(float(state.pd[state.mask].mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE

@@ -152,7 +152,7 @@ class WatchShell:
         self._record(vid, kind, payload)
 
     def _record(self, vehicle_id: str, kind: str, payload: bytes) -> None:
-        if self.record is not None:
+        if self.record is not None and self.watcher.roster.admits(vehicle_id):
             self.record(vehicle_id, kind, payload)
 
     def _alive(self, key: str, alive: bool) -> None:

@@ -95,6 +95,7 @@ def render(report: FleetReport) -> Any:
     if any(not v.grid_ready for v in report.vehicles):
         parts.append(Text("* grid not yet received: figures from its status"))
     parts += [Text(line) for line in candidate_lines(report)]
+    parts += [Text(line, style="dim") for line in report.notes]
     parts += [Text(f"! {line}", style="bold yellow") for line in report.warnings]
     return Group(*parts)
 

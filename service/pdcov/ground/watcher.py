@@ -60,7 +60,14 @@ from pdcov.bus.status import merge_status
 from pdcov.bus.tiles import TileUpdate, apply_tiles
 from pdcov.ground.claims import ClaimVerdict
 from pdcov.ground.feed import VehicleFeed
-from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
+from pdcov.ground.fleet_report import (
+    FleetReport,
+    merge_fleet,
+    status_agrees,
+    union_thresholds,
+    vehicle_report,
+)
+from pdcov.ground.roster import NOT_ON_ROSTER, Roster
 
 __all__ = ["MAX_CANDIDATES_KEPT", "MAX_DETECTIONS_KEPT", "MAX_VEHICLES", "QueryCandidates",
            "QueryMission", "QuerySnapshot", "Watcher"]
@@ -75,9 +82,6 @@ or a detector gone wrong, must not grow it without end; the operator is told how
 were forgotten."""
 MAX_DETECTIONS_KEPT = 500
 """Recent detections kept per vehicle (the candidates summarise the rest)."""
-STATUS_PD_TOLERANCE = 1e-6
-"""How far a status's mean P_D may be from the rebuilt grid's (the daemon sums per tile in
-float64: about 1e-16 apart; the status carries full float64 digits)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,7 +123,7 @@ class Watcher:
     bus (bus.session.BusSecurity.warning), or None. quiet_hint: why no vehicle may be heard
     on this session (bus.session.quiet_hint), shown once the session has been connected
     quiet_after_s without any vehicle. max_candidates, max_detections: kept per vehicle
-    (module docstring).
+    (module docstring). roster: the vehicles merged (ground/roster.py; None: all).
 
     Every input takes the Zenoh session it came from (``source``: hex session id, None
     when the sample named none; ground/claims.py).
@@ -131,7 +135,7 @@ class Watcher:
                  mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
                  bus_warning: str | None = None, quiet_hint: str | None = None,
                  quiet_after_s: float = 10.0, max_candidates: int = MAX_CANDIDATES_KEPT,
-                 max_detections: int = MAX_DETECTIONS_KEPT) -> None:
+                 max_detections: int = MAX_DETECTIONS_KEPT, roster: Roster | None = None) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
@@ -150,6 +154,7 @@ class Watcher:
         self.feeds: dict[str, VehicleFeed] = {}
         self.refused: Counter[str] = Counter()
         """Payloads refused before reaching a vehicle, by reason."""
+        self.roster, self.unknown = roster or Roster(), Counter[str]()  # ids not on it
 
     # -- inputs -------------------------------------------------------------------------
 
@@ -196,7 +201,7 @@ class Watcher:
             frames = doc["frames"]
             n = frames.get("grid", frames.get("used"))
             if isinstance(n, int) and n == state.frames and doc.get("tiles_behind") == 0:
-                if not self._status_agrees(state, doc):
+                if not status_agrees(state, doc):
                     feed.status_disagreements += 1
                     feed.status_agrees = False
                     return self._requery(feed, now_s)
@@ -451,14 +456,24 @@ class Watcher:
                      f"{self.quiet_hint}")
         return FleetReport(vehicles, ids, thresholds, target, props, mean_pd, cells_free,
                            dict(self.refused),
-                           tuple(w for w in (self.bus_warning, quiet) if w))
+                           tuple(w for w in (self.bus_warning, quiet) if w),
+                           {vid: f"{NOT_ON_ROSTER} ({n} samples refused, not merged)"
+                            for vid, n in sorted(self.unknown.items())},
+                           tuple(n for n in (self.roster.notice,) if n))
 
     # -- internals ----------------------------------------------------------------------
 
     def _feed(self, vehicle_id: str, now_s: float) -> VehicleFeed | None:
-        """The vehicle's feed, made on first contact; None (counted) beyond max_vehicles."""
+        """The vehicle's feed, made on first contact; None (counted) when not on the roster
+        or beyond max_vehicles."""
         feed = self.feeds.get(vehicle_id)
         if feed is None:
+            if not self.roster.admits(vehicle_id):  # at most max_vehicles ids listed
+                if vehicle_id in self.unknown or len(self.unknown) < self.max_vehicles:
+                    self.unknown[vehicle_id] += 1
+                else:
+                    self.refused[f"{NOT_ON_ROSTER}, beyond {self.max_vehicles} ids"] += 1
+                return None
             if len(self.feeds) >= self.max_vehicles:
                 self.refused[f"vehicles beyond the limit of {self.max_vehicles}"] += 1
                 return None
@@ -576,19 +591,3 @@ class Watcher:
         feed.track_lat_lon_alt.append((lat, lon, alt))
         if len(feed.track_lat_lon_alt) > self.max_track_points:
             del feed.track_lat_lon_alt[: len(feed.track_lat_lon_alt) // 2: 2]  # thin the old
-
-    @staticmethod
-    def _status_agrees(state: GridState, doc: dict[str, Any]) -> bool:
-        """Whether the status's figures are those of the rebuilt grid (same frames, every
-        changed tile sent): each
-        share at a threshold within half a cell, mean P_D within STATUS_PD_TOLERANCE."""
-        free = int(state.mask.sum())
-        if doc["cells_free"] != free:
-            return False
-        if not free:
-            return True
-        shares = doc["proportion_at_or_above"]
-        mine = state.proportions_at_or_above(float(name) for name in shares)
-        if any(abs(mine[float(name)] - share) > 0.5 / free for name, share in shares.items()):
-            return False
-        return abs(float(state.pd[state.mask].mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE

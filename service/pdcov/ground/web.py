@@ -20,8 +20,10 @@ rings as [lat, lon]; ``gaps``: its gap rings) with the outcome of the last one s
 Re-tasking (ground/retask.py, docs/ground-station.md "Re-tasking"): ``POST /api/refly``
 {vehicle, target_pd} proposes a re-fly of the merged grid's gaps (answered with the
 proposal: id, waypoints, gaps, lines), ``POST /api/refly/confirm`` {id} sends it and
-answers with the daemon's verdict. Both need the token, a JSON body and, when the browser
-sends one, an Origin of this host (web_auth.post_allowed: CSRF).
+answers with the daemon's verdict (ground/web_api.py). Every POST is a command: it needs
+the operator token (web_auth.WebAccess.may_command: 403 to the view token), a JSON body and,
+when the browser sends one, an Origin of this host (web_auth.post_allowed: CSRF).
+``GET /api/whoami`` tells the page what its token may do.
 """
 
 from __future__ import annotations
@@ -40,11 +42,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pdcov.bus.json_doc import finite_or_null
 from pdcov.config import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT
-from pdcov.errors import InputFileError, PdcovError
+from pdcov.errors import InputFileError
 from pdcov.ground.basemap import Basemap
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport
@@ -59,6 +60,7 @@ from pdcov.ground.map_layers import (
 )
 from pdcov.ground.retask import ReflyProposal
 from pdcov.ground.watcher import Watcher
+from pdcov.ground.web_api import ReflyEndpoints, answer, state_json
 from pdcov.ground.web_auth import Granted, WebAccess, post_allowed
 from pdcov.planning.plan import read_mission
 
@@ -251,6 +253,8 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
         "domain_note": note,
         "plans": [p.as_json() for p in plans],
         "warnings": list(report.warnings),
+        "roster_note": " ".join(report.notes),
+        "unknown_vehicles": dict(report.unknown),
         "vehicles": vehicles,
         "origin": None if origin is None else {"lat_deg": origin.lat_deg,
                                                "lon_deg": origin.lon_deg},
@@ -266,12 +270,6 @@ def _mission_origin(watcher: Watcher, grid_hash: str) -> Origin | None:
     m = watcher.mission_for(grid_hash)
     return None if m is None else Origin(m.origin_lat_deg, m.origin_lon_deg,
                                          m.ground_alt_msl_m or 0.0)
-
-
-def state_json(state: dict[str, Any]) -> bytes:
-    """The page's data as strict JSON: every non-finite number (NaN, ±inf) becomes null,
-    so that the page's ``JSON.parse`` never meets ``Infinity``."""
-    return json.dumps(finite_or_null(state), separators=(",", ":"), allow_nan=False).encode()
 
 
 @dataclass(frozen=True, slots=True)
@@ -341,8 +339,10 @@ class WebMap:
         app.router.add_get("/state.json", self._state)
         app.router.add_get("/events", self._events)
         app.router.add_get("/basemap/{z}/{x}/{y}", self._basemap)
-        app.router.add_post("/api/refly", self._refly)
-        app.router.add_post("/api/refly/confirm", self._refly_confirm)
+        app.router.add_get("/api/whoami", self._whoami)
+        commands = ReflyEndpoints(self.desk)  # every POST: a command (_guard)
+        app.router.add_post("/api/refly", commands.refly)
+        app.router.add_post("/api/refly/confirm", commands.confirm)
         self._runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=1.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
@@ -382,16 +382,18 @@ class WebMap:
             headers = {"WWW-Authenticate": 'Bearer realm="pdcov watch"'} \
                 if verdict.status == 401 else {}
             return web.Response(status=verdict.status, text=verdict.text, headers=headers)
-        if request.method not in ("GET", "HEAD"):
-            refused = post_allowed(request.headers.get("Origin"), request.headers.get("Host"),
-                                   request.headers.get("Content-Type"))
+        if request.method not in ("GET", "HEAD"):  # changes something: a command
+            refused = self.access.may_command(verdict.role) or post_allowed(
+                request.headers.get("Origin"), request.headers.get("Host"),
+                request.headers.get("Content-Type"))
             if refused is not None:
                 return web.Response(status=refused.status, text=refused.text)
+        request["pdcov_role"] = verdict.role
         response = await handler(request)
         if verdict.set_cookie and not response.prepared:  # a stream has sent its headers
             # No Max-Age: a session cookie, gone when the browser closes. No Secure flag:
             # the map is served over plain HTTP (docs/ground-station.md, TLS by a proxy).
-            response.set_cookie(self.cookie_name, self.access.token, path="/",
+            response.set_cookie(self.cookie_name, self.access.token_of(verdict.role), path="/",
                                 httponly=True, samesite="Strict")
         return response
 
@@ -431,55 +433,14 @@ class WebMap:
             pass
         return resp
 
-    async def _json_body(self, request: Any) -> dict[str, Any]:
-        from aiohttp import web
-
-        try:
-            body = await request.json()
-        except ValueError:
-            body = None
-        if not isinstance(body, dict):
-            raise web.HTTPBadRequest(text="expected a JSON object\n")
-        return body
-
-    def _answer(self, status: int, doc: dict[str, Any]) -> Any:
-        from aiohttp import web
-
-        return web.Response(status=status, body=state_json(doc),
-                            content_type="application/json")
-
-    async def _refly(self, request: Any) -> Any:
-        """POST /api/refly {vehicle, target_pd (optional)}: a re-fly proposal."""
-        body = await self._json_body(request)
-        if self.desk is None:
-            return self._answer(409, {"error": "re-tasking needs the mission flown: start "
-                                               "pdcov watch with --config"})
-        vehicle, target = body.get("vehicle"), body.get("target_pd")
-        if not isinstance(vehicle, str) or not (
-                target is None or (isinstance(target, (int, float))
-                                   and not isinstance(target, bool) and 0 < target < 1)):
-            return self._answer(400, {"error": "expected {vehicle: id, target_pd: a "
-                                               "probability in (0, 1) or null}"})
-        try:
-            proposal = await self.desk.propose(vehicle, target)
-        except PdcovError as exc:  # no grid yet, no gaps, another grid: say so
-            return self._answer(409, {"error": str(exc)})
-        return self._answer(200, proposal.map_state())
-
-    async def _refly_confirm(self, request: Any) -> Any:
-        """POST /api/refly/confirm {id}: send the proposal shown; the daemon's verdict."""
-        body = await self._json_body(request)
-        if self.desk is None:
-            return self._answer(409, {"error": "re-tasking needs --config"})
-        proposal_id = body.get("id")
-        if not isinstance(proposal_id, str):
-            return self._answer(400, {"error": "expected {id: the proposal's id}"})
-        try:
-            accepted, line = await self.desk.confirm(proposal_id)
-        except PdcovError as exc:
-            return self._answer(409, {"error": str(exc)})
-        log.warning("web map: %s", line)
-        return self._answer(200, {"id": proposal_id, "accepted": accepted, "line": line})
+    async def _whoami(self, request: Any) -> Any:
+        """GET /api/whoami: what this request's token may do, for the page to show or hide
+        its commands: {role, may_command, why (null when it may)}."""
+        role = request["pdcov_role"]
+        refused = self.access.may_command(role)
+        return answer(200, {"role": role.value, "may_command": refused is None,
+                            "why": None if refused is None else
+                            refused.text.removeprefix("pdcov watch: ").strip()})
 
     async def _basemap(self, request: Any) -> Any:
         """/basemap/{z}/{x}/{y}[.ext] (y from the north): the tile, 404 when the set has none."""

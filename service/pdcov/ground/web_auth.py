@@ -23,8 +23,14 @@ server never grants) and, when the browser names the page's origin, an ``Origin`
 host (``post_allowed``). The cookie's SameSite=Strict already keeps it off cross-site
 requests; these keep a request that carries the token in its address from being forged.
 
-``WebAccess.check`` and ``post_allowed`` are the decisions, pure; reading the token file and
-the environment are the edges.
+Two tokens, two roles (``Role``): the view token (``--web-token-file``, or made at start)
+reads everything; the operator token (``--web-operator-token-file``) reads and commands.
+Every request that is not a GET or HEAD is a command (today the re-tasking endpoints) and
+answers 403 to the view token; without an operator token no one commands from the web map
+(``WebAccess.may_command``). The two must differ; both are compared in constant time.
+
+``WebAccess.check``, ``WebAccess.may_command`` and ``post_allowed`` are the decisions,
+pure; reading the token files and the environment are the edges.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import secrets
 import stat
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 
 from pdcov.errors import ConfigError
@@ -45,6 +52,17 @@ MIN_TOKEN_CHARS = 16
 _TOKEN_RE = re.compile(r"[A-Za-z0-9_.~-]+")  # URL- and cookie-safe, no quoting needed
 _HINT = ("open the address pdcov watch printed when it started "
          "(http://HOST:PORT/?token=...)")
+
+
+class Role(Enum):
+    """What a token may do: read the map, or read it and command (re-task a vehicle)."""
+
+    VIEWER = "viewer"
+    OPERATOR = "operator"
+
+
+NO_OPERATOR = ("no operator token (--web-operator-token-file): no one can command from this "
+               "web map")
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,22 +76,45 @@ class Refusal:
 
 @dataclass(frozen=True, slots=True)
 class Granted:
-    """The request may be served; ``set_cookie``: it came with a valid ``?token=`` and no
-    valid cookie, so the answer sets the cookie."""
+    """The request may be served, with the rights of ``role``; ``set_cookie``: it came with a
+    valid ``?token=`` and no valid cookie, so the answer sets the cookie (to ``role``'s
+    token)."""
 
     set_cookie: bool
+    role: Role = Role.VIEWER
 
 
 @dataclass(frozen=True, slots=True)
 class WebAccess:
-    """token: the secret (validated: ``check_token``). hosts: the host names (lower case)
-    served besides IP literals (``served_names``)."""
+    """token: the view token (validated: ``check_token``). hosts: the host names (lower
+    case) served besides IP literals (``served_names``). operator_token: the token that may
+    command too, or None (no one may)."""
 
     token: str
     hosts: frozenset[str]
+    operator_token: str | None = None
 
     def __post_init__(self) -> None:
         check_token(self.token, "the web map token")
+        if self.operator_token is not None:
+            check_token(self.operator_token, "the web map's operator token")
+            if hmac.compare_digest(self.operator_token.encode(), self.token.encode()):
+                raise ConfigError("the web map's operator token is its view token: give "
+                                  "--web-operator-token-file a token of its own")
+
+    def token_of(self, role: Role) -> str:
+        """The token that grants ``role`` (the cookie set for it)."""
+        return self.operator_token if role is Role.OPERATOR and self.operator_token \
+            else self.token
+
+    def may_command(self, role: Role) -> Refusal | None:
+        """Whether a request granted ``role`` may change anything (module docstring): None,
+        else a 403 saying why."""
+        if role is Role.OPERATOR:
+            return None
+        why = NO_OPERATOR if self.operator_token is None else \
+            "the view token may not command: open the map with the operator token"
+        return Refusal(403, f"pdcov watch: {why}\n")
 
     def check(self, host_header: str | None, query_token: str | None,
               cookie_token: str | None, authorization: str | None) -> Granted | Refusal:
@@ -86,19 +127,31 @@ class WebAccess:
         bearer = None
         if authorization is not None and authorization[:7].lower() == "bearer ":
             bearer = authorization[7:].strip()
-        if self._valid(cookie_token) or self._valid(bearer):
-            return Granted(set_cookie=False)
-        if self._valid(query_token):
-            return Granted(set_cookie=True)
+        # A valid ?token= wins over the cookie (the operator's address opened in a browser
+        # that holds the view cookie makes it the operator's); the cookie is set when it
+        # does not already grant that role.
+        query_role, cookie_role = self._role(query_token), self._role(cookie_token)
+        if query_role is not None:
+            return Granted(cookie_role is not query_role, query_role)
+        for role in (cookie_role, self._role(bearer)):
+            if role is not None:
+                return Granted(False, role)
         if (query_token, cookie_token, bearer) == (None, None, None):
             return Refusal(401, f"pdcov watch: this web map needs its access token: {_HINT}.\n")
         return Refusal(401, f"pdcov watch: wrong or expired access token: {_HINT} (a new "
                             "token is made at each start unless --web-token-file gives one).\n")
 
-    def _valid(self, presented: str | None) -> bool:
+    def _role(self, presented: str | None) -> Role | None:
+        """The role ``presented`` grants, None for no token or a wrong one. Both tokens
+        are compared, each in constant time."""
+        if presented is None:
+            return None
         # Bytes: compare_digest refuses non-ASCII str, and a visitor chooses what is sent.
-        return presented is not None and hmac.compare_digest(
-            presented.encode("utf-8", "replace"), self.token.encode())
+        given = presented.encode("utf-8", "replace")
+        viewer = hmac.compare_digest(given, self.token.encode())
+        operator = hmac.compare_digest(given, (self.operator_token or "").encode()) \
+            and self.operator_token is not None
+        return Role.OPERATOR if operator else Role.VIEWER if viewer else None
 
 
 def post_allowed(origin: str | None, host_header: str | None,
@@ -145,18 +198,22 @@ def served_names(bound_host: str, hostname: str, extra: Iterable[str] = ()) -> f
 
 
 def web_access(bound_host: str, token_file: Path | None, allow_hosts: Iterable[str],
-               environ: Mapping[str, str], hostname: str) -> WebAccess:
+               environ: Mapping[str, str], hostname: str,
+               operator_token_file: Path | None = None) -> WebAccess:
     """Who may read a map bound to ``bound_host`` on a machine called ``hostname``: the
     token of ``token_file`` (``--web-token-file``), else of ``environ[TOKEN_ENV]``, else a
-    new random one; the names ``served_names`` gives. ConfigError for a bad token file or
-    token."""
+    new random one; the names ``served_names`` gives; who may command: the token of
+    ``operator_token_file`` (``--web-operator-token-file``), else no one. ConfigError for a
+    bad token file or token, or the same token twice."""
     if token_file is not None:
         token = read_token_file(token_file)
     elif environ.get(TOKEN_ENV):
         token = check_token(environ[TOKEN_ENV].strip(), TOKEN_ENV)
     else:
         token = secrets.token_urlsafe(32)
-    return WebAccess(token, served_names(bound_host, hostname, allow_hosts))
+    operator = None if operator_token_file is None else read_token_file(
+        operator_token_file, "--web-operator-token-file")
+    return WebAccess(token, served_names(bound_host, hostname, allow_hosts), operator)
 
 
 def check_token(token: str, where: str) -> str:
@@ -171,23 +228,23 @@ def check_token(token: str, where: str) -> str:
     return token
 
 
-def read_token_file(path: Path) -> str:
+def read_token_file(path: Path, flag: str = "--web-token-file") -> str:
     """The token in ``path`` (surrounding white space stripped). ConfigError when it is
     missing, not a regular file, readable or writable by group or others (chmod 600, as
-    ssh asks of a private key) or not a usable token."""
+    ssh asks of a private key) or not a usable token; ``flag`` names it in errors."""
     try:
         st = path.stat()
     except OSError as exc:
-        raise ConfigError(f"--web-token-file {path}: cannot read it ({exc.strerror})") \
+        raise ConfigError(f"{flag} {path}: cannot read it ({exc.strerror})") \
             from None
     if not stat.S_ISREG(st.st_mode):
-        raise ConfigError(f"--web-token-file {path}: not a regular file")
+        raise ConfigError(f"{flag} {path}: not a regular file")
     if st.st_mode & 0o077:
-        raise ConfigError(f"--web-token-file {path}: permissions "
+        raise ConfigError(f"{flag} {path}: permissions "
                           f"{stat.S_IMODE(st.st_mode):04o} are too open: group and others "
                           f"must have no access to it (chmod 600 {path})")
     try:
         text = path.read_text(encoding="ascii").strip()
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"--web-token-file {path}: cannot read it ({exc})") from None
-    return check_token(text, f"--web-token-file {path}")
+        raise ConfigError(f"{flag} {path}: cannot read it ({exc})") from None
+    return check_token(text, f"{flag} {path}")

@@ -279,6 +279,14 @@ document.getElementById("refly-send").addEventListener("click", async (ev) => {
   } catch (err) { document.getElementById("refly-outcome").textContent = `not sent: ${err.message}`; }
 });
 
+// What this page's token may do (the server refuses commands to a view token all the same).
+fetch("api/whoami", {credentials: "same-origin"}).then((r) => r.json()).then((me) => {
+  document.getElementById("refly-commands").hidden = !me.may_command;
+  document.getElementById("command-note").textContent = me.may_command ? "" : `view only: ${me.why}`;
+}).catch(() => {
+  document.getElementById("command-note").textContent = "view only: could not ask what this token may do";
+});
+
 function showReflyControls(s) {
   const sel = document.getElementById("refly-vehicle");
   const ids = s.vehicles.map((v) => v.id);
@@ -350,6 +358,7 @@ function show(s) {
   document.getElementById("target").textContent = f.target ?? "-";
   document.getElementById("domain-source").textContent = s.domain ? s.domain.source : "not known";
   document.getElementById("domain-note").textContent = s.domain_note || "";
+  document.getElementById("roster-note").textContent = s.roster_note || "";
   document.getElementById("layer-notes").textContent = (s.grid && s.grid.outline_note) || "";
   const warnings = document.getElementById("warnings");
   warnings.replaceChildren(...(s.warnings || []).map((text) => el("li", text)));
