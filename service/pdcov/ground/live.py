@@ -188,8 +188,7 @@ class WatchShell:
 
         out = []
         # Named as this session, so that the daemon's snapshot rate limit gives this
-        # watcher its own share (service/query_limit.py) rather than the anonymous one,
-        # and its re-tasking allow-list can name it (service.retask_sessions).
+        # watcher its own share (service/query_limit.py) rather than the anonymous one.
         self._query_sn += 1
         for reply in self._session.get(key, payload=payload,
                                        timeout=timeout_s or self.query_timeout_s,
@@ -201,8 +200,8 @@ class WatchShell:
 
     @property
     def session_id(self) -> str | None:
-        """This ground station's Zenoh session id (hex), once open: what a daemon's
-        service.retask_sessions names."""
+        """This ground station's Zenoh session id (hex), once open (printed at start: what
+        a vehicle's status and the logs name it by)."""
         return None if self._session is None else str(self._session.zid())
 
     async def retask(self, vehicle_id: str, payload: bytes, timeout_s: float = 60.0
