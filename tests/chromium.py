@@ -48,10 +48,15 @@ def browser(tmp_path) -> Iterator[Any]:
         driver.quit()
 
 
+BROWSER_OWN = ("chrome://", "chrome-untrusted://")
+"""URL schemes of chromium's own pages, never a page's request."""
+
+
 def requested_urls(driver: Any) -> list[str]:
     """The URLs of every request made since the last call (DevTools
     Network.requestWillBeSent, blocked ones included), but those of chromium's own pages
-    (chrome://, e.g. the new tab page open before the test's)."""
+    (chrome:// and chrome-untrusted://, e.g. the new tab page open before the test's:
+    chromium 150 loads its parts from chrome-untrusted://new-tab-page/)."""
     import json
 
     urls = []
@@ -59,7 +64,8 @@ def requested_urls(driver: Any) -> list[str]:
         message = json.loads(entry["message"])["message"]
         if message.get("method") == "Network.requestWillBeSent":
             params = message["params"]
-            if not params.get("documentURL", "").startswith("chrome://"):
+            own = (params.get("documentURL", ""), params["request"]["url"])
+            if not any(u.startswith(BROWSER_OWN) for u in own):
                 urls.append(params["request"]["url"])
     return urls
 
