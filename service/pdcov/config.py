@@ -17,7 +17,9 @@ import numpy as np
 
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
-from pdcov.core.dem import Dem, VerticalDatum, height_mismatch, terrain_surface
+from pdcov.core.dem import (
+    DEFAULT_MAX_HOME_OFFSET_M, Dem, VerticalDatum, height_mismatch, home_offset_error,
+    terrain_surface)
 from pdcov.core.detections import CLASS_NAME_RULE, valid_class_name
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
@@ -273,13 +275,15 @@ class CoverageSection:
 class TerrainSection:
     """``terrain``: the DEM file (GeoTIFF, COG or SRTM .hgt, any CRS; relative to the config's
     folder), the datum of its heights ('msl', or 'ellipsoid' with geoid_height_m, the geoid's
-    height N above the ellipsoid at the site in m: H_msl = h_ellipsoid - N), and the margin
-    (m) beyond which an altitude measured or configured that disagrees with it is warned of."""
+    height N above the ellipsoid at the site in m: H_msl = h_ellipsoid - N), the margin
+    (m) beyond which an altitude measured or configured that disagrees with it is warned of,
+    and the most (m) a configured home altitude may differ from it (else refused)."""
 
     dem: str
     vertical_datum: str = "msl"
     geoid_height_m: float | None = None
     check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+    max_home_offset_m: float = DEFAULT_MAX_HOME_OFFSET_M
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> TerrainSection:
@@ -301,9 +305,9 @@ class TerrainSection:
         if datum == VerticalDatum.MSL and geoid is not None:
             raise ConfigError(f"{where(src, 'terrain.geoid_height_m')}: only used with "
                               "vertical_datum: ellipsoid (the DEM's heights are MSL)")
-        return cls(dem, datum, geoid,
-                   _number(doc, "check_margin_m", src, "terrain", default=DEFAULT_TERRAIN_MARGIN_M,
-                           positive=True))
+        return cls(dem, datum, geoid, *(_number(doc, k, src, "terrain", default=d, positive=True)
+                   for k, d in (("check_margin_m", DEFAULT_TERRAIN_MARGIN_M),
+                                ("max_home_offset_m", DEFAULT_MAX_HOME_OFFSET_M))))
 
 
 @dataclass(frozen=True, slots=True)
@@ -642,6 +646,9 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             ground_alt, ground_how = _dem_ground_alt(dem, origin, src), "the DEM at the origin"
             origin_value = Origin(origin.lat_deg, origin.lon_deg, ground_alt)
             domain = _domain(dom, src, base, origin_value)  # geodetic polygons at that ground
+        elif err := home_offset_error(dem, origin.lat_deg, origin.lon_deg, ground_alt,
+                                      ter.max_home_offset_m):
+            raise ConfigError(f"{where(src, 'origin.ground_alt_msl_m')}: {err}")
         else:
             mismatch = height_mismatch(dem, origin.lat_deg, origin.lon_deg, ground_alt,
                                        ter.check_margin_m, "origin.ground_alt_msl_m")
