@@ -98,7 +98,8 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
     d.frames(encode_frames_v2(frames[8:]))
     d.frames(encode_frames_v2([FrameBoxes(1.3, _boxes(0, rng))]))  # late: not taken
     d.frames(encode_frames([4.4, 4.6]))  # version 1 still read
-    d.frames(encode_frames_v2([FrameBoxes(600.0, _boxes(1, rng))]))  # never decided
+    far = FrameBoxes(600.0, _boxes(1, rng))  # 596 s ahead of the autopilot's clock: refused
+    d.frames(encode_frames_v2([far]))
     d.core.process()
     for _ in range(5):
         d.tick(DETECTIONS_PERIOD_S)
@@ -109,7 +110,8 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
     assert faults["frames_refused_outside_picture"] == 1, faults
     assert faults["frames_refused_over_bound"] == 1, faults
     assert faults["frames_refused_bad_field"] == 1, faults  # another vehicle's
-    assert faults["boxes_of_frames_not_taken"] == 2, faults  # the late frame's
+    assert faults["frames_refused_ahead_of_clock"] == 1, faults  # the far one
+    assert faults["boxes_of_frames_not_taken"] == 2 + len(far.boxes), faults  # late, far
     live_candidates = decode_detections(d.core.candidates_payload())["candidates"]
     live_detections = [x for msg in d.published for x in msg["detections"]]
     used = d.core.coverage.counters.used
