@@ -51,6 +51,8 @@ RESERVED_SECTIONS = ("link", "bus", "service")
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
 
 
+MAX_FRAME_RATE_HZ = 1000.0
+"""The most camera.frame_rate_hz: beyond, a typo (the daemon's memory: serve --check)."""
 DEFAULT_TERRAIN_MARGIN_M = 10.0
 """terrain.check_margin_m when the config does not set it (m): how far the DEM may disagree
 with the home altitude and what the aircraft measures before it is said."""
@@ -892,6 +894,9 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path
                   if k not in ("frame_rate_hz", "exposure_s", "zoom", "zoom_lens")}
         camera = CameraModel.from_config(inline, src, "camera")
     rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
+    if rate > MAX_FRAME_RATE_HZ:
+        raise ConfigError(f"{where(src, 'camera.frame_rate_hz')}: {rate:g} Hz, more than the "
+                          f"{MAX_FRAME_RATE_HZ:g} Hz a camera frames at")
     return camera, rate, _opt_number(cam, "exposure_s", src, "camera")
 
 
