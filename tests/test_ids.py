@@ -58,6 +58,6 @@ def test_a_vehicle_id_of_more_than_64_characters_is_refused_by_config_and_bus():
         mission_from_dict(mission_doc(vehicle_id=long_id), source="m.yaml")
     with pytest.raises(ValueError, match=r"1\.\.64 characters"):
         VehicleKeys(long_id)
-    with pytest.raises(BusPayloadError, match=r"vehicle: expected a string of at most 64 characters"):
+    with pytest.raises(BusPayloadError, match=r"vehicle: expected a string of at most 64 "):
         decode_frames(json.dumps({"schema": "pdcov.frames", "version": 2, "vehicle": long_id,
                                   "frames": [{"t_boot_s": 1.0, "boxes": []}]}).encode())

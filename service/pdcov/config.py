@@ -15,11 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.core import dem as dem_rules
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
-from pdcov.core.dem import (
-    DEFAULT_MAX_HOME_OFFSET_M, Dem, VerticalDatum, height_mismatch, home_offset_error,
-    terrain_surface)
+from pdcov.core.dem import Dem, VerticalDatum, height_mismatch, terrain_surface
 from pdcov.core.detections import CLASS_NAME_RULE, valid_class_name
 from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
@@ -51,8 +50,7 @@ RESERVED_SECTIONS = ("link", "bus", "service")
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
 
 
-MAX_FRAME_RATE_HZ = 1000.0
-"""The most camera.frame_rate_hz: beyond, a typo (the daemon's memory: serve --check)."""
+MAX_FRAME_RATE_HZ = 1000.0  # camera.frame_rate_hz beyond: a typo (memory: serve --check)
 DEFAULT_TERRAIN_MARGIN_M = 10.0
 """terrain.check_margin_m when the config does not set it (m): how far the DEM may disagree
 with the home altitude and what the aircraft measures before it is said."""
@@ -285,7 +283,7 @@ class TerrainSection:
     vertical_datum: str = "msl"
     geoid_height_m: float | None = None
     check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
-    max_home_offset_m: float = DEFAULT_MAX_HOME_OFFSET_M
+    max_home_offset_m: float = dem_rules.DEFAULT_MAX_HOME_OFFSET_M
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> TerrainSection:
@@ -309,7 +307,7 @@ class TerrainSection:
                               "vertical_datum: ellipsoid (the DEM's heights are MSL)")
         return cls(dem, datum, geoid, *(_number(doc, k, src, "terrain", default=d, positive=True)
                    for k, d in (("check_margin_m", DEFAULT_TERRAIN_MARGIN_M),
-                                ("max_home_offset_m", DEFAULT_MAX_HOME_OFFSET_M))))
+                                ("max_home_offset_m", dem_rules.DEFAULT_MAX_HOME_OFFSET_M))))
 
 
 @dataclass(frozen=True, slots=True)
@@ -648,8 +646,8 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             ground_alt, ground_how = _dem_ground_alt(dem, origin, src), "the DEM at the origin"
             origin_value = Origin(origin.lat_deg, origin.lon_deg, ground_alt)
             domain = _domain(dom, src, base, origin_value)  # geodetic polygons at that ground
-        elif err := home_offset_error(dem, origin.lat_deg, origin.lon_deg, ground_alt,
-                                      ter.max_home_offset_m):
+        elif err := dem_rules.home_offset_error(dem, origin.lat_deg, origin.lon_deg, ground_alt,
+                                                ter.max_home_offset_m):
             raise ConfigError(f"{where(src, 'origin.ground_alt_msl_m')}: {err}")
         else:
             mismatch = height_mismatch(dem, origin.lat_deg, origin.lon_deg, ground_alt,

@@ -250,7 +250,7 @@ class ServiceCore:
         for f in frames:
             boxes, unknown = split_by_class(f.boxes, self._classes)
             if unknown:
-                faults[FrameRefusal.UNKNOWN_CLASS] += unknown
+                faults[FrameRefusal.UNKNOWN_CLASS.value] += unknown
             ms.append((boot_ms(f.t_boot_s), boxes))
         if any(v > MAX_BOOT_MS for v, _b in ms):
             faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v, _b in ms)
@@ -285,7 +285,7 @@ class ServiceCore:
             t = proto.autopilot_boot_s(boot_s(v))
             refusal = refusal_of_time(t, proto.clock_now_s, history_s)
             if refusal is not None:  # frame_admission: outside the clock's window
-                faults[refusal] += 1
+                faults[refusal.value] += 1
                 faults["boxes_of_frames_not_taken"] += len(boxes)
             elif t in t_s:  # a duplicate within the message: the first is the one taken
                 live.counters.faults["boxes_of_frames_not_taken"] += len(boxes)

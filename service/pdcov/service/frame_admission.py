@@ -12,9 +12,9 @@ status's faults under ``FrameRefusal``'s names.
 
 from __future__ import annotations
 
+import enum
 import math
 from collections.abc import Collection
-from enum import StrEnum
 
 from pdcov.core.detections import Box
 from pdcov.core.detector import DetectorModel
@@ -27,7 +27,7 @@ FUTURE_TOLERANCE_S = 2.0
 stamp is read off the same clock, and telemetry arrives some 100 ms late at most."""
 
 
-class FrameRefusal(StrEnum):
+class FrameRefusal(str, enum.Enum):
     """Why a detector frame or box was refused: its fault key in the status."""
 
     TOO_OLD = "frames_refused_too_old"
