@@ -134,13 +134,28 @@ def config_cases() -> Iterator[Case]:
            lens, lens.startswith("refused"))
     with tempfile.TemporaryDirectory() as d:
         doc = dict(MISSION, mount=FIXED, vehicle_id="uav7")
-        doc["camera"] = dict(doc["camera"], frame_rate_hz=1000.0)
         doc["service"] = {"state_dir": d}
-        (Path(d) / "m.yaml").write_text(yaml.safe_dump(doc))
-        m = load_serve_config(Path(d) / "m.yaml").mission
-        why = memory_refusal(m, 4_000_000, memory_limit_bytes())
-    yield ("serve --check of 1000 frames/s over 4 M cells", "1e6 frames/s passed, then "
-           "MemoryError", (why or "passed")[:60] + "...", why is not None)
+        path = Path(d) / "m.yaml"
+        doc["camera"] = dict(doc["camera"], frame_rate_hz=1e6)
+        path.write_text(yaml.safe_dump(doc))
+        try:
+            load_serve_config(path)
+            rate = "ACCEPTED"
+        except PdcovError as exc:
+            rate = "refused: " + str(exc).split(": ", 1)[1]
+        doc["camera"] = dict(doc["camera"], frame_rate_hz=1000.0)
+        path.write_text(yaml.safe_dump(doc))
+        m = load_serve_config(path).mission
+    unit = (600 << 20, "systemd/pdcov.service's MemoryMax=600M")
+    why = memory_refusal(m, 8_000_000, unit)
+    yield ("camera.frame_rate_hz 1e6 in the config", "passed serve --check, then "
+           "MemoryError", rate[:70], rate.startswith("refused"))
+    yield ("serve --check of 1000 frames/s over 8 M cells, the shipped unit's 600 MB",
+           "passed", (why or "passed")[:90] + "...", why is not None)
+    here = memory_limit_bytes()
+    yield ("the same on this machine", "-", f"limit {here[0] / 2**20:,.0f} MiB ({here[1]}): "
+           + ("refused" if memory_refusal(m, 8_000_000, here) else "fits")
+           if here else "no limit readable", True)
     long_id = "u" * 65
     yield ("a 65-character vehicle id", "any length", "refused" if not valid_vehicle_id(
         long_id) else "ACCEPTED", not valid_vehicle_id(long_id))
