@@ -1,7 +1,12 @@
 """``python -m benchmarks.hostile_bus``: the red team's findings on the default bus (issue
 23), measured again in one run against the watcher's decisions and the bus decoders, in
 memory: what a forged tiles message does to the map, what a hostile status, a 25 M-cell
-snapshot, 2,000 invented vehicle ids and the 83-byte replayed tiles message cost now.
+snapshot, 2,000 invented vehicle ids and the 83-byte replayed tiles message cost now; and
+the input bounds of issue 34 (a far-future frames flood, invented classes, a 1M-bin detector
+model, zoom jitter, a folding lens, a DEM far off the home, 1e6 frames/s, a 65-character
+vehicle id, a slow MBTiles) against the daemon's decisions (ServiceCore, fed MAVLink bytes
+as tests/link_feed.py does) and the loaders, with the process's RSS before, during and
+after the flood.
 Prints a markdown table (docs/reliability.md "Hostile participant"); exit 1 when a bound
 does not hold. The same cases run over real Zenoh in tests/test_watch_hostile.py and
 tests/test_bus_hostile.py.
@@ -34,6 +39,8 @@ from pdcov.ground.web import map_state
 # that these figures are of the same cases as tests/test_watcher_pinning.py.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from watch_fixtures import TinyPublisher
+
+from benchmarks.hostile_inputs import input_bound_cases
 
 DAEMON, ROGUE = "a1" * 16, "e7" * 16
 
@@ -196,7 +203,8 @@ def replayed_tiles_case() -> Finding:
 
 def main() -> int:
     findings = [forged_tiles_case(), hostile_status_case(), huge_snapshot_case(),
-                fake_vehicles_case(), replayed_tiles_case()]
+                fake_vehicles_case(), replayed_tiles_case(),
+                *(Finding(*c) for c in input_bound_cases())]
     print("| finding | red team (before) | now | holds |")
     print("|---|---|---|---|")
     for f in findings:

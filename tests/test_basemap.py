@@ -120,3 +120,52 @@ def test_the_web_map_answers_tiles_and_404_outside_the_set(tmp_path):
     basemap.close()
     assert got[0] == got[1] == (200, PNG, "image/png")
     assert [s for s, _, _ in got[2:]] == [404] * 7
+
+
+def test_a_tile_too_large_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import pdcov.ground.basemap as bm
+    monkeypatch.setattr(bm, "MAX_TILE_BYTES", len(PNG) + 99)
+    big = PNG + b"x" * 100
+    (tmp_path / "xyz" / "1" / "0").mkdir(parents=True)
+    (tmp_path / "xyz" / "1" / "0" / "0.png").write_bytes(big)
+    (tmp_path / "xyz" / "1" / "0" / "1.png").write_bytes(PNG)
+    mbtiles(tmp_path / "a.mbtiles", {(1, 0, 0): big, (1, 0, 1): PNG})
+    for basemap in (open_basemap(tmp_path / "xyz"), open_basemap(tmp_path / "a.mbtiles")):
+        assert basemap.tile(1, 0, 1, None) == (PNG, "image/png")
+        with pytest.raises(bm.TileRefused, match=rf"basemap tile 1/0/0: {len(big)} bytes, "
+                                                 rf"more than {len(big) - 1}") as exc:
+            basemap.tile(1, 0, 0, None)
+        assert exc.value.http_status == 413
+        basemap.close()
+
+
+def test_a_slow_tile_read_times_out_off_the_event_loop(tmp_path):
+    import threading
+
+    import pdcov.ground.basemap as bm
+    mbtiles(tmp_path / "a.mbtiles", {(1, 0, 0): PNG})
+    basemap = open_basemap(tmp_path / "a.mbtiles")
+    release = threading.Event()
+    interrupted = []
+    basemap.tile = lambda *a: release.wait(10) and None  # a hostile file: a read that hangs
+    basemap.interrupt = lambda: (interrupted.append(True), release.set())
+
+    async def run() -> int:
+        ticks = 0
+
+        async def other_requests() -> None:  # the loop keeps answering meanwhile
+            nonlocal ticks
+            while not release.is_set():
+                ticks += 1
+                await asyncio.sleep(0.01)
+
+        other = asyncio.create_task(other_requests())
+        with pytest.raises(bm.TileRefused, match=r"basemap tile 1/0/0: not read within "
+                                                 r"0.2 s") as exc:
+            await bm.read_tile(basemap, 1, 0, 0, None, timeout_s=0.2)
+        await other
+        assert exc.value.http_status == 504
+        return ticks
+
+    assert asyncio.run(run()) >= 5 and interrupted == [True]
+    basemap.close()

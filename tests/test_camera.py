@@ -49,13 +49,29 @@ def test_pinhole_centre_and_known_point():
 
 
 def test_fold_back_guard_rejects_points_beyond_the_field_of_view():
-    # Strong barrel distortion: the polynomial folds far-off-axis points back into the image.
-    cam = CameraModel(640, 480, np.array(K), "plumb_bob", np.array([-0.3, 0, 0, 0, 0]))
+    # Strong barrel distortion: the polynomial folds far-off-axis points back into the image
+    # (its fold, at normalised radius 0.86, lies just beyond the picture's corner at 0.80).
+    cam = CameraModel(640, 480, np.array(K), "plumb_bob", np.array([-0.2, 0, 0, 0, 0]))
     far = np.array([[2.0, 0.0, 1.0]])  # 63 deg off axis, outside the ~39 deg half-width
     folded = cam.project(far)
     assert cam.in_picture(folded).all(), "premise: OpenCV folds this point into the image"
     _, ok = cam.visible(far)
     assert not ok.any()
+
+
+@pytest.mark.parametrize(("model", "coeffs", "words"), [
+    ("plumb_bob", [-3.0, 0, 0, 0, 0], "stops growing at 111 px from the principal point "
+     "(normalised radius 0.222), short of the corner at 401 px (0.801)"),
+    ("plumb_bob", [-0.3, 0, 0, 0, 0], "at 351 px from the principal point (normalised "
+     "radius 0.703)"),
+    ("fisheye", [-0.5, 0, 0, 0], "(normalised radius 0.544)"),
+])
+def test_a_lens_that_folds_over_inside_the_picture_is_refused_naming_the_radius(
+        model, coeffs, words):
+    with pytest.raises(CalibrationError, match="m.yaml: camera: distortion_coeffs: the lens "
+                                               "folds over inside the picture") as exc:
+        CameraModel(640, 480, np.array(K), model, np.array(coeffs), source="m.yaml: camera")
+    assert words in str(exc.value)
 
 
 def test_from_camera_info(tmp_path):

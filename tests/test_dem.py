@@ -368,3 +368,16 @@ def test_evaluate_says_where_the_ground_came_from_and_warns(tmp_path, capsys):
     assert "(configured)" in out and "WARNING: " in out
     (w,) = json.loads((tmp_path / "b" / "metrics.json").read_text())["warnings"]
     assert "differs from the DEM's 5.0 m there (dem.tif) by -5.0 m" in w
+
+
+def test_configured_home_altitude_beyond_max_home_offset_is_refused_unless_raised(tmp_path):
+    path = flat_around(tmp_path / "dem.tif", h_m=H0 + 188.0)
+    with pytest.raises(ConfigError) as exc:
+        mission_from_dict(terrain_doc(path, ground_alt_msl_m=H0), source="m.yaml",
+                          base_dir=tmp_path)
+    assert str(exc.value).startswith(
+        "m.yaml: origin.ground_alt_msl_m: 1000.0 m MSL is -188.0 m from the DEM's 1188.0 m "
+        "there (dem.tif), more than terrain.max_home_offset_m = 30 m")
+    m = mission_from_dict(terrain_doc(path, ground_alt_msl_m=H0, max_home_offset_m=200),
+                          source="m.yaml", base_dir=tmp_path)
+    assert "differs from the DEM's 1188.0 m" in m.warnings[0]  # raised: taken, still warned

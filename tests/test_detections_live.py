@@ -98,7 +98,8 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
     d.frames(encode_frames_v2(frames[8:]))
     d.frames(encode_frames_v2([FrameBoxes(1.3, _boxes(0, rng))]))  # late: not taken
     d.frames(encode_frames([4.4, 4.6]))  # version 1 still read
-    d.frames(encode_frames_v2([FrameBoxes(600.0, _boxes(1, rng))]))  # never decided
+    far = FrameBoxes(600.0, _boxes(1, rng))  # 596 s ahead of the autopilot's clock: refused
+    d.frames(encode_frames_v2([far]))
     d.core.process()
     for _ in range(5):
         d.tick(DETECTIONS_PERIOD_S)
@@ -109,7 +110,8 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
     assert faults["frames_refused_outside_picture"] == 1, faults
     assert faults["frames_refused_over_bound"] == 1, faults
     assert faults["frames_refused_bad_field"] == 1, faults  # another vehicle's
-    assert faults["boxes_of_frames_not_taken"] == 2, faults  # the late frame's
+    assert faults["frames_refused_ahead_of_clock"] == 1, faults  # the far one
+    assert faults["boxes_of_frames_not_taken"] == 2 + len(far.boxes), faults  # late, far
     live_candidates = decode_detections(d.core.candidates_payload())["candidates"]
     live_detections = [x for msg in d.published for x in msg["detections"]]
     used = d.core.coverage.counters.used
@@ -138,3 +140,26 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
     offline = decode_detections((out / "detections.json").read_bytes(), vehicle_id="uav7")
     assert offline["detections"] == live_detections
     assert offline["candidates"] == live_candidates
+
+
+def test_boxes_of_classes_the_model_does_not_name_and_frames_off_the_clock_are_refused(
+        tmp_path: Path) -> None:
+    """service/frame_admission.py through ServiceCore: a box of an invented class, a frame
+    1e6 s ahead and one older than the tracker's history are counted, not taken."""
+    from pdcov.core.detector import DetectorModel
+
+    doc = yaml.safe_load(_config(tmp_path).read_text())
+    doc["detector"] = {**DetectorModel.illustrative().to_dict(),
+                       "fit": {"classes": ["person", "car"]}}
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
+    d = Driver(tmp_path / "m.yaml", tmp_path / "rec")
+    d.link(b"".join(pack(m, seq=i) for i, m in enumerate(Hover(seconds=30.0).messages())))
+    person = Box("person", 0.9, 310.0, 200.0, 18.0, 40.0)
+    d.frames(encode_frames_v2([
+        FrameBoxes(29.0, (person, Box("invented7", 0.9, 100.0, 100.0, 9.0, 9.0))),
+        FrameBoxes(1e6, (person,)), FrameBoxes(5.0, (person,))]))
+    faults = d.core.status(d.now_s, LinkReport())[0]["faults"]
+    assert faults["boxes_refused_unknown_class"] == 1, faults
+    assert faults["frames_refused_ahead_of_clock"] == 1, faults
+    assert faults["frames_refused_too_old"] == 1, faults  # 5 s: 24 s behind, history 20 s
+    assert faults["boxes_of_frames_not_taken"] == 2, faults

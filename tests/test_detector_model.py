@@ -71,3 +71,19 @@ def test_unreadable_file(tmp_path):
     bad.write_text(yaml.safe_dump([1, 2]))
     with pytest.raises(DetectorModelError, match="mapping"):
         DetectorModel.from_yaml(bad)
+
+
+def test_a_model_file_too_large_or_of_too_many_bins_is_refused_before_parsing(tmp_path):
+    from pdcov.core.detector import MAX_BINS, MAX_MODEL_BYTES
+
+    big = tmp_path / "big.yaml"
+    big.write_bytes(b"# " + b"x" * MAX_MODEL_BYTES)
+    with pytest.raises(DetectorModelError, match=r"big.yaml: 4,194,306 bytes, more than the "
+                                                 r"4,194,304 a detector model may have"):
+        DetectorModel.from_yaml(big)
+    n = MAX_BINS + 1
+    doc = {"version": 1, "bin_edges_px": list(range(n + 1)), "p_detect": [0.5] * n,
+           "p_false_alarm": [0.0] * n}
+    with pytest.raises(DetectorModelError, match=r"bin_edges_px: 1,002 entries, more than a "
+                                                 r"model of 1000 bins has"):
+        DetectorModel.from_dict(doc, source="m.yaml")

@@ -144,3 +144,33 @@ def test_grouping_is_deterministic_and_nearest_wins():
         return [(d.candidate_id, d.r_enu_m.tolist(), d.sigma_m)
                 for d in t.frame(nadir(), 1.1, [box_at(319.5 + 0.9 * px_per_m, 239.5)])]
     assert run()[0][0] == 1 and run() == run()
+
+
+def test_candidate_budget_evicts_the_stalest_unconfirmed_never_a_confirmed_one(monkeypatch):
+    import pdcov.detection.candidates as cands
+    monkeypatch.setattr(cands, "MAX_CANDIDATES_PER_CLASS", 3)
+    monkeypatch.setattr(cands, "MAX_TRACKED_CANDIDATES", 4)
+    t = _tracker()
+    px_per_m = F_PX / H_M
+
+    def at(x_m: float, cls: str = "person"):
+        return box_at(319.5 + x_m * px_per_m, 239.5, cls=cls)
+
+    t.frame(nadir(), 1.0, [at(0.0)])
+    t.frame(nadir(), 1.1, [at(0.0)])  # candidate 0 confirmed (2 hits)
+    t.frame(nadir(), 2.0, [at(3.0), at(6.0)])  # 1, 2: unconfirmed; the class is full
+    (d,) = t.frame(nadir(), 3.0, [at(-3.0)])  # evicts 1 (the stalest unconfirmed), not 0
+    assert d.candidate_id == 3 and sorted(t._groups) == [0, 2, 3]
+    # 10,000 invented classes fill the table; a real person still makes a candidate.
+    for k in range(10):
+        t.frame(nadir(), 4.0 + k, [at(-6.0, cls=f"invented{k}")])
+    (d,) = t.frame(nadir(), 20.0, [at(9.0)])
+    assert d.candidate_id in t._groups and 0 in t._groups
+    assert t.skipped[cands.Skip.EVICTED] >= 2
+    # Only confirmed candidates of the class left: the new box is counted, none evicted.
+    full = _tracker()
+    for x in (0.0, 3.0, 6.0):
+        full.frame(nadir(), 1.0, [at(x)])
+        full.frame(nadir(), 1.1, [at(x)])
+    assert full.frame(nadir(), 2.0, [at(-3.0)]) == []
+    assert full.skipped[cands.Skip.TOO_MANY_CANDIDATES] == 1 and len(full) == 3

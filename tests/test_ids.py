@@ -3,13 +3,17 @@ id is read: the mission config, the daemon's link section, the bus's keys and pa
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from evaluate_inputs import mission_doc
 
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.config import mission_from_dict
 from pdcov.errors import ConfigError
-from pdcov.ids import SYSTEM_IDS, valid_system_id, valid_vehicle_id
+from pdcov.ids import MAX_VEHICLE_ID_CHARS, SYSTEM_IDS, valid_system_id, valid_vehicle_id
 from pdcov.service.settings import LinkConfig
 
 NOT_VEHICLE_IDS = ["", "uav é", "uavé", "ｕａｖ1", "uav/1", "uav*", "uav 1", "uav.1", 7, None]
@@ -44,3 +48,16 @@ def test_system_ids_are_1_to_255_in_the_log_and_link_sections():
             mission_from_dict(mission_doc(log={"system_id": sid}))
         with pytest.raises(ConfigError, match=r"link.system_id: expected 1..255"):
             LinkConfig(system_id=sid)
+
+
+def test_a_vehicle_id_of_more_than_64_characters_is_refused_by_config_and_bus():
+    assert valid_vehicle_id("u" * MAX_VEHICLE_ID_CHARS)
+    long_id = "u" * (MAX_VEHICLE_ID_CHARS + 1)
+    assert not valid_vehicle_id(long_id)
+    with pytest.raises(ConfigError, match=r"vehicle_id: expected .*1\.\.64 characters"):
+        mission_from_dict(mission_doc(vehicle_id=long_id), source="m.yaml")
+    with pytest.raises(ValueError, match=r"1\.\.64 characters"):
+        VehicleKeys(long_id)
+    with pytest.raises(BusPayloadError, match=r"vehicle: expected a string of at most 64 "):
+        decode_frames(json.dumps({"schema": "pdcov.frames", "version": 2, "vehicle": long_id,
+                                  "frames": [{"t_boot_s": 1.0, "boxes": []}]}).encode())

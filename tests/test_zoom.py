@@ -22,7 +22,15 @@ from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.grid import CoverageGrid, default_max_range_m
 from pdcov.core.pose import CameraPose
-from pdcov.core.zoom import FovLens, LensQuantity, TableLens, Zoom, hfov_rad, jumps
+from pdcov.core.zoom import (
+    FovLens,
+    LensQuantity,
+    TableLens,
+    Zoom,
+    hfov_rad,
+    jumps,
+    quantised_hfov_rad,
+)
 from pdcov.errors import CalibrationError, ConfigError
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import SkipReason
@@ -126,7 +134,8 @@ def test_fov_lens_scales_the_focal_length_by_hand():
     assert lens.camera(hfov_rad(wide)) is wide
     narrow = lens.camera(math.radians(28.0))
     f = 160 / math.tan(math.radians(14.0))
-    np.testing.assert_allclose(narrow.K, [[f, 0, 159.5], [0, f, 119.5], [0, 0, 1]])
+    np.testing.assert_allclose(narrow.K, [[f, 0, 159.5], [0, f, 119.5], [0, 0, 1]],
+                               rtol=1e-4)  # the field of view quantised: FOV_FOCAL_STEP
     assert lens.camera(math.radians(28.0)) is narrow  # built once per value
     assert lens.refusal(math.radians(28.0)) == ""
     assert "outside the calibrated 20.00-66.00 deg" in lens.refusal(math.radians(70.0))
@@ -392,3 +401,27 @@ def test_boxes_of_a_zoomed_frame_are_located_with_its_camera():
     f_narrow = 160 / math.tan(math.radians(14.0))
     assert xs[0] == pytest.approx(60 * 140 / f_narrow, abs=0.1)
     assert xs[1] == pytest.approx(60 * 140 / m.camera.K[0, 0], abs=0.3)
+
+
+def test_zoom_jitter_reuses_cameras_and_quantising_changes_no_cell():
+    """A report jittering by 0.01 deg builds a handful of cameras, not one per frame; the
+    quantised camera's grid equals the exact one's to 1e-5 in P_D (FOV_FOCAL_STEP)."""
+    m = load_mission(Path(__file__).resolve().parents[1]
+                     / "service/pdcov/data/demo_mission.yaml")
+    wide = m.camera
+    lens = FovLens(wide, math.radians(10.0))
+    h0 = math.radians(40.0)
+    for k in range(200):
+        lens.camera(h0 + math.radians(0.01) * ((-1) ** k) * (k % 3))
+    assert len(lens._cache.cameras) <= 5, len(lens._cache.cameras)  # built once each
+    build = lens._build
+    exact, quant = m.new_grid(), m.new_grid()
+    R = np.diag([1.0, -1.0, -1.0])  # looking straight down
+    for k, h in enumerate(np.radians([20.003, 33.337, 40.011, 51.2349])):
+        pose = CameraPose(R, np.array([-40.0 + 3.0 * k, -40.0, 25.0]), float(k))
+        exact.update_with(pose, build(float(h)), m.detector)
+        quant.update_with(pose, build(quantised_hfov_rad(float(h), hfov_rad(wide))),
+                          m.detector)
+    assert exact.n_obs.sum() > 100
+    np.testing.assert_array_equal(quant.n_obs, exact.n_obs)
+    np.testing.assert_allclose(quant.pd, exact.pd, atol=1e-5)

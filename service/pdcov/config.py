@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.core import dem as dem_rules
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
 from pdcov.core.dem import Dem, VerticalDatum, height_mismatch, terrain_surface
@@ -50,6 +51,7 @@ RESERVED_SECTIONS = ("link", "bus", "service", "fleet")
 # -- sections: each a dataclass whose fields are its keys (the schema reads them) ------------
 
 
+MAX_FRAME_RATE_HZ = 1000.0  # camera.frame_rate_hz beyond: a typo (memory: serve --check)
 DEFAULT_TERRAIN_MARGIN_M = 10.0
 """terrain.check_margin_m when the config does not set it (m): how far the DEM may disagree
 with the home altitude and what the aircraft measures before it is said."""
@@ -274,13 +276,15 @@ class CoverageSection:
 class TerrainSection:
     """``terrain``: the DEM file (GeoTIFF, COG or SRTM .hgt, any CRS; relative to the config's
     folder), the datum of its heights ('msl', or 'ellipsoid' with geoid_height_m, the geoid's
-    height N above the ellipsoid at the site in m: H_msl = h_ellipsoid - N), and the margin
-    (m) beyond which an altitude measured or configured that disagrees with it is warned of."""
+    height N above the ellipsoid at the site in m: H_msl = h_ellipsoid - N), the margin
+    (m) beyond which an altitude measured or configured that disagrees with it is warned of,
+    and the most (m) a configured home altitude may differ from it (else refused)."""
 
     dem: str
     vertical_datum: str = "msl"
     geoid_height_m: float | None = None
     check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+    max_home_offset_m: float = dem_rules.DEFAULT_MAX_HOME_OFFSET_M
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> TerrainSection:
@@ -302,9 +306,9 @@ class TerrainSection:
         if datum == VerticalDatum.MSL and geoid is not None:
             raise ConfigError(f"{where(src, 'terrain.geoid_height_m')}: only used with "
                               "vertical_datum: ellipsoid (the DEM's heights are MSL)")
-        return cls(dem, datum, geoid,
-                   _number(doc, "check_margin_m", src, "terrain", default=DEFAULT_TERRAIN_MARGIN_M,
-                           positive=True))
+        return cls(dem, datum, geoid, *(_number(doc, k, src, "terrain", default=d, positive=True)
+                   for k, d in (("check_margin_m", DEFAULT_TERRAIN_MARGIN_M),
+                                ("max_home_offset_m", dem_rules.DEFAULT_MAX_HOME_OFFSET_M))))
 
 
 @dataclass(frozen=True, slots=True)
@@ -643,6 +647,9 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             ground_alt, ground_how = _dem_ground_alt(dem, origin, src), "the DEM at the origin"
             origin_value = Origin(origin.lat_deg, origin.lon_deg, ground_alt)
             domain = _domain(dom, src, base, origin_value)  # geodetic polygons at that ground
+        elif err := dem_rules.home_offset_error(dem, origin.lat_deg, origin.lon_deg, ground_alt,
+                                                ter.max_home_offset_m):
+            raise ConfigError(f"{where(src, 'origin.ground_alt_msl_m')}: {err}")
         else:
             mismatch = height_mismatch(dem, origin.lat_deg, origin.lon_deg, ground_alt,
                                        ter.check_margin_m, "origin.ground_alt_msl_m")
@@ -886,6 +893,9 @@ def _camera(doc: Mapping[str, Any], src: str | None, base: Path
                   if k not in ("frame_rate_hz", "exposure_s", "zoom", "zoom_lens")}
         camera = CameraModel.from_config(inline, src, "camera")
     rate = _number(cam, "frame_rate_hz", src, "camera", positive=True)
+    if rate > MAX_FRAME_RATE_HZ:
+        raise ConfigError(f"{where(src, 'camera.frame_rate_hz')}: {rate:g} Hz, more than the "
+                          f"{MAX_FRAME_RATE_HZ:g} Hz a camera frames at")
     return camera, rate, _opt_number(cam, "exposure_s", src, "camera")
 
 

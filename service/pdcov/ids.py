@@ -11,9 +11,12 @@ from __future__ import annotations
 
 from typing import TypeGuard
 
-__all__ = ["SYSTEM_IDS", "VEHICLE_ID_RULE", "valid_system_id", "valid_vehicle_id"]
+__all__ = ["MAX_VEHICLE_ID_CHARS", "SYSTEM_IDS", "VEHICLE_ID_RULE", "valid_system_id",
+           "valid_vehicle_id"]
 
-VEHICLE_ID_RULE = "ASCII letters, digits, - and _"
+MAX_VEHICLE_ID_CHARS = 64
+"""Longest vehicle id: it is in every key expression, status, file name and map label."""
+VEHICLE_ID_RULE = f"ASCII letters, digits, - and _ (1..{MAX_VEHICLE_ID_CHARS} characters)"
 """What ``valid_vehicle_id`` accepts, for error messages."""
 
 SYSTEM_IDS = range(1, 256)
@@ -25,9 +28,10 @@ value: an autopilot set to SYSID_THISMAV 255 is still followed."""
 
 
 def valid_vehicle_id(vehicle_id: object) -> TypeGuard[str]:
-    """A non-empty string of ASCII letters, digits, '-' and '_': no Zenoh wildcard or
-    separator can hide in it, and it is one key chunk on every bus."""
-    return (isinstance(vehicle_id, str) and bool(vehicle_id) and vehicle_id.isascii()
+    """A string of 1..MAX_VEHICLE_ID_CHARS ASCII letters, digits, '-' and '_': no Zenoh
+    wildcard or separator can hide in it, and it is one key chunk on every bus."""
+    return (isinstance(vehicle_id, str) and 0 < len(vehicle_id) <= MAX_VEHICLE_ID_CHARS
+            and vehicle_id.isascii()
             and vehicle_id.replace("_", "").replace("-", "").isalnum())
 
 

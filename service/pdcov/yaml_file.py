@@ -15,11 +15,16 @@ import yaml
 from pdcov.errors import ConfigError, PdcovError
 
 
-def read_text(path: str | Path, what: str, error: type[PdcovError] = ConfigError) -> str:
+def read_text(path: str | Path, what: str, error: type[PdcovError] = ConfigError,
+              max_bytes: int | None = None) -> str:
     """The text of a UTF-8 file (BOM dropped, newlines as written); ``error`` names the
-    file, what it should be and, for a byte that is not UTF-8, where it is."""
+    file, what it should be and, for a byte that is not UTF-8, where it is. A file larger
+    than ``max_bytes`` is refused before it is read."""
     path = Path(path)
     try:
+        if max_bytes is not None and (size := path.stat().st_size) > max_bytes:
+            raise error(f"{path}: {size:,} bytes, more than the {max_bytes:,} a {what} may "
+                        "have")
         data = path.read_bytes()
     except OSError as exc:
         raise error(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
@@ -31,9 +36,11 @@ def read_text(path: str | Path, what: str, error: type[PdcovError] = ConfigError
                     f"is not UTF-8; save the {what} as UTF-8 text") from None
 
 
-def load_yaml(path: str | Path, what: str, error: type[ConfigError] = ConfigError) -> Any:
-    """The parsed document of a YAML file; ``error`` names the file and what it should be."""
-    text = read_text(path, what, error)
+def load_yaml(path: str | Path, what: str, error: type[ConfigError] = ConfigError,
+              max_bytes: int | None = None) -> Any:
+    """The parsed document of a YAML file (at most ``max_bytes``); ``error`` names the file
+    and what it should be."""
+    text = read_text(path, what, error, max_bytes)
     try:
         return yaml.safe_load(text)
     # ValueError: an integer of more than 4300 digits (int's conversion limit, CVE-2020-10735);

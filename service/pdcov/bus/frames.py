@@ -22,6 +22,7 @@ MAX_BOXES_PER_FRAME boxes per frame. Whether a box lies inside the picture needs
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -106,7 +107,8 @@ def _box(f: Fields, picture_px: tuple[int, int] | None) -> Box:
                     f"px), got {px!r}"[:300])
     if not (px[2] > 0 and px[3] > 0):
         raise f.bad(f"{f.where}box_px {px!r}: width and height must be > 0 px"[:300])
-    box = Box(name, confidence, *(float(v) for v in px))
+    # Interned: a flood of boxes then holds one string per class, not one per box.
+    box = Box(sys.intern(name), confidence, *(float(v) for v in px))
     if picture_px is not None and not box.inside_picture(*picture_px):
         w, h = picture_px
         raise f.bad(f"{f.where}box_px {px!r}: outside the {w}x{h} px picture (it spans "

@@ -58,6 +58,12 @@ def run_serve(args: argparse.Namespace) -> int:
             print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
 
         grid = new_serve_grid(cfg.mission)
+        from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
+
+        too_much = memory_refusal(cfg.mission, grid.geometry.n_rows * grid.geometry.n_cols,
+                                  memory_limit_bytes())
+        if too_much is not None:
+            raise ConfigError(f"{args.config}: {too_much}")
         zenoh_config(cfg.bus)
         if (cfg.link.signing_key_file and
                 cfg.link.signing_key_bytes(cfg.base_dir) is None):

@@ -29,7 +29,7 @@ from pdcov.core.camera_config import (
     camera_config_from_camera_info,
     camera_config_from_mapping,
 )
-from pdcov.core.camera_fov import AngularLimit, border_pixels
+from pdcov.core.camera_fov import AngularLimit, border_pixels, radial_fold_radius
 from pdcov.errors import CalibrationError, where
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "fisheye")
@@ -115,6 +115,8 @@ class CameraModel:
         object.__setattr__(self, "_K_no_skew", K_no_skew)
         object.__setattr__(self, "_skew", float(K[0, 1]))
         object.__setattr__(self, "_distorted", model == "fisheye" or bool(np.any(d)))
+        if self._distorted:
+            self._check_no_fold()
         self._init_fov()
 
     # -- construction -----------------------------------------------------------------------
@@ -323,6 +325,24 @@ class CameraModel:
     def focal_px(self) -> float:
         """Larger focal length in pixels (the finest angular resolution near the axis)."""
         return float(max(self.K[0, 0], self.K[1, 1]))
+
+    def _check_no_fold(self) -> None:
+        """Refuse a lens whose radial mapping folds back inside the picture (camera_fov.
+        radial_fold_radius): its pixels beyond the fold cannot be mapped back to rays, and
+        the field of view would silently shrink to the fold."""
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        w, h = self.width_px - 0.5, self.height_px - 0.5
+        corner = max(math.hypot((u - cx) / fx, (v - cy) / fy)
+                     for u in (-0.5, w) for v in (-0.5, h))
+        fold = radial_fold_radius(self.distortion_model, self.dist_coeffs, corner)
+        if fold is not None:
+            f = math.sqrt(fx * fy)
+            raise CalibrationError(
+                f"{where(self.source, 'distortion_coeffs')}: the lens folds over inside the "
+                f"picture: its radial mapping stops growing at {fold * f:.0f} px from the "
+                f"principal point (normalised radius {fold:.3f}), short of the corner at "
+                f"{corner * f:.0f} px ({corner:.3f}); check the coefficients "
+                f"{self.dist_coeffs.tolist()}")
 
     def _init_fov(self) -> None:
         border = border_pixels(self.width_px, self.height_px, _BORDER_SAMPLES_PER_SIDE)

@@ -13,8 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AngularLimit", "border_pixels"]
+__all__ = ["AngularLimit", "border_pixels", "radial_fold_radius"]
 
+_FOLD_SAMPLES = 20_000
+_MAX_PINHOLE_ANGLE_RAD = np.radians(89.5)  # as far as CameraModel's fold-back cone looks
 _SECTORS = 1024  # pseudo-azimuth sectors of the fast angular-limit test
 _ANGLE_MARGIN_RAD = 1e-9
 
@@ -114,3 +116,35 @@ def border_pixels(width_px: int, height_px: int, per_side: int) -> np.ndarray:
     bottom = np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], axis=1)
     left = np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], axis=1)
     return np.concatenate([top, right, bottom, left])
+
+
+def radial_fold_radius(model: str, dist_coeffs: np.ndarray, corner_radius: float
+                       ) -> float | None:
+    """The distorted normalised radius at which the lens's radial mapping stops growing
+    (it folds back), when that lies inside ``corner_radius`` (the picture's farthest corner,
+    distorted normalised radius); None when the mapping grows out to the corner.
+
+    Radial part only (the tangential terms of a real calibration are small): plumb_bob and
+    rational_polynomial r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 +
+    k6 r^6), for r = tan(theta) up to 89.5 deg; fisheye r_d = theta (1 + k1 theta^2 + ...
+    + k4 theta^8) up to 90 deg (OpenCV's models). Inside the fold two directions land on
+    the same pixel: the picture cannot be mapped back to rays."""
+    d = np.asarray(dist_coeffs, dtype=float)
+    if model == "fisheye":
+        a = np.linspace(0.0, np.pi / 2, _FOLD_SAMPLES)
+        a2 = a * a
+        r_d = a * (1 + a2 * (d[0] + a2 * (d[1] + a2 * (d[2] + a2 * d[3]))))
+    else:
+        k = np.zeros(8)
+        k[:d.size] = d
+        r = np.tan(np.linspace(0.0, _MAX_PINHOLE_ANGLE_RAD, _FOLD_SAMPLES))
+        r2 = r * r
+        num = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
+        den = 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r_d = r * num / den
+    growing = np.isfinite(r_d[1:]) & (np.diff(r_d) > 0)
+    if growing.all():
+        return None
+    fold = float(r_d[int(np.argmin(growing))])
+    return fold if fold < corner_radius else None

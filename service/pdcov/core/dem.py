@@ -259,6 +259,25 @@ def height_mismatch(dem: Dem, lat_deg: float, lon_deg: float, alt_msl_m: float,
             "geoid_height_m) and the altitude")
 
 
+DEFAULT_MAX_HOME_OFFSET_M = 30.0
+"""terrain.max_home_offset_m when the config does not set it (m)."""
+
+
+def home_offset_error(dem: Dem, lat_deg: float, lon_deg: float, alt_msl_m: float,
+                      max_offset_m: float) -> str | None:
+    """Why a home altitude (m MSL) at a point cannot be used with this DEM: it differs from
+    the DEM's height there by more than ``max_offset_m`` (a wrong datum, DEM or altitude
+    moves every cell's view by as much); None when within it or the DEM has no height
+    there."""
+    h = float(dem.height_msl_m(lat_deg, lon_deg))
+    if not math.isfinite(h) or abs(alt_msl_m - h) <= max_offset_m:
+        return None
+    return (f"{alt_msl_m:.1f} m MSL is {alt_msl_m - h:+.1f} m from the DEM's {h:.1f} m there "
+            f"({dem.path.name}), more than terrain.max_home_offset_m = {max_offset_m:g} m: "
+            "fix the altitude or the DEM's datum (terrain.vertical_datum, geoid_height_m), "
+            "or raise terrain.max_home_offset_m if the DEM is known to be off")
+
+
 def _area(m2: float) -> str:
     return f"{m2 / 1e6:,.3g} km^2" if m2 >= 1e5 else f"{m2:,.0f} m^2"
 

@@ -22,6 +22,11 @@ from pdcov.yaml_file import load_yaml
 
 FORMAT_VERSION = 3  # 2: the optional ``looks`` section (per-person correlation); 3: ``blur``
 _READABLE_VERSIONS = (1, 2, 3)
+MAX_MODEL_BYTES = 4 << 20
+"""Largest detector model file read (a fitted model of 100 size x 100 blur bins is ~0.5 MB)."""
+MAX_BINS = 1000
+"""Most size bins, and most blur bins, of a detector model (checked before any array is
+built: the grid's tables are (blur bins + 2) x (size bins + 2))."""
 SIZE_METRICS = ("sqrt_area",)
 
 # The keys of a model file (docs/detector-model.md): the engine's, then those `pdcov detector
@@ -291,6 +296,7 @@ class DetectorModel:
         for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
             if key not in doc:
                 raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
+            _check_bins(doc[key], key, source)
             if not isinstance(doc[key], list) or not all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) for v in doc[key]):
                 raise DetectorModelError(
@@ -329,7 +335,7 @@ class DetectorModel:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> DetectorModel:
-        doc = load_yaml(path, "detector model", DetectorModelError)
+        doc = load_yaml(path, "detector model", DetectorModelError, MAX_MODEL_BYTES)
         return cls.from_dict(doc, source=str(path))
 
     @classmethod
@@ -379,6 +385,13 @@ def _opt_float(doc: dict[str, Any], key: str, source: str | None) -> float | Non
     return float(v)
 
 
+def _check_bins(v: Any, key: str, source: str | None) -> None:
+    """Refuse a list of more than MAX_BINS + 1 entries before anything is built of it."""
+    if isinstance(v, list) and len(v) > MAX_BINS + 1:
+        raise DetectorModelError(f"{where(source, key)}: {len(v):,} entries, more than a "
+                                 f"model of {MAX_BINS} bins has ({MAX_BINS + 1} edges)")
+
+
 def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:
     """The ``blur`` section: edges_px (numbers), p_detect and p_false_alarm (rows of
     numbers); the values are checked by DetectorModel."""
@@ -391,6 +404,8 @@ def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:
 
     for key in ("edges_px", "p_detect", "p_false_alarm"):
         v = bl.get(key)
+        for part in (v, *(v if key != "edges_px" and isinstance(v, list) else ())):
+            _check_bins(part, f"blur.{key}", source)
         if key == "edges_px" and not numbers(v) or key != "edges_px" and not (
                 isinstance(v, list) and all(numbers(row) for row in v)):
             raise DetectorModelError(

@@ -12,6 +12,14 @@ sigma at least 1 mm), its sigma sqrt(1 / sum of weights). Looks, P_D and P_FA ar
 grid's at the candidate's cell when ``candidates`` is called (0 outside the grid): the
 operator sees "seen 14 times, detected 9". Deterministic: the same frames in the same order
 give the same candidates.
+
+Budgeted: at most MAX_CANDIDATES_PER_CLASS candidates of one class and
+MAX_TRACKED_CANDIDATES in all. When a box would start one more, the stalest unconfirmed
+candidate (fewer than CONFIRMED_HITS hits, the oldest last detection) of its class -- or of
+any class when the whole table is full -- is evicted for it (``Skip.EVICTED``); a confirmed
+candidate is never evicted for a new one: with none to evict, the box is counted
+(``Skip.TOO_MANY_CANDIDATES``). 10,000 invented classes thus cannot keep a real person's
+detection from making a candidate.
 """
 
 from __future__ import annotations
@@ -31,11 +39,15 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
 
-__all__ = ["MAX_TRACKED_CANDIDATES", "DetectionTracker", "Skip"]
+__all__ = ["CONFIRMED_HITS", "MAX_CANDIDATES_PER_CLASS", "MAX_TRACKED_CANDIDATES",
+           "DetectionTracker", "Skip"]
 
 MAX_TRACKED_CANDIDATES = 10_000
-"""Most candidates of one flight (bus.detections.MAX_CANDIDATES): a box that would start one
-more is counted (``Skip.TOO_MANY_CANDIDATES``), not kept."""
+"""Most candidates held at once (bus.detections.MAX_CANDIDATES)."""
+MAX_CANDIDATES_PER_CLASS = 2_000
+"""Most candidates of one class held at once."""
+CONFIRMED_HITS = 2
+"""A candidate detected this many times is confirmed: never evicted for a new one."""
 _MIN_SIGMA_M = 1e-3
 
 
@@ -45,6 +57,9 @@ class Skip:
     OFF_GROUND = "box off the ground"
     """Its ray, or one of its +-1 sigma perturbations, does not meet the ground."""
     TOO_MANY_CANDIDATES = "too many candidates"
+    """Its class's budget (or the table) is full of confirmed candidates."""
+    EVICTED = "candidates evicted"
+    """Not a box: a stale unconfirmed candidate dropped to make room for a new one."""
 
 
 @dataclass(slots=True)
@@ -80,7 +95,9 @@ class DetectionTracker:
         self.cell_size_m = float(cell_size_m)
         self.terrain = terrain
         self.gate_sigmas = float(gate_sigmas)
-        self._groups: list[_Group] = []
+        self._groups: dict[int, _Group] = {}  # by candidate id, in id order
+        self._per_class: Counter[str] = Counter()
+        self._next_id = 0
         self.skipped: Counter[str] = Counter()
 
     @classmethod
@@ -115,7 +132,7 @@ class DetectionTracker:
 
     def _group(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float) -> int | None:
         best, best_d = None, math.inf
-        for i, g in enumerate(self._groups):
+        for i, g in self._groups.items():
             if g.class_name != box.class_name:
                 continue
             d = float(np.hypot(*(g.r_enu_m[:2] - r[:2])))
@@ -124,11 +141,13 @@ class DetectionTracker:
                 best, best_d = i, d
         w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
         if best is None:
-            if len(self._groups) >= MAX_TRACKED_CANDIDATES:
+            if not self._make_room(box.class_name):
                 return None
-            self._groups.append(_Group(box.class_name, w, w * r, 1, box.confidence,
-                                       t_boot_s, t_boot_s))
-            return len(self._groups) - 1
+            cid, self._next_id = self._next_id, self._next_id + 1
+            self._groups[cid] = _Group(box.class_name, w, w * r, 1, box.confidence,
+                                       t_boot_s, t_boot_s)
+            self._per_class[box.class_name] += 1
+            return cid
         g = self._groups[best]
         g.sum_w += w
         g.sum_wr = g.sum_wr + w * r
@@ -138,11 +157,29 @@ class DetectionTracker:
         g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
         return best
 
+    def _make_room(self, class_name: str) -> bool:
+        """Room for one more candidate of ``class_name`` (module docstring), evicting the
+        stalest unconfirmed one if needed; False when only confirmed ones are left."""
+        class_full = self._per_class[class_name] >= MAX_CANDIDATES_PER_CLASS
+        if not class_full and len(self._groups) < MAX_TRACKED_CANDIDATES:
+            return True
+        stale = [(g.last_t_boot_s, i) for i, g in self._groups.items()
+                 if g.hits < CONFIRMED_HITS and (not class_full or g.class_name == class_name)]
+        if not stale:
+            return False
+        evicted = self._groups.pop(min(stale)[1])
+        self._per_class[evicted.class_name] -= 1
+        if not self._per_class[evicted.class_name]:
+            del self._per_class[evicted.class_name]
+        self.skipped[Skip.EVICTED] += 1
+        return True
+
     def candidates(self, grid: CoverageGrid, ids: Iterable[int] | None = None
                    ) -> list[Candidate]:
-        """The candidates ``ids`` (all when None), in id order, with the looks, P_D and
-        P_FA ``grid`` holds at their cells now."""
-        chosen = range(len(self._groups)) if ids is None else sorted(set(ids))
+        """The candidates ``ids`` (all when None; an evicted one is left out), in id order,
+        with the looks, P_D and P_FA ``grid`` holds at their cells now."""
+        chosen = (list(self._groups) if ids is None
+                  else sorted(i for i in set(ids) if i in self._groups))
         g_ = grid.geometry
         out = []
         for i in chosen:

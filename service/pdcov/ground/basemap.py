@@ -9,22 +9,48 @@ Opening checks the input once and says what is wrong (ConfigError): a missing pa
 that is not SQLite or has no ``tiles`` table, vector tiles (pbf: the map draws raster tiles
 only), a folder or file with no tiles. A tile request outside the set is None, never an
 exception.
+
+Bounded (``read_tile``, what the web map calls): a tile larger than MAX_TILE_BYTES is refused
+before it is read (its size from the file system or SQLite's ``length``), and every read
+runs on the set's own two threads, off the event loop, for at most TILE_READ_TIMEOUT_S (an
+MBTiles query still running then is interrupted): a slow or hostile file answers its tile
+requests with an error and never freezes the map (it froze it for 59 s).
 """
 
 from __future__ import annotations
 
+import asyncio
 import sqlite3
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pdcov.errors import ConfigError
+from pdcov.errors import ConfigError, PdcovError
 
 IMAGE_TYPES = {"png": "image/png", "jpg": "image/jpeg", "jpeg": "image/jpeg",
                "webp": "image/webp"}
 MAX_ZOOM = 30  # tile numbers past this overflow what any tile set holds
 _MAGIC = ((b"\x89PNG", "png"), (b"\xff\xd8\xff", "jpg"), (b"RIFF", "webp"))
 _SQLITE_HEADER = b"SQLite format 3\x00"
+MAX_TILE_BYTES = 4 << 20
+"""Largest basemap tile served (a 512 px raster tile is tens of kB)."""
+TILE_READ_TIMEOUT_S = 2.0
+"""Longest a tile read may take before its request is answered 504."""
+_READ_THREADS = 2
+
+
+class TileRefused(PdcovError):
+    """A tile not served: too large (HTTP 413) or not read in time (504)."""
+
+    def __init__(self, message: str, http_status: int) -> None:
+        super().__init__(message)
+        self.http_status = http_status
+
+
+def _too_large(n_bytes: int, z: int, x: int, y: int) -> TileRefused:
+    return TileRefused(f"basemap tile {z}/{x}/{y}: {n_bytes:,} bytes, more than "
+                       f"{MAX_TILE_BYTES:,}", 413)
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +79,7 @@ class TileFolder:
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
+        self.pool = ThreadPoolExecutor(_READ_THREADS, thread_name_prefix="basemap")
         zooms = sorted(int(p.name) for p in folder.iterdir()
                        if p.is_dir() and p.name.isdigit() and int(p.name) <= MAX_ZOOM)
         ext = None
@@ -77,12 +104,18 @@ class TileFolder:
             return None
         path = self.folder / str(z) / str(x) / f"{y}.{ext}"
         try:
+            if (size := path.stat().st_size) > MAX_TILE_BYTES:
+                raise _too_large(size, z, x, y)
             return path.read_bytes(), IMAGE_TYPES[ext]
         except OSError:
             return None
 
+    def interrupt(self) -> None:
+        """A file read cannot be interrupted: its thread finishes it."""
+
     def close(self) -> None:
-        """Nothing is held open."""
+        """Only the read threads are held."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 class MBTiles:
@@ -124,6 +157,7 @@ class MBTiles:
             self._db.close()
             raise ConfigError(f"{where}: tiles of format {ext!r}; the map draws raster "
                               f"tiles only ({', '.join(IMAGE_TYPES)})")
+        self.pool = ThreadPoolExecutor(_READ_THREADS, thread_name_prefix="basemap")
         self.info = BasemapInfo(zooms, "jpg" if ext == "jpeg" else ext, "mbtiles",
                                 str(meta.get("name") or path.stem),
                                 str(meta.get("attribution") or ""))
@@ -145,19 +179,41 @@ class MBTiles:
             return None
         try:
             row = self._db.execute(
-                "SELECT tile_data FROM tiles WHERE zoom_level = ? AND tile_column = ? AND "
-                "tile_row = ?", (z, x, 2 ** z - 1 - y)).fetchone()
+                "SELECT length(tile_data), CASE WHEN length(tile_data) <= ? THEN tile_data "
+                "END FROM tiles WHERE zoom_level = ? AND tile_column = ? AND tile_row = ?",
+                (MAX_TILE_BYTES, z, x, 2 ** z - 1 - y)).fetchone()
         except sqlite3.Error:
             return None
         if row is None or row[0] is None:
             return None
-        return bytes(row[0]), IMAGE_TYPES[self.info.ext]
+        if row[1] is None:
+            raise _too_large(int(row[0]), z, x, y)
+        return bytes(row[1]), IMAGE_TYPES[self.info.ext]
+
+    def interrupt(self) -> None:
+        """Abort the query running on another thread (read_tile's timeout)."""
+        self._db.interrupt()
 
     def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
         self._db.close()
 
 
 Basemap = TileFolder | MBTiles
+
+
+async def read_tile(basemap: Basemap, z: int, x: int, y: int, ext: str | None,
+                    timeout_s: float = TILE_READ_TIMEOUT_S) -> tuple[bytes, str] | None:
+    """``basemap.tile`` on the set's own threads, off the event loop, for at most
+    ``timeout_s``: the tile, None when the set has none; TileRefused (too large, too slow)."""
+    read = asyncio.get_running_loop().run_in_executor(basemap.pool, basemap.tile, z, x, y,
+                                                      ext)
+    try:
+        return await asyncio.wait_for(read, timeout_s)
+    except TimeoutError:
+        basemap.interrupt()
+        raise TileRefused(f"basemap tile {z}/{x}/{y}: not read within {timeout_s:g} s "
+                          f"(a slow or damaged {basemap.info.kind} set)", 504) from None
 
 
 def open_basemap(path: Path) -> Basemap:

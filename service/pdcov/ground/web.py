@@ -46,7 +46,7 @@ from pdcov.config import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT
 from pdcov.errors import InputFileError
-from pdcov.ground.basemap import Basemap
+from pdcov.ground.basemap import Basemap, TileRefused, read_tile
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.map_layers import (
@@ -451,7 +451,10 @@ class WebMap:
         found = None
         if self.basemap is not None and all(s.isascii() and s.isdigit() and len(s) < 12
                                             for s in (z, x, stem)):
-            found = self.basemap.tile(int(z), int(x), int(stem), ext if dot else None)
+            try:
+                found = await read_tile(self.basemap, int(z), int(x), int(stem), ext or None)
+            except TileRefused as exc:  # basemap.read_tile: bounded, off the event loop
+                return web.Response(status=exc.http_status, text=str(exc))
         if found is None:
             raise web.HTTPNotFound()
         data, ctype = found

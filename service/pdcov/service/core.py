@@ -43,6 +43,12 @@ from pdcov.core.mount import GimbalMount
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.detections import MAX_HELD_BOXES
+from pdcov.service.frame_admission import (
+    FrameRefusal,
+    known_classes,
+    refusal_of_time,
+    split_by_class,
+)
 from pdcov.service.link_protocol import (
     ATTITUDE,
     GIMBAL_DEVICE_ATTITUDE_STATUS,
@@ -182,6 +188,7 @@ class ServiceCore:
         # Detector frames (boot ms, boxes) before a HEARTBEAT.
         self._early_frames: deque[tuple[int, tuple[Box, ...]]] = deque()
         self._early_boxes = 0  # boxes in _early_frames (at most MAX_HELD_BOXES)
+        self._classes = known_classes(m.detector)
         self._status_seq = 0
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
@@ -246,11 +253,16 @@ class ServiceCore:
             faults[f"frames_refused_{exc.reason.name.lower()}"] += 1
             self._out.logs.append((logging.WARNING, str(exc)))
             return
-        ms = [(boot_ms(f.t_boot_s), f.boxes) for f in frames]
+        ms = []
+        for f in frames:
+            boxes, unknown = split_by_class(f.boxes, self._classes)
+            if unknown:
+                faults[FrameRefusal.UNKNOWN_CLASS.value] += unknown
+            ms.append((boot_ms(f.t_boot_s), boxes))
         if any(v > MAX_BOOT_MS for v, _b in ms):
             faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v, _b in ms)
             ms = [(v, b) for v, b in ms if v <= MAX_BOOT_MS]
-        if not self.protocol.autopilot_known:
+        if not self._clock_known:
             for v, boxes in ms:
                 if len(self._early_frames) >= EARLY_FRAMES:
                     self._early_boxes -= len(self._early_frames.popleft()[1])
@@ -263,6 +275,11 @@ class ServiceCore:
             return
         self._take_frames(ms)
 
+    @property
+    def _clock_known(self) -> bool:
+        """The autopilot and its clock are known: frame times can be placed and judged."""
+        return self.protocol.autopilot_known and math.isfinite(self.protocol.clock_now_s)
+
     def _take_frames(self, frames: list[tuple[int, tuple[Box, ...]]]) -> None:
         """Give the grid the frames (autopilot boot ms, boxes) and record, in the order
         taken, those it took and their boxes (recorded_frames: ``pdcov evaluate`` of the
@@ -270,9 +287,14 @@ class ServiceCore:
         counted."""
         proto, live = self.protocol, self.coverage
         t_s: dict[float, tuple[int, tuple[Box, ...]]] = {}
+        faults, history_s = live.counters.faults, live.primary.history_s
         for v, boxes in frames:
             t = proto.autopilot_boot_s(boot_s(v))
-            if t in t_s:  # a duplicate within the message: the first is the one taken
+            refusal = refusal_of_time(t, proto.clock_now_s, history_s)
+            if refusal is not None:  # frame_admission: outside the clock's window
+                faults[refusal.value] += 1
+                faults["boxes_of_frames_not_taken"] += len(boxes)
+            elif t in t_s:  # a duplicate within the message: the first is the one taken
                 live.counters.faults["boxes_of_frames_not_taken"] += len(boxes)
             else:
                 t_s[t] = (v, boxes)
@@ -293,7 +315,7 @@ class ServiceCore:
         """Decide what the messages and frames received so far allow (once per loop pass,
         after every readable link)."""
         proto = self.protocol
-        if self._early_frames and proto.autopilot_known:
+        if self._early_frames and self._clock_known:
             early, self._early_frames = list(self._early_frames), deque()
             self._early_boxes = 0
             self._take_frames(early)

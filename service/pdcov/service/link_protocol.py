@@ -176,6 +176,11 @@ class LinkProtocol:
             return 0.0, float("nan")
         return clock.offset_s, clock.now_s - clock.offset_s
 
+    @property
+    def clock_now_s(self) -> float:
+        """The autopilot clock's newest time (s; NaN before any timed message)."""
+        return self._clock.autopilot.now_s if self._clock is not None else math.nan
+
     def autopilot_boot_s(self, boot_s: float) -> float:
         """``boot_s`` (s of the autopilot's boot clock, read by another party: a detector's
         frame time) in the autopilot clock: clocks.VehicleClock.autopilot_boot_s, the rule
