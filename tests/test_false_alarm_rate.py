@@ -37,7 +37,8 @@ def labelled_frames(seed: int = 7):
     for k in range(N_FRAMES):
         person = [20.0, 20.0, 40.0, 40.0]  # 20 px input: bin [16, 32)
         rows, scores = [person], [0.9]
-        for (lo, hi), rate in zip(zip(EDGES[:-1], EDGES[1:]), RATE_PER_MPX, strict=True):
+        for i, rate in enumerate(RATE_PER_MPX):
+            lo, hi = EDGES[i], EDGES[i + 1]
             for _ in range(rng.poisson(rate * area_mpx)):
                 side = math.exp(rng.uniform(math.log(lo), math.log(hi))) / scale
                 x = rng.uniform(100, WIDTH - side)  # away from the person

@@ -38,8 +38,8 @@ _LOGISTIC_CURVE = Section.of("log_center", "log_scale", "coefficients", "covaria
 MODEL_SCHEMA = Section.of(
     "version", "size_metric", "input_size_px", "confidence_threshold", "iou_threshold",
     "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
-    "fa_rate_per_mpx_ci95", "n_false_boxes", "model", "interval_method", "confidence_level", "p_detect_ci95", "p_false_alarm_ci95",
-    "n_true_positives", "illustrative", "notes",
+    "model", "interval_method", "confidence_level", "p_detect_ci95", "p_false_alarm_ci95",
+    "fa_rate_per_mpx_ci95", "n_false_boxes", "n_true_positives", "illustrative", "notes",
     counts=Section.of("n_true", "n_detected", "n_detections"),
     fit=Section.of("classes", "n_images", "truth_outside_bins", "detections_outside_bins",
                    "max_detections", "image_area_mpx", "ground_truth", "detections", "bins",
