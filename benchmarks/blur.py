@@ -16,7 +16,7 @@ def blur_detector(edges_px: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0, 64.0),
     """The illustrative model with blur bins ``edges_px`` (detector-input px) whose P_D is
     its own times ``factors`` (one per blur bin), P_FA unchanged."""
     doc = DetectorModel.illustrative().to_dict()
-    doc.update(version=3, blur={
+    doc.update(blur={
         "edges_px": list(edges_px),
         "p_detect": [[p * k for p in doc["p_detect"]] for k in factors],
         "p_false_alarm": [doc["p_false_alarm"]] * len(factors)})

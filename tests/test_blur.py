@@ -28,13 +28,14 @@ PINHOLE = CameraModel(640, 480, np.array([[F, 0, 319.5], [0, F, 239.5], [0, 0, 1
 DISTORTED = CameraModel(640, 480, np.array([[F, 0, 310.0], [0, 505.0, 245.0], [0, 0, 1]]),
                         "plumb_bob", np.array([-0.2, 0.05, 0.001, -0.002, 0.01]))
 SIZE_ONLY = {"bin_edges_px": [1, 20, 40, 80, 2000], "p_detect": [0.1, 0.4, 0.6, 0.3],
-             "p_false_alarm": [0.05, 0.1, 0.2, 0.3], "input_size_px": None}
+             "p_false_alarm": [0.05, 0.1, 0.2, 0.3], "input_size_px": None,
+             "fa_rate_per_mpx": [20.0, 40.0, 80.0, 120.0],}
 BLUR = {"edges_px": [0, 1, 3, 10],
         "p_detect": [[0.12, 0.45, 0.65, 0.35], [0.08, 0.3, 0.5, 0.3], [0.02, 0.1, 0.2, 0.1]],
         "p_false_alarm": [[0.05, 0.1, 0.2, 0.3], [0.06, 0.12, 0.2, 0.3],
                           [0.1, 0.2, 0.3, 0.4]]}
-MODEL_1D = DetectorModel.from_dict({"version": 1, **SIZE_ONLY})
-MODEL_2D = DetectorModel.from_dict({"version": 3, **SIZE_ONLY, "blur": BLUR})
+MODEL_1D = DetectorModel.from_dict({"version": 4, **SIZE_ONLY})
+MODEL_2D = DetectorModel.from_dict({"version": 4, **SIZE_ONLY, "blur": BLUR})
 
 
 def nadir(xyz=(0.0, 0.0, 10.0), yaw_deg=0.0, v=None, omega=None, t_s=0.0):
@@ -146,18 +147,18 @@ def test_lookup_by_size_and_blur_and_padded_rows():
 
 def test_blur_model_round_trips_and_bad_tables_are_named():
     doc = MODEL_2D.to_dict()
-    assert doc["version"] == 3
+    assert doc["version"] == 4
     assert DetectorModel.from_dict(doc).blur == MODEL_2D.blur
     with pytest.raises(DetectorModelError, match="blur: needs version 3"):
         DetectorModel.from_dict({"version": 2, **SIZE_ONLY, "blur": BLUR}, source="m.yaml")
     with pytest.raises(DetectorModelError, match=r"m.yaml: blur.edges_px: .*the first 0"):
-        DetectorModel.from_dict({"version": 3, **SIZE_ONLY,
+        DetectorModel.from_dict({"version": 4, **SIZE_ONLY,
                                  "blur": {**BLUR, "edges_px": [1, 3, 5, 10]}}, source="m.yaml")
     with pytest.raises(DetectorModelError, match=r"blur.p_detect: expected 3 rows .* of 4"):
-        DetectorModel.from_dict({"version": 3, **SIZE_ONLY,
+        DetectorModel.from_dict({"version": 4, **SIZE_ONLY,
                                  "blur": {**BLUR, "p_detect": BLUR["p_detect"][:2]}})
     with pytest.raises(DetectorModelError, match=r"blur.p_false_alarm: probabilities"):
-        DetectorModel.from_dict({"version": 3, **SIZE_ONLY, "blur": {
+        DetectorModel.from_dict({"version": 4, **SIZE_ONLY, "blur": {
             **BLUR, "p_false_alarm": [[1.5, 0, 0, 0]] + BLUR["p_false_alarm"][1:]}})
 
 
@@ -178,7 +179,8 @@ def test_nadir_blur_picks_the_blur_bin_of_f_v_t_over_h():
     assert gr.blur_effect is BlurEffect.APPLIED and gr.frames_blurred == 1
     # The cell under the camera is 50 px: size bin [40, 80).
     assert gr.pd[40, 40] == pytest.approx(0.5, rel=1e-6)
-    assert gr.pfa[40, 40] == pytest.approx(0.2, rel=1e-6)
+    # P_FA by size only: at least one false box in its 2,500 px^2 at 80 per Mpx.
+    assert gr.pfa[40, 40] == pytest.approx(1 - math.exp(-80e-6 * 2500), rel=1e-5)
     observed, size = gr.observe(p, (0, 80, 0, 80))
     expect, _ = MODEL_2D.lookup(size, np.full(size.shape, 2.0))
     np.testing.assert_allclose(gr.pd[observed], expect, rtol=1e-6)

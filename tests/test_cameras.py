@@ -34,7 +34,7 @@ def _model(scale: float, rho: float | None) -> DetectorModel:
     doc = DetectorModel.illustrative().to_dict()
     doc["p_detect"] = [scale * p for p in doc["p_detect"]]
     if rho is not None:
-        doc.update(version=2, looks={"correlation": [rho] * len(doc["p_detect"])})
+        doc.update(looks={"correlation": [rho] * len(doc["p_detect"])})
     return DetectorModel.from_dict(doc)
 
 

@@ -48,7 +48,7 @@ def test_illustrative_model_is_labelled_and_peaks_in_the_middle():
 
 
 @pytest.mark.parametrize("change, key", [
-    ({"version": 4}, "version"),
+    ({"version": 5}, "version"),
     ({"bin_edges_px": [10, 5, 40]}, "bin_edges_px"),
     ({"p_detect": [0.3]}, "p_detect"),
     ({"p_false_alarm": [0.1, 1.5]}, "p_false_alarm"),

@@ -20,9 +20,10 @@ from pdcov.core.rotations import R_from_euler_zyx
 DEG = math.pi / 180
 PINHOLE = CameraModel(640, 480, np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]))
 FISHEYE = CameraModel.from_fov(640, 480, 150, "fisheye", (0.01, -0.005, 0.001, 0.0))
-DETECTOR = DetectorModel.from_dict({"version": 1, "bin_edges_px": [1, 20, 40, 80, 2000],
+DETECTOR = DetectorModel.from_dict({"version": 4, "bin_edges_px": [1, 20, 40, 80, 2000],
                                     "p_detect": [0.1, 0.4, 0.6, 0.3],
                                     "p_false_alarm": [0.05, 0.1, 0.2, 0.3],
+                                    "fa_rate_per_mpx": [20.0, 40.0, 80.0, 120.0],
                                     "input_size_px": None})
 
 

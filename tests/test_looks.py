@@ -37,8 +37,8 @@ def model(p_detect, rho, edges=None):
     n = len(p_detect)
     edges = edges or [1.0, 2000.0] if n == 1 else edges
     return DetectorModel.from_dict({
-        "version": 2, "bin_edges_px": list(edges), "p_detect": list(p_detect),
-        "p_false_alarm": [0.05] * n, "input_size_px": None,
+        "version": 4, "bin_edges_px": list(edges), "p_detect": list(p_detect),
+        "p_false_alarm": [0.05] * n, "fa_rate_per_mpx": [50.0] * n, "input_size_px": None,
         "looks": {"correlation": list(rho)}})
 
 
@@ -289,8 +289,8 @@ def test_correlated_looks_count_blur_rows_as_their_own_bins():
 
     p = [0.1, 0.4, 0.6, 0.3]
     edges = [1, 20, 40, 80, 2000]
-    doc = {"version": 3, "bin_edges_px": edges, "p_detect": p, "p_false_alarm": [0.05] * 4,
-           "input_size_px": None,
+    doc = {"version": 4, "bin_edges_px": edges, "p_detect": p, "p_false_alarm": [0.05] * 4,
+           "fa_rate_per_mpx": [50.0] * 4, "input_size_px": None,
            "blur": {"edges_px": [0.0, 1.0, 3.0, 64.0],
                     "p_detect": [[0.1, 0.4, 0.6, 0.3], [0.05, 0.3, 0.5, 0.2],
                                  [0.02, 0.1, 0.2, 0.1]],

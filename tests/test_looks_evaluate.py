@@ -10,8 +10,9 @@ from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import CorrelatedLooks
 
-DETECTOR = {"version": 2, "input_size_px": None, "bin_edges_px": [4, 16, 40, 100, 400],
+DETECTOR = {"version": 4, "input_size_px": None, "bin_edges_px": [4, 16, 40, 100, 400],
             "p_detect": [0.2, 0.4, 0.5, 0.3], "p_false_alarm": [0.02, 0.03, 0.04, 0.05],
+            "fa_rate_per_mpx": [0.05, 0.06, 0.08, 0.1],
             "looks": {"correlation": [0.4, 0.3, 0.3, 0.5]}}
 
 

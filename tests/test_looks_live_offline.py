@@ -17,7 +17,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pdcov.core.looks import LooksRule
 from pdcov.service.settings import load_serve_config
 
-DETECTOR = {"version": 2, "input_size_px": 640,
+DETECTOR = {"version": 4, "input_size_px": 640,
+            "fa_rate_per_mpx": [0.05, 0.06, 0.08, 0.1, 0.12],
             "bin_edges_px": [4, 12, 24, 48, 96, 200],
             "p_detect": [0.1, 0.3, 0.45, 0.4, 0.2],
             "p_false_alarm": [0.02, 0.03, 0.04, 0.05, 0.06],

@@ -100,7 +100,6 @@ def test_under_correlated_looks_the_gaps_after_are_the_merged_grids():
     counted after are those of that merged grid."""
     base = square_scenario(40.0, frame_rate_hz=1.0)
     doc = base.detector.to_dict()
-    doc["version"] = 2
     doc["looks"] = {"correlation": [0.5] * base.detector.n_bins}
     sc = replace(base, detector=DetectorModel.from_dict(doc),
                  looks=LooksConfig(LooksRule.CORRELATED))

@@ -24,8 +24,8 @@ DOMAIN = Domain.from_enu([[0, 0], [40, 0], [40, 40], [0, 40]],
                          [[[10, 10], [20, 10], [20, 20], [10, 20]]])
 
 
-def model(p_d: float, p_fa: float) -> DetectorModel:
-    return DetectorModel((1.0, 1000.0), (p_d,), (p_fa,), input_size_px=640,
+def model(p_d: float, fa_rate_per_mpx: float) -> DetectorModel:
+    return DetectorModel((1.0, 1000.0), (p_d,), (0.0,), (fa_rate_per_mpx,), input_size_px=640,
                          confidence_threshold=0.5)
 
 
@@ -127,8 +127,10 @@ def test_a_box_stands_on_the_feet_pixel():
 
 def test_detections_and_false_alarms_at_the_models_rates():
     people = place_targets(400, DOMAIN, None, seed=1)
-    det = SimulatedDetector(grid(model(0.3, 0.05)), people, DetectorOptions(), 7)
-    seen = hits = fa = cells = 0
+    # 40 false boxes per Mpx: a cell of about 39 px (1,500 px^2) has P_FA about 0.06.
+    det = SimulatedDetector(grid(model(0.3, 40.0)), people, DetectorOptions(), 7)
+    seen = hits = fa = 0
+    expect_fa = var_fa = 0.0
     g = det.grid
     for k in range(60):
         pose = nadir(5.0 + 0.5 * k, 30.0, 12.0, 0.2 * k)
@@ -137,12 +139,16 @@ def test_detections_and_false_alarms_at_the_models_rates():
         seen += int(in_view.sum())
         hits += sum(d.person_id >= 0 for d in out)
         fa += sum(d.person_id == FALSE_ALARM_ID for d in out)
-        cells += int(g.observe(pose, (0, 40, 0, 40))[0].sum())
+        # Each observed cell: the grid's P_FA per look, 1 - exp(-rate A), A = size^2.
+        size = g.observe(pose, (0, 40, 0, 40))[1] * det.scale
+        p = det.detector.p_false_alarm_per_look(size, size**2)
+        expect_fa += p.sum()
+        var_fa += (p * (1 - p)).sum()
     # Poisson-binomial counts: within 4 sd of the model's expectation.
     assert abs(hits - 0.3 * seen) < 4 * np.sqrt(seen * 0.3 * 0.7), (hits, seen)
     # A false alarm whose point falls outside the picture (cells at its edge) is dropped.
-    assert 0.9 * 0.05 * cells - 4 * np.sqrt(cells * 0.05) < fa < \
-        0.05 * cells + 4 * np.sqrt(cells * 0.05), (fa, cells)
+    assert 0.9 * expect_fa - 4 * np.sqrt(var_fa) < fa < expect_fa + 4 * np.sqrt(var_fa), \
+        (fa, expect_fa)
 
 
 def test_with_a_look_interval_each_person_is_drawn_once_per_interval():

@@ -20,9 +20,10 @@ DEG = math.pi / 180
 F_PX = 500.0
 PINHOLE = CameraModel(640, 480, np.array([[F_PX, 0, 319.5], [0, F_PX, 239.5], [0, 0, 1]]))
 WIDE = CameraModel.from_fov(1920, 1080, 100)
-DETECTOR = DetectorModel.from_dict({"version": 1, "bin_edges_px": [1, 20, 40, 80, 2000],
+DETECTOR = DetectorModel.from_dict({"version": 4, "bin_edges_px": [1, 20, 40, 80, 2000],
                                     "p_detect": [0.1, 0.4, 0.6, 0.3],
                                     "p_false_alarm": [0.05, 0.1, 0.2, 0.3],
+                                    "fa_rate_per_mpx": [20.0, 40.0, 80.0, 120.0],
                                     "input_size_px": None})
 DOMAIN = Domain.from_enu([[-40, -40], [40, -40], [40, 40], [-40, 40]])
 GEOMETRY = DOMAIN.grid_geometry(1.0)

@@ -165,7 +165,7 @@ def test_independent_looks_are_not_rejected_over_seeds(tmp_path):
     assert sum(v < 0.05 for v in p) <= 2
 
 
-def test_cli_fit_writes_a_version_2_model_and_the_looks_plot(tmp_path, pdcov):
+def test_cli_fit_writes_a_model_with_looks_and_the_looks_plot(tmp_path, pdcov):
     truth = TrueLooks(EDGES, MEANS, (0.3, 0.3, 0.3))
     root = write_mot(tmp_path / "mot", truth, n_people=400, seed=4, fa_per_frame=1.0)
     model_path = tmp_path / "detector.yaml"
@@ -174,7 +174,7 @@ def test_cli_fit_writes_a_version_2_model_and_the_looks_plot(tmp_path, pdcov):
     assert status == 0, err
     assert "p indep" in out and "no estimate in 1 of 4 bins" in out
     model = DetectorModel.from_yaml(model_path)
-    assert model.to_dict()["version"] == 2 and model.looks is not None
+    assert model.to_dict()["version"] == 4 and model.looks is not None  # 4: fa_rate_per_mpx
     lk = model.looks
     assert lk.correlation[0] == 0.0 and not lk.extra["estimated"][0]  # 4-8 px: nobody
     assert lk.extra["estimated"][1:] == [True] * 3

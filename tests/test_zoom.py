@@ -197,7 +197,8 @@ def test_two_cameras_combine_as_independent_looks_by_hand():
     def constant(p: float) -> DetectorModel:
         n = len(base["p_detect"])
         return DetectorModel.from_dict(dict(base, p_detect=[p] * n,
-                                            p_false_alarm=[0.01] * n))
+                                            p_false_alarm=[0.01] * n,
+                                            fa_rate_per_mpx=[0.05] * n))
 
     visible, thermal = constant(0.3), constant(0.5)
     g = GridGeometry(0.0, 0.0, 1.0, 40, 40)

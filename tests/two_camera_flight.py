@@ -40,7 +40,7 @@ def thermal_detector(looks: bool = False) -> dict[str, Any]:
     doc = DetectorModel.illustrative().to_dict()
     doc["p_detect"] = [0.6 * p for p in doc["p_detect"]]
     if looks:
-        doc.update(version=2, looks={"correlation": [0.3] * len(doc["p_detect"])})
+        doc.update(looks={"correlation": [0.3] * len(doc["p_detect"])})
     return doc
 
 
@@ -48,7 +48,7 @@ def visible_detector(looks: bool = False) -> Any:
     if not looks:
         return "illustrative"
     doc = DetectorModel.illustrative().to_dict()
-    doc.update(version=2, looks={"correlation": [0.2] * len(doc["p_detect"])})
+    doc.update(looks={"correlation": [0.2] * len(doc["p_detect"])})
     return doc
 
 

@@ -16,9 +16,10 @@ At each camera frame, given the true camera pose:
   detected with their own detectability ``core.looks.detectability_quantile`` (the Beta
   quantile of the bin's mean and correlation at q, the rule ``coverage.looks: correlated``
   integrates over): a person hard to see stays hard to see.
-* **False alarms.** Each free cell the grid observes gives a false alarm with its P_FA(size)
-  (the model's own quantity, so the grid's ``observe`` gives the cells and their sizes),
-  placed uniformly inside the cell.
+* **False alarms.** Each free cell the grid observes gives a false alarm with the grid's
+  P_FA per look, 1 - exp(-rate(size) A) (``DetectorModel.p_false_alarm_per_look``; A the
+  cell's image area, size^2, in detector-input px^2; the grid's ``observe`` gives the cells
+  and their sizes), placed uniformly inside the cell.
 * **Looks.** With ``look_interval_s`` (default: the mission's ``coverage.min_revisit_s``)
   the detector's outcomes are drawn afresh for a person or a cell only once per interval,
   by the grid's revisit rule (the first frame that sees it at least that long after the
@@ -192,7 +193,8 @@ class SimulatedDetector:
             return []
         r0, r1, c0, c1 = window
         observed, size_px = grid.observe(pose, window)
-        _, p_fa = self.detector.lookup(size_px * self.scale)
+        s_px = size_px * self.scale
+        p_fa = self.detector.p_false_alarm_per_look(s_px, s_px**2)
         p = np.zeros(observed.shape)
         p[observed] = p_fa
         look = observed if grid.last_obs_s is None \

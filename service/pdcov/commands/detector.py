@@ -335,12 +335,15 @@ def run_fit(args: argparse.Namespace) -> int:
 
 
 def format_model_table(model: DetectorModel) -> str:
-    """Per-bin table: size range, P_D with its interval and counts, P_FA likewise."""
+    """Per-bin table: size range, P_D with its interval and counts, the paper's 1 -
+    precision likewise, and the false boxes per frame per Mpx (what the grid uses)."""
     ci_d = model.extra.get("p_detect_ci95")
     ci_fa = model.extra.get("p_false_alarm_ci95")
+    ci_rate = model.extra.get("fa_rate_per_mpx_ci95")
+    rate = model.fa_rate_per_mpx
     c = model.counts
     rows = [f"{'size px':>15} {'N_true':>7} {'N_det':>7} {'P_D':>6} {'95% CI':>15} "
-            f"{'N_total':>7} {'P_FA':>6} {'95% CI':>15}"]
+            f"{'N_total':>7} {'1-prec':>6} {'95% CI':>15} {'FA/Mpx':>8} {'95% CI':>19}"]
     for i in range(model.n_bins):
         lo, hi = model.bin_edges_px[i], model.bin_edges_px[i + 1]
         rows.append(
@@ -348,8 +351,13 @@ def format_model_table(model: DetectorModel) -> str:
             f"{c.n_true[i] if c else '':>7} {c.n_detected[i] if c else '':>7} "
             f"{model.p_detect[i]:6.3f} {_ci(ci_d, i):>15} "
             f"{c.n_detections[i] if c else '':>7} {model.p_false_alarm[i]:6.3f} "
-            f"{_ci(ci_fa, i):>15}")
+            f"{_ci(ci_fa, i):>15} {f'{rate[i]:8.4g}' if rate else '':>8} "
+            f"{_ci_rate(ci_rate, i):>19}")
     return "\n".join(rows)
+
+
+def _ci_rate(ci: list[list[float]] | None, i: int) -> str:
+    return f"[{ci[i][0]:.3g}, {ci[i][1]:.3g}]" if ci else ""
 
 
 LOOKS_EXAMPLE = 20  # looks for the "found within n looks" column of the looks table

@@ -3,11 +3,17 @@
 Size s is the side length sqrt(w * h) of a bounding box in detector-input pixels. A size below
 the first bin edge, or at or above the last, has P_D = P_FA = 0: the model claims nothing where
 it has no data. The YAML format is documented in docs/detector-model.md.
+
+False alarms are a rate: ``fa_rate_per_mpx``, false boxes of size s per frame per megapixel
+of detector input. A region of A detector-input px^2 in one frame then holds at least one
+false box with probability 1 - exp(-rate(s) A) (Poisson; ``p_false_alarm_per_look``).
+``p_false_alarm`` is the paper's 1 - precision, kept for the fit's report.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -20,8 +26,10 @@ from pdcov.errors import DetectorModelError, where
 from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
-FORMAT_VERSION = 3  # 2: the optional ``looks`` section (per-person correlation); 3: ``blur``
-_READABLE_VERSIONS = (1, 2, 3)
+# 2: the optional ``looks`` section (per-person correlation); 3: ``blur``; 4: fa_rate_per_mpx
+FORMAT_VERSION = 4
+_READABLE_VERSIONS = (1, 2, 3, 4)
+_PX2_PER_MPX = 1e6
 MAX_MODEL_BYTES = 4 << 20
 """Largest detector model file read (a fitted model of 100 size x 100 blur bins is ~0.5 MB)."""
 MAX_BINS = 1000
@@ -34,12 +42,12 @@ SIZE_METRICS = ("sqrt_area",)
 _LOGISTIC_CURVE = Section.of("log_center", "log_scale", "coefficients", "covariance")
 MODEL_SCHEMA = Section.of(
     "version", "size_metric", "input_size_px", "confidence_threshold", "iou_threshold",
-    "bin_edges_px", "p_detect", "p_false_alarm",
+    "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
     "model", "interval_method", "confidence_level", "p_detect_ci95", "p_false_alarm_ci95",
-    "n_true_positives", "illustrative", "notes",
+    "fa_rate_per_mpx_ci95", "n_false_boxes", "n_true_positives", "illustrative", "notes",
     counts=Section.of("n_true", "n_detected", "n_detections"),
     fit=Section.of("classes", "n_images", "truth_outside_bins", "detections_outside_bins",
-                   "max_detections", "ground_truth", "detections", "bins",
+                   "max_detections", "image_area_mpx", "ground_truth", "detections", "bins",
                    status_counts=Section(open=True)),
     logistic=Section.of("link", "covariate", "degree", "fit_range_px",
                         p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE),
@@ -55,7 +63,8 @@ MODEL_SCHEMA = Section.of(
                     "p_false_alarm_ci95", "n_true", "n_detected", "n_detections",
                     "n_true_positives", "truth_outside_bins", "detections_outside_bins",
                     "csv", "bins", "speed_to_blur"))
-_ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "input_size_px",
+_ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
+                "input_size_px",
                 "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks",
                 "blur")
 
@@ -109,7 +118,12 @@ class DetectorModel:
     """Binned detection and false-alarm probabilities of one detector at fixed thresholds.
 
     bin_edges_px: N + 1 strictly increasing sizes in detector-input pixels.
-    p_detect, p_false_alarm: N probabilities in [0, 1].
+    p_detect: N probabilities in [0, 1].
+    p_false_alarm: N values of the paper's 1 - precision in [0, 1] (reported, not used by
+        the grid).
+    fa_rate_per_mpx: N false-box rates >= 0 (false boxes of the bin's size per frame per
+        megapixel of detector input); None for a model fitted before version 4, whose false
+        alarms are then unknown (the grid counts none).
     input_size_px: detector input size; image pixels are scaled by
         input_size_px / max(image width, image height). None: sizes are image pixels.
     """
@@ -117,6 +131,7 @@ class DetectorModel:
     bin_edges_px: tuple[float, ...]
     p_detect: tuple[float, ...]
     p_false_alarm: tuple[float, ...]
+    fa_rate_per_mpx: tuple[float, ...] | None = None
     input_size_px: int | None = None
     confidence_threshold: float | None = None
     iou_threshold: float | None = None
@@ -146,6 +161,13 @@ class DetectorModel:
             if not np.all((p >= 0) & (p <= 1)):
                 raise DetectorModelError(
                     f"{where(src, key)}: probabilities must lie in [0, 1], got {p.tolist()}")
+        if self.fa_rate_per_mpx is not None:
+            r = np.asarray(self.fa_rate_per_mpx, dtype=float)
+            if r.shape != (n,) or not np.all(np.isfinite(r) & (r >= 0)):
+                raise DetectorModelError(
+                    f"{where(src, 'fa_rate_per_mpx')}: expected {n} finite rates >= 0 (false "
+                    f"boxes per frame per megapixel, one per bin), got "
+                    f"{list(self.fa_rate_per_mpx)}")
         if self.size_metric not in SIZE_METRICS:
             raise DetectorModelError(
                 f"{where(src, 'size_metric')}: expected one of {SIZE_METRICS}, "
@@ -229,6 +251,24 @@ class DetectorModel:
             t[1:-1, 1:-1] = np.asarray(rows, dtype=float)
             tables.append(t.ravel())
         return tables[0], tables[1]
+
+    def padded_fa_rate_per_px2_by_blur(self) -> np.ndarray:
+        """False boxes per frame per detector-input px^2, indexed as ``padded_tables_by_blur``
+        (0 outside the size bins and beyond the last blur edge; the same rate, by size only,
+        in every blur row: the fit measures it by size only). All 0 without
+        ``fa_rate_per_mpx``."""
+        rate = np.zeros((self.n_table_rows, self.n_bins + 2))
+        if self.fa_rate_per_mpx is not None:
+            rate[:max(1, self.n_table_rows - 1), 1:-1] = (
+                np.asarray(self.fa_rate_per_mpx, dtype=float) / _PX2_PER_MPX)
+        return rate.ravel()
+
+    def p_false_alarm_per_look(self, size_px: np.ndarray, area_px2: np.ndarray) -> np.ndarray:
+        """Probability of at least one false box in a region of ``area_px2`` detector-input
+        px^2 in one frame, whose objects would be ``size_px`` (detector-input px): the false
+        boxes of that size are a Poisson process over the image, 1 - exp(-rate(s) A)."""
+        rate = self.padded_fa_rate_per_px2_by_blur()[: self.n_bins + 2]
+        return -np.expm1(-rate[self.bin_index(size_px)] * np.asarray(area_px2, dtype=float))
 
     def image_to_input_scale(self, width_px: int, height_px: int) -> float:
         """Factor from image pixels to detector-input pixels for an image of this size."""
@@ -322,6 +362,7 @@ class DetectorModel:
             bin_edges_px=tuple(float(v) for v in doc["bin_edges_px"]),
             p_detect=tuple(float(v) for v in doc["p_detect"]),
             p_false_alarm=tuple(float(v) for v in doc["p_false_alarm"]),
+            fa_rate_per_mpx=_fa_rate_from_dict(doc, version, source),
             input_size_px=input_size,
             confidence_threshold=_opt_float(doc, "confidence_threshold", source),
             iou_threshold=_opt_float(doc, "iou_threshold", source),
@@ -346,8 +387,9 @@ class DetectorModel:
 
     def to_dict(self) -> dict[str, Any]:
         doc: dict[str, Any] = {
-            "version": (FORMAT_VERSION if self.blur is not None
-                        else 2 if self.looks is not None else 1),
+            "version": (FORMAT_VERSION if self.fa_rate_per_mpx is not None
+                        else 3 if self.blur is not None else 2 if self.looks is not None
+                        else 1),
             "size_metric": self.size_metric,
             "input_size_px": self.input_size_px,
             "confidence_threshold": self.confidence_threshold,
@@ -356,6 +398,8 @@ class DetectorModel:
             "p_detect": [float(v) for v in self.p_detect],
             "p_false_alarm": [float(v) for v in self.p_false_alarm],
         }
+        if self.fa_rate_per_mpx is not None:
+            doc["fa_rate_per_mpx"] = [float(v) for v in self.fa_rate_per_mpx]
         if self.counts is not None:
             doc["counts"] = {"n_true": list(self.counts.n_true),
                              "n_detected": list(self.counts.n_detected),
@@ -390,6 +434,35 @@ def _check_bins(v: Any, key: str, source: str | None) -> None:
     if isinstance(v, list) and len(v) > MAX_BINS + 1:
         raise DetectorModelError(f"{where(source, key)}: {len(v):,} entries, more than a "
                                  f"model of {MAX_BINS} bins has ({MAX_BINS + 1} edges)")
+
+
+def _fa_rate_from_dict(doc: dict[str, Any], version: int, source: str | None
+                       ) -> tuple[float, ...] | None:
+    """``fa_rate_per_mpx``: required from version 4. An older file loads, with one warning,
+    without false alarms: its ``p_false_alarm`` is 1 - precision, a share of detections that
+    no rule turns into a probability per cell without the frames and image area of the fit
+    (not written before version 4). Its P_D is still right, so a plan or an evaluation by
+    P_D need not be refused; its P_FA map is 0 (unknown), and the warning says so."""
+    rate = doc.get("fa_rate_per_mpx")
+    if rate is None:
+        if version >= 4:
+            raise DetectorModelError(
+                f"{where(source, 'fa_rate_per_mpx')}: missing (version 4 needs false boxes "
+                f"per frame per megapixel, one per bin; `pdcov detector fit` writes it)")
+        warnings.warn(
+            f"{source or 'detector model'}: version {version} has no fa_rate_per_mpx (its "
+            f"p_false_alarm is 1 - precision, not a probability per cell); the grid counts "
+            f"no false alarms with it (P_FA 0, unknown). Refit with `pdcov detector fit` "
+            f"for the false-alarm rate", UserWarning, stacklevel=3)
+        return None
+    if version < 4:
+        raise DetectorModelError(
+            f"{where(source, 'fa_rate_per_mpx')}: needs version 4, the file says {version}")
+    if not isinstance(rate, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in rate):
+        raise DetectorModelError(
+            f"{where(source, 'fa_rate_per_mpx')}: expected a list of numbers, got {rate!r}")
+    return tuple(float(v) for v in rate)
 
 
 def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:

@@ -34,7 +34,7 @@ How one person's looks combine is ``looks`` (``core/looks.py``): independent (th
 log-miss sums above), correlated (per cell the counts of its looks in each size bin, P_D
 computed from them when read) or viewpoint (per cell and viewpoint bin the best look). With
 the last two ``log_miss_d`` is derived from that state when read, only where frames changed
-it since (``refresh``); P_FA is the independent sum under every rule.
+it since (``refresh``); P_FA, 1 - exp(-rate(s) A) a look, is the independent sum under every rule.
 """
 
 from __future__ import annotations
@@ -113,8 +113,8 @@ class GridCamera:
     beyond which cells are not observed (m), the detector's bin edges as image areas (px^2;
     (float64, float32), indexed by ``area dtype is float32``, so that areas are compared with
     edges of their own dtype), the LimitingFactor of an observed cell by its size bin index
-    (0: below the first edge, len(edges): above the last) and the log-miss tables (P_D,
-    P_FA) by the kernel's bin index (with blur bins, blur row * (N + 2) + size index)."""
+    (0: below the first edge, len(edges): above the last) and the log-miss tables (P_D; P_FA
+    per image px^2: -rate size_scale^2) by the kernel's bin index (blur row * (N + 2) + size)."""
 
     camera: CameraModel
     detector: DetectorModel
@@ -140,9 +140,9 @@ class GridCamera:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         # Indexed by the kernel's bin index: blur row * (N + 2) + size index (the detector
         # model's padded_tables_by_blur); row 0, P by size only, when blur does not apply.
-        pd, pfa = detector.padded_tables_by_blur()
+        pd, fa = detector.padded_tables_by_blur()[0], detector.padded_fa_rate_per_px2_by_blur()
         with np.errstate(divide="ignore"):
-            tables = (np.log1p(-pd).astype(np.float32), np.log1p(-pfa).astype(np.float32))
+            tables = (np.log1p(-pd).astype(np.float32), (-fa * size_scale**2).astype(np.float32))
         # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
         area_edges = (np.asarray(detector.bin_edges_px, dtype=np.float64) / size_scale) ** 2
         seen_code = np.full(len(area_edges) + 1, LimitingFactor.SEEN, dtype=np.uint8)
@@ -423,7 +423,8 @@ class CoverageGrid:
             self._log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
         else:
             self._add_looks(pose, window, idx)
-        self.log_miss_fa[r0:r1, c0:c1] += tab_fa.take(idx)
+        self.log_miss_fa[r0:r1, c0:c1] += np.multiply(  # log(1 - P_FA) = -rate A (in view)
+            tab_fa.take(idx), area_px2, out=np.zeros(idx.shape, np.float32), where=observed)
         self.n_obs[r0:r1, c0:c1] += observed
         return int(np.count_nonzero(observed))
 

@@ -102,7 +102,9 @@ class Matches:
     and whether it was detected; of the counted detections and whether they were true; and
     how many boxes each status holds (e.g. ``truth_degenerate``). truth_blur_px,
     detection_blur_px: the motion blur of each counted box's image, in detector-input px
-    (NaN when no blur was given)."""
+    (NaN when no blur was given). image_area_mpx: the images' summed area in megapixels of
+    detector input (NaN when an image's size is unknown), over which false boxes are counted.
+    """
 
     settings: MatchSettings
     truth_size_px: np.ndarray
@@ -113,6 +115,7 @@ class Matches:
     status_counts: dict[str, int]
     truth_blur_px: np.ndarray
     detection_blur_px: np.ndarray
+    image_area_mpx: float = math.nan
 
 
 def iou_matrix(det_xywh: np.ndarray, truth_xywh: np.ndarray,
@@ -235,6 +238,7 @@ class MatchCollector:
         self._d_blur: list[np.ndarray] = []
         self._counts: Counter[str] = Counter()
         self._n_images = 0
+        self._area_px2 = 0.0
 
     def add(self, truth: ImageTruth, dets: Boxes, blur_px: float = math.nan
             ) -> tuple[ImageMatch, np.ndarray]:
@@ -256,6 +260,8 @@ class MatchCollector:
         self._counts.update(f"detection_{DetectionStatus(s).name.lower()}"
                             for s in m.detection_status)
         self._n_images += 1
+        w, h = truth.width_px, truth.height_px
+        self._area_px2 += math.nan if w is None or h is None else w * h * scale**2
         return m, size
 
     def result(self) -> Matches:
@@ -265,7 +271,7 @@ class MatchCollector:
         return Matches(self.settings, cat(self._t_size, float), cat(self._t_hit, bool),
                        cat(self._d_size, float), cat(self._d_true, bool), self._n_images,
                        dict(sorted(self._counts.items())), cat(self._t_blur, float),
-                       cat(self._d_blur, float))
+                       cat(self._d_blur, float), self._area_px2 / 1e6)
 
 
 def match_images(pairs: Iterable[tuple[ImageTruth, Boxes]], settings: MatchSettings,

@@ -4,7 +4,8 @@ Pure: the matches of a labelled test set in (``detection/matching.py``: COCO's r
 sizes in detector-input pixels), counts, models and test results out. Steps:
 
 1. ``count_in_bins``: N_true and N_det by ground-truth size, N_total and N_TP by detection size;
-   ``fit_binned``: P_D = N_det / N_true, P_FA = 1 - N_TP / N_total with 95 % intervals;
+   ``fit_binned``: P_D = N_det / N_true, P_FA = 1 - N_TP / N_total with 95 % intervals,
+   and the false-box rate (N_total - N_TP) / (images' area, Mpx) with its Garwood interval;
    ``fit_logistic``: P_D and P_FA as logistic functions of log size (MIL-HDBK-1823A hit/miss).
 2. ``validate``: observed against predicted detections per bin on another split.
 """
@@ -122,17 +123,46 @@ def _fit_record(matches: Matches, c: BinnedCounts) -> dict[str, Any]:
             "status_counts": matches.status_counts}
 
 
+def false_box_rate(n_false: np.ndarray, area_mpx: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """False boxes per frame per megapixel (the Poisson rate's maximum-likelihood estimate,
+    n / area) and its 95 % Garwood exact interval: chi2(a/2; 2n) / 2 and chi2(1 - a/2;
+    2n + 2) / 2 boxes over the area (low 0 at n = 0)."""
+    n = np.asarray(n_false, dtype=float)
+    a = 1 - CONFIDENCE_LEVEL
+    lo = np.where(n > 0, stats.chi2.ppf(a / 2, 2 * np.maximum(n, 1)) / 2, 0.0)
+    hi = stats.chi2.ppf(1 - a / 2, 2 * n + 2) / 2
+    return n / area_mpx, lo / area_mpx, hi / area_mpx
+
+
 def _model(matches: Matches, c: BinnedCounts, p_d: np.ndarray, p_fa: np.ndarray,
            extra: dict[str, Any]) -> DetectorModel:
     s = matches.settings
+    if not matches.image_area_mpx > 0:
+        raise InputFileError(
+            "the false-alarm rate is per image area: every image's width and height are "
+            "needed (--sizes FILE or --images DIR)")
+    n_false = c.n_detections - c.n_true_positives
+    rate, rate_lo, rate_hi = false_box_rate(n_false, matches.image_area_mpx)
     return DetectorModel(
         bin_edges_px=c.edges_px, p_detect=tuple(round(float(v), 6) for v in p_d),
-        p_false_alarm=tuple(round(float(v), 6) for v in p_fa), input_size_px=s.input_size_px,
+        p_false_alarm=tuple(round(float(v), 6) for v in p_fa),
+        fa_rate_per_mpx=tuple(_round_sig(float(v)) for v in rate),
+        input_size_px=s.input_size_px,
         confidence_threshold=s.confidence_threshold, iou_threshold=s.iou_threshold,
         counts=BinCounts(tuple(int(v) for v in c.n_true), tuple(int(v) for v in c.n_detected),
                          tuple(int(v) for v in c.n_detections)),
         extra={**extra, "n_true_positives": [int(v) for v in c.n_true_positives],
-               "fit": _fit_record(matches, c)})
+               "fa_rate_per_mpx_ci95": [[_round_sig(float(a)), _round_sig(float(b))]
+                                        for a, b in zip(rate_lo, rate_hi, strict=True)],
+               "n_false_boxes": [int(v) for v in n_false],
+               "fit": {**_fit_record(matches, c),
+                       "image_area_mpx": _round_sig(matches.image_area_mpx)}})
+
+
+def _round_sig(v: float) -> float:
+    """``v`` to 6 significant digits (rates per Mpx span decades)."""
+    return float(f"{v:.6g}")
 
 
 def _pairs(lo: np.ndarray, hi: np.ndarray) -> list[list[float]]:

@@ -239,7 +239,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
            "camera": [cam.width_px, cam.height_px, np.asarray(cam.K, float).tolist(),
                       cam.distortion_model, np.asarray(cam.dist_coeffs, float).tolist()],
            "detector": [list(det.bin_edges_px), list(det.p_detect), list(det.p_false_alarm),
-                        det.input_size_px, det.size_metric]}
+                        det.input_size_px, det.size_metric,
+                        *([] if det.fa_rate_per_mpx is None else [list(det.fa_rate_per_mpx)])]}
     if mission.zoom is not None:  # none: hashed as before zoom existed
         doc["zoom"] = repr(mission.zoom)
     if mission.extra_cameras:  # one camera: hashed as before cameras lists existed
@@ -264,7 +265,8 @@ def _camera_doc(cam: MissionCamera) -> list[Any]:
             np.asarray(c.K, float).tolist(), c.distortion_model,
             np.asarray(c.dist_coeffs, float).tolist(), repr(cam.mount), repr(cam.zoom),
             cam.exposure_s, list(det.bin_edges_px), list(det.p_detect),
-            list(det.p_false_alarm), det.input_size_px, det.size_metric]
+            list(det.p_false_alarm), det.input_size_px, det.size_metric,
+            *([] if det.fa_rate_per_mpx is None else [list(det.fa_rate_per_mpx)])]
 
 
 def replace_endpoints(cfg: ServeConfig, *, connect: list[str] | None,
