@@ -175,3 +175,72 @@ def test_evaluate_says_it_in_the_summary_and_metrics(tmp_path: Path, monkeypatch
                                                "home": 1}
     assert doc["terrain_check"]["largest"]["difference_m"] == 12.0
     assert any(w.startswith("terrain check: 1 of 1") for w in doc["warnings"])
+
+
+def test_a_home_beyond_max_home_offset_refuses_the_dem_live_and_offline(tmp_path: Path
+                                                                        ) -> None:
+    """The DEM 188 m above the home (a wrong datum), terrain.max_home_offset_m 30: the daemon
+    counts no frame over it (each skipped as 'home off the DEM'), says why once in its log
+    and to the pilot; offline, the same samples refuse the DEM with the same words."""
+    data = terrain_messages()
+    cfg = serve_config(tmp_path)
+    dem = FlatDem(GROUND_M + 188.0)
+    feed = LinkFeed(cfg)
+    live = feed.live
+    live.terrain_check = TerrainCheck(dem, max_home_offset_m=30.0)
+    done = []  # what the core tells its shell to do
+    actions = feed.core.actions
+    feed.core.actions = lambda: done.append(actions()) or done[-1]  # type: ignore[method-assign]
+    for i, chunk in enumerate(data):
+        feed.feed(chunk, 0.001 * i)
+    feed.tick(10.0)
+    notes = [text for a in done for _level, text in a.logs]
+    texts = [m.text for a in done for m in a.send if m.get_type() == "STATUSTEXT"]
+    status = feed.status()
+    assert live.grid.frames == 0
+    skipped = status["frames"]["skipped"]
+    assert skipped.get("home off the DEM", 0) > 0, skipped
+    assert status["faults"]["home_off_dem"] == 1
+    refusal = live.terrain_check.home_refusal()
+    assert refusal is not None and "-188.0 m from the DEM" in refusal
+    assert "terrain.max_home_offset_m = 30 m" in refusal
+    assert notes.count(refusal) == 1
+    assert texts[:1] == ["pdcov: home -188m off DEM, no coverage"] and len(texts[0]) <= 50
+
+    # The same DEM 12 m off (the margin's mismatch, not a refusal): frames are counted.
+    feed = LinkFeed(serve_config(tmp_path))
+    feed.live.terrain_check = TerrainCheck(FlatDem(GROUND_M + 12.0), max_home_offset_m=30.0)
+    for i, chunk in enumerate(data):
+        feed.feed(chunk, 0.001 * i)
+    feed.tick(10.0)
+    assert feed.live.grid.frames > 0 and feed.live.terrain_check.home_refusal() is None
+
+    tlog = tmp_path / "terrain.tlog"
+    tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i) + d
+                              for i, d in enumerate(data)))
+    offline = TerrainCheck(dem, max_home_offset_m=30.0)
+    m = cfg.mission
+    poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                   ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
+                   frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s, terrain_check=offline)
+    assert offline.home_refusal() == refusal
+
+
+@pytest.mark.slow  # an evaluate run up to the refusal
+def test_evaluate_refuses_a_dem_off_the_home_and_writes_nothing(tmp_path: Path, monkeypatch,
+                                                                capsys) -> None:
+    from evaluate_inputs import ORIGIN, known_flight, mission_doc, run, write_config
+    from mavlink_fixtures import samples_from_flight, write_tlog
+
+    import pdcov.telemetry.terrain_check as terrain_check
+
+    dem = FlatDem(ORIGIN.ground_alt_msl_m + 188.0)
+    monkeypatch.setattr(terrain_check, "terrain_check_for",
+                        lambda mission: TerrainCheck(dem, max_home_offset_m=30.0))
+    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(known_flight()))
+    config = write_config(tmp_path, mission_doc())
+    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
+               str(tmp_path / "run"), "--no-progress") == 2
+    _out, err = capsys.readouterr()
+    assert "-188.0 m from the DEM" in err and "raise terrain.max_home_offset_m" in err
+    assert not (tmp_path / "run" / "metrics.json").exists()

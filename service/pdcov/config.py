@@ -538,6 +538,7 @@ class Mission:
     terrain: TerrainSurface | None = field(default=None, compare=False, repr=False)
     dem: Dem | None = field(default=None, compare=False, repr=False)
     terrain_check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
+    terrain_max_home_offset_m: float = dem_rules.DEFAULT_MAX_HOME_OFFSET_M
     geolocation: Geolocation = Geolocation()
     gate_sigmas: float = 3.0
     warnings: tuple[str, ...] = ()
@@ -711,6 +712,8 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
         dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
+        terrain_max_home_offset_m=(ter.max_home_offset_m if ter
+                                   else dem_rules.DEFAULT_MAX_HOME_OFFSET_M),
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
         warnings=tuple(warnings), zoom=zoom, extra_cameras=tuple(cameras[1:]),
         camera_name=first.name, source=src, raw=doc)

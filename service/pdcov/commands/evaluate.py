@@ -22,7 +22,7 @@ from pdcov.commands.args import (
 )
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.core.blur import describe_blur
-from pdcov.errors import InputFileError, PdcovError
+from pdcov.errors import ConfigError, InputFileError, PdcovError
 
 if TYPE_CHECKING:
     from pdcov.config import Mission
@@ -137,6 +137,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
         if terrain_check is not None:  # the daemon's terrain_check, over the same samples
+            refusal = terrain_check.home_refusal()
+            if refusal is not None:  # the daemon counts no frame over this DEM either
+                raise ConfigError(f"{args.log}: {refusal}")
             lines.append(terrain_check.summary_line())
             if terrain_check.mismatches:
                 log_warnings += (terrain_check.summary_line(),)

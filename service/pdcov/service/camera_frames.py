@@ -78,6 +78,7 @@ class CameraFrames:
         self.skipped, self.faults = skipped, faults
         self._took = took
         self.used = 0  # frames this camera's grid took
+        self.dem_refused = False  # the DEM is refused (terrain_check.home_refused): no frame
         self.interpretation: GimbalInterpretation | None = None
         self.tracker: PoseTracker | None = None
         self.waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
@@ -199,6 +200,9 @@ class CameraFrames:
         if policy != "use":
             for reason in b.untrusted_reason[untrusted]:
                 self.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
+        if self.dem_refused:
+            self.skipped[SkipReason.HOME_OFF_DEM] += int(use.sum())
+            return 0
         if not use.any():
             return 0
         _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])

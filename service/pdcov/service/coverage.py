@@ -69,7 +69,7 @@ from pdcov.telemetry.samples import (
     Sample,
     usable_quaternion,
 )
-from pdcov.telemetry.terrain_check import terrain_check_for
+from pdcov.telemetry.terrain_check import TerrainCheck, terrain_check_for
 
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
     from pdcov.core.camera import CameraModel
@@ -130,6 +130,7 @@ class LiveCoverage:
         self._note: str | None = None  # said once by poll (Due.note)
         self._noted_no_estimator = False
         self.terrain_check = terrain_check_for(m)  # the DEM against the aircraft, or None
+        self._dem_statustext: str | None = None  # told the pilot once by poll
         self._terrain_said = 0  # mismatches counted when the last warning was logged
         self._next_terrain_warning_s = -math.inf
         # One camera: its grid is the published one. A cameras list: each camera its own
@@ -170,8 +171,11 @@ class LiveCoverage:
 
     def add_sample(self, sample: Sample) -> None:
         """A sample from the link, stamped in the autopilot clock (s)."""
-        if self.terrain_check is not None:  # every sample, as offline: it refuses its own
-            self.terrain_check.add(sample)
+        check = self.terrain_check
+        if check is not None:  # every sample, as offline: it refuses its own
+            check.add(sample)
+            if check.home_refused is not None and not self.primary.dem_refused:
+                self._refuse_dem(check)
         if not math.isfinite(sample.t_s):
             self.counters.faults["untimed_samples"] += 1
             return
@@ -229,6 +233,18 @@ class LiveCoverage:
                                LensSample)):
             for cam in self.cameras:
                 cam.add(sample)
+
+    def _refuse_dem(self, check: TerrainCheck) -> None:
+        """A home beyond terrain.max_home_offset_m from the DEM: no frame is counted over it
+        from now on (the frames skipped as HOME_OFF_DEM), the log and the pilot are told."""
+        for cam in self.cameras:
+            cam.dem_refused = True
+        self.counters.faults["home_off_dem"] += 1
+        self._note = check.home_refusal()
+        refused = check.home_refused
+        if refused is not None and self.cfg.service.statustext:
+            self._dem_statustext = (f"pdcov: home {-refused.difference_m:+.0f}m off DEM, "
+                                    "no coverage")
 
     @property
     def camera_grids(self) -> list[CoverageGrid]:
@@ -423,6 +439,8 @@ class LiveCoverage:
             self._next_checkpoint_s = max(self._next_checkpoint_s + svc.checkpoint_period_s,
                                           now_s)
             due.checkpoint = self.grid.frames != self._frames_at_checkpoint
+        if self._dem_statustext is not None:
+            due.statustext, self._dem_statustext = self._dem_statustext, None
         if now_s >= self._next_value_s:
             self._next_value_s = max(self._next_value_s + NAMED_VALUE_PERIOD_S, now_s)
             share = self.share_at_target()

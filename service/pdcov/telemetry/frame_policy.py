@@ -78,6 +78,9 @@ class SkipReason(TextEnum):
     ZOOM_STALE = "camera zoom report stale"
     ZOOM_OUT_OF_RANGE = "camera zoom outside calibration"
     ZOOM_JUMP = "camera zoom jump"
+    HOME_OFF_DEM = "home off the DEM"
+    """The DEM is refused: the home is beyond terrain.max_home_offset_m from it
+    (terrain_check.py)."""
 
 
 AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample,

@@ -11,7 +11,10 @@ pixel size and line of sight. Three measurements say where the ground is:
   (the attitude interpolated too), so no assumption of flat ground is made; readings tilted
   more than MAX_TILT_DEG are not used (a wide beam then returns its nearest edge, not its
   axis);
-* the home position: the vehicle stood on the ground there (m AMSL).
+* the home position: the vehicle stood on the ground there (m AMSL). A home further than
+  ``terrain.max_home_offset_m`` from the DEM refuses the DEM (``home_refused``): every
+  cell's height above ground would be off by as much, so the daemon counts no frame over
+  it and evaluate stops (a wrong map is worse than none).
 
 Each gives a difference, always the DEM's height minus the aircraft's (m; +12: the DEM is
 12 m too high, or the aircraft's altitudes 12 m too low). A difference beyond the margin
@@ -168,12 +171,16 @@ class TerrainCheck:
     margin_m, m), ``largest`` and ``latest`` (Mismatch or None) say what was found.
     """
 
-    def __init__(self, dem: HeightsMsl, margin_m: float = DEFAULT_TERRAIN_MARGIN_M) -> None:
+    def __init__(self, dem: HeightsMsl, margin_m: float = DEFAULT_TERRAIN_MARGIN_M,
+                 max_home_offset_m: float = math.inf) -> None:
         if not (math.isfinite(margin_m) and margin_m > 0):
             raise ValueError(f"terrain check margin: expected a positive number of metres, "
                              f"got {margin_m}")
         self.dem = dem
         self.margin_m = float(margin_m)
+        self.max_home_offset_m = float(max_home_offset_m)
+        self.home_refused: Mismatch | None = None
+        """The first home beyond max_home_offset_m from the DEM (None: none so far)."""
         self.checked: Counter[CheckSource] = Counter()
         self.refused: Counter[Refused] = Counter()
         self.mismatches = 0
@@ -278,6 +285,9 @@ class TerrainCheck:
         if abs(diff) <= self.margin_m:
             return
         m = Mismatch(source, diff, lat_deg, lon_deg, t_s)
+        if (source == CheckSource.HOME and self.home_refused is None
+                and abs(diff) > self.max_home_offset_m):
+            self.home_refused = m
         self.mismatches += 1
         self.latest = m
         if self.largest is None or abs(diff) > abs(self.largest.difference_m):
@@ -293,6 +303,18 @@ class TerrainCheck:
                 "refused": {str(k): n for k, n in sorted(self.refused.items())},
                 "largest": None if self.largest is None else self.largest.as_dict(),
                 "latest": None if self.latest is None else self.latest.as_dict()}
+
+    def home_refusal(self) -> str | None:
+        """Why the DEM is refused (a home beyond max_home_offset_m), None when it is not."""
+        m = self.home_refused
+        if m is None:
+            return None
+        return (f"terrain check: the home is {-m.difference_m:+.1f} m from the DEM's height "
+                f"there ({m.lat_deg:.6f}, {m.lon_deg:.6f}), more than "
+                f"terrain.max_home_offset_m = {self.max_home_offset_m:g} m: no coverage is "
+                "counted over this DEM; fix the DEM's datum (terrain.vertical_datum, "
+                "geoid_height_m) or the DEM, or raise terrain.max_home_offset_m if it is "
+                "known to be off")
 
     def summary_line(self) -> str:
         """One line: counts and the largest difference."""
@@ -342,7 +364,9 @@ def check_flight_log(check: TerrainCheck, log: FlightLog) -> None:
 
 def terrain_check_for(mission: Mission) -> TerrainCheck | None:
     """The check of a mission with a DEM (``mission.dem``, margin
-    ``mission.terrain_check_margin_m``), None without one: what both drivers build."""
+    ``mission.terrain_check_margin_m``, home refused beyond
+    ``mission.terrain_max_home_offset_m``), None without one: what both drivers build."""
     if mission.dem is None:
         return None
-    return TerrainCheck(mission.dem, mission.terrain_check_margin_m)
+    return TerrainCheck(mission.dem, mission.terrain_check_margin_m,
+                        mission.terrain_max_home_offset_m)
