@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from watch_fixtures import TinyPublisher
 
 from benchmarks.hostile_inputs import input_bound_cases
+from benchmarks.hostile_retask import retask_cases
 
 DAEMON, ROGUE = "a1" * 16, "e7" * 16
 
@@ -204,7 +205,8 @@ def replayed_tiles_case() -> Finding:
 def main() -> int:
     findings = [forged_tiles_case(), hostile_status_case(), huge_snapshot_case(),
                 fake_vehicles_case(), replayed_tiles_case(),
-                *(Finding(*c) for c in input_bound_cases())]
+                *(Finding(*c) for c in input_bound_cases()),
+                *(Finding(*c) for c in retask_cases())]
     print("| finding | red team (before) | now | holds |")
     print("|---|---|---|---|")
     for f in findings:
