@@ -39,8 +39,7 @@ AGREE_SHARE = {"nadir": 0.90, "oblique": 0.85}
 """Shares of cells within AGREE_PD both ways. Nadir: HiGHS's optimal 29-point cover of
 the 102 candidates (found within --ilp-time-limit-s on a quiet machine; a loaded one may
 fly the greedy's 37) flies 701 frames against 644 predicted, the simulator's longer
-settling at each stop: 92.8 % of the cells within 0.05 and 99.0 % not below (the 37-point
-cover gave 98 %)."""
+settling at each stop: 92.8 % of the cells within 0.05 and 99.0 % not below."""
 NOT_BELOW_SHARE = 0.99
 """Cells whose flown P_D is at least the prediction's less AGREE_PD."""
 TARGET_PD = 0.3
