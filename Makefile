@@ -19,7 +19,7 @@ e2e:  ## processes, Zenoh, the simulator, the browser, real firmware
 slow:  ## in memory, but long
 	$(PYTHON) -m pytest -q -m slow
 
-test:  ## every tier (about 35 minutes on 2 cores)
+test:  ## every tier (about 20 minutes on a quiet 2-core machine)
 	$(PYTHON) -m pytest -q
 
 base-install:  ## pip install . with no extra in /tmp: serve --check and evaluate
