@@ -48,8 +48,8 @@ if TYPE_CHECKING:
     from pdcov.core.camera import CameraModel
     from pdcov.core.geodesy import Origin
 
-__all__ = ["MAX_WAITING_SAMPLES", "PARAMS_ORIGIN", "CameraFrames", "FrameSink",
-           "TrackedSample"]
+__all__ = ["BATCH_OF_HISTORY", "MAX_WAITING_SAMPLES", "PARAMS_ORIGIN", "CameraFrames",
+           "FrameSink", "TrackedSample", "tracker_history_s"]
 
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 MAX_WAITING_SAMPLES = 2_000_000
@@ -58,6 +58,15 @@ TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample
 """The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
 FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel"], None]
 """Told of every frame a camera's grid took (after ``grid.update_with``)."""
+
+
+BATCH_OF_HISTORY = 0.25
+"""Frames evaluated at once span at most this share of the tracker's history."""
+
+
+def tracker_history_s(max_gap_s: float) -> float:
+    """Telemetry a camera's tracker keeps (s): max(20 s, 8 x max_gap_s)."""
+    return max(20.0, 8.0 * max_gap_s)
 
 
 class CameraFrames:
@@ -72,7 +81,7 @@ class CameraFrames:
         self.grid = grid
         self.frame_source = frame_source
         self.max_gap_s = max_gap_s
-        self.history_s = max(20.0, 8.0 * max_gap_s)
+        self.history_s = tracker_history_s(max_gap_s)
         self.min_height_m = min_height_m
         self.use_estimator = use_estimator
         self.skipped, self.faults = skipped, faults
@@ -172,7 +181,8 @@ class CameraFrames:
                 continue
             first_t = t
             batch: list[float] = []
-            while t is not None and t - (batch[0] if batch else t) <= 0.25 * self.history_s:
+            span_s = BATCH_OF_HISTORY * self.history_s
+            while t is not None and t - (batch[0] if batch else t) <= span_s:
                 self._feed(tr, t + 0.5 * self.history_s)
                 if not sched.decidable(t):
                     break

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pdcov.service.camera_frames import BATCH_OF_HISTORY, tracker_history_s
+
 if TYPE_CHECKING:
     from pdcov.config import Mission
 
@@ -31,8 +33,8 @@ BYTES_PER_BATCHED_FRAME = 2048
 def estimate_bytes(n_cells: int, frame_rates_hz: Sequence[float], max_gap_s: float) -> int:
     """The estimate (module docstring) for ``n_cells`` cells per camera grid and cameras at
     ``frame_rates_hz`` (Hz)."""
-    history_s = max(20.0, 8.0 * max_gap_s)
-    batch = sum(rate * 0.25 * history_s for rate in frame_rates_hz)
+    batch_s = BATCH_OF_HISTORY * tracker_history_s(max_gap_s)
+    batch = sum(rate * batch_s for rate in frame_rates_hz)
     cameras = len(frame_rates_hz) + (len(frame_rates_hz) > 1)  # and the combined grid
     return int(BASE_BYTES + n_cells * BYTES_PER_CELL * cameras
                + batch * BYTES_PER_BATCHED_FRAME)
