@@ -108,7 +108,8 @@ ORIGIN = Origin(-35.3, 149.1, 580.0)
 def document() -> dict:
     d = Detection(1.5, PERSON, np.array([3.0, 4.0, 0.0]), 0.5, candidate_id=0)
     c = Candidate(0, "person", np.array([3.0, 4.0, 0.0]), 0.4, hits=2, looks=5, pd=0.7,
-                  pfa=0.01, confidence=0.87, first_t_boot_s=1.5, last_t_boot_s=2.5)
+                  pfa=0.01, confidence=0.87, first_t_boot_s=1.5, last_t_boot_s=2.5,
+                  uid="uav1.a1b2c3.0", p_person=0.9)
     return detections_document([d], [c], ORIGIN, "uav1")
 
 

@@ -16,12 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CLASS_NAME_RULE", "Box", "Candidate", "Detection", "FrameBoxes", "valid_class_name"]
+__all__ = ["CLASS_NAME_RULE", "UID_RULE", "Box", "Candidate", "Detection", "FrameBoxes",
+           "valid_class_name", "valid_uid"]
 
 CLASS_NAME_RULE = ("1 to 64 printable ASCII characters, words separated by single spaces "
                    "(no leading or trailing space)")
 _CLASS_NAME = re.compile(r"[!-~]+(?: [!-~]+)*")
 _CLASS_NAME_MAX = 64
+UID_RULE = "1 to 100 characters of A-Z, a-z, 0-9, '.', '_', '-'"
+_UID = re.compile(r"[A-Za-z0-9._-]{1,100}")
 
 
 def valid_class_name(name: object) -> bool:
@@ -29,6 +32,11 @@ def valid_class_name(name: object) -> bool:
     it fits a log line and the recording's box marks (telemetry/recorded_frames.py)."""
     return (isinstance(name, str) and len(name) <= _CLASS_NAME_MAX
             and _CLASS_NAME.fullmatch(name) is not None)
+
+
+def valid_uid(uid: object) -> bool:
+    """True for a candidate uid (UID_RULE): it names the pin on the bus, in CoT and files."""
+    return isinstance(uid, str) and _UID.fullmatch(uid) is not None
 
 
 def _finite(*values: float) -> bool:
@@ -158,8 +166,12 @@ class Candidate:
     confidence: float
     first_t_boot_s: float
     last_t_boot_s: float
+    uid: str
+    p_person: float
 
     def __post_init__(self) -> None:
+        if not valid_uid(self.uid):
+            raise ValueError(f"candidate uid {self.uid!r}: expected {UID_RULE}")
         if not (isinstance(self.candidate_id, int) and self.candidate_id >= 0):
             raise ValueError(f"candidate_id {self.candidate_id!r}: expected an integer >= 0")
         if not valid_class_name(self.class_name):
@@ -171,7 +183,7 @@ class Candidate:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise ValueError(f"candidate {name} {v!r}: expected an integer >= 0")
-        for name in ("pd", "pfa", "confidence"):
+        for name in ("pd", "pfa", "confidence", "p_person"):
             v = getattr(self, name)
             if not (_finite(v) and 0.0 <= v <= 1.0):
                 raise ValueError(f"candidate {name} {v!r}: expected a number in [0, 1]")

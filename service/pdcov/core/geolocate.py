@@ -23,7 +23,7 @@ e rad to about h e m.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,10 +32,26 @@ from pdcov.core.detections import Box, valid_class_name
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
 
-__all__ = ["Geolocation", "box_ground_px", "ground_points_enu", "locate_boxes"]
+__all__ = ["Geolocation", "PositionAccuracy", "box_ground_px", "ground_points_enu", "locate_boxes"]
 
 _BISECTIONS = 60  # halvings of a march step: far below a millimetre
 _MAX_MARCH_STEPS = 100_000
+
+
+@dataclass(frozen=True, slots=True)
+class PositionAccuracy:
+    """The 1-sigma error of the vehicle's position the autopilot reports at a frame (m):
+    horizontal (per axis, east and north) and vertical (GPS_RAW_INT h_acc, v_acc)."""
+
+    horizontal_m: float
+    vertical_m: float
+
+    def __post_init__(self) -> None:
+        for name in ("horizontal_m", "vertical_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"position accuracy {name} {v!r}: expected a finite "
+                                 "number >= 0 (m)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,6 +77,14 @@ class Geolocation:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} {v!r}: expected a finite number >= 0")
+
+    def with_accuracy(self, accuracy: PositionAccuracy | None) -> Geolocation:
+        """These errors with the position's sigmas replaced by the reported ``accuracy``
+        (None: unchanged, the configured ones)."""
+        if accuracy is None:
+            return self
+        return replace(self, horizontal_sigma_m=accuracy.horizontal_m,
+                       vertical_sigma_m=accuracy.vertical_m)
 
     @property
     def sigmas(self) -> np.ndarray:

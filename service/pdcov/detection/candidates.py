@@ -87,7 +87,8 @@ class DetectionTracker:
     ``cell_size_m`` the grid's (the least gate)."""
 
     def __init__(self, camera: CameraModel, geolocation: Geolocation, cell_size_m: float,
-                 terrain: TerrainSurface | None = None, gate_sigmas: float = 3.0) -> None:
+                 terrain: TerrainSurface | None = None, gate_sigmas: float = 3.0,
+                 uid_prefix: str = "c") -> None:
         if not (math.isfinite(gate_sigmas) and gate_sigmas > 0):
             raise ValueError(f"gate_sigmas {gate_sigmas!r}: expected a positive number")
         self.camera = camera
@@ -95,6 +96,7 @@ class DetectionTracker:
         self.cell_size_m = float(cell_size_m)
         self.terrain = terrain
         self.gate_sigmas = float(gate_sigmas)
+        self.uid_prefix = uid_prefix
         self._groups: dict[int, _Group] = {}  # by candidate id, in id order
         self._per_class: Counter[str] = Counter()
         self._next_id = 0
@@ -192,5 +194,6 @@ class DetectionTracker:
             pfa = float(-np.expm1(float(grid.log_miss_fa[row, col]))) if inside else 0.0
             out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, looks,
                                  min(max(pd, 0.0), 1.0), min(max(pfa, 0.0), 1.0),
-                                 g.confidence, g.first_t_boot_s, g.last_t_boot_s))
+                                 g.confidence, g.first_t_boot_s, g.last_t_boot_s,
+                                 f"{self.uid_prefix}{i}", 0.0))
         return out
