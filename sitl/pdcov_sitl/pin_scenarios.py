@@ -52,7 +52,8 @@ from .pin_score import (
 from .targets import Targets, on_ground, place_targets
 
 __all__ = ["GROUP_SPACING_M", "RESTART_WITHIN_M", "FlightRecord", "PinScenario",
-           "RestartCheck", "Scores", "fly_scenario", "group_people", "noisy", "pin_scenarios", "score_flights"]
+           "RestartCheck", "Scores", "fly_scenario", "group_people", "noisy", "pin_scenarios",
+           "score_flights"]
 
 RESTART_WITHIN_M = 0.5
 """After a restart every candidate lies within this distance of where it was (m)."""
