@@ -1,6 +1,7 @@
 """Pins scored by person identity (issue 35, "Done when"): the score rules on hand-made
 records, then every scenario of ``pdcov_sitl.pin_scenarios`` flown in memory (two seeds
-each; ``python -m benchmarks.pins`` flies four and prints the table of docs/simulator.md)."""
+each, about 30 s in all: marked slow; ``python -m benchmarks.pins`` flies four and prints
+the table of docs/simulator.md)."""
 
 from __future__ import annotations
 
@@ -111,12 +112,14 @@ def scores() -> dict[str, Scores]:
 SCENARIOS = ("sparse", "dense groups", "oblique", "restart", "noisy detector")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_share_found_within_3_sd_of_prediction(scores, name):
     f = scores[name].found
     assert f.as_predicted, f"{name}: found {f.share:.3f} vs {f.predicted:.3f}, z {f.z:+.2f}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_no_pin_holds_two_boxes_of_one_frame_and_hits_never_exceed_looks(scores, name):
     s = scores[name]
@@ -125,12 +128,14 @@ def test_no_pin_holds_two_boxes_of_one_frame_and_hits_never_exceed_looks(scores,
     assert s.n_hits_over_looks == 0
 
 
+@pytest.mark.slow
 def test_groups_1_5_m_apart_stay_distinct(scores):
     m = scores["dense groups"].merges
     assert m.n_pins > 200
     assert m.two_people_share <= MAX_TWO_PEOPLE_SHARE, m
 
 
+@pytest.mark.slow
 def test_restart_keeps_every_candidate_in_place(scores):
     restarts = scores["restart"].restarts
     assert restarts is not None and len(restarts) == len(SEEDS)
@@ -140,6 +145,7 @@ def test_restart_keeps_every_candidate_in_place(scores):
         assert r.n_kept_at_end == r.n_candidates, r
 
 
+@pytest.mark.slow
 def test_p_person_calibrated_over_all_pins(scores):
     c = scores["all"].calibration
     assert c.n_high > 100 and c.n_low > 20, c
