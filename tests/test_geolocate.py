@@ -116,12 +116,12 @@ def _tracker(gate_sigmas: float = 3.0):
 
 
 def test_grouping_joins_within_the_gate_and_weights_by_variance():
-    # Pixel sigma 1.6 px at 20 m: 0.1 m per detection; gate max(3 * 0.14, 1 cell) = 1 m.
+    # Pixel sigma 1.6 px at 20 m: 0.1 m per detection; gate 3 * hypot(0.1, 0.1) = 0.42 m.
     t = _tracker()
     px_per_m = F_PX / H_M
     a = t.frame(nadir(), 1.0, [box_at(319.5, 239.5)])  # (0, 0)
-    b = t.frame(nadir(), 1.2, [box_at(319.5 + 0.8 * px_per_m, 239.5),  # 0.8 m east: joins
-                               box_at(319.5 + 3.0 * px_per_m, 239.5),  # 3 m: a new one
+    b = t.frame(nadir(), 1.2, [box_at(319.5 + 0.4 * px_per_m, 239.5),  # 0.4 m east: joins
+                               box_at(319.5 + 0.5 * px_per_m, 239.5),  # 0.5 m: a new one
                                box_at(319.5, 239.5, cls="truck")])  # another class
     assert [d.candidate_id for d in a + b] == [0, 0, 1, 2]
     from pdcov.config import load_mission
@@ -129,9 +129,10 @@ def test_grouping_joins_within_the_gate_and_weights_by_variance():
                         / "service/pdcov/data/demo_mission.yaml").new_grid()
     c0 = t.candidates(grid)[0]
     assert (c0.hits, c0.first_t_boot_s, c0.last_t_boot_s) == (2, 1.0, 1.2)
-    np.testing.assert_allclose(c0.r_enu_m, [0.4, 0, 0], atol=1e-9)  # equal weights: the mean
+    np.testing.assert_allclose(c0.r_enu_m, [0.2, 0, 0], atol=1e-9)  # equal weights: the mean
     assert c0.sigma_m == pytest.approx(0.1 / math.sqrt(2))
-    assert c0.looks == 0 and c0.pd == 0.0  # nothing evaluated yet
+    # No grid given to frame: each frame with a box a look and a hit; the grid's P_D 0.
+    assert c0.looks == 2 and c0.pd == 0.0
     assert [c.candidate_id for c in t.candidates(grid, [2, 0])] == [0, 2]
 
 
@@ -139,10 +140,11 @@ def test_grouping_is_deterministic_and_nearest_wins():
     def run():
         t = _tracker()
         px_per_m = F_PX / H_M
-        t.frame(nadir(), 1.0, [box_at(319.5, 239.5), box_at(319.5 + 1.5 * px_per_m, 239.5)])
-        # 0.9 m from the first, 0.6 m from the second: joins the second.
+        t.frame(nadir(), 1.0, [box_at(319.5, 239.5), box_at(319.5 + 0.6 * px_per_m, 239.5)])
+        # 0.35 m from the first, 0.25 m from the second (both in the 0.42 m gate): joins
+        # the second.
         return [(d.candidate_id, d.r_enu_m.tolist(), d.sigma_m)
-                for d in t.frame(nadir(), 1.1, [box_at(319.5 + 0.9 * px_per_m, 239.5)])]
+                for d in t.frame(nadir(), 1.1, [box_at(319.5 + 0.35 * px_per_m, 239.5)])]
     assert run()[0][0] == 1 and run() == run()
 
 

@@ -302,3 +302,27 @@ def test_grid_geometry_validation():
         GridGeometry(0, 0, -1, 3, 3)
     with pytest.raises(ValueError):
         CameraPose(np.eye(3) * 2, (0, 0, 1))
+
+
+def test_last_look_holds_the_frame_s_per_look_evidence_at_nadir():
+    # f = 500 px at 10 m: the cell under the camera is 50 px on a side (bin [40, 80), padded
+    # index 3: P_D 0.6) and 2500 px^2 (80 false boxes per Mpx: -rate A = -0.2).
+    grid = square_grid(min_revisit_s=1.0)
+    grid.update(pose(xyz=(0.5, 0.5, 10), t_s=0.0))
+    look = grid.last_look
+    assert look is not None and look.t_s == 0.0
+    rows, cols = np.array([40, 40, 0]), np.array([40, 39, 0])  # centre, its west, a far corner
+    counted, in_view, index, log_fa = look.look_at(rows, cols)
+    assert counted.tolist() == [True, True, False] and in_view.tolist() == [True, True, False]
+    assert index[0] == 3 and index[2] == 0
+    assert look.log_miss_d(index)[0] == pytest.approx(math.log(0.4), rel=1e-6)
+    assert log_fa[0] == pytest.approx(-80e-6 * 2500, rel=1e-6) and log_fa[2] == 0.0
+    assert grid.n_obs[40, 40] == 1 and grid.log_miss_d[40, 40] == pytest.approx(math.log(0.4))
+    # 0.2 s later: in view, but not a look on the revisit clock; its size bin is kept.
+    grid.update(pose(xyz=(0.5, 0.5, 10), t_s=0.2))
+    counted, in_view, index, log_fa = grid.last_look.look_at(rows[:1], cols[:1])
+    assert (counted[0], in_view[0], index[0]) == (False, True, 3)
+    assert log_fa[0] == pytest.approx(-0.2, rel=1e-6) and grid.n_obs[40, 40] == 1
+    # A frame that sees no cell leaves no look.
+    grid.update(pose(xyz=(0.5, 0.5, 10), cam_pitch_deg=90.0, t_s=2.0))
+    assert grid.last_look is None

@@ -422,6 +422,28 @@ class DetectionsSection:
                            self.horizontal_sigma_m, self.vertical_sigma_m, self.pixel_sigma_px)
 
 
+MAX_PEOPLE_PER_KM2 = 1e6
+"""The most people per km^2 ``search.prior_people_per_km2`` takes: one per m^2."""
+
+
+@dataclass(frozen=True, slots=True)
+class SearchSection:
+    """``search``: what the search assumes before any look: ``prior_people_per_km2``,
+    people expected per km^2 where no POA map is given (the prior of a candidate's
+    p_person, detection/candidates.py)."""
+
+    prior_people_per_km2: float = 1.0
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], src: str | None) -> SearchSection:
+        v = _number(doc, "prior_people_per_km2", src, "search",
+                    default=_defaults(cls)["prior_people_per_km2"])
+        if not 0 < v <= MAX_PEOPLE_PER_KM2:
+            raise ConfigError(f"{where(src, 'search.prior_people_per_km2')}: expected a "
+                              f"number > 0 and <= {MAX_PEOPLE_PER_KM2:g}, got {v!r}")
+        return cls(v)
+
+
 def _defaults(section: type) -> dict[str, Any]:
     """The default value of each field of a section dataclass that has one."""
     return {f.name: f.default for f in fields(section) if f.default is not MISSING}
@@ -448,6 +470,7 @@ MISSION_CONFIG = Section.of(
     log=Section.of_dataclass(LogSection),
     planning=Section.of_dataclass(PlanningSection),
     detections=Section.of_dataclass(DetectionsSection),
+    search=Section.of_dataclass(SearchSection),
     **dict.fromkeys(RESERVED_SECTIONS, Section(open=True)))
 
 
@@ -505,8 +528,9 @@ class Mission:
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
-    grouped). exposure_s: camera.exposure_s, the exposure time (s) motion blur is computed
-    over (None: not given, no blur effect).
+    grouped). prior_people_per_km2: ``search.prior_people_per_km2``. exposure_s:
+    camera.exposure_s, the exposure time (s) motion blur is computed over (None: not
+    given, no blur effect).
     zoom: the camera's zoom lens and reports (core/zoom.py; None: camera.zoom
     none, the configured K for every frame). extra_cameras: the ``cameras`` list's entries
     after the first (whose camera, mount, detector and zoom are the fields above, named
@@ -541,6 +565,7 @@ class Mission:
     terrain_max_home_offset_m: float = dem_rules.DEFAULT_MAX_HOME_OFFSET_M
     geolocation: Geolocation = Geolocation()
     gate_sigmas: float = 3.0
+    prior_people_per_km2: float = 1.0
     warnings: tuple[str, ...] = ()
     zoom: Zoom | None = None
     extra_cameras: tuple[MissionCamera, ...] = ()
@@ -690,6 +715,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
 
     cov = CoverageSection.from_mapping(_mapping(doc, "coverage", src, required=False), src)
     det = DetectionsSection.from_mapping(_mapping(doc, "detections", src, required=False), src)
+    search = SearchSection.from_mapping(_mapping(doc, "search", src, required=False), src)
     log_doc = _mapping(doc, "log", src, required=False)
     log = LogSection.from_mapping(log_doc, src)
     vehicle_id = doc.get("vehicle_id", "uav1")
@@ -715,6 +741,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         terrain_max_home_offset_m=(ter.max_home_offset_m if ter
                                    else dem_rules.DEFAULT_MAX_HOME_OFFSET_M),
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
+        prior_people_per_km2=search.prior_people_per_km2,
         warnings=tuple(warnings), zoom=zoom, extra_cameras=tuple(cameras[1:]),
         camera_name=first.name, source=src, raw=doc)
 

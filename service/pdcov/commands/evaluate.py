@@ -183,7 +183,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
         detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes,
-                                       cameras)
+                                       cameras, poa=None if prior is None else prior.poa)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)

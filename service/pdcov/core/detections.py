@@ -149,10 +149,12 @@ class Candidate:
 
     candidate_id: >= 0, unique in a flight. class_name: the detections' class.
     r_enu_m (3,): the inverse-variance weighted mean of their ground points (ENU m).
-    sigma_m: its 1-sigma horizontal uncertainty (m). hits: detections grouped.
-    looks: frames that had its cell in view (the grid's n_obs there). pd, pfa: the cell's
-    cumulative P_D and P_FA. confidence: the best detection's. first_t_boot_s,
-    last_t_boot_s: its first and last detection (autopilot boot clock, s).
+    sigma_m: its 1-sigma horizontal uncertainty (m). looks: the counted looks of its cell
+    (the grid's revisit clock); hits: those of them with a box in its gate (<= looks).
+    pd, pfa: the cell's cumulative P_D and P_FA. uid: unique across restarts and vehicles
+    (UID_RULE). p_person: the probability that a person is within its gate. confidence:
+    the best detection's. first_t_boot_s, last_t_boot_s: its first and last detection
+    (autopilot boot clock, s).
     """
 
     candidate_id: int
@@ -183,6 +185,9 @@ class Candidate:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise ValueError(f"candidate {name} {v!r}: expected an integer >= 0")
+        if self.hits > self.looks:
+            raise ValueError(f"candidate hits {self.hits}: more than its looks {self.looks} "
+                             "(at most one hit per look)")
         for name in ("pd", "pfa", "confidence", "p_person"):
             v = getattr(self, name)
             if not (_finite(v) and 0.0 <= v <= 1.0):

@@ -270,6 +270,12 @@ class DetectorModel:
         rate = self.padded_fa_rate_per_px2_by_blur()[: self.n_bins + 2]
         return -np.expm1(-rate[self.bin_index(size_px)] * np.asarray(area_px2, dtype=float))
 
+    def confidence_log_lr(self, size_px: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+        """log f_TP(c | size bin) / f_FP(c | size bin) per box (float64) of boxes of
+        ``size_px`` (detector-input px) and ``confidence``: the confidence as evidence
+        that a box is a person. 0 for every box: this model has no confidence section."""
+        return np.zeros(np.broadcast(np.asarray(size_px), np.asarray(confidence)).shape)
+
     def image_to_input_scale(self, width_px: int, height_px: int) -> float:
         """Factor from image pixels to detector-input pixels for an image of this size."""
         if self.input_size_px is None:

@@ -153,6 +153,57 @@ class GridCamera:
 
 
 @dataclass(frozen=True, slots=True)
+class LastLook:
+    """What ``CoverageGrid.update`` saw of one frame's cells, for the candidates
+    (detection/candidates.py): ``window`` (r0, r1, c0, c1), and per cell of it (arrays of
+    the window's shape): ``in_view`` (observed: in the picture, within range, not hidden),
+    ``counted`` (observed and past the revisit clock: a look, counted in ``n_obs``),
+    ``size_index`` (the detector's padded size bin index, meaningful where in view),
+    ``bin_index`` (the padded table index ``blur_row * (N + 2) + size_index`` the look was
+    counted with; 0 where not counted) and ``area_px2`` (the cell's image area inside the
+    picture, image px^2, meaningful where in view); ``tables``: the per-look tables the
+    frame used, (log(1 - P_D), log(1 - P_FA) per image px^2 = -rate size_scale^2), indexed
+    by the table index. The arrays are the update's own (no copy): read, never write."""
+
+    t_s: float
+    window: tuple[int, int, int, int]
+    in_view: np.ndarray
+    counted: np.ndarray
+    size_index: np.ndarray
+    bin_index: np.ndarray
+    area_px2: np.ndarray
+    tables: tuple[np.ndarray, np.ndarray]
+
+    def _local(self, rows: np.ndarray, cols: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Window-local indices of grid cells (rows, cols) and whether each is inside."""
+        r0, r1, c0, c1 = self.window
+        rows, cols = np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp)
+        inside = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+        return np.where(inside, rows - r0, 0), np.where(inside, cols - c0, 0), inside
+
+    def look_at(self, rows: np.ndarray, cols: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per grid cell (rows, cols): (counted, in_view, table index, log(1 - P_FA)) of
+        this frame's look: the table index the look was counted with, or for a cell in view
+        but not counted (the revisit clock) its size bin by size only (blur unknown); 0
+        (P_D = P_FA = 0) for a cell not in view or outside the window. log(1 - P_FA) =
+        -rate A_px, the look's expected false boxes over the cell's image, negated."""
+        lr, lc, inside = self._local(rows, cols)
+        counted = inside & self.counted[lr, lc]
+        in_view = inside & self.in_view[lr, lc]
+        index = np.where(counted, self.bin_index[lr, lc],
+                         np.where(in_view, self.size_index[lr, lc], 0))
+        log_fa = np.where(in_view, self.tables[1].take(index).astype(np.float64)
+                          * self.area_px2[lr, lc], 0.0)
+        return counted, in_view, index, log_fa
+
+    def log_miss_d(self, index: np.ndarray) -> np.ndarray:
+        """log(1 - P_D) (float64, <= 0) of a look at table ``index`` (``look_at``)."""
+        return self.tables[0].take(index).astype(np.float64)
+
+
+@dataclass(frozen=True, slots=True)
 class Metrics:
     """Summary of a grid. Proportions are of free cells; false alarms sum P_FA over observed
     free cells; limiting_cells counts free cells by LimitingFactor name (lower case)."""
@@ -234,6 +285,8 @@ class CoverageGrid:
         # The cells (r0, r1, c0, c1) the latest update may have changed, None for none: a
         # subscriber (the daemon's tiles and status) re-reads only those.
         self.touched: tuple[int, int, int, int] | None = None
+        # The latest update's look of the cells of its window (None: no cell in view).
+        self.last_look: LastLook | None = None
 
     # -- results ----------------------------------------------------------------------------
 
@@ -383,6 +436,7 @@ class CoverageGrid:
         """
         t = float(pose.t_s if t_s is None else t_s)
         self.touched = None
+        self.last_look = None
         if self.last_obs_s is not None:
             if not math.isfinite(t):
                 raise ValueError(f"min_revisit_s needs frame times: pose.t_s or t_s, got {t}")
@@ -407,18 +461,21 @@ class CoverageGrid:
         limiting = self.limiting[r0:r1, c0:c1]
         np.maximum(limiting, np.where(observed, self._seen_code.take(idx * observed), reach),
                    out=limiting)
+        in_view, size_idx = observed, idx
         if self.last_obs_s is not None:
             if self.min_revisit_s is None:  # only if min_revisit_s was cleared after __init__
                 raise TypeError("min_revisit_s is None but last_obs_s is kept")
             last = self.last_obs_s[r0:r1, c0:c1]
-            observed &= (t - last) >= self.min_revisit_s - _REVISIT_TOL_S
+            observed = observed & ((t - last) >= self.min_revisit_s - _REVISIT_TOL_S)
             last[observed] = t
         # Unobserved cells take index 0, whose log-miss is 0: the additions below are dense
         # over the window (cheaper than masked scatters) and leave those cells unchanged.
-        idx *= observed
+        idx = idx * observed
         if blurred:
             idx += self._blur_rows(pose, window, observed) * (self.detector.n_bins + 2)
         tab_d, tab_fa = self._log_miss_tables
+        self.last_look = LastLook(t, window, in_view, observed, size_idx, idx, area_px2,
+                                  self._log_miss_tables)
         if self._looks is None:
             self._log_miss_d[r0:r1, c0:c1] += tab_d.take(idx)
         else:

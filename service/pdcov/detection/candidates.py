@@ -1,17 +1,42 @@
-"""Detections of one target across frames grouped into one candidate, with no I/O: the one
-rule the daemon and ``pdcov evaluate`` both run (``DetectionTracker``), so that the
-detections and candidates of a flight are the same live and offline.
+"""Detections of one target across frames grouped into one candidate (a pin), with no
+I/O: the one rule the daemon and ``pdcov evaluate`` both run (``DetectionTracker``), so that
+the detections and candidates of a flight are the same live and offline (docs/service.md
+"Detections").
 
-``DetectionTracker.frame`` takes one decided frame's pose and boxes, geolocates the boxes
-(core/geolocate.py) and groups each: it joins the nearest candidate of its class whose
-mean lies within the gate -- ``gate_sigmas`` times the combined 1-sigma (sqrt(sigma_d^2 +
-sigma_c^2)), and never less than one cell -- else it starts a new candidate (ids 0, 1, 2,
-... in order; of equally near candidates the oldest). A candidate's position is the
-inverse-variance weighted mean of its detections' ground points (weights 1 / sigma^2,
-sigma at least 1 mm), its sigma sqrt(1 / sum of weights). Looks, P_D and P_FA are the
-grid's at the candidate's cell when ``candidates`` is called (0 outside the grid): the
-operator sees "seen 14 times, detected 9". Deterministic: the same frames in the same order
-give the same candidates.
+``DetectionTracker.frame`` takes one decided frame's pose, boxes and the grid that just
+took it (``CoverageGrid.last_look``), geolocates the boxes (core/geolocate.py, with the
+position accuracy the autopilot reported for the frame when known) and:
+
+1. **Distinct.** Assigns the frame's boxes to candidates jointly
+   (``scipy.optimize.linear_sum_assignment`` on ground distance; pairs of different classes
+   or beyond the gate forbidden): at most one box of a frame joins a candidate; the boxes
+   left start new candidates (ids continue from ``next_id``, in box order).
+2. **Gate.** ``gate_sigmas`` * hypot(sigma_box, sigma_candidate), at least GATE_FLOOR_M.
+   A candidate's position is the inverse-variance weighted mean of its detections' ground
+   points (weights 1 / sigma^2, sigma at least 1 mm), its sigma sqrt(1 / sum of weights).
+3. **Hits per look.** ``looks``: the counted looks (the grid's revisit clock) of the
+   candidate's cell: the cell's ``n_obs`` when it is born (its birth frame's look included
+   when counted), then one per frame that counts a look of its cell. ``hits``: a box in a
+   frame that counted a look of its cell is a hit; a box in a frame between counted looks
+   turns the last counted look into a hit if it was a miss; never more: hits <= looks.
+4. **p_person.** Prior log-odds (``PeoplePrior`` at its cell over the gate's area
+   pi gate_m^2, gate_m = ``gate_sigmas`` * sqrt(2) * the first box's sigma, fixed at birth)
+   plus the evidence of each look (detection/pin_evidence.py): a miss log(1 - p), a hit
+   log((1 - (1 - p) e^-lambda) / (1 - e^-lambda)) plus the box's confidence evidence
+   (``DetectorModel.confidence_log_lr``); p the look's P_D (the grid's per-look table at the
+   cell's size and blur), lambda the look's -log(1 - P_FA) of the cell times
+   A_gate / A_cell. The looks before birth are misses: the cell's cumulative log P_miss
+   before the birth frame's look. With correlated looks (``coverage.looks: correlated``)
+   the looks' log LR is kept per ``core.looks.QUADRATURE`` node and combined with the
+   weights. A box in a frame between counted looks (its look uncounted by the revisit
+   clock) is weighed with that frame's P_D by size only; a newborn candidate's upgraded
+   pre-birth look is taken to have had the birth frame's P_D.
+5. **Durable ids.** ``uid`` = ``uid_prefix`` + candidate id; ``to_doc`` / ``load_doc``
+   (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal) carry the whole state
+   across a restart: a restored tracker continues exactly as the one it was saved from.
+
+Without a grid (``frame(grid=None)``) a frame is a look of the candidates it gives a box
+(each a hit) and no evidence: looks and hits but no P_D to weigh.
 
 Budgeted: at most MAX_CANDIDATES_PER_CLASS candidates of one class and
 MAX_TRACKED_CANDIDATES in all. When a box would start one more, the stalest unconfirmed
@@ -19,28 +44,40 @@ candidate (fewer than CONFIRMED_HITS hits, the oldest last detection) of its cla
 any class when the whole table is full -- is evicted for it (``Skip.EVICTED``); a confirmed
 candidate is never evicted for a new one: with none to evict, the box is counted
 (``Skip.TOO_MANY_CANDIDATES``). 10,000 invented classes thus cannot keep a real person's
-detection from making a candidate.
+detection from making a candidate. Deterministic: the same frames in the same order give
+the same candidates.
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
-from pdcov.core.detections import Box, Candidate, Detection
-from pdcov.core.geolocate import Geolocation, locate_boxes
-from pdcov.core.grid import CoverageGrid
+from pdcov.core.detections import Box, Candidate, Detection, valid_class_name
+from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
+from pdcov.core.grid import CoverageGrid, LastLook
+from pdcov.core.looks import QUADRATURE, CorrelatedLooks
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
+from pdcov.detection.pin_evidence import (
+    PeoplePrior,
+    hit_log_lr,
+    log_lr_of_nodes,
+    miss_log_lr,
+    p_person,
+    prior_log_odds,
+)
 
-__all__ = ["CONFIRMED_HITS", "MAX_CANDIDATES_PER_CLASS", "MAX_TRACKED_CANDIDATES",
-           "DetectionTracker", "Skip"]
+__all__ = ["CONFIRMED_HITS", "GATE_FLOOR_M", "MAX_CANDIDATES_PER_CLASS",
+           "MAX_TRACKED_CANDIDATES", "STATE_VERSION", "DetectionTracker", "Skip"]
 
 MAX_TRACKED_CANDIDATES = 10_000
 """Most candidates held at once (bus.detections.MAX_CANDIDATES)."""
@@ -48,7 +85,12 @@ MAX_CANDIDATES_PER_CLASS = 2_000
 """Most candidates of one class held at once."""
 CONFIRMED_HITS = 2
 """A candidate detected this many times is confirmed: never evicted for a new one."""
+GATE_FLOOR_M = 0.05
+"""The least association gate (m): people 1.5 m apart stay apart at any sigma."""
+STATE_VERSION = 1
+"""Version of ``to_doc``'s document."""
 _MIN_SIGMA_M = 1e-3
+_N_NODES = len(QUADRATURE.q)
 
 
 class Skip:
@@ -63,14 +105,31 @@ class Skip:
 
 
 @dataclass(slots=True)
+class _Look:
+    """A candidate's last counted look: whether it was a hit, and what a miss there is
+    turned into a hit with: its per-look log(1 - P_D), lambda (false boxes expected in the
+    gate) and table index (for the quadrature nodes)."""
+
+    hit: bool
+    log_miss_d: float
+    lam: float
+    index: int
+
+
+@dataclass(slots=True)
 class _Group:
     class_name: str
     sum_w: float
     sum_wr: np.ndarray  # (3,) sum of weight * ground point
     hits: int
+    looks: int
     confidence: float
     first_t_boot_s: float
     last_t_boot_s: float
+    gate_m: float  # the gate radius at birth: the area of its prior and lambda (m)
+    log_lr: float  # evidence not per node: every look's without nodes, confidences' always
+    log_lr_nodes: np.ndarray | None  # (J,) looks' log LR per quadrature node (correlated)
+    look: _Look | None  # its last counted look
 
     @property
     def r_enu_m(self) -> np.ndarray:
@@ -80,15 +139,44 @@ class _Group:
     def sigma_m(self) -> float:
         return math.sqrt(1.0 / self.sum_w)
 
+    def add_point(self, r: np.ndarray, sigma_m: float) -> None:
+        w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
+        self.sum_w += w
+        self.sum_wr = self.sum_wr + w * r
+
+    def log_odds_evidence(self) -> float:
+        """The sum of its looks' and confidences' log LR."""
+        nodes = 0.0 if self.log_lr_nodes is None else log_lr_of_nodes(self.log_lr_nodes)
+        return self.log_lr + nodes
+
+
+@dataclass(frozen=True, slots=True)
+class _FrameLooks:
+    """The grid's look of one frame, as the tracker weighs it: the grid, its look, and the
+    correlated looks state (None: independent or viewpoint looks)."""
+
+    grid: CoverageGrid
+    look: LastLook | None
+    nodes: CorrelatedLooks | None
+
+    def node_log1m(self, index: int) -> np.ndarray:
+        """log(1 - Q(q_j)) (J,) of a look at table ``index``: 0 outside the size bins."""
+        assert self.nodes is not None
+        slot = int(self.nodes.slot[index])
+        return self.nodes.log1m_nodes[slot] if slot >= 0 else np.zeros(_N_NODES)
+
 
 class DetectionTracker:
     """Geolocates and groups the boxes of decided frames (module docstring): ``camera``,
     ``geolocation`` and ``terrain`` (None: the plane z = 0) as the coverage grid's;
-    ``cell_size_m`` the grid's (the least gate)."""
+    ``cell_size_m`` the grid's; ``uid_prefix`` the candidates' uid before their id
+    ("<vehicle_id>.<epoch>."); ``prior_people_per_m2`` people per m^2 before any look:
+    a number, or per grid cell an (n_rows, n_cols) array (``PeoplePrior``)."""
 
     def __init__(self, camera: CameraModel, geolocation: Geolocation, cell_size_m: float,
                  terrain: TerrainSurface | None = None, gate_sigmas: float = 3.0,
-                 uid_prefix: str = "c") -> None:
+                 uid_prefix: str = "", prior_people_per_m2: float | np.ndarray = 1e-6
+                 ) -> None:
         if not (math.isfinite(gate_sigmas) and gate_sigmas > 0):
             raise ValueError(f"gate_sigmas {gate_sigmas!r}: expected a positive number")
         self.camera = camera
@@ -97,67 +185,208 @@ class DetectionTracker:
         self.terrain = terrain
         self.gate_sigmas = float(gate_sigmas)
         self.uid_prefix = uid_prefix
+        self.prior = PeoplePrior(prior_people_per_m2)
         self._groups: dict[int, _Group] = {}  # by candidate id, in id order
         self._per_class: Counter[str] = Counter()
         self._next_id = 0
         self.skipped: Counter[str] = Counter()
 
     @classmethod
-    def for_mission(cls, mission: Mission) -> DetectionTracker:
-        """The tracker of ``mission``'s camera, terrain, cells and ``detections`` section."""
+    def for_mission(cls, mission: Mission, uid_prefix: str = "",
+                    poa: np.ndarray | None = None) -> DetectionTracker:
+        """The tracker of ``mission``'s camera, terrain, cells, ``detections`` and
+        ``search`` sections; ``poa``: a probability of area per cell (``pdcov evaluate
+        --prior``) for the prior instead of ``search.prior_people_per_km2``."""
+        prior = (mission.prior_people_per_km2 / 1e6 if poa is None
+                 else PeoplePrior.from_poa(poa, mission.cell_size_m).per_m2)
         return cls(mission.camera, mission.geolocation, mission.cell_size_m, mission.terrain,
-                   mission.gate_sigmas)
+                   mission.gate_sigmas, uid_prefix, prior)
 
     def __len__(self) -> int:
         return len(self._groups)
 
+    @property
+    def next_id(self) -> int:
+        """The id the next new candidate takes."""
+        return self._next_id
+
+    # -- frames -----------------------------------------------------------------------------
+
     def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box],
-              camera: CameraModel | None = None) -> list[Detection]:
+              camera: CameraModel | None = None, accuracy: PositionAccuracy | None = None,
+              grid: CoverageGrid | None = None) -> list[Detection]:
         """The detections of one decided frame's ``boxes`` (its time ``t_boot_s``, autopilot
         boot clock, s; ``pose`` the one the grid took; ``camera`` the frame's own, a zoomed
-        lens, None: the tracker's), each grouped into a candidate; the boxes not geolocated
-        are counted in ``skipped``."""
+        lens, None: the tracker's; ``accuracy`` the position accuracy the autopilot
+        reported, None: the configured sigmas), each grouped into a candidate; the boxes
+        not geolocated are counted in ``skipped``. ``grid``: the grid that just took this
+        frame (its ``last_look``): the looks, hits and evidence of the candidates it had in
+        view; give every frame it takes, with boxes or none (a look without a box is a
+        miss)."""
         boxes = tuple(boxes)
-        points, sigmas = locate_boxes(camera or self.camera, pose, boxes, self.geolocation,
-                                      self.terrain)
+        camera = camera or self.camera
+        points, sigmas = locate_boxes(camera, pose, boxes, self.geolocation.with_accuracy(
+            accuracy), self.terrain)
+        located = [k for k in range(len(boxes)) if np.isfinite(sigmas[k])]
+        self.skipped[Skip.OFF_GROUND] += len(boxes) - len(located)
+        assigned = self._assign([boxes[k] for k in located], points[located], sigmas[located])
+        looks = None if grid is None else _FrameLooks(
+            grid, grid.last_look,
+            grid.looks_state if isinstance(grid.looks_state, CorrelatedLooks) else None)
+        scale = (1.0 if grid is None else
+                 grid.base_detector.image_to_input_scale(camera.width_px, camera.height_px))
+        hit_by: dict[int, Box] = {}
+        first_new = self._next_id
         out = []
-        for box, r, sigma in zip(boxes, points, sigmas, strict=True):
-            if not np.isfinite(sigma):
-                self.skipped[Skip.OFF_GROUND] += 1
-                continue
-            cid = self._group(box, r, float(sigma), t_boot_s)
+        for k, cid in zip(located, assigned, strict=True):
+            box, r, sigma = boxes[k], points[k], float(sigmas[k])
             if cid is None:
-                self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
-                continue
-            out.append(Detection(t_boot_s, box, r, float(sigma), cid))
+                cid = self._start(box, r, sigma, t_boot_s, looks, scale)
+                if cid is None:
+                    self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
+                    continue
+            else:
+                g = self._groups[cid]
+                g.add_point(r, sigma)
+                g.confidence = max(g.confidence, box.confidence)
+                g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
+                g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
+                hit_by[cid] = box
+            out.append(Detection(t_boot_s, box, r, sigma, cid))
+        if looks is None:
+            for g in (self._groups[cid] for cid in hit_by if cid in self._groups):
+                g.looks += 1
+                g.hits += 1
+        else:
+            self._weigh_looks(looks, hit_by, scale, first_new)
         return out
 
-    def _group(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float) -> int | None:
-        best, best_d = None, math.inf
-        for i, g in self._groups.items():
-            if g.class_name != box.class_name:
-                continue
-            d = float(np.hypot(*(g.r_enu_m[:2] - r[:2])))
-            gate = max(self.gate_sigmas * math.hypot(sigma_m, g.sigma_m), self.cell_size_m)
-            if d <= gate and d < best_d:
-                best, best_d = i, d
+    def _assign(self, boxes: list[Box], points: np.ndarray, sigmas: np.ndarray
+                ) -> list[int | None]:
+        """Per box, the candidate it joins (None: none): the assignment of least total
+        ground distance among the pairs of one class within the gate, as many pairs as
+        can be."""
+        n = len(boxes)
+        if not n or not self._groups:
+            return [None] * n
+        ids = np.fromiter(self._groups, dtype=np.int64, count=len(self._groups))
+        groups = list(self._groups.values())
+        pos = np.array([g.r_enu_m[:2] for g in groups])
+        sig = np.array([g.sigma_m for g in groups])
+        reach = self.gate_sigmas * math.hypot(float(sigmas.max()), float(sig.max()))
+        lo, hi = points[:, :2].min(axis=0) - reach, points[:, :2].max(axis=0) + reach
+        near = np.flatnonzero(((pos >= lo) & (pos <= hi)).all(axis=1))
+        if not len(near):
+            return [None] * n
+        names = sorted({b.class_name for b in boxes})
+        code = {c: i for i, c in enumerate(names)}
+        box_class = np.array([code[b.class_name] for b in boxes])
+        cand_class = np.array([code.get(groups[j].class_name, -1) for j in near])
+        d = np.hypot(*(points[:, None, :2] - pos[None, near]).transpose(2, 0, 1))
+        gate = np.maximum(self.gate_sigmas * np.hypot(sigmas[:, None], sig[None, near]),
+                          GATE_FLOOR_M)
+        ok = (d <= gate) & (box_class[:, None] == cand_class[None, :])
+        out: list[int | None] = [None] * n
+        if not ok.any():
+            return out
+        big = 1.0 + float(d[ok].sum())  # more than any set of allowed pairs costs
+        rows, cols = linear_sum_assignment(np.where(ok, d, big))
+        for i, j in zip(rows, cols, strict=True):
+            if ok[i, j]:
+                out[int(i)] = int(ids[near[j]])
+        return out
+
+    def _start(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float,
+               looks: _FrameLooks | None, scale: float) -> int | None:
+        """A new candidate of one box (None: no room), with the looks of its cell so far:
+        the cell's counted looks all misses (its cumulative log P_miss), then the box makes
+        the last of them a hit (this frame's when counted, else the last before, taken to
+        have had this frame's P_D)."""
+        if not self._make_room(box.class_name):
+            return None
         w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
-        if best is None:
-            if not self._make_room(box.class_name):
-                return None
-            cid, self._next_id = self._next_id, self._next_id + 1
-            self._groups[cid] = _Group(box.class_name, w, w * r, 1, box.confidence,
-                                       t_boot_s, t_boot_s)
-            self._per_class[box.class_name] += 1
+        gate_m = max(self.gate_sigmas * math.sqrt(2.0) * sigma_m, GATE_FLOOR_M)
+        g = _Group(box.class_name, w, w * r, 0, 0, box.confidence, t_boot_s, t_boot_s,
+                   gate_m, 0.0, None, None)
+        cid, self._next_id = self._next_id, self._next_id + 1
+        self._groups[cid] = g
+        self._per_class[box.class_name] += 1
+        if looks is None:
+            g.looks = g.hits = 1
             return cid
-        g = self._groups[best]
-        g.sum_w += w
-        g.sum_wr = g.sum_wr + w * r
+        grid = looks.grid
+        geo = grid.geometry
+        row, col = (int(v) for v in geo.cell_of(r[0], r[1]))
+        if not (0 <= row < geo.n_rows and 0 <= col < geo.n_cols):
+            return cid
+        g.looks = int(grid.n_obs[row, col])
+        if not g.looks:  # no look yet: nothing to make a hit
+            return cid
+        log_miss_d, lam, index = 0.0, 0.0, 0
+        if looks.look is not None:
+            _, _, at, log_fa = looks.look.look_at(np.array([row]), np.array([col]))
+            index = int(at[0])
+            log_miss_d = float(looks.look.log_miss_d(at)[0])
+            lam = -float(log_fa[0]) * math.pi * gate_m**2 / geo.cell_size_m**2
+        if looks.nodes is not None:
+            g.log_lr_nodes = grid.log_miss_nodes((row, row + 1, col, col + 1))[0, 0].copy()
+        else:
+            g.log_lr = float(grid.log_miss_d[row, col])
+        g.look = _Look(False, log_miss_d, lam, index)
+        self._hit(looks, g, box, scale)
+        return cid
+
+    def _weigh_looks(self, looks: _FrameLooks, hit_by: Mapping[int, Box], scale: float,
+                     first_new: int) -> None:
+        """Count this frame's looks of the cells of the candidates older than ``first_new``
+        (the id of the first born in this frame) and weigh them: a counted look a miss,
+        then each box (``hit_by``, by candidate) makes its candidate's last counted look a
+        hit if it was a miss (module docstring)."""
+        last = looks.look
+        ids = [i for i in self._groups if i < first_new]
+        if last is not None and ids:
+            geo = looks.grid.geometry
+            pos = np.array([self._groups[i].r_enu_m[:2] for i in ids])
+            counted, _, index, log_fa = last.look_at(*geo.cell_of(pos[:, 0], pos[:, 1]))
+            log_miss_d = last.log_miss_d(index)
+            per_gate_m2 = math.pi / geo.cell_size_m**2
+            for k in np.flatnonzero(counted):
+                g = self._groups[ids[k]]
+                g.looks += 1
+                g.look = _Look(False, float(log_miss_d[k]),
+                               -float(log_fa[k]) * per_gate_m2 * g.gate_m**2, int(index[k]))
+                self._add_evidence(looks, g, g.look, miss=True)
+        for cid, box in hit_by.items():
+            hit = self._groups.get(cid)  # None: evicted for a box of this frame
+            if hit is not None:
+                self._hit(looks, hit, box, scale)
+
+    def _hit(self, looks: _FrameLooks, g: _Group, box: Box, scale: float) -> None:
+        """A box in ``g``'s gate: its last counted look becomes a hit if it was a miss
+        (its miss evidence replaced by a hit's, and the box's confidence evidence)."""
+        look = g.look
+        if look is None or look.hit:
+            return
+        self._add_evidence(looks, g, look, miss=False)
+        look.hit = True
         g.hits += 1
-        g.confidence = max(g.confidence, box.confidence)
-        g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
-        g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
-        return best
+        size_px = scale * math.sqrt(box.width_px * box.height_px)
+        g.log_lr += float(looks.grid.base_detector.confidence_log_lr(
+            np.array([size_px]), np.array([box.confidence]))[0])
+
+    @staticmethod
+    def _add_evidence(looks: _FrameLooks, g: _Group, look: _Look, miss: bool) -> None:
+        """Add a miss's log LR of ``look`` (``miss``), or turn its miss into a hit."""
+        if looks.nodes is not None:
+            log1m = looks.node_log1m(look.index)
+            if g.log_lr_nodes is None:
+                g.log_lr_nodes = np.zeros(_N_NODES)
+            p = -np.expm1(log1m)
+            g.log_lr_nodes = g.log_lr_nodes + (
+                miss_log_lr(p) if miss else hit_log_lr(p, look.lam) - miss_log_lr(p))
+            return
+        p = -math.expm1(look.log_miss_d)
+        g.log_lr += float(miss_log_lr(p) if miss else hit_log_lr(p, look.lam) - miss_log_lr(p))
 
     def _make_room(self, class_name: str) -> bool:
         """Room for one more candidate of ``class_name`` (module docstring), evicting the
@@ -176,24 +405,176 @@ class DetectionTracker:
         self.skipped[Skip.EVICTED] += 1
         return True
 
+    # -- results ----------------------------------------------------------------------------
+
     def candidates(self, grid: CoverageGrid, ids: Iterable[int] | None = None
                    ) -> list[Candidate]:
-        """The candidates ``ids`` (all when None; an evicted one is left out), in id order,
-        with the looks, P_D and P_FA ``grid`` holds at their cells now."""
+        """The candidates ``ids`` (all when None; an evicted one is left out), in id order:
+        their own looks and hits, p_person, and the cumulative P_D and P_FA ``grid`` (the
+        published one) holds at their cells now (0 outside it)."""
         chosen = (list(self._groups) if ids is None
                   else sorted(i for i in set(ids) if i in self._groups))
-        g_ = grid.geometry
+        geo = grid.geometry
         out = []
         for i in chosen:
             g = self._groups[i]
             r = g.r_enu_m
-            row, col = (int(v) for v in g_.cell_of(r[0], r[1]))
-            inside = 0 <= row < g_.n_rows and 0 <= col < g_.n_cols
-            looks = int(grid.n_obs[row, col]) if inside else 0
+            row, col = (int(v) for v in geo.cell_of(r[0], r[1]))
+            inside = 0 <= row < geo.n_rows and 0 <= col < geo.n_cols
             pd = float(-np.expm1(float(grid.log_miss_d[row, col]))) if inside else 0.0
             pfa = float(-np.expm1(float(grid.log_miss_fa[row, col]))) if inside else 0.0
-            out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, looks,
+            log_odds = (prior_log_odds(self.prior.at(row, col), math.pi * g.gate_m**2)
+                        + g.log_odds_evidence())
+            out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, g.looks,
                                  min(max(pd, 0.0), 1.0), min(max(pfa, 0.0), 1.0),
                                  g.confidence, g.first_t_boot_s, g.last_t_boot_s,
-                                 f"{self.uid_prefix}{i}", 0.0))
+                                 f"{self.uid_prefix}{i}", p_person(log_odds)))
         return out
+
+    # -- state ------------------------------------------------------------------------------
+
+    def to_doc(self) -> dict[str, Any]:
+        """The whole state, JSON-able (floats exact through ``json``): {"version",
+        "next_id", "candidates": [``candidate_docs``]}."""
+        return {"version": STATE_VERSION, "next_id": self._next_id,
+                "candidates": self.candidate_docs(self._groups)}
+
+    def candidate_docs(self, ids: Iterable[int]) -> list[dict[str, Any]]:
+        """The states of the candidates ``ids`` held (an evicted one left out), in id
+        order."""
+        return [_group_doc(i, self._groups[i])
+                for i in sorted(set(ids)) if i in self._groups]
+
+    def load_doc(self, doc: Mapping[str, Any]) -> None:
+        """Replace the state with ``to_doc``'s document (ValueError naming the field that is
+        wrong; nothing changed then)."""
+        if not isinstance(doc, Mapping):
+            raise ValueError(f"candidates state: expected a mapping, got {type(doc).__name__}")
+        if doc.get("version") != STATE_VERSION:
+            raise ValueError(f"candidates state version {doc.get('version')!r}: expected "
+                             f"{STATE_VERSION}")
+        docs = doc.get("candidates")
+        if not isinstance(docs, list):
+            raise ValueError("candidates state candidates: expected a list")
+        groups = _groups_of(docs, "candidates state candidates")
+        next_id = _next_id_of(doc.get("next_id"), groups)
+        self._groups = dict(sorted(groups.items()))
+        self._per_class = Counter(g.class_name for g in self._groups.values())
+        self._next_id = next_id
+
+    def apply_candidate_docs(self, docs: list[dict[str, Any]], next_id: int) -> None:
+        """Set the candidates of ``docs`` (``candidate_docs``: a journal's entry) and the
+        next id (ValueError naming the field that is wrong; nothing changed then)."""
+        if not isinstance(docs, list):
+            raise ValueError("candidate docs: expected a list")
+        groups = _groups_of(docs, "candidate docs")
+        next_id = _next_id_of(next_id, {**self._groups, **groups})
+        for i, g in groups.items():
+            old = self._groups.get(i)
+            if old is not None:
+                self._per_class[old.class_name] -= 1
+            self._groups[i] = g
+            self._per_class[g.class_name] += 1
+        self._groups = dict(sorted(self._groups.items()))
+        self._per_class = +self._per_class
+        self._next_id = next_id
+
+
+def _group_doc(cid: int, g: _Group) -> dict[str, Any]:
+    look = g.look
+    return {
+        "id": cid, "class_name": g.class_name, "sum_w": float(g.sum_w),
+        "sum_wr": [float(v) for v in g.sum_wr], "hits": g.hits, "looks": g.looks,
+        "confidence": float(g.confidence), "first_t_boot_s": float(g.first_t_boot_s),
+        "last_t_boot_s": float(g.last_t_boot_s), "gate_m": float(g.gate_m),
+        "log_lr": float(g.log_lr),
+        "log_lr_nodes": (None if g.log_lr_nodes is None
+                         else [float(v) for v in g.log_lr_nodes]),
+        "look": None if look is None else {
+            "hit": look.hit, "log_miss_d": float(look.log_miss_d), "lam": float(look.lam),
+            "index": look.index},
+    }
+
+
+def _groups_of(docs: list[Any], where: str) -> dict[int, _Group]:
+    """The candidates of ``_group_doc`` documents (ValueError naming the field)."""
+    out: dict[int, _Group] = {}
+    for k, d in enumerate(docs):
+        at = f"{where}[{k}]"
+        if not isinstance(d, Mapping):
+            raise ValueError(f"{at}: expected a mapping")
+        cid = _int(d, "id", at)
+        if cid in out:
+            raise ValueError(f"{at}.id {cid}: given twice")
+        name = d.get("class_name")
+        if not isinstance(name, str) or not valid_class_name(name):
+            raise ValueError(f"{at}.class_name {name!r}: expected a class name")
+        sum_w = _num(d, "sum_w", at)
+        if not sum_w > 0:
+            raise ValueError(f"{at}.sum_w {sum_w!r}: expected a number > 0")
+        sum_wr = _nums(d, "sum_wr", at, 3)
+        hits, looks = _int(d, "hits", at), _int(d, "looks", at)
+        if hits > looks:
+            raise ValueError(f"{at}.hits {hits}: more than its looks {looks}")
+        confidence = _num(d, "confidence", at)
+        if not 0 <= confidence <= 1:
+            raise ValueError(f"{at}.confidence {confidence!r}: expected a number in [0, 1]")
+        first, last = _num(d, "first_t_boot_s", at), _num(d, "last_t_boot_s", at)
+        if not 0 <= first <= last:
+            raise ValueError(f"{at}.first_t_boot_s {first!r}, last_t_boot_s {last!r}: "
+                             "expected 0 <= first <= last (s)")
+        gate_m = _num(d, "gate_m", at)
+        if not gate_m > 0:
+            raise ValueError(f"{at}.gate_m {gate_m!r}: expected a number > 0 (m)")
+        nodes = (None if d.get("log_lr_nodes") is None
+                 else _nums(d, "log_lr_nodes", at, _N_NODES))
+        out[cid] = _Group(name, sum_w, sum_wr, hits, looks, confidence, first, last, gate_m,
+                          _num(d, "log_lr", at), nodes, _look_of(d.get("look"), at))
+    return out
+
+
+def _look_of(doc: Any, at: str) -> _Look | None:
+    if doc is None:
+        return None
+    at = f"{at}.look"
+    if not isinstance(doc, Mapping):
+        raise ValueError(f"{at}: expected a mapping or null")
+    hit = doc.get("hit")
+    if not isinstance(hit, bool):
+        raise ValueError(f"{at}.hit {hit!r}: expected true or false")
+    log_miss_d, lam = _num(doc, "log_miss_d", at), _num(doc, "lam", at)
+    if log_miss_d > 0 or lam < 0:
+        raise ValueError(f"{at}: expected log_miss_d <= 0 and lam >= 0, got {log_miss_d!r}, "
+                         f"{lam!r}")
+    return _Look(hit, log_miss_d, lam, _int(doc, "index", at))
+
+
+def _next_id_of(v: Any, groups: Mapping[int, _Group]) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise ValueError(f"candidates next_id {v!r}: expected an integer >= 0")
+    if groups and v <= max(groups):
+        raise ValueError(f"candidates next_id {v}: not above the candidate id {max(groups)}")
+    return v
+
+
+def _int(d: Mapping[str, Any], key: str, at: str) -> int:
+    v = d.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise ValueError(f"{at}.{key} {v!r}: expected an integer >= 0")
+    return v
+
+
+def _num(d: Mapping[str, Any], key: str, at: str) -> float:
+    v = d.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{at}.{key} {v!r}: expected a finite number")
+    return float(v)
+
+
+def _nums(d: Mapping[str, Any], key: str, at: str, n: int) -> np.ndarray:
+    v = d.get(key)
+    if not (isinstance(v, list) and len(v) == n and all(
+            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
+            for x in v)):
+        raise ValueError(f"{at}.{key}: expected a list of {n} finite numbers")
+    return np.array(v, dtype=np.float64)

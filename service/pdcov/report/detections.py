@@ -6,9 +6,11 @@ document is the one the daemon answered on the bus (bus/detections.py)."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from pdcov.atomic import write_text_atomic
 from pdcov.bus.detections import detections_document
@@ -16,6 +18,7 @@ from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
+from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
@@ -26,19 +29,27 @@ DETECTIONS_FILE = "detections.json"
 
 
 def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
-                      poses: Iterable[CameraPose],
+                      poses: Sequence[CameraPose],
                       frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
-                      cameras: Sequence[CameraModel | None] = ()) -> dict[str, Any]:
+                      cameras: Sequence[CameraModel | None] = (),
+                      accuracies: Sequence[PositionAccuracy | None] = (),
+                      epoch: str = "0", poa: np.ndarray | None = None) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
-    in time order, with ``cameras`` their zoomed cameras, if any) with boxes in
-    ``frame_boxes`` ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s looks,
-    P_D and P_FA at its cell."""
-    tracker = DetectionTracker.for_mission(mission)
+    in time order, with ``cameras`` their zoomed cameras and ``accuracies`` the position
+    accuracy the autopilot reported, if any) with boxes in ``frame_boxes``
+    ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s (the published one)
+    P_D and P_FA at its cell. The tracker sees each frame's looks as the daemon's did: a
+    fresh grid of the mission's camera takes the frames one by one. ``epoch``: the uids'
+    token; ``poa``: a probability of area per cell for the candidates' prior."""
+    tracker = DetectionTracker.for_mission(mission, f"{mission.vehicle_id}.{epoch}.", poa)
+    own = mission.new_grid()
     detections: list[Detection] = []
     for i, pose in enumerate(poses):
-        held = frame_boxes.get(pose.t_s)
-        if held is not None:
-            detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None)
+        camera = cameras[i] if cameras else None
+        own.update_with(pose, camera)
+        t_boot_s, boxes = frame_boxes.get(pose.t_s, (pose.t_s, ()))
+        detections += tracker.frame(pose, t_boot_s, boxes, camera=camera,
+                                    accuracy=accuracies[i] if accuracies else None, grid=own)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id)
 

@@ -24,6 +24,7 @@ from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_det
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
+from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
@@ -41,10 +42,15 @@ never reaches are never decided)."""
 class LiveDetections:
     """The daemon's boxes (module docstring). ``faults``: the counter the status reports."""
 
-    def __init__(self, mission: Mission, grid: CoverageGrid, faults: Counter) -> None:
+    def __init__(self, mission: Mission, grid: CoverageGrid, faults: Counter,
+                 epoch: str = "0") -> None:
+        """``grid``: the published grid (the candidates' P_D and P_FA); ``epoch``: the
+        token of the daemon's state_dir in the candidates' uids
+        ("<vehicle_id>.<epoch>.<candidate_id>")."""
         self.vehicle_id = mission.vehicle_id
         self.grid = grid
-        self.tracker = DetectionTracker.for_mission(mission)
+        self.tracker = DetectionTracker.for_mission(
+            mission, uid_prefix=f"{mission.vehicle_id}.{epoch}.")
         self.faults = faults
         self._held: dict[float, tuple[float, tuple[Box, ...]]] = {}  # frame t_s -> boxes
         self._n_held = 0
@@ -64,15 +70,19 @@ class LiveDetections:
             self._n_held -= dropped
             self.faults["boxes_dropped_waiting"] += dropped
 
-    def frame(self, pose: CameraPose, camera: CameraModel | None = None) -> None:
-        """The grid took the frame at ``pose.t_s`` with ``pose`` (and ``camera``, a zoomed
-        lens; None: the mission's): its boxes, geolocated."""
+    def frame(self, pose: CameraPose, grid: CoverageGrid, camera: CameraModel | None = None,
+              accuracy: PositionAccuracy | None = None) -> None:
+        """``grid`` (the primary camera's own) took the frame at ``pose.t_s`` with ``pose``
+        (and ``camera``, a zoomed lens; None: the mission's; ``accuracy``: the position
+        accuracy the autopilot reported, None: unknown): its boxes geolocated, its looks
+        counted for the candidates (a frame without boxes too: its looks are misses)."""
         held = self._held.pop(pose.t_s, None)
-        if held is None:
-            return
-        self._n_held -= len(held[1])
+        if held is not None:
+            self._n_held -= len(held[1])
+        t_boot_s, boxes = held if held is not None else (pose.t_s, ())
         before = Counter(self.tracker.skipped)
-        self._new += self.tracker.frame(pose, *held, camera=camera)
+        self._new += self.tracker.frame(pose, t_boot_s, boxes, camera=camera,
+                                        accuracy=accuracy, grid=grid)
         self.faults.update(self.tracker.skipped - before)
 
     def decided(self, last_frame_t_s: float) -> None:
