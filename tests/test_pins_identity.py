@@ -5,6 +5,7 @@ the table of docs/simulator.md)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -143,6 +144,9 @@ def test_restart_keeps_every_candidate_in_place(scores):
         assert r.n_candidates > 30
         assert r.n_kept == r.n_candidates and r.max_move_m <= RESTART_WITHIN_M, r
         assert r.n_kept_at_end == r.n_candidates, r
+    # The restart is the sparse flight with the tracker reloaded halfway: nothing changes.
+    same = dataclasses.replace(scores["restart"], restarts=None)
+    assert same == scores["sparse"]
 
 
 @pytest.mark.slow
