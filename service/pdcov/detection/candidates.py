@@ -28,9 +28,10 @@ position accuracy the autopilot reported for the frame when known) and:
    A_gate / A_cell. The looks before birth are misses: the cell's cumulative log P_miss
    before the birth frame's look. With correlated looks (``coverage.looks: correlated``)
    the looks' log LR is kept per ``core.looks.QUADRATURE`` node and combined with the
-   weights. A box in a frame between counted looks (its look uncounted by the revisit
-   clock) is weighed with that frame's P_D by size only; a newborn candidate's upgraded
-   pre-birth look is taken to have had the birth frame's P_D.
+   weights. A box between counted looks turns the last look's miss into a hit with that
+   look's P_D and lambda; a candidate born between looks takes its cell's last look
+   (before it was born) to have had the birth frame's P_D (by size only: the grid counts
+   no blur for an uncounted look).
 5. **Durable ids.** ``uid`` = ``uid_prefix`` + candidate id; ``to_doc`` / ``load_doc``
    (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal) carry the whole state
    across a restart: a restored tracker continues exactly as the one it was saved from.
