@@ -219,3 +219,17 @@ def test_more_thresholds_than_the_bus_carries_are_refused():
         mission_from_dict(doc)
     doc["thresholds"] = doc["thresholds"][:64]
     assert len(mission_from_dict(doc).thresholds) == 64
+
+
+def test_search_prior_people_per_km2_is_checked():
+    assert mission_from_dict(full_doc()).prior_people_per_km2 == 1.0  # the default
+    doc = full_doc()
+    doc["search"] = {"prior_people_per_km2": 250}
+    assert mission_from_dict(doc).prior_people_per_km2 == 250.0
+    for bad in (0, -1.0, 2e6, "many"):
+        doc["search"] = {"prior_people_per_km2": bad}
+        with pytest.raises(ConfigError, match=r"m.yaml: search.prior_people_per_km2: "):
+            mission_from_dict(doc, source="m.yaml")
+    doc["search"] = {"prior_people_per_kmm": 1.0}
+    with pytest.raises(ConfigError, match="did you mean 'prior_people_per_km2'"):
+        mission_from_dict(doc, source="m.yaml")

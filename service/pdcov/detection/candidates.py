@@ -28,9 +28,10 @@ position accuracy the autopilot reported for the frame when known) and:
    A_gate / A_cell. The looks before birth are misses: the cell's cumulative log P_miss
    before the birth frame's look. With correlated looks (``coverage.looks: correlated``)
    the looks' log LR is kept per ``core.looks.QUADRATURE`` node and combined with the
-   weights. A box in a frame between counted looks (its look uncounted by the revisit
-   clock) is weighed with that frame's P_D by size only; a newborn candidate's upgraded
-   pre-birth look is taken to have had the birth frame's P_D.
+   weights. A box between counted looks turns the last look's miss into a hit with that
+   look's P_D and lambda; a candidate born between looks takes its cell's last look
+   (before it was born) to have had the birth frame's P_D (by size only: the grid counts
+   no blur for an uncounted look).
 5. **Durable ids.** ``uid`` = ``uid_prefix`` + candidate id; ``to_doc`` / ``load_doc``
    (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal) carry the whole state
    across a restart: a restored tracker continues exactly as the one it was saved from.
@@ -53,7 +54,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -130,10 +131,10 @@ class _Group:
     log_lr: float  # evidence not per node: every look's without nodes, confidences' always
     log_lr_nodes: np.ndarray | None  # (J,) looks' log LR per quadrature node (correlated)
     look: _Look | None  # its last counted look
+    r_enu_m: np.ndarray = field(init=False)  # sum_wr / sum_w: its position (ENU m)
 
-    @property
-    def r_enu_m(self) -> np.ndarray:
-        return self.sum_wr / self.sum_w
+    def __post_init__(self) -> None:
+        self.r_enu_m = self.sum_wr / self.sum_w
 
     @property
     def sigma_m(self) -> float:
@@ -143,6 +144,7 @@ class _Group:
         w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
         self.sum_w += w
         self.sum_wr = self.sum_wr + w * r
+        self.r_enu_m = self.sum_wr / self.sum_w
 
     def log_odds_evidence(self) -> float:
         """The sum of its looks' and confidences' log LR."""
@@ -229,49 +231,55 @@ class DetectionTracker:
             accuracy), self.terrain)
         located = [k for k in range(len(boxes)) if np.isfinite(sigmas[k])]
         self.skipped[Skip.OFF_GROUND] += len(boxes) - len(located)
-        assigned = self._assign([boxes[k] for k in located], points[located], sigmas[located])
+        ids = np.fromiter(self._groups, dtype=np.int64, count=len(self._groups))
+        held = list(self._groups.values())
+        pos = np.array([g.r_enu_m[:2] for g in held]).reshape(-1, 2)
+        assigned = self._assign([boxes[k] for k in located], points[located], sigmas[located],
+                                ids, held, pos)
         looks = None if grid is None else _FrameLooks(
             grid, grid.last_look,
             grid.looks_state if isinstance(grid.looks_state, CorrelatedLooks) else None)
         scale = (1.0 if grid is None else
                  grid.base_detector.image_to_input_scale(camera.width_px, camera.height_px))
         hit_by: dict[int, Box] = {}
-        first_new = self._next_id
-        out = []
-        for k, cid in zip(located, assigned, strict=True):
-            box, r, sigma = boxes[k], points[k], float(sigmas[k])
+        found: dict[int, int] = {}  # box index -> candidate id
+        for k, cid in zip(located, assigned, strict=True):  # joins first: births may evict
             if cid is None:
-                cid = self._start(box, r, sigma, t_boot_s, looks, scale)
-                if cid is None:
-                    self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
-                    continue
+                continue
+            box, g = boxes[k], self._groups[cid]
+            g.add_point(points[k], float(sigmas[k]))
+            g.confidence = max(g.confidence, box.confidence)
+            g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
+            g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
+            hit_by[cid] = box
+            found[k] = cid
+            pos[int(np.searchsorted(ids, cid))] = g.r_enu_m[:2]  # ids ascending
+        for k, cid in zip(located, assigned, strict=True):
+            if cid is not None:
+                continue
+            new = self._start(boxes[k], points[k], float(sigmas[k]), t_boot_s, looks, scale)
+            if new is None:
+                self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
             else:
-                g = self._groups[cid]
-                g.add_point(r, sigma)
-                g.confidence = max(g.confidence, box.confidence)
-                g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
-                g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
-                hit_by[cid] = box
-            out.append(Detection(t_boot_s, box, r, sigma, cid))
+                found[k] = new
+        out = [Detection(t_boot_s, boxes[k], points[k], float(sigmas[k]), found[k])
+               for k in located if k in found]
         if looks is None:
             for g in (self._groups[cid] for cid in hit_by if cid in self._groups):
                 g.looks += 1
                 g.hits += 1
         else:
-            self._weigh_looks(looks, hit_by, scale, first_new)
+            self._weigh_looks(looks, hit_by, scale, ids, pos)
         return out
 
-    def _assign(self, boxes: list[Box], points: np.ndarray, sigmas: np.ndarray
-                ) -> list[int | None]:
+    def _assign(self, boxes: list[Box], points: np.ndarray, sigmas: np.ndarray,
+                ids: np.ndarray, groups: list[_Group], pos: np.ndarray) -> list[int | None]:
         """Per box, the candidate it joins (None: none): the assignment of least total
         ground distance among the pairs of one class within the gate, as many pairs as
-        can be."""
+        can be; ``ids``, ``groups``, ``pos`` (n, 2): the candidates held, in id order."""
         n = len(boxes)
-        if not n or not self._groups:
+        if not n or not groups:
             return [None] * n
-        ids = np.fromiter(self._groups, dtype=np.int64, count=len(self._groups))
-        groups = list(self._groups.values())
-        pos = np.array([g.r_enu_m[:2] for g in groups])
         sig = np.array([g.sigma_m for g in groups])
         reach = self.gate_sigmas * math.hypot(float(sigmas.max()), float(sig.max()))
         lo, hi = points[:, :2].min(axis=0) - reach, points[:, :2].max(axis=0) + reach
@@ -337,24 +345,25 @@ class DetectionTracker:
         return cid
 
     def _weigh_looks(self, looks: _FrameLooks, hit_by: Mapping[int, Box], scale: float,
-                     first_new: int) -> None:
-        """Count this frame's looks of the cells of the candidates older than ``first_new``
-        (the id of the first born in this frame) and weigh them: a counted look a miss,
-        then each box (``hit_by``, by candidate) makes its candidate's last counted look a
-        hit if it was a miss (module docstring)."""
+                     ids: np.ndarray, pos: np.ndarray) -> None:
+        """Count this frame's looks of the cells of the candidates ``ids`` held before it
+        (at ``pos`` (n, 2), ENU m) and weigh them: a counted look a miss, then each box
+        (``hit_by``, by candidate) makes its candidate's last counted look a hit if it was
+        a miss (module docstring)."""
         last = looks.look
-        ids = [i for i in self._groups if i < first_new]
-        if last is not None and ids:
+        if last is not None and len(ids):
             geo = looks.grid.geometry
-            pos = np.array([self._groups[i].r_enu_m[:2] for i in ids])
             counted, _, index, log_fa = last.look_at(*geo.cell_of(pos[:, 0], pos[:, 1]))
-            log_miss_d = last.log_miss_d(index)
-            per_gate_m2 = math.pi / geo.cell_size_m**2
-            for k in np.flatnonzero(counted):
-                g = self._groups[ids[k]]
+            at = np.flatnonzero(counted)
+            log_miss_d = last.log_miss_d(index[at])
+            lam_per_m2 = -log_fa[at] * (math.pi / geo.cell_size_m**2)
+            for k, cid in enumerate(ids[at].tolist()):
+                g = self._groups.get(cid)  # None: evicted for a box of this frame
+                if g is None:
+                    continue
                 g.looks += 1
                 g.look = _Look(False, float(log_miss_d[k]),
-                               -float(log_fa[k]) * per_gate_m2 * g.gate_m**2, int(index[k]))
+                               float(lam_per_m2[k]) * g.gate_m**2, int(index[at[k]]))
                 self._add_evidence(looks, g, g.look, miss=True)
         for cid, box in hit_by.items():
             hit = self._groups.get(cid)  # None: evicted for a box of this frame

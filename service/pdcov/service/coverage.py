@@ -399,7 +399,7 @@ class LiveCoverage:
             self.tile_sender.touch(window)
             self.metrics.mark(window)
         if cam is self.primary:
-            self.detections.frame(pose, cam.grid, camera)
+            self.detections.frame(pose, camera, grid=cam.grid)
 
     @property
     def frames_pending(self) -> int:

@@ -70,8 +70,8 @@ class LiveDetections:
             self._n_held -= dropped
             self.faults["boxes_dropped_waiting"] += dropped
 
-    def frame(self, pose: CameraPose, grid: CoverageGrid, camera: CameraModel | None = None,
-              accuracy: PositionAccuracy | None = None) -> None:
+    def frame(self, pose: CameraPose, camera: CameraModel | None = None,
+              accuracy: PositionAccuracy | None = None, *, grid: CoverageGrid) -> None:
         """``grid`` (the primary camera's own) took the frame at ``pose.t_s`` with ``pose``
         (and ``camera``, a zoomed lens; None: the mission's; ``accuracy``: the position
         accuracy the autopilot reported, None: unknown): its boxes geolocated, its looks
