@@ -126,6 +126,11 @@ class ConfidenceModel:
         mass = d * np.diff(np.asarray(self.edges))
         return mass / mass.sum(axis=1, keepdims=True)
 
+    def log_lr_table(self) -> np.ndarray:
+        """(N, K): per size bin and confidence bin, log(f_TP / f_FP), the evidence of a box
+        of that confidence for a person."""
+        return np.log(self.probabilities(True)) - np.log(self.probabilities(False))
+
     def bin_index(self, confidence: np.ndarray) -> np.ndarray:
         """Confidence bin 0..K-1 of each confidence; outside the edges the nearest bin."""
         k = np.searchsorted(np.asarray(self.edges), np.asarray(confidence, dtype=float),
@@ -306,8 +311,7 @@ class DetectorModel:
         if self.confidence is None:
             return np.zeros(s.shape)
         conf = self.confidence
-        table = np.log(conf.probabilities(True)) - np.log(conf.probabilities(False))
-        lr = table[self.nearest_bin(s), conf.bin_index(c)]
+        lr = conf.log_lr_table()[self.nearest_bin(s), conf.bin_index(c)]
         return np.where(np.isnan(s) | np.isnan(c), 0.0, lr)
 
     @property
