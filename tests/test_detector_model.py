@@ -47,6 +47,18 @@ def test_illustrative_model_is_labelled_and_peaks_in_the_middle():
     assert p[0] < p.max() and p[-1] < p.max()
 
 
+def test_illustrative_confidences_are_the_simulators_beta_rule_and_say_so():
+    from scipy import stats
+
+    conf = DetectorModel.illustrative().confidence
+    assert conf.extra["notes"].startswith("ILLUSTRATIVE, not measured")
+    u = (np.asarray(conf.edges) - 0.5) / 0.5  # threshold 0.5: c = 0.5 + 0.5 Beta
+    for true_positive, (a, b) in ((True, (4, 2)), (False, (2, 4))):
+        mass = np.diff(stats.beta.cdf(u, a, b))
+        np.testing.assert_allclose(conf.probabilities(true_positive),
+                                   np.tile(mass, (15, 1)), atol=2e-4)
+
+
 @pytest.mark.parametrize("change, key", [
     ({"version": 6}, "version"),
     ({"bin_edges_px": [10, 5, 40]}, "bin_edges_px"),
