@@ -64,7 +64,7 @@ def test_fit_recovers_the_known_tables_by_blur_and_size(blur_set, tmp_path, caps
     assert misses <= 6, misses
     # The 1-D tables are those of all images together: the mean of the three rows.
     assert np.abs(np.array(model.p_detect) - np.mean(P_D_BY_BLUR, axis=0)).max() < 0.06
-    assert model.to_dict()["version"] == 4  # 4: fa_rate_per_mpx (3: blur)
+    assert model.to_dict()["version"] == 5  # 5: confidence (4: fa_rate_per_mpx, 3: blur)
     assert np.array(b.p_detect)[0] == pytest.approx(np.array(P_D), abs=0.1)
 
 

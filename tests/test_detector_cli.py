@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from labelled_sets import coco_set
 from PIL import Image
 from synthetic_detections import EDGES, INPUT, P_D, synthetic_set, write_coco
 
@@ -186,3 +187,32 @@ def test_plot_without_validation_and_a_bad_report(pdcov, tmp_path):
     status, _, err = pdcov("detector", "plot", model, "--validation", tmp_path / "r.json",
                            "--out", tmp_path / "g.png")
     assert status == 2 and "r.json: not a pdcov validation report" in err
+
+
+def test_fit_writes_the_confidence_histograms_of_a_labelled_set(pdcov, tmp_path):
+    """tests/labelled_sets.py's COCO set: the person of image 1 (34.6 px) found at 0.9 and
+    again at 0.7 (a duplicate: false), a false box at 0.6 beside it, a box below the
+    threshold; a false box of 16 px (20 image px at 640 / 800) at 0.95 in image 2."""
+    gt = coco_set(tmp_path)
+    dt = tmp_path / "dt.json"
+    dt.write_text(json.dumps([
+        {"image_id": 1, "category_id": 1, "bbox": [10, 20, 30, 40], "score": 0.9},
+        {"image_id": 1, "category_id": 1, "bbox": [10, 20, 30, 40], "score": 0.7},
+        {"image_id": 1, "category_id": 1, "bbox": [300, 300, 30, 40], "score": 0.6},
+        {"image_id": 1, "category_id": 1, "bbox": [200, 100, 30, 40], "score": 0.3},
+        {"image_id": 2, "category_id": 1, "bbox": [100, 100, 20, 20], "score": 0.95}]))
+    out_path = tmp_path / "m.yaml"
+    status, out, err = pdcov("detector", "fit", "--ground-truth", gt, "--detections", dt,
+                             "--out", out_path, "--bins", "10,30,60", "--classes", "person",
+                             "--confidence-bins", "2", "--quiet")
+    assert status == 0, err
+    assert "confidence evidence log(f_TP / f_FP)" in out
+    model = DetectorModel.from_yaml(out_path)
+    conf = model.confidence
+    assert model.to_dict()["version"] == 5 and conf.edges == (0.5, 0.75, 1.0)
+    assert conf.extra["n_true_positives"] == [[0, 0], [0, 1]]
+    assert conf.extra["n_false_positives"] == [[0, 1], [2, 0]]
+    # Size bin [30, 60): true (0 + 1) / 3 / 0.25, (1 + 1) / 3 / 0.25; false 3 and 1.
+    np.testing.assert_allclose(conf.tp_density[1], [4 / 3, 8 / 3], rtol=1e-5)
+    np.testing.assert_allclose(conf.fp_density[1], [3.0, 1.0], rtol=1e-5)
+    assert model.confidence_log_lr(34.6, 0.9) == pytest.approx(np.log(8 / 3), rel=1e-5)

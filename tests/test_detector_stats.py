@@ -8,6 +8,7 @@ import io
 import json
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,7 @@ from pdcov.detection.statistics import (
     auto_bin_edges,
     count_in_bins,
     fit_binned,
+    fit_confidence,
     fit_logistic,
     fit_logistic_curve,
     proportion_ci,
@@ -394,6 +396,31 @@ def test_empty_bins_are_explicit_without_warnings(fitted_synthetic):
     assert model.p_detect[1] == pytest.approx(model.counts.n_detected[1] / 600, abs=1e-6)
     assert model.extra["p_detect_ci95"][0] == [0.0, 1.0]
     assert model.extra["p_false_alarm_ci95"][-1] == [0.0, 1.0]
+
+
+def test_confidence_histograms_by_hand():
+    """One image: 3 people found at 0.9, 0.8, 0.6 and a false box at 0.55, a box below the
+    threshold. Two confidence bins [0.5, 0.75), [0.75, 1]; add-one smoothing."""
+    gt = [(0, 0, 20, 20), (30, 0, 20, 20), (60, 0, 20, 20)]
+    dets = _dets(gt + [(0, 50, 20, 20), (30, 50, 20, 20)], [0.9, 0.8, 0.6, 0.55, 0.3])
+    matches = match_images([(_image(gt), dets)], S)
+    np.testing.assert_array_equal(matches.detection_confidence, [0.9, 0.8, 0.6, 0.55])
+    conf = fit_confidence(matches, (10.0, 30.0, 100.0), n_bins=2)
+    assert conf.edges == (0.5, 0.75, 1.0)
+    assert conf.extra["n_true_positives"] == [[1, 2], [0, 0]]
+    assert conf.extra["n_false_positives"] == [[1, 0], [0, 0]]
+    # (n_k + 1) / ((n + K) w): true (1 + 1) / 5 / 0.25 = 1.6, (2 + 1) / 5 / 0.25 = 2.4.
+    np.testing.assert_allclose(conf.tp_density, [[1.6, 2.4], [2.0, 2.0]], rtol=1e-5)
+    np.testing.assert_allclose(conf.fp_density, [[8 / 3, 4 / 3], [2.0, 2.0]], rtol=1e-5)
+    model = replace(DetectorModel((10.0, 30.0, 100.0), (0.5, 0.5), (0.1, 0.1)),
+                    confidence=conf)
+    np.testing.assert_allclose(model.confidence_log_lr([20.0, 20.0, 50.0], [0.9, 0.6, 0.9]),
+                               [np.log(0.6 / (1 / 3)), np.log(0.4 / (2 / 3)), 0.0],
+                               rtol=1e-5)
+    assert fit_confidence(match_images([(_image(gt), dets)], MatchSettings(1.0, 0.5, None)),
+                          (10.0, 30.0)) is None  # threshold 1: nothing to bin
+    with pytest.raises(ConfigError, match="--confidence-bins: expected at least 1"):
+        fit_confidence(matches, (10.0, 30.0), n_bins=0)
 
 
 def test_proportion_intervals():

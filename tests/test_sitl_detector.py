@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.detector import DetectorModel
+from pdcov.core.detector import ConfidenceModel, DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
@@ -178,3 +178,43 @@ def test_terrain_hides_people_behind_a_ridge():
     det = SimulatedDetector(cov, people, DetectorOptions(), 0)
     in_view, _ = det.person_sizes_px(CameraPose(R_NADIR, np.array([28.0, 30.0, 10.0])))
     assert in_view.tolist() == [True, False]
+
+
+# Two size bins split at 20 px, four confidence bins of unequal widths; the probability of a
+# confidence bin is its density times its width, over the row's sum.
+HISTOGRAMS = ConfidenceModel((0.5, 0.6, 0.8, 0.9, 1.0),
+                             ((1.0, 2.0, 4.0, 3.0), (5.0, 1.0, 1.0, 1.0)),
+                             ((6.0, 1.0, 1.0, 1.0), (1.0, 1.0, 1.0, 6.0)))
+
+
+@pytest.mark.parametrize("true_positive", [True, False])
+def test_confidences_follow_the_models_histograms_by_box_size(true_positive):
+    from scipy import stats
+
+    m = DetectorModel((1.0, 20.0, 1000.0), (float(true_positive),) * 2, (0.0, 0.0),
+                      (0.0 if true_positive else 120.0,) * 2, input_size_px=640,
+                      confidence_threshold=0.5, confidence=HISTOGRAMS)
+    det = SimulatedDetector(grid(m), place_targets(400, DOMAIN, None, seed=4),
+                            DetectorOptions(), 9)
+    size, conf = [], []
+    # Boxes of about 30 px and more from 8 m, under 20 px from 25 m (scale 1).
+    for k, (x, y, z) in enumerate([(8 + 3 * i, 8 + 3 * j, 8.0) for i in range(9)
+                                   for j in range(9)] + [(20.0, 20.0, 25.0)] * 40):
+        for d in det.frame(nadir(x, y, z, 0.2 * k), 0.2 * k):
+            assert (d.person_id >= 0) == true_positive
+            size.append(np.sqrt(d.box.width_px * d.box.height_px) * det.scale)
+            conf.append(d.box.confidence)
+    size, conf = np.array(size), np.array(conf)
+    row = m.nearest_bin(size)
+    k = HISTOGRAMS.bin_index(conf)
+    p = HISTOGRAMS.probabilities(true_positive)
+    for i in (0, 1):
+        n = int((row == i).sum())
+        assert n > 1000, (i, n)
+        observed = np.bincount(k[row == i], minlength=4)
+        assert stats.chisquare(observed, n * p[i]).pvalue > 1e-3, (i, observed, n * p[i])
+    # Uniform within the drawn bin.
+    e = np.asarray(HISTOGRAMS.edges)
+    assert stats.kstest((conf - e[k]) / (e[k + 1] - e[k]), "uniform").pvalue > 1e-3
+    # The two size bins' histograms differ: a wrong row would fail the chi-square above.
+    assert np.abs(p[0] - p[1]).max() > 0.3

@@ -31,8 +31,12 @@ At each camera frame, given the true camera pose:
   axis; its width is ``person_width_m`` projected at the point's depth, its height the
   projected length of the person standing there (``person_height_m``), at least the width
   (from straight above a person is as tall as wide in the picture); clipped to the picture.
-  Confidence: threshold + (1 - threshold) * Beta(4, 2) for people, Beta(2, 4) for false
-  alarms (threshold: the model's confidence_threshold, else 0.25).
+  Confidence: with a model whose ``confidence`` section gives the histograms, a person's box
+  draws a confidence bin from the true boxes' histogram of the box's size bin (its own size
+  sqrt(w h) in detector-input pixels, as the fit bins boxes; outside the bins the nearest
+  one), a false alarm's from the false boxes' histogram, and the confidence uniformly
+  within that bin. Without the section: threshold + (1 - threshold) * Beta(4, 2) for people,
+  Beta(2, 4) for false alarms (threshold: the model's confidence_threshold, else 0.25).
 
 Pure: no I/O, no clock; a seed fixes every draw.
 """
@@ -179,7 +183,7 @@ class SimulatedDetector:
             self._person_found[look] = self.rng.random(int(look.sum())) < p_d[look]
             found = in_view & self._person_found
         k = np.flatnonzero(found)
-        boxes = self._boxes(pose, self.targets.r_enu_m[k], 4.0, 2.0)
+        boxes = self._boxes(pose, self.targets.r_enu_m[k], true_positive=True)
         return [SimulatedDetection(int(i), b) for i, b in zip(k, boxes, strict=True)
                 if b is not None]
 
@@ -210,7 +214,7 @@ class SimulatedDetector:
             z = np.zeros_like(x) if self.terrain is None else self.terrain.height_m(x, y)
             self._fa_enu_m[rows + r0, cols + c0] = np.stack([x, y, z], axis=-1)
         rows, cols = np.nonzero(observed & on)
-        boxes = self._boxes(pose, self._fa_enu_m[rows + r0, cols + c0], 2.0, 4.0)
+        boxes = self._boxes(pose, self._fa_enu_m[rows + r0, cols + c0], true_positive=False)
         return [SimulatedDetection(FALSE_ALARM_ID, b) for b in boxes if b is not None]
 
     # -- frames and boxes -----------------------------------------------------------------
@@ -220,10 +224,11 @@ class SimulatedDetector:
         moves forward) seen from the true ``pose``: people first, then false alarms."""
         return self._people(pose, t_s) + self._false_alarms(pose, t_s)
 
-    def _boxes(self, pose: CameraPose, r_enu_m: np.ndarray, beta_a: float, beta_b: float
+    def _boxes(self, pose: CameraPose, r_enu_m: np.ndarray, true_positive: bool
                ) -> list[Box | None]:
-        """Boxes standing on the ground points (k, 3) (module docstring); None for a point
-        whose pixel falls outside the picture once its noise is added."""
+        """Boxes standing on the ground points (k, 3) (module docstring), of people
+        (``true_positive``) or false alarms; None for a point whose pixel falls outside the
+        picture once its noise is added."""
         if len(r_enu_m) == 0:
             return []
         cam, o = self.camera, self.options
@@ -236,13 +241,13 @@ class SimulatedDetector:
         height = np.where(cam.projectable(head_cam) & (height > width), height, width)
         foot_px = foot_px + self.rng.normal(0.0, o.box_noise_px, foot_px.shape) \
             if o.box_noise_px > 0 else foot_px
-        conf = self.threshold + (1 - self.threshold) * self.rng.beta(beta_a, beta_b,
-                                                                     len(foot_px))
         lo_x, hi_x, lo_y, hi_y = -0.5, cam.width_px - 0.5, -0.5, cam.height_px - 0.5
         left = np.clip(foot_px[:, 0] - 0.5 * width, lo_x, hi_x)
         right = np.clip(foot_px[:, 0] + 0.5 * width, lo_x, hi_x)
         top = np.clip(foot_px[:, 1] - height, lo_y, hi_y)
         bottom = np.clip(foot_px[:, 1], lo_y, hi_y)
+        conf = self._confidences(np.sqrt((right - left) * (bottom - top)) * self.scale,
+                                 true_positive)
         inside = cam.in_picture(foot_px)
         out: list[Box | None] = []
         for i in range(len(foot_px)):
@@ -250,3 +255,17 @@ class SimulatedDetector:
             out.append(Box(PERSON_CLASS, float(conf[i]), float(left[i]), float(top[i]),
                            float(w), float(h)) if inside[i] and w > 0 and h > 0 else None)
         return out
+
+    def _confidences(self, size_px: np.ndarray, true_positive: bool) -> np.ndarray:
+        """The confidences of boxes of these sizes (detector-input px) by the module
+        docstring's rule: the model's histograms, else the Beta rule."""
+        n = len(size_px)
+        hist = self.detector.confidence
+        if hist is None:
+            a, b = (4.0, 2.0) if true_positive else (2.0, 4.0)
+            return self.threshold + (1 - self.threshold) * self.rng.beta(a, b, n)
+        cdf = np.cumsum(hist.probabilities(true_positive), axis=1)
+        k = (self.rng.random(n)[:, None] >= cdf[self.detector.nearest_bin(size_px)]).sum(1)
+        k = np.minimum(k, hist.n_bins - 1)  # rounding of the cumulative sum's last value
+        edges = np.asarray(hist.edges)
+        return edges[k] + (edges[k + 1] - edges[k]) * self.rng.random(n)

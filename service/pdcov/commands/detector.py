@@ -35,6 +35,7 @@ from pdcov.detection.looks_fit import LooksFit, collect_looks, fit_looks, found_
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
     BIN_RULES,
+    DEFAULT_CONFIDENCE_BINS,
     INTERVAL_METHODS,
     VALIDATION_TESTS,
     ValidationReport,
@@ -42,6 +43,7 @@ from pdcov.detection.statistics import (
     blur_bin_edges,
     fit_binned,
     fit_binned_blur,
+    fit_confidence,
     fit_logistic,
     validate,
 )
@@ -90,6 +92,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="polynomial degree in log size of the logistic model (1)")
     fit.add_argument("--fine-bins", type=int, default=64,
                      help="log-spaced bins the logistic model is written on (64)")
+    fit.add_argument("--confidence-bins", type=int, default=DEFAULT_CONFIDENCE_BINS,
+                     help="equal confidence bins over [--conf, 1] of the histograms of true "
+                          "and false boxes' confidences per size bin, the evidence a box's "
+                          f"confidence gives (the model's confidence section; "
+                          f"{DEFAULT_CONFIDENCE_BINS})")
     fit.add_argument("--blur-csv", type=Path,
                      help="CSV of each image's motion blur: columns image,blur_px (image px) "
                           "or image,speed_m_s,height_m (with --focal-px and --exposure-s); "
@@ -308,7 +315,9 @@ def run_fit(args: argparse.Namespace) -> int:
         model = fit_binned(matches, edges, args.interval)
     fit = {**model.extra["fit"], "ground_truth": str(args.ground_truth),
            "detections": str(args.detections), "bins": args.bins}
-    model = replace(model, extra={**model.extra, "fit": fit})
+    model = replace(model, extra={**model.extra, "fit": fit},
+                    confidence=fit_confidence(matches, model.bin_edges_px,
+                                              args.confidence_bins))
     if fmt is not None:
         looks_fit = fit_looks(looks, edges)
         model = replace(model, looks=looks_fit.to_model({
@@ -322,6 +331,8 @@ def run_fit(args: argparse.Namespace) -> int:
         print(format_looks_table(model, looks_fit))
     if model.blur is not None:
         print(format_blur_table(model))
+    if model.confidence is not None:
+        print(format_confidence_table(model))
     print(f"{matches.n_images} {'frames' if fmt else 'images'}; "
           f"{len(matches.truth_size_px)} objects, "
           f"{len(matches.detection_size_px)} detections counted; outside the bins: "
@@ -403,6 +414,26 @@ def format_blur_table(model: DetectorModel) -> str:
         lo, hi = blur.edges_px[j], blur.edges_px[j + 1]
         rows.append(f"{lo:6.2f}-{hi:<6.2f} " + " ".join(f"{p:7.3f}" for p in row)
                     + (f"   (objects {sum(n_true[j])})" if n_true else ""))
+    return "\n".join(rows)
+
+
+def format_confidence_table(model: DetectorModel) -> str:
+    """The evidence of a box's confidence, log(f_TP / f_FP), by size bin (rows) and
+    confidence bin (columns), with each size bin's true and false boxes."""
+    conf = model.confidence
+    assert conf is not None
+    n_tp = conf.extra.get("n_true_positives")
+    n_fp = conf.extra.get("n_false_positives")
+    lr = conf.log_lr_table()
+    head = " ".join(f"{e:>6.3g}+" for e in conf.edges[:-1])
+    rows = [f"confidence evidence log(f_TP / f_FP) by size (rows) and confidence (columns, "
+            f"from), {conf.extra.get('smoothing', 'as given')} smoothing:",
+            f"{'size px':>15} {'TP':>6} {'FP':>6} {head}"]
+    for i in range(model.n_bins):
+        lo, hi = model.bin_edges_px[i], model.bin_edges_px[i + 1]
+        counts = (f"{sum(n_tp[i]):6d} {sum(n_fp[i]):6d}" if n_tp and n_fp
+                  else f"{'':6} {'':6}")
+        rows.append(f"{lo:7.1f}-{hi:<7.1f} {counts} " + " ".join(f"{v:7.2f}" for v in lr[i]))
     return "\n".join(rows)
 
 

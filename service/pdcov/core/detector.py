@@ -8,6 +8,10 @@ False alarms are a rate: ``fa_rate_per_mpx``, false boxes of size s per frame pe
 of detector input. A region of A detector-input px^2 in one frame then holds at least one
 false box with probability 1 - exp(-rate(s) A) (Poisson; ``p_false_alarm_per_look``).
 ``p_false_alarm`` is the paper's 1 - precision, kept for the fit's report.
+
+Confidences are evidence (the optional ``confidence`` section): per size bin, histograms of
+the confidences of true and of false boxes; a box of confidence c and size s weighs
+log(f_TP(c | s) / f_FP(c | s)) for a person (``confidence_log_lr``).
 """
 
 from __future__ import annotations
@@ -26,9 +30,10 @@ from pdcov.errors import DetectorModelError, where
 from pdcov.schema import Section, check_keys
 from pdcov.yaml_file import load_yaml
 
-# 2: the optional ``looks`` section (per-person correlation); 3: ``blur``; 4: fa_rate_per_mpx
-FORMAT_VERSION = 4
-_READABLE_VERSIONS = (1, 2, 3, 4)
+# 2: the optional ``looks`` section (per-person correlation); 3: ``blur``; 4: fa_rate_per_mpx;
+# 5: ``confidence``. A model is written in the oldest version that holds its sections.
+FORMAT_VERSION = 5
+_READABLE_VERSIONS = (1, 2, 3, 4, 5)
 _PX2_PER_MPX = 1e6
 MAX_MODEL_BYTES = 4 << 20
 """Largest detector model file read (a fitted model of 100 size x 100 blur bins is ~0.5 MB)."""
@@ -62,11 +67,13 @@ MODEL_SCHEMA = Section.of(
     blur=Section.of("edges_px", "p_detect", "p_false_alarm", "p_detect_ci95",
                     "p_false_alarm_ci95", "n_true", "n_detected", "n_detections",
                     "n_true_positives", "truth_outside_bins", "detections_outside_bins",
-                    "csv", "bins", "speed_to_blur"))
+                    "csv", "bins", "speed_to_blur"),
+    confidence=Section.of("edges", "tp_density", "fp_density",  # the engine's
+                          "smoothing", "n_true_positives", "n_false_positives", "notes"))
 _ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
                 "input_size_px",
                 "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks",
-                "blur")
+                "blur", "confidence")
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +95,47 @@ class BlurModel:
     @property
     def n_bins(self) -> int:
         return len(self.edges_px) - 1
+
+
+@dataclass(frozen=True, slots=True)
+class ConfidenceModel:
+    """How a box's confidence tells a person from a false alarm (version 5's ``confidence``
+    section), per size bin of the model (the box's own size, detector-input px).
+
+    edges: K + 1 strictly increasing confidences in [0, 1], the last 1 (a fit's: K equal bins
+    over [confidence_threshold, 1]); bin k is [edges[k], edges[k + 1]), the last one closed.
+    tp_density, fp_density: N rows (size bins) of K histogram densities (per unit confidence)
+    of the confidences of true and of false boxes, finite and > 0; each row is rescaled to
+    integrate to 1 where it is used (``probabilities``), so rounding does not bias the ratio.
+    ``extra``: the fit's other keys (counts, smoothing), kept as written.
+    """
+
+    edges: tuple[float, ...]
+    tp_density: tuple[tuple[float, ...], ...]
+    fp_density: tuple[tuple[float, ...], ...]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_bins(self) -> int:
+        return len(self.edges) - 1
+
+    def probabilities(self, true_positive: bool) -> np.ndarray:
+        """(N, K): per size bin, the probability of each confidence bin for a true box
+        (``true_positive``) or a false one."""
+        d = np.asarray(self.tp_density if true_positive else self.fp_density, dtype=float)
+        mass = d * np.diff(np.asarray(self.edges))
+        return mass / mass.sum(axis=1, keepdims=True)
+
+    def log_lr_table(self) -> np.ndarray:
+        """(N, K): per size bin and confidence bin, log(f_TP / f_FP), the evidence of a box
+        of that confidence for a person."""
+        return np.log(self.probabilities(True)) - np.log(self.probabilities(False))
+
+    def bin_index(self, confidence: np.ndarray) -> np.ndarray:
+        """Confidence bin 0..K-1 of each confidence; outside the edges the nearest bin."""
+        k = np.searchsorted(np.asarray(self.edges), np.asarray(confidence, dtype=float),
+                            side="right") - 1
+        return np.clip(k, 0, self.n_bins - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,6 +187,7 @@ class DetectorModel:
     counts: BinCounts | None = None
     looks: LooksModel | None = None
     blur: BlurModel | None = None
+    confidence: ConfidenceModel | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str | None = None
 
@@ -198,6 +247,8 @@ class DetectorModel:
                     f"(one per bin), got {list(self.looks.correlation)}")
         if self.blur is not None:
             self._check_blur(self.blur, n)
+        if self.confidence is not None:
+            self._check_confidence(self.confidence, n)
 
     def _check_blur(self, blur: BlurModel, n: int) -> None:
         src = self.source
@@ -219,9 +270,49 @@ class DetectorModel:
                     f"{where(src, 'blur.' + key)}: probabilities must lie in [0, 1], "
                     f"got {p.tolist()}")
 
+    def _check_confidence(self, conf: ConfidenceModel, n: int) -> None:
+        src = self.source
+        e = np.asarray(conf.edges, dtype=float)
+        if (len(e) < 2 or not np.all(np.isfinite(e)) or e[0] < 0 or e[-1] != 1
+                or np.any(np.diff(e) <= 0)):
+            raise DetectorModelError(
+                f"{where(src, 'confidence.edges')}: expected at least 2 strictly increasing "
+                f"confidences in [0, 1], the last 1, got {list(conf.edges)}")
+        for key in ("tp_density", "fp_density"):
+            rows = getattr(conf, key)
+            if len(rows) != n or any(len(row) != len(e) - 1 for row in rows):
+                raise DetectorModelError(
+                    f"{where(src, 'confidence.' + key)}: expected {n} rows (one per size "
+                    f"bin) of {len(e) - 1} values (one per confidence bin)")
+            d = np.asarray(rows, dtype=float)
+            if not np.all(np.isfinite(d) & (d > 0)):
+                raise DetectorModelError(
+                    f"{where(src, 'confidence.' + key)}: densities must be finite and > 0 "
+                    f"(a 0 would make one confidence proof, for or against a person; smooth "
+                    f"the histogram as `pdcov detector fit` does), got {d.tolist()}")
+
     @property
     def n_bins(self) -> int:
         return len(self.bin_edges_px) - 1
+
+    def nearest_bin(self, size_px: np.ndarray) -> np.ndarray:
+        """Size bin 0..N-1 of sizes in detector-input pixels; a size outside the bins takes
+        the nearest one (NaN: the first)."""
+        return np.clip(self.bin_index(size_px) - 1, 0, self.n_bins - 1)
+
+    def confidence_log_lr(self, size_px: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+        """Per box, the evidence of its confidence for a person: log(f_TP(c | bin) /
+        f_FP(c | bin)), the bin that of its size ``size_px`` (sqrt(w h), detector-input px,
+        as the fit bins boxes; outside the bins the nearest one) and ``confidence`` in [0, 1]
+        (outside the confidence edges the nearest bin). 0 without a confidence section, and
+        where the size or the confidence is NaN."""
+        s, c = np.broadcast_arrays(np.asarray(size_px, dtype=float),
+                                   np.asarray(confidence, dtype=float))
+        if self.confidence is None:
+            return np.zeros(s.shape)
+        conf = self.confidence
+        lr = conf.log_lr_table()[self.nearest_bin(s), conf.bin_index(c)]
+        return np.where(np.isnan(s) | np.isnan(c), 0.0, lr)
 
     @property
     def n_table_rows(self) -> int:
@@ -269,12 +360,6 @@ class DetectorModel:
         boxes of that size are a Poisson process over the image, 1 - exp(-rate(s) A)."""
         rate = self.padded_fa_rate_per_px2_by_blur()[: self.n_bins + 2]
         return -np.expm1(-rate[self.bin_index(size_px)] * np.asarray(area_px2, dtype=float))
-
-    def confidence_log_lr(self, size_px: np.ndarray, confidence: np.ndarray) -> np.ndarray:
-        """log f_TP(c | size bin) / f_FP(c | size bin) per box (float64) of boxes of
-        ``size_px`` (detector-input px) and ``confidence``: the confidence as evidence
-        that a box is a person. 0 for every box: this model has no confidence section."""
-        return np.zeros(np.broadcast(np.asarray(size_px), np.asarray(confidence)).shape)
 
     def image_to_input_scale(self, width_px: int, height_px: int) -> float:
         """Factor from image pixels to detector-input pixels for an image of this size."""
@@ -339,6 +424,12 @@ class DetectorModel:
                 raise DetectorModelError(
                     f"{where(source, 'blur')}: needs version 3, the file says {version}")
             blur = _blur_from_dict(doc["blur"], source)
+        confidence = None
+        if doc.get("confidence") is not None:
+            if version < 5:
+                raise DetectorModelError(
+                    f"{where(source, 'confidence')}: needs version 5, the file says {version}")
+            confidence = _confidence_from_dict(doc["confidence"], source)
         for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
             if key not in doc:
                 raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
@@ -376,6 +467,7 @@ class DetectorModel:
             counts=counts,
             looks=looks,
             blur=blur,
+            confidence=confidence,
             extra={k: v for k, v in doc.items() if k not in _ENGINE_KEYS},
             source=source,
         )
@@ -392,10 +484,10 @@ class DetectorModel:
         return cls.from_dict(yaml.safe_load(ref.read_text()), source=str(ref))
 
     def to_dict(self) -> dict[str, Any]:
+        sections = ((FORMAT_VERSION, self.confidence), (4, self.fa_rate_per_mpx), (3, self.blur),
+                    (2, self.looks))
         doc: dict[str, Any] = {
-            "version": (FORMAT_VERSION if self.fa_rate_per_mpx is not None
-                        else 3 if self.blur is not None else 2 if self.looks is not None
-                        else 1),
+            "version": next((v for v, part in sections if part is not None), 1),
             "size_metric": self.size_metric,
             "input_size_px": self.input_size_px,
             "confidence_threshold": self.confidence_threshold,
@@ -419,6 +511,12 @@ class DetectorModel:
                            "p_false_alarm": [[float(v) for v in row]
                                              for row in self.blur.p_false_alarm],
                            **self.blur.extra}
+        if self.confidence is not None:
+            c = self.confidence
+            doc["confidence"] = {"edges": [float(v) for v in c.edges],
+                                 "tp_density": [[float(v) for v in row] for row in c.tp_density],
+                                 "fp_density": [[float(v) for v in row] for row in c.fp_density],
+                                 **c.extra}
         doc.update(self.extra)
         return doc
 
@@ -474,25 +572,43 @@ def _fa_rate_from_dict(doc: dict[str, Any], version: int, source: str | None
 def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:
     """The ``blur`` section: edges_px (numbers), p_detect and p_false_alarm (rows of
     numbers); the values are checked by DetectorModel."""
-    if not isinstance(bl, dict):
-        raise DetectorModelError(f"{where(source, 'blur')}: expected a mapping")
+    edges, rows, extra = _tables_from_dict(bl, "blur", "edges_px",
+                                           ("p_detect", "p_false_alarm"), source)
+    return BlurModel(edges, rows[0], rows[1], extra)
+
+
+def _confidence_from_dict(sec: Any, source: str | None) -> ConfidenceModel:
+    """The ``confidence`` section: edges (numbers), tp_density and fp_density (rows of
+    numbers); the values are checked by DetectorModel."""
+    edges, rows, extra = _tables_from_dict(sec, "confidence", "edges",
+                                           ("tp_density", "fp_density"), source)
+    return ConfidenceModel(edges, rows[0], rows[1], extra)
+
+
+def _tables_from_dict(sec: Any, name: str, edges_key: str, table_keys: tuple[str, ...],
+                      source: str | None
+                      ) -> tuple[tuple[float, ...], list[tuple[tuple[float, ...], ...]],
+                                 dict[str, Any]]:
+    """A section of edges and tables (rows of numbers): the edges, the tables in the order
+    of ``table_keys``, and the section's other keys. Sizes are bounded before anything is
+    built (``_check_bins``); the values are checked by DetectorModel."""
+    if not isinstance(sec, dict):
+        raise DetectorModelError(f"{where(source, name)}: expected a mapping")
 
     def numbers(v: Any) -> bool:
         return isinstance(v, list) and all(
             isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
 
-    for key in ("edges_px", "p_detect", "p_false_alarm"):
-        v = bl.get(key)
-        for part in (v, *(v if key != "edges_px" and isinstance(v, list) else ())):
-            _check_bins(part, f"blur.{key}", source)
-        if key == "edges_px" and not numbers(v) or key != "edges_px" and not (
+    for key in (edges_key, *table_keys):
+        v = sec.get(key)
+        for part in (v, *(v if key != edges_key and isinstance(v, list) else ())):
+            _check_bins(part, f"{name}.{key}", source)
+        if key == edges_key and not numbers(v) or key != edges_key and not (
                 isinstance(v, list) and all(numbers(row) for row in v)):
             raise DetectorModelError(
-                f"{where(source, 'blur.' + key)}: expected "
-                f"{'a list of numbers' if key == 'edges_px' else 'a list of rows of numbers'}"
+                f"{where(source, name + '.' + key)}: expected "
+                f"{'a list of numbers' if key == edges_key else 'a list of rows of numbers'}"
                 f", got {v!r}")
-    return BlurModel(tuple(float(x) for x in bl["edges_px"]),
-                     tuple(tuple(float(x) for x in row) for row in bl["p_detect"]),
-                     tuple(tuple(float(x) for x in row) for row in bl["p_false_alarm"]),
-                     {k: v for k, v in bl.items()
-                      if k not in ("edges_px", "p_detect", "p_false_alarm")})
+    return (tuple(float(x) for x in sec[edges_key]),
+            [tuple(tuple(float(x) for x in row) for row in sec[key]) for key in table_keys],
+            {k: v for k, v in sec.items() if k not in (edges_key, *table_keys)})

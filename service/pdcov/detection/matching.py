@@ -99,7 +99,8 @@ class ImageMatch:
 @dataclass(frozen=True, slots=True)
 class Matches:
     """Matching outcome of a whole set: sizes (detector-input px) of the counted ground truth
-    and whether it was detected; of the counted detections and whether they were true; and
+    and whether it was detected; of the counted detections, whether they were true and their
+    confidences; and
     how many boxes each status holds (e.g. ``truth_degenerate``). truth_blur_px,
     detection_blur_px: the motion blur of each counted box's image, in detector-input px
     (NaN when no blur was given). image_area_mpx: the images' summed area in megapixels of
@@ -111,6 +112,7 @@ class Matches:
     truth_detected: np.ndarray
     detection_size_px: np.ndarray
     detection_true: np.ndarray
+    detection_confidence: np.ndarray
     n_images: int
     status_counts: dict[str, int]
     truth_blur_px: np.ndarray
@@ -234,6 +236,7 @@ class MatchCollector:
         self._t_hit: list[np.ndarray] = []
         self._d_size: list[np.ndarray] = []
         self._d_true: list[np.ndarray] = []
+        self._d_conf: list[np.ndarray] = []
         self._t_blur: list[np.ndarray] = []
         self._d_blur: list[np.ndarray] = []
         self._counts: Counter[str] = Counter()
@@ -254,6 +257,7 @@ class MatchCollector:
         self._t_hit.append(m.truth_status[tk] == TruthStatus.DETECTED)
         self._d_size.append(_sqrt_area(dets.xywh[dk]) * scale)
         self._d_true.append(m.detection_status[dk] == DetectionStatus.TRUE)
+        self._d_conf.append(dets.scores[dk])
         self._t_blur.append(np.full(int(tk.sum()), blur_px * scale))
         self._d_blur.append(np.full(int(dk.sum()), blur_px * scale))
         self._counts.update(f"truth_{TruthStatus(s).name.lower()}" for s in m.truth_status)
@@ -269,7 +273,8 @@ class MatchCollector:
             return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
 
         return Matches(self.settings, cat(self._t_size, float), cat(self._t_hit, bool),
-                       cat(self._d_size, float), cat(self._d_true, bool), self._n_images,
+                       cat(self._d_size, float), cat(self._d_true, bool),
+                       cat(self._d_conf, float), self._n_images,
                        dict(sorted(self._counts.items())), cat(self._t_blur, float),
                        cat(self._d_blur, float), self._area_px2 / 1e6)
 

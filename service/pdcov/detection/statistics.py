@@ -6,7 +6,8 @@ sizes in detector-input pixels), counts, models and test results out. Steps:
 1. ``count_in_bins``: N_true and N_det by ground-truth size, N_total and N_TP by detection size;
    ``fit_binned``: P_D = N_det / N_true, P_FA = 1 - N_TP / N_total with 95 % intervals,
    and the false-box rate (N_total - N_TP) / (images' area, Mpx) with its Garwood interval;
-   ``fit_logistic``: P_D and P_FA as logistic functions of log size (MIL-HDBK-1823A hit/miss).
+   ``fit_logistic``: P_D and P_FA as logistic functions of log size (MIL-HDBK-1823A hit/miss);
+   ``fit_confidence``: per size bin, the histograms of true and of false boxes' confidences.
 2. ``validate``: observed against predicted detections per bin on another split.
 """
 
@@ -19,13 +20,14 @@ from typing import Any
 import numpy as np
 from scipy import optimize, special, stats
 
-from pdcov.core.detector import BinCounts, BlurModel, DetectorModel
+from pdcov.core.detector import BinCounts, BlurModel, ConfidenceModel, DetectorModel
 from pdcov.detection.matching import Matches
 from pdcov.errors import ConfigError, DetectorModelError, InputFileError
 
 CONFIDENCE_LEVEL = 0.95
 INTERVAL_METHODS = {"wilson": "wilson", "clopper-pearson": "exact"}  # ours -> scipy's name
 BIN_RULES = ("quantile", "log")
+DEFAULT_CONFIDENCE_BINS = 10
 VALIDATION_TESTS = ("binomial", "chi2", "fisher")
 _Z95 = float(stats.norm.ppf(0.5 + CONFIDENCE_LEVEL / 2))
 
@@ -218,7 +220,8 @@ def fit_binned_blur(matches: Matches, edges: tuple[float, ...],
         sub = replace(matches, truth_size_px=matches.truth_size_px[ti == j],
                       truth_detected=matches.truth_detected[ti == j],
                       detection_size_px=matches.detection_size_px[di == j],
-                      detection_true=matches.detection_true[di == j])
+                      detection_true=matches.detection_true[di == j],
+                      detection_confidence=matches.detection_confidence[di == j])
         c = count_in_bins(sub, edges)
         p_d, p_fa, ci_d, ci_fa = _binned_rates(c, interval)
         for key, v in (("p_detect", p_d), ("p_false_alarm", p_fa)):
@@ -234,6 +237,41 @@ def fit_binned_blur(matches: Matches, edges: tuple[float, ...],
     return replace(model, blur=BlurModel(tuple(float(e) for e in blur_edges),
                                          tuple(rows["p_detect"]), tuple(rows["p_false_alarm"]),
                                          extra))
+
+
+def fit_confidence(matches: Matches, edges: tuple[float, ...],
+                   n_bins: int = DEFAULT_CONFIDENCE_BINS) -> ConfidenceModel | None:
+    """Per size bin of ``edges`` (by detection size, px), the densities of the confidences of
+    the counted detections, the true (matched) and the false (unmatched) apart, on ``n_bins``
+    equal bins over [confidence threshold, 1]. Smoothed add-one (Laplace): a bin of width w
+    holding n_k of a size bin's n boxes has density (n_k + 1) / ((n + K) w), so no bin is 0
+    and a size bin without boxes is uniform (its confidences are no evidence). None at a
+    threshold of 1, where there is no range to bin."""
+    if n_bins < 1:
+        raise ConfigError(f"--confidence-bins: expected at least 1 bin, got {n_bins}")
+    threshold = matches.settings.confidence_threshold
+    if threshold >= 1:
+        return None
+    c_edges = np.linspace(threshold, 1.0, n_bins + 1)
+    si = bin_of(matches.detection_size_px, edges)
+    ci = np.clip(np.searchsorted(c_edges, matches.detection_confidence, side="right") - 1,
+                 0, n_bins - 1)
+    n_size = len(edges) - 1
+
+    def counts(true: bool) -> np.ndarray:
+        keep = (si >= 0) & (matches.detection_true == true)
+        return np.bincount(si[keep] * n_bins + ci[keep],
+                           minlength=n_size * n_bins).reshape(n_size, n_bins)
+
+    def density(n: np.ndarray) -> tuple[tuple[float, ...], ...]:
+        d = (n + 1) / (n.sum(axis=1, keepdims=True) + n_bins) / np.diff(c_edges)
+        return tuple(tuple(_round_sig(float(v)) for v in row) for row in d)
+
+    n_tp, n_fp = counts(True), counts(False)
+    return ConfidenceModel(tuple(round(float(e), 6) for e in c_edges), density(n_tp),
+                           density(n_fp), {"smoothing": "add-one",
+                                           "n_true_positives": n_tp.tolist(),
+                                           "n_false_positives": n_fp.tolist()})
 
 
 @dataclass(frozen=True, slots=True)
