@@ -34,7 +34,7 @@ import numpy as np
 from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection
-from pdcov.core.geolocate import Geolocation, locate_boxes
+from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
@@ -112,14 +112,15 @@ class DetectionTracker:
         return len(self._groups)
 
     def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box],
-              camera: CameraModel | None = None) -> list[Detection]:
+              camera: CameraModel | None = None,
+              accuracy: PositionAccuracy | None = None) -> list[Detection]:
         """The detections of one decided frame's ``boxes`` (its time ``t_boot_s``, autopilot
         boot clock, s; ``pose`` the one the grid took; ``camera`` the frame's own, a zoomed
         lens, None: the tracker's), each grouped into a candidate; the boxes not geolocated
         are counted in ``skipped``."""
         boxes = tuple(boxes)
-        points, sigmas = locate_boxes(camera or self.camera, pose, boxes, self.geolocation,
-                                      self.terrain)
+        points, sigmas = locate_boxes(camera or self.camera, pose, boxes,
+                                      self.geolocation.with_accuracy(accuracy), self.terrain)
         out = []
         for box, r, sigma in zip(boxes, points, sigmas, strict=True):
             if not np.isfinite(sigma):

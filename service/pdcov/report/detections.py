@@ -16,6 +16,7 @@ from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
+from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
@@ -28,9 +29,11 @@ DETECTIONS_FILE = "detections.json"
 def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                       poses: Iterable[CameraPose],
                       frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
-                      cameras: Sequence[CameraModel | None] = ()) -> dict[str, Any]:
+                      cameras: Sequence[CameraModel | None] = (),
+                      accuracies: Sequence[PositionAccuracy | None] = ()) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
-    in time order, with ``cameras`` their zoomed cameras, if any) with boxes in
+    in time order, with ``cameras`` their zoomed cameras, if any, and ``accuracies`` the
+    GNSS accuracies in force at them, if any: telemetry/gnss_accuracy.py) with boxes in
     ``frame_boxes`` ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s looks,
     P_D and P_FA at its cell."""
     tracker = DetectionTracker.for_mission(mission)
@@ -38,7 +41,8 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
     for i, pose in enumerate(poses):
         held = frame_boxes.get(pose.t_s)
         if held is not None:
-            detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None)
+            detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None,
+                                        accuracy=accuracies[i] if accuracies else None)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id)
 

@@ -24,6 +24,7 @@ from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_det
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin
+from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
@@ -64,15 +65,17 @@ class LiveDetections:
             self._n_held -= dropped
             self.faults["boxes_dropped_waiting"] += dropped
 
-    def frame(self, pose: CameraPose, camera: CameraModel | None = None) -> None:
+    def frame(self, pose: CameraPose, camera: CameraModel | None = None,
+              accuracy: PositionAccuracy | None = None) -> None:
         """The grid took the frame at ``pose.t_s`` with ``pose`` (and ``camera``, a zoomed
-        lens; None: the mission's): its boxes, geolocated."""
+        lens; None: the mission's): its boxes, geolocated with the GNSS ``accuracy`` in
+        force at the frame (None: unknown, the configured sigmas)."""
         held = self._held.pop(pose.t_s, None)
         if held is None:
             return
         self._n_held -= len(held[1])
         before = Counter(self.tracker.skipped)
-        self._new += self.tracker.frame(pose, *held, camera=camera)
+        self._new += self.tracker.frame(pose, *held, camera=camera, accuracy=accuracy)
         self.faults.update(self.tracker.skipped - before)
 
     def decided(self, last_frame_t_s: float) -> None:
