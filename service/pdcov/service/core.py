@@ -123,9 +123,10 @@ class Actions:
 def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
                                              Callable[[Mapping[str, float]], bool] | None]:
     """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, the zoom reports the cameras'
-    camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the one list of
-    mount parameters of each gimbal device (gimbal.mount_params_to_read, as mount-check)."""
+    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, the zoom reports
+    the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the
+    one list of mount parameters of each gimbal device (gimbal.mount_params_to_read, as
+    mount-check)."""
     link, cams = cfg.link, cfg.mission.all_cameras
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
                  HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ}
