@@ -24,6 +24,7 @@ from pdcov.bus.frames import encode_frames_v2
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.cli import main as pdcov_main
 from pdcov.core.detections import Box, FrameBoxes
+from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.service.core import LinkReport
 from pdcov.service.detections import DETECTIONS_PERIOD_S
@@ -198,3 +199,46 @@ def test_real_ardupilot_logs_report_the_simulated_receiver_s_accuracy() -> None:
         known = np.isfinite(g.horizontal_m)
         assert len(g.t_s) > 700 and known.mean() > 0.9, name
         np.testing.assert_array_equal(np.unique(g.horizontal_m[known]), [0.3])
+
+
+# --- the simulator's receiver ------------------------------------------------------------
+
+@pytest.mark.parametrize("sigma_m", [0.3, 0.05])
+def test_the_simulator_reports_the_accuracy_its_receiver_has(sigma_m: float) -> None:
+    """GPS_RAW_INT of a vehicle at rest: h_acc = the receiver's horizontal 1-sigma per axis
+    (mm), v_acc 5/3 of it, and the reported positions scatter about the truth by that much
+    (4000 messages of a random walk with phi 0.95: as many as 4000 (1 - phi) / (1 + phi) =
+    100 independent ones, so the measured sd is within about 7 %, checked to 25 %)."""
+    from pdcov_sitl.dynamics import VehicleState
+    from pdcov_sitl.messages import MessageBuilder, Snapshot
+
+    home = (47.397742, 8.545594, 488.0)
+    builder = MessageBuilder(mavlink.MAVLink(None), "ardupilot", home, 3,
+                             gnss_accuracy_m=sigma_m)
+    state = VehicleState(0.0, *home, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, 0.0, 0.0,
+                         0.0, 0.0, 0.0, 0.0)
+    enu, accuracies = [], set()
+    for k in range(4000):
+        snap = Snapshot(state, 200 * k, 0, (0.0, 0.0, 0.0), "waypoint", True, None, 0, 0,
+                        0.0, 1.0)
+        msg = builder.build("GPS_RAW_INT", snap)
+        accuracies.add((msg.h_acc, msg.v_acc))
+        enu.append(geodetic_to_enu(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                                   Origin(*home)).reshape(3))
+    assert accuracies == {(round(sigma_m * 1000), round(sigma_m * 5000 / 3))}
+    sd = np.std(np.array(enu), axis=0)
+    np.testing.assert_allclose(sd, [sigma_m, sigma_m, sigma_m * 5 / 3], rtol=0.25)
+    with pytest.raises(ValueError, match="gnss_accuracy_m 0.0: expected 0.001..100 m"):
+        MessageBuilder(mavlink.MAVLink(None), "ardupilot", home, 3, gnss_accuracy_m=0.0)
+
+
+@pytest.mark.parametrize("value", ["0", "nan", "150"])
+def test_fly_refuses_a_gnss_accuracy_it_cannot_send(value: str, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from pdcov_sitl.cli import main as sitl_main
+
+    assert sitl_main(["fly", "--config", str(tmp_path / "m.yaml"), "--plan",
+                      str(tmp_path / "p.plan"), "--out", str(tmp_path),
+                      "--gnss-accuracy-m", value]) == 2
+    assert (f"pdcov-sitl fly: --gnss-accuracy-m {float(value)}: expected 0.001 <= H <= 100 m"
+            in capsys.readouterr().err)
