@@ -39,6 +39,13 @@ from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.samples import GnssAccuracySample
 from pdcov.telemetry.series import GnssAccuracySeries
 
+
+def _in_force(sample: GnssAccuracySample) -> PositionAccuracy | None:
+    """The accuracy a frame 1 s after ``sample`` (its only report) is geolocated with."""
+    series = GnssAccuracySeries.from_samples([sample])
+    return position_accuracies(*accuracy_at(series, np.array([sample.t_s + 1.0])))[0]
+
+
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
 UINT32_MAX = 2**32 - 1
 
@@ -64,8 +71,9 @@ def _gps_raw_int(h_acc: int, v_acc: int, fix_type: int = 3, *, mavlink1: bool = 
 
 
 def test_gps_raw_int_h_acc_v_acc_in_mm_become_metres() -> None:
-    assert _gps_raw_int(250, 400).accuracy == PositionAccuracy(0.25, 0.4)
-    assert _gps_raw_int(1_000_000, 1).accuracy == PositionAccuracy(1000.0, 0.001)
+    assert _gps_raw_int(250, 400) == GnssAccuracySample(7.0, 0.25, 0.4)
+    assert _in_force(_gps_raw_int(250, 400)) == PositionAccuracy(0.25, 0.4)
+    assert _in_force(_gps_raw_int(1_000_000, 1)) == PositionAccuracy(1000.0, 0.001)
 
 
 @pytest.mark.parametrize(("h_acc", "v_acc", "fix_type", "mavlink1"), [
@@ -80,7 +88,7 @@ def test_gps_raw_int_h_acc_v_acc_in_mm_become_metres() -> None:
 def test_gps_raw_int_without_an_accuracy_is_unknown(h_acc: int, v_acc: int, fix_type: int,
                                                     mavlink1: bool) -> None:
     sample = _gps_raw_int(h_acc, v_acc, fix_type, mavlink1=mavlink1)
-    assert sample.accuracy is None  # still a report: from its time on, unknown
+    assert _in_force(sample) is None  # still a report: from its time on, unknown
 
 
 class _DataFlash:
@@ -96,9 +104,10 @@ class _DataFlash:
 
 def test_dataflash_gpa_and_ulog_gps_accuracy() -> None:
     (s,) = samples_from_dataflash(_DataFlash("GPA", TimeUS=0, I=0, HAcc=0.52, VAcc=0.9), 3.0)
-    assert s == GnssAccuracySample(3.0, 0.52, 0.9) and s.accuracy == PositionAccuracy(0.52, 0.9)
+    assert s == GnssAccuracySample(3.0, 0.52, 0.9)
+    assert _in_force(s) == PositionAccuracy(0.52, 0.9)
     (s,) = samples_from_dataflash(_DataFlash("GPA", TimeUS=0, I=0, HAcc=0.0, VAcc=0.0), 3.0)
-    assert s.accuracy is None
+    assert _in_force(s) is None
     assert samples_from_dataflash(_DataFlash("GPA", TimeUS=0, I=1, HAcc=0.5, VAcc=0.9),
                                   3.0) == ()  # the second receiver: not read
 
@@ -107,7 +116,7 @@ def test_dataflash_gpa_and_ulog_gps_accuracy() -> None:
 
     fields = {"eph": np.array([0.8, 0.8, -1.0]), "epv": np.array([1.5, 1.5, 1.5]),
               "fix_type": np.array([3, 1, 3])}
-    got = [s.accuracy for s in _ulog_gnss_accuracy(np.array([1.0, 2.0, 3.0]), fields)]
+    got = [_in_force(s) for s in _ulog_gnss_accuracy(np.array([1.0, 2.0, 3.0]), fields)]
     assert got == [PositionAccuracy(0.8, 1.5), None, None]  # no fix; negative
 
 

@@ -14,8 +14,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from pdcov.core.geolocate import PositionAccuracy
-
 MIN_QUAT_NORM = 0.5
 """A quaternion shorter than this (zero, or nearly) gives no rotation: refused."""
 
@@ -178,12 +176,6 @@ class GnssAccuracySample:
     t_s: float
     horizontal_m: float
     vertical_m: float
-
-    @property
-    def accuracy(self) -> PositionAccuracy | None:
-        """The reported accuracy, None unless both values are known."""
-        h, v = gnss_accuracy_m(self.horizontal_m), gnss_accuracy_m(self.vertical_m)
-        return None if math.isnan(h) or math.isnan(v) else PositionAccuracy(h, v)
 
 
 MAV_SENSOR_ROTATION_PITCH_270 = 25
