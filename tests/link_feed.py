@@ -95,10 +95,12 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
 @dataclass(frozen=True, slots=True)
 class Hover:
     """A vehicle hovering 12 m over the middle of the domain: which messages at which
-    autopilot time (ms) from system 1, component 1 (the gimbal too, as ArduPilot sends)."""
+    autopilot time (ms) from system 1, component 1 (the gimbal too, as ArduPilot sends).
+    gnss_acc_mm: (h_acc, v_acc) of a GPS_RAW_INT (3D fix) sent at 2 Hz (None: none)."""
 
     seconds: float = 4.0
     rate_hz: float = 10.0
+    gnss_acc_mm: tuple[int, int] | None = None
 
     def messages(self) -> list[mavlink.MAVLink_message]:
         mav = mavlink.MAVLink(None)  # encodes fields only; link_feed.pack sets the ids
@@ -112,6 +114,10 @@ class Hover:
             if k % 10 == 0:
                 out.append(mav.heartbeat_encode(2, 3, 128 | 1, 4, 4))
             out.append(mav.attitude_encode(ms, 0.01, -0.02, 0.3, 0, 0, 0))
+            if self.gnss_acc_mm is not None and k % 5 == 0:
+                out.append(mav.gps_raw_int_encode(ms * 1000, 3, lat_e7, lon_e7,
+                                                  round((GROUND_M + 12) * 1000), 70, 110, 0,
+                                                  65535, 14, 0, *self.gnss_acc_mm, 0, 0, 0))
             out.append(mav.global_position_int_encode(ms, lat_e7, lon_e7,
                                                       round((GROUND_M + 12) * 1000), 12_000,
                                                       0, 0, 0, 0))

@@ -33,14 +33,14 @@ def flying_status(seq: int) -> dict:
                             "last_message_age_s": 0.004 + seq * 1e-3}],
                  "system_id": 1, "component_id": 1, "autopilot": 3,
                  "messages": 51234 + 120 * seq, "other_systems": 0, "rejected": {},
-                 "reboots": 0, "intervals": {"acked": [30, 33, 242, 285]},
+                 "reboots": 0, "intervals": {"acked": [24, 30, 33, 242, 285]},
                  "home_request": "acked",
                  "params": {"MNT1_PITCH_MAX": 20.0, "MNT1_PITCH_MIN": -90.0,
                             "MNT1_ROLL_MAX": 30.0, "MNT1_ROLL_MIN": -30.0, "MNT1_TYPE": 1.0,
                             "MNT1_YAW_MAX": 180.0, "MNT1_YAW_MIN": -180.0}},
         "pose": {"lat_deg": 47.39781234567891, "lon_deg": 8.545678912345678,
                  "alt_msl_m": 548.123456789, "heading_deg": 123.456789123,
-                 "t_s": 31.2345678 + seq},
+                 "t_s": 31.2345678 + seq, "gnss_h_acc_m": 0.3000001},
         "gimbal": {"mount": "gimbal", "interpretation": "body",
                    "describe": "servo mount (MNT1_TYPE 1): body-frame demand"},
         "grid": {"hash": "dacaab6c7f64e220", "x0_m": -200.0, "y0_m": -200.0,
@@ -121,7 +121,7 @@ def test_the_watcher_keeps_the_detail_and_sees_a_new_mission():
         w.on_status("uav-07", decode_status(enc.encode(flying_status(i))), float(i))
     feed = w.feeds["uav-07"]
     assert feed.status["full"] is False
-    assert feed.status["link"]["intervals"] == {"acked": [30, 33, 242, 285]}
+    assert feed.status["link"]["intervals"] == {"acked": [24, 30, 33, 242, 285]}
     assert feed.status["grid"]["origin"]["lat_deg"] == 47.397742
     assert feed.status["faults"]["nan_samples"] == 0
     assert w.report(3.0).vehicles[0].link == "connected"

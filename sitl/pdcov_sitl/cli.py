@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from . import __version__
-from .messages import GIMBAL_MODES, GimbalMode
+from .messages import GIMBAL_MODES, GNSS_ACCURACY_M, GNSS_ACCURACY_RANGE_M, GimbalMode
 
 
 class UsageError(Exception):
@@ -61,6 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--rangefinder-noise-m", type=float, default=0.0, metavar="SIGMA",
                    help="1-sigma noise of the downward rangefinder over terrain, m "
                         "(default 0: exact)")
+    f.add_argument("--gnss-accuracy-m", type=float, default=GNSS_ACCURACY_M, metavar="H",
+                   help="1-sigma horizontal error of the GPS receiver per axis, m, which "
+                        f"GPS_RAW_INT reports as h_acc (default {GNSS_ACCURACY_M:g}; the "
+                        "position pdcov uses, "
+                        "GLOBAL_POSITION_INT, is the truth: docs/simulator.md)")
     f.add_argument("--signing-key", metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits: sign every message and ignore "
                         "unsigned or wrongly signed ones (as the daemon's link.signing_key)")
@@ -119,6 +124,10 @@ def run_fly(args: argparse.Namespace) -> int:
     if not 0 <= args.rangefinder_noise_m < 10:
         raise UsageError(f"--rangefinder-noise-m {args.rangefinder_noise_m}: expected "
                          "0 <= SIGMA < 10 m")
+    lo, hi = GNSS_ACCURACY_RANGE_M
+    if not lo <= args.gnss_accuracy_m <= hi:
+        raise UsageError(f"--gnss-accuracy-m {args.gnss_accuracy_m}: expected "
+                         f"{lo:g} <= H <= {hi:g} m")
     key = None
     if args.signing_key is not None:
         try:
@@ -144,7 +153,7 @@ def run_fly(args: argparse.Namespace) -> int:
                           wait_mission=args.wait_mission, camera_trigger=args.camera_trigger,
                           signing_key=key, ground=mission.dem,
                           rangefinder=Rangefinder(noise_m=args.rangefinder_noise_m),
-                          people=people)
+                          gnss_accuracy_m=args.gnss_accuracy_m, people=people)
         result = fly(opts)
     except (PdcovError, FaultSpecError, LinkError) as exc:
         raise UsageError(str(exc)) from None

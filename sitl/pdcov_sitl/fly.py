@@ -56,6 +56,7 @@ from .messages import (
     GIMBAL_COMPONENT,
     GIMBAL_DEVICE_STREAMS_HZ,
     GIMBAL_FAILED_FLAGS,
+    GNSS_ACCURACY_M,
     STREAMS_HZ,
     TERRAIN_STREAMS_HZ,
     GimbalMode,
@@ -99,6 +100,8 @@ class FlyOptions:
     ground: GroundModel | None = None
     """The world's ground (the mission's DEM); None: level at the origin's altitude."""
     rangefinder: Rangefinder = Rangefinder()
+    gnss_accuracy_m: float = GNSS_ACCURACY_M
+    """The GPS receiver's 1-sigma horizontal error per axis (m), GPS_RAW_INT's h_acc."""
     people: People | None = None
     """People on the ground and the simulated detector looking for them; None: none."""
 
@@ -305,7 +308,8 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
     mode = opts.gimbal_mode
     builder = MessageBuilder(endpoint.mav, opts.autopilot,
                              (home.lat_deg, home.lon_deg, home.ground_alt_msl_m), opts.seed,
-                             ground=opts.ground, rangefinder=opts.rangefinder)
+                             ground=opts.ground, rangefinder=opts.rangefinder,
+                             gnss_accuracy_m=opts.gnss_accuracy_m)
     device_schedule = (StreamSchedule(GIMBAL_DEVICE_STREAMS_HZ,
                                       random.Random(f"{opts.seed}:gimbal-device"))
                        if device else None)

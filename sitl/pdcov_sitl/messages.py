@@ -164,17 +164,36 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
+GNSS_ACCURACY_M = 0.3
+"""The GPS receiver's default 1-sigma horizontal error per axis (m, ``--gnss-accuracy-m``)."""
+GNSS_ACCURACY_RANGE_M = (0.001, 100.0)
+"""The receiver errors the simulator takes (m): at least 1 mm, the unit h_acc is sent in."""
+GNSS_VERTICAL_PER_HORIZONTAL = 5.0 / 3.0
+"""Its vertical error per horizontal one (a receiver's vertical is the worse)."""
+GNSS_WALK_PHI = 0.95
+"""The receiver's error is a first-order random walk per message: e <- phi e + w, w Gaussian;
+its steady 1-sigma is sd(w) / sqrt(1 - phi^2) (20 messages, 4 s at 5 Hz, to forget)."""
+
+
 class MessageBuilder:
     """Builds the autopilot's messages by stream name. ``mavlink`` is the endpoint's MAVLink
     object (``.X_encode``); home: (lat_deg, lon_deg, alt_msl_m). ground: the world's ground
-    (TERRAIN_REPORT, DISTANCE_SENSOR; None: neither is built); rangefinder: its sensor."""
+    (TERRAIN_REPORT, DISTANCE_SENSOR; None: neither is built); rangefinder: its sensor.
+    gnss_accuracy_m: the GPS receiver's 1-sigma horizontal error per axis (m), the h_acc
+    GPS_RAW_INT reports (its vertical GNSS_VERTICAL_PER_HORIZONTAL times it, v_acc)."""
 
     def __init__(self, mavlink: mav.MAVLink, autopilot: Autopilot,
                  home: tuple[float, float, float], seed: int,
                  ground: GroundModel | None = None,
-                 rangefinder: Rangefinder = Rangefinder()) -> None:
+                 rangefinder: Rangefinder = Rangefinder(),
+                 gnss_accuracy_m: float = GNSS_ACCURACY_M) -> None:
         if autopilot not in AUTOPILOTS:
             raise ValueError(f"autopilot {autopilot!r}: expected one of {AUTOPILOTS}")
+        lo, hi = GNSS_ACCURACY_RANGE_M
+        if not lo <= gnss_accuracy_m <= hi:
+            raise ValueError(f"gnss_accuracy_m {gnss_accuracy_m!r}: expected {lo:g}..{hi:g} m")
+        self.gnss_sigma_m = (gnss_accuracy_m, gnss_accuracy_m,
+                             gnss_accuracy_m * GNSS_VERTICAL_PER_HORIZONTAL)
         self.m = mavlink
         self.autopilot = autopilot
         self.home = home
@@ -247,12 +266,14 @@ class MessageBuilder:
 
     def _gps_raw_int(self, s: Snapshot) -> mav.MAVLink_message:
         lat, lon, alt, _n, _e, _d = self._reported_position(s)
-        # The receiver's own error: a slow random walk of ~0.3 m (the EKF output,
-        # GLOBAL_POSITION_INT, is the truth).
+        # The receiver's own error: a slow random walk (GNSS_WALK_PHI) whose steady 1-sigma
+        # is gnss_sigma_m, which h_acc / v_acc report (mm). The EKF output,
+        # GLOBAL_POSITION_INT, is the truth: docs/simulator.md.
         g = self._gps_rng.gauss
         noise = self._gps_noise
-        for i in range(3):
-            noise[i] += -0.05 * noise[i] + 0.1 * g(0.0, 1.0)
+        step = math.sqrt(1.0 - GNSS_WALK_PHI ** 2)
+        for i, sigma in enumerate(self.gnss_sigma_m):
+            noise[i] = GNSS_WALK_PHI * noise[i] + sigma * step * g(0.0, 1.0)
         lat += math.degrees(noise[0] / self._m_per_rad[0])
         lon += math.degrees(noise[1] / self._m_per_rad[1])
         vn, ve, _vd = s.state.v_ned_mps
@@ -261,8 +282,8 @@ class MessageBuilder:
         return self.m.gps_raw_int_encode(
             s.time_boot_ms * 1000, mav.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7),
             round((alt + noise[2]) * 1000), 70, 110, round(vel * 100),
-            cog if vel > 0.5 else 65535, 14, round((alt + noise[2]) * 1000), 300, 500, 100, 0,
-            0)
+            cog if vel > 0.5 else 65535, 14, round((alt + noise[2]) * 1000),
+            round(self.gnss_sigma_m[0] * 1000), round(self.gnss_sigma_m[2] * 1000), 100, 0, 0)
 
     def _home_position(self, s: Snapshot) -> mav.MAVLink_message:
         lat, lon, alt = self.home

@@ -3,7 +3,8 @@
 Fields (docs/protocol.md "status" gives each one's meaning and unit): schema, version,
 vehicle_id, seq, uptime_s, t_s, thresholds, proportion_at_or_above, mean_pd,
 expected_false_alarms, cells_free, cells_observed, frames {used, skipped {reason: n}},
-link {...}, pose {lat_deg, lon_deg, alt_msl_m, heading_deg, t_s} or null, gimbal {...},
+link {...}, pose {lat_deg, lon_deg, alt_msl_m, heading_deg, t_s, gnss_h_acc_m} or null,
+gimbal {...},
 grid {hash, x0_m, y0_m, cell_size_m, n_rows, n_cols, tile_size, origin {lat_deg,
 lon_deg, ground_alt_msl_m}}, tiles_seq, faults {name: n}, checkpoint {...}, full, and
 with a DEM terrain_check {margin_m, checked, mismatches, refused, largest, latest}, and
@@ -29,6 +30,7 @@ from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config import MAX_THRESHOLDS
+from pdcov.telemetry.samples import MAX_GNSS_ACCURACY_M
 
 STATUS_SCHEMA = "pdcov.status"
 STATUS_VERSION = 1
@@ -45,7 +47,8 @@ CHECKPOINT_PROGRESS = ("last_t_s", "written_unix_s", "frames")
 """Checkpoint fields that change with every checkpoint written: carried by full statuses,
 not a detail change (else every checkpoint's status would be full: 1,061-1,071 B per
 status, over the 1 kB/s budget, in benchmarks.fleet)."""
-_POSE_DECIMALS = {"lat_deg": 7, "lon_deg": 7, "alt_msl_m": 2, "heading_deg": 1, "t_s": 3}
+_POSE_DECIMALS = {"lat_deg": 7, "lon_deg": 7, "alt_msl_m": 2, "heading_deg": 1, "t_s": 3,
+                  "gnss_h_acc_m": 3}
 
 _U32 = 2**32 - 1
 _U64 = 2**64 - 1
@@ -69,7 +72,7 @@ class StatusEncoder:
     leaves out (bar the terrain check, whose counts change with every reading), less the
     message ages that change every time. Both kinds carry every required field, so any
     version-1 receiver reads both. Pose numbers are rounded to what they mean (1 cm in
-    latitude and longitude, 0.1 deg, 1 ms)."""
+    latitude and longitude, 0.1 deg, 1 ms, 1 mm of GNSS accuracy)."""
 
     def __init__(self, full_every: int = FULL_EVERY) -> None:
         if full_every < 1:
@@ -206,6 +209,7 @@ def decode_status(payload: bytes, key: str = "status",
         pose.number_or_null("alt_msl_m", -1e4, 1e5)
         pose.number_or_null("heading_deg", -360.0, 360.0)
         pose.number_or_null("t_s")
+        pose.number_or_null("gnss_h_acc_m", 0.0, MAX_GNSS_ACCURACY_M)  # absent: older daemon
     gimbal = f.obj("gimbal")
     for name in ("mount", "interpretation"):
         gimbal.string_or_null(name, max_len=40)

@@ -150,10 +150,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
     # The daemon's filter (frame_policy.below_min_height), applied to the poses of a CSV too.
     low = sum(1 for p in poses if below_min_height(p.r_cam_enu[2], mission.min_height_m))
     cameras = log_poses.cameras if log_poses is not None else ()
+    accuracies = log_poses.accuracies if log_poses is not None else ()
     if low:
         high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in poses]
         poses = [p for p, h in zip(poses, high, strict=True) if h]
         cameras = tuple(c for c, h in zip(cameras, high, strict=False) if h)
+        accuracies = tuple(a for a, h in zip(accuracies, high, strict=False) if h)
         lines.append(f"{low} frames with the camera below coverage.min_height_m = "
                      f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
     if not poses:
@@ -183,7 +185,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.report.detections import flight_detections
         detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes,
-                                       cameras, poa=None if prior is None else prior.poa)
+                                       cameras, accuracies,
+                                       poa=None if prior is None else prior.poa)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)

@@ -31,12 +31,14 @@ from pdcov.telemetry.frame_policy import (
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
+from pdcov.telemetry.gnss_accuracy import position_accuracies
 from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.samples import (
     AttitudeSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     LensSample,
     PositionSample,
 )
@@ -47,6 +49,7 @@ if TYPE_CHECKING:
     from pdcov.config import MissionCamera
     from pdcov.core.camera import CameraModel
     from pdcov.core.geodesy import Origin
+    from pdcov.core.geolocate import PositionAccuracy
 
 __all__ = ["BATCH_OF_HISTORY", "MAX_WAITING_SAMPLES", "PARAMS_ORIGIN", "CameraFrames",
            "FrameSink", "TrackedSample", "tracker_history_s"]
@@ -54,10 +57,13 @@ __all__ = ["BATCH_OF_HISTORY", "MAX_WAITING_SAMPLES", "PARAMS_ORIGIN", "CameraFr
 PARAMS_ORIGIN = "the autopilot's parameters over MAVLink"
 MAX_WAITING_SAMPLES = 2_000_000
 """Samples kept while the origin or gimbal reading is unknown (about 10 h of telemetry)."""
-TrackedSample = AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
+TrackedSample = (AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
+                 | GnssAccuracySample)
 """The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
-FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel"], None]
-"""Told of every frame a camera's grid took (after ``grid.update_with``)."""
+FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel", "PositionAccuracy | None"],
+                     None]
+"""Told of every frame a camera's grid took (after ``grid.update_with``), with the GNSS
+accuracy in force at it (gnss_accuracy.py; None: unknown)."""
 
 
 BATCH_OF_HISTORY = 0.25
@@ -97,6 +103,7 @@ class CameraFrames:
                                       needed, self.waiting, skipped)
         self.last_pose: CameraPose | None = None
         self.last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
+        self.last_accuracy: PositionAccuracy | None = None  # the GNSS's at last_pose
 
     def add(self, sample: TrackedSample) -> None:
         """A tracked sample of the link (checked by LiveCoverage), kept until fed."""
@@ -142,6 +149,9 @@ class CameraFrames:
                 continue
             elif isinstance(s, LensSample):  # lens_reports.py: the estimator's rule
                 tr.add_lens(s)
+                continue
+            elif isinstance(s, GnssAccuracySample):  # gnss_accuracy.py: likewise
+                tr.add_gnss_accuracy(s)
                 continue
             else:
                 before = tr.gimbal_source
@@ -218,17 +228,19 @@ class CameraFrames:
         _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = unjudged = 0
         cameras = frame_cameras(self.cam.zoom, b.lens_value[use])
-        for R, r, t, R_body, judged, v, omega, camera in zip(
+        accuracies = position_accuracies(b.gnss_h_acc_m[use], b.gnss_v_acc_m[use])
+        for R, r, t, R_body, judged, v, omega, camera, accuracy in zip(
                 R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
                 b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
-                cameras, strict=True):
+                cameras, accuracies, strict=True):
             pose = CameraPose(R, r, float(t), *known_motion(v, omega))
             self.last_pose, self.last_R_ned_body = pose, R_body
+            self.last_accuracy = accuracy
             if below_min_height(pose.r_cam_enu[2], self.min_height_m):
                 self.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
                 continue
             self.grid.update_with(pose, camera)
-            self._took(self, pose, camera)
+            self._took(self, pose, camera, accuracy)
             added += 1
             unjudged += not judged
         self.used += added

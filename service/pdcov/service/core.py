@@ -53,6 +53,7 @@ from pdcov.service.link_protocol import (
     ATTITUDE,
     GIMBAL_DEVICE_ATTITUDE_STATUS,
     GLOBAL_POSITION_INT,
+    GPS_RAW_INT,
     HOME_POSITION,
     ZOOM_MESSAGES,
     LinkProtocol,
@@ -72,6 +73,9 @@ if TYPE_CHECKING:  # a value handed in: the decisions never load a config or ope
 EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
 HOME_POSITION_HZ = 0.2
+GNSS_ACCURACY_HZ = 2.0
+"""The rate GPS_RAW_INT (the GNSS accuracy the boxes are geolocated with, telemetry/
+gnss_accuracy.py) is asked for: a few reports within each GNSS_ACCURACY_HOLD_S."""
 ZOOM_REPORT_HZ = 5.0
 """The rate the zoom report camera.zoom follows is asked for, of the autopilot (ArduPilot
 sends its cameras' messages when asked; a MAVLink camera component streams its own)."""
@@ -119,12 +123,13 @@ class Actions:
 def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
                                              Callable[[Mapping[str, float]], bool] | None]:
     """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, the zoom reports the cameras'
-    camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the one list of
-    mount parameters of each gimbal device (gimbal.mount_params_to_read, as mount-check)."""
+    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, the zoom reports
+    the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the
+    one list of mount parameters of each gimbal device (gimbal.mount_params_to_read, as
+    mount-check)."""
     link, cams = cfg.link, cfg.mission.all_cameras
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
-                 HOME_POSITION: HOME_POSITION_HZ}
+                 HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ}
     for cam in cams:
         if cam.zoom is not None:
             intervals[ZOOM_MESSAGES[cam.zoom.lens.quantity]] = ZOOM_REPORT_HZ

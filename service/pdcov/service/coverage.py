@@ -62,6 +62,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     HeartbeatSample,
     HomeSample,
     LensSample,
@@ -73,6 +74,7 @@ from pdcov.telemetry.terrain_check import TerrainCheck, terrain_check_for
 
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
     from pdcov.core.camera import CameraModel
+    from pdcov.core.geolocate import PositionAccuracy
     from pdcov.service.settings import ServeConfig
 
 MILESTONES = (0.25, 0.5, 0.75, 0.9, 1.0)
@@ -230,7 +232,7 @@ class LiveCoverage:
                 follower.add(sample)
             return
         if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample,
-                               LensSample)):
+                               LensSample, GnssAccuracySample)):
             for cam in self.cameras:
                 cam.add(sample)
 
@@ -388,10 +390,11 @@ class LiveCoverage:
                 cam.schedule.resume_lattice(r.t0_s, r.last_frame_t_s)
             cam.used = r.frames_used
 
-    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel) -> None:
+    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel,
+              accuracy: PositionAccuracy | None) -> None:
         """A camera's grid took a frame: the published grid's cells it may have changed
         (the combination, with a cameras list), their tiles and status metrics marked; the
-        primary's boxes geolocated."""
+        primary's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
         window = cam.grid.touched
         if cam.grid is not self.grid:  # limiting over the whole grid, even with no window
             combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
@@ -399,7 +402,7 @@ class LiveCoverage:
             self.tile_sender.touch(window)
             self.metrics.mark(window)
         if cam is self.primary:
-            self.detections.frame(pose, camera, grid=cam.grid)
+            self.detections.frame(pose, camera, accuracy, grid=cam.grid)
 
     @property
     def frames_pending(self) -> int:

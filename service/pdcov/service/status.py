@@ -57,9 +57,11 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
     if live.last_pose is not None and live.origin is not None:
         lat, lon, alt = enu_to_geodetic(live.last_pose.r_cam_enu, live.origin)
         R = live.last_R_ned_body
+        accuracy = live.primary.last_accuracy
         pose = {"lat_deg": float(lat), "lon_deg": float(lon), "alt_msl_m": float(alt),
                 "heading_deg": math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0,
-                "t_s": live.last_pose.t_s}
+                "t_s": live.last_pose.t_s,
+                "gnss_h_acc_m": None if accuracy is None else accuracy.horizontal_m}
     interp = live.interpretation
     gimbal = ({"mount": "fixed", "interpretation": "fixed", "describe": "fixed mount"}
               if not isinstance(m.mount, GimbalMount) else

@@ -21,6 +21,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     HeartbeatSample,
     HomeSample,
     LensSample,
@@ -199,6 +200,22 @@ def _camera_information(msg: Any, t_s: float) -> LensSample:
     return LensSample(t_s, focal_length_mm=_finite_or_nan(msg.focal_length), **_camera_id(msg))
 
 
+GPS_FIX_TYPE_3D_FIX = 3
+"""GPS_FIX_TYPE (common.xml): 0 no GPS, 1 no fix, 2 2D fix, 3 3D fix, 4 DGPS, 5 RTK float,
+6 RTK fixed, 7 static, 8 PPP. Below a 3D fix a reported accuracy is not the position's."""
+
+
+def _gps_raw_int(msg: Any, t_s: float) -> GnssAccuracySample:
+    # h_acc, v_acc: mm, MAVLink 2 extensions (common.xml GPS_RAW_INT "Position uncertainty",
+    # "Altitude uncertainty"): 0 when absent (MAVLink 1, or a sender of an older dialect)
+    # and when the receiver reports none (ArduPilot AP_GPS::send_mavlink_gps_raw sends 0
+    # when its driver has no accuracy). eph is HDOP * 100, not an accuracy: never read.
+    if int(msg.fix_type) < GPS_FIX_TYPE_3D_FIX:
+        return GnssAccuracySample(t_s, math.nan, math.nan)
+    return GnssAccuracySample(t_s, int(getattr(msg, "h_acc", 0) or 0) * 1e-3,
+                              int(getattr(msg, "v_acc", 0) or 0) * 1e-3)
+
+
 _MAVLINK = {
     "ATTITUDE": _attitude,
     "ATTITUDE_QUATERNION": _attitude_quaternion,
@@ -216,6 +233,7 @@ _MAVLINK = {
     "CAMERA_FOV_STATUS": _camera_fov_status,
     "CAMERA_SETTINGS": _camera_settings,
     "CAMERA_INFORMATION": _camera_information,
+    "GPS_RAW_INT": _gps_raw_int,
 }
 MAVLINK_TYPES = tuple(_MAVLINK)
 
@@ -349,10 +367,18 @@ def _df_rfnd(msg: Any, t_s: float) -> RangefinderSample | None:
                              int(msg.Stat) == RFND_STATUS_GOOD, int(getattr(msg, "Instance", 0)))
 
 
+def _df_gpa(msg: Any, t_s: float) -> GnssAccuracySample | None:
+    # GPA HAcc, VAcc: m, the receiver's reported accuracy (AP_GPS::Write_GPS, "GPA"; 0 when
+    # it reports none), first receiver only, as _df_gps.
+    if int(getattr(msg, "I", 0)) != 0:
+        return None
+    return GnssAccuracySample(t_s, float(msg.HAcc), float(msg.VAcc))
+
+
 _DATAFLASH = {"ATT": _df_att, "POS": _df_pos, "MNT": _df_mnt, "PARM": _df_parm,
               "ORGN": _df_orgn, "CAM": _df_cam, "TRIG": _df_cam, "GPS": _df_gps,
               "XKF4": _df_ekf_status, "NKF4": _df_ekf_status, "NKF9": _df_ekf_status,
-              "TERR": _df_terr, "RFND": _df_rfnd}
+              "TERR": _df_terr, "RFND": _df_rfnd, "GPA": _df_gpa}
 DATAFLASH_TYPES = tuple(_DATAFLASH)
 
 

@@ -40,6 +40,7 @@ from pdcov.core.zoom import Zoom
 from pdcov.telemetry.samples import (
     AttitudeSample,
     EstimatorSample,
+    GnssAccuracySample,
     HomeSample,
     ParamSample,
     PositionSample,
@@ -84,10 +85,10 @@ class SkipReason(TextEnum):
 
 
 AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample,
-                  TerrainReportSample, RangefinderSample)
+                  TerrainReportSample, RangefinderSample, GnssAccuracySample)
 """Samples taken from the autopilot component only, live and offline: the vehicle's
-attitude, position, parameters, estimator, terrain database and rangefinder are the
-autopilot's own (a companion computer or an OSD of the same system may send ATTITUDE or
+attitude, position, parameters, estimator, terrain database, rangefinder and GNSS accuracy
+are the autopilot's own (a companion computer or an OSD of the same system may send ATTITUDE or
 GLOBAL_POSITION_INT too); gimbal, home and capture reports come from any component of the
 vehicle's system."""
 

@@ -19,6 +19,7 @@ import numpy as np
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
+from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.pose import CameraPose, FixedMount, known_motion
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.core.zoom import Zoom
@@ -36,6 +37,7 @@ from pdcov.telemetry.frame_policy import (
     untrusted_policy,
 )
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
+from pdcov.telemetry.gnss_accuracy import describe_accuracy, position_accuracies
 from pdcov.telemetry.lens_reports import LensReports, describe_lens
 from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
@@ -62,6 +64,8 @@ class LogPoses:
     the frames ``pdcov serve`` recorded with boxes, when those frames are the ones
     evaluated (recorded_frames). cameras: per used frame, the camera of its zoom report
     (frame_policy.frame_cameras; None: the configured camera), empty without a zoom.
+    accuracies: per used frame, the GNSS accuracy the autopilot reported in force at it
+    (gnss_accuracy.py; None: unknown).
     """
 
     poses: tuple[CameraPose, ...]
@@ -80,6 +84,7 @@ class LogPoses:
     warnings: tuple[str, ...] = ()
     frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]] = field(default_factory=dict)
     cameras: tuple[CameraModel | None, ...] = ()
+    accuracies: tuple[PositionAccuracy | None, ...] = ()
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -247,6 +252,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                                     int(checkable.sum()), estimator_status))
     if lens is not None:
         lines.append(describe_lens(lens, b.lens_value[use]))
+    accuracies = position_accuracies(b.gnss_h_acc_m[use], b.gnss_v_acc_m[use])
+    lines.append(describe_accuracy(log.gnss_accuracy, accuracies))
     if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
@@ -272,7 +279,8 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
                     skipped, tuple(x for x in (choice.warning,) if x),
                     _frame_boxes(log) if frame_source == "capture" else {},
-                    tuple(frame_cameras(zoom, b.lens_value[use])) if zoom is not None else ())
+                    tuple(frame_cameras(zoom, b.lens_value[use])) if zoom is not None else (),
+                    accuracies)
 
 
 def _frame_boxes(log: FlightLog) -> dict[float, tuple[float, tuple[Box, ...]]]:

@@ -42,11 +42,13 @@ from pdcov.telemetry.gimbal import (
     preferred_gimbal_source,
     resolve_interpretation,
 )
+from pdcov.telemetry.gnss_accuracy import accuracy_at, merge_accuracy
 from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.samples import (
     AttitudeSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     LensSample,
     PositionSample,
 )
@@ -54,6 +56,7 @@ from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
     GimbalSeries,
+    GnssAccuracySeries,
     PositionSeries,
     merge_sorted_columns,
 )
@@ -139,7 +142,8 @@ class FrameBatch:
     velocity, ENU m/s; omega_enu_rad_s (N, 3): the camera's angular rate, ENU rad/s (both
     the derivative of the interpolated pose, PoseTracker._rates; NaN when unknown).
     lens_value (N,): the zoom report in force (lens_reports.py; NaN without a zoom lens or
-    where none is)."""
+    where none is). gnss_h_acc_m, gnss_v_acc_m (N,): the GNSS accuracy the autopilot
+    reported, in force (gnss_accuracy.py), m, NaN where unknown."""
 
     t_s: np.ndarray
     skip_reason: np.ndarray
@@ -157,6 +161,8 @@ class FrameBatch:
     v_cam_enu_m_s: np.ndarray
     omega_enu_rad_s: np.ndarray
     lens_value: np.ndarray
+    gnss_h_acc_m: np.ndarray
+    gnss_v_acc_m: np.ndarray
 
     @property
     def valid(self) -> np.ndarray:
@@ -208,6 +214,8 @@ class PoseTracker:
         self.use_estimator = use_estimator
         self._est = EstimatorSeries.from_samples([])
         self._pending_est: list[EstimatorSample] = []
+        self._gnss = GnssAccuracySeries.from_samples([])
+        self._pending_gnss: list[GnssAccuracySample] = []
         self._gimbal_flags_seen: dict[tuple[int, int, int], int] = {}
         self.gimbal_source: tuple[int, int, int] | None = None
         self.dropped_gimbal_reports = 0
@@ -224,6 +232,7 @@ class PoseTracker:
         for sample in log.lens:
             tracker.add_lens(sample)
         tracker._est = log.estimator
+        tracker._gnss = log.gnss_accuracy
         tracker._att = log.attitude
         tracker._set_positions(log.position)
         tracker._gim = tracker._usable_gimbal(log.gimbal)
@@ -240,6 +249,9 @@ class PoseTracker:
 
     def add_estimator(self, sample: EstimatorSample) -> None:
         self._pending_est.append(sample)
+
+    def add_gnss_accuracy(self, sample: GnssAccuracySample) -> None:
+        self._pending_gnss.append(sample)
 
     def add_lens(self, sample: LensSample) -> None:
         """Add a zoom report (ignored when the camera does not zoom)."""
@@ -290,12 +302,17 @@ class PoseTracker:
             self._gim = GimbalSeries(*merge_sorted_columns(_gimbal_columns(self._gim),
                                                     _gimbal_columns(new_gim)))
             self._pending_gim = []
+        cut_s = (self._att.t_s[-1] - self.history_s
+                 if self.history_s is not None and len(self._att.t_s) else None)
         if self._pending_est:  # older reports than can be in force go with them
-            cut_s = (self._att.t_s[-1] - self.history_s
-                     if self.history_s is not None and len(self._att.t_s) else None)
             self._est = merge_estimator(self._est,
                                         EstimatorSeries.from_samples(self._pending_est), cut_s)
             self._pending_est = []
+        if self._pending_gnss:  # likewise
+            self._gnss = merge_accuracy(self._gnss,
+                                        GnssAccuracySeries.from_samples(self._pending_gnss),
+                                        cut_s)
+            self._pending_gnss = []
         if self.history_s is not None and len(self._att.t_s):
             cut = self._att.t_s[-1] - self.history_s
             # Sorted times: the history kept is a slice from the first time >= cut.
@@ -382,7 +399,9 @@ class PoseTracker:
             lens_value, lens_reason = self.lens.at(t)
             late = (lens_reason != "") & (reason == "")
             reason[late] = lens_reason[late]
-        return FrameBatch(**c, estimator_judged=judged, lens_value=lens_value)
+        h_acc, v_acc = accuracy_at(self._gnss, t)
+        return FrameBatch(**c, estimator_judged=judged, lens_value=lens_value,
+                          gnss_h_acc_m=h_acc, gnss_v_acc_m=v_acc)
 
     def _rates(self, t: np.ndarray, at_t: dict[str, np.ndarray]
                ) -> tuple[np.ndarray, np.ndarray]:

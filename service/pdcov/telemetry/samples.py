@@ -152,6 +152,32 @@ class TerrainReportSample:
     has_data: bool
 
 
+MAX_GNSS_ACCURACY_M = 1000.0
+"""A reported position accuracy above this (m) is no accuracy (a receiver without a fix
+reports thousands of km): unknown, as are negative and non-finite ones."""
+
+
+def gnss_accuracy_m(value_m: float) -> float:
+    """``value_m`` (a reported accuracy, m) if it is one, else NaN (unknown): 0 (MAVLink's
+    GPS_RAW_INT says 0 when the receiver reports none), negative, non-finite or above
+    MAX_GNSS_ACCURACY_M."""
+    v = float(value_m)
+    return v if math.isfinite(v) and 0.0 < v <= MAX_GNSS_ACCURACY_M else math.nan
+
+
+@dataclass(frozen=True, slots=True)
+class GnssAccuracySample:
+    """The 1-sigma position accuracy the autopilot's GNSS receiver reports at ``t_s``
+    (GPS_RAW_INT h_acc/v_acc, DataFlash GPA HAcc/VAcc, ULog vehicle_gps_position eph/epv):
+    horizontal_m, vertical_m in m as reported; a value that is none (gnss_accuracy_m) is
+    unknown. A report of an unknown accuracy is a report too: from its time on the accuracy
+    is unknown (telemetry/gnss_accuracy.py)."""
+
+    t_s: float
+    horizontal_m: float
+    vertical_m: float
+
+
 MAV_SENSOR_ROTATION_PITCH_270 = 25
 """MAV_SENSOR_ORIENTATION (common.xml) of a downward-facing sensor (PX4 distance_sensor
 ROTATION_DOWNWARD_FACING, ArduPilot RNGFNDx_ORIENT 25)."""
@@ -197,4 +223,4 @@ class LensSample:
 
 Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
           | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample
-          | TerrainReportSample | RangefinderSample | LensSample)
+          | TerrainReportSample | RangefinderSample | LensSample | GnssAccuracySample)

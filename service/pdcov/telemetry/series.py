@@ -17,8 +17,10 @@ from pdcov.telemetry.samples import (
     AttitudeSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     MountTargetSample,
     PositionSample,
+    gnss_accuracy_m,
 )
 
 
@@ -142,3 +144,18 @@ class MountTargetSeries:
     def from_samples(cls, samples: Sequence[MountTargetSample]) -> MountTargetSeries:
         return cls(*_sorted_columns([(s.t_s, s.roll_rad, s.pitch_rad, s.yaw_body_rad,
                                       s.yaw_earth_rad) for s in samples], 5, 1))
+
+
+@dataclass(frozen=True, slots=True)
+class GnssAccuracySeries:
+    """Reported GNSS accuracies (GnssAccuracySample) sorted by strictly increasing t_s (s):
+    horizontal_m, vertical_m (N,) in m, NaN where unknown (samples.gnss_accuracy_m)."""
+
+    t_s: np.ndarray
+    horizontal_m: np.ndarray
+    vertical_m: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Sequence[GnssAccuracySample]) -> GnssAccuracySeries:
+        return cls(*_sorted_columns([(s.t_s, gnss_accuracy_m(s.horizontal_m),
+                                      gnss_accuracy_m(s.vertical_m)) for s in samples], 3, 1))

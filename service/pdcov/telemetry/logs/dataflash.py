@@ -27,6 +27,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     HomeSample,
     MountTargetSample,
     ParamSample,
@@ -37,6 +38,7 @@ from pdcov.telemetry.samples import (
 from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
+    GnssAccuracySeries,
     MountTargetSeries,
     PositionSeries,
 )
@@ -153,7 +155,8 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
         tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
         MountTargetSeries.from_samples(by_type[MountTargetSample]),
         tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source,
-        tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample])),
+        tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample]),
+        gnss_accuracy=GnssAccuracySeries.from_samples(by_type[GnssAccuracySample])),
         -clock.offset_s)
 
 

@@ -26,12 +26,13 @@ from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
     GimbalSeries,
+    GnssAccuracySeries,
     MountTargetSeries,
     PositionSeries,
 )
 
 _Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries,
-                   EstimatorSeries)
+                   EstimatorSeries, GnssAccuracySeries)
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,7 +50,9 @@ class FlightLog:
     DEM cross-check (``terrain_check``). boxes: the detector boxes ``pdcov serve``
     recorded with its frames (recorded_frames; a tlog's only), stamped as their frames'
     capture events. lens: the cameras' zoom reports (CAMERA_FOV_STATUS, CAMERA_SETTINGS,
-    CAMERA_INFORMATION; a tlog's only), in log order.
+    CAMERA_INFORMATION; a tlog's only), in log order. gnss_accuracy: the accuracy the
+    autopilot's GNSS receiver reported (GPS_RAW_INT, GPA, vehicle_gps_position; empty when
+    the log carries none).
     """
 
     path: str
@@ -73,6 +76,8 @@ class FlightLog:
     rangefinder: tuple[RangefinderSample, ...] = ()
     boxes: tuple[RecordedBox, ...] = ()
     lens: tuple[LensSample, ...] = ()
+    gnss_accuracy: GnssAccuracySeries = field(
+        default_factory=lambda: GnssAccuracySeries.from_samples([]))
 
 
 
@@ -101,6 +106,7 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
     return replace(log, attitude=series(log.attitude), position=series(log.position),
                    gimbal=series(log.gimbal), mount_targets=series(log.mount_targets),
                    estimator=series(log.estimator),
+                   gnss_accuracy=series(log.gnss_accuracy),
                    homes=tuple(replace(h, t_s=h.t_s + dt_s) for h in log.homes),
                    captures=tuple(replace(c, t_s=c.t_s + dt_s) for c in log.captures),
                    terrain_reports=tuple(replace(r, t_s=r.t_s + dt_s)

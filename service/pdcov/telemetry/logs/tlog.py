@@ -37,6 +37,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     HeartbeatSample,
     HomeSample,
     LensSample,
@@ -45,7 +46,12 @@ from pdcov.telemetry.samples import (
     RangefinderSample,
     TerrainReportSample,
 )
-from pdcov.telemetry.series import AttitudeSeries, MountTargetSeries, PositionSeries
+from pdcov.telemetry.series import (
+    AttitudeSeries,
+    GnssAccuracySeries,
+    MountTargetSeries,
+    PositionSeries,
+)
 from pdcov.telemetry.tlog import TlogScanner
 
 
@@ -224,7 +230,8 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         *estimator_series(taken(EstimatorSample), "EKF_STATUS_REPORT / "
                           "ESTIMATOR_STATUS"),
         tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample)),
-        tuple(frame_boxes), tuple(sorted(taken(LensSample), key=lambda s: s.t_s))),
+        tuple(frame_boxes), tuple(sorted(taken(LensSample), key=lambda s: s.t_s)),
+        GnssAccuracySeries.from_samples(taken(GnssAccuracySample))),
         -ap.clock.offset_s)
 
 

@@ -23,6 +23,7 @@ from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
     GimbalSample,
+    GnssAccuracySample,
     HomeSample,
     PositionSample,
     RangefinderSample,
@@ -30,6 +31,7 @@ from pdcov.telemetry.samples import (
 from pdcov.telemetry.series import (
     AttitudeSeries,
     EstimatorSeries,
+    GnssAccuracySeries,
     MountTargetSeries,
     PositionSeries,
 )
@@ -82,6 +84,19 @@ def _ulog_gps_positions(t_s: np.ndarray, fields: Mapping[str, np.ndarray]
                                                  strict=True)], int(np.count_nonzero(~fix)))
 
 
+def _ulog_gnss_accuracy(t_s: np.ndarray, fields: Mapping[str, np.ndarray]
+                        ) -> list[GnssAccuracySample]:
+    """The accuracy a PX4 GPS topic reports (eph, epv: m, the receiver's position accuracy,
+    which PX4 sends as GPS_RAW_INT h_acc/v_acc); unknown below a 3D fix, and for a topic
+    without them."""
+    n = len(t_s)
+    eph, epv = (np.asarray(fields.get(k, np.full(n, np.nan)), float) for k in ("eph", "epv"))
+    fix = np.asarray(fields.get("fix_type", np.zeros(n)), int) >= _GPS_FIX_3D
+    return [GnssAccuracySample(float(t), float(h), float(v)) if ok
+            else GnssAccuracySample(float(t), math.nan, math.nan)
+            for t, h, v, ok in zip(t_s, eph, epv, fix, strict=True)]
+
+
 def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     try:
         from pyulog import ULog
@@ -130,6 +145,8 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
         pos_note = (f"no vehicle_global_position: positions from {g} (3D fix or better; "
                     f"{len(pos_samples)} samples used, {n_no_fix} without a fix skipped); "
                     "GPS altitude is coarser than the estimator's")
+    gnss = next((_ulog_gnss_accuracy(t_of(g), topics[g]) for g in _ULOG_GPS_TOPICS
+                 if g in topics), [])
     gimbal_samples: list[GimbalSample] = []
     g = "gimbal_device_attitude_status"
     if g in topics:
@@ -160,7 +177,8 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
                      gimbal, source, homes, tuple(captures), params,
                      MountTargetSeries.from_samples([]), (), tuple(notes), damage,
                      *_ulog_estimator(ekf_instances, topics.get("estimator_selector_status")),
-                     (), tuple(sorted(rangefinder, key=lambda r: r.t_s)))
+                     (), tuple(sorted(rangefinder, key=lambda r: r.t_s)),
+                     gnss_accuracy=GnssAccuracySeries.from_samples(gnss))
 
 
 _PX4_QUALITY_INVALID = 0  # distance_sensor.signal_quality: 0 invalid, -1 unknown, 100 best
