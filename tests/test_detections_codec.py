@@ -129,7 +129,7 @@ def test_detections_round_trip():
     (("detections", 0, "box_px"), [1, 2, 0, 4], "detections[0].box_px"),
     (("detections", 0, "lat_deg"), 91.0, "detections[0].lat_deg"),
     (("detections", 0, "candidate"), -1, "detections[0].candidate"),
-    (("candidates", 0, "hits"), 0, "candidates[0].hits"),
+    (("candidates", 0, "hits"), -1, "candidates[0].hits"),
     (("candidates", 0, "pd"), 1.5, "candidates[0].pd"),
     (("candidates", 0, "last_t_boot_s"), 1.0, "candidates[0].last_t_boot_s"),
     (("candidates", 0, "class"), "", "candidates[0].class"),

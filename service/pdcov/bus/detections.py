@@ -107,7 +107,7 @@ def decode_detections(payload: bytes, key: str = "detections",
         c.integer("id", 0, _U32)
         _class(c)
         _position(c)
-        c.integer("hits", 1, _U32)
+        c.integer("hits", 0, _U32)  # 0: born where no look was counted yet
         c.integer("looks", 0, _U32)
         for name in ("pd", "pfa", "confidence"):
             c.number(name, 0.0, 1.0)

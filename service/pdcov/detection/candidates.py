@@ -28,10 +28,11 @@ position accuracy the autopilot reported for the frame when known) and:
    A_gate / A_cell. The looks before birth are misses: the cell's cumulative log P_miss
    before the birth frame's look. With correlated looks (``coverage.looks: correlated``)
    the looks' log LR is kept per ``core.looks.QUADRATURE`` node and combined with the
-   weights. A box between counted looks turns the last look's miss into a hit with that
-   look's P_D and lambda; a candidate born between looks takes its cell's last look
-   (before it was born) to have had the birth frame's P_D (by size only: the grid counts
-   no blur for an uncounted look).
+   weights; with viewpoint looks the looks after birth are weighed as independent (the
+   looks before, the grid's viewpoint rule). A box between counted looks turns the last
+   look's miss into a hit with that look's P_D and lambda; a candidate born between looks
+   takes its cell's last look (before it was born) to have had the birth frame's P_D (by
+   size only: the grid finds no blur for an uncounted look).
 5. **Durable ids.** ``uid`` = ``uid_prefix`` + candidate id; ``to_doc`` / ``load_doc``
    (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal) carry the whole state
    across a restart: a restored tracker continues exactly as the one it was saved from.
@@ -87,7 +88,8 @@ MAX_CANDIDATES_PER_CLASS = 2_000
 CONFIRMED_HITS = 2
 """A candidate detected this many times is confirmed: never evicted for a new one."""
 GATE_FLOOR_M = 0.05
-"""The least association gate (m): people 1.5 m apart stay apart at any sigma."""
+"""The least association gate (m): boxes of one person still join when every sigma is 0
+(a floor of one cell, as before, merged people 1.5 m apart)."""
 STATE_VERSION = 1
 """Version of ``to_doc``'s document."""
 _MIN_SIGMA_M = 1e-3
