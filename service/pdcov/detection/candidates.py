@@ -28,12 +28,13 @@ import math
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 
 from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
-from pdcov.core.detections import Box, Candidate, Detection
+from pdcov.core.detections import Box, Candidate, Detection, valid_class_name
 from pdcov.core.geolocate import Geolocation, locate_boxes
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
@@ -103,10 +104,11 @@ class DetectionTracker:
         self.skipped: Counter[str] = Counter()
 
     @classmethod
-    def for_mission(cls, mission: Mission) -> DetectionTracker:
-        """The tracker of ``mission``'s camera, terrain, cells and ``detections`` section."""
+    def for_mission(cls, mission: Mission, uid_prefix: str = "c") -> DetectionTracker:
+        """The tracker of ``mission``'s camera, terrain, cells and ``detections`` section;
+        ``uid_prefix``: its candidates' uids are it and their id."""
         return cls(mission.camera, mission.geolocation, mission.cell_size_m, mission.terrain,
-                   mission.gate_sigmas)
+                   mission.gate_sigmas, uid_prefix)
 
     def __len__(self) -> int:
         return len(self._groups)
@@ -197,3 +199,96 @@ class DetectionTracker:
                                  g.confidence, g.first_t_boot_s, g.last_t_boot_s,
                                  f"{self.uid_prefix}{i}", 0.0))
         return out
+
+    # --- state, for checkpoints and the journal (service/candidate_store.py) -------------
+
+    @property
+    def next_id(self) -> int:
+        """The id the next new candidate gets (ids are never reused)."""
+        return self._next_id
+
+    def to_doc(self) -> dict:
+        """The whole state as JSON-able values (``load_doc`` reads it back)."""
+        return {"version": STATE_VERSION, "next_id": self._next_id,
+                "candidates": self.candidate_docs(self._groups)}
+
+    def candidate_docs(self, ids: Iterable[int]) -> list[dict]:
+        """The states of candidates ``ids`` (an evicted one left out), in id order."""
+        return [{"id": i, "class": g.class_name, "sum_w": g.sum_w,
+                 "sum_wr": [float(v) for v in g.sum_wr], "hits": g.hits,
+                 "confidence": g.confidence, "first_t_boot_s": g.first_t_boot_s,
+                 "last_t_boot_s": g.last_t_boot_s}
+                for i in sorted(set(ids)) if (g := self._groups.get(i)) is not None]
+
+    def load_doc(self, doc: object) -> None:
+        """Replace the state with ``doc`` (``to_doc``'s); ValueError naming the field."""
+        if not isinstance(doc, dict) or doc.get("version") != STATE_VERSION:
+            raise ValueError(f"version: expected {STATE_VERSION}")
+        groups = _groups_of(doc.get("candidates"))
+        next_id = _next_id_of(doc.get("next_id"), groups)
+        self._groups, self._next_id = {}, 0
+        self._per_class.clear()
+        self._put(groups, next_id)
+
+    def apply_candidate_docs(self, docs: object, next_id: object) -> None:
+        """Add or replace the candidates ``docs`` (``candidate_docs``'s) and continue the
+        ids from ``next_id`` at least; ValueError naming the field, nothing changed."""
+        groups = _groups_of(docs)
+        self._put(groups, max(_next_id_of(next_id, groups), self._next_id))
+
+    def _put(self, groups: dict[int, _Group], next_id: int) -> None:
+        for i, g in groups.items():
+            old = self._groups.pop(i, None)
+            if old is not None:
+                self._per_class[old.class_name] -= 1
+            self._groups[i] = g
+            self._per_class[g.class_name] += 1
+        self._groups = dict(sorted(self._groups.items()))
+        self._next_id = next_id
+
+
+STATE_VERSION = 1
+"""The version of ``DetectionTracker.to_doc``'s document."""
+
+
+def _groups_of(docs: object) -> dict[int, _Group]:
+    """The candidates of ``candidate_docs``'s list, checked; ValueError naming the field."""
+    if not isinstance(docs, list):
+        raise ValueError("candidates: expected a list")
+    out = {}
+    for k, d in enumerate(docs):
+        def bad(field: str, d: object = d, k: int = k) -> ValueError:
+            value = d.get(field) if isinstance(d, dict) else d
+            return ValueError(f"candidates[{k}].{field} = {value!r}: not what pdcov writes")
+        if not isinstance(d, dict):
+            raise bad("")
+        if not _count(d.get("id")) or d["id"] in out:
+            raise bad("id")
+        if not valid_class_name(d.get("class")):
+            raise bad("class")
+        for f in ("sum_w", "confidence", "first_t_boot_s", "last_t_boot_s"):
+            if not _real(d.get(f)) or (f == "sum_w" and d[f] <= 0):
+                raise bad(f)
+        wr = d.get("sum_wr")
+        if not (isinstance(wr, list) and len(wr) == 3 and all(_real(v) for v in wr)):
+            raise bad("sum_wr")
+        if not _count(d.get("hits")):
+            raise bad("hits")
+        out[d["id"]] = _Group(d["class"], float(d["sum_w"]), np.array(wr, dtype=float),
+                              d["hits"], float(d["confidence"]), float(d["first_t_boot_s"]),
+                              float(d["last_t_boot_s"]))
+    return out
+
+
+def _next_id_of(v: object, groups: dict[int, _Group]) -> int:
+    if not _count(v) or any(i >= v for i in groups):
+        raise ValueError(f"next_id = {v!r}: expected an integer above every candidate id")
+    return v
+
+
+def _count(v: object) -> TypeGuard[int]:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _real(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)

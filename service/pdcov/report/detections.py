@@ -5,6 +5,7 @@ document is the one the daemon answered on the bus (bus/detections.py)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -19,8 +20,9 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
+from pdcov.errors import InputFileError
 
-__all__ = ["DETECTIONS_FILE", "flight_detections", "write_detections"]
+__all__ = ["DETECTIONS_FILE", "flight_detections", "log_epoch", "write_detections"]
 
 DETECTIONS_FILE = "detections.json"
 
@@ -28,12 +30,14 @@ DETECTIONS_FILE = "detections.json"
 def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                       poses: Iterable[CameraPose],
                       frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
-                      cameras: Sequence[CameraModel | None] = ()) -> dict[str, Any]:
+                      cameras: Sequence[CameraModel | None] = (), *,
+                      uid_prefix: str) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
     in time order, with ``cameras`` their zoomed cameras, if any) with boxes in
     ``frame_boxes`` ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s looks,
-    P_D and P_FA at its cell."""
-    tracker = DetectionTracker.for_mission(mission)
+    P_D and P_FA at its cell; ``uid_prefix``: the candidates' (ids.candidate_uid_prefix,
+    with the log's epoch, ``log_epoch``)."""
+    tracker = DetectionTracker.for_mission(mission, uid_prefix)
     detections: list[Detection] = []
     for i, pose in enumerate(poses):
         held = frame_boxes.get(pose.t_s)
@@ -41,6 +45,19 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
             detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id)
+
+
+def log_epoch(path: Path) -> str:
+    """The epoch of a flight log's candidate uids: the first 6 hex digits of the SHA-256 of
+    its bytes (the same log, the same uids; read in 1 MiB blocks)."""
+    h = hashlib.sha256()
+    try:
+        with path.open("rb") as f:
+            while block := f.read(1 << 20):
+                h.update(block)
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return h.hexdigest()[:6]
 
 
 def write_detections(out_dir: Path, doc: Mapping[str, Any]) -> Path:
