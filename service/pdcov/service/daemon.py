@@ -111,6 +111,7 @@ class Daemon:
         self._zenoh_entities: list[Any] = []
         self.pub_status: SourcedPublisher | None = None
         self.pub_tiles: SourcedPublisher | None = None
+        self.pub_detections: SourcedPublisher | None = None
         self._status_encoder = StatusEncoder()
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
