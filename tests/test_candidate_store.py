@@ -357,3 +357,10 @@ def test_uid_prefix_rule():
     for vehicle, epoch in (("uav.7", "0a1b2c"), ("uav7", "0A1B2C"), ("uav7", "0a1b2")):
         with pytest.raises(ValueError, match="uid prefix"):
             candidate_uid_prefix(vehicle, epoch)
+
+
+def test_an_offline_epoch_is_the_log_s_sha256(tmp_path):
+    from pdcov.report.detections import log_epoch
+
+    (tmp_path / "f.tlog").write_bytes(b"abc")  # SHA-256 ba7816bf 8f01cfea ...
+    assert log_epoch(tmp_path / "f.tlog") == "ba7816"
