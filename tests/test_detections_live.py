@@ -59,8 +59,7 @@ class Driver:
         a = self.core.actions()
         for data in a.record:
             self.recorder.write(data, 1.7e9 + self.now_s)
-        if a.detections is not None:
-            self.published.append(decode_detections(a.detections, vehicle_id="uav7"))
+        self.published += [decode_detections(p, vehicle_id="uav7") for p in a.detections]
 
     def link(self, data: bytes) -> None:
         self.core.receive_mavlink(self.parser.parse_buffer(data) or [], self.now_s)

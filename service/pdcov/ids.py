@@ -9,9 +9,12 @@ value built in code, ``BusPayloadError`` for a payload), naming the key and the 
 
 from __future__ import annotations
 
+import re
+import secrets
 from typing import TypeGuard
 
-__all__ = ["MAX_VEHICLE_ID_CHARS", "SYSTEM_IDS", "VEHICLE_ID_RULE", "valid_system_id",
+__all__ = ["EPOCH_RULE", "MAX_VEHICLE_ID_CHARS", "SYSTEM_IDS", "VEHICLE_ID_RULE",
+           "candidate_uid_prefix", "new_epoch", "valid_epoch", "valid_system_id",
            "valid_vehicle_id"]
 
 MAX_VEHICLE_ID_CHARS = 64
@@ -39,3 +42,29 @@ def valid_system_id(system_id: object) -> bool:
     """An int (not a bool) in ``SYSTEM_IDS``."""
     return (isinstance(system_id, int) and not isinstance(system_id, bool)
             and system_id in SYSTEM_IDS)
+
+
+EPOCH_RULE = "6 lowercase hexadecimal digits"
+"""What ``valid_epoch`` accepts, for error messages."""
+_EPOCH = re.compile(r"[0-9a-f]{6}")
+
+
+def valid_epoch(epoch: object) -> TypeGuard[str]:
+    """An epoch token (EPOCH_RULE): the daemon's state directory's (``STATE/epoch``) or a
+    flight log's (the first 6 hex digits of its SHA-256), in every candidate uid."""
+    return isinstance(epoch, str) and _EPOCH.fullmatch(epoch) is not None
+
+
+def new_epoch() -> str:
+    """A fresh random epoch token (24 bits)."""
+    return secrets.token_hex(3)
+
+
+def candidate_uid_prefix(vehicle_id: str, epoch: str) -> str:
+    """``<vehicle_id>.<epoch>.``: a candidate's uid is this and its id, unique across
+    vehicles (the id), restarts (the ids continue) and state directories or logs (the
+    epoch); at most 64 + 8 + 20 characters."""
+    if not valid_vehicle_id(vehicle_id) or not valid_epoch(epoch):
+        raise ValueError(f"uid prefix of vehicle {vehicle_id!r}, epoch {epoch!r}: expected "
+                         f"{VEHICLE_ID_RULE} and {EPOCH_RULE}")
+    return f"{vehicle_id}.{epoch}."

@@ -183,10 +183,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
         combine_cameras(grid, list(per_camera.values()))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
-        from pdcov.report.detections import flight_detections
-        detections = flight_detections(mission, grid, origin, poses, log_poses.frame_boxes,
-                                       cameras, accuracies,
-                                       poa=None if prior is None else prior.poa)
+        from pdcov.ids import candidate_uid_prefix
+        from pdcov.report.detections import flight_detections, log_epoch
+        detections = flight_detections(
+            mission, grid, origin, poses, log_poses.frame_boxes, cameras, accuracies,
+            uid_prefix=candidate_uid_prefix(mission.vehicle_id, log_epoch(args.log)),
+            poa=None if prior is None else prior.poa)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)

@@ -5,6 +5,7 @@ document is the one the daemon answered on the bus (bus/detections.py)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -22,8 +23,9 @@ from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
+from pdcov.errors import InputFileError
 
-__all__ = ["DETECTIONS_FILE", "flight_detections", "write_detections"]
+__all__ = ["DETECTIONS_FILE", "flight_detections", "log_epoch", "write_detections"]
 
 DETECTIONS_FILE = "detections.json"
 
@@ -32,16 +34,17 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                       poses: Sequence[CameraPose],
                       frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
                       cameras: Sequence[CameraModel | None] = (),
-                      accuracies: Sequence[PositionAccuracy | None] = (),
-                      epoch: str = "0", poa: np.ndarray | None = None) -> dict[str, Any]:
+                      accuracies: Sequence[PositionAccuracy | None] = (), *,
+                      uid_prefix: str, poa: np.ndarray | None = None) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
     in time order, with ``cameras`` their zoomed cameras and ``accuracies`` the position
     accuracy the autopilot reported, if any) with boxes in ``frame_boxes``
     ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s (the published one)
     P_D and P_FA at its cell. The tracker sees each frame's looks as the daemon's did: a
-    fresh grid of the mission's camera takes the frames one by one. ``epoch``: the uids'
-    token; ``poa``: a probability of area per cell for the candidates' prior."""
-    tracker = DetectionTracker.for_mission(mission, f"{mission.vehicle_id}.{epoch}.", poa)
+    fresh grid of the mission's camera takes the frames one by one. ``uid_prefix``: the
+    candidates' (ids.candidate_uid_prefix, with the log's epoch, ``log_epoch``); ``poa``: a
+    probability of area per cell for the candidates' prior."""
+    tracker = DetectionTracker.for_mission(mission, uid_prefix, poa)
     own = mission.new_grid()
     detections: list[Detection] = []
     for i, pose in enumerate(poses):
@@ -52,6 +55,19 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                                     accuracy=accuracies[i] if accuracies else None, grid=own)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id)
+
+
+def log_epoch(path: Path) -> str:
+    """The epoch of a flight log's candidate uids: the first 6 hex digits of the SHA-256 of
+    its bytes (the same log, the same uids; read in 1 MiB blocks)."""
+    h = hashlib.sha256()
+    try:
+        with path.open("rb") as f:
+            while block := f.read(1 << 20):
+                h.update(block)
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    return h.hexdigest()[:6]
 
 
 def write_detections(out_dir: Path, doc: Mapping[str, Any]) -> Path:

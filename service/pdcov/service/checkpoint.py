@@ -5,7 +5,8 @@ The file is the grid.npz that ``CoverageGrid.save_npz`` writes (``pdcov evaluate
 mission hash (settings.mission_hash: the vehicle id is part of it) and the vehicle id (named
 when a checkpoint is set aside), the frame lattice's anchor ``t0_s`` and the last
 frame time (autopilot clock, s), the autopilot clock's offset and boot time (so that a
-restarted daemon continues the clock), the tiles sequence number and counters. It is
+restarted daemon continues the clock), the tiles sequence number and counters; and
+``pdcov_candidates.json``, the candidates (service/candidate_store.py). It is
 written to a temporary file, fsynced and renamed (atomic.atomic_write): a kill -9 at any
 moment leaves the previous checkpoint or the new one, never a torn file.
 """
@@ -24,23 +25,29 @@ from typing import Any
 from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
 from pdcov.errors import InputFileError, PdcovError
-from pdcov.npz_file import read_zip_member
+from pdcov.npz_file import DAMAGED, read_zip_member
 from pdcov.service.checkpoint_meta import META_VERSION, CheckpointMeta
 
 META_MEMBER = "pdcov_checkpoint.json"
+CANDIDATES_MEMBER = "pdcov_candidates.json"
 CHECKPOINT_NAME = "checkpoint.npz"
 
 
 @dataclass(frozen=True, slots=True)
 class Resumed:
     """The outcome of looking for a checkpoint: the grid to continue (None: start fresh),
-    its metadata (None with it), and what was done, in words (the daemon logs it)."""
+    its metadata (None with it), and what was done, in words (the daemon logs it). With a
+    grid: ``candidates``, the candidates member's parsed JSON (None: a checkpoint without
+    one, older), or ``candidates_error``, why that member cannot be read (the grid is
+    resumed all the same)."""
 
     grid: CoverageGrid | None
     meta: CheckpointMeta | None
     message: str
     set_aside: Path | None = None
     cameras: dict[str, CoverageGrid] | None = None  # a cameras list: each camera's grid
+    candidates: Any = None
+    candidates_error: str | None = None
 
 
 def camera_member(name: str) -> str:
@@ -50,17 +57,21 @@ def camera_member(name: str) -> str:
 
 def write_checkpoint(path: Path, grid: CoverageGrid,
                      meta: CheckpointMeta | Mapping[str, Any],
-                     cameras: Mapping[str, CoverageGrid] | None = None) -> None:
+                     cameras: Mapping[str, CoverageGrid] | None = None,
+                     candidates: Mapping[str, Any] | None = None) -> None:
     """Write the grid and ``meta`` atomically to ``path`` (a mapping is written as it is,
     with the format version: tests write damaged metadata so); with a cameras list, each
     camera's own grid too (``cameras``, by name: one more member each, the snapshot
-    ``save_npz`` writes)."""
+    ``save_npz`` writes); ``candidates``: the candidates' document
+    (candidate_store.checkpoint_doc), in the same write."""
     doc = meta.to_json() if isinstance(meta, CheckpointMeta) else {"version": META_VERSION,
                                                                    **meta}
     buf = io.BytesIO()
     grid.write_npz(buf)
     with zipfile.ZipFile(buf, "a") as zf:
         zf.writestr(META_MEMBER, json.dumps(doc))
+        if candidates is not None:
+            zf.writestr(CANDIDATES_MEMBER, json.dumps(candidates, allow_nan=False))
         for name, g in (cameras or {}).items():
             member = io.BytesIO()
             g.write_npz(member)
@@ -127,13 +138,25 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid,
             else:
                 return Resumed(grid, meta, f"resumed from {path}: {grid.frames} frames, "
                                            f"last frame at t = {meta.last_frame_t_s} s",
-                               cameras=cameras or None)
+                               cameras=cameras or None, **_candidates(path))
     except PdcovError as exc:  # InputFileError, or a DomainError from its geometry
         why = f"it cannot be read ({exc})"
     aside = path.with_name(f"checkpoint-{time.strftime('%Y%m%dT%H%M%S')}.set-aside.npz")
     path.replace(aside)
     return Resumed(None, None, f"checkpoint {path} set aside as {aside.name}: {why}; "
                              "starting a new grid", aside)
+
+
+def _candidates(path: Path) -> dict[str, Any]:
+    """Resumed's ``candidates`` (absent: no such member) or ``candidates_error``."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            if CANDIDATES_MEMBER not in zf.namelist():
+                return {}
+            text = zf.read(CANDIDATES_MEMBER)
+        return {"candidates": json.loads(text)}
+    except DAMAGED as exc:  # RecursionError among them: JSON nested too deep
+        return {"candidates_error": f"{type(exc).__name__}: {exc}"}
 
 
 def _load_like(path: Path, new: CoverageGrid, data: bytes | None = None) -> CoverageGrid:

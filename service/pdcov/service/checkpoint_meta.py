@@ -123,7 +123,9 @@ class CheckpointMeta:
 @dataclass(slots=True)
 class CheckpointState:
     """The checkpoint as the status reports it (docs/protocol.md ``checkpoint``), and the
-    error state: ``error`` is why the last write failed (None once one succeeds)."""
+    error state: ``error`` is why the last write failed (None once one succeeds);
+    ``candidates_restored``: the candidates held after the start restored them,
+    ``candidates_from_journal`` of them those the journal added or updated."""
 
     path: str
     resumed: bool = False
@@ -133,11 +135,15 @@ class CheckpointState:
     recording_error: str | None = None
     written_unix_s: float | None = None
     frames: int | None = None
+    candidates_restored: int = 0
+    candidates_from_journal: int = 0
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"path": self.path, "last_t_s": self.last_t_s,
                                "resumed": self.resumed, "set_aside": self.set_aside,
-                               "error": self.error, "recording_error": self.recording_error}
+                               "error": self.error, "recording_error": self.recording_error,
+                               "candidates_restored": self.candidates_restored,
+                               "candidates_from_journal": self.candidates_from_journal}
         if self.frames is not None:  # once a checkpoint was written
             out.update(written_unix_s=self.written_unix_s, frames=self.frames)
         return out

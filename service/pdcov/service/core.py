@@ -3,7 +3,8 @@
 ``ServiceCore`` is fed events and the time: MAVLink messages as parsed
 (``receive_mavlink``), a detector's frames payloads (``receive_frames``), the end of a loop
 pass (``process``), the timer (``tick``) and the outcome of what the shell did
-(``checkpoint_written``, ``put_failed``, ``snapshot_sent``) and snapshot queries
+(``checkpoint_written``, ``journal_written``, ``put_failed``, ``snapshot_sent``) and
+snapshot queries
 (``admit_snapshot``). It never reads a clock, a socket or a file:
 ``now_s`` is the shell's one monotonic clock (s), and the only wall-clock time it sees is a
 value the shell passes for the checkpoint's ``written_unix_s``. What to do comes out of
@@ -19,7 +20,9 @@ and the grid (``LiveCoverage``), and here: detector frames held until the autopi
 known (at most EARLY_FRAMES, oldest dropped; their boxes at most MAX_HELD_BOXES) and those
 beyond a recordable time refused; the boxes of the frames taken recorded after them;
 a capture event that came too late to be taken (its not-taken mark in the recording);
-the checkpoint's metadata and error state; the kernel-drop warning's rate limit; the
+the checkpoint's metadata and error state; the candidates across restarts (restored at
+start, a journal line before each detections message, the journal emptied after each
+checkpoint: service/candidate_store.py); the kernel-drop warning's rate limit; the
 link's state in the status; which snapshot queries are answered (query_limit).
 """
 
@@ -40,6 +43,9 @@ from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
+from pdcov.ids import candidate_uid_prefix, new_epoch
+from pdcov.service import candidate_store
+from pdcov.service.candidate_store import MAX_JOURNAL_BYTES, Restored
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.detections import MAX_HELD_BOXES
@@ -102,19 +108,24 @@ class LinkReport:
 @dataclass(slots=True)
 class Actions:
     """What the shell should do now, in this order: send these MAVLink messages on every
-    link; write these bytes to the recording; publish these tiles and detections (on
-    pdcov/<id>/detections); if ``status_due``, flush
+    link; write these bytes to the recording; publish these tiles; append ``journal`` to
+    the candidates journal, flushed and fsynced, and report it back (``journal_written``),
+    then publish these detections messages (on pdcov/<id>/detections); if ``status_due``,
+    flush
     the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
-    and report it back; answer these re-tasking queries (ticket, reply payload); write the
+    and report it back; empty the candidates journal (``journal_reset``, atomically);
+    answer these re-tasking queries (ticket, reply payload); write the
     re-tasking nonces seen (``nonces``, to read back at start); log these (level, text)
     lines."""
 
     send: list[Any] = field(default_factory=list)
     record: list[bytes] = field(default_factory=list)
     tiles: bytes | None = None
-    detections: bytes | None = None
+    journal: bytes | None = None
+    detections: list[bytes] = field(default_factory=list)
     status_due: bool = False
     checkpoint: CheckpointMeta | None = None
+    journal_reset: bool = False
     replies: list[tuple[int, bytes]] = field(default_factory=list)
     nonces: bytes | None = None
     logs: list[tuple[int, str]] = field(default_factory=list)
@@ -162,13 +173,14 @@ class ServiceCore:
     with a cameras list, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
     checkpoint's state to report (its path, whether it resumed or was set aside);
     ``now_s``: the shell's monotonic clock at start; ``nonces``: the re-tasking nonces seen
-    before (read back from the state dir)."""
+    before (read back from the state dir); ``epoch``: the state dir's token in every
+    candidate uid (ids.valid_epoch; None: a fresh one, a run without a state dir)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
                  mission_hash: str, resumed: CheckpointMeta | None = None,
                  checkpoint: CheckpointState | None = None,
                  camera_grids: dict[str, CoverageGrid] | None = None,
-                 nonces: NonceBook | None = None) -> None:
+                 nonces: NonceBook | None = None, epoch: str | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
         self.mission_hash = mission_hash
@@ -183,9 +195,13 @@ class ServiceCore:
                                      estimator_hz=cfg.link.estimator_hz
                                      if m.estimator_status else None,
                                      params_complete=complete)
-        self.coverage = LiveCoverage(cfg, grid, now_s, tiles_seq=resumed.tiles_seq + 1
-                                     if resumed is not None else 0,
-                                     camera_grids=camera_grids)
+        self.coverage = LiveCoverage(
+            cfg, grid, now_s, tiles_seq=resumed.tiles_seq + 1 if resumed is not None else 0,
+            camera_grids=camera_grids,
+            uid_prefix=candidate_uid_prefix(m.vehicle_id, epoch or new_epoch()))
+        self._journal_seq = 0  # the last journal line decided
+        self._journal_bytes = 0  # in the journal file now
+        self._journal_error: str | None = None
         if resumed is not None:
             self._resume(resumed)
         self.checkpoint = checkpoint or CheckpointState(path="")
@@ -340,9 +356,7 @@ class ServiceCore:
         out.logs += [(logging.WARNING, note) for note in due.notes]
         if due.tiles is not None:
             out.tiles = due.tiles
-        detections = live.detections.poll(now_s, live.origin)
-        if detections is not None:
-            out.detections = detections
+        self._publish_detections(now_s)
         if due.status:
             out.status_due = True
         if due.checkpoint:
@@ -352,6 +366,73 @@ class ServiceCore:
             out.send += proto.coverage_messages(due.named_value, due.statustext, t_ms)
             if due.statustext:
                 out.logs.append((logging.INFO, due.statustext))
+
+    def _publish_detections(self, now_s: float, force: bool = False) -> None:
+        """The detections messages due (``force``: all pending), after one journal line
+        holding every candidate they carry."""
+        live = self.coverage
+        pubs = []
+        while (p := live.detections.poll(now_s, live.origin, force)) is not None:
+            pubs.append(p)
+            if not force:
+                break
+        if not pubs:
+            return
+        ids = {i for p in pubs for i in p.candidate_ids}
+        line = candidate_store.journal_line(live.detections.tracker, ids,
+                                            self._journal_seq + 1, self.mission_hash)
+        if self._journal_bytes + len(line) > MAX_JOURNAL_BYTES:
+            self.journal_written(f"the journal would exceed {MAX_JOURNAL_BYTES} bytes "
+                                 "(no checkpoint emptied it)")
+        else:
+            self._journal_seq += 1
+            self._journal_bytes += len(line)
+            self._out.journal = (self._out.journal or b"") + line
+        self._out.detections += [p.payload for p in pubs]
+
+    def stop(self, now_s: float) -> None:
+        """A clean stop: decide what the messages received allow, and publish every pending
+        detection now (whatever DETECTIONS_PERIOD_S says). Frames the telemetry has not
+        reached yet stay undecided: their boxes are not published."""
+        self.process()
+        self._publish_detections(now_s, force=True)
+
+    def restore_candidates(self, *, resumed: bool, checkpoint: Any,
+                           checkpoint_error: str | None, journal: bytes | None,
+                           journal_path: str) -> Restored:
+        """At start: the candidates from the resumed checkpoint's member and the journal's
+        bytes (candidate_store.restore); the shell then keeps the journal's first
+        ``keep_bytes`` or sets it aside, and logs ``logs``."""
+        r = candidate_store.restore(
+            self.coverage.detections.tracker, self.mission_hash, resumed=resumed,
+            checkpoint=checkpoint, checkpoint_error=checkpoint_error,
+            checkpoint_path=self.checkpoint.path, journal=journal, journal_path=journal_path)
+        self._journal_seq = r.journal_seq
+        self._journal_bytes = 0 if r.set_aside else r.keep_bytes
+        self.checkpoint.candidates_restored = r.candidates
+        self.checkpoint.candidates_from_journal = r.from_journal
+        return r
+
+    def candidates_checkpoint(self) -> dict[str, Any]:
+        """The candidates' document for a checkpoint written now (every journal line)."""
+        return candidate_store.checkpoint_doc(self.coverage.detections.tracker,
+                                              self._journal_seq)
+
+    def journal_written(self, error: str | None) -> None:
+        """The shell appended the journal line (``error``: why not; counted, logged once
+        until one is written again: the detections are published all the same)."""
+        if error is None:
+            if self._journal_error is not None:
+                self._out.logs.append((logging.WARNING, "candidates journal written again "
+                                       f"after: {self._journal_error}"))
+            self._journal_error = None
+            return
+        self.coverage.counters.faults["candidates_journal_errors"] += 1
+        if self._journal_error is None:
+            self._out.logs.append((logging.ERROR, (
+                f"candidates journal not written: {error}; the detections are published, "
+                "but a kill before the next checkpoint loses their candidates")))
+        self._journal_error = error
 
     def get_timer(self) -> float:
         """When ``tick`` is next needed (monotonic s): the next status, tiles, checkpoint,
@@ -496,5 +577,7 @@ class ServiceCore:
             self._out.logs.append((logging.WARNING,
                                    f"checkpoint written again after: {state.error}"))
         live.checkpointed()
+        if self._journal_bytes:  # every line is in this checkpoint
+            self._out.journal_reset, self._journal_bytes = True, 0
         state.last_t_s, state.error = meta.last_frame_t_s, None
         state.written_unix_s, state.frames = meta.written_unix_s, live.grid.frames

@@ -108,10 +108,11 @@ class Counters:
 class LiveCoverage:
     """The daemon's decisions (module docstring). ``grid``: a new or resumed grid (with a
     cameras list, the combination, ``Mission.new_combined_grid``); ``camera_grids``: a
-    cameras list's resumed grids by name (None: new ones)."""
+    cameras list's resumed grids by name (None: new ones); ``uid_prefix``: the candidates'
+    (ids.candidate_uid_prefix; ``c``: tests of the grid alone)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
-                 tiles_seq: int = 0,
+                 uid_prefix: str = "c", tiles_seq: int = 0,
                  camera_grids: dict[str, CoverageGrid] | None = None) -> None:
         m = cfg.mission
         self.cfg = cfg
@@ -122,7 +123,7 @@ class LiveCoverage:
         self.frame_source = FrameSource(cfg.frame_source)
         self.max_gap_s = m.max_gap_s
         self.counters = Counters()
-        self.detections = LiveDetections(m, grid, self.counters.faults)
+        self.detections = LiveDetections(m, grid, self.counters.faults, uid_prefix)
         self.origin: Origin | None = None
         self.origin_how = ""
         self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,

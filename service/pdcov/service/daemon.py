@@ -12,7 +12,12 @@ Threads: everything runs on the event loop's thread. MAVLink is read with
 the payload (frames) or the query (snapshot, footprint, mission, candidates) to the loop with
 ``loop.call_soon_threadsafe`` and return at once: no grid is touched off the loop, and no
 Zenoh thread waits for the loop (which may be waiting for Zenoh in a put). Checkpoints and
-snapshots are encoded on the loop (milliseconds for a mission-sized grid).
+snapshots are encoded on the loop (milliseconds for a mission-sized grid), and the
+candidates journal is appended and fsynced there too (one short line at most once every
+DETECTIONS_PERIOD_S, before the detections message it protects: the put must wait for it).
+
+Files in service.state_dir: checkpoint.npz, the candidates journal (candidate_store.py),
+``epoch`` (EPOCH_NAME), the re-tasking nonces, recordings/.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import os
 import signal
 import sys
 import time
@@ -42,6 +48,8 @@ from pdcov.bus.session import (
 from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
+from pdcov.ids import EPOCH_RULE, new_epoch, valid_epoch
+from pdcov.service.candidate_store import JOURNAL_NAME, MAX_JOURNAL_BYTES
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState
 from pdcov.service.core import Actions, LinkReport, ServiceCore
@@ -58,6 +66,9 @@ log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
 NONCES_NAME = "retask_nonces.json"
 """The re-tasking nonces seen, in service.state_dir (service/retask_auth.py)."""
+EPOCH_NAME = "epoch"
+"""The state dir's epoch token (ids.EPOCH_RULE) in every candidate uid: made once, when
+missing, and read back at every start."""
 OPEN_ATTEMPT_S = 2.0
 """Longest wait of one attempt to open a client session (for a router to answer)."""
 OPEN_RETRY_S = 1.0
@@ -100,6 +111,7 @@ class Daemon:
         self._zenoh_entities: list[Any] = []
         self.pub_status: SourcedPublisher | None = None
         self.pub_tiles: SourcedPublisher | None = None
+        self.pub_detections: SourcedPublisher | None = None
         self._status_encoder = StatusEncoder()
         self.notifier = SystemdNotifier()
         self._next_watchdog_s = 0.0
@@ -127,9 +139,62 @@ class Daemon:
         state = CheckpointState(path=str(self.state_dir / CHECKPOINT_NAME),
                                 resumed=r.grid is not None,
                                 set_aside=str(r.set_aside) if r.set_aside else None)
-        return ServiceCore(self.cfg, r.grid or grid, self._clock(), mission_hash=mhash,
+        core = ServiceCore(self.cfg, r.grid or grid, self._clock(), mission_hash=mhash,
                            resumed=r.meta if r.grid is not None else None, checkpoint=state,
-                           camera_grids=r.cameras, nonces=self._read_nonces())
+                           camera_grids=r.cameras, nonces=self._read_nonces(),
+                           epoch=self._read_epoch())
+        self._restore_candidates(core, r.grid is not None, r.candidates, r.candidates_error)
+        return core
+
+    def _read_epoch(self) -> str:
+        """The state dir's epoch token, made (atomically) when the file is missing; a file
+        that does not hold one is refused: a new token would change every restored
+        candidate's uid."""
+        path = self.state_dir / EPOCH_NAME
+        try:
+            text = path.read_text(encoding="ascii").strip()
+        except FileNotFoundError:
+            text = new_epoch()
+            with atomic_write(path, "w") as f:
+                f.write(text + "\n")
+            log.info("%s: new epoch %s (in every candidate uid)", path, text)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{path}: cannot read the epoch ({exc})") from None
+        if not valid_epoch(text):
+            raise ConfigError(f"{path}: {text[:40]!r} is not an epoch ({EPOCH_RULE}); remove "
+                              "the file to start a new one (the candidates' uids then change)")
+        return text
+
+    def _restore_candidates(self, core: ServiceCore, resumed: bool, doc: Any,
+                            error: str | None) -> None:
+        """The candidates from the checkpoint and the journal (candidate_store.restore);
+        the journal then cut to its valid lines, or set aside."""
+        path = self.state_dir / JOURNAL_NAME
+        journal, unreadable = None, False
+        try:
+            with path.open("rb") as f:
+                journal = f.read(MAX_JOURNAL_BYTES + 1)
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            log.error("%s: cannot read (%s): the candidates are the checkpoint's", path, exc)
+            unreadable = True
+        r = core.restore_candidates(resumed=resumed, checkpoint=doc, checkpoint_error=error,
+                                    journal=journal, journal_path=str(path))
+        for level, text in r.logs:
+            log.log(level, "%s", text)
+        log.info("candidates restored: %d (%d from the checkpoint, %d updated or added by "
+                 "%d journal lines)", r.candidates, r.from_checkpoint, r.from_journal, r.lines)
+        try:
+            if r.set_aside or unreadable:
+                aside = path.with_name(f"candidates-{time.strftime('%Y%m%dT%H%M%S')}"
+                                       ".set-aside.journal")
+                path.replace(aside)
+                log.warning("%s set aside as %s", path, aside.name)
+            elif journal is not None and r.keep_bytes < len(journal):
+                os.truncate(path, r.keep_bytes)  # a torn last line: the next append after it
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot set it right ({exc})") from None
 
     def _read_nonces(self) -> NonceBook:
         """The re-tasking nonces seen before this start (none when the file is missing; a
@@ -406,20 +471,51 @@ class Daemon:
                 self.recorder.write(data, unix_s)
         if a.tiles is not None:
             self._put(self.pub_tiles, a.tiles)
-        if a.detections is not None:
-            self._put(self.pub_detections, a.detections)
+        if a.journal is not None:  # before the detections: an id published is kept
+            self._append_journal(a.journal)
+        for payload in a.detections:
+            self._put(self.pub_detections, payload)
         if a.status_due:
             if self.recorder is not None:
                 self.recorder.flush()
             self._publish_status()
         if a.checkpoint is not None:
             self._write_checkpoint(a.checkpoint)
+        if a.journal_reset:
+            self._reset_journal()
         if a.nonces is not None:  # before the replies: a replay after a crash is refused
             self._write_nonces(a.nonces)
         for ticket, payload in a.replies:
             self._reply_retask(ticket, payload)
         for level, text in a.logs:
             log.log(level, "%s", text)
+
+    def _append_journal(self, line: bytes) -> None:
+        """Append to the candidates journal, flushed and fsynced; a failed write is cut
+        back off (the file keeps whole lines) and reported to the core."""
+        path = self.state_dir / JOURNAL_NAME
+        error = None
+        try:
+            with path.open("ab") as f:
+                before = f.tell()
+                try:
+                    f.write(line)
+                    f.flush()
+                    os.fsync(f.fileno())
+                except OSError:
+                    f.truncate(before)
+                    raise
+        except OSError as exc:
+            error = f"{path}: {exc.strerror or exc}"
+        self.core.journal_written(error)
+
+    def _reset_journal(self) -> None:
+        """Empty the candidates journal (atomically: a kill leaves it whole or empty)."""
+        try:
+            with atomic_write(self.state_dir / JOURNAL_NAME, "wb"):
+                pass
+        except PdcovError as exc:  # its lines are in the checkpoint: replayed, skipped
+            log.error("candidates journal not emptied: %s", exc)
 
     def _put(self, pub: SourcedPublisher | None, payload: bytes) -> None:
         if pub is None:  # no session yet (_open_bus): nobody to publish to
@@ -456,7 +552,7 @@ class Daemon:
         error = None
         try:
             write_checkpoint(self.state_dir / CHECKPOINT_NAME, self.live.grid, meta,
-                             self.live.checkpoint_cameras)
+                             self.live.checkpoint_cameras, self.core.candidates_checkpoint())
         except (OSError, PdcovError) as exc:  # atomic_write: OutputError (disk full, ...)
             error = str(exc)
         self.core.checkpoint_written(meta, error)
@@ -464,7 +560,7 @@ class Daemon:
 
     def _shutdown(self) -> None:
         try:
-            self.core.process()
+            self.core.stop(self._clock())  # the pending detections published now
             self._do(self.core.actions())
             self._checkpoint()
         except Exception as exc:  # noqa: BLE001 - still close everything below

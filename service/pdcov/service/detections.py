@@ -5,8 +5,10 @@ decided, gives a used frame's boxes with its pose (the one the grid took) to the
 
 Publishing (``pdcov/<id>/detections``): at most one message every DETECTIONS_PERIOD_S,
 holding the detections new since the last one (at most bus.detections.MAX_DETECTIONS: the
-rest go in the next) and the current state of the candidates they touched. The candidates
-query answers every candidate.
+rest go in the next) and the current state of the candidates they touched (their ids go
+with it: the journal keeps them first, service/candidate_store.py); on a clean stop every
+pending detection at once (``poll(..., force=True)``). The candidates query answers every
+candidate.
 
 Counted in the status's faults: ``boxes_of_skipped_frames`` (a frame taken, then skipped:
 a telemetry gap, below min height, untrusted, ...), ``boxes_dropped_waiting`` (more than
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_detections
@@ -39,18 +42,24 @@ MAX_HELD_BOXES = 100_000
 never reaches are never decided)."""
 
 
+@dataclass(frozen=True, slots=True)
+class Publication:
+    """A detections message to publish and the ids of the candidates it carries."""
+
+    payload: bytes
+    candidate_ids: tuple[int, ...]
+
+
 class LiveDetections:
-    """The daemon's boxes (module docstring). ``faults``: the counter the status reports."""
+    """The daemon's boxes (module docstring). ``faults``: the counter the status reports;
+    ``uid_prefix``: the candidates' (ids.candidate_uid_prefix)."""
 
     def __init__(self, mission: Mission, grid: CoverageGrid, faults: Counter,
-                 epoch: str = "0") -> None:
-        """``grid``: the published grid (the candidates' P_D and P_FA); ``epoch``: the
-        token of the daemon's state_dir in the candidates' uids
-        ("<vehicle_id>.<epoch>.<candidate_id>")."""
+                 uid_prefix: str) -> None:
+        """``grid``: the published grid (the candidates' P_D and P_FA)."""
         self.vehicle_id = mission.vehicle_id
         self.grid = grid
-        self.tracker = DetectionTracker.for_mission(
-            mission, uid_prefix=f"{mission.vehicle_id}.{epoch}.")
+        self.tracker = DetectionTracker.for_mission(mission, uid_prefix)
         self.faults = faults
         self._held: dict[float, tuple[float, tuple[Box, ...]]] = {}  # frame t_s -> boxes
         self._n_held = 0
@@ -93,14 +102,18 @@ class LiveDetections:
             self._n_held -= n
             self.faults["boxes_of_skipped_frames"] += n
 
-    def poll(self, now_s: float, origin: Origin | None) -> bytes | None:
-        """The detections message due at ``now_s`` (monotonic s), or None."""
-        if not self._new or origin is None or now_s < self._next_s:
+    def poll(self, now_s: float, origin: Origin | None, force: bool = False
+             ) -> Publication | None:
+        """The detections message due at ``now_s`` (monotonic s), or None; ``force``: one
+        now whatever the period (a clean stop: call until None)."""
+        if not self._new or origin is None or (now_s < self._next_s and not force):
             return None
         self._next_s = now_s + DETECTIONS_PERIOD_S
         sent, self._new = self._new[:MAX_DETECTIONS], self._new[MAX_DETECTIONS:]
         touched = self.tracker.candidates(self.grid, (d.candidate_id for d in sent))
-        return encode_detections(detections_document(sent, touched, origin, self.vehicle_id))
+        return Publication(
+            encode_detections(detections_document(sent, touched, origin, self.vehicle_id)),
+            tuple(c.candidate_id for c in touched))
 
     def candidates_payload(self, origin: Origin | None) -> bytes:
         """The candidates query's answer: every candidate, no detection."""
