@@ -40,7 +40,7 @@ from pdcov.core.detections import (
 )
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 
-__all__ = ["DETECTIONS_SCHEMA", "DETECTIONS_VERSION", "MAX_CANDIDATES",
+__all__ = ["DETECTIONS_SCHEMA", "DETECTIONS_VERSION", "LIKELY_P_PERSON", "MAX_CANDIDATES",
            "MAX_DETECTIONS", "MAX_DETECTIONS_BYTES", "P_PERSON_DIGITS", "decode_detections",
            "detections_document", "encode_detections"]
 
@@ -56,6 +56,8 @@ _U32 = 2**32 - 1
 _MAX_BOOT_S = _U32 / 1000  # time_boot_ms is a uint32
 P_PERSON_DIGITS = 4
 """Decimal digits of ``p_person`` on the wire."""
+LIKELY_P_PERSON = 0.5
+"""A pin at least this probable is counted as likely (the status's summary, the views)."""
 
 
 def _geodetic(r_enu_m: np.ndarray, origin: Origin) -> dict[str, float]:

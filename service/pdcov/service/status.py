@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pdcov.bus.detections import P_PERSON_DIGITS
+from pdcov.bus.detections import LIKELY_P_PERSON, P_PERSON_DIGITS
 from pdcov.core.detections import Candidate
 from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.geodesy import enu_to_geodetic
@@ -25,7 +25,7 @@ from pdcov.core.mount import GimbalMount
 if TYPE_CHECKING:
     from pdcov.service.coverage import LiveCoverage
 
-__all__ = ["LIKELY_P_PERSON", "footprint_lonlat", "pins_summary", "status_fields"]
+__all__ = ["footprint_lonlat", "pins_summary", "status_fields"]
 
 
 def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
@@ -48,10 +48,6 @@ def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
         return None
     geo = enu_to_geodetic(np.column_stack([ring, np.full(len(ring), z_m)]), live.origin)
     return geo[:, [1, 0]]
-
-
-LIKELY_P_PERSON = 0.5
-"""A pin at least this probable counts as likely in the status's summary."""
 
 
 def pins_summary(candidates: Iterable[Candidate]) -> dict[str, Any]:
