@@ -65,6 +65,13 @@ def test_candidates_are_asked_after_each_snapshot_and_update_what_is_held():
         candidate(2, 5, 5, hits=10, looks=16, p_person=0.5)]))], 2.2)
     assert sorted(feed.candidates) == [uid(1), uid(2)]
     assert feed.candidates[uid(2)]["looks"] == 16 and feed.candidates[uid(2)]["p_person"] == 0.5
+    # Puts carry only the candidates new detections touch: the list is asked again every
+    # candidates_refresh_s (30 s), so a pin seen again without a hit shows its p_person fall.
+    assert w.candidates_due(32.1) == []
+    assert w.candidates_due(32.3) == [QueryCandidates("uav1")]
+    w.on_candidates_replies("uav1", [(DAEMON, doc("uav1", candidates=[
+        candidate(1, 0, 0, hits=9, looks=20, p_person=0.31)]))], 32.5)
+    assert feed.candidates[uid(1)]["p_person"] == 0.31
 
 
 RESTARTED = "b2" * 16

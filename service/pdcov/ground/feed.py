@@ -61,7 +61,7 @@ class VehicleFeed:
     """Candidates taken before the first pin (Watcher: kept or dropped by it)."""
     unlogged: int = 0  # the newest detections held, taken before the first pin, not logged
     candidates_asked_at: int | None = None  # ``snapshots`` when candidates were last asked
-    candidates_retry_at_s: float | None = None  # None while a query is out (or none needed)
+    candidates_retry_at_s: float | None = None  # when to ask again; None while a query is out
     # ``snapshots`` when the last candidates query ended (answered or not): a report taken
     # after it holds the candidates the daemon had then.
     candidates_done_at: int | None = None

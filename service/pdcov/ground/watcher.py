@@ -24,14 +24,17 @@ seen again, in a put or in a candidates reply, is updated in place, and the pins
 the vehicle's session changing (a restarted daemon's restored candidates merge with those
 held). The whole candidate list (queryable ``candidates``) is asked for whenever a snapshot
 is taken (first contact, and after every gap or restart: detections carry no sequence
-number, so the snapshot's resynchronisation is theirs too), and again after
-``mission_retry_s`` when it did not come. At most ``max_candidates`` candidates per vehicle
-are kept (beyond, the least probable, then the one with the fewest hits, then the oldest
-last detection, is forgotten and counted). Every detection taken goes to ``detection_log``
-(the recording's, on disk: ground/record_exports.py) and the latest ``max_detections`` stay
-in memory for the views. Findings taken before the vehicle's first snapshot reply pinned a
-session are provisional: kept when the pin is their session's (their detections then
-logged, the latest ``max_detections`` of them), dropped otherwise.
+number, so the snapshot's resynchronisation is theirs too), again after
+``mission_retry_s`` when it did not come, and every ``candidates_refresh_s`` after an
+answer: a put carries only the candidates its detections touched, so a pin looked at again
+without a hit shows its p_person falling with the next refresh. At most
+``max_candidates`` candidates per vehicle are kept (beyond, the least probable, then the
+one with the fewest hits, then the oldest last detection, is forgotten and counted).
+Every detection taken goes to ``detection_log`` (the recording's, on disk:
+ground/record_exports.py) and the latest ``max_detections`` stay in memory for the views.
+Findings taken before the vehicle's first snapshot reply pinned a session are provisional:
+kept when the pin is their session's (their detections then logged, the latest
+``max_detections`` of them), dropped otherwise.
 
 Each vehicle is pinned to the Zenoh session that answers its snapshot (ground/claims.py):
 status, tiles, mission, footprint and detections from any other session are refused and
@@ -129,7 +132,8 @@ class Watcher:
     mission grid (bus.grid_state.grid_hash), which the fleet map shows when vehicles fly
     several grids. snapshot_timeout_s: ask again when a snapshot reply has not come in this
     long. trailing_gap_s: how long a status may announce a tiles sequence number not yet
-    received before the snapshot is asked again. mission_retry_s: when to ask again for a
+    received before the snapshot is asked again. candidates_refresh_s: how often the candidates are
+    asked again once answered (module docstring). mission_retry_s: when to ask again for a
     mission that did not come or describes another grid than the vehicle's. max_vehicles:
     vehicles followed at most. bus_warning: what the operator must always be told about the
     bus (bus.session.BusSecurity.warning), or None. quiet_hint: why no vehicle may be heard
@@ -145,7 +149,8 @@ class Watcher:
     def __init__(self, vehicle: str | None = None, *, thresholds: tuple[float, ...] = (),
                  grid_hash: str | None = None, snapshot_timeout_s: float = 5.0,
                  trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
-                 mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
+                 mission_retry_s: float = 10.0, candidates_refresh_s: float = 30.0,
+                 max_vehicles: int = MAX_VEHICLES,
                  bus_warning: str | None = None, quiet_hint: str | None = None,
                  quiet_after_s: float = 10.0, max_candidates: int = MAX_CANDIDATES_KEPT,
                  max_detections: int = MAX_DETECTIONS_KEPT, roster: Roster | None = None,
@@ -156,6 +161,7 @@ class Watcher:
         self.snapshot_timeout_s = snapshot_timeout_s
         self.trailing_gap_s = trailing_gap_s
         self.mission_retry_s = mission_retry_s
+        self.candidates_refresh_s = candidates_refresh_s
         self.max_track_points = max_track_points
         self.max_vehicles = max_vehicles
         self.bus_warning = bus_warning
@@ -350,7 +356,8 @@ class Watcher:
                               now_s: float) -> None:
         """Every decoded reply of one candidates query (a detections document holding all
         the vehicle's candidates): the trusted session's update the pins held (by uid); none
-        (timeout, an older daemon, only other sessions) asks again after mission_retry_s."""
+        (timeout, an older daemon, only other sessions) asks again after mission_retry_s, an
+        answer after candidates_refresh_s."""
         feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
         if feed is None:
             return
@@ -360,14 +367,14 @@ class Watcher:
                 continue
             self._touch(feed, "candidates", now_s)
             feed.detections_session = source
-            feed.candidates_retry_at_s = None
+            feed.candidates_retry_at_s = now_s + self.candidates_refresh_s
             self._take_findings(feed, doc)
             return
         feed.candidates_retry_at_s = now_s + self.mission_retry_s
 
     def candidates_due(self, now_s: float) -> list[QueryCandidates]:
-        """Candidates queries to make now: once after each snapshot taken, and again every
-        mission_retry_s until one is answered."""
+        """Candidates queries to make now: once after each snapshot taken, again every
+        mission_retry_s until one is answered, then every candidates_refresh_s."""
         due = []
         for feed in self.feeds.values():
             if feed.state is None or feed.awaiting_since_s is not None:
