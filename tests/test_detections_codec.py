@@ -134,10 +134,12 @@ def test_p_person_is_rounded_and_a_candidate_without_hits_is_carried():
     assert decode_detections(encode_detections(doc))["candidates"][0]["hits"] == 0
 
 
-def test_a_detection_needs_its_candidate_in_the_document():
+def test_a_detection_of_a_candidate_evicted_since_gets_the_uid_the_caller_gives():
     d = Detection(1.5, PERSON, np.array([3.0, 4.0, 0.0]), 0.5, candidate_id=7)
     with pytest.raises(ValueError, match=r"candidates \[7\] without those candidates"):
         detections_document([d], [], ORIGIN, "uav1")
+    doc = detections_document([d], [], ORIGIN, "uav1", lambda cid: f"uav1.a1b2c3.{cid}")
+    assert decode_detections(encode_detections(doc))["detections"][0]["uid"] == "uav1.a1b2c3.7"
 
 
 def test_version_1_is_refused_saying_to_update_together():

@@ -15,14 +15,15 @@ every candidate they touched; the candidates query answers every candidate (and 
 detection), so a ground station that joins late catches up. x_m, y_m: ENU metres about the
 mission's origin; lat/lon WGS84 degrees, alt_msl_m the ground point's altitude (docs/
 protocol.md "detections"). A detection's ``uid`` is its candidate's (core/detections.py
-UID_RULE), so every detection's candidate is in the document that carries it. Version 1
-(before uids) is refused: the daemon and the watcher ship together.
+UID_RULE): the candidates touched are in the message, bar one evicted since (the tracker
+forgets its stalest unconfirmed candidate for a new one), whose uid the caller gives.
+Version 1 (before uids) is refused: the daemon and the watcher ship together.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -68,16 +69,20 @@ def _geodetic(r_enu_m: np.ndarray, origin: Origin) -> dict[str, float]:
 
 
 def detections_document(detections: Sequence[Detection], candidates: Sequence[Candidate],
-                        origin: Origin, vehicle_id: str) -> dict[str, Any]:
+                        origin: Origin, vehicle_id: str,
+                        uid_of: Callable[[int], str] | None = None) -> dict[str, Any]:
     """The detections document (module docstring) of these detections and candidates, in
     the order given; positions rounded to 1e-8 degrees and millimetres, ``p_person`` to
-    P_PERSON_DIGITS digits. Each detection's candidate must be among ``candidates`` (its
-    uid is the candidate's): ValueError naming the candidate id otherwise."""
+    P_PERSON_DIGITS digits. A detection's uid is its candidate's when that candidate is
+    among ``candidates``, else ``uid_of(candidate_id)`` (the tracker's uid of one evicted
+    since); ValueError naming the candidate ids without either."""
     uids = {c.candidate_id: c.uid for c in candidates}
     missing = sorted({d.candidate_id for d in detections} - uids.keys())
     if missing:
-        raise ValueError(f"detections of candidates {missing[:10]} without those candidates "
-                         "in the document: their uids are unknown")
+        if uid_of is None:
+            raise ValueError(f"detections of candidates {missing[:10]} without those "
+                             "candidates in the document: their uids are unknown")
+        uids.update((cid, uid_of(cid)) for cid in missing)
     return {
         "schema": DETECTIONS_SCHEMA, "version": DETECTIONS_VERSION, "vehicle": vehicle_id,
         "detections": [{

@@ -40,7 +40,8 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
         if held is not None:
             detections += tracker.frame(pose, *held, camera=cameras[i] if cameras else None)
     return detections_document(detections, tracker.candidates(grid), origin,
-                               mission.vehicle_id)
+                               mission.vehicle_id,
+                               lambda cid: f"{tracker.uid_prefix}{cid}")  # an evicted one's
 
 
 def write_detections(out_dir: Path, doc: Mapping[str, Any]) -> Path:

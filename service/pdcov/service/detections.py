@@ -93,7 +93,12 @@ class LiveDetections:
         sent, self._new = self._new[:MAX_DETECTIONS], self._new[MAX_DETECTIONS:]
         touched = self.tracker.candidates(self.grid, (d.candidate_id for d in sent))
         self.latest.update((c.candidate_id, c) for c in touched)
-        return encode_detections(detections_document(sent, touched, origin, self.vehicle_id))
+        return encode_detections(detections_document(sent, touched, origin, self.vehicle_id,
+                                                     self.uid_of))
+
+    def uid_of(self, candidate_id: int) -> str:
+        """The tracker's uid of a candidate (one evicted since its detections were made)."""
+        return f"{self.tracker.uid_prefix}{candidate_id}"
 
     def candidates_payload(self, origin: Origin | None) -> bytes:
         """The candidates query's answer: every candidate, no detection."""
