@@ -73,7 +73,7 @@ def feed_with(pose_t_s: float = 1.0, candidates=()) -> VehicleFeed:
                                     "ground_alt_msl_m": 600.0}}}
     f.footprint = {"geometry": {"type": "Polygon", "coordinates": [
         ring([(-20, -15), (20, -15), (20, 15), (-20, 15), (-20, -15)])]}}
-    f.candidates = {c["id"]: c for c in candidates}
+    f.candidates = {c["uid"]: c for c in candidates}
     return f
 
 
@@ -107,11 +107,17 @@ def test_schedule_sends_new_poses_and_changed_candidates_at_bounded_rates():
     assert sched.due([f], 0.97, 1_700_000_000.97) == []  # new, but within the period ...
     (again,) = sched.due([f], 1.0, 1_700_000_001.0)
     assert parse(again).get("type") == AIRCRAFT_TYPE  # ... then sent once
-    f.candidates[3] = candidate(3, 3, 0, hits=10, looks=15)
+    f.candidates["uav1.3fa2c1.3"] = candidate(3, 3, 0, hits=10, looks=15, p_person=0.98765)
     (changed,) = sched.due([f], 2.0, 1_700_000_002.0)
     e = parse(changed)
-    assert e.get("uid") == "pdcov-uav1-3" and "detected 10 of 15 looks" in \
+    assert e.get("uid") == "uav1.3fa2c1.3"  # the pin's uid: durable across restarts
+    assert "person pin uav1.3fa2c1.3: p_person 0.9877, detected 10 of 15 looks" in \
         e.findtext("detail/remarks")
+    assert e.find("detail/contact").get("callsign") == "person 0.99 uav1.3fa2c1.3"
+    f.candidates["uav1.3fa2c1.3"] = candidate(3, 3, 0, hits=10, looks=16, p_person=0.9)
+    (missed,) = sched.due([f], 3.0, 1_700_000_003.0)  # a look without a hit: sent again
+    assert "p_person 0.9000, detected 10 of 16 looks" in parse(missed).findtext(
+        "detail/remarks")
     assert when(e.get("stale")) - when(e.get("time")) == timedelta(seconds=300)
     assert float(e.find("point").get("ce")) == pytest.approx(2.146 * 0.5, abs=0.05)
     assert len(sched.due([f], 16.0, 1_700_000_016.0)) == 20  # the repeats, still bounded
@@ -135,12 +141,15 @@ def check_events(events: list[ET.Element]) -> None:
     kinds = {e.get("type") for e in events}
     assert kinds == {AIRCRAFT_TYPE, CANDIDATE_TYPE}
     for e in events:
-        assert e.get("uid") in ("pdcov-uav1", "pdcov-uav1-3")
+        assert e.get("uid") in ("pdcov-uav1", "uav1.3fa2c1.3")
         assert when(e.get("stale")) > when(e.get("time")) == when(e.get("start"))
         pt = e.find("point")
         assert float(pt.get("lat")) == pytest.approx(46.5, abs=1e-3)
         assert float(pt.get("lon")) == pytest.approx(7.25, abs=1e-3)
         assert pt.get("hae") == "9999999.0"
+    pin = next(e for e in events if e.get("type") == CANDIDATE_TYPE)
+    assert "pin uav1.3fa2c1.3: p_person 0.9731, detected 9 of 14 looks" in pin.findtext(
+        "detail/remarks")
     air = next(e for e in events if e.get("type") == AIRCRAFT_TYPE)
     assert {"azimuth", "elevation", "fov", "vfov", "range"} <= set(air.find(
         "detail/sensor").attrib)

@@ -121,6 +121,35 @@ def test_detections_round_trip():
     assert det["lat_deg"] == pytest.approx(-35.3 + 4.0 / 111_000, abs=1e-6)
     assert det["candidate"] == 0 and det["box_px"] == [100.0, 50.0, 20.0, 40.0]
     assert (cand["hits"], cand["looks"], cand["pd"]) == (2, 5, 0.7)
+    assert cand["uid"] == det["uid"] == "uav1.a1b2c3.0"
+    assert cand["p_person"] == 0.9
+
+
+def test_p_person_is_rounded_and_a_candidate_without_hits_is_carried():
+    c = Candidate(4, "person", np.array([0.0, 0.0, 0.0]), 0.4, hits=0, looks=3, pd=0.5,
+                  pfa=0.01, confidence=0.5, first_t_boot_s=1.0, last_t_boot_s=1.0,
+                  uid="uav1.a1b2c3.4", p_person=0.123456)
+    doc = detections_document([], [c], ORIGIN, "uav1")
+    assert doc["version"] == 2 and doc["candidates"][0]["p_person"] == 0.1235
+    assert decode_detections(encode_detections(doc))["candidates"][0]["hits"] == 0
+
+
+def test_a_detection_of_a_candidate_evicted_since_gets_the_uid_the_caller_gives():
+    d = Detection(1.5, PERSON, np.array([3.0, 4.0, 0.0]), 0.5, candidate_id=7)
+    with pytest.raises(ValueError, match=r"candidates \[7\] without those candidates"):
+        detections_document([d], [], ORIGIN, "uav1")
+    doc = detections_document([d], [], ORIGIN, "uav1", lambda cid: f"uav1.a1b2c3.{cid}")
+    assert decode_detections(encode_detections(doc))["detections"][0]["uid"] == "uav1.a1b2c3.7"
+
+
+def test_version_1_is_refused_saying_to_update_together():
+    doc = document()
+    doc["version"] = 1
+    with pytest.raises(BusPayloadError) as err:
+        decode_detections(encode_detections(doc), "pdcov/uav1/detections")
+    assert "version 1 (a daemon from before candidate uids), expected 2: update the " \
+           "daemon and pdcov watch together" in str(err.value)
+    assert err.value.reason is Refusal.MALFORMED
 
 
 @pytest.mark.parametrize(("path", "value", "why"), [
@@ -130,6 +159,15 @@ def test_detections_round_trip():
     (("detections", 0, "lat_deg"), 91.0, "detections[0].lat_deg"),
     (("detections", 0, "candidate"), -1, "detections[0].candidate"),
     (("candidates", 0, "hits"), -1, "candidates[0].hits"),
+    (("candidates", 0, "hits"), 6, "candidates[0].hits 6 > looks 5: at most one hit per "
+                                   "look"),
+    (("candidates", 0, "p_person"), 1.01, "candidates[0].p_person"),
+    (("candidates", 0, "p_person"), None, "candidates[0].p_person"),
+    (("candidates", 0, "uid"), "uav1/0", "candidates[0].uid 'uav1/0': expected 1 to 100"),
+    (("candidates", 0, "uid"), "x" * 101, "candidates[0].uid"),
+    (("detections", 0, "uid"), None, "detections[0].uid None"),
+    (("detections", 0, "uid"), "uav1.a1b2c3.9", "detections[0].uid 'uav1.a1b2c3.9': its "
+                                                "candidate 0 is 'uav1.a1b2c3.0'"),
     (("candidates", 0, "pd"), 1.5, "candidates[0].pd"),
     (("candidates", 0, "last_t_boot_s"), 1.0, "candidates[0].last_t_boot_s"),
     (("candidates", 0, "class"), "", "candidates[0].class"),
@@ -143,6 +181,14 @@ def test_bad_detections_are_refused(path, value, why):
     with pytest.raises(BusPayloadError, match="pdcov/uav1/detections: not a usable") as err:
         decode_detections(encode_detections(doc), "pdcov/uav1/detections", "uav1")
     assert why in str(err.value), str(err.value)
+
+
+def test_one_candidate_id_with_two_uids_is_refused():
+    doc = document()
+    doc["candidates"].append({**doc["candidates"][0], "uid": "uav1.a1b2c3.x"})
+    with pytest.raises(BusPayloadError, match=r"candidates\[1\].uid 'uav1.a1b2c3.x': "
+                                              r"candidate 0 is also 'uav1.a1b2c3.0'"):
+        decode_detections(encode_detections(doc))
 
 
 def test_too_many_candidates_are_refused():

@@ -79,7 +79,10 @@ def test_detections_geojson_has_a_point_per_detection_and_candidate(run):
         assert p["pd"] == pytest.approx(cov.pd_at(d["x_m"], d["y_m"]), abs=1e-6)
     cand = feats[0]["properties"]
     assert (cand["hits"], cand["looks"], cand["candidate"]) == (9, 14, 3)
-    assert feats[2]["properties"]["looks"] == 14  # its candidate's
+    assert (cand["uid"], cand["p_person"]) == ("alpha.3fa2c1.3", 0.9731)
+    det = feats[4]["properties"]  # of pin 4: its figures
+    assert (det["uid"], det["p_person"], det["looks"], det["hits"]) == (
+        "alpha.3fa2c1.4", 0.0412, 3, 1)
 
 
 def test_pd_is_the_payloads_without_a_grid_or_outside_the_free_cells():
@@ -110,7 +113,10 @@ def test_caltopo_shapes_markers_and_assignments(run):
     markers = by_class["Marker"]
     assert len(markers) == 2  # candidates only
     assert markers[0]["properties"]["marker-color"] == "FF0000"  # CalTopo writes no '#'
-    assert "detected 9 of 14 looks" in markers[0]["properties"]["title"]
+    assert markers[0]["properties"]["title"] == ("person alpha.3fa2c1.3: p_person 0.97, "
+                                                 "detected 9 of 14 looks")
+    assert {k: markers[1]["properties"][k] for k in ("uid", "p_person", "looks", "hits")} \
+        == {"uid": "alpha.3fa2c1.4", "p_person": 0.0412, "looks": 3, "hits": 1}
     # The outlines cover exactly the free cells at or above each threshold (1 m cells).
     for t in cov.thresholds:
         shapes = [f for f in by_class["Shape"] if f["properties"]["title"].startswith(

@@ -51,13 +51,19 @@ def test_gdal_reads_the_geojson_exports(out):
     src = detections_doc()["candidates"][0]
     assert back["features"][0]["geometry"]["coordinates"] == pytest.approx(
         [src["lon_deg"], src["lat_deg"]], abs=1e-9)
+    figures = [{k: f["properties"][k] for k in ("uid", "p_person", "looks", "hits")}
+               for f in back["features"]]
+    assert figures[1] == figures[4] == {"uid": "alpha.3fa2c1.4", "p_person": 0.0412,
+                                        "looks": 3, "hits": 1}  # pin 4 and its detection
     info = ogrinfo("-al", str(out / "caltopo.geojson"))
     assert "using driver `GeoJSON' successful" in info
     doc = json.loads((out / "caltopo.geojson").read_text())
     assert counts(info) == [len(doc["features"])]
-    classes = {f["properties"]["class"] for f in as_geojson(str(out / "caltopo.geojson"))
-               ["features"]}
-    assert classes == {"Shape", "Marker", "Assignment"}
+    caltopo = as_geojson(str(out / "caltopo.geojson"))["features"]
+    assert {f["properties"]["class"] for f in caltopo} == {"Shape", "Marker", "Assignment"}
+    markers = [f["properties"] for f in caltopo if f["properties"]["class"] == "Marker"]
+    assert [(m["uid"], m["p_person"], m["looks"], m["hits"]) for m in markers] == [
+        ("alpha.3fa2c1.3", 0.9731, 14, 9), ("alpha.3fa2c1.4", 0.0412, 3, 1)]
 
 
 @pytest.mark.parametrize("name", ["pdcov.kml", "pdcov.kmz"])
@@ -71,5 +77,11 @@ def test_gdal_libkml_reads_the_kml_and_kmz(out, name):
     src = detections_doc()["candidates"]
     assert [f["geometry"]["coordinates"][:2] for f in cands] == [
         pytest.approx([c["lon_deg"], c["lat_deg"]], abs=1e-9) for c in src]
+    pin = cands[0]["properties"]  # LIBKML: the name, description and ExtendedData fields
+    assert pin["Name"] == "person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks"
+    assert "uid: alpha.3fa2c1.3" in pin["description"]
+    assert "p_person: 0.9731" in pin["description"]
+    assert (pin["uid"], float(pin["p_person"]), int(pin["looks"]), int(pin["hits"])) == (
+        "alpha.3fa2c1.3", 0.9731, 14, 9)
     gaps = as_geojson(str(out / name), "gaps (P_D < 0.8)")["features"]
     assert len(gaps) == 2 and all(f["geometry"]["type"] == "Polygon" for f in gaps)

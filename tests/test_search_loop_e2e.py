@@ -143,7 +143,7 @@ def test_true_detections_geolocate_within_1_5_m_at_p90(flight, tmp_path):
 def test_the_ground_station_gets_the_candidates_evaluate_finds(flight, tmp_path):
     run = flight["settled"]
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "candidates sim1:" in run.stdout, run.stdout
+    assert "pins sim1:" in run.stdout, run.stdout
     cfg = flight["cfg"]
     offline(cfg, recording(cfg.parent), tmp_path / "ev")
     evaluated = json.loads((tmp_path / "ev" / "detections.json").read_text())["candidates"]
@@ -154,7 +154,7 @@ def test_the_ground_station_gets_the_candidates_evaluate_finds(flight, tmp_path)
     for f in points:
         p = f["properties"]
         c = by_id[p["candidate"]]
-        assert (p["hits"], p["looks"]) == (c["hits"], c["looks"])
+        assert (p["hits"], p["looks"], p["p_person"]) == (c["hits"], c["looks"], c["p_person"])
         assert abs(p["pd"] - c["pd"]) < 1e-6  # the export rounds to 1e-6
         lon, lat = f["geometry"]["coordinates"][:2]
         assert abs(lat - c["lat_deg"]) < 1e-7 and abs(lon - c["lon_deg"]) < 1e-7

@@ -52,6 +52,9 @@ def flying_status(seq: int) -> dict:
                    "other_systems_messages": 0, "bad_messages": 3, "nan_samples": 0},
         "checkpoint": {"path": "/var/lib/pdcov/checkpoint.npz", "last_t_s": 20.0,
                        "resumed": False, "set_aside": None},
+        "pins": {"candidates": 1234 + seq, "likely": 56,
+                 "top": {"uid": "uav-07.3fa2c1.1017", "p_person": 0.9731 - seq * 1e-4,
+                         "looks": 14 + seq, "hits": 9}},
     }
 
 
@@ -82,6 +85,8 @@ def test_every_status_decodes_and_merging_restores_the_full_one():
             doc_.pop("full")
             for one in doc_["link"]["links"]:
                 one.pop("last_message_age_s")
+        # The top pin's figures are those of the last full status (its uid is current).
+        assert got["pins"].pop("top")["uid"] == want["pins"].pop("top")["uid"]
         assert got == want, i
     assert kinds[0] and kinds[FULL_EVERY] and not any(kinds[1:FULL_EVERY])
 
@@ -101,6 +106,54 @@ def test_a_detail_change_goes_out_at_once(change):
     doc = json.loads(enc.encode(fields))
     assert doc["full"] is True and doc[change[0]][change[1]] == change[2]
     assert json.loads(enc.encode(copy.deepcopy(fields) | {"seq": 3}))["full"] is False
+
+
+def test_the_pins_summary_top_goes_out_when_it_changes_and_merges_back():
+    enc = StatusEncoder()
+    enc.encode(flying_status(0))
+    brief = decode_status(enc.encode(flying_status(1)))
+    assert brief["full"] is False and brief["pins"] == {"candidates": 1235, "likely": 56}
+    merged = merge_status(decode_status(StatusEncoder().encode(flying_status(0))), brief)
+    assert merged["pins"]["candidates"] == 1235
+    assert merged["pins"]["top"]["uid"] == "uav-07.3fa2c1.1017"  # the last full one's
+    fields = copy.deepcopy(flying_status(2))
+    fields["pins"]["top"]["uid"] = "uav-07.3fa2c1.5"  # another pin is the most likely now
+    doc = decode_status(enc.encode(fields))
+    assert doc["full"] is True and doc["pins"]["top"]["uid"] == "uav-07.3fa2c1.5"
+
+
+@pytest.mark.parametrize(("change", "why"), [
+    ({"likely": 1300}, "pins.likely: expected an integer in [0, 1234]"),
+    ({"top": {"uid": "a b", "p_person": 0.5, "looks": 1, "hits": 0}}, "pins.top.uid 'a b'"),
+    ({"top": {"uid": "a.b.1", "p_person": 0.5, "looks": 1, "hits": 2}},
+     "pins.top.hits: expected an integer in [0, 1]"),
+    ({"top": {"uid": "a.b.1", "p_person": 1.5, "looks": 1, "hits": 0}}, "pins.top.p_person"),
+])
+def test_a_bad_pins_summary_is_refused_naming_the_field(change, why):
+    from pdcov.bus.errors import BusPayloadError
+
+    fields = copy.deepcopy(flying_status(0))
+    fields["pins"].update(change)
+    with pytest.raises(BusPayloadError) as err:
+        decode_status(StatusEncoder().encode(fields))
+    assert why in str(err.value), str(err.value)
+
+
+def test_pins_summary_counts_the_likely_and_names_the_top():
+    import numpy as np
+
+    from pdcov.core.detections import Candidate
+    from pdcov.service.status import pins_summary
+
+    def cand(i: int, p: float, hits: int) -> Candidate:
+        return Candidate(i, "person", np.zeros(3), 0.5, hits, 5, 0.5, 0.01, 0.8, 1.0, 2.0,
+                         f"uav1.abcdef.{i}", p)
+
+    assert pins_summary([]) == {"candidates": 0, "likely": 0, "top": None}
+    got = pins_summary([cand(0, 0.2, 1), cand(1, 0.5, 2), cand(2, 0.91234567, 3),
+                        cand(3, 0.91234567, 4), cand(4, 0.49, 5)])
+    assert got == {"candidates": 5, "likely": 3, "top": {
+        "uid": "uav1.abcdef.3", "p_person": 0.9123, "looks": 5, "hits": 4}}
 
 
 def test_checkpoint_progress_alone_waits_for_the_next_full_status():

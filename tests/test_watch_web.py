@@ -172,9 +172,20 @@ def constructed_state(basemap: dict) -> dict:
     plan = rings_lat_lon([[[-25, 15], [25, 15], [25, -15], [-25, -15]]], ORIGIN)[0]
     gap = rings_lat_lon([[[-20, -10], [-10, -10], [-10, 0], [-20, 0], [-20, -10]]], ORIGIN)[0]
     (((lat, lon),),) = rings_lat_lon([[[10, 5]]], ORIGIN)
-    candidate = {"id": "c1", "class": "person", "lat_deg": lat, "lon_deg": lon,
-                 "sigma_m": 1.5, "hits": 9, "looks": 14, "pd": 0.87, "pfa": 0.02,
-                 "confidence": 0.71, "first_t_boot_s": 120.5, "last_t_boot_s": 131.0}
+
+    def pin(cid: int, p_person: float, x_m: float, y_m: float) -> dict:
+        (((lat_, lon_),),) = rings_lat_lon([[[x_m, y_m]]], ORIGIN)
+        return {"id": cid, "uid": f"uav1.3fa2c1.{cid}", "class": "person", "lat_deg": lat_,
+                "lon_deg": lon_, "sigma_m": 1.0, "p_person": p_person, "hits": 1,
+                "looks": 3, "pd": 0.5, "pfa": 0.01, "confidence": 0.5,
+                "first_t_boot_s": 100.0, "last_t_boot_s": 100.0}
+
+    candidate = {"id": 1, "uid": "uav1.3fa2c1.1", "class": "person", "lat_deg": lat,
+                 "lon_deg": lon, "sigma_m": 1.5, "p_person": 0.9731, "hits": 9, "looks": 14,
+                 "pd": 0.87, "pfa": 0.02, "confidence": 0.71, "first_t_boot_s": 120.5,
+                 "last_t_boot_s": 131.0}
+    # Not in order on purpose: the page sorts (map_state sends the most probable first).
+    pins = [pin(2, 0.05, -15, 10), candidate, pin(3, 0.6, 0, -10), pin(4, 0.3, 5, 5)]
     return {
         "version": 7,
         "fleet": {"target": 0.8, "thresholds": [0.8], "proportion": {"0.8": 0.5},
@@ -191,7 +202,7 @@ def constructed_state(basemap: dict) -> dict:
                       "frames_skipped": 0, "proportion": {"0.8": 0.5},
                       "status_proportion": {"0.8": 0.5}, "mean_pd": 0.5,
                       "track_lat_lon": track, "footprint_lat_lon": footprint,
-                      "candidates": [candidate]}],
+                      "candidates": pins}],
         "gaps": [gap],
         "origin": {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg},
         "basemap": basemap,
@@ -293,7 +304,7 @@ def test_layers_toggle_and_a_candidate_shows_its_numbers(leaflet_page):
     counts = browser.execute_script("""const L = window.pdcov.layers; return Object.fromEntries(
         Object.entries(L).map(([k, g]) => [k, g.getLayers().length]));""")
     assert counts == {"heat": 1, "outline": 2, "domain": 2, "plans": 5, "tracks": 2,
-                      "footprints": 1, "candidates": 2, "gaps": 1, "refly": 0}
+                      "footprints": 1, "candidates": 8, "gaps": 1, "refly": 0}
 
     def toggle(name):
         browser.execute_script("""Array.from(document.querySelectorAll(
@@ -313,13 +324,52 @@ def test_layers_toggle_and_a_candidate_shows_its_numbers(leaflet_page):
         "return document.querySelectorAll('img.leaflet-tile').length") == 0
     toggle("P_D heat map")
     assert heat_shown() == [True, 1]
-    browser.find_element("css selector", '[data-candidate="uav1/c1"]').click()
+    browser.find_element("css selector", '[data-candidate="uav1.3fa2c1.1"]').click()
     text = wait_for(lambda: "seen" in (t := browser.execute_script("""
         const p = document.querySelector('.leaflet-popup-content');
         return p ? p.innerText : '';""")) and t, 10, "the candidate's popup")
-    assert "person (candidate c1, uav1)" in text and "seen 14 times, detected 9" in text
-    for figure in ("P_D (cell)\n0.870", "P_FA (cell)\n0.020", "confidence\n0.71",
+    assert "person uav1.3fa2c1.1 (uav1)" in text and "seen 14 times, detected 9" in text
+    for figure in ("uid\nuav1.3fa2c1.1", "p_person\n0.9731", "looks\n14", "hits\n9",
+                   "P_D (cell)\n0.870", "P_FA (cell)\n0.020", "confidence\n0.71",
                    "\u00b1 1.5 m", "120.5 s (boot)", "131.0 s (boot)"):
         assert figure in text, (figure, text)
     time.sleep(1.0)  # further updates (the same state) leave the popup open
     assert browser.find_elements("css selector", ".leaflet-popup-content")
+
+
+def test_pins_are_listed_most_probable_first_unlikely_faint_and_filtered(leaflet_page):
+    browser, _ = leaflet_page
+
+    def listed():
+        return browser.execute_script("""return Array.from(
+            document.querySelectorAll('#pins li'), (li) => [li.dataset.uid,
+            Number(li.dataset.pPerson), li.classList.contains('faint')]);""")
+
+    def markers():
+        return browser.execute_script("""return Array.from(
+            document.querySelectorAll('[data-candidate]'), (m) => [m.dataset.candidate,
+            Number(getComputedStyle(m).opacity), m.classList.contains('faint')]).sort();""")
+
+    assert listed() == [["uav1.3fa2c1.1", 0.9731, False], ["uav1.3fa2c1.3", 0.6, False],
+                        ["uav1.3fa2c1.4", 0.3, False], ["uav1.3fa2c1.2", 0.05, True]]
+    assert browser.find_element("css selector", "#pins li").text == \
+        "0.97 person uav1.3fa2c1.1 9/14 looks"
+    shown = markers()
+    assert [m[0] for m in shown] == [f"uav1.3fa2c1.{k}" for k in (1, 2, 3, 4)]
+    faint = {uid: (opacity, cls) for uid, opacity, cls in shown}
+    assert faint["uav1.3fa2c1.2"] == (pytest.approx(0.35), True)  # p_person 0.05 < 0.1
+    assert faint["uav1.3fa2c1.1"] == (1.0, False)
+    assert browser.execute_script("""return getComputedStyle(
+        document.querySelector('#pins li.faint')).opacity""") == "0.35"
+    want = {"0": [1, 2, 3, 4], "0.1": [1, 3, 4], "0.5": [1, 3], "0.9": [1]}
+    for minimum, kept in want.items():
+        browser.execute_script("""const s = document.getElementById('pin-filter');
+            s.value = arguments[0]; s.dispatchEvent(new Event('change'));""", minimum)
+        uids = [f"uav1.3fa2c1.{k}" for k in kept]
+        assert wait_for(lambda uids=uids: sorted(u for u, *_ in listed()) == uids
+                        and [m[0] for m in markers()] == uids, 10, f"the filter {minimum}")
+        assert browser.find_element("id", "pins-note").text == f"{len(kept)} of 4 pins"
+        assert browser.execute_script(
+            "return window.pdcov.layers.candidates.getLayers().length") == 2 * len(kept)
+    time.sleep(1.0)  # further updates (the same state) keep the filter
+    assert [m[0] for m in markers()] == ["uav1.3fa2c1.1"]

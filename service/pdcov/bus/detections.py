@@ -2,41 +2,51 @@
 ``pdcov/<id>/candidates``) and ``detections.json`` of ``pdcov evaluate``: one JSON document,
 built in one place (``detections_document``) for the daemon and the offline evaluation.
 
-    {"schema": "pdcov.detections", "version": 1, "vehicle": id,
+    {"schema": "pdcov.detections", "version": 2, "vehicle": id,
      "detections": [{"t_boot_s", "class", "confidence", "box_px": [l, t, w, h],
                      "lat_deg", "lon_deg", "alt_msl_m", "x_m", "y_m", "sigma_m",
-                     "candidate"}],
-     "candidates": [{"id", "class", "lat_deg", "lon_deg", "alt_msl_m", "x_m", "y_m",
-                     "sigma_m", "hits", "looks", "pd", "pfa", "confidence",
+                     "candidate", "uid"}],
+     "candidates": [{"id", "uid", "class", "lat_deg", "lon_deg", "alt_msl_m", "x_m", "y_m",
+                     "sigma_m", "hits", "looks", "p_person", "pd", "pfa", "confidence",
                      "first_t_boot_s", "last_t_boot_s"}]}
 
 A published message holds the detections new since the last one and the current state of
 every candidate they touched; the candidates query answers every candidate (and no
 detection), so a ground station that joins late catches up. x_m, y_m: ENU metres about the
 mission's origin; lat/lon WGS84 degrees, alt_msl_m the ground point's altitude (docs/
-protocol.md "detections").
+protocol.md "detections"). A detection's ``uid`` is its candidate's (core/detections.py
+UID_RULE): the candidates touched are in the message, bar one evicted since (the tracker
+forgets its stalest unconfirmed candidate for a new one), whose uid the caller gives.
+Version 1 (before uids) is refused: the daemon and the watcher ship together.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from pdcov.bus.errors import Refuser
+from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
-from pdcov.core.detections import CLASS_NAME_RULE, Candidate, Detection, valid_class_name
+from pdcov.core.detections import (
+    CLASS_NAME_RULE,
+    UID_RULE,
+    Candidate,
+    Detection,
+    valid_class_name,
+    valid_uid,
+)
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 
-__all__ = ["DETECTIONS_SCHEMA", "DETECTIONS_VERSION", "MAX_CANDIDATES",
-           "MAX_DETECTIONS", "MAX_DETECTIONS_BYTES", "decode_detections",
+__all__ = ["DETECTIONS_SCHEMA", "DETECTIONS_VERSION", "LIKELY_P_PERSON", "MAX_CANDIDATES",
+           "MAX_DETECTIONS", "MAX_DETECTIONS_BYTES", "P_PERSON_DIGITS", "decode_detections",
            "detections_document", "encode_detections"]
 
 DETECTIONS_SCHEMA = "pdcov.detections"
-DETECTIONS_VERSION = 1
+DETECTIONS_VERSION = 2
 MAX_DETECTIONS = 10_000
 """Most detections per message."""
 MAX_CANDIDATES = 10_000
@@ -45,6 +55,10 @@ MAX_DETECTIONS_BYTES = 8 << 20
 """Largest detections payload accepted (10,000 candidates are about 3 MB)."""
 _U32 = 2**32 - 1
 _MAX_BOOT_S = _U32 / 1000  # time_boot_ms is a uint32
+P_PERSON_DIGITS = 4
+"""Decimal digits of ``p_person`` on the wire."""
+LIKELY_P_PERSON = 0.5
+"""A pin at least this probable is counted as likely (the status's summary, the views)."""
 
 
 def _geodetic(r_enu_m: np.ndarray, origin: Origin) -> dict[str, float]:
@@ -55,19 +69,32 @@ def _geodetic(r_enu_m: np.ndarray, origin: Origin) -> dict[str, float]:
 
 
 def detections_document(detections: Sequence[Detection], candidates: Sequence[Candidate],
-                        origin: Origin, vehicle_id: str) -> dict[str, Any]:
+                        origin: Origin, vehicle_id: str,
+                        uid_of: Callable[[int], str] | None = None) -> dict[str, Any]:
     """The detections document (module docstring) of these detections and candidates, in
-    the order given; positions rounded to 1e-8 degrees and millimetres."""
+    the order given; positions rounded to 1e-8 degrees and millimetres, ``p_person`` to
+    P_PERSON_DIGITS digits. A detection's uid is its candidate's when that candidate is
+    among ``candidates``, else ``uid_of(candidate_id)`` (the tracker's uid of one evicted
+    since); ValueError naming the candidate ids without either."""
+    uids = {c.candidate_id: c.uid for c in candidates}
+    missing = sorted({d.candidate_id for d in detections} - uids.keys())
+    if missing:
+        if uid_of is None:
+            raise ValueError(f"detections of candidates {missing[:10]} without those "
+                             "candidates in the document: their uids are unknown")
+        uids.update((cid, uid_of(cid)) for cid in missing)
     return {
         "schema": DETECTIONS_SCHEMA, "version": DETECTIONS_VERSION, "vehicle": vehicle_id,
         "detections": [{
             "t_boot_s": d.t_boot_s, "class": d.box.class_name, "confidence": d.box.confidence,
             "box_px": list(d.box.box_px), **_geodetic(d.r_enu_m, origin),
-            "sigma_m": round(d.sigma_m, 3), "candidate": d.candidate_id}
+            "sigma_m": round(d.sigma_m, 3), "candidate": d.candidate_id,
+            "uid": uids[d.candidate_id]}
             for d in detections],
         "candidates": [{
-            "id": c.candidate_id, "class": c.class_name, **_geodetic(c.r_enu_m, origin),
-            "sigma_m": round(c.sigma_m, 3), "hits": c.hits, "looks": c.looks, "pd": c.pd,
+            "id": c.candidate_id, "uid": c.uid, "class": c.class_name,
+            **_geodetic(c.r_enu_m, origin), "sigma_m": round(c.sigma_m, 3), "hits": c.hits,
+            "looks": c.looks, "p_person": round(c.p_person, P_PERSON_DIGITS), "pd": c.pd,
             "pfa": c.pfa, "confidence": c.confidence, "first_t_boot_s": c.first_t_boot_s,
             "last_t_boot_s": c.last_t_boot_s}
             for c in candidates]}
@@ -87,10 +114,15 @@ def decode_detections(payload: bytes, key: str = "detections",
     and the field."""
     bad = Refuser(f"{key}: not a usable detections message")
     doc = json_object(payload, MAX_DETECTIONS_BYTES, bad)
+    if doc.get("schema") == DETECTIONS_SCHEMA and doc.get("version") == 1:
+        raise bad(f"version 1 (a daemon from before candidate uids), expected "
+                  f"{DETECTIONS_VERSION}: update the daemon and pdcov watch together",
+                  Refusal.MALFORMED)
     check_schema(doc, DETECTIONS_SCHEMA, DETECTIONS_VERSION, bad)
     f = Fields(doc, bad)
     f.vehicle_id("vehicle", vehicle_id)
-    for i, item in enumerate(f.items("detections", MAX_DETECTIONS)):
+    detections = f.items("detections", MAX_DETECTIONS)
+    for i, item in enumerate(detections):
         d = Fields(item, bad, f"detections[{i}].")
         d.number("t_boot_s", 0.0, _MAX_BOOT_S)
         _class(d)
@@ -102,18 +134,37 @@ def decode_detections(payload: bytes, key: str = "detections",
                       f"and height > 0 (px), got {px!r}"[:300])
         _position(d)
         d.integer("candidate", 0, _U32)
+        _uid(d)
+    uids: dict[int, str] = {}
     for i, item in enumerate(f.items("candidates", MAX_CANDIDATES)):
         c = Fields(item, bad, f"candidates[{i}].")
-        c.integer("id", 0, _U32)
+        cid = c.integer("id", 0, _U32)
+        uid = _uid(c)
+        if uids.setdefault(cid, uid) != uid:
+            raise bad(f"{c.where}uid {uid!r}: candidate {cid} is also {uids[cid]!r}")
         _class(c)
         _position(c)
-        c.integer("hits", 0, _U32)  # 0: born where no look was counted yet
-        c.integer("looks", 0, _U32)
-        for name in ("pd", "pfa", "confidence"):
+        looks = c.integer("looks", 0, _U32)
+        hits = c.integer("hits", 0, _U32)
+        if hits > looks:
+            raise bad(f"{c.where}hits {hits} > looks {looks}: at most one hit per look")
+        for name in ("p_person", "pd", "pfa", "confidence"):
             c.number(name, 0.0, 1.0)
         first = c.number("first_t_boot_s", 0.0, _MAX_BOOT_S)
         c.number("last_t_boot_s", first, _MAX_BOOT_S)  # [first, ...]: not before the first
+    for i, item in enumerate(detections):  # a detection's uid is its candidate's
+        want = uids.get(item["candidate"], item["uid"])
+        if item["uid"] != want:
+            raise bad(f"detections[{i}].uid {item['uid']!r}: its candidate "
+                      f"{item['candidate']} is {want!r}")
     return doc
+
+
+def _uid(f: Fields) -> str:
+    uid = f.doc.get("uid")
+    if not valid_uid(uid):
+        raise f.bad(f"{f.where}uid {uid!r}: expected {UID_RULE}"[:300])
+    return str(uid)
 
 
 def _class(f: Fields) -> None:

@@ -8,13 +8,14 @@ gimbal {...},
 grid {hash, x0_m, y0_m, cell_size_m, n_rows, n_cols, tile_size, origin {lat_deg,
 lon_deg, ground_alt_msl_m}}, tiles_seq, faults {name: n}, checkpoint {...}, full, and
 with a DEM terrain_check {margin_m, checked, mismatches, refused, largest, latest}, and
-once a re-tasking request came retask {enabled, uploading, refused, last}.
+once a re-tasking request came retask {enabled, uploading, refused, last}, and once the
+detector is followed pins {candidates, likely, top {uid, p_person, looks, hits} or null}.
 
 ``StatusEncoder`` keeps the daemon's status under its 1 kB/s budget: the detail that rarely
 changes (the link's negotiation, the gimbal's description, the checkpoint) goes out in
 full statuses only -- the first, every ``FULL_EVERY``-th and any whose detail changed --
 and the others carry the same required fields with a brief ``link`` and ``gimbal`` (and no
-``checkpoint``, ``terrain_check`` or ``retask``).
+``checkpoint``, ``terrain_check`` or ``retask``, and ``pins`` without its ``top``).
 ``merge_status`` gives a receiver the latest values with the last full status's detail.
 """
 
@@ -30,6 +31,7 @@ from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config import MAX_THRESHOLDS
+from pdcov.core.detections import UID_RULE, valid_uid
 from pdcov.telemetry.samples import MAX_GNSS_ACCURACY_M
 
 STATUS_SCHEMA = "pdcov.status"
@@ -114,6 +116,8 @@ def _brief(doc: Mapping[str, Any]) -> dict[str, Any]:
     out.pop("checkpoint", None)
     out.pop("terrain_check", None)
     out.pop("retask", None)
+    if isinstance(doc.get("pins"), Mapping):
+        out["pins"] = {k: v for k, v in _sub(doc, "pins").items() if k != "top"}
     return out
 
 
@@ -132,14 +136,16 @@ def _detail_signature(doc: Mapping[str, Any]) -> str:
               "origin": _sub(doc, "grid").get("origin"),
               "checkpoint": {k: v for k, v in _sub(doc, "checkpoint").items()
                              if k not in CHECKPOINT_PROGRESS},
-              "retask": doc.get("retask")}
+              "retask": doc.get("retask"),
+              # A new top pin goes out at once; its figures with the next full status.
+              "top_pin": (_sub(_sub(doc, "pins"), "top") or {}).get("uid")}
     return json.dumps(finite_or_null(strip(detail)), sort_keys=True, default=str)
 
 
 def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[str, Any]:
     """A decoded status completed with what a brief one leaves out, from ``last`` (the
     receiver's previous merged status of the same daemon run): the detail of ``link``,
-    ``gimbal``, ``grid.origin`` and ``checkpoint``; fault counts it omits are 0. Full
+    ``gimbal``, ``grid.origin``, ``checkpoint`` and ``pins.top``; fault counts it omits are 0. Full
     statuses (and those of a daemon that does not say ``full``) come back as they are."""
     if doc.get("full", True) is not False or last is None:
         return doc
@@ -152,6 +158,8 @@ def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[st
     for name in ("checkpoint", "terrain_check", "retask"):
         if name not in doc and name in last:
             out[name] = last[name]
+    if "pins" in doc and "top" in _sub(last, "pins"):
+        out["pins"] = {**_sub(doc, "pins"), "top": _sub(last, "pins")["top"]}
     return out
 
 
@@ -233,7 +241,24 @@ def decode_status(payload: bytes, key: str = "status",
             last.boolean_or_null("accepted")
             last.string("result", max_len=64)
             last.integer("items", 0, _U32)
+    pins = f.obj_or_null("pins")  # absent: an older daemon
+    if pins is not None:
+        _check_pins(pins)
     return doc
+
+
+def _check_pins(p: Fields) -> None:
+    """Check the status's ``pins`` (docs/protocol.md)."""
+    n = p.integer("candidates", 0, _U32)
+    p.integer("likely", 0, n)
+    top = p.obj_or_null("top")
+    if top is not None:
+        uid = top.doc.get("uid")
+        if not valid_uid(uid):
+            raise top.bad(f"{top.where}uid {str(uid)[:120]!r}: expected {UID_RULE}")
+        top.number("p_person", 0.0, 1.0)
+        looks = top.integer("looks", 0, _U32)
+        top.integer("hits", 0, looks)
 
 
 MAX_TERRAIN_DIFFERENCE_M = 1e5

@@ -214,6 +214,10 @@ class DetectionTracker:
         """The id the next new candidate takes."""
         return self._next_id
 
+    def uid_of(self, candidate_id: int) -> str:
+        """The uid of candidate ``candidate_id`` (held or evicted since)."""
+        return f"{self.uid_prefix}{candidate_id}"
+
     # -- frames -----------------------------------------------------------------------------
 
     def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box],
@@ -439,7 +443,7 @@ class DetectionTracker:
             out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, g.looks,
                                  min(max(pd, 0.0), 1.0), min(max(pfa, 0.0), 1.0),
                                  g.confidence, g.first_t_boot_s, g.last_t_boot_s,
-                                 f"{self.uid_prefix}{i}", p_person(log_odds)))
+                                 self.uid_of(i), p_person(log_odds)))
         return out
 
     # -- state ------------------------------------------------------------------------------

@@ -147,12 +147,15 @@ async def _main(opts: WatchOptions) -> int:
     if opts.mission is not None:
         grid = opts.mission.new_grid()
         config_hash = grid_hash(grid.geometry, grid.mask)
+    exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
+        if opts.record else None
     watcher = Watcher(opts.vehicle, thresholds=(
         opts.mission.thresholds if opts.mission else DEFAULT_THRESHOLDS),
         grid_hash=config_hash, bus_warning=bus_security(opts.bus).warning,
         quiet_hint=quiet_hint(opts.bus),
         quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S,
-        roster=roster_of(opts.mission.raw, opts.mission.source) if opts.mission else Roster())
+        roster=roster_of(opts.mission.raw, opts.mission.source) if opts.mission else Roster(),
+        detection_log=exports.detection_log if exports else None)
     if opts.once or not opts.plain:  # else the "following ..." line below names it
         print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
               flush=True)
@@ -160,8 +163,6 @@ async def _main(opts: WatchOptions) -> int:
     if warning is not None:
         print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
-    exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
-        if opts.record else None
     cot = CotFeed(opts.cot, CotSchedule(), lambda: list(watcher.feeds.values())) \
         if opts.cot else None
     shell = WatchShell(watcher, opts.bus, record=recording,

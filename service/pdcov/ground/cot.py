@@ -11,10 +11,11 @@ Per vehicle (docs/ground-station.md "Cursor-on-Target"):
   footprint, so that a gimbal's pointing is shown as it is; sent when the position is new,
   at most every ``aircraft_period_s``, stale after ``aircraft_stale_s`` (a silent vehicle
   fades on the map instead of standing still);
-* each candidate, uid ``pdcov-<vehicle>-<id>``, type CANDIDATE_TYPE (unknown ground
-  object: nobody has looked at it yet), ``ce`` its 90 % circular error, its counts in the
-  remarks; sent when it changed and again every ``candidate_period_s``, stale after
-  ``candidate_stale_s``.
+* each candidate, uid its pin's ``uid`` (docs/protocol.md "detections": durable across
+  the daemon's restarts, so a pin keeps its TAK marker), type CANDIDATE_TYPE (unknown
+  ground object: nobody has looked at it yet), ``ce`` its 90 % circular error, its
+  p_person, looks and hits in the remarks; sent when it changed and again every
+  ``candidate_period_s``, stale after ``candidate_stale_s``.
 
 Heights: CoT's ``hae`` is above the WGS84 ellipsoid and the status gives MSL (pdcov has no
 geoid model), so every point says its height is unknown (9999999, CoT's own value) and
@@ -147,19 +148,19 @@ def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
 
 def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale_s: float
                     ) -> bytes:
-    """A candidate's event (a detections payload's candidate entry): how "m-f" (computed
-    from the pose and the pixels), ce its 90 % circle."""
-    event, detail = _event(f"pdcov-{vehicle_id}-{c['id']}", CANDIDATE_TYPE, "m-f",
+    """A candidate's event (a detections payload's candidate entry): uid the pin's, how
+    "m-f" (computed from the pose and the pixels), ce its 90 % circle."""
+    event, detail = _event(c["uid"], CANDIDATE_TYPE, "m-f",
                            float(c["lat_deg"]), float(c["lon_deg"]),
                            _f(CE90_PER_SIGMA * float(c["sigma_m"])), now_unix_s, stale_s)
-    ET.SubElement(detail, "contact", callsign=f"{vehicle_id} {c['class']} #{c['id']}")
+    ET.SubElement(detail, "contact", callsign=f"{c['class']} {c['p_person']:.2f} {c['uid']}")
     ET.SubElement(detail, "link", uid=aircraft_uid(vehicle_id), type=AIRCRAFT_TYPE,
                   relation="p-p")
     alt = c.get("alt_msl_m")
     ET.SubElement(detail, "remarks").text = (
-        f"{c['class']} detected {c['hits']} of {c['looks']} looks; cell P_D {c['pd']:.2f}, "
-        f"P_FA {c['pfa']:.3f}; best confidence {c['confidence']:.2f}"
-        + ("" if alt is None else f"; {alt:.1f} m MSL"))
+        f"{c['class']} pin {c['uid']}: p_person {c['p_person']:.4f}, detected {c['hits']} "
+        f"of {c['looks']} looks; cell P_D {c['pd']:.2f}, P_FA {c['pfa']:.3f}; best "
+        f"confidence {c['confidence']:.2f}" + ("" if alt is None else f"; {alt:.1f} m MSL"))
     return ET.tostring(event)
 
 
@@ -176,7 +177,7 @@ class CotSchedule:
     _tokens: float = 0.0
     _last_s: float | None = None
     _sent_at: dict[tuple[str, ...], tuple[float, Any]] = field(default_factory=dict)
-    """(kind, vehicle[, candidate id]) -> (when sent, what it said)."""
+    """(kind, vehicle[, candidate uid]) -> (when sent, what it said)."""
 
     def due(self, feeds: Iterable[VehicleFeed], now_s: float, now_unix_s: float
             ) -> list[bytes]:
@@ -198,12 +199,13 @@ class CotSchedule:
                     ranked.append((0, ("a", vid), at, partial(
                         aircraft_event, vid, pose, _sensor(feed, pose), now_unix_s,
                         self.aircraft_stale_s)))
-            for cid, c in feed.candidates.items():
-                said = (c["hits"], c["looks"], c["lat_deg"], c["lon_deg"], c["sigma_m"])
-                last = self._sent_at.get(("c", vid, str(cid)))
+            for uid, c in feed.candidates.items():
+                said = (c["hits"], c["looks"], c["p_person"], c["lat_deg"], c["lon_deg"],
+                        c["sigma_m"])
+                last = self._sent_at.get(("c", vid, uid))
                 changed = last is None or last[1] != said
                 if changed or (last is not None and now_s - last[0] >= self.candidate_period_s):
-                    ranked.append((1 if changed else 2, ("c", vid, str(cid)), said, partial(
+                    ranked.append((1 if changed else 2, ("c", vid, uid), said, partial(
                         candidate_event, vid, c, now_unix_s, self.candidate_stale_s)))
         ranked.sort(key=lambda r: r[0])
         out = []

@@ -50,14 +50,18 @@ class VehicleFeed:
     first_heard_s: float = 0.0
     status_disagreements: int = 0
     status_agrees: bool | None = None
-    candidates: dict[int, dict[str, Any]] = field(default_factory=dict)
-    """Candidate entries of the detections payloads by id (bus/detections.py), the latest
-    of each; at most Watcher.max_candidates."""
+    candidates: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Candidate entries of the detections payloads by uid (bus/detections.py), the latest
+    of each, across the daemon's restarts; at most Watcher.max_candidates."""
     detections: deque[dict[str, Any]] = field(default_factory=deque)
-    """The latest detection entries, at most Watcher.max_detections (oldest dropped)."""
-    detections_session: SessionId = None  # the session the candidates came from
+    """The latest detection entries, at most Watcher.max_detections (oldest dropped; every
+    one went to the Watcher's detection_log)."""
+    detections_session: SessionId = None  # the session the latest findings came from
+    provisional_uids: set[str] = field(default_factory=set)
+    """Candidates taken before the first pin (Watcher: kept or dropped by it)."""
+    unlogged: int = 0  # the newest detections held, taken before the first pin, not logged
     candidates_asked_at: int | None = None  # ``snapshots`` when candidates were last asked
-    candidates_retry_at_s: float | None = None  # None while a query is out (or none needed)
+    candidates_retry_at_s: float | None = None  # when to ask again; None while a query is out
     # ``snapshots`` when the last candidates query ended (answered or not): a report taken
     # after it holds the candidates the daemon had then.
     candidates_done_at: int | None = None

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.bus.detections import LIKELY_P_PERSON
 from pdcov.bus.grid_state import GridState
 from pdcov.ground.claims import short_session
 from pdcov.ground.feed import VehicleFeed
@@ -45,9 +46,12 @@ class VehicleReport:
     status_disagreements: int = 0
     status_agrees: bool | None = None
     candidates: int = 0
+    candidates_likely: int = 0
+    """Candidates with p_person >= bus.detections.LIKELY_P_PERSON."""
     candidates_dropped: int = 0
     best_candidate: str | None = None
-    """The candidate detected most often: 'person #3: detected 9 of 14 looks, P_D 0.54'."""
+    """The most probable candidate: 'person uav1.3fa2c1.3: p_person 0.973, detected 9 of 14
+    looks'."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -137,15 +141,18 @@ def vehicle_report(feed: VehicleFeed, now_s: float, default_thresholds: tuple[fl
         contested=bool(claim.contested), refused=claim.refused,
         status_disagreements=feed.status_disagreements, status_agrees=feed.status_agrees,
         candidates=len(feed.candidates), candidates_dropped=feed.candidates_dropped,
+        candidates_likely=sum(c["p_person"] >= LIKELY_P_PERSON
+                              for c in feed.candidates.values()),
         best_candidate=_best_candidate(feed))
 
 
 def _best_candidate(feed: VehicleFeed) -> str | None:
     if not feed.candidates:
         return None
-    c = max(feed.candidates.values(), key=lambda c: (c["hits"], c["confidence"]))
-    return (f"{c['class']} #{c['id']}: detected {c['hits']} of {c['looks']} looks, "
-            f"P_D {c['pd']:.2f}")
+    c = max(feed.candidates.values(), key=lambda c: (c["p_person"], c["hits"],
+                                                     c["confidence"]))
+    return (f"{c['class']} {c['uid']}: p_person {c['p_person']:.3f}, detected {c['hits']} "
+            f"of {c['looks']} looks")
 
 
 def union_thresholds(groups: Any) -> tuple[float, ...]:

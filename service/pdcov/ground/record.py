@@ -10,6 +10,8 @@ Layout (docs/ground-station.md):
     DIR/<vehicle_id>/detections.jsonl one line per detections payload:
                                     {"recv_unix_s": t, "detections": {...}}
     DIR/<vehicle_id>/candidates-N.json each candidates reply as received
+    DIR/<vehicle_id>/pins-detections.jsonl every detection taken, a JSON line each
+                                    (ground/record_exports.py DetectionLog)
     DIR/exports/                    while running and at the end: ground/record_exports.py
     DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt
     DIR/fleet/                      at the end: the merged grid.npz and, with the mission

@@ -4,22 +4,77 @@ was received since, and once more at the end.
 
 The coverage is the fleet's merged grid (the vehicles that share one grid) at the origin
 of the first of them, outlined at the watcher's thresholds with its target (the largest) as
-the gap limit; the detections are every vehicle's candidates and recent detections
-(ground/watcher.py). Each file is replaced atomically, so a failed write (a full disk, a
-folder made read-only) leaves the previous complete file in place: it is logged once per
-episode, shown to the operator and tried again at the next period.
+the gap limit; the detections are every vehicle's candidates (most probable first) and
+detections (ground/watcher.py): detections.geojson holds every detection the watcher took,
+streamed back from the ``DetectionLog`` (DIR/<vehicle_id>/DETECTION_LOG, a JSON line each,
+so memory stays bounded however long the search), the KML the latest in memory
+(Watcher.max_detections per vehicle). Each file is replaced atomically, so a failed write
+(a full disk, a folder made read-only) leaves the previous complete file in place: it is
+logged once per episode, shown to the operator and tried again at the next period.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+from collections.abc import Iterator, Sequence
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.report.exports import Coverage, Exported, VehicleDetections, write_exports
 
 log = logging.getLogger("pdcov.watch")
+DETECTION_LOG = "pins-detections.jsonl"
+
+
+class DetectionLog:
+    """Every detection the watcher took (ground/watcher.py ``detection_log``), appended as
+    one JSON line each to ``folder``/<vehicle_id>/DETECTION_LOG, and read back one at a
+    time. Never raises: a failed append is logged once per episode and its detections are
+    counted in ``lost`` (the next append starts on a new line, so a torn one is skipped on
+    reading)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.lost = 0
+        self.last_error: str | None = None
+
+    def path(self, vehicle_id: str) -> Path:
+        return self.folder / vehicle_id / DETECTION_LOG
+
+    def __call__(self, vehicle_id: str, entries: Sequence[dict[str, Any]]) -> None:
+        text = "".join(json.dumps(e, allow_nan=False, separators=(",", ":")) + "\n"
+                       for e in entries)
+        path = self.path(vehicle_id)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with open(path, "a", encoding="utf-8") as f:
+                f.write(("\n" if self.last_error is not None else "") + text)
+        except OSError as exc:
+            self.lost += len(entries)
+            if self.last_error is None:
+                log.warning("exports: cannot append detections to %s (%s): "
+                            "detections.geojson will lack them", path, exc.strerror or exc)
+            self.last_error = f"{path}: {exc.strerror or exc}"
+            return
+        self.last_error = None
+
+    def entries(self, vehicle_id: str) -> Iterator[dict[str, Any]]:
+        """The vehicle's detections in the order taken (none before the first)."""
+        path = self.path(vehicle_id)
+        if not path.exists():
+            return
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                try:
+                    entry = json.loads(line)
+                except ValueError:
+                    continue  # blank, or torn by a failed append
+                if isinstance(entry, dict):
+                    yield entry
 
 
 def coverage_of(watcher: Watcher) -> Coverage | None:
@@ -35,20 +90,26 @@ def coverage_of(watcher: Watcher) -> Coverage | None:
                     max(watcher.thresholds or thresholds))
 
 
-def findings_of(watcher: Watcher) -> list[VehicleDetections]:
-    """Every vehicle's candidates (by id) and recent detections."""
-    return [VehicleDetections(vid, tuple(f.detections),
-                              tuple(c for _, c in sorted(f.candidates.items())))
-            for vid, f in sorted(watcher.feeds.items())]
+def findings_of(watcher: Watcher, detection_log: DetectionLog | None = None
+                ) -> list[VehicleDetections]:
+    """Every vehicle's candidates (most probable first, then by uid) and detections: the
+    latest in memory, and every one from ``detection_log`` when given."""
+    return [VehicleDetections(
+        vid, tuple(f.detections),
+        tuple(sorted(f.candidates.values(), key=lambda c: (-c["p_person"], c["uid"]))),
+        None if detection_log is None else partial(detection_log.entries, vid))
+        for vid, f in sorted(watcher.feeds.items())]
 
 
 class ExportRecorder:
     """Writes the exports into ``out`` (created on the first write). Never raises to its
     caller: see the module docstring. ``written``: how many times every file was written;
-    ``last``: what the last write wrote and not."""
+    ``last``: what the last write wrote and not. ``detection_log``: the log to give the
+    Watcher (``Watcher(detection_log=...)``), in ``out``'s parent (the recording folder)."""
 
     def __init__(self, out: Path, *, period_s: float = 5.0) -> None:
         self.out = Path(out)
+        self.detection_log = DetectionLog(self.out.parent)
         self.period_s = period_s
         self.written = 0
         self.write_errors = 0
@@ -59,10 +120,14 @@ class ExportRecorder:
 
     @property
     def warning(self) -> str | None:
-        """The line the views show while the exports cannot be written, else None."""
-        if self.last_error is None:
-            return None
-        return f"exports in {self.out}: failing ({self.last_error}); retrying"
+        """The line the views show while the exports cannot be written or detections were
+        lost, else None."""
+        lost = self.detection_log.lost
+        lines = [f"exports in {self.out}: failing ({self.last_error}); retrying"
+                 if self.last_error is not None else "",
+                 f"{lost} detections could not be logged, so detections.geojson lacks them "
+                 f"({self.detection_log.last_error or 'logging again'})" if lost else ""]
+        return "; ".join(x for x in lines if x) or None
 
     def poll(self, watcher: Watcher, version: int, now_s: float) -> bool:
         """Write when ``version`` (the shell's input count) changed since the last write
@@ -80,7 +145,8 @@ class ExportRecorder:
         names = ", ".join(sorted(watcher.feeds)) or "no vehicle yet"
         try:
             self.out.mkdir(parents=True, exist_ok=True)
-            self.last = write_exports(self.out, coverage_of(watcher), findings_of(watcher),
+            self.last = write_exports(self.out, coverage_of(watcher),
+                                      findings_of(watcher, self.detection_log),
                                       title=f"pdcov watch: {names}")
         except (PdcovError, OSError) as exc:  # OutputError names the file
             self.write_errors += 1

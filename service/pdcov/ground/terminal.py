@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 from typing import Any
 
+from pdcov.bus.detections import LIKELY_P_PERSON
 from pdcov.ground.fleet_report import FleetReport, VehicleReport
 
 # 5-row glyphs for the large coverage figure, '#' on ' '.
@@ -55,9 +56,10 @@ def headline(report: FleetReport) -> str:
 
 
 def candidate_lines(report: FleetReport) -> list[str]:
-    """One line per vehicle with detection candidates: how many, and the one detected
-    most often."""
-    return [f"candidates {v.vehicle_id}: {v.candidates} (most detected: {v.best_candidate})"
+    """One line per vehicle with detection candidates (pins): how many, how many likely,
+    and the most probable one (its uid and p_person)."""
+    return [f"pins {v.vehicle_id}: {v.candidates}, {v.candidates_likely} with p_person >= "
+            f"{LIKELY_P_PERSON:g} (most probable: {v.best_candidate})"
             for v in report.vehicles if v.candidates]
 
 

@@ -18,13 +18,23 @@ Each vehicle's mission geometry (docs/protocol.md "mission") is asked for once i
 hash is known (first status, or snapshot) and again whenever that hash changes; a failed or
 stale reply is asked again after ``mission_retry_s``.
 
-Each vehicle's detections (docs/protocol.md "detections") add and update its candidates
-and its recent detections; the whole candidate list (queryable ``candidates``) is asked for
-whenever a snapshot is taken (first contact, and after every gap or restart: detections
-carry no sequence number, so the snapshot's resynchronisation is theirs too), and again
-after ``mission_retry_s`` when it did not come. At most ``max_candidates`` candidates per
-vehicle are kept (beyond, the one with the fewest hits, then the oldest last detection, is
-forgotten and counted) and the latest ``max_detections`` detections.
+Each vehicle's detections (docs/protocol.md "detections") add and update its pins: a
+candidate is kept by its ``uid`` (durable across the daemon's restarts), so a candidate
+seen again, in a put or in a candidates reply, is updated in place, and the pins survive
+the vehicle's session changing (a restarted daemon's restored candidates merge with those
+held). The whole candidate list (queryable ``candidates``) is asked for whenever a snapshot
+is taken (first contact, and after every gap or restart: detections carry no sequence
+number, so the snapshot's resynchronisation is theirs too), again after
+``mission_retry_s`` when it did not come, and every ``candidates_refresh_s`` after an
+answer: a put carries only the candidates its detections touched, so a pin looked at again
+without a hit shows its p_person falling with the next refresh. At most
+``max_candidates`` candidates per vehicle are kept (beyond, the least probable, then the
+one with the fewest hits, then the oldest last detection, is forgotten and counted).
+Every detection taken goes to ``detection_log`` (the recording's, on disk:
+ground/record_exports.py) and the latest ``max_detections`` stay in memory for the views.
+Findings taken before the vehicle's first snapshot reply pinned a session are provisional:
+kept when the pin is their session's (their detections then logged, the latest
+``max_detections`` of them), dropped otherwise.
 
 Each vehicle is pinned to the Zenoh session that answers its snapshot (ground/claims.py):
 status, tiles, mission, footprint and detections from any other session are refused and
@@ -48,7 +58,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -81,7 +91,12 @@ MAX_CANDIDATES) because a ground station follows up to MAX_VEHICLES: a flight ov
 or a detector gone wrong, must not grow it without end; the operator is told how many
 were forgotten."""
 MAX_DETECTIONS_KEPT = 500
-"""Recent detections kept per vehicle (the candidates summarise the rest)."""
+"""Recent detections kept in memory per vehicle, for the views (every one goes to the
+detection log: module docstring)."""
+
+DetectionLog = Callable[[str, Sequence[dict[str, Any]]], None]
+"""Called with (vehicle_id, detection entries) for every detection the watcher takes, in
+the order taken; it must not raise (ground/record_exports.py DetectionLog)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,13 +132,15 @@ class Watcher:
     mission grid (bus.grid_state.grid_hash), which the fleet map shows when vehicles fly
     several grids. snapshot_timeout_s: ask again when a snapshot reply has not come in this
     long. trailing_gap_s: how long a status may announce a tiles sequence number not yet
-    received before the snapshot is asked again. mission_retry_s: when to ask again for a
+    received before the snapshot is asked again. candidates_refresh_s: how often the candidates are
+    asked again once answered (module docstring). mission_retry_s: when to ask again for a
     mission that did not come or describes another grid than the vehicle's. max_vehicles:
     vehicles followed at most. bus_warning: what the operator must always be told about the
     bus (bus.session.BusSecurity.warning), or None. quiet_hint: why no vehicle may be heard
     on this session (bus.session.quiet_hint), shown once the session has been connected
     quiet_after_s without any vehicle. max_candidates, max_detections: kept per vehicle
     (module docstring). roster: the vehicles merged (ground/roster.py; None: all).
+    detection_log: where every detection taken goes (module docstring; None: nowhere).
 
     Every input takes the Zenoh session it came from (``source``: hex session id, None
     when the sample named none; ground/claims.py).
@@ -132,21 +149,25 @@ class Watcher:
     def __init__(self, vehicle: str | None = None, *, thresholds: tuple[float, ...] = (),
                  grid_hash: str | None = None, snapshot_timeout_s: float = 5.0,
                  trailing_gap_s: float = 3.0, max_track_points: int = 20_000,
-                 mission_retry_s: float = 10.0, max_vehicles: int = MAX_VEHICLES,
+                 mission_retry_s: float = 10.0, candidates_refresh_s: float = 30.0,
+                 max_vehicles: int = MAX_VEHICLES,
                  bus_warning: str | None = None, quiet_hint: str | None = None,
                  quiet_after_s: float = 10.0, max_candidates: int = MAX_CANDIDATES_KEPT,
-                 max_detections: int = MAX_DETECTIONS_KEPT, roster: Roster | None = None) -> None:
+                 max_detections: int = MAX_DETECTIONS_KEPT, roster: Roster | None = None,
+                 detection_log: DetectionLog | None = None) -> None:
         self.vehicle = vehicle
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
         self.snapshot_timeout_s = snapshot_timeout_s
         self.trailing_gap_s = trailing_gap_s
         self.mission_retry_s = mission_retry_s
+        self.candidates_refresh_s = candidates_refresh_s
         self.max_track_points = max_track_points
         self.max_vehicles = max_vehicles
         self.bus_warning = bus_warning
         self.max_candidates = max_candidates
         self.max_detections = max_detections
+        self.detection_log = detection_log
         self.quiet_hint = quiet_hint
         self.quiet_after_s = quiet_after_s
         self.connected_s: float | None = None
@@ -267,8 +288,7 @@ class Watcher:
             feed.mission, feed.mission_asked_for = None, None
         if feed.footprint_session != session:
             feed.footprint = None
-        if feed.detections_session != session:
-            feed.candidates, feed.detections = {}, deque()
+        self._settle_provisional(feed, session)
         pending, feed.pending = sorted(feed.pending, key=lambda u: u[0].seq), []
         for update, source in pending:
             if source != session or update.grid_hash != state.hash:
@@ -328,8 +348,6 @@ class Watcher:
         if feed is None:
             return
         self._touch(feed, "detections", now_s)
-        if feed.detections_session != source:
-            feed.candidates, feed.detections = {}, deque()
         feed.detections_session = source
         self._take_findings(feed, doc)
 
@@ -337,8 +355,9 @@ class Watcher:
                               replies: Sequence[tuple[SessionId, dict[str, Any]]],
                               now_s: float) -> None:
         """Every decoded reply of one candidates query (a detections document holding all
-        the vehicle's candidates): the trusted session's replaces the candidates held; none
-        (timeout, an older daemon, only other sessions) asks again after mission_retry_s."""
+        the vehicle's candidates): the trusted session's update the pins held (by uid); none
+        (timeout, an older daemon, only other sessions) asks again after mission_retry_s, an
+        answer after candidates_refresh_s."""
         feed = self.feeds.get(vehicle_id) if self.wants(vehicle_id) else None
         if feed is None:
             return
@@ -347,16 +366,15 @@ class Watcher:
             if self._trusted(vehicle_id, source, now_s) is None:
                 continue
             self._touch(feed, "candidates", now_s)
-            feed.candidates, feed.detections = {}, deque()
             feed.detections_session = source
-            feed.candidates_retry_at_s = None
+            feed.candidates_retry_at_s = now_s + self.candidates_refresh_s
             self._take_findings(feed, doc)
             return
         feed.candidates_retry_at_s = now_s + self.mission_retry_s
 
     def candidates_due(self, now_s: float) -> list[QueryCandidates]:
-        """Candidates queries to make now: once after each snapshot taken, and again every
-        mission_retry_s until one is answered."""
+        """Candidates queries to make now: once after each snapshot taken, again every
+        mission_retry_s until one is answered, then every candidates_refresh_s."""
         due = []
         for feed in self.feeds.values():
             if feed.state is None or feed.awaiting_since_s is not None:
@@ -561,21 +579,43 @@ class Watcher:
         return []
 
     def _take_findings(self, feed: VehicleFeed, doc: dict[str, Any]) -> None:
-        """Keep a detections document's candidates (by id, the latest) and detections
-        (the newest max_detections), forgetting the weakest candidates beyond
-        max_candidates."""
+        """Keep a detections document's candidates (by uid, the latest) and detections
+        (logged; the newest max_detections in memory), forgetting the least probable
+        candidates beyond max_candidates; provisional before the first pin."""
+        provisional = not feed.claim.pinned
         for c in doc.get("candidates") or ():
-            feed.candidates[int(c["id"])] = c
-        feed.detections.extend(doc.get("detections") or ())
+            feed.candidates[c["uid"]] = c
+            if provisional:
+                feed.provisional_uids.add(c["uid"])
+        detections = doc.get("detections") or ()
+        feed.detections.extend(detections)
         while len(feed.detections) > self.max_detections:
             feed.detections.popleft()
+        if provisional:
+            feed.unlogged = min(feed.unlogged + len(detections), len(feed.detections))
+        elif detections and self.detection_log is not None:
+            self.detection_log(feed.vehicle_id, detections)
         extra = len(feed.candidates) - self.max_candidates
         if extra > 0:
-            weakest = sorted(feed.candidates.values(),
-                             key=lambda c: (c["hits"], c["last_t_boot_s"]))[:extra]
+            weakest = sorted(feed.candidates.values(), key=lambda c: (
+                c["p_person"], c["hits"], c["last_t_boot_s"]))[:extra]
             for c in weakest:
-                del feed.candidates[int(c["id"])]
+                del feed.candidates[c["uid"]]
             feed.candidates_dropped += extra
+
+    def _settle_provisional(self, feed: VehicleFeed, session: SessionId) -> None:
+        """A snapshot reply pinned ``session``: the findings taken before are kept (and
+        their detections logged) when they are its, else dropped."""
+        if feed.detections_session == session:
+            if feed.unlogged and self.detection_log is not None:
+                held = list(feed.detections)
+                self.detection_log(feed.vehicle_id, held[len(held) - feed.unlogged:])
+        elif feed.provisional_uids or feed.unlogged:
+            dropped = feed.provisional_uids
+            for uid in dropped:
+                feed.candidates.pop(uid, None)
+            feed.detections = deque(d for d in feed.detections if d["uid"] not in dropped)
+        feed.provisional_uids, feed.unlogged = set(), 0
 
     def _add_track_point(self, feed: VehicleFeed, pose: dict[str, Any]) -> None:
         try:

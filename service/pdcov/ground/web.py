@@ -137,15 +137,17 @@ def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any, origin: Origin
             "outline_threshold": target, "outline_lat_lon": outline, "outline_note": note}
 
 
-CANDIDATE_FIELDS = ("id", "class", "lat_deg", "lon_deg", "sigma_m", "hits", "looks", "pd",
-                    "pfa", "confidence", "first_t_boot_s", "last_t_boot_s")
+CANDIDATE_FIELDS = ("id", "uid", "class", "lat_deg", "lon_deg", "sigma_m", "p_person",
+                    "hits", "looks", "pd", "pfa", "confidence", "first_t_boot_s",
+                    "last_t_boot_s")
 """What the map shows of each candidate (the names of the detections payload)."""
 
 
 def candidates_layer(feed: VehicleFeed) -> list[dict[str, Any]]:
-    """The vehicle's detection candidates for the map (CANDIDATE_FIELDS), by id."""
+    """The vehicle's detection candidates (pins) for the map (CANDIDATE_FIELDS), the most
+    probable first (ties: by uid)."""
     return [{k: c.get(k) for k in CANDIDATE_FIELDS}
-            for _, c in sorted(feed.candidates.items())]
+            for c in sorted(feed.candidates.values(), key=lambda c: (-c["p_person"], c["uid"]))]
 
 
 def domain_layer(watcher: Watcher, grid_hash: str | None, mission: Mission | None,

@@ -54,7 +54,7 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
         detections += tracker.frame(pose, t_boot_s, boxes, camera=camera,
                                     accuracy=accuracies[i] if accuracies else None, grid=own)
     return detections_document(detections, tracker.candidates(grid), origin,
-                               mission.vehicle_id)
+                               mission.vehicle_id, tracker.uid_of)
 
 
 def log_epoch(path: Path) -> str:

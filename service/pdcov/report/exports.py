@@ -2,8 +2,9 @@
 and ``pdcov watch --record DIR`` (in DIR/exports/), from the same builders
 (docs/outputs.md "Exports"):
 
-* ``detections.geojson``: RFC 7946 FeatureCollection, a Point per detection and per
-  candidate (WGS84 [lon, lat]);
+* ``detections.geojson``: RFC 7946 FeatureCollection, a Point per candidate and per
+  detection, every one (WGS84 [lon, lat]; written feature by feature, so that a watcher's
+  detections stream from its log on disk);
 * ``caltopo.geojson``: the same map for CalTopo / SARTopo's GeoJSON import: P_D outlines and
   gaps as ``Shape`` polygons with stroke and fill, candidates as ``Marker`` points, re-fly
   areas as ``Assignment`` polygons (the properties CalTopo itself writes in its exports);
@@ -21,7 +22,7 @@ which it could not write for lack of an extra: the outlines and gaps need ``gis`
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,8 +36,8 @@ from pdcov.core.geodesy import Origin
 from pdcov.extras import GIS, PLOTS
 
 __all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
-           "VehicleDetections", "caltopo_geojson", "detections_geojson", "map_layers", "pins",
-           "write_exports"]
+           "VehicleDetections", "caltopo_geojson", "every_pin", "map_layers", "pins",
+           "write_detections_geojson", "write_exports"]
 
 MAX_GAP_SHAPES = 500
 """Gap polygons exported at most (the largest; the FeatureCollection says how many there
@@ -55,6 +56,8 @@ OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44a
 """P_D outlines from the lowest threshold to the highest (the target), cycling."""
 GAP_COLOR = "#e74c3c"
 REFLY_COLOR = "#8e44ad"
+PIN_FIGURES = ("uid", "p_person", "looks", "hits")
+"""What every export says of a pin (docs/protocol.md "detections")."""
 CANDIDATE_COLOR = "#ff0000"
 DETECTION_COLOR = "#ffa500"
 
@@ -63,11 +66,18 @@ DETECTION_COLOR = "#ffa500"
 class VehicleDetections:
     """One vehicle's detections and candidates: the ``detections`` and ``candidates``
     entries of a ``pdcov.detections`` document (docs/protocol.md "detections"), whose
-    fields the builders read by their JSON names."""
+    fields the builders read by their JSON names. ``every_detection``: when given, reads
+    every detection again (a watcher's log on disk) for detections.geojson, while
+    ``detections`` (the latest, in memory) go in the KML; None: ``detections`` are all."""
 
     vehicle: str
     detections: tuple[Mapping[str, Any], ...] = ()
     candidates: tuple[Mapping[str, Any], ...] = ()
+    every_detection: Callable[[], Iterable[Mapping[str, Any]]] | None = None
+
+    def all_detections(self) -> Iterable[Mapping[str, Any]]:
+        """Every detection, in the order taken."""
+        return self.detections if self.every_detection is None else self.every_detection()
 
     @classmethod
     def from_doc(cls, doc: Mapping[str, Any]) -> VehicleDetections:
@@ -126,12 +136,13 @@ class Pin:
 
     @property
     def title(self) -> str:
-        """A label for a map tool: 'alpha person #3: detected 9 of 14 looks'."""
+        """A label for a map tool: 'person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14
+        looks'."""
         p = self.properties
-        who = f"{p['vehicle']} {p['class']}"
         if self.kind == "candidate":
-            return f"{who} #{p['candidate']}: detected {p['hits']} of {p['looks']} looks"
-        return f"{who} (candidate #{p['candidate']}) at t {p['t_boot_s']:.1f} s"
+            return (f"{p['class']} {p['uid']}: p_person {p['p_person']:.2f}, detected "
+                    f"{p['hits']} of {p['looks']} looks")
+        return f"{p['class']} (pin {p['uid']}) at t {p['t_boot_s']:.1f} s"
 
     @property
     def description(self) -> str:
@@ -147,30 +158,51 @@ def _shown(v: Any) -> str:
 
 def pins(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
          ) -> list[Pin]:
-    """The candidates, then the detections, of every vehicle (in the order given). ``pd`` is
-    the P_D of the cell under the point in ``coverage`` when given, else the candidate's
-    (the cell's P_D as the daemon sent it); a detection's looks and hits are its
-    candidate's."""
-    out: list[Pin] = []
+    """The candidates, then the (in-memory) detections, of every vehicle (in the order
+    given). ``pd`` is the P_D of the cell under the point in ``coverage`` when given, else
+    the candidate's (the cell's P_D as the daemon sent it); a detection's p_person, looks
+    and hits are its candidate's (by uid)."""
+    out = [candidate_pin(f.vehicle, c, coverage) for f in findings for c in f.candidates]
     for f in findings:
-        by_id = {c["id"]: c for c in f.candidates}
-        for c in f.candidates:
-            out.append(Pin("candidate", float(c["lon_deg"]), float(c["lat_deg"]), {
-                "kind": "candidate", "vehicle": f.vehicle, "candidate": c["id"],
-                "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
-                "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
-                "confidence": c["confidence"], "looks": c["looks"], "hits": c["hits"],
-                "pd": _cell_pd(coverage, c, c["pd"]), "pfa": c["pfa"],
-                "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m")}))
-        for d in f.detections:
-            cand = by_id.get(d["candidate"], {})
-            out.append(Pin("detection", float(d["lon_deg"]), float(d["lat_deg"]), {
-                "kind": "detection", "vehicle": f.vehicle, "candidate": d["candidate"],
-                "t_boot_s": d["t_boot_s"], "class": d["class"],
-                "confidence": d["confidence"], "looks": cand.get("looks"),
-                "hits": cand.get("hits"), "pd": _cell_pd(coverage, d, cand.get("pd")),
-                "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m")}))
+        by_uid = {c["uid"]: c for c in f.candidates}
+        out += (detection_pin(f.vehicle, d, by_uid, coverage) for d in f.detections)
     return out
+
+
+def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None) -> Pin:
+    """A candidate entry's pin (``pins``)."""
+    return Pin("candidate", float(c["lon_deg"]), float(c["lat_deg"]), {
+        "kind": "candidate", "vehicle": vehicle, "uid": c["uid"], "candidate": c["id"],
+        "p_person": c["p_person"], "looks": c["looks"], "hits": c["hits"],
+        "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
+        "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
+        "confidence": c["confidence"], "pd": _cell_pd(coverage, c, c["pd"]), "pfa": c["pfa"],
+        "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m")})
+
+
+def detection_pin(vehicle: str, d: Mapping[str, Any], by_uid: Mapping[str, Mapping[str, Any]],
+                  coverage: Coverage | None) -> Pin:
+    """A detection entry's pin (``pins``); ``by_uid`` the vehicle's candidates."""
+    cand = by_uid.get(d["uid"], {})
+    return Pin("detection", float(d["lon_deg"]), float(d["lat_deg"]), {
+        "kind": "detection", "vehicle": vehicle, "uid": d["uid"], "candidate": d["candidate"],
+        "p_person": cand.get("p_person"), "looks": cand.get("looks"),
+        "hits": cand.get("hits"), "t_boot_s": d["t_boot_s"], "class": d["class"],
+        "confidence": d["confidence"], "pd": _cell_pd(coverage, d, cand.get("pd")),
+        "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m")})
+
+
+def every_pin(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
+              ) -> Iterator[Pin]:
+    """As ``pins``, but with every detection (``VehicleDetections.all_detections``), one at
+    a time: detections.geojson's."""
+    for f in findings:
+        for c in f.candidates:
+            yield candidate_pin(f.vehicle, c, coverage)
+    for f in findings:
+        by_uid = {c["uid"]: c for c in f.candidates}
+        for d in f.all_detections():
+            yield detection_pin(f.vehicle, d, by_uid, coverage)
 
 
 def _cell_pd(coverage: Coverage | None, point: Mapping[str, Any], sent: Any) -> Any:
@@ -227,12 +259,24 @@ def _refly_areas(gaps: list[shapely.Polygon], gap_cells: np.ndarray, g: GridGeom
     return sorted(out, key=lambda a: -a[1])[:MAX_REFLY_AREAS]
 
 
-def detections_geojson(all_pins: Sequence[Pin]) -> dict[str, Any]:
+def _feature(p: Pin) -> dict[str, Any]:
+    return {"type": "Feature", "geometry": _point(p), "properties": p.properties}
+
+
+def write_detections_geojson(path: Path, all_pins: Iterable[Pin]) -> int:
     """detections.geojson: a Point Feature per pin (RFC 7946: [lon, lat], WGS84; no height,
-    as RFC 7946 heights are ellipsoidal and ours MSL: ``alt_msl_m`` is a property)."""
-    return {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "geometry": _point(p), "properties": p.properties}
-        for p in all_pins]}
+    as RFC 7946 heights are ellipsoidal and ours MSL: ``alt_msl_m`` is a property), written
+    to ``path`` atomically a feature a line as ``all_pins`` yields them (memory: one pin at
+    a time); how many features."""
+    n = 0
+    with atomic_write(path, "wb") as f:
+        f.write(b'{"type":"FeatureCollection","features":[\n')
+        for p in all_pins:
+            f.write((b",\n" if n else b"") + json.dumps(
+                _feature(p), allow_nan=False, separators=(",", ":")).encode())
+            n += 1
+        f.write(b"\n]}\n")
+    return n
 
 
 def _point(p: Pin) -> dict[str, Any]:
@@ -247,7 +291,8 @@ def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: st
     ``class`` Shape / Marker / Assignment, ``title``, ``description``; Shapes ``stroke``,
     ``stroke-opacity``, ``stroke-width``, ``fill``, ``fill-opacity`` ('#rrggbb' colours);
     Markers ``marker-color`` (hex without '#', as CalTopo writes it), ``marker-symbol``,
-    ``marker-size``; Assignments ``letter``, ``resourceType`` AIR, ``status`` DRAFT. Only
+    ``marker-size``, and pdcov's PIN_FIGURES beside them; Assignments ``letter``,
+    ``resourceType`` AIR, ``status`` DRAFT. Only
     candidates are exported as markers (detections would bury them: detections.geojson
     has every one)."""
     features: list[dict[str, Any]] = []
@@ -275,7 +320,8 @@ def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: st
             features.append({"type": "Feature", "geometry": _point(p), "properties": {
                 "class": "Marker", "title": p.title, "description": p.description,
                 "marker-color": CANDIDATE_COLOR.lstrip("#").upper(),
-                "marker-symbol": "point", "marker-size": "1"}})
+                "marker-symbol": "point", "marker-size": "1",
+                **{k: p.properties[k] for k in PIN_FIGURES}}})
     doc: dict[str, Any] = {"type": "FeatureCollection", "features": features,
                            "pdcov": {"title": title}}
     if layers is not None:
@@ -313,7 +359,7 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
     out = Path(out_dir)
     all_pins = pins(findings, coverage)
     files, not_written = [], []
-    _write_json(out / "detections.geojson", detections_geojson(all_pins))
+    write_detections_geojson(out / "detections.geojson", every_pin(findings, coverage))
     layers = None
     if coverage is not None:
         gis_missing = GIS.message("P_D outlines, gaps and re-fly areas need")

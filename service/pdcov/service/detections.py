@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_detections
 from pdcov.core.camera import CameraModel
-from pdcov.core.detections import Box, Detection
+from pdcov.core.detections import Box, Candidate, Detection
 from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
@@ -64,6 +64,8 @@ class LiveDetections:
         self._held: dict[float, tuple[float, tuple[Box, ...]]] = {}  # frame t_s -> boxes
         self._n_held = 0
         self._new: list[Detection] = []
+        self.latest: dict[int, Candidate] = {}
+        """Each candidate as last published or answered (the status's pins summary)."""
         self._next_s = -math.inf
 
     def hold(self, t_s: float, t_boot_s: float, boxes: tuple[Box, ...]) -> None:
@@ -111,12 +113,15 @@ class LiveDetections:
         self._next_s = now_s + DETECTIONS_PERIOD_S
         sent, self._new = self._new[:MAX_DETECTIONS], self._new[MAX_DETECTIONS:]
         touched = self.tracker.candidates(self.grid, (d.candidate_id for d in sent))
+        self.latest.update((c.candidate_id, c) for c in touched)
         return Publication(
-            encode_detections(detections_document(sent, touched, origin, self.vehicle_id)),
+            encode_detections(detections_document(sent, touched, origin, self.vehicle_id,
+                                                  self.tracker.uid_of)),
             tuple(c.candidate_id for c in touched))
 
     def candidates_payload(self, origin: Origin | None) -> bytes:
         """The candidates query's answer: every candidate, no detection."""
         cands = self.tracker.candidates(self.grid) if origin is not None else []
+        self.latest.update((c.candidate_id, c) for c in cands)
         return encode_detections(detections_document(
             [], cands, origin or Origin(0.0, 0.0), self.vehicle_id))

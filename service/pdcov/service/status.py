@@ -3,17 +3,21 @@
 ``status_fields`` reads a ``LiveCoverage``: coverage metrics (P_D at the thresholds, mean
 P_D, expected false alarms, cells), frames (used, skipped by reason, pending; times in the
 autopilot clock, s), the last pose (lat/lon deg, alt m MSL, heading deg from north), the
-gimbal reading, the grid (ENU m about the origin), tiles, faults and, with a DEM, the
-terrain check (``terrain_check``).
+gimbal reading, the grid (ENU m about the origin), tiles, faults, with a DEM the
+terrain check (``terrain_check``), and the pins summary (``pins``: the candidates as last
+published or answered on the bus).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pdcov.bus.detections import LIKELY_P_PERSON, P_PERSON_DIGITS
+from pdcov.core.detections import Candidate
 from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.geodesy import enu_to_geodetic
 from pdcov.core.mount import GimbalMount
@@ -21,7 +25,7 @@ from pdcov.core.mount import GimbalMount
 if TYPE_CHECKING:
     from pdcov.service.coverage import LiveCoverage
 
-__all__ = ["footprint_lonlat", "status_fields"]
+__all__ = ["footprint_lonlat", "pins_summary", "status_fields"]
 
 
 def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
@@ -44,6 +48,23 @@ def footprint_lonlat(live: LiveCoverage) -> np.ndarray | None:
         return None
     geo = enu_to_geodetic(np.column_stack([ring, np.full(len(ring), z_m)]), live.origin)
     return geo[:, [1, 0]]
+
+
+def pins_summary(candidates: Iterable[Candidate]) -> dict[str, Any]:
+    """The status's ``pins`` (docs/protocol.md "status"): how many candidates, how many
+    with p_person >= LIKELY_P_PERSON, and the most probable one (ties: more hits, then the
+    lower id) with its uid, p_person (4 digits), looks and hits; None without candidates."""
+    n = likely = 0
+    top: Candidate | None = None
+    for c in candidates:
+        n += 1
+        likely += c.p_person >= LIKELY_P_PERSON
+        if top is None or (c.p_person, c.hits, -c.candidate_id) > (
+                top.p_person, top.hits, -top.candidate_id):
+            top = c
+    return {"candidates": n, "likely": likely, "top": None if top is None else {
+        "uid": top.uid, "p_person": round(top.p_person, P_PERSON_DIGITS),
+        "looks": top.looks, "hits": top.hits}}
 
 
 def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[str, Any],
@@ -101,4 +122,5 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
         # watcher holding tiles_seq and frames.grid holds this grid exactly.
         "tiles_behind": live.tile_sender.behind,
         "faults": faults, "checkpoint": checkpoint, **terrain,
+        "pins": pins_summary(live.detections.latest.values()),
     }

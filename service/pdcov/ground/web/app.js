@@ -168,18 +168,28 @@ function showVehicles(vehicles) {
   }
 }
 
-// -- detection candidates: kept by vehicle and id, so that an open popup stays open.
+// -- detection candidates (pins): kept by uid (unique across vehicles and restarts), so that
+// an open popup stays open. Unlikely pins (p_person below FAINT_BELOW) are drawn faint; the
+// filter (#pin-filter) hides those below its minimum p_person, on the map and in the list.
+const FAINT_BELOW = 0.1;
+const MAX_PIN_ROWS = 200;  // the list shows the most probable this many
 const candidates = new Map();
 function seenText(c) {
   const times = (n) => `${n} time${n === 1 ? "" : "s"}`;
   return `seen ${times(c.looks)}, detected ${c.hits}`;
 }
+function pinFilter() {
+  return Number(document.getElementById("pin-filter").value) || 0;
+}
 function candidatePopup(v, c) {
   const box = el("div", undefined, "candidate-popup");
-  box.appendChild(el("strong", `${c.class} (candidate ${c.id}, ${v.id})`));
+  box.appendChild(el("strong", `${c.class} ${c.uid} (${v.id})`));
+  box.appendChild(el("div", `p_person ${fixed(c.p_person, 4)}`, "p-person"));
   box.appendChild(el("div", seenText(c), "looks"));
   const dl = el("dl");
-  for (const [k, val] of [["P_D (cell)", fixed(c.pd, 3)], ["P_FA (cell)", fixed(c.pfa, 3)],
+  for (const [k, val] of [["uid", c.uid], ["p_person", fixed(c.p_person, 4)],
+                          ["looks", String(c.looks)], ["hits", String(c.hits)],
+                          ["P_D (cell)", fixed(c.pd, 3)], ["P_FA (cell)", fixed(c.pfa, 3)],
                           ["confidence", fixed(c.confidence, 2)],
                           ["position", `${fixed(c.lat_deg, 7)}, ${fixed(c.lon_deg, 7)} ` +
                                        `\u00b1 ${fixed(c.sigma_m, 1)} m`],
@@ -191,26 +201,45 @@ function candidatePopup(v, c) {
   box.appendChild(dl);
   return box;
 }
+function styleCandidate(entry, c) {
+  const faint = c.p_person < FAINT_BELOW;
+  entry.marker.setOpacity(faint ? 0.35 : 1);
+  entry.circle.setStyle({opacity: faint ? 0.3 : 1, fillOpacity: faint ? 0.03 : 0.1});
+  const e = entry.marker.getElement();
+  if (e) e.classList.toggle("faint", faint);
+}
 function showCandidates(vehicles) {
-  const seen = new Set();
+  const seen = new Set(), minimum = pinFilter(), all = [];
   for (const v of vehicles) {
     for (const c of v.candidates || []) {
-      const key = `${v.id}/${c.id}`, at = [c.lat_deg, c.lon_deg];
+      const key = c.uid, at = [c.lat_deg, c.lon_deg];
       const text = JSON.stringify(c);
       seen.add(key);
+      all.push([v, c]);
       let entry = candidates.get(key);
       if (!entry) {
-        entry = {marker: L.marker(at, {title: `${c.class} ${c.id}`}).bindPopup(""),
+        entry = {marker: L.marker(at, {title: `${c.class} ${c.uid}`}).bindPopup(""),
                  circle: L.circle(at, {radius: c.sigma_m, color: v.color, weight: 1,
-                                       fillOpacity: 0.1, interactive: false}), text: null};
-        entry.marker.on("add", () => { entry.marker.getElement().dataset.candidate = key; });
-        layers.candidates.addLayer(entry.circle).addLayer(entry.marker);
+                                       fillOpacity: 0.1, interactive: false}),
+                 text: null, c};
+        entry.marker.on("add", () => {
+          entry.marker.getElement().dataset.candidate = key;
+          styleCandidate(entry, entry.c);
+        });
         candidates.set(key, entry);
       }
       if (entry.text !== text) {
         entry.marker.setLatLng(at).setPopupContent(candidatePopup(v, c));
         entry.circle.setLatLng(at).setRadius(c.sigma_m);
         entry.text = text;
+        entry.c = c;
+      }
+      styleCandidate(entry, c);
+      const shown = c.p_person >= minimum;
+      if (shown && !layers.candidates.hasLayer(entry.marker)) {
+        layers.candidates.addLayer(entry.circle).addLayer(entry.marker);
+      } else if (!shown && layers.candidates.hasLayer(entry.marker)) {
+        layers.candidates.removeLayer(entry.marker).removeLayer(entry.circle);
       }
     }
   }
@@ -220,7 +249,34 @@ function showCandidates(vehicles) {
       candidates.delete(key);
     }
   }
+  showPinList(all, minimum);
 }
+// The pins list: the most probable first (ties by uid), those the filter keeps.
+function showPinList(all, minimum) {
+  const kept = all.filter(([, c]) => c.p_person >= minimum)
+    .sort(([, a], [, b]) => b.p_person - a.p_person || (a.uid < b.uid ? -1 : a.uid > b.uid ? 1 : 0));
+  const rows = kept.slice(0, MAX_PIN_ROWS).map(([v, c]) => {
+    const li = el("li", undefined, c.p_person < FAINT_BELOW ? "faint" : "");
+    li.appendChild(el("span", fixed(c.p_person, 2), "p"));
+    li.appendChild(el("span", ` ${c.class} ${c.uid} `));
+    li.appendChild(el("span", `${c.hits}/${c.looks} looks`, "looks"));
+    li.style.borderLeftColor = v.color;
+    li.dataset.uid = c.uid;
+    li.dataset.pPerson = String(c.p_person);
+    li.addEventListener("click", () => {
+      const entry = candidates.get(c.uid);
+      if (entry) { map.panTo(entry.marker.getLatLng()); entry.marker.openPopup(); }
+    });
+    return li;
+  });
+  document.getElementById("pins").replaceChildren(...rows);
+  document.getElementById("pins-note").textContent =
+    `${kept.length} of ${all.length} pins` + (kept.length > MAX_PIN_ROWS
+      ? `; the ${MAX_PIN_ROWS} most probable listed` : "");
+}
+document.getElementById("pin-filter").addEventListener("change", () => {
+  if (state) showCandidates(state.vehicles);
+});
 
 function showGaps(gaps) {
   layers.gaps.clearLayers();
