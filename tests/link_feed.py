@@ -172,3 +172,12 @@ def grid_is_sane(live: LiveCoverage) -> None:
         assert np.isfinite(a).all(), f"{name}: non-finite values"
         assert (a <= 0).all(), f"{name}: positive values"
     assert (g.n_obs >= 0).all()
+
+
+def without_epoch(items: list[dict]) -> list[dict]:
+    """Detections or candidates with their uid's epoch left out ("uav7.*.3"): the daemon's
+    epoch is its state directory's, ``pdcov evaluate``'s the log's SHA-256."""
+    def blank(uid: str) -> str:
+        vehicle, _epoch, cid = uid.rsplit(".", 2)
+        return f"{vehicle}.*.{cid}"
+    return [{**x, "uid": blank(x["uid"])} for x in items]

@@ -89,14 +89,15 @@ def test_the_tracker_state_round_trips_and_its_ids_continue(grid):
     assert [c.uid for c in again.candidates(grid)] == [
         "uav1.a1b2c3.0", "uav1.a1b2c3.1", "uav1.a1b2c3.2"]
     assert again.next_id == 3
-    # Candidate 0 at 0 m takes a box 0.5 m off; a box 20 m off is candidate 3, never 0.
-    d = again.frame(nadir(), 1.4, [at(0.5), at(20.0)])
+    # Candidate 0 at 0 m takes a box 0.2 m off (its gate: 3 hypot(0.1, 0.07) = 0.37 m); a
+    # box 20 m off is candidate 3, never 0.
+    d = again.frame(nadir(), 1.4, [at(0.2), at(20.0)])
     assert [x.candidate_id for x in d] == [0, 3]
 
 
 @pytest.mark.parametrize(("field", "value", "named"), [
     ("sum_wr", [1.0, 2.0], "candidates[1].sum_wr"), ("hits", -1, "candidates[1].hits"),
-    ("sum_w", 0.0, "candidates[1].sum_w"), ("class", "", "candidates[1].class"),
+    ("sum_w", 0.0, "candidates[1].sum_w"), ("class_name", "", "candidates[1].class_name"),
     ("id", 0, "candidates[1].id")])
 def test_a_damaged_tracker_state_is_refused_naming_its_field(field, value, named):
     doc = three().to_doc()
@@ -167,7 +168,7 @@ def test_a_torn_last_line_is_ignored_and_cut_off(grid):
     (b'{"version": 1, "seq": 2, "mission_hash": "other", "next_id": 9, "candidates": []}\n',
      "mission hash 'other'"),
     (b'{"version": 1, "seq": 2, "mission_hash": "h", "next_id": 9, '
-     b'"candidates": [{"id": 4, "class": "person"}]}\n', "candidates[0].sum_w")])
+     b'"candidates": [{"id": 4, "class_name": "person"}]}\n', "docs[0].sum_w")])
 def test_a_bad_line_stops_the_replay_and_sets_the_journal_aside(bad, why):
     ck, first, second, _later = lines()
     bad = bad.replace(b'"seq": 2', b'"seq": 3')
@@ -193,7 +194,7 @@ def test_a_damaged_checkpoint_member_starts_the_candidates_empty_the_journal_sti
     t, r = restored(first + second, ck)
     (level, text), = r.logs
     assert level == logging.ERROR and "ck.npz: pdcov_candidates.json" in text
-    assert "tracker.candidates[0].hits" in text
+    assert "tracker.candidates state candidates[0].hits 'many'" in text
     assert r.from_checkpoint == 0 and r.lines == 2 and len(t) == 2  # 0 and 3, from lines
     t, r = restored(None, None)  # no checkpoint resumed: nothing said
     assert r.logs == [] and len(t) == 0
@@ -285,7 +286,8 @@ def test_a_restart_keeps_every_candidate_its_id_and_uid(tmp_path, caplog):
     assert "candidates restored: 3 (0 from the checkpoint, 3 updated or added by 1 journal " \
         "lines)" in caplog.text
     fly(killed, clock, [])
-    assert candidates(killed) == [{**c, "looks": 0, "pd": 0.0, "pfa": 0.0} for c in before]
+    # The grid restarts empty (no checkpoint): P_D and P_FA 0; the candidates keep their looks.
+    assert candidates(killed) == [{**c, "pd": 0.0, "pfa": 0.0} for c in before]
     assert killed.live.detections.tracker.candidates(killed.live.grid)[2].uid == \
         f"uav7.{epoch}.2"
     info = killed._checkpoint_info
@@ -321,7 +323,9 @@ def test_a_clean_stop_publishes_the_pending_detections_before_its_checkpoint(tmp
     assert [x["t_boot_s"] for x in published[1]["detections"]] == [1.6] * 3
     again, _ = started(tmp_path)
     fly(again, clock, [])
-    assert [c["hits"] for c in candidates(again)] == [3, 3, 2]
+    # Frames 1.2, 1.4 and 1.6 s fall in one look of the mission's (min_revisit_s 1 s): one hit
+    # each, and every one of them came back.
+    assert [c["hits"] for c in candidates(again)] == [1, 1, 1]
 
 
 def test_a_torn_journal_line_is_cut_off_and_a_bad_epoch_refused(tmp_path, caplog):

@@ -15,7 +15,7 @@ detector is followed pins {candidates, likely, top {uid, p_person, looks, hits} 
 changes (the link's negotiation, the gimbal's description, the checkpoint) goes out in
 full statuses only -- the first, every ``FULL_EVERY``-th and any whose detail changed --
 and the others carry the same required fields with a brief ``link`` and ``gimbal`` (and no
-``checkpoint``, ``terrain_check`` or ``retask``, and ``pins`` without its ``top``).
+``checkpoint``, ``terrain_check``, ``retask`` or ``pins``).
 ``merge_status`` gives a receiver the latest values with the last full status's detail.
 """
 
@@ -66,13 +66,13 @@ def encode_status(fields: Mapping[str, Any]) -> bytes:
 class StatusEncoder:
     """Encodes one daemon's statuses in turn (docs/protocol.md "status": full and brief).
 
-    ``encode(fields)`` -> the JSON bytes. A status is full (``"full": true``, every field
-    as given) when it is the first, every ``full_every``-th, or when its detail differs
-    from the last full one's; otherwise brief (``"full": false``): ``link`` and ``gimbal``
-    cut to BRIEF_LINK / BRIEF_GIMBAL, ``grid.origin`` empty, ``faults`` without its zero
-    counts, no ``checkpoint``, ``terrain_check`` or ``retask``. The detail is what a brief status
-    leaves out (bar the terrain check, whose counts change with every reading), less the
-    message ages that change every time. Both kinds carry every required field, so any
+    ``encode(fields)`` -> the JSON bytes. A status is full (``"full": true``, every field as
+    given) when it is the first, every ``full_every``-th, or when its detail differs from
+    the last full one's; otherwise brief (``"full": false``): ``link`` and ``gimbal`` cut to
+    BRIEF_LINK / BRIEF_GIMBAL, ``grid.origin`` empty, ``faults`` without its zero counts, no
+    ``checkpoint``, ``terrain_check``, ``retask`` or ``pins``. The detail is what a brief
+    status leaves out (bar the terrain check, whose counts change with every reading), less
+    the message ages that change every time. Both kinds carry every required field, so any
     version-1 receiver reads both. Pose numbers are rounded to what they mean (1 cm in
     latitude and longitude, 0.1 deg, 1 ms, 1 mm of GNSS accuracy)."""
 
@@ -116,8 +116,7 @@ def _brief(doc: Mapping[str, Any]) -> dict[str, Any]:
     out.pop("checkpoint", None)
     out.pop("terrain_check", None)
     out.pop("retask", None)
-    if isinstance(doc.get("pins"), Mapping):
-        out["pins"] = {k: v for k, v in _sub(doc, "pins").items() if k != "top"}
+    out.pop("pins", None)  # the detections messages carry the pins; this is their summary
     return out
 
 
@@ -145,7 +144,7 @@ def _detail_signature(doc: Mapping[str, Any]) -> str:
 def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[str, Any]:
     """A decoded status completed with what a brief one leaves out, from ``last`` (the
     receiver's previous merged status of the same daemon run): the detail of ``link``,
-    ``gimbal``, ``grid.origin``, ``checkpoint`` and ``pins.top``; fault counts it omits are 0. Full
+    ``gimbal``, ``grid.origin``, ``checkpoint``, ``pins``; fault counts it omits are 0. Full
     statuses (and those of a daemon that does not say ``full``) come back as they are."""
     if doc.get("full", True) is not False or last is None:
         return doc
@@ -155,11 +154,9 @@ def merge_status(last: Mapping[str, Any] | None, doc: dict[str, Any]) -> dict[st
     if not _sub(doc, "grid").get("origin"):
         out["grid"] = {**_sub(doc, "grid"), "origin": _sub(last, "grid").get("origin", {})}
     out["faults"] = {**{k: 0 for k in _sub(last, "faults")}, **_sub(doc, "faults")}
-    for name in ("checkpoint", "terrain_check", "retask"):
+    for name in ("checkpoint", "terrain_check", "retask", "pins"):
         if name not in doc and name in last:
             out[name] = last[name]
-    if "pins" in doc and "top" in _sub(last, "pins"):
-        out["pins"] = {**_sub(doc, "pins"), "top": _sub(last, "pins")["top"]}
     return out
 
 

@@ -460,7 +460,7 @@ class DetectionTracker:
         return [_group_doc(i, self._groups[i])
                 for i in sorted(set(ids)) if i in self._groups]
 
-    def load_doc(self, doc: Mapping[str, Any]) -> None:
+    def load_doc(self, doc: Any) -> None:
         """Replace the state with ``to_doc``'s document (ValueError naming the field that is
         wrong; nothing changed then)."""
         if not isinstance(doc, Mapping):
