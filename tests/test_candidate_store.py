@@ -285,6 +285,7 @@ def test_a_restart_keeps_every_candidate_its_id_and_uid(tmp_path, caplog):
         killed, _ = started(tmp_path)
     assert "candidates restored: 3 (0 from the checkpoint, 3 updated or added by 1 journal " \
         "lines)" in caplog.text
+    assert len(killed.live.detections.latest) == 3  # the status's pins summary at once
     fly(killed, clock, [])
     # The grid restarts empty (no checkpoint): P_D and P_FA 0; the candidates keep their looks.
     assert candidates(killed) == [{**c, "pd": 0.0, "pfa": 0.0} for c in before]

@@ -407,6 +407,7 @@ class ServiceCore:
             self.coverage.detections.tracker, self.mission_hash, resumed=resumed,
             checkpoint=checkpoint, checkpoint_error=checkpoint_error,
             checkpoint_path=self.checkpoint.path, journal=journal, journal_path=journal_path)
+        self.coverage.detections.restored()
         self._journal_seq = r.journal_seq
         self._journal_bytes = 0 if r.set_aside else r.keep_bytes
         self.checkpoint.candidates_restored = r.candidates

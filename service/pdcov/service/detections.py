@@ -119,6 +119,11 @@ class LiveDetections:
                                                   self.tracker.uid_of)),
             tuple(c.candidate_id for c in touched))
 
+    def restored(self) -> None:
+        """The tracker's candidates were restored (a restart): they are the latest the
+        status summarises until the next publish or answer."""
+        self.latest = {c.candidate_id: c for c in self.tracker.candidates(self.grid)}
+
     def candidates_payload(self, origin: Origin | None) -> bytes:
         """The candidates query's answer: every candidate, no detection."""
         cands = self.tracker.candidates(self.grid) if origin is not None else []
