@@ -89,6 +89,8 @@ def test_fit_validate_plot(pdcov, train_and_val, tmp_path):
     doc = json.loads(report.read_text())
     assert len(doc["bins"]) == 7 and doc["tested_detect"] == 7 and doc["test"] == "binomial"
     assert f"P_D fails in {doc['failed_detect']} of 7 bins" in out
+    assert f"false boxes per Mpx in {doc['failed_fa_rate']} of 7 bins (exact Poisson)" in out
+    assert doc["version"] == 2 and doc["tested_fa_rate"] == 7 and doc["failed_fa_rate"] <= 2
     assert doc["failed_detect"] <= 2  # same process: few bins should fail at 5 %
     assert all(b["n_true"] == 200 for b in doc["bins"])
 
@@ -97,7 +99,7 @@ def test_fit_validate_plot(pdcov, train_and_val, tmp_path):
                              "--out", fig)
     assert status == 0, err
     with Image.open(fig) as im:
-        assert im.format == "PNG" and im.size == (1500, 975)
+        assert im.format == "PNG" and im.size == (1500, 1350)  # three panels: with the rate
         # not blank: the bars are coloured
         pixels = np.asarray(im.convert("RGB")).reshape(-1, 3)
         assert len(np.unique(pixels, axis=0)) > 50

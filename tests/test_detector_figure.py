@@ -8,7 +8,7 @@ import pytest
 
 from pdcov.core.detector import BinCounts, DetectorModel
 from pdcov.detection.figures import detector_figure, plot_detector_model
-from pdcov.detection.statistics import BinTest, ValidationReport
+from pdcov.detection.statistics import BinTest, RateTest, ValidationReport
 
 pytestmark = pytest.mark.e2e
 
@@ -77,3 +77,26 @@ def test_long_title_and_report_path_stay_inside_the_figure(tmp_path):
     assert "groundtruth_second_split.json" in subtitle and "level_00" not in subtitle
     plot_detector_model(m, tmp_path / "f.png", report)
     assert (tmp_path / "f.png").stat().st_size > 10_000
+
+
+def test_the_false_box_rate_is_drawn_beside_the_papers_precision():
+    m = model((4, 8, 16, 32))
+    m = DetectorModel(m.bin_edges_px, m.p_detect, m.p_false_alarm, (0.2, 0.6, 1.3),
+                      extra={**m.extra, "fa_rate_per_mpx_ci95": [[0.1, 0.3], [0.4, 0.9],
+                                                                  [1.0, 1.7]]})
+    tests = tuple(BinTest(10, 3, 2.0, 0.2) for _ in range(3))
+    report = ValidationReport(m.bin_edges_px, tests, tests, "binomial", fa_rate=(
+        RateTest(4, 0.25, (0.07, 0.6), 3.2, 0.8), RateTest(30, 1.9, (1.3, 2.7), 9.6, 1e-6),
+        RateTest(0, 0.0, (0.0, 0.3), None, None)))
+    fig = detector_figure(m, report)
+    assert len(fig.axes) == 3
+    ax = fig.axes[2]
+    assert "false boxes / frame / Mpx" in ax.get_ylabel()
+    assert "1 − P_FA" in fig.axes[1].get_ylabel()
+    np.testing.assert_allclose([p.get_height() for p in ax.patches], [0.2, 0.6, 1.3])
+    assert ax.get_ylim()[1] == pytest.approx(3 * 1.3)  # 2.7 measured: the axis to 3
+    texts = [t for t in ax.texts]
+    assert [t.get_text() for t in texts] == ["0.8", "1e-06"]  # untested bin: no p-value
+    assert texts[1].get_color() == "tab:red"
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["measured on the split"]
+    assert len(detector_figure(model((4, 8, 16, 32))).axes) == 2  # no rate: two panels

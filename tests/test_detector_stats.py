@@ -540,3 +540,65 @@ def test_fisher_test_compares_with_the_fit_counts(fitted_synthetic):
     assert worse.n_failed("detect")[0] >= 5
     with pytest.raises(ConfigError, match="its own bins"):
         validate(model, _matches(15), edges=EDGES[:4], test="fisher")
+
+
+def test_validation_compares_false_boxes_per_mpx_with_the_models_rate(fitted_synthetic):
+    _, model = fitted_synthetic
+    matches = _matches(17)
+    report = validate(model, matches)
+    c = count_in_bins(matches, model.bin_edges_px)
+    area = matches.image_area_mpx
+    assert area == pytest.approx(matches.n_images * 0.3072)  # 640 x 480 detector-input px
+    for i, r in enumerate(report.fa_rate):
+        k = int(c.n_detections[i] - c.n_true_positives[i])
+        mu = model.fa_rate_per_mpx[i] * area
+        assert (r.observed, r.expected) == (k, pytest.approx(mu))
+        assert r.rate_per_mpx == pytest.approx(k / area)
+        assert r.rate_ci95[0] < k / area < r.rate_ci95[1]
+        tail = min(stats.poisson.cdf(k, mu), stats.poisson.sf(k - 1, mu))
+        assert r.p_value == pytest.approx(min(1.0, 2 * tail))
+    assert report.n_failed("fa_rate")[0] <= 2 and report.n_failed("fa_rate")[1] == 7
+    # Twice as many false boxes per true one: the rate fails nearly everywhere.
+    worse = validate(model, match_images(
+        ((t, d) for t, d in _set_pairs(18, tuple(min(0.9, 2 * q) for q in P_FA))),
+        MatchSettings(0.5, 0.5, INPUT, ("person",))))
+    assert worse.n_failed("fa_rate")[0] >= 5
+    assert all(w.observed > w.expected for w in worse.fa_rate)
+    again = ValidationReport.from_dict(json.loads(json.dumps(report.to_dict())), "r.json")
+    assert again.fa_rate[3].p_value == pytest.approx(report.fa_rate[3].p_value)
+    assert again.fa_rate[3].rate_ci95 == pytest.approx(report.fa_rate[3].rate_ci95, rel=1e-5)
+    assert again.image_area_mpx == pytest.approx(area)
+
+
+def _set_pairs(seed, p_fa):
+    truth, dets = synthetic_set(seed=seed, n_per_bin=300, p_fa=p_fa)
+    return ((truth[k], dets[k]) for k in truth)
+
+
+def test_false_box_rate_test_by_hand_and_where_it_is_not_comparable(fitted_synthetic):
+    from pdcov.detection.statistics import _poisson_test
+
+    # 7 boxes where 3 are expected: P(X >= 7) = 0.0335, doubled; 0 where 3: 2 e^-3.
+    assert _poisson_test(7, 3.0) == pytest.approx(2 * (1 - stats.poisson.cdf(6, 3.0)))
+    assert _poisson_test(0, 3.0) == pytest.approx(2 * math.exp(-3))
+    assert _poisson_test(3, 3.0) == 1.0 and _poisson_test(0, 0.0) == 1.0
+    assert _poisson_test(1, 0.0) == 0.0
+    # docs/detector-statistics.md: 2 per Mpx over 50 x 0.2304 Mpx, 35 false boxes observed.
+    assert _poisson_test(35, 2 * 50 * 0.2304) == pytest.approx(0.0242, abs=1e-4)
+    _, model = fitted_synthetic
+    other = validate(model, _matches(19), edges=EDGES[:4])
+    assert other.fa_rate and all(r.expected is None and r.p_value is None
+                                 for r in other.fa_rate)
+    fisher = validate(model, _matches(19), test="fisher")
+    n0, a0 = model.extra["n_false_boxes"][2], model.extra["fit"]["image_area_mpx"]
+    r, area = fisher.fa_rate[2], fisher.image_area_mpx
+    assert r.p_value == pytest.approx(
+        stats.binomtest(r.observed, r.observed + n0, area / (area + a0)).pvalue, rel=1e-4)
+    old = validate(replace(model, fa_rate_per_mpx=None), _matches(19))
+    assert all(r.p_value is None for r in old.fa_rate)
+    doc = other.to_dict()
+    for b in doc["bins"]:
+        for key in ("false_boxes", "fa_rate_per_mpx", "fa_rate_per_mpx_ci95",
+                    "expected_false_boxes", "p_value_fa_rate"):
+            del b[key]
+    assert ValidationReport.from_dict(doc | {"version": 1}, "r.json").fa_rate == ()

@@ -174,7 +174,7 @@ def test_cli_fit_writes_a_model_with_looks_and_the_looks_plot(tmp_path, pdcov):
     assert status == 0, err
     assert "p indep" in out and "no estimate in 1 of 4 bins" in out
     model = DetectorModel.from_yaml(model_path)
-    assert model.to_dict()["version"] == 4 and model.looks is not None  # 4: fa_rate_per_mpx
+    assert model.to_dict()["version"] == 5 and model.looks is not None  # 5: confidence
     lk = model.looks
     assert lk.correlation[0] == 0.0 and not lk.extra["estimated"][0]  # 4-8 px: nobody
     assert lk.extra["estimated"][1:] == [True] * 3

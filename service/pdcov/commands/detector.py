@@ -123,7 +123,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     val.add_argument("--report", type=output_file, help="write the per-bin report as JSON")
     val.set_defaults(func=run_validate)
 
-    plot = sub.add_parser("plot", help="draw the paper's Fig. 6: P_D and precision by size")
+    plot = sub.add_parser("plot", help="draw the paper's Fig. 6: P_D and precision by size, "
+                                       "and the false boxes per frame per Mpx beside them")
     plot.add_argument("model", type=Path, help="detector model YAML")
     plot.add_argument("--validation", type=Path, help="report JSON of 'detector validate'")
     plot.add_argument("--out", required=True, type=output_file, help="image to write (.png, .pdf)")
@@ -469,24 +470,45 @@ def run_validate(args: argparse.Namespace) -> int:
 
 
 def format_validation_table(report: ValidationReport) -> str:
-    """Per-bin observed and predicted counts with p-values, and the number of bins failing."""
+    """Per-bin observed and predicted counts with p-values: detections among objects (P_D),
+    true among detections (precision, the paper's 1 - P_FA), and false boxes with their rate
+    per frame per Mpx (the grid's P_FA); then the number of bins failing."""
     rows = [f"{'size px':>15} {'N_true':>7} {'det':>6} {'pred':>8} {'p':>8}   "
-            f"{'N_total':>7} {'TP':>6} {'pred':>8} {'p':>8}"]
+            f"{'N_total':>7} {'TP':>6} {'pred':>8} {'p':>8}   "
+            f"{'FP':>6} {'pred':>8} {'FA/Mpx':>8} {'95% CI':>19} {'p':>8}"]
 
     def p(v: float | None) -> str:
         return "-" if v is None else f"{v:.3g}" + ("*" if v < report.alpha else "")
 
     for i, (d, q) in enumerate(zip(report.detect, report.precision, strict=True)):
         lo, hi = report.bin_edges_px[i], report.bin_edges_px[i + 1]
-        rows.append(f"{lo:7.1f}-{hi:<7.1f} {d.n:7d} {d.observed:6d} {d.expected:8.1f} "
-                    f"{p(d.p_value):>8}   {q.n:7d} {q.observed:6d} {q.expected:8.1f} "
-                    f"{p(q.p_value):>8}")
+        row = (f"{lo:7.1f}-{hi:<7.1f} {d.n:7d} {d.observed:6d} {d.expected:8.1f} "
+               f"{p(d.p_value):>8}   {q.n:7d} {q.observed:6d} {q.expected:8.1f} "
+               f"{p(q.p_value):>8}")
+        if report.fa_rate:
+            r = report.fa_rate[i]
+            pred = "-" if r.expected is None else f"{r.expected:8.1f}"
+            row += (f"   {r.observed:6d} {pred:>8} {r.rate_per_mpx:8.4g} "
+                    f"{_ci_rate([list(r.rate_ci95)], 0):>19} {p(r.p_value):>8}")
+        rows.append(row)
     fd, nd = report.n_failed("detect")
     fp, np_ = report.n_failed("precision")
+    fr, nr = report.n_failed("fa_rate")
     test = {"binomial": "exact binomial", "chi2": "chi-square", "fisher": "Fisher exact"}[
         report.test]
+    rate = (f", false boxes per Mpx in {fr} of {nr} bins ("
+            f"{'two-sample Poisson' if report.test == 'fisher' else 'exact Poisson'})"
+            if nr else "")
     rows.append(f"{test} tests, * p < {report.alpha:g}: P_D fails in {fd} of {nd} bins, "
-                f"precision in {fp} of {np_} bins")
+                f"precision in {fp} of {np_} bins{rate}")
+    if not report.fa_rate:
+        rows.append("false boxes per Mpx not measured: the images' sizes are unknown "
+                    "(--sizes FILE or --images DIR)")
+    elif not nr:
+        rows.append("false boxes per Mpx not tested: the model's rate (fa_rate_per_mpx, "
+                    "version 4) is compared on the model's own bins only"
+                    + (", with the fit's counts for --test fisher"
+                       if report.test == "fisher" else ""))
     return "\n".join(rows)
 
 

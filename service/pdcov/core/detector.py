@@ -285,11 +285,14 @@ class DetectorModel:
                     f"{where(src, 'confidence.' + key)}: expected {n} rows (one per size "
                     f"bin) of {len(e) - 1} values (one per confidence bin)")
             d = np.asarray(rows, dtype=float)
-            if not np.all(np.isfinite(d) & (d > 0)):
+            bad = np.argwhere(~(np.isfinite(d) & (d > 0)))
+            if len(bad):
+                i, k = bad[0]
                 raise DetectorModelError(
                     f"{where(src, 'confidence.' + key)}: densities must be finite and > 0 "
                     f"(a 0 would make one confidence proof, for or against a person; smooth "
-                    f"the histogram as `pdcov detector fit` does), got {d.tolist()}")
+                    f"the histogram as `pdcov detector fit` does), got {d[i, k]} in row {i} "
+                    f"(size bin), column {k} (confidence bin)")
 
     @property
     def n_bins(self) -> int:
