@@ -18,6 +18,7 @@ import yaml
 
 from benchmarks.harness import ROOT, free_port, router, serve_args, stop
 from benchmarks.harness import child as process
+from pdcov.bus.detections import decode_detections
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot
 from pdcov.bus.keys import VehicleKeys
@@ -26,9 +27,9 @@ from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 from pdcov.cli import main as pdcov_main
 
-__all__ = ["REAL", "ROOT", "SPEED", "Subscriber", "finish", "fly_args", "fly_udp", "free_port",
-           "offline", "process", "recording", "router", "same", "serve_args", "serve_config",
-           "small_plan", "stop", "watched"]
+__all__ = ["REAL", "ROOT", "SPEED", "Subscriber", "candidates_query", "finish", "fly_args",
+           "fly_udp", "free_port", "offline", "process", "recording", "router", "same",
+           "serve_args", "serve_config", "small_plan", "stop", "watched"]
 
 REAL = ROOT.parent / "shared" / "real-logs"
 
@@ -48,6 +49,18 @@ def serve_config(base: dict, path: Path, *, zenoh_port: int, state_dir: Path,
     doc["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 1.0, **service}
     path.write_text(yaml.safe_dump(doc))
     return path
+
+
+def candidates_query(session, keys: VehicleKeys, timeout_s: float = 30.0) -> list[dict]:
+    """The candidates the daemon answers on ``keys.candidates`` (decoded), asking again until
+    one answers (a daemon starting or restarting) or ``timeout_s`` passes."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        for reply in session.get(keys.candidates, timeout=5.0):
+            if reply.ok is not None:
+                return decode_detections(reply.ok.payload.to_bytes())["candidates"]
+        time.sleep(0.2)
+    raise AssertionError(f"no answer to the query {keys.candidates}")
 
 
 def small_plan(folder: Path, mission: dict) -> Path:

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+import serve_harness
 from link_feed import FIXED, Hover, pack
 from serve_harness import free_port, process, router, serve_args, serve_config, stop
 
@@ -59,14 +60,8 @@ class Ground:
         return (sum(len(d["detections"]) for d in docs),
                 {c["id"] for d in docs for c in d["candidates"]})
 
-    def candidates(self, timeout_s: float = 30.0) -> list[dict]:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            for reply in self.session.get(KEYS.candidates, timeout=5.0):
-                if reply.ok is not None:
-                    return decode_detections(reply.ok.payload.to_bytes())["candidates"]
-            time.sleep(0.2)
-        raise AssertionError("no answer to the candidates query")
+    def candidates(self) -> list[dict]:
+        return serve_harness.candidates_query(self.session, KEYS)
 
     def wait(self, predicate, timeout_s: float, what: str) -> None:
         end = time.monotonic() + timeout_s
