@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection, valid_class_name
 from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
