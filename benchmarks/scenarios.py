@@ -15,7 +15,8 @@ from typing import Any
 from shapely.geometry import box
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.detector import DetectorModel, LooksModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.detector_sections import LooksModel
 from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdcov.core.detector import BinCounts, DetectorModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.detector_sections import BinCounts
 from pdcov.detection.figures import detector_figure, plot_detector_model
 from pdcov.detection.statistics import BinTest, RateTest, ValidationReport
 

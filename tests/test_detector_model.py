@@ -86,7 +86,7 @@ def test_unreadable_file(tmp_path):
 
 
 def test_a_model_file_too_large_or_of_too_many_bins_is_refused_before_parsing(tmp_path):
-    from pdcov.core.detector import MAX_BINS, MAX_MODEL_BYTES
+    from pdcov.core.detector_file import MAX_BINS, MAX_MODEL_BYTES
 
     big = tmp_path / "big.yaml"
     big.write_bytes(b"# " + b"x" * MAX_MODEL_BYTES)
@@ -155,7 +155,7 @@ def test_a_bad_confidence_section_names_the_field(change, key, message):
 
 
 def test_a_confidence_section_needs_version_5_and_stays_within_the_bin_cap():
-    from pdcov.core.detector import MAX_BINS
+    from pdcov.core.detector_file import MAX_BINS
 
     with pytest.raises(DetectorModelError, match="det.yaml: confidence: needs version 5, the "
                                                  "file says 4"):

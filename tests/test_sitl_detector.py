@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.detector import ConfidenceModel, DetectorModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.detector_sections import ConfidenceModel
 from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose

@@ -14,7 +14,8 @@ from pdcov.config.mission import MissionCamera
 from pdcov.config.values import FLOAT_MAX, defaults, number, opt_number, resolve
 from pdcov.core.camera import CameraModel
 from pdcov.core.camera_config import CAMERA_CONFIG
-from pdcov.core.detector import MODEL_SCHEMA, DetectorModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.detector_file import MODEL_SCHEMA
 from pdcov.core.mount import GIMBAL_MOUNT_CONFIG, GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.core.zoom import FovLens, LensQuantity, TableLens, Zoom, ZoomLens

@@ -12,12 +12,13 @@ false box with probability 1 - exp(-rate(s) A) (Poisson; ``p_false_alarm_per_loo
 Confidences are evidence (the optional ``confidence`` section): per size bin, histograms of
 the confidences of true and of false boxes; a box of confidence c and size s weighs
 log(f_TP(c | s) / f_FP(c | s)) for a person (``confidence_log_lr``).
+
+The file's keys, versions and section readers are in detector_file.py; the optional
+sections' types in detector_sections.py.
 """
 
 from __future__ import annotations
 
-import math
-import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -26,139 +27,25 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pdcov.core.detector_file import (
+    ENGINE_KEYS,
+    FORMAT_VERSION,
+    MAX_MODEL_BYTES,
+    MODEL_SCHEMA,
+    READABLE_VERSIONS,
+    blur_from_dict,
+    check_bins,
+    confidence_from_dict,
+    fa_rate_from_dict,
+    opt_float,
+)
+from pdcov.core.detector_sections import BinCounts, BlurModel, ConfidenceModel, LooksModel
 from pdcov.errors import DetectorModelError, where
-from pdcov.schema import Section, check_keys
+from pdcov.schema import check_keys
 from pdcov.yaml_file import load_yaml
 
-# 2: the optional ``looks`` section (per-person correlation); 3: ``blur``; 4: fa_rate_per_mpx;
-# 5: ``confidence``. A model is written in the oldest version that holds its sections.
-FORMAT_VERSION = 5
-_READABLE_VERSIONS = (1, 2, 3, 4, 5)
 _PX2_PER_MPX = 1e6
-MAX_MODEL_BYTES = 4 << 20
-"""Largest detector model file read (a fitted model of 100 size x 100 blur bins is ~0.5 MB)."""
-MAX_BINS = 1000
-"""Most size bins, and most blur bins, of a detector model (checked before any array is
-built: the grid's tables are (blur bins + 2) x (size bins + 2))."""
 SIZE_METRICS = ("sqrt_area",)
-
-# The keys of a model file (docs/detector-model.md): the engine's, then those `pdcov detector
-# fit` writes for validate and plot (kept in ``DetectorModel.extra``), and free-text notes.
-_LOGISTIC_CURVE = Section.of("log_center", "log_scale", "coefficients", "covariance")
-MODEL_SCHEMA = Section.of(
-    "version", "size_metric", "input_size_px", "confidence_threshold", "iou_threshold",
-    "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
-    "model", "interval_method", "confidence_level", "p_detect_ci95", "p_false_alarm_ci95",
-    "fa_rate_per_mpx_ci95", "n_false_boxes", "n_true_positives", "illustrative", "notes",
-    counts=Section.of("n_true", "n_detected", "n_detections"),
-    fit=Section.of("classes", "n_images", "truth_outside_bins", "detections_outside_bins",
-                   "max_detections", "image_area_mpx", "ground_truth", "detections", "bins",
-                   status_counts=Section(open=True)),
-    logistic=Section.of("link", "covariate", "degree", "fit_range_px",
-                        p_detect=_LOGISTIC_CURVE, p_false_alarm=_LOGISTIC_CURVE),
-    looks=Section.of(
-        "correlation",  # the engine's; the others are the fit's (detection/looks_fit.py)
-        "model", "estimated", "no_estimate_reason", "correlation_mle", "correlation_ci95",
-        "mean_pd", "mean_pd_ci95", "interval_method", "test", "p_value_independent",
-        "min_people", "n_people", "n_looks", "n_hits",
-        found_within=Section.of("share", "n_people"),
-        tracks=Section.of("format", "n_sequences", "n_frames", "n_people", "n_track_gaps",
-                          "looks_outside_bins")),
-    blur=Section.of("edges_px", "p_detect", "p_false_alarm", "p_detect_ci95",
-                    "p_false_alarm_ci95", "n_true", "n_detected", "n_detections",
-                    "n_true_positives", "truth_outside_bins", "detections_outside_bins",
-                    "csv", "bins", "speed_to_blur"),
-    confidence=Section.of("edges", "tp_density", "fp_density",  # the engine's
-                          "smoothing", "n_true_positives", "n_false_positives", "notes"))
-_ENGINE_KEYS = ("version", "bin_edges_px", "p_detect", "p_false_alarm", "fa_rate_per_mpx",
-                "input_size_px",
-                "confidence_threshold", "iou_threshold", "size_metric", "counts", "looks",
-                "blur", "confidence")
-
-
-@dataclass(frozen=True, slots=True)
-class BlurModel:
-    """P_D and P_FA by motion-blur bin and size bin (version 3's ``blur`` section).
-
-    edges_px: M + 1 strictly increasing blur lengths in detector-input pixels (scaled from
-    image pixels as sizes are), the first 0; blur bin j is [edges_px[j], edges_px[j + 1]).
-    p_detect, p_false_alarm: M rows (blur bins) of N values (the model's size bins). A blur
-    at or above the last edge has P_D = P_FA = 0 (the model claims nothing there).
-    ``extra``: the fit's other keys (intervals, counts), kept as written.
-    """
-
-    edges_px: tuple[float, ...]
-    p_detect: tuple[tuple[float, ...], ...]
-    p_false_alarm: tuple[tuple[float, ...], ...]
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_bins(self) -> int:
-        return len(self.edges_px) - 1
-
-
-@dataclass(frozen=True, slots=True)
-class ConfidenceModel:
-    """How a box's confidence tells a person from a false alarm (version 5's ``confidence``
-    section), per size bin of the model (the box's own size, detector-input px).
-
-    edges: K + 1 strictly increasing confidences in [0, 1], the last 1 (a fit's: K equal bins
-    over [confidence_threshold, 1]); bin k is [edges[k], edges[k + 1]), the last one closed.
-    tp_density, fp_density: N rows (size bins) of K histogram densities (per unit confidence)
-    of the confidences of true and of false boxes, finite and > 0; each row is rescaled to
-    integrate to 1 where it is used (``probabilities``), so rounding does not bias the ratio.
-    ``extra``: the fit's other keys (counts, smoothing), kept as written.
-    """
-
-    edges: tuple[float, ...]
-    tp_density: tuple[tuple[float, ...], ...]
-    fp_density: tuple[tuple[float, ...], ...]
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_bins(self) -> int:
-        return len(self.edges) - 1
-
-    def probabilities(self, true_positive: bool) -> np.ndarray:
-        """(N, K): per size bin, the probability of each confidence bin for a true box
-        (``true_positive``) or a false one."""
-        d = np.asarray(self.tp_density if true_positive else self.fp_density, dtype=float)
-        mass = d * np.diff(np.asarray(self.edges))
-        return mass / mass.sum(axis=1, keepdims=True)
-
-    def log_lr_table(self) -> np.ndarray:
-        """(N, K): per size bin and confidence bin, log(f_TP / f_FP), the evidence of a box
-        of that confidence for a person."""
-        return np.log(self.probabilities(True)) - np.log(self.probabilities(False))
-
-    def bin_index(self, confidence: np.ndarray) -> np.ndarray:
-        """Confidence bin 0..K-1 of each confidence; outside the edges the nearest bin."""
-        k = np.searchsorted(np.asarray(self.edges), np.asarray(confidence, dtype=float),
-                            side="right") - 1
-        return np.clip(k, 0, self.n_bins - 1)
-
-
-@dataclass(frozen=True, slots=True)
-class LooksModel:
-    """How one person's looks are correlated (version 2's ``looks`` section).
-
-    Each person has a latent detectability: in size bin i it is Beta distributed with the
-    bin's mean P_D and intra-person correlation ``correlation[i]`` (rho = 1 / (a + b + 1));
-    rho = 0 is the paper's independent looks. ``extra``: the fit's other keys (intervals,
-    tests), kept as written.
-    """
-
-    correlation: tuple[float, ...]
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, slots=True)
-class BinCounts:
-    """The counts behind each bin: ground-truth objects, those detected, all detections."""
-
-    n_true: tuple[int, ...]
-    n_detected: tuple[int, ...]
-    n_detections: tuple[int, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -403,10 +290,10 @@ class DetectorModel:
             raise DetectorModelError(f"{source or 'detector model'}: expected a mapping")
         check_keys(doc, MODEL_SCHEMA, source, "", DetectorModelError)
         version = doc.get("version")
-        if version not in _READABLE_VERSIONS:
+        if version not in READABLE_VERSIONS:
             raise DetectorModelError(
                 f"{where(source, 'version')}: expected "
-                f"{' or '.join(map(str, _READABLE_VERSIONS))}, got {version!r}")
+                f"{' or '.join(map(str, READABLE_VERSIONS))}, got {version!r}")
         looks = None
         if doc.get("looks") is not None:
             if version < 2:
@@ -426,17 +313,17 @@ class DetectorModel:
             if version < 3:
                 raise DetectorModelError(
                     f"{where(source, 'blur')}: needs version 3, the file says {version}")
-            blur = _blur_from_dict(doc["blur"], source)
+            blur = blur_from_dict(doc["blur"], source)
         confidence = None
         if doc.get("confidence") is not None:
             if version < 5:
                 raise DetectorModelError(
                     f"{where(source, 'confidence')}: needs version 5, the file says {version}")
-            confidence = _confidence_from_dict(doc["confidence"], source)
+            confidence = confidence_from_dict(doc["confidence"], source)
         for key in ("bin_edges_px", "p_detect", "p_false_alarm"):
             if key not in doc:
                 raise DetectorModelError(f"{where(source, key)}: missing (a list of numbers)")
-            _check_bins(doc[key], key, source)
+            check_bins(doc[key], key, source)
             if not isinstance(doc[key], list) or not all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) for v in doc[key]):
                 raise DetectorModelError(
@@ -462,16 +349,16 @@ class DetectorModel:
             bin_edges_px=tuple(float(v) for v in doc["bin_edges_px"]),
             p_detect=tuple(float(v) for v in doc["p_detect"]),
             p_false_alarm=tuple(float(v) for v in doc["p_false_alarm"]),
-            fa_rate_per_mpx=_fa_rate_from_dict(doc, version, source),
+            fa_rate_per_mpx=fa_rate_from_dict(doc, version, source),
             input_size_px=input_size,
-            confidence_threshold=_opt_float(doc, "confidence_threshold", source),
-            iou_threshold=_opt_float(doc, "iou_threshold", source),
+            confidence_threshold=opt_float(doc, "confidence_threshold", source),
+            iou_threshold=opt_float(doc, "iou_threshold", source),
             size_metric=doc.get("size_metric", "sqrt_area"),
             counts=counts,
             looks=looks,
             blur=blur,
             confidence=confidence,
-            extra={k: v for k, v in doc.items() if k not in _ENGINE_KEYS},
+            extra={k: v for k, v in doc.items() if k not in ENGINE_KEYS},
             source=source,
         )
 
@@ -525,93 +412,3 @@ class DetectorModel:
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
-
-
-def _opt_float(doc: dict[str, Any], key: str, source: str | None) -> float | None:
-    v = doc.get(key)
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise DetectorModelError(f"{where(source, key)}: expected a number, got {v!r}")
-    return float(v)
-
-
-def _check_bins(v: Any, key: str, source: str | None) -> None:
-    """Refuse a list of more than MAX_BINS + 1 entries before anything is built of it."""
-    if isinstance(v, list) and len(v) > MAX_BINS + 1:
-        raise DetectorModelError(f"{where(source, key)}: {len(v):,} entries, more than a "
-                                 f"model of {MAX_BINS} bins has ({MAX_BINS + 1} edges)")
-
-
-def _fa_rate_from_dict(doc: dict[str, Any], version: int, source: str | None
-                       ) -> tuple[float, ...] | None:
-    """``fa_rate_per_mpx``: required from version 4. An older file loads, with one warning,
-    without false alarms: its ``p_false_alarm`` is 1 - precision, a share of detections that
-    no rule turns into a probability per cell without the frames and image area of the fit
-    (not written before version 4). Its P_D is still right, so a plan or an evaluation by
-    P_D need not be refused; its P_FA map is 0 (unknown), and the warning says so."""
-    rate = doc.get("fa_rate_per_mpx")
-    if rate is None:
-        if version >= 4:
-            raise DetectorModelError(
-                f"{where(source, 'fa_rate_per_mpx')}: missing (version 4 needs false boxes "
-                f"per frame per megapixel, one per bin; `pdcov detector fit` writes it)")
-        warnings.warn(
-            f"{source or 'detector model'}: version {version} has no fa_rate_per_mpx (its "
-            f"p_false_alarm is 1 - precision, not a probability per cell); the grid counts "
-            f"no false alarms with it (P_FA 0, unknown). Refit with `pdcov detector fit` "
-            f"for the false-alarm rate", UserWarning, stacklevel=3)
-        return None
-    if version < 4:
-        raise DetectorModelError(
-            f"{where(source, 'fa_rate_per_mpx')}: needs version 4, the file says {version}")
-    if not isinstance(rate, list) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in rate):
-        raise DetectorModelError(
-            f"{where(source, 'fa_rate_per_mpx')}: expected a list of numbers, got {rate!r}")
-    return tuple(float(v) for v in rate)
-
-
-def _blur_from_dict(bl: Any, source: str | None) -> BlurModel:
-    """The ``blur`` section: edges_px (numbers), p_detect and p_false_alarm (rows of
-    numbers); the values are checked by DetectorModel."""
-    edges, rows, extra = _tables_from_dict(bl, "blur", "edges_px",
-                                           ("p_detect", "p_false_alarm"), source)
-    return BlurModel(edges, rows[0], rows[1], extra)
-
-
-def _confidence_from_dict(sec: Any, source: str | None) -> ConfidenceModel:
-    """The ``confidence`` section: edges (numbers), tp_density and fp_density (rows of
-    numbers); the values are checked by DetectorModel."""
-    edges, rows, extra = _tables_from_dict(sec, "confidence", "edges",
-                                           ("tp_density", "fp_density"), source)
-    return ConfidenceModel(edges, rows[0], rows[1], extra)
-
-
-def _tables_from_dict(sec: Any, name: str, edges_key: str, table_keys: tuple[str, ...],
-                      source: str | None
-                      ) -> tuple[tuple[float, ...], list[tuple[tuple[float, ...], ...]],
-                                 dict[str, Any]]:
-    """A section of edges and tables (rows of numbers): the edges, the tables in the order
-    of ``table_keys``, and the section's other keys. Sizes are bounded before anything is
-    built (``_check_bins``); the values are checked by DetectorModel."""
-    if not isinstance(sec, dict):
-        raise DetectorModelError(f"{where(source, name)}: expected a mapping")
-
-    def numbers(v: Any) -> bool:
-        return isinstance(v, list) and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-
-    for key in (edges_key, *table_keys):
-        v = sec.get(key)
-        for part in (v, *(v if key != edges_key and isinstance(v, list) else ())):
-            _check_bins(part, f"{name}.{key}", source)
-        if key == edges_key and not numbers(v) or key != edges_key and not (
-                isinstance(v, list) and all(numbers(row) for row in v)):
-            raise DetectorModelError(
-                f"{where(source, name + '.' + key)}: expected "
-                f"{'a list of numbers' if key == edges_key else 'a list of rows of numbers'}"
-                f", got {v!r}")
-    return (tuple(float(x) for x in sec[edges_key]),
-            [tuple(tuple(float(x) for x in row) for row in sec[key]) for key in table_keys],
-            {k: v for k, v in sec.items() if k not in (edges_key, *table_keys)})

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, special, stats
 
-from pdcov.core.detector import LooksModel
+from pdcov.core.detector_sections import LooksModel
 from pdcov.detection.matching import MatchCollector, Matches, MatchSettings, TruthStatus
 from pdcov.detection.statistics import bin_of
 from pdcov.detection.tracks import TrackedFrame

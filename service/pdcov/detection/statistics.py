@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 from scipy import optimize, special, stats
 
-from pdcov.core.detector import BinCounts, BlurModel, ConfidenceModel, DetectorModel
+from pdcov.core.detector import DetectorModel
+from pdcov.core.detector_sections import BinCounts, BlurModel, ConfidenceModel
 from pdcov.detection.matching import Matches
 from pdcov.errors import ConfigError, DetectorModelError, InputFileError
 
