@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from pdcov import cli
-from pdcov.commands.plan import check_plan_size, scenario_of
 from pdcov.config.load import load_mission
 from pdcov.errors import ConfigError, DomainError
+from pdcov.planning.scenario import check_plan_size, scenario_of
 
 DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,-40.0,-40.0,10.0,0.0,1.0,0.0,0.0\n"

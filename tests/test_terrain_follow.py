@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from pdcov import cli
-from pdcov.commands.plan import scenario_of, terrain_warnings, write_prediction
+from pdcov.commands.plan_output import terrain_warnings, write_prediction
 from pdcov.config.load import load_mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -34,6 +34,7 @@ from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError
 from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
 from pdcov.planning.plan import Plan, Waypoint, mission_items, read_plan, write_plan
+from pdcov.planning.scenario import scenario_of
 from pdcov.planning.terrain_follow import (
     TERRAIN_ALT_PROFILE_M,
     TerrainFollowing,

@@ -59,11 +59,11 @@ def run_live(args: argparse.Namespace) -> int:
 
     from shapely.geometry import box
 
-    from pdcov.commands.plan import scenario_of
     from pdcov.ground.app import parse_web_address, stdout_is_terminal
     from pdcov.ground.demo import DemoVehicle, LiveDemo, run_live_demo
     from pdcov.planning.optimise import PlanParams, build_plan
     from pdcov.planning.plan import write_plan
+    from pdcov.planning.scenario import scenario_of
 
     DEMO.require()
     web = parse_web_address(args.web) if args.web else None
@@ -98,8 +98,9 @@ def run_live(args: argparse.Namespace) -> int:
 
 
 def run_offline(args: argparse.Namespace) -> int:
-    from pdcov.commands.plan import scenario_of, write_prediction
+    from pdcov.commands.plan_output import write_prediction
     from pdcov.planning.optimise import PlanParams, build_plan, predict
+    from pdcov.planning.scenario import scenario_of
     from pdcov.report.plots import compare_figure
 
     mission, _ = _bundled_mission()
