@@ -45,7 +45,7 @@ from pdcov.config.load import load_mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import AltitudeFrame
 from pdcov.planning.patterns import lawnmower
-from pdcov.planning.plan import write_plan
+from pdcov.planning.plan_files import write_plan
 from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
 
 from .harness import child, free_port, serve_args

@@ -46,7 +46,7 @@ from pdcov.bus.status import decode_status
 from pdcov.core.geodesy import Origin
 from pdcov.ground.demo import Children, FleetStatus, free_port
 from pdcov.planning.patterns import lawnmower
-from pdcov.planning.plan import write_plan
+from pdcov.planning.plan_files import write_plan
 
 from .daemon import cpu_s, memory_bytes
 from .harness import small_mission

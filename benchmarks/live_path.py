@@ -50,7 +50,7 @@ from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.planning.patterns import lawnmower
-from pdcov.planning.plan import write_plan
+from pdcov.planning.plan_files import write_plan
 from pdcov.report.outputs import evaluate_poses
 from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.daemon import TICK_S

@@ -39,7 +39,8 @@ def lawnmower_xy(length_m: float, spacing_m: float, columns: int) -> np.ndarray:
 def sitl_rows(smoke: bool) -> list[Row]:
     """One row: simulated seconds per wall second of a survey flown at --speed 0."""
     from pdcov.core.geodesy import Origin
-    from pdcov.planning.plan import Plan, write_plan
+    from pdcov.planning.plan import Plan
+    from pdcov.planning.plan_files import write_plan
 
     columns = 2 if smoke else 11
     with tempfile.TemporaryDirectory(prefix="pdcov-bench-sitl-") as tmp:

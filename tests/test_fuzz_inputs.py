@@ -34,7 +34,8 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.pose import CameraPose
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
-from pdcov.planning.plan import Plan, Waypoint, read_mission, write_plan
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_files import read_mission, write_plan
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.telemetry.pose_csv import read_pose_csv
 

@@ -130,7 +130,7 @@ def test_cli_plan_writes_plan_and_prediction(tmp_path):
 
     from pdcov.cli import main
     from pdcov.config.load import load_mission
-    from pdcov.planning.plan import read_plan
+    from pdcov.planning.plan_files import read_plan
 
     cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"
     out = tmp_path / "plan"

@@ -9,19 +9,16 @@ import numpy as np
 import pytest
 
 from pdcov.core.geodesy import Origin
-from pdcov.errors import InputFileError
-from pdcov.planning.plan import (
+from pdcov.core.mission import (
     MAV_CMD_DO_CHANGE_SPEED,
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
-    Plan,
-    Waypoint,
-    mission_items,
-    read_mission,
-    read_plan,
-    write_plan,
 )
+from pdcov.errors import InputFileError
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_files import read_mission, read_plan, write_plan
+from pdcov.planning.plan_items import mission_items
 
 ORIGIN = Origin(39.35, -76.33, 12.5)
 PLAN = Plan((Waypoint(-60.0, -60.0, 10.0, 5.0), Waypoint(-60.0, -20.0, 10.0, 5.0, 3.0),

@@ -23,7 +23,7 @@ from serve_harness import Subscriber, free_port, process, router, serve_args, se
 
 from pdcov.cli import main as pdcov_main
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
-from pdcov.planning.plan import read_mission
+from pdcov.planning.plan_files import read_mission
 from pdcov.telemetry.link_params import wait_autopilot
 from pdcov.telemetry.upload import mavlink2_connection
 

@@ -23,7 +23,7 @@ from pdcov.bus.retask import decode_retask_reply
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.cli import main as pdcov_main
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import wpl_text
+from pdcov.planning.plan_files import wpl_text
 
 pytestmark = pytest.mark.e2e
 

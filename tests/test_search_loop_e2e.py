@@ -48,7 +48,7 @@ def demo_plan(folder: Path) -> Path:
     """The live demo's plan: a spiral over the scene at 10 m, 5 m/s (commands/demo.py)."""
     from pdcov.config.load import load_mission
     from pdcov.planning.optimise import PlanParams, build_plan
-    from pdcov.planning.plan import write_plan
+    from pdcov.planning.plan_files import write_plan
     from pdcov.planning.scenario import scenario_of
 
     mission = load_mission(DEMO)

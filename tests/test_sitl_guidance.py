@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import GimbalPointing, Plan, Waypoint, mission_items
+from pdcov.planning.plan import GimbalPointing, Plan, Waypoint
+from pdcov.planning.plan_items import mission_items
 from pdcov.planning.trajectory import fly as planner_fly
 from pdcov_sitl.guidance import Guidance
 from pdcov_sitl.mission import flight_plan_from_items

@@ -20,7 +20,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 from sitl_feed import PARAMS, STREAMS_HZ, FeedThread
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_items import home_item, mission_items
 from pdcov.telemetry.link_params import read_mount_params, read_params
 from pdcov.telemetry.upload import mavlink2_connection, upload_mission
 from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S, AutopilotEndpoint

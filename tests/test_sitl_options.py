@@ -24,7 +24,9 @@ from pymavlink import mavutil
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import MissionItem
 from pdcov.core.rotations import R_from_quat_wxyz
-from pdcov.planning.plan import Plan, Waypoint, mission_items, wpl_text
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_files import wpl_text
+from pdcov.planning.plan_items import mission_items
 from pdcov.telemetry.pose_csv import read_pose_csv
 from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S
 

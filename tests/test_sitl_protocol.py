@@ -11,7 +11,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_items import home_item, mission_items
 from pdcov.telemetry.upload import MissionUpload
 from pdcov_sitl.protocol import AutopilotProtocol, StreamSchedule, message_id
 

@@ -19,7 +19,7 @@ import pytest
 pytest.importorskip("jsbsim")
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import read_plan
+from pdcov.planning.plan_files import read_plan
 from pdcov.telemetry.pose_csv import read_pose_csv
 
 pytestmark = pytest.mark.e2e

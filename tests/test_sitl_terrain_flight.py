@@ -19,7 +19,7 @@ from sitl_terrain import TiltedPlane
 from pdcov.config.load import load_mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
-from pdcov.planning.plan import wpl_text
+from pdcov.planning.plan_files import wpl_text
 from pdcov_sitl.fly import FlyOptions, fly
 
 pytestmark = pytest.mark.e2e

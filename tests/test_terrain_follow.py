@@ -33,7 +33,9 @@ from pdcov.core.pose import FixedMount
 from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError
 from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
-from pdcov.planning.plan import Plan, Waypoint, mission_items, read_plan, write_plan
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_files import read_plan, write_plan
+from pdcov.planning.plan_items import mission_items
 from pdcov.planning.scenario import scenario_of
 from pdcov.planning.terrain_follow import (
     TERRAIN_ALT_PROFILE_M,

@@ -10,7 +10,7 @@ import pytest
 from pdcov import cli
 from pdcov.config.load import load_mission
 from pdcov.errors import ConfigError, InputFileError
-from pdcov.planning.plan import read_mission
+from pdcov.planning.plan_files import read_mission
 from pdcov.telemetry.pose_csv import read_pose_csv
 
 DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"

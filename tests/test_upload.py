@@ -14,7 +14,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from pdcov.core.geodesy import Origin
-from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_items import home_item, mission_items
 from pdcov.telemetry.upload import MissionUpload, UploadError, mavlink2_connection, upload_mission
 
 ORIGIN = Origin(39.35, -76.33, 12.5)
@@ -192,7 +193,7 @@ def test_state_machine_times_out_after_retries():
 
 def test_cli_upload_reports_success_and_refusal(vehicle_factory, tmp_path, capsys):
     from pdcov.cli import main
-    from pdcov.planning.plan import write_plan
+    from pdcov.planning.plan_files import write_plan
 
     path = write_plan(tmp_path / "m.plan", PLAN, ORIGIN)
     ok = vehicle_factory()

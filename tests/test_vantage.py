@@ -36,15 +36,9 @@ from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
 from pdcov.planning.cover import CoverProblem, exact_cover, greedy_cover
 from pdcov.planning.optimise import Scenario, flight_poses, predict
-from pdcov.planning.plan import (
-    GimbalPointing,
-    Plan,
-    Waypoint,
-    mission_items,
-    plan_from_mission_items,
-    read_plan,
-    write_plan,
-)
+from pdcov.planning.plan import GimbalPointing, Plan, Waypoint
+from pdcov.planning.plan_files import read_plan, write_plan
+from pdcov.planning.plan_items import mission_items, plan_from_mission_items
 from pdcov.planning.tours import Fleet
 from pdcov.planning.trajectory import Flight, camera_poses, fly
 from pdcov.planning.vantage import VantageSettings, hover_looks, lattice_enu_m

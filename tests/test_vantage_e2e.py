@@ -29,7 +29,7 @@ from evaluate_inputs import survey_poses_csv
 
 from pdcov.cli import main as pdcov_main
 from pdcov.config.load import load_mission
-from pdcov.planning.plan import read_plan
+from pdcov.planning.plan_files import read_plan
 from pdcov_sitl.cli import main as sitl_main
 
 pytestmark = pytest.mark.e2e

@@ -311,7 +311,7 @@ def test_a_plan_zooms_its_camera_and_predicts_with_the_zoomed_k(tmp_path):
     reads back with it, and a zoom outside the lens is refused."""
     from pdcov.core.mission import MAV_CMD_SET_CAMERA_ZOOM
     from pdcov.planning.optimise import PlanParams, build_plan, candidates, predict
-    from pdcov.planning.plan import mission_items, plan_from_mission_items
+    from pdcov.planning.plan_items import mission_items, plan_from_mission_items
     from pdcov.planning.scenario import scenario_of
 
     m = mission_from_dict(zf.mission())

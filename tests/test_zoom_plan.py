@@ -20,16 +20,15 @@ from pdcov.core.mission import MAV_CMD_SET_CAMERA_ZOOM, MissionItem
 from pdcov.core.zoom import hfov_rad
 from pdcov.errors import ConfigError, InputFileError
 from pdcov.planning.optimise import PlanParams, build_plan, flight_poses, predict
-from pdcov.planning.plan import (
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_files import read_plan as read_plan_file
+from pdcov.planning.plan_files import write_plan as write_plan_file
+from pdcov.planning.plan_items import (
     ZOOM_TYPE_HORIZONTAL_FOV,
-    Plan,
-    Waypoint,
     mission_items,
     plan_from_mission_items,
     zoom_item,
 )
-from pdcov.planning.plan import read_plan as read_plan_file
-from pdcov.planning.plan import write_plan as write_plan_file
 from pdcov.planning.scenario import scenario_of
 from pdcov.planning.trajectory import fly
 

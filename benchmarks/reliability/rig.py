@@ -27,7 +27,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.ground.live import WatchShell
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.patterns import lawnmower
-from pdcov.planning.plan import write_plan
+from pdcov.planning.plan_files import write_plan
 
 from ..harness import free_port, serve_args, small_mission
 

@@ -40,7 +40,7 @@ from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R, slerp_quat_wxyz
 from pdcov.core.zoom import FovLens, hfov_rad
 from pdcov.errors import InputFileError
-from pdcov.planning.plan import read_mission
+from pdcov.planning.plan_files import read_mission
 from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
 
 from .camera import CAMERA_COMPONENT, ZoomCamera

@@ -5,7 +5,7 @@ are read with ``pdcov.planning.plan``: take-off at home, the waypoints (MAV_CMD_
 16 with its hold time, or MAV_CMD_NAV_LOITER_TIME 19: fly to its position and hover there
 for param1 s) with their speeds, return to launch. The gimbal commands of the mission
 (MAV_CMD_DO_MOUNT_CONTROL 205 and MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW 1000, read by
-``plan.pointing_of_item``) set the camera's pitch/yaw from the next waypoint on: the yaw
+``plan_items.pointing_of_item``) set the camera's pitch/yaw from the next waypoint on: the yaw
 relative to the vehicle's heading, or to north with 1000's GIMBAL_MANAGER_FLAGS_YAW_LOCK
 (param5 16), as ArduPilot's AP_Mission passes it to AP_Mount; without any the camera looks
 straight down. MAV_CMD_SET_CAMERA_ZOOM items (531: param1
@@ -41,7 +41,8 @@ from pdcov.core.mission import (
     MissionItem,
 )
 from pdcov.errors import InputFileError
-from pdcov.planning.plan import GimbalPointing, plan_from_mission_items
+from pdcov.planning.plan import GimbalPointing
+from pdcov.planning.plan_items import plan_from_mission_items
 
 from .terrain import LocalGround
 

@@ -62,7 +62,7 @@ def run_live(args: argparse.Namespace) -> int:
     from pdcov.ground.app import parse_web_address, stdout_is_terminal
     from pdcov.ground.demo import DemoVehicle, LiveDemo, run_live_demo
     from pdcov.planning.optimise import PlanParams, build_plan
-    from pdcov.planning.plan import write_plan
+    from pdcov.planning.plan_files import write_plan
     from pdcov.planning.scenario import scenario_of
 
     DEMO.require()

@@ -164,7 +164,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
                              + _why_no_frame(n_read, top_m, mission.min_height_m))
     plan_enu = None
     if args.plan is not None:
-        from pdcov.planning.plan import read_plan
+        from pdcov.planning.plan_files import read_plan
         # Only drawn: a file without a speed command still gives its waypoints.
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
     grid = mission.new_grid()

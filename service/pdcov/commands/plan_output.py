@@ -11,7 +11,7 @@ from pdcov.config.mission import Mission
 from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
 from pdcov.planning.optimise import Prediction, Scenario
-from pdcov.planning.plan import write_plan
+from pdcov.planning.plan_files import write_plan
 from pdcov.planning.terrain_follow import clearance_intrusions, steep_legs
 from pdcov.report.outputs import summary_text, write_outputs
 

@@ -25,7 +25,8 @@ from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
 from pdcov.planning.cover import Cover
 from pdcov.planning.optimise import Scenario
-from pdcov.planning.plan import GimbalPointing, write_plan
+from pdcov.planning.plan import GimbalPointing
+from pdcov.planning.plan_files import write_plan
 from pdcov.planning.scenario import scenario_of
 from pdcov.planning.tours import Fleet
 from pdcov.planning.vantage import CoverObjective, VantageSettings, is_nadir

@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_upload(args: argparse.Namespace) -> int:
-    from pdcov.planning.plan import read_mission
+    from pdcov.planning.plan_files import read_mission
 
     path = args.plan_opt or args.plan
     if path is None or (args.plan_opt and args.plan):

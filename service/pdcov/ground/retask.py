@@ -6,7 +6,7 @@ ground/live.py ``WatchShell.retask``).
 The re-fly is ``pdcov refly``'s (planning/refly.py ``refly_of_grid``): the same settings,
 over the fleet's merged grid (ground/fleet_report.py) instead of a grid.npz, starting where
 the vehicle is now (its last status's pose) instead of home. The mission items are the
-ones ``pdcov plan`` files carry (planning/plan.py ``mission_items``). pdcov never arms,
+ones ``pdcov plan`` files carry (planning/plan_items.py ``mission_items``). pdcov never arms,
 takes off or changes the flight mode: the pilot flies the new mission (docs/operations.md).
 """
 
@@ -26,7 +26,7 @@ from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
 from pdcov.planning.optimise import Scenario
-from pdcov.planning.plan import mission_items
+from pdcov.planning.plan_items import mission_items
 from pdcov.planning.refly import Refly, ReflySettings, independent_grid, refly_of_grid
 
 __all__ = ["ReflyError", "ReflyInputs", "ReflyProposal", "RetaskNotSent", "propose_refly",

@@ -62,7 +62,7 @@ from pdcov.ground.retask import ReflyProposal
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web_api import ReflyEndpoints, answer, state_json
 from pdcov.ground.web_auth import Granted, WebAccess, post_allowed
-from pdcov.planning.plan import read_mission
+from pdcov.planning.plan_files import read_mission
 
 if TYPE_CHECKING:  # the desk is handed in (ground/app.py)
     from pdcov.ground.app import ReflyDesk

@@ -35,7 +35,8 @@ import numpy as np
 
 from pdcov.core.mission import AltitudeFrame
 from pdcov.core.terrain import TerrainSurface
-from pdcov.planning.plan import Plan, Waypoint, takeoff_alt_m
+from pdcov.planning.plan import Plan, Waypoint
+from pdcov.planning.plan_items import takeoff_alt_m
 
 TERRAIN_ALT_PROFILE_M = 0.1
 """How far (m) a terrain-frame plan's predicted path may stray from the height above terrain

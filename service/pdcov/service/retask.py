@@ -29,7 +29,7 @@ from shapely.geometry import Polygon
 from pdcov.bus.retask import RetaskRequest, encode_retask_reply
 from pdcov.core.geodesy import Origin
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
-from pdcov.planning.plan import home_item
+from pdcov.planning.plan_items import home_item
 from pdcov.service.link_protocol import LinkProtocol
 from pdcov.service.retask_auth import NonceBook, Refused, RetaskAuthority, RetaskRefusal
 from pdcov.telemetry.mission_upload import MissionUpload, with_home
