@@ -17,7 +17,7 @@ from scipy import special, stats
 from synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set, write_coco
 
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.annotations import Boxes, ImageTruth, read_detections, read_truth
+from pdcov.detection.annotations import read_detections, read_truth
 from pdcov.detection.matching import (
     DetectionStatus,
     MatchSettings,
@@ -37,6 +37,7 @@ from pdcov.detection.statistics import (
     proportion_ci,
     validate,
 )
+from pdcov.detection.truth_set import Boxes, ImageTruth
 from pdcov.errors import ConfigError, DetectorModelError
 
 

@@ -21,15 +21,7 @@ from tqdm import tqdm
 from pdcov.atomic import write_text_atomic
 from pdcov.commands.args import output_file
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.annotations import (
-    BOX_FORMATS,
-    FORMATS,
-    NO_BOXES,
-    Boxes,
-    ImageTruth,
-    read_detections,
-    read_truth,
-)
+from pdcov.detection.annotations import BOX_FORMATS, FORMATS, read_detections, read_truth
 from pdcov.detection.blur_sidecar import SpeedToBlur, read_blur_csv
 from pdcov.detection.looks_fit import LooksFit, collect_looks, fit_looks, found_within
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
@@ -54,6 +46,7 @@ from pdcov.detection.tracks import (
     read_tracked,
     tracked_format,
 )
+from pdcov.detection.truth_set import NO_BOXES, Boxes, ImageTruth
 from pdcov.errors import ConfigError, InputFileError
 
 DEFAULT_BINS = "quantile:20"
