@@ -22,7 +22,8 @@ from pdcov.bus.status import decode_status
 from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin
-from pdcov.ground.watcher import QueryMission, Watcher
+from pdcov.ground.queries import QueryMission
+from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import domain_layer, map_state
 
 

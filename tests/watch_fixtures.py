@@ -20,7 +20,8 @@ from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.config.load import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
-from pdcov.ground.watcher import QuerySnapshot, Watcher
+from pdcov.ground.queries import QuerySnapshot
+from pdcov.ground.watcher import Watcher
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east

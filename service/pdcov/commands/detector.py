@@ -32,24 +32,20 @@ from pdcov.commands.detector_tables import (
 )
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import BOX_FORMATS, FORMATS
+from pdcov.detection.bins import BIN_RULES, INTERVAL_METHODS, auto_bin_edges
 from pdcov.detection.blur_sidecar import SpeedToBlur
+from pdcov.detection.logistic import fit_logistic
 from pdcov.detection.looks_fit import collect_looks, fit_looks
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, MatchSettings
 from pdcov.detection.statistics import (
-    BIN_RULES,
     DEFAULT_CONFIDENCE_BINS,
-    INTERVAL_METHODS,
-    VALIDATION_TESTS,
-    ValidationReport,
-    auto_bin_edges,
     blur_bin_edges,
     fit_binned,
     fit_binned_blur,
     fit_confidence,
-    fit_logistic,
-    validate,
 )
 from pdcov.detection.tracks import TRACK_FORMATS
+from pdcov.detection.validation import VALIDATION_TESTS, ValidationReport, validate
 from pdcov.errors import ConfigError, InputFileError
 
 DEFAULT_BINS = "quantile:20"

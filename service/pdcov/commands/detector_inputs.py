@@ -13,7 +13,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from pdcov.detection.annotations import NO_BOXES, Boxes, ImageTruth, read_detections, read_truth
+from pdcov.detection.annotations import read_detections, read_truth
 from pdcov.detection.blur_sidecar import SpeedToBlur, read_blur_csv
 from pdcov.detection.matching import Matches, MatchSettings, match_images
 from pdcov.detection.tracks import (
@@ -23,6 +23,7 @@ from pdcov.detection.tracks import (
     read_tracked,
     tracked_format,
 )
+from pdcov.detection.truth_set import NO_BOXES, Boxes, ImageTruth
 from pdcov.errors import ConfigError, InputFileError
 
 

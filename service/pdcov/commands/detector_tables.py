@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.looks_fit import LooksFit, found_within
-from pdcov.detection.statistics import ValidationReport
+from pdcov.detection.validation import ValidationReport
 
 
 def format_model_table(model: DetectorModel) -> str:
