@@ -65,7 +65,8 @@ from pdcov.config import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection, valid_class_name
 from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
-from pdcov.core.grid import CoverageGrid, LastLook
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.last_look import LastLook
 from pdcov.core.looks import QUADRATURE, CorrelatedLooks
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface

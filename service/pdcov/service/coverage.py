@@ -26,7 +26,7 @@ most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
 frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
-whose grids ``grid.combine_cameras`` combines into the published one after every frame, as
+whose grids ``combine_cameras`` combines into the published one after every frame, as
 ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
 ``frame_schedule.FrameSchedule``, the ground altitude to
 ``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
@@ -43,8 +43,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.bus.grid_state import GridState
+from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
-from pdcov.core.grid import CoverageGrid, combine_cameras
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.service import status
 from pdcov.service.camera_frames import CameraFrames
@@ -137,7 +138,7 @@ class LiveCoverage:
         self._terrain_said = 0  # mismatches counted when the last warning was logged
         self._next_terrain_warning_s = -math.inf
         # One camera: its grid is the published one. A cameras list: each camera its own
-        # grid, the published one their combination (grid.combine_cameras, as evaluate).
+        # grid, the published one their combination (core.combine_cameras, as evaluate).
         several = bool(m.extra_cameras)
         if several and grid.looks_state is not None:
             raise ValueError("a cameras list publishes Mission.new_combined_grid()")
