@@ -179,8 +179,8 @@ class CoverageGrid:
 
     @property
     def base_detector(self) -> DetectorModel:
-        """The grid's own detector model (``update_with`` may evaluate a frame with
-        another)."""
+        """The grid's own detector model, as ``detector`` (``update_with`` may evaluate a
+        frame with another)."""
         return self._base.detector
 
     @property
