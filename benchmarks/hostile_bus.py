@@ -31,7 +31,7 @@ from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import LimitingFactor
+from pdcov.core.limiting import LimitingFactor
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
 

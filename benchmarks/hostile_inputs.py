@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 from link_feed import FIXED, MISSION, Hover, pack
 
+from pdcov.bus.faults import Fault
 from pdcov.bus.frames import encode_frames_v2
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, FrameBoxes
@@ -123,7 +124,7 @@ def flood_case(tmp: Path) -> Iterator[Case]:
     real = [c for c in tracker.candidates(core.coverage.grid) if c.class_name == "person"]
     yield ("10,000 invented classes, then a real person", "no candidate for the person",
            f"{len(tracker):,} candidates held, person's made: {bool(real)}, "
-           f"{tracker.skipped['candidates evicted']:,} stale evicted", bool(real))
+           f"{tracker.skipped[Fault.CANDIDATES_EVICTED]:,} stale evicted", bool(real))
 
 
 def model_case(tmp: Path) -> Iterator[Case]:

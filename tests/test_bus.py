@@ -36,7 +36,7 @@ from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
 from pdcov.config.load import load_mission
 from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import LimitingFactor
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.errors import ConfigError

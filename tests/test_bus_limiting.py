@@ -22,7 +22,8 @@ from pdcov.bus.tiles import (
     tile_grid_shape,
 )
 from pdcov.config.load import load_mission
-from pdcov.core.grid import CoverageGrid, LimitingFactor
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.ground.record import LIMITING_NOT_SENT, Recording

@@ -1,5 +1,5 @@
 """A mission of several cameras (``cameras``): the one rule that combines their grids
-(``grid.combine_cameras``: one latent per detector model), the config's checks of the
+(``core.combine_cameras``: one latent per detector model), the config's checks of the
 cameras' ids, gimbal devices and models, and ``pdcov serve`` following every camera: the
 daemon fed a two-camera flight's bytes gives ``pdcov evaluate``'s grids of its tlog."""
 
@@ -18,9 +18,10 @@ from link_feed import LinkFeed
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
+from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import CoverageGrid, combine_cameras
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig, LooksRule
 from pdcov.core.pose import CameraPose
 from pdcov.errors import ConfigError

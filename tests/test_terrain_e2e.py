@@ -30,7 +30,7 @@ from serve_harness import fly_udp, offline, same
 
 from pdcov.cli import main as pdcov_main
 from pdcov.config.load import load_mission
-from pdcov.core.grid import LimitingFactor
+from pdcov.core.limiting import LimitingFactor
 from pdcov.planning.plan_files import read_plan
 from pdcov_sitl.cli import main as sitl_main
 

@@ -10,7 +10,8 @@ import pytest
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
-from pdcov.core.grid import CoverageGrid, LimitingFactor
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -155,7 +156,7 @@ def test_too_far_marks_every_cell_in_view_beyond_the_range_whatever_was_marked_b
                             ((-6.0, 4.0, 8.0), -25.0, 200.0)]:
         p = pose(xyz, pitch, yaw)
         expected = grid.limiting.copy()
-        (r0, r1, c0, c1), _ = grid._window(p, 24.0)
+        (r0, r1, c0, c1), _ = grid._view.window(grid._base, p, 24.0)
         p_cam = (np.stack([X, Y, np.zeros_like(X)], axis=-1) - p.r_cam_enu) @ p.R_enu_cam
         sl = (slice(r0, r1), slice(c0, c1))
         pc = p_cam[sl].reshape(-1, 3)

@@ -119,7 +119,7 @@ def test_flat_pdcov_misjudges_the_valley(valley):
 
 
 def test_pdcov_with_the_dem_agrees_with_r3(valley):
-    from pdcov.core.grid import LimitingFactor  # the terrain kernel's (issue 21)
+    from pdcov.core.limiting import LimitingFactor  # the terrain kernel's (issue 21)
 
     site, poses, ref = valley
     grid = site.terrain_grid()

@@ -20,7 +20,8 @@ from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import CoverageGrid, default_max_range_m
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_camera import default_max_range_m
 from pdcov.core.pose import CameraPose
 from pdcov.core.zoom import (
     FovLens,

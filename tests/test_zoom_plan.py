@@ -263,7 +263,7 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
 
 HIGH_M = 200.0
 """From this high, people at the widest zoom are small enough in the picture that the range
-limit (core/grid.default_max_range_m) keeps each frame's ground small: zooming in reaches
+limit (core/grid_camera.default_max_range_m) keeps each frame's ground small: zooming in reaches
 farther."""
 
 

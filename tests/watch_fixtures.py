@@ -18,7 +18,7 @@ from pdcov.bus.sources import SourcedPublisher
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.config.load import load_mission
-from pdcov.core.grid import LimitingFactor
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.ground.queries import QuerySnapshot
 from pdcov.ground.watcher import Watcher

@@ -26,7 +26,9 @@ import numpy as np
 
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
-from pdcov.core.grid import READABLE_SNAPSHOT_VERSIONS, CoverageGrid, LimitingFactor
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_snapshot import READABLE_SNAPSHOT_VERSIONS
+from pdcov.core.limiting import LimitingFactor
 from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 

@@ -84,7 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
-    from pdcov.core.grid import combine_cameras
+    from pdcov.core.combine_cameras import combine_cameras
     from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
@@ -339,7 +339,7 @@ def run_compare(args: argparse.Namespace) -> int:
 def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.core.domain import GridGeometry
     from pdcov.core.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
-    from pdcov.core.grid import default_max_range_m
+    from pdcov.core.grid_camera import default_max_range_m
     from pdcov.core.pose import FixedMount, camera_pose, fixed_mount_pose
     from pdcov.core.rotations import R_from_euler_zyx, Rz
     from pdcov.report.plots import ray_count_figure

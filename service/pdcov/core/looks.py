@@ -39,7 +39,7 @@ from pdcov.core.detector import DetectorModel
 
 __all__ = ["QUADRATURE", "CorrelatedLooks", "LooksConfig", "LooksRule", "Quadrature",
            "ViewpointBins", "ViewpointLooks", "beta_shape", "detectability_quantile",
-           "log_miss_of_nodes", "pd_of_node_log_miss"]
+           "log_miss_of_nodes", "looks_state", "pd_of_node_log_miss", "same_looks_tables"]
 
 Window = tuple[int, int, int, int]  # r0, r1, c0, c1: rows r0:r1, columns c0:c1
 
@@ -345,3 +345,20 @@ class ViewpointLooks:
 
     def merge(self, other: ViewpointLooks) -> None:
         np.maximum(self.best, other.best, out=self.best)
+
+
+def looks_state(config: LooksConfig, shape: tuple[int, int], detector: DetectorModel
+                ) -> CorrelatedLooks | ViewpointLooks | None:
+    """The per-cell looks state a rule keeps (None: independent, the log-miss sums)."""
+    if config.rule is LooksRule.CORRELATED:
+        return CorrelatedLooks(shape, detector)
+    if config.rule is LooksRule.VIEWPOINT:
+        return ViewpointLooks(shape, detector, config.viewpoint)
+    return None
+
+
+def same_looks_tables(a: DetectorModel, b: DetectorModel) -> bool:
+    """Whether two detector models give a look in each bin the same meaning for the looks
+    state: the same P_D and correlation per bin."""
+    rho = [None if m.looks is None else m.looks.correlation for m in (a, b)]
+    return a.p_detect == b.p_detect and rho[0] == rho[1]

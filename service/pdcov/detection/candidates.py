@@ -62,11 +62,13 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.bus.faults import Fault
 from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection
 from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
-from pdcov.core.grid import CoverageGrid, LastLook
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.last_look import LastLook
 from pdcov.core.looks import CorrelatedLooks
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
@@ -102,13 +104,14 @@ CONFIRMED_HITS = 2
 
 
 class Skip:
-    """Why a box was not made a detection (counted in ``DetectionTracker.skipped``)."""
+    """Why a box was not made a detection (counted in ``DetectionTracker.skipped`` under its
+    fault key: the daemon adds them to the status's faults)."""
 
-    OFF_GROUND = "box off the ground"
+    OFF_GROUND = Fault.BOXES_OFF_GROUND
     """Its ray, or one of its +-1 sigma perturbations, does not meet the ground."""
-    TOO_MANY_CANDIDATES = "too many candidates"
+    TOO_MANY_CANDIDATES = Fault.BOXES_OVER_CANDIDATES
     """Its class's budget (or the table) is full of confirmed candidates."""
-    EVICTED = "candidates evicted"
+    EVICTED = Fault.CANDIDATES_EVICTED
     """Not a box: a stale unconfirmed candidate dropped to make room for a new one."""
 
 
@@ -151,7 +154,7 @@ class DetectionTracker:
         self._groups: dict[int, CandidateState] = {}  # by candidate id, in id order
         self._per_class: Counter[str] = Counter()
         self._next_id = 0
-        self.skipped: Counter[str] = Counter()
+        self.skipped: Counter[Fault] = Counter()
 
     @classmethod
     def for_mission(cls, mission: Mission, uid_prefix: str = "",

@@ -22,7 +22,8 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_polygon
-from pdcov.core.grid import CoverageGrid, default_max_range_m
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_camera import default_max_range_m
 from pdcov.core.looks import LooksConfig
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose, FixedMount

@@ -31,7 +31,8 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 
-from pdcov.core.grid import CoverageGrid, combined_pd
+from pdcov.core.combine_cameras import combined_pd
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of

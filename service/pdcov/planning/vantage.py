@@ -39,7 +39,7 @@ from scipy import sparse
 from shapely.geometry import MultiPolygon, Polygon
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.grid import LimitingFactor
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError
 from pdcov.planning.cover import Cover, CoverProblem, exact_cover, greedy_cover

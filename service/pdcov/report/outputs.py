@@ -25,7 +25,8 @@ from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.grid import CoverageGrid, LimitingFactor, Metrics
+from pdcov.core.grid import CoverageGrid, Metrics
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pdcov.bus.faults import Fault
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose, known_motion
@@ -109,7 +110,7 @@ class CameraFrames:
         """A tracked sample of the link (checked by LiveCoverage), kept until fed."""
         if len(self.waiting) >= MAX_WAITING_SAMPLES:
             self.waiting.popleft()
-            self.faults["samples_dropped_waiting"] += 1
+            self.faults[Fault.SAMPLES_DROPPED_WAITING] += 1
         self.waiting.append(sample)
 
     def set_params(self, params: dict[str, float], done: bool) -> None:
@@ -216,7 +217,7 @@ class CameraFrames:
         for reason in b.skip_reason[~valid]:
             self.skipped[str(reason)] += 1
         untrusted = valid & ~b.trusted
-        self.faults["frames_untrusted"] += int(untrusted.sum())
+        self.faults[Fault.FRAMES_UNTRUSTED] += int(untrusted.sum())
         if policy != "use":
             for reason in b.untrusted_reason[untrusted]:
                 self.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
@@ -245,5 +246,5 @@ class CameraFrames:
             unjudged += not judged
         self.used += added
         if unjudged and self.use_estimator:
-            self.faults["frames_without_estimator_status"] += unjudged
+            self.faults[Fault.FRAMES_WITHOUT_ESTIMATOR_STATUS] += unjudged
         return added

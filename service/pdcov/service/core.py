@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.faults import Fault, FaultFamily
 from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
@@ -270,8 +271,8 @@ class ServiceCore:
             frames = decode_frames(payload, self.keys.frames,
                                    (camera.width_px, camera.height_px), self.keys.vehicle_id)
         except BusPayloadError as exc:
-            faults["bad_frames_messages"] += 1
-            faults[f"frames_refused_{exc.reason.name.lower()}"] += 1
+            faults[Fault.BAD_FRAMES_MESSAGES] += 1
+            faults[FaultFamily.FRAMES_REFUSED.key(exc.reason)] += 1
             self._out.logs.append((logging.WARNING, str(exc)))
             return
         ms = []
@@ -281,15 +282,15 @@ class ServiceCore:
                 faults[FrameRefusal.UNKNOWN_CLASS.value] += unknown
             ms.append((boot_ms(f.t_boot_s), boxes))
         if any(v > MAX_BOOT_MS for v, _b in ms):
-            faults["frames_out_of_range"] += sum(v > MAX_BOOT_MS for v, _b in ms)
+            faults[Fault.FRAMES_OUT_OF_RANGE] += sum(v > MAX_BOOT_MS for v, _b in ms)
             ms = [(v, b) for v, b in ms if v <= MAX_BOOT_MS]
         if not self._clock_known:
             for v, boxes in ms:
                 if len(self._early_frames) >= EARLY_FRAMES:
                     self._early_boxes -= len(self._early_frames.popleft()[1])
-                    faults["frames_dropped_waiting"] += 1
+                    faults[Fault.FRAMES_DROPPED_WAITING] += 1
                 if self._early_boxes + len(boxes) > MAX_HELD_BOXES:
-                    faults["boxes_dropped_waiting"] += len(boxes)
+                    faults[Fault.BOXES_DROPPED_WAITING] += len(boxes)
                     boxes = ()
                 self._early_boxes += len(boxes)
                 self._early_frames.append((v, boxes))
@@ -314,15 +315,15 @@ class ServiceCore:
             refusal = refusal_of_time(t, proto.clock_now_s, history_s)
             if refusal is not None:  # frame_admission: outside the clock's window
                 faults[refusal.value] += 1
-                faults["boxes_of_frames_not_taken"] += len(boxes)
+                faults[Fault.BOXES_OF_FRAMES_NOT_TAKEN] += len(boxes)
             elif t in t_s:  # a duplicate within the message: the first is the one taken
-                live.counters.faults["boxes_of_frames_not_taken"] += len(boxes)
+                live.counters.faults[Fault.BOXES_OF_FRAMES_NOT_TAKEN] += len(boxes)
             else:
                 t_s[t] = (v, boxes)
         taken = live.add_frame_times(list(t_s))
         not_taken = sum(len(t_s[t][1]) for t in set(t_s) - set(taken))
         if not_taken:
-            live.counters.faults["boxes_of_frames_not_taken"] += not_taken
+            live.counters.faults[Fault.BOXES_OF_FRAMES_NOT_TAKEN] += not_taken
         record = self.record and proto.system_id is not None
         for t in taken:
             v, boxes = t_s[t]
@@ -428,7 +429,7 @@ class ServiceCore:
                                        f"after: {self._journal_error}"))
             self._journal_error = None
             return
-        self.coverage.counters.faults["candidates_journal_errors"] += 1
+        self.coverage.counters.faults[Fault.CANDIDATES_JOURNAL_ERRORS] += 1
         if self._journal_error is None:
             self._out.logs.append((logging.ERROR, (
                 f"candidates journal not written: {error}; the detections are published, "
@@ -490,7 +491,7 @@ class ServiceCore:
 
     def put_failed(self) -> None:
         """A Zenoh put failed (no peer, a closing session): counted."""
-        self.coverage.counters.faults["zenoh_put_errors"] += 1
+        self.coverage.counters.faults[Fault.ZENOH_PUT_ERRORS] += 1
 
     # --- actions out ----------------------------------------------------------------------
 
@@ -514,27 +515,27 @@ class ServiceCore:
         sd_notify), at ``now_s`` with what the shell's links say."""
         live, proto = self.coverage, self.protocol
         faults = live.counters.faults
-        faults["reboots"] = proto.reboots
+        faults[Fault.REBOOTS] = proto.reboots
         if proto.stats.bad:
-            faults["bad_messages"] = proto.stats.bad
-        faults["link_losses"] = report.losses
+            faults[Fault.BAD_MESSAGES] = proto.stats.bad
+        faults[Fault.LINK_LOSSES] = report.losses
         if report.parse_errors:
-            faults["link_parse_errors"] = report.parse_errors
+            faults[Fault.LINK_PARSE_ERRORS] = report.parse_errors
         drops = report.kernel_drops
         if drops > self._kernel_drops and now_s >= self._next_drops_warning_s:
             self._next_drops_warning_s = now_s + DROPS_WARNING_PERIOD_S
             self._out.logs.append((logging.WARNING, (
                 f"MAVLink: the kernel dropped {drops} datagrams so far: the daemon did not "
                 "read them in time (overloaded?)")))
-        self._kernel_drops = faults["kernel_drops"] = drops
-        faults["rejected_messages"] = sum(proto.stats.rejected.values())
-        faults["other_systems_messages"] = proto.stats.other_systems
-        faults["snapshot_queries_refused"] = sum(self.snapshot_limiter.refused.values())
-        faults["retask_refused"] = sum(self.retasker.refused.values())
+        self._kernel_drops = faults[Fault.KERNEL_DROPS] = drops
+        faults[Fault.REJECTED_MESSAGES] = sum(proto.stats.rejected.values())
+        faults[Fault.OTHER_SYSTEMS_MESSAGES] = proto.stats.other_systems
+        faults[Fault.SNAPSHOT_QUERIES_REFUSED] = sum(self.snapshot_limiter.refused.values())
+        faults[Fault.RETASK_REFUSED] = sum(self.retasker.refused.values())
         for reason, n in self.retasker.refused.items():
-            faults[f"retask_refused_{reason.name.lower()}"] = n
+            faults[FaultFamily.RETASK_REFUSED.key(reason)] = n
         if self.candidates_limiter.refused:
-            faults["candidates_queries_refused"] = sum(self.candidates_limiter.refused.values())
+            faults[Fault.CANDIDATES_QUERIES_REFUSED] = sum(self.candidates_limiter.refused.values())
         self.checkpoint.recording_error = report.recording_error
         fields = live.status_fields(uptime_s=round(now_s - self.started_s, 3),
                                     seq=self._status_seq, link=self.link_description(report),
@@ -567,7 +568,7 @@ class ServiceCore:
         ``error`` (computing and publishing go on; the next one is retried in a period)."""
         state, live = self.checkpoint, self.coverage
         if error is not None:
-            live.counters.faults["checkpoint_errors"] += 1
+            live.counters.faults[Fault.CHECKPOINT_ERRORS] += 1
             if state.error is None:
                 self._out.logs.append((logging.ERROR, (
                     "checkpoint not written (computing and publishing go on; retrying "

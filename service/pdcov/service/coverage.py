@@ -26,7 +26,7 @@ most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
 frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
-whose grids ``grid.combine_cameras`` combines into the published one after every frame, as
+whose grids ``combine_cameras`` combines into the published one after every frame, as
 ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
 ``frame_schedule.FrameSchedule``, the ground altitude to
 ``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
@@ -42,9 +42,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pdcov.bus.faults import Fault
 from pdcov.bus.grid_state import GridState
+from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
-from pdcov.core.grid import CoverageGrid, combine_cameras
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.service import status
 from pdcov.service.camera_frames import CameraFrames
@@ -137,7 +139,7 @@ class LiveCoverage:
         self._terrain_said = 0  # mismatches counted when the last warning was logged
         self._next_terrain_warning_s = -math.inf
         # One camera: its grid is the published one. A cameras list: each camera its own
-        # grid, the published one their combination (grid.combine_cameras, as evaluate).
+        # grid, the published one their combination (core.combine_cameras, as evaluate).
         several = bool(m.extra_cameras)
         if several and grid.looks_state is not None:
             raise ValueError("a cameras list publishes Mission.new_combined_grid()")
@@ -180,12 +182,12 @@ class LiveCoverage:
             if check.home_refused is not None and not self.primary.dem_refused:
                 self._refuse_dem(check)
         if not math.isfinite(sample.t_s):
-            self.counters.faults["untimed_samples"] += 1
+            self.counters.faults[Fault.UNTIMED_SAMPLES] += 1
             return
         if isinstance(sample, HomeSample):
             if not (math.isfinite(sample.alt_msl_m) and abs(sample.lat_deg) <= 90
                     and abs(sample.lon_deg) <= 180):
-                self.counters.faults["invalid_samples"] += 1
+                self.counters.faults[Fault.INVALID_SAMPLES] += 1
                 return
             self._ground.add_home(sample)
             return
@@ -198,28 +200,28 @@ class LiveCoverage:
             return
         if isinstance(sample, AttitudeSample) and not usable_quaternion(
                 sample.q_ned_body_wxyz):
-            self.counters.faults["nan_samples"] += 1
+            self.counters.faults[Fault.NAN_SAMPLES] += 1
             return
         if isinstance(sample, PositionSample):
             if not (math.isfinite(sample.lat_deg) and math.isfinite(sample.lon_deg)
                     and math.isfinite(sample.alt_msl_m)):
-                self.counters.faults["nan_samples"] += 1
+                self.counters.faults[Fault.NAN_SAMPLES] += 1
                 return
             if abs(sample.lat_deg) > 90 or abs(sample.lon_deg) > 180:
-                self.counters.faults["invalid_samples"] += 1
+                self.counters.faults[Fault.INVALID_SAMPLES] += 1
                 return
             self._ground.add_position(sample)
             last = self._last_position
             if last is not None and position_jump(last, sample):
-                self.counters.faults["position_jumps"] += 1
+                self.counters.faults[Fault.POSITION_JUMPS] += 1
             if last is None or sample.t_s > last.t_s:
                 self._last_position = sample
         if isinstance(sample, GimbalSample):
             if sample.failure_flags:
-                self.counters.faults["gimbal_failure_reports"] += 1
+                self.counters.faults[Fault.GIMBAL_FAILURES] += 1
             norm = math.sqrt(sum(v * v for v in sample.q_wxyz))
             if not (math.isfinite(norm) and norm > 0.5):
-                self.counters.faults["nan_samples"] += 1
+                self.counters.faults[Fault.NAN_SAMPLES] += 1
                 return
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
@@ -228,7 +230,7 @@ class LiveCoverage:
             # a report of a camera none follows is counted, not used.
             follower = self._zoom_followers.get(sample.camera_id)
             if follower is None:
-                self.counters.faults["zoom_reports_other_camera"] += 1
+                self.counters.faults[Fault.ZOOM_REPORTS_OTHER_CAMERA] += 1
             else:
                 follower.add(sample)
             return
@@ -242,7 +244,7 @@ class LiveCoverage:
         from now on (the frames skipped as HOME_OFF_DEM), the log and the pilot are told."""
         for cam in self.cameras:
             cam.dem_refused = True
-        self.counters.faults["home_off_dem"] += 1
+        self.counters.faults[Fault.HOME_OFF_DEM] += 1
         self._note = check.home_refusal()
         refused = check.home_refused
         if refused is not None and self.cfg.service.statustext:
@@ -354,10 +356,10 @@ class LiveCoverage:
         added = sum(cam.process() for cam in self.cameras)
         other = self.primary.zoom_reports_other_camera
         if other and len(self.cameras) == 1:  # a cameras list counts them in add_sample
-            self.counters.faults["zoom_reports_other_camera"] = other
+            self.counters.faults[Fault.ZOOM_REPORTS_OTHER_CAMERA] = other
         self.state.frames = self.grid.frames
         self.counters.used += added
-        if (self.counters.faults["frames_without_estimator_status"]
+        if (self.counters.faults[Fault.FRAMES_WITHOUT_ESTIMATOR_STATUS]
                 and not self._estimator_seen and not self._noted_no_estimator):
             self._noted_no_estimator = True
             self._note = ("no estimator status (EKF_STATUS_REPORT / ESTIMATOR_STATUS) on "

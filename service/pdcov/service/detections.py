@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from pdcov.bus.detections import MAX_DETECTIONS, detections_document, encode_detections
+from pdcov.bus.faults import Fault
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection
 from pdcov.core.geodesy import Origin
@@ -79,7 +80,7 @@ class LiveDetections:
             oldest = min(self._held)
             dropped = len(self._held.pop(oldest)[1])
             self._n_held -= dropped
-            self.faults["boxes_dropped_waiting"] += dropped
+            self.faults[Fault.BOXES_DROPPED_WAITING] += dropped
 
     def frame(self, pose: CameraPose, camera: CameraModel | None = None,
               accuracy: PositionAccuracy | None = None, *, grid: CoverageGrid) -> None:
@@ -102,7 +103,7 @@ class LiveDetections:
         for t in [t for t in self._held if t <= last_frame_t_s]:
             n = len(self._held.pop(t)[1])
             self._n_held -= n
-            self.faults["boxes_of_skipped_frames"] += n
+            self.faults[Fault.BOXES_OF_SKIPPED_FRAMES] += n
 
     def poll(self, now_s: float, origin: Origin | None, force: bool = False
              ) -> Publication | None:

@@ -16,6 +16,7 @@ import enum
 import math
 from collections.abc import Collection
 
+from pdcov.bus.faults import Fault
 from pdcov.core.detections import Box
 from pdcov.core.detector import DetectorModel
 
@@ -27,12 +28,12 @@ FUTURE_TOLERANCE_S = 2.0
 stamp is read off the same clock, and telemetry arrives some 100 ms late at most."""
 
 
-class FrameRefusal(str, enum.Enum):
-    """Why a detector frame or box was refused: its fault key in the status."""
+class FrameRefusal(enum.Enum):
+    """Why a detector frame or box was refused; the value is its fault in the status."""
 
-    TOO_OLD = "frames_refused_too_old"
-    AHEAD = "frames_refused_ahead_of_clock"
-    UNKNOWN_CLASS = "boxes_refused_unknown_class"
+    TOO_OLD = Fault.FRAMES_REFUSED_TOO_OLD
+    AHEAD = Fault.FRAMES_REFUSED_AHEAD_OF_CLOCK
+    UNKNOWN_CLASS = Fault.BOXES_REFUSED_UNKNOWN_CLASS
 
 
 def refusal_of_time(t_s: float, clock_now_s: float, history_s: float) -> FrameRefusal | None:

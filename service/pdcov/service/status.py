@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.bus.detections import LIKELY_P_PERSON, P_PERSON_DIGITS
+from pdcov.bus.faults import Fault
 from pdcov.core.detections import Candidate
 from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.geodesy import enu_to_geodetic
@@ -89,13 +90,13 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
               {"mount": "gimbal", "interpretation": interp.frame if interp else None,
                "describe": interp.describe() if interp else "waiting for the mount "
                                                             "parameters"})
-    faults = dict(live.counters.faults)
+    faults = {str(k): n for k, n in live.counters.faults.items()}  # Fault: its key
     by_camera = ({} if len(live.cameras) == 1 else  # a cameras list: each one's frames
                  {"by_camera": {cam.cam.name: cam.used for cam in live.cameras}})
     check = live.terrain_check
     terrain: dict[str, Any] = {}
     if check is not None:  # only with a DEM: the statuses of a flat mission are unchanged
-        faults["terrain_mismatch"] = check.mismatches
+        faults[Fault.TERRAIN_MISMATCH.value] = check.mismatches
         terrain = {"terrain_check": check.as_dict()}
     return {
         "vehicle_id": m.vehicle_id, "seq": seq, "uptime_s": uptime_s,

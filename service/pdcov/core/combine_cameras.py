@@ -1,0 +1,103 @@
+"""The coverage grids of one mission's cameras combined: one person seen by all of them."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.looks import CorrelatedLooks, ViewpointLooks, same_looks_tables
+
+
+def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
+                    window: tuple[int, int, int, int] | None = None) -> None:
+    """Set the cells of ``window`` (r0, r1, c0, c1; None: the whole grid) of ``into`` (a
+    grid of independent looks, over the same cells) to the looks of ``grids`` together: the
+    grids of one mission's cameras, one person seen by all of them. The one rule both
+    drivers use (``pdcov evaluate`` once, the daemon per frame on its window).
+
+    Each detector model has its own latent: the cameras of the same model (the same P_D
+    and correlation per bin) are one sensor, their looks state merged (correlated: counts
+    added; viewpoint: the best look per bin), so two cameras give the grid of one camera
+    with all their frames; cameras of different models are independent of each other, their
+    log-misses add, P_D = 1 - prod over models of P_miss. With independent looks every
+    camera's log-miss adds. P_FA and the observation counts add; the limiting factor is the
+    best (over the whole grid, whatever the window); the frame counts are the sums
+    (``min_revisit_s`` applies per camera, in its own grid)."""
+    if into.looks_state is not None:
+        raise ValueError("combine_cameras writes derived log-misses: into must be a grid of "
+                         "independent looks")
+    g = into.geometry
+    r0, r1, c0, c1 = window or (0, g.n_rows, 0, g.n_cols)
+    cells = np.s_[r0:r1, c0:c1]
+    for grid in grids:  # the masks compared once, when the whole grid is combined
+        if grid.geometry != g or (window is None and not np.array_equal(grid.mask,
+                                                                         into.mask)):
+            raise ValueError("cannot combine grids of different geometry or free-space mask")
+    into.log_miss_d[cells] = _combined_log_miss(grids, (r0, r1, c0, c1))
+    into.log_miss_fa[cells] = 0.0
+    into.n_obs[cells] = 0
+    # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
+    # outside its window (``GridView.mark_too_far``).
+    np.maximum.reduce([grid.limiting for grid in grids], out=into.limiting)
+    for grid in grids:
+        into.log_miss_fa[cells] += grid.log_miss_fa[cells]
+        into.n_obs[cells] += grid.n_obs[cells]
+        if into.last_obs_s is not None and grid.last_obs_s is not None:
+            np.maximum(into.last_obs_s[cells], grid.last_obs_s[cells],
+                       out=into.last_obs_s[cells])
+            into.latest_frame_t_s = max(into.latest_frame_t_s, grid.latest_frame_t_s)
+    into.frames = sum(grid.frames for grid in grids)
+    into.frames_blurred = sum(grid.frames_blurred for grid in grids)
+
+
+def combined_pd(grids: Sequence[CoverageGrid]) -> np.ndarray:
+    """P_D per cell (float64) of one person seen in all of ``grids`` (the same cells),
+    by ``combine_cameras``'s rule, none of them changed: the grids of one looks rule and
+    detector model as one sensor (two flights of a mission: their counts add, as ``merge``
+    adds them), the others independent."""
+    g = grids[0].geometry
+    if any(grid.geometry != g or not np.array_equal(grid.mask, grids[0].mask)
+           for grid in grids):
+        raise ValueError("cannot combine grids of different geometry or free-space mask")
+    L = _combined_log_miss(grids, (0, g.n_rows, 0, g.n_cols))
+    return 0.0 - np.expm1(L.astype(np.float64))
+
+
+def _combined_log_miss(grids: Sequence[CoverageGrid], window: tuple[int, int, int, int]
+                       ) -> np.ndarray:
+    """log(1 - P_D) (float32) over ``window`` of ``grids`` together (``combine_cameras``)."""
+    r0, r1, c0, c1 = window
+    cells = np.s_[r0:r1, c0:c1]
+    log_miss_d = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+    for group in _detector_groups(grids):
+        looks = [grid.looks_state for grid in group]
+        first = looks[0]
+        if len(group) == 1 or first is None:
+            for grid in group:
+                log_miss_d += grid.log_miss_d[cells]
+            continue
+        if isinstance(first, CorrelatedLooks):
+            state = sum(s.counts[cells] for s in looks if isinstance(s, CorrelatedLooks))
+        else:
+            state = np.maximum.reduce([s.best[cells] for s in looks
+                                       if isinstance(s, ViewpointLooks)])
+        flat = np.asarray(state).reshape(-1, np.shape(state)[-1])
+        log_miss_d += first.log_miss_of(flat).reshape(r1 - r0, c1 - c0).astype(np.float32)
+    return log_miss_d
+
+
+def _detector_groups(grids: Sequence[CoverageGrid]) -> list[list[CoverageGrid]]:
+    """The grids by detector model (``same_looks_tables``), in order of first appearance;
+    with independent looks each grid alone (their log-misses add either way)."""
+    groups: list[list[CoverageGrid]] = []
+    for grid in grids:
+        same = next((grp for grp in groups if grid.looks_state is not None
+                     and grp[0].looks == grid.looks
+                     and same_looks_tables(grp[0].base_detector, grid.base_detector)), None)
+        if same is None:
+            groups.append([grid])
+        else:
+            same.append(grid)
+    return groups

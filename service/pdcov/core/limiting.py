@@ -1,0 +1,27 @@
+"""What limited a cell's P_D: the best that any frame of a coverage grid did for it."""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+
+class LimitingFactor(enum.IntEnum):
+    """What limited a cell's P_D: the best that any frame did for it (the largest code over
+    its frames, so grids merge by the maximum). A cell in the picture is 'in view'."""
+
+    NEVER_IN_VIEW = 0  # no frame had its centre in the picture
+    TOO_FAR = 1  # in view only beyond the maximum slant range
+    HIDDEN = 2  # in view within range, but terrain hid it (or it faced away from the camera)
+    TOO_SMALL = 3  # seen, but always smaller than the detector model's smallest size bin
+    TOO_LARGE = 4  # seen, but only larger than its largest bin
+    SEEN = 5  # seen at a size the detector model covers
+
+
+def limiting_counts(limiting: np.ndarray, mask: np.ndarray) -> dict[str, int]:
+    """Cells of ``mask`` per LimitingFactor code of ``limiting``, by lower-case name, in
+    code order."""
+    counts = np.bincount(limiting[mask], minlength=len(LimitingFactor))
+    return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
+
