@@ -25,10 +25,10 @@ from pdcov.service.core import (
     link_requests,
     link_state,
 )
-from pdcov.service.link_protocol import LinkState
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import FrameLattice
 from pdcov.telemetry.gimbal import mount_params_complete, resolve_interpretation
+from pdcov.telemetry.link_protocol import LinkState
 from pdcov.telemetry.recorded_frames import MARK, recorded_mark
 
 

@@ -55,7 +55,12 @@ from pdcov.service.frame_admission import (
     refusal_of_time,
     split_by_class,
 )
-from pdcov.service.link_protocol import (
+from pdcov.service.query_limit import QueryLimiter
+from pdcov.service.retask import Retasker, RetaskPolicy
+from pdcov.service.retask_auth import NonceBook, RetaskAuthority
+from pdcov.telemetry.frame_policy import FrameSource
+from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
+from pdcov.telemetry.link_protocol import (
     ATTITUDE,
     GIMBAL_DEVICE_ATTITUDE_STATUS,
     GLOBAL_POSITION_INT,
@@ -65,11 +70,6 @@ from pdcov.service.link_protocol import (
     LinkProtocol,
     LinkState,
 )
-from pdcov.service.query_limit import QueryLimiter
-from pdcov.service.retask import Retasker, RetaskPolicy
-from pdcov.service.retask_auth import NonceBook, RetaskAuthority
-from pdcov.telemetry.frame_policy import FrameSource
-from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
 from pdcov.telemetry.samples import CaptureSample
 

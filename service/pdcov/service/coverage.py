@@ -25,11 +25,11 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
-frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
+frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
 whose grids ``grid.combine_cameras`` combines into the published one after every frame, as
 ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
-``frame_schedule.FrameSchedule``, the ground altitude to
-``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
+``flight.frame_schedule.FrameSchedule``, the ground altitude to
+``ground_altitude.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
 """
 
@@ -46,12 +46,12 @@ from pdcov.bus.grid_state import GridState
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid, combine_cameras
 from pdcov.core.pose import CameraPose
+from pdcov.flight.camera_frames import CameraFrames
+from pdcov.flight.frame_schedule import FrameSchedule
+from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service import status
-from pdcov.service.camera_frames import CameraFrames
 from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
-from pdcov.service.frame_schedule import FrameSchedule
-from pdcov.service.origin import GroundAltitude
 from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
 from pdcov.telemetry.frame_policy import FrameLattice, FrameSource
@@ -336,7 +336,7 @@ class LiveCoverage:
 
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting
-        (origin.GroundAltitude)."""
+        (ground_altitude.GroundAltitude)."""
         w = self.primary.waiting
         return self._ground.ground_alt(w[-1].t_s if w else -math.inf)
 

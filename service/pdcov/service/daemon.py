@@ -54,13 +54,13 @@ from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState
 from pdcov.service.core import Actions, LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
-from pdcov.service.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.retask_auth import NonceBook
 from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.frame_policy import FrameSource
+from pdcov.telemetry.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05

@@ -19,7 +19,7 @@ import numpy as np
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose, known_motion
-from pdcov.service.frame_schedule import FrameSchedule
+from pdcov.flight.frame_schedule import FrameSchedule
 from pdcov.telemetry.frame_policy import (
     UNTRUSTED_PREFIX,
     FrameSource,
