@@ -56,7 +56,8 @@ from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
 from pdcov.telemetry.frame_policy import FrameLattice, FrameSource
 from pdcov.telemetry.gimbal import GimbalInterpretation
-from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
+from pdcov.telemetry.pose_tracker import PoseTracker
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -68,7 +69,6 @@ from pdcov.telemetry.samples import (
     LensSample,
     PositionSample,
     Sample,
-    usable_quaternion,
 )
 from pdcov.telemetry.terrain_check import TerrainCheck, terrain_check_for
 
@@ -128,7 +128,7 @@ class LiveCoverage:
         self.origin_how = ""
         self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
                                       m.ground_alt_how)
-        self._last_position: PositionSample | None = None
+        self.gate = SampleGate(self.counters.faults)
         self._estimator_seen = False  # an estimator status came over the link
         self._note: str | None = None  # said once by poll (Due.note)
         self._noted_no_estimator = False
@@ -179,14 +179,9 @@ class LiveCoverage:
             check.add(sample)
             if check.home_refused is not None and not self.primary.dem_refused:
                 self._refuse_dem(check)
-        if not math.isfinite(sample.t_s):
-            self.counters.faults["untimed_samples"] += 1
+        if not self.gate.admit(sample):  # sample_gate: the tlog reader's rule too
             return
         if isinstance(sample, HomeSample):
-            if not (math.isfinite(sample.alt_msl_m) and abs(sample.lat_deg) <= 90
-                    and abs(sample.lon_deg) <= 180):
-                self.counters.faults["invalid_samples"] += 1
-                return
             self._ground.add_home(sample)
             return
         if isinstance(sample, HeartbeatSample):
@@ -196,31 +191,8 @@ class LiveCoverage:
             if self.frame_source == FrameSource.CAPTURE:
                 self.add_frame_times([sample.t_s])
             return
-        if isinstance(sample, AttitudeSample) and not usable_quaternion(
-                sample.q_ned_body_wxyz):
-            self.counters.faults["nan_samples"] += 1
-            return
         if isinstance(sample, PositionSample):
-            if not (math.isfinite(sample.lat_deg) and math.isfinite(sample.lon_deg)
-                    and math.isfinite(sample.alt_msl_m)):
-                self.counters.faults["nan_samples"] += 1
-                return
-            if abs(sample.lat_deg) > 90 or abs(sample.lon_deg) > 180:
-                self.counters.faults["invalid_samples"] += 1
-                return
             self._ground.add_position(sample)
-            last = self._last_position
-            if last is not None and position_jump(last, sample):
-                self.counters.faults["position_jumps"] += 1
-            if last is None or sample.t_s > last.t_s:
-                self._last_position = sample
-        if isinstance(sample, GimbalSample):
-            if sample.failure_flags:
-                self.counters.faults["gimbal_failure_reports"] += 1
-            norm = math.sqrt(sum(v * v for v in sample.q_wxyz))
-            if not (math.isfinite(norm) and norm > 0.5):
-                self.counters.faults["nan_samples"] += 1
-                return
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
         if isinstance(sample, LensSample) and len(self.cameras) > 1:

@@ -2,6 +2,8 @@
 
 ``LinkProtocol`` is fed every decoded message (``receive``) and the time (``poll``); it
 returns the telemetry samples (stamped in the autopilot's clock, s) and the messages to send.
+The daemon feeds it its links; the .tlog reader (telemetry/logs/tlog.py) replays a log's
+messages through it, so that a log gives the samples the link gave.
 It: follows one autopilot (the configured system id, else the first HEARTBEAT of a real
 autopilot); identifies as that system's component 191 (MAV_COMP_ID_ONBOARD_COMPUTER) --
 never system 255, which ArduPilot takes for its ground station (its HEARTBEAT would mask the
@@ -160,7 +162,17 @@ class LinkProtocol:
 
     @property
     def reboots(self) -> int:
-        return len(self._clock.autopilot.restarts_t_s) if self._clock else 0
+        return len(self.restarts_t_s)
+
+    @property
+    def restarts_t_s(self) -> tuple[float, ...]:
+        """The autopilot clock's times (s) at which its boot clock restarted (reboots)."""
+        return tuple(self._clock.autopilot.restarts_t_s) if self._clock else ()
+
+    def follow(self, system_id: int, autopilot_component: int) -> None:
+        """Follow this vehicle without waiting for its autopilot's HEARTBEAT: a log that
+        recorded none (the .tlog reader names the vehicle, telemetry/logs/choose.py)."""
+        self.system_id, self.autopilot_component = system_id, autopilot_component
 
     def from_autopilot(self, msg: Any) -> bool:
         """Whether ``msg`` (received) is the followed autopilot's own: its system and

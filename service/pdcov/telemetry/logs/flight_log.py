@@ -52,7 +52,9 @@ class FlightLog:
     capture events. lens: the cameras' zoom reports (CAMERA_FOV_STATUS, CAMERA_SETTINGS,
     CAMERA_INFORMATION; a tlog's only), in log order. gnss_accuracy: the accuracy the
     autopilot's GNSS receiver reported (GPS_RAW_INT, GPA, vehicle_gps_position; empty when
-    the log carries none).
+    the log carries none). faults: the bad messages and samples counted while reading, by
+    the daemon's fault keys (a tlog's: telemetry/sample_gate.py, rejected_messages,
+    other_systems_messages; only those counted).
     """
 
     path: str
@@ -78,6 +80,7 @@ class FlightLog:
     lens: tuple[LensSample, ...] = ()
     gnss_accuracy: GnssAccuracySeries = field(
         default_factory=lambda: GnssAccuracySeries.from_samples([]))
+    faults: Mapping[str, int] = field(default_factory=dict)
 
 
 
