@@ -49,11 +49,13 @@ from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
 from pdcov.ids import EPOCH_RULE, new_epoch, valid_epoch
+from pdcov.service.actions import Actions
 from pdcov.service.candidate_store import JOURNAL_NAME, MAX_JOURNAL_BYTES
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState
-from pdcov.service.core import Actions, LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
 from pdcov.service.coverage import LiveCoverage
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.retask_auth import NonceBook
