@@ -7,10 +7,12 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.gimbal import preferred_gimbal_source
+from pdcov.telemetry.logs.flight_log import FlightLog
 from pdcov.telemetry.samples import GimbalSample
 from pdcov.telemetry.series import GimbalSeries
 
@@ -57,3 +59,12 @@ def choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int
         note = (f"gimbal status from {sorted(flags_seen)} (system, component, device id); "
                 f"following {source}")
     return GimbalSeries.from_samples(chosen), source, note
+
+
+def for_gimbal(log: FlightLog, instance: int) -> FlightLog:
+    """``log`` following the gimbal device ``instance`` (a camera's mount.instance) among its
+    gimbal reports, by the rule it was read with (``choose_gimbal``): each camera of a
+    mission from one reading of the log."""
+    gimbal, source, _note = choose_gimbal(list(log.gimbal_reports), log.autopilot_component,
+                                          instance)
+    return replace(log, gimbal=gimbal, gimbal_source=source)

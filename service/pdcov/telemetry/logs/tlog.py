@@ -97,9 +97,11 @@ class _Vehicle:
             self.component_samples[comp] += 1
             if not math.isfinite(smp.t_s):
                 self.component_untimed[comp] += 1
-            if not self.gate.admit(smp):
-                continue
             kind = type(smp)
+            # A home refused stays in the log: the terrain check takes every sample before
+            # the gate, live too (a home needs no autopilot time).
+            if not self.gate.admit(smp) and kind is not HomeSample:
+                continue
             self.samples[kind].append(smp)
             if kind is CaptureSample:
                 self.capture_index.append(index)
@@ -234,7 +236,8 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         tuple(smp[TerrainReportSample]), tuple(smp[RangefinderSample]),
         tuple(frame_boxes), tuple(sorted(smp[LensSample], key=lambda s: s.t_s)),
         GnssAccuracySeries.from_samples(smp[GnssAccuracySample]),
-        {k: n for k, n in sorted(faults.items()) if n}), -proto.clock_state()[0])
+        {k: n for k, n in sorted(faults.items()) if n}, tuple(v.samples[GimbalSample]),
+        ap_comp), -proto.clock_state()[0])
 
 
 def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:
