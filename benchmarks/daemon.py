@@ -41,7 +41,7 @@ from shapely.geometry import box
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import AltitudeFrame
 from pdcov.planning.patterns import lawnmower

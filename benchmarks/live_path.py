@@ -46,7 +46,7 @@ import numpy as np
 import yaml
 from shapely.geometry import box
 
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.planning.patterns import lawnmower

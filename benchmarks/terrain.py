@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 

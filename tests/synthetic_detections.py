@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pdcov.detection.annotations import Boxes, ImageTruth
+from pdcov.detection.truth_set import Boxes, ImageTruth
 
 EDGES = (8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0)  # detector-input px
 P_D = (0.2, 0.45, 0.6, 0.75, 0.85, 0.7, 0.5)

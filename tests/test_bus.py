@@ -33,7 +33,7 @@ from pdcov.bus.session import (
 )
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
 from pdcov.core.grid import LimitingFactor

@@ -21,7 +21,7 @@ from pdcov.bus.tiles import (
     encode_tiles,
     tile_grid_shape,
 )
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid, LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx

@@ -19,10 +19,11 @@ from pdcov.bus.grid_state import decode_snapshot, grid_hash
 from pdcov.bus.keys import VehicleKeys, parse_key
 from pdcov.bus.mission import MAX_VERTICES, decode_mission, encode_mission
 from pdcov.bus.status import decode_status
-from pdcov.config import load_mission, mission_from_dict
+from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin
-from pdcov.ground.watcher import QueryMission, Watcher
+from pdcov.ground.queries import QueryMission
+from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import domain_layer, map_state
 
 

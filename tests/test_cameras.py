@@ -16,7 +16,7 @@ from evaluate_inputs import load_grid, run
 from link_feed import LinkFeed
 
 from pdcov.bus.status import decode_status, encode_status
-from pdcov.config import load_mission, mission_from_dict
+from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry

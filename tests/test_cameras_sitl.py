@@ -17,7 +17,7 @@ from evaluate_inputs import load_grid, run
 from link_feed import LAT_DEG, LON_DEG, feed_tlog
 from serve_harness import fly_udp, offline, same
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.npz_file import read_zip_member
 from pdcov.service.checkpoint import CHECKPOINT_NAME, camera_member

@@ -19,7 +19,7 @@ from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames_v2
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, FrameBoxes
 from pdcov.core.geolocate import Geolocation

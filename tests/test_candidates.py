@@ -20,7 +20,8 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig, LooksRule
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
-from pdcov.detection.candidates import GATE_FLOOR_M, DetectionTracker
+from pdcov.detection.association import GATE_FLOOR_M
+from pdcov.detection.candidates import DetectionTracker
 
 F_PX = 500.0
 CAMERA = CameraModel(640, 480, np.array([[F_PX, 0, 319.5], [0, F_PX, 239.5], [0, 0, 1]]))

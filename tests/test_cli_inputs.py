@@ -10,7 +10,7 @@ import pytest
 
 from pdcov import cli
 from pdcov.commands.plan import check_plan_size, scenario_of
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.errors import ConfigError, DomainError
 
 DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"

@@ -19,7 +19,7 @@ from evaluate_inputs import (
     write_pose_csv,
 )
 
-from pdcov.config import load_mission, mission_from_dict
+from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.mount import GimbalMount

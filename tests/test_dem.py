@@ -17,7 +17,7 @@ from evaluate_inputs import known_flight, mission_doc, run, write_config
 from mavlink_fixtures import samples_from_flight, write_tlog
 
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.core.dem import Dem, terrain_surface
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu

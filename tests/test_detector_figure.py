@@ -8,7 +8,7 @@ import pytest
 
 from pdcov.core.detector import BinCounts, DetectorModel
 from pdcov.detection.figures import detector_figure, plot_detector_model
-from pdcov.detection.statistics import BinTest, RateTest, ValidationReport
+from pdcov.detection.validation import BinTest, RateTest, ValidationReport
 
 pytestmark = pytest.mark.e2e
 

@@ -17,7 +17,9 @@ from scipy import special, stats
 from synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set, write_coco
 
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.annotations import Boxes, ImageTruth, read_detections, read_truth
+from pdcov.detection.annotations import read_detections, read_truth
+from pdcov.detection.bins import auto_bin_edges, count_in_bins, proportion_ci
+from pdcov.detection.logistic import fit_logistic, fit_logistic_curve
 from pdcov.detection.matching import (
     DetectionStatus,
     MatchSettings,
@@ -26,17 +28,9 @@ from pdcov.detection.matching import (
     match_image,
     match_images,
 )
-from pdcov.detection.statistics import (
-    ValidationReport,
-    auto_bin_edges,
-    count_in_bins,
-    fit_binned,
-    fit_confidence,
-    fit_logistic,
-    fit_logistic_curve,
-    proportion_ci,
-    validate,
-)
+from pdcov.detection.statistics import fit_binned, fit_confidence
+from pdcov.detection.truth_set import Boxes, ImageTruth
+from pdcov.detection.validation import ValidationReport, validate
 from pdcov.errors import ConfigError, DetectorModelError
 
 
@@ -576,7 +570,7 @@ def _set_pairs(seed, p_fa):
 
 
 def test_false_box_rate_test_by_hand_and_where_it_is_not_comparable(fitted_synthetic):
-    from pdcov.detection.statistics import _poisson_test
+    from pdcov.detection.validation import _poisson_test
 
     # 7 boxes where 3 are expected: P(X >= 7) = 0.0335, doubled; 0 where 3: 2 e^-3.
     assert _poisson_test(7, 3.0) == pytest.approx(2 * (1 - stats.poisson.cdf(6, 3.0)))

@@ -35,7 +35,7 @@ from serve_harness import serve_config as write_config
 from ulog_fixture import write_ulog
 
 from benchmarks.harness import small_mission
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.core.pose import FixedMount
 from pdcov.errors import ConfigError
 from pdcov.service.coverage import Due

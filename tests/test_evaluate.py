@@ -25,7 +25,7 @@ from evaluate_inputs import (
 )
 from mavlink_fixtures import samples_from_flight, write_tlog
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.pose import (
     GIMBAL_FLAG_YAW_IN_EARTH_FRAME,
     GIMBAL_FLAG_YAW_IN_VEHICLE_FRAME,

@@ -15,9 +15,10 @@ from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
-from pdcov.detection.annotations import Boxes, ImageTruth
+from pdcov.detection.bins import false_box_rate
 from pdcov.detection.matching import MatchSettings, match_images
-from pdcov.detection.statistics import false_box_rate, fit_binned
+from pdcov.detection.statistics import fit_binned
+from pdcov.detection.truth_set import Boxes, ImageTruth
 from pdcov.errors import DetectorModelError
 
 EDGES = (8.0, 16.0, 32.0, 64.0)  # detector-input px

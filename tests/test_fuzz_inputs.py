@@ -27,7 +27,7 @@ from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles
-from pdcov.config import load_mission, mission_from_dict
+from pdcov.config.load import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.geodesy import Origin

@@ -124,7 +124,7 @@ def test_grouping_joins_within_the_gate_and_weights_by_variance():
                                box_at(319.5 + 0.5 * px_per_m, 239.5),  # 0.5 m: a new one
                                box_at(319.5, 239.5, cls="truck")])  # another class
     assert [d.candidate_id for d in a + b] == [0, 0, 1, 2]
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     grid = load_mission(Path(__file__).resolve().parents[1]
                         / "service/pdcov/data/demo_mission.yaml").new_grid()
     c0 = t.candidates(grid)[0]

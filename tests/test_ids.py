@@ -11,7 +11,7 @@ from evaluate_inputs import mission_doc
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.errors import ConfigError
 from pdcov.ids import MAX_VEHICLE_ID_CHARS, SYSTEM_IDS, valid_system_id, valid_vehicle_id
 from pdcov.service.settings import LinkConfig

@@ -6,7 +6,7 @@ from __future__ import annotations
 import evaluate_inputs as inputs
 import numpy as np
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import CorrelatedLooks
 

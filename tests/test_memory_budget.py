@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from evaluate_inputs import mission_doc
 
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.errors import ConfigError
 from pdcov.service.memory_budget import estimate_bytes, memory_limit_bytes, memory_refusal
 

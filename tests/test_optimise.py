@@ -129,7 +129,7 @@ def test_cli_plan_writes_plan_and_prediction(tmp_path):
     from importlib import resources
 
     from pdcov.cli import main
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.planning.plan import read_plan
 
     cfg = resources.files("pdcov") / "data" / "demo_mission.yaml"

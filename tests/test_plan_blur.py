@@ -106,7 +106,7 @@ def test_planned_poses_carry_the_flights_velocity_and_turn_rate():
 def test_a_bad_exposure_is_named(tmp_path):
     import pytest
 
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.errors import ConfigError
     cfg = yaml.safe_load((resources.files("pdcov") / "data" / "demo_mission.yaml").read_text())
     for bad in (0, -0.01, "fast", float("nan")):

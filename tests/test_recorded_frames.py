@@ -18,7 +18,7 @@ from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.frames import encode_frames
 from pdcov.cli import main as pdcov_main
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.service.daemon import Daemon
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import load_serve_config

@@ -47,7 +47,7 @@ DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "dem
 def demo_plan(folder: Path) -> Path:
     """The live demo's plan: a spiral over the scene at 10 m, 5 m/s (commands/demo.py)."""
     from pdcov.commands.plan import scenario_of
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.planning.optimise import PlanParams, build_plan
     from pdcov.planning.plan import write_plan
 

@@ -44,7 +44,7 @@ from benchmarks.harness import small_mission
 from pdcov.bus.frames import encode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
 from pdcov.service.checkpoint import read_meta

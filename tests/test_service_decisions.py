@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.session import BusConfig
 from pdcov.bus.tiles import decode_tiles
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage

@@ -16,7 +16,7 @@ pytest.importorskip("jsbsim")
 from pymavlink import mavutil
 from sitl_terrain import TiltedPlane
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
 from pdcov.planning.plan import wpl_text

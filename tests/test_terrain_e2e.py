@@ -29,7 +29,7 @@ from evaluate_inputs import survey_poses_csv
 from serve_harness import fly_udp, offline, same
 
 from pdcov.cli import main as pdcov_main
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.planning.plan import read_plan
 from pdcov_sitl.cli import main as sitl_main

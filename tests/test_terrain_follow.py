@@ -16,7 +16,7 @@ import pytest
 
 from pdcov import cli
 from pdcov.commands.plan import scenario_of, terrain_warnings, write_prediction
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain, GridGeometry

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pdcov import cli
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.errors import ConfigError, InputFileError
 from pdcov.planning.plan import read_mission
 from pdcov.telemetry.pose_csv import read_pose_csv

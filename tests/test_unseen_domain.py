@@ -19,7 +19,7 @@ from evaluate_inputs import (
     write_pose_csv,
 )
 
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.core.pose import CameraPose
 from pdcov.errors import ConfigError
 

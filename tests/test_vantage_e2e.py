@@ -28,7 +28,7 @@ pytest.importorskip("jsbsim")
 from evaluate_inputs import survey_poses_csv
 
 from pdcov.cli import main as pdcov_main
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.planning.plan import read_plan
 from pdcov_sitl.cli import main as sitl_main
 

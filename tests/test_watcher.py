@@ -9,7 +9,8 @@ from watch_fixtures import Link, TinyPublisher
 
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.tiles import decode_tiles
-from pdcov.ground.watcher import QuerySnapshot, Watcher
+from pdcov.ground.queries import QuerySnapshot
+from pdcov.ground.watcher import Watcher
 
 
 def assert_same_grid(state, grid) -> None:

@@ -18,9 +18,10 @@ from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.status import decode_status
 from pdcov.errors import OutputError
 from pdcov.ground import record_exports
+from pdcov.ground.queries import QueryCandidates, QuerySnapshot
 from pdcov.ground.record_exports import ExportRecorder
 from pdcov.ground.terminal import plain_lines
-from pdcov.ground.watcher import QueryCandidates, QuerySnapshot, Watcher
+from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
 
 DAEMON = "a1" * 16

@@ -13,7 +13,8 @@ from pdcov.bus.errors import BusPayloadError, Refusal
 from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles
-from pdcov.ground.watcher import QuerySnapshot, Watcher
+from pdcov.ground.queries import QuerySnapshot
+from pdcov.ground.watcher import Watcher
 
 DAEMON = "a1" * 16
 ROGUE = "e7" * 16

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import zoom_flight as zf
 
-from pdcov.config import mission_from_dict
+from pdcov.config.load import mission_from_dict
 from pdcov.core.detector import DetectorModel
 from pdcov.core.mission import MAV_CMD_SET_CAMERA_ZOOM, MissionItem
 from pdcov.core.zoom import hfov_rad
@@ -196,7 +196,7 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
     more. Control: the same frames all evaluated wide do not agree (27 % of the cells
     seen)."""
     pytest.importorskip("jsbsim")
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.report.outputs import evaluate_poses
     from pdcov.telemetry.log_poses import poses_from_log
     from pdcov_sitl.cli import main as sitl_main

@@ -13,7 +13,7 @@ import zoom_flight as zf
 from link_feed import feed_tlog
 from pymavlink.dialects.v20 import common as mav
 
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.report.outputs import evaluate_poses
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height

@@ -17,10 +17,11 @@ from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, gr
 from pdcov.bus.sources import SourcedPublisher
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
-from pdcov.config import load_mission
+from pdcov.config.load import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
-from pdcov.ground.watcher import QuerySnapshot, Watcher
+from pdcov.ground.queries import QuerySnapshot
+from pdcov.ground.watcher import Watcher
 
 DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east

@@ -51,7 +51,7 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
     """``kill -9`` the daemon ``kills`` times mid-flight (checkpoints every ``period_s``),
     restarting it each time: even kills aimed at a checkpoint write, odd ones at a random
     moment."""
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.service.checkpoint import CHECKPOINT_NAME, read_meta, resume
     from pdcov.service.settings import mission_hash
 

@@ -150,7 +150,7 @@ def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[flo
     injected outage, NaN window or GPS glitch (whose frames the estimator status skips),
     widened by the 1 s gap rule, and the times of the others
     (frames lost to something else: the daemon not keeping up, a dropped burst)."""
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.telemetry.log_poses import poses_from_log
     from pdcov_sitl.faults import FaultSpec
 

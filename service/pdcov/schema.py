@@ -12,12 +12,12 @@ known key (difflib) as a suggestion.
 
 Each module declares the section it reads beside its reader, where it can as the frozen
 dataclass that holds the section's values, its fields the keys (``Section.of_dataclass``):
-the mission's sections in config.py (``OriginSection``, ``LogSection``, ...),
+the mission's sections in config/ (``origin.OriginSection``, ``log.LogSection``, ...),
 ``CameraConfig`` in core/camera_config.py, ``GimbalMount`` in core/mount.py, the daemon's
 ``LinkConfig``, ``ServiceConfig`` and ``BusConfig``. Files whose keys are not one
 dataclass's fields keep a key list: ROS's camera_info (``CAMERA_INFO``), the detector model
 (``MODEL_SCHEMA``: ``DetectorModel`` keeps the fit's metadata in ``extra``). A file's schema
-is composed of them (``config.mission_schema``).
+is composed of them (``config.keys.mission_schema``).
 """
 
 from __future__ import annotations

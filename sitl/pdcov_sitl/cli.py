@@ -105,7 +105,7 @@ def _default_gimbal(mount: object) -> GimbalMode:
 
 
 def run_fly(args: argparse.Namespace) -> int:
-    from pdcov.config import load_mission
+    from pdcov.config.load import load_mission
     from pdcov.errors import PdcovError
     from pdcov.extras import SITL
     from pdcov.ids import valid_system_id

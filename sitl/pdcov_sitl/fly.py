@@ -33,7 +33,7 @@ import numpy as np
 
 from pdcov.atomic import atomic_write
 from pdcov.bus.session import BusConfig
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
 from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount

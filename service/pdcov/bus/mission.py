@@ -28,7 +28,7 @@ from shapely.validation import explain_validity
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
-from pdcov.config import MAX_THRESHOLDS
+from pdcov.config.mission import MAX_THRESHOLDS
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import PdcovError

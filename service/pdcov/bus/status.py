@@ -30,7 +30,7 @@ from pdcov.bus.errors import Refusal, Refuser
 from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
-from pdcov.config import MAX_THRESHOLDS
+from pdcov.config.mission import MAX_THRESHOLDS
 from pdcov.core.detections import UID_RULE, valid_uid
 from pdcov.telemetry.samples import MAX_GNSS_ACCURACY_M
 

@@ -11,7 +11,7 @@ from pdcov.errors import ConfigError
 
 if TYPE_CHECKING:
     from pdcov.bus.session import BusConfig
-    from pdcov.config import Mission
+    from pdcov.config.mission import Mission
 
 
 def add_bus_args(p: argparse.ArgumentParser) -> None:

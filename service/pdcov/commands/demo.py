@@ -8,7 +8,8 @@ from importlib import resources
 
 from pdcov.atomic import replacing_dir
 from pdcov.commands.args import output_dir, positive
-from pdcov.config import Mission, load_mission
+from pdcov.config.load import load_mission
+from pdcov.config.mission import Mission
 from pdcov.extras import DEMO
 
 

@@ -21,31 +21,18 @@ from tqdm import tqdm
 from pdcov.atomic import write_text_atomic
 from pdcov.commands.args import output_file
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.annotations import (
-    BOX_FORMATS,
-    FORMATS,
-    NO_BOXES,
-    Boxes,
-    ImageTruth,
-    read_detections,
-    read_truth,
-)
+from pdcov.detection.annotations import BOX_FORMATS, FORMATS, read_detections, read_truth
+from pdcov.detection.bins import BIN_RULES, INTERVAL_METHODS, auto_bin_edges
 from pdcov.detection.blur_sidecar import SpeedToBlur, read_blur_csv
+from pdcov.detection.logistic import fit_logistic
 from pdcov.detection.looks_fit import LooksFit, collect_looks, fit_looks, found_within
 from pdcov.detection.matching import DEFAULT_MAX_DETECTIONS, Matches, MatchSettings, match_images
 from pdcov.detection.statistics import (
-    BIN_RULES,
     DEFAULT_CONFIDENCE_BINS,
-    INTERVAL_METHODS,
-    VALIDATION_TESTS,
-    ValidationReport,
-    auto_bin_edges,
     blur_bin_edges,
     fit_binned,
     fit_binned_blur,
     fit_confidence,
-    fit_logistic,
-    validate,
 )
 from pdcov.detection.tracks import (
     MOT_DEFAULT_CLASSES,
@@ -54,6 +41,8 @@ from pdcov.detection.tracks import (
     read_tracked,
     tracked_format,
 )
+from pdcov.detection.truth_set import NO_BOXES, Boxes, ImageTruth
+from pdcov.detection.validation import VALIDATION_TESTS, ValidationReport, validate
 from pdcov.errors import ConfigError, InputFileError
 
 DEFAULT_BINS = "quantile:20"

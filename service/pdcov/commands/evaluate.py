@@ -25,7 +25,7 @@ from pdcov.core.blur import describe_blur
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 
 if TYPE_CHECKING:
-    from pdcov.config import Mission
+    from pdcov.config.mission import Mission
     from pdcov.core.grid import CoverageGrid
     from pdcov.core.pose import CameraPose
     from pdcov.telemetry.logs import FlightLog

@@ -6,7 +6,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from pdcov.config import Mission, load_mission
+from pdcov.config.load import load_mission
+from pdcov.config.mission import Mission
 
 
 def load_mission_warned(path: str | Path, command: str) -> Mission:

@@ -35,7 +35,7 @@ from pdcov.commands.args import (
     probability,
 )
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mission import (

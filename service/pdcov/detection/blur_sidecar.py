@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from pdcov.detection.annotations import TruthSet
+from pdcov.detection.truth_set import TruthSet
 from pdcov.errors import ConfigError, InputFileError
 
 _BLUR = ("image", "blur_px")

@@ -7,13 +7,14 @@ the detections and candidates of a flight are the same live and offline (docs/se
 took it (``CoverageGrid.last_look``), geolocates the boxes (core/geolocate.py, with the
 position accuracy the autopilot reported for the frame when known) and:
 
-1. **Distinct.** Assigns the frame's boxes to candidates jointly
-   (``scipy.optimize.linear_sum_assignment`` on ground distance; pairs of different classes
+1. **Distinct.** Assigns the frame's boxes to candidates jointly (detection/association.py:
+   ``scipy.optimize.linear_sum_assignment`` on ground distance; pairs of different classes
    or beyond the gate forbidden): at most one box of a frame joins a candidate; the boxes
    left start new candidates (ids continue from ``next_id``, in box order).
-2. **Gate.** ``gate_sigmas`` * hypot(sigma_box, sigma_candidate), at least GATE_FLOOR_M.
-   A candidate's position is the inverse-variance weighted mean of its detections' ground
-   points (weights 1 / sigma^2, sigma at least 1 mm), its sigma sqrt(1 / sum of weights).
+2. **Gate** (detection/association.py). ``gate_sigmas`` * hypot(sigma_box,
+   sigma_candidate), at least GATE_FLOOR_M. A candidate's position is the inverse-variance
+   weighted mean of its detections' ground points (weights 1 / sigma^2, sigma at least
+   1 mm), its sigma sqrt(1 / sum of weights).
 3. **Hits per look.** ``looks``: the counted looks (the grid's revisit clock) of the
    candidate's cell: the cell's ``n_obs`` when it is born (its birth frame's look included
    when counted), then one per frame that counts a look of its cell. ``hits``: a box in a
@@ -34,8 +35,9 @@ position accuracy the autopilot reported for the frame when known) and:
    takes its cell's last look (before it was born) to have had the birth frame's P_D (by
    size only: the grid finds no blur for an uncounted look).
 5. **Durable ids.** ``uid`` = ``uid_prefix`` + candidate id; ``to_doc`` / ``load_doc``
-   (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal) carry the whole state
-   across a restart: a restored tracker continues exactly as the one it was saved from.
+   (and ``candidate_docs`` / ``apply_candidate_docs`` for a journal; the documents of
+   detection/candidate_state.py) carry the whole state across a restart: a restored
+   tracker continues exactly as the one it was saved from.
 
 Without a grid (``frame(grid=None)``) a frame is a look of the candidates it gives a box
 (each a hit) and no evidence: looks and hits but no P_D to weigh.
@@ -55,31 +57,41 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
-from pdcov.core.detections import Box, Candidate, Detection, valid_class_name
+from pdcov.core.detections import Box, Candidate, Detection
 from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
 from pdcov.core.grid import CoverageGrid, LastLook
-from pdcov.core.looks import QUADRATURE, CorrelatedLooks
+from pdcov.core.looks import CorrelatedLooks
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import TerrainSurface
+from pdcov.detection.association import GATE_FLOOR_M, assign_boxes
+from pdcov.detection.candidate_state import (
+    MIN_SIGMA_M,
+    N_NODES,
+    CandidateState,
+    CountedLook,
+    candidate_docs,
+    candidates_of_docs,
+    next_id_of,
+    state_doc,
+    state_of_doc,
+)
 from pdcov.detection.pin_evidence import (
     PeoplePrior,
     hit_log_lr,
-    log_lr_of_nodes,
     miss_log_lr,
     p_person,
     prior_log_odds,
 )
 
-__all__ = ["CONFIRMED_HITS", "GATE_FLOOR_M", "MAX_CANDIDATES_PER_CLASS",
-           "MAX_TRACKED_CANDIDATES", "STATE_VERSION", "DetectionTracker", "Skip"]
+__all__ = ["CONFIRMED_HITS", "MAX_CANDIDATES_PER_CLASS", "MAX_TRACKED_CANDIDATES",
+           "DetectionTracker", "Skip"]
 
 MAX_TRACKED_CANDIDATES = 10_000
 """Most candidates held at once (bus.detections.MAX_CANDIDATES)."""
@@ -87,13 +99,6 @@ MAX_CANDIDATES_PER_CLASS = 2_000
 """Most candidates of one class held at once."""
 CONFIRMED_HITS = 2
 """A candidate detected this many times is confirmed: never evicted for a new one."""
-GATE_FLOOR_M = 0.05
-"""The least association gate (m): boxes of one person still join when every sigma is 0
-(a floor of one cell, as before, merged people 1.5 m apart)."""
-STATE_VERSION = 1
-"""Version of ``to_doc``'s document."""
-_MIN_SIGMA_M = 1e-3
-_N_NODES = len(QUADRATURE.q)
 
 
 class Skip:
@@ -105,53 +110,6 @@ class Skip:
     """Its class's budget (or the table) is full of confirmed candidates."""
     EVICTED = "candidates evicted"
     """Not a box: a stale unconfirmed candidate dropped to make room for a new one."""
-
-
-@dataclass(slots=True)
-class _Look:
-    """A candidate's last counted look: whether it was a hit, and what a miss there is
-    turned into a hit with: its per-look log(1 - P_D), lambda (false boxes expected in the
-    gate) and table index (for the quadrature nodes)."""
-
-    hit: bool
-    log_miss_d: float
-    lam: float
-    index: int
-
-
-@dataclass(slots=True)
-class _Group:
-    class_name: str
-    sum_w: float
-    sum_wr: np.ndarray  # (3,) sum of weight * ground point
-    hits: int
-    looks: int
-    confidence: float
-    first_t_boot_s: float
-    last_t_boot_s: float
-    gate_m: float  # the gate radius at birth: the area of its prior and lambda (m)
-    log_lr: float  # evidence not per node: every look's without nodes, confidences' always
-    log_lr_nodes: np.ndarray | None  # (J,) looks' log LR per quadrature node (correlated)
-    look: _Look | None  # its last counted look
-    r_enu_m: np.ndarray = field(init=False)  # sum_wr / sum_w: its position (ENU m)
-
-    def __post_init__(self) -> None:
-        self.r_enu_m = self.sum_wr / self.sum_w
-
-    @property
-    def sigma_m(self) -> float:
-        return math.sqrt(1.0 / self.sum_w)
-
-    def add_point(self, r: np.ndarray, sigma_m: float) -> None:
-        w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
-        self.sum_w += w
-        self.sum_wr = self.sum_wr + w * r
-        self.r_enu_m = self.sum_wr / self.sum_w
-
-    def log_odds_evidence(self) -> float:
-        """The sum of its looks' and confidences' log LR."""
-        nodes = 0.0 if self.log_lr_nodes is None else log_lr_of_nodes(self.log_lr_nodes)
-        return self.log_lr + nodes
 
 
 @dataclass(frozen=True, slots=True)
@@ -167,7 +125,7 @@ class _FrameLooks:
         """log(1 - Q(q_j)) (J,) of a look at table ``index``: 0 outside the size bins."""
         assert self.nodes is not None
         slot = int(self.nodes.slot[index])
-        return self.nodes.log1m_nodes[slot] if slot >= 0 else np.zeros(_N_NODES)
+        return self.nodes.log1m_nodes[slot] if slot >= 0 else np.zeros(N_NODES)
 
 
 class DetectionTracker:
@@ -190,7 +148,7 @@ class DetectionTracker:
         self.gate_sigmas = float(gate_sigmas)
         self.uid_prefix = uid_prefix
         self.prior = PeoplePrior(prior_people_per_m2)
-        self._groups: dict[int, _Group] = {}  # by candidate id, in id order
+        self._groups: dict[int, CandidateState] = {}  # by candidate id, in id order
         self._per_class: Counter[str] = Counter()
         self._next_id = 0
         self.skipped: Counter[str] = Counter()
@@ -240,8 +198,8 @@ class DetectionTracker:
         ids = np.fromiter(self._groups, dtype=np.int64, count=len(self._groups))
         held = list(self._groups.values())
         pos = np.array([g.r_enu_m[:2] for g in held]).reshape(-1, 2)
-        assigned = self._assign([boxes[k] for k in located], points[located], sigmas[located],
-                                ids, held, pos)
+        assigned = assign_boxes([boxes[k] for k in located], points[located],
+                                sigmas[located], ids, held, pos, self.gate_sigmas)
         looks = None if grid is None else _FrameLooks(
             grid, grid.last_look,
             grid.looks_state if isinstance(grid.looks_state, CorrelatedLooks) else None)
@@ -278,38 +236,6 @@ class DetectionTracker:
             self._weigh_looks(looks, hit_by, scale, ids, pos)
         return out
 
-    def _assign(self, boxes: list[Box], points: np.ndarray, sigmas: np.ndarray,
-                ids: np.ndarray, groups: list[_Group], pos: np.ndarray) -> list[int | None]:
-        """Per box, the candidate it joins (None: none): the assignment of least total
-        ground distance among the pairs of one class within the gate, as many pairs as
-        can be; ``ids``, ``groups``, ``pos`` (n, 2): the candidates held, in id order."""
-        n = len(boxes)
-        if not n or not groups:
-            return [None] * n
-        sig = np.array([g.sigma_m for g in groups])
-        reach = self.gate_sigmas * math.hypot(float(sigmas.max()), float(sig.max()))
-        lo, hi = points[:, :2].min(axis=0) - reach, points[:, :2].max(axis=0) + reach
-        near = np.flatnonzero(((pos >= lo) & (pos <= hi)).all(axis=1))
-        if not len(near):
-            return [None] * n
-        names = sorted({b.class_name for b in boxes})
-        code = {c: i for i, c in enumerate(names)}
-        box_class = np.array([code[b.class_name] for b in boxes])
-        cand_class = np.array([code.get(groups[j].class_name, -1) for j in near])
-        d = np.hypot(*(points[:, None, :2] - pos[None, near]).transpose(2, 0, 1))
-        gate = np.maximum(self.gate_sigmas * np.hypot(sigmas[:, None], sig[None, near]),
-                          GATE_FLOOR_M)
-        ok = (d <= gate) & (box_class[:, None] == cand_class[None, :])
-        out: list[int | None] = [None] * n
-        if not ok.any():
-            return out
-        big = 1.0 + float(d[ok].sum())  # more than any set of allowed pairs costs
-        rows, cols = linear_sum_assignment(np.where(ok, d, big))
-        for i, j in zip(rows, cols, strict=True):
-            if ok[i, j]:
-                out[int(i)] = int(ids[near[j]])
-        return out
-
     def _start(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float,
                looks: _FrameLooks | None, scale: float) -> int | None:
         """A new candidate of one box (None: no room), with the looks of its cell so far:
@@ -318,9 +244,9 @@ class DetectionTracker:
         have had this frame's P_D)."""
         if not self._make_room(box.class_name):
             return None
-        w = 1.0 / max(sigma_m, _MIN_SIGMA_M) ** 2
+        w = 1.0 / max(sigma_m, MIN_SIGMA_M) ** 2
         gate_m = max(self.gate_sigmas * math.sqrt(2.0) * sigma_m, GATE_FLOOR_M)
-        g = _Group(box.class_name, w, w * r, 0, 0, box.confidence, t_boot_s, t_boot_s,
+        g = CandidateState(box.class_name, w, w * r, 0, 0, box.confidence, t_boot_s, t_boot_s,
                    gate_m, 0.0, None, None)
         cid, self._next_id = self._next_id, self._next_id + 1
         self._groups[cid] = g
@@ -346,7 +272,7 @@ class DetectionTracker:
             g.log_lr_nodes = grid.log_miss_nodes((row, row + 1, col, col + 1))[0, 0].copy()
         else:
             g.log_lr = float(grid.log_miss_d[row, col])
-        g.look = _Look(False, log_miss_d, lam, index)
+        g.look = CountedLook(False, log_miss_d, lam, index)
         self._hit(looks, g, box, scale)
         return cid
 
@@ -368,7 +294,7 @@ class DetectionTracker:
                 if g is None:
                     continue
                 g.looks += 1
-                g.look = _Look(False, float(log_miss_d[k]),
+                g.look = CountedLook(False, float(log_miss_d[k]),
                                float(lam_per_m2[k]) * g.gate_m**2, int(index[at[k]]))
                 self._add_evidence(looks, g, g.look, miss=True)
         for cid, box in hit_by.items():
@@ -376,7 +302,7 @@ class DetectionTracker:
             if hit is not None:
                 self._hit(looks, hit, box, scale)
 
-    def _hit(self, looks: _FrameLooks, g: _Group, box: Box, scale: float) -> None:
+    def _hit(self, looks: _FrameLooks, g: CandidateState, box: Box, scale: float) -> None:
         """A box in ``g``'s gate: its last counted look becomes a hit if it was a miss
         (its miss evidence replaced by a hit's, and the box's confidence evidence)."""
         look = g.look
@@ -390,12 +316,12 @@ class DetectionTracker:
             np.array([size_px]), np.array([box.confidence]))[0])
 
     @staticmethod
-    def _add_evidence(looks: _FrameLooks, g: _Group, look: _Look, miss: bool) -> None:
+    def _add_evidence(looks: _FrameLooks, g: CandidateState, look: CountedLook, miss: bool) -> None:
         """Add a miss's log LR of ``look`` (``miss``), or turn its miss into a hit."""
         if looks.nodes is not None:
             log1m = looks.node_log1m(look.index)
             if g.log_lr_nodes is None:
-                g.log_lr_nodes = np.zeros(_N_NODES)
+                g.log_lr_nodes = np.zeros(N_NODES)
             p = -np.expm1(log1m)
             g.log_lr_nodes = g.log_lr_nodes + (
                 miss_log_lr(p) if miss else hit_log_lr(p, look.lam) - miss_log_lr(p))
@@ -450,29 +376,18 @@ class DetectionTracker:
 
     def to_doc(self) -> dict[str, Any]:
         """The whole state, JSON-able (floats exact through ``json``): {"version",
-        "next_id", "candidates": [``candidate_docs``]}."""
-        return {"version": STATE_VERSION, "next_id": self._next_id,
-                "candidates": self.candidate_docs(self._groups)}
+        "next_id", "candidates": [``candidate_docs``]} (detection/candidate_state.py)."""
+        return state_doc(self._groups, self._next_id)
 
     def candidate_docs(self, ids: Iterable[int]) -> list[dict[str, Any]]:
         """The states of the candidates ``ids`` held (an evicted one left out), in id
         order."""
-        return [_group_doc(i, self._groups[i])
-                for i in sorted(set(ids)) if i in self._groups]
+        return candidate_docs(self._groups, ids)
 
     def load_doc(self, doc: Any) -> None:
         """Replace the state with ``to_doc``'s document (ValueError naming the field that is
         wrong; nothing changed then)."""
-        if not isinstance(doc, Mapping):
-            raise ValueError(f"candidates state: expected a mapping, got {type(doc).__name__}")
-        if doc.get("version") != STATE_VERSION:
-            raise ValueError(f"candidates state version {doc.get('version')!r}: expected "
-                             f"{STATE_VERSION}")
-        docs = doc.get("candidates")
-        if not isinstance(docs, list):
-            raise ValueError("candidates state candidates: expected a list")
-        groups = _groups_of(docs, "candidates state candidates")
-        next_id = _next_id_of(doc.get("next_id"), groups)
+        groups, next_id = state_of_doc(doc)
         self._groups = dict(sorted(groups.items()))
         self._per_class = Counter(g.class_name for g in self._groups.values())
         self._next_id = next_id
@@ -482,8 +397,8 @@ class DetectionTracker:
         next id (ValueError naming the field that is wrong; nothing changed then)."""
         if not isinstance(docs, list):
             raise ValueError("candidate docs: expected a list")
-        groups = _groups_of(docs, "candidate docs")
-        next_id = _next_id_of(next_id, {**self._groups, **groups})
+        groups = candidates_of_docs(docs, "candidate docs")
+        next_id = next_id_of(next_id, {**self._groups, **groups})
         for i, g in groups.items():
             old = self._groups.get(i)
             if old is not None:
@@ -494,102 +409,3 @@ class DetectionTracker:
         self._per_class = +self._per_class
         self._next_id = next_id
 
-
-def _group_doc(cid: int, g: _Group) -> dict[str, Any]:
-    look = g.look
-    return {
-        "id": cid, "class_name": g.class_name, "sum_w": float(g.sum_w),
-        "sum_wr": [float(v) for v in g.sum_wr], "hits": g.hits, "looks": g.looks,
-        "confidence": float(g.confidence), "first_t_boot_s": float(g.first_t_boot_s),
-        "last_t_boot_s": float(g.last_t_boot_s), "gate_m": float(g.gate_m),
-        "log_lr": float(g.log_lr),
-        "log_lr_nodes": (None if g.log_lr_nodes is None
-                         else [float(v) for v in g.log_lr_nodes]),
-        "look": None if look is None else {
-            "hit": look.hit, "log_miss_d": float(look.log_miss_d), "lam": float(look.lam),
-            "index": look.index},
-    }
-
-
-def _groups_of(docs: list[Any], where: str) -> dict[int, _Group]:
-    """The candidates of ``_group_doc`` documents (ValueError naming the field)."""
-    out: dict[int, _Group] = {}
-    for k, d in enumerate(docs):
-        at = f"{where}[{k}]"
-        if not isinstance(d, Mapping):
-            raise ValueError(f"{at}: expected a mapping")
-        cid = _int(d, "id", at)
-        if cid in out:
-            raise ValueError(f"{at}.id {cid}: given twice")
-        name = d.get("class_name")
-        if not isinstance(name, str) or not valid_class_name(name):
-            raise ValueError(f"{at}.class_name {name!r}: expected a class name")
-        sum_w = _num(d, "sum_w", at)
-        if not sum_w > 0:
-            raise ValueError(f"{at}.sum_w {sum_w!r}: expected a number > 0")
-        sum_wr = _nums(d, "sum_wr", at, 3)
-        hits, looks = _int(d, "hits", at), _int(d, "looks", at)
-        if hits > looks:
-            raise ValueError(f"{at}.hits {hits}: more than its looks {looks}")
-        confidence = _num(d, "confidence", at)
-        if not 0 <= confidence <= 1:
-            raise ValueError(f"{at}.confidence {confidence!r}: expected a number in [0, 1]")
-        first, last = _num(d, "first_t_boot_s", at), _num(d, "last_t_boot_s", at)
-        if not 0 <= first <= last:
-            raise ValueError(f"{at}.first_t_boot_s {first!r}, last_t_boot_s {last!r}: "
-                             "expected 0 <= first <= last (s)")
-        gate_m = _num(d, "gate_m", at)
-        if not gate_m > 0:
-            raise ValueError(f"{at}.gate_m {gate_m!r}: expected a number > 0 (m)")
-        nodes = (None if d.get("log_lr_nodes") is None
-                 else _nums(d, "log_lr_nodes", at, _N_NODES))
-        out[cid] = _Group(name, sum_w, sum_wr, hits, looks, confidence, first, last, gate_m,
-                          _num(d, "log_lr", at), nodes, _look_of(d.get("look"), at))
-    return out
-
-
-def _look_of(doc: Any, at: str) -> _Look | None:
-    if doc is None:
-        return None
-    at = f"{at}.look"
-    if not isinstance(doc, Mapping):
-        raise ValueError(f"{at}: expected a mapping or null")
-    hit = doc.get("hit")
-    if not isinstance(hit, bool):
-        raise ValueError(f"{at}.hit {hit!r}: expected true or false")
-    log_miss_d, lam = _num(doc, "log_miss_d", at), _num(doc, "lam", at)
-    if log_miss_d > 0 or lam < 0:
-        raise ValueError(f"{at}: expected log_miss_d <= 0 and lam >= 0, got {log_miss_d!r}, "
-                         f"{lam!r}")
-    return _Look(hit, log_miss_d, lam, _int(doc, "index", at))
-
-
-def _next_id_of(v: Any, groups: Mapping[int, _Group]) -> int:
-    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise ValueError(f"candidates next_id {v!r}: expected an integer >= 0")
-    if groups and v <= max(groups):
-        raise ValueError(f"candidates next_id {v}: not above the candidate id {max(groups)}")
-    return v
-
-
-def _int(d: Mapping[str, Any], key: str, at: str) -> int:
-    v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise ValueError(f"{at}.{key} {v!r}: expected an integer >= 0")
-    return v
-
-
-def _num(d: Mapping[str, Any], key: str, at: str) -> float:
-    v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"{at}.{key} {v!r}: expected a finite number")
-    return float(v)
-
-
-def _nums(d: Mapping[str, Any], key: str, at: str, n: int) -> np.ndarray:
-    v = d.get(key)
-    if not (isinstance(v, list) and len(v) == n and all(
-            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
-            for x in v)):
-        raise ValueError(f"{at}.{key}: expected a list of {n} finite numbers")
-    return np.array(v, dtype=np.float64)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from pdcov.core.detector import DetectorModel
-from pdcov.detection.statistics import BinTest, RateTest, ValidationReport
+from pdcov.detection.validation import BinTest, RateTest, ValidationReport
 from pdcov.errors import PdcovError
 
 

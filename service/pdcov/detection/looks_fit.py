@@ -24,8 +24,8 @@ import numpy as np
 from scipy import optimize, special, stats
 
 from pdcov.core.detector import LooksModel
+from pdcov.detection.bins import bin_of
 from pdcov.detection.matching import MatchCollector, Matches, MatchSettings, TruthStatus
-from pdcov.detection.statistics import bin_of
 from pdcov.detection.tracks import TrackedFrame
 
 MIN_PEOPLE = 10  # people with at least 2 looks in a bin needed for an estimate

@@ -26,7 +26,7 @@ from enum import IntEnum
 import numpy as np
 import shapely
 
-from pdcov.detection.annotations import Boxes, ImageTruth
+from pdcov.detection.truth_set import Boxes, ImageTruth
 from pdcov.errors import ConfigError, InputFileError
 
 __all__ = ["DEFAULT_MAX_DETECTIONS", "DetectionStatus", "ImageMatch", "MatchCollector",

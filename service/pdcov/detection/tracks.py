@@ -34,18 +34,16 @@ from pathlib import Path
 
 import numpy as np
 
-from pdcov.detection.annotations import (
+from pdcov.detection.formats.fields import (
     IMAGE_SUFFIXES,
-    NO_BOXES,
-    VISDRONE_CLASSES,
-    Boxes,
-    ImageTruth,
-    _class_id,
-    _lines,
-    _numbers,
-    _read_sizes,
-    _score,
+    class_id_of,
+    detection_score,
+    file_lines,
+    line_numbers,
+    read_sizes,
 )
+from pdcov.detection.formats.visdrone import VISDRONE_CLASSES
+from pdcov.detection.truth_set import NO_BOXES, Boxes, ImageTruth
 from pdcov.errors import ConfigError, InputFileError
 
 TRACK_FORMATS = ("mot", "visdrone-mot")
@@ -138,7 +136,7 @@ def read_tracked(gt_root: str | Path, det_root: str | Path, fmt: str = "mot",
         if not p.exists():
             raise InputFileError(f"{p}: no such file or directory")
     seqs = _sequences(gt_root)
-    sizes = _read_sizes(Path(sizes_path)) if sizes_path is not None else {}
+    sizes = read_sizes(Path(sizes_path)) if sizes_path is not None else {}
     frames: list[TrackedFrame] = []
     people: list[str] = []
     gaps = 0
@@ -239,11 +237,11 @@ def _read_truth(path: Path, fmt: str, length: int | None, people: list[str], seq
     index: dict[int, int] = {}
     last: dict[int, tuple[int, str]] = {}
     gaps = 0
-    for where, fields in _lines(path):
-        v = _numbers(where, fields, (9, 10) if fmt == "mot" else (10,), layout)
+    for where, fields in file_lines(path):
+        v = line_numbers(where, fields, (9, 10) if fmt == "mot" else (10,), layout)
         frame, box = _frame_and_box(where, v, length)
         if fmt == "mot" and len(v) == 9:
-            cls = _class_id(where, v[7])
+            cls = class_id_of(where, v[7])
             if not 1 <= cls <= len(MOT_CLASSES):
                 raise InputFileError(f"{where}: MOT class must be 1..{len(MOT_CLASSES)}, "
                                      f"got {cls}")
@@ -252,7 +250,7 @@ def _read_truth(path: Path, fmt: str, length: int | None, people: list[str], seq
         elif fmt == "mot":  # MOT15: every box a pedestrian
             ignore, label = False, "pedestrian"
         else:
-            cls = _class_id(where, v[7])
+            cls = class_id_of(where, v[7])
             if cls >= len(VISDRONE_CLASSES):
                 raise InputFileError(f"{where}: VisDrone category must be 0..11, got {cls}")
             if cls == 0:
@@ -282,17 +280,17 @@ def _read_detections(path: Path, fmt: str, length: int | None) -> dict[int, Boxe
     layout = ("'frame,id,left,top,width,height,conf[,x,y,z]'" if fmt == "mot" else
               "'frame,id,left,top,width,height,score,category[,truncation,occlusion]'")
     rows: dict[int, list[tuple[tuple[float, ...], str, float]]] = defaultdict(list)
-    for where, fields in _lines(path):
-        v = _numbers(where, fields, (7, 10) if fmt == "mot" else (8, 10), layout)
+    for where, fields in file_lines(path):
+        v = line_numbers(where, fields, (7, 10) if fmt == "mot" else (8, 10), layout)
         frame, box = _frame_and_box(where, v, length)
         if fmt == "mot":
             label = "pedestrian"
         else:
-            cls = _class_id(where, v[7])
+            cls = class_id_of(where, v[7])
             if not 1 <= cls < len(VISDRONE_CLASSES):
                 raise InputFileError(f"{where}: VisDrone detection category must be 1..11, "
                                      f"got {cls}")
             label = VISDRONE_CLASSES[cls]
-        rows[frame].append((box, label, _score(where, v[6])))
+        rows[frame].append((box, label, detection_score(where, v[6])))
     return {f: Boxes.from_rows([r[0] for r in rs], [r[1] for r in rs], [r[2] for r in rs])
             for f, rs in rows.items()}

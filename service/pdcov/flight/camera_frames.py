@@ -42,7 +42,7 @@ from pdcov.telemetry.samples import (
 if TYPE_CHECKING:
     from collections import Counter
 
-    from pdcov.config import MissionCamera
+    from pdcov.config.mission import MissionCamera
     from pdcov.core.camera import CameraModel
     from pdcov.core.geodesy import Origin
     from pdcov.core.geolocate import PositionAccuracy

@@ -24,7 +24,7 @@ from pdcov.bus.session import (
     peer_warning,
     quiet_hint,
 )
-from pdcov.config import DEFAULT_THRESHOLDS, Mission
+from pdcov.config.mission import DEFAULT_THRESHOLDS, Mission
 from pdcov.errors import ConfigError
 from pdcov.ground.basemap import Basemap
 from pdcov.ground.cot import CotSchedule

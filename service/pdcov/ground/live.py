@@ -29,7 +29,8 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.sources import SessionId, reply_session, source_info, source_session
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles
-from pdcov.ground.watcher import QueryCandidates, QueryMission, QuerySnapshot, Watcher
+from pdcov.ground.queries import QueryCandidates, QueryMission, QuerySnapshot
+from pdcov.ground.watcher import Watcher
 
 log = logging.getLogger("pdcov.watch")
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.bus.grid_state import GridState, grid_hash
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.grid import SNAPSHOT_VERSION, limiting_counts
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import PdcovError

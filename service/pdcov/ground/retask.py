@@ -19,7 +19,7 @@ import numpy as np
 
 from pdcov.bus.operator_keys import OperatorKey
 from pdcov.bus.retask import RetaskReply, encode_signed_retask, plan_hash
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.core.mission import MissionItem
 from pdcov.errors import PdcovError

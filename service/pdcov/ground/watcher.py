@@ -1,65 +1,40 @@
 """The watcher's decisions, with no I/O: decoded payloads and ``now_s`` in, grids and
 actions out (the asyncio/Zenoh shell in ground/live.py does the I/O).
 
-Per vehicle it rebuilds the daemon's grid exactly (docs/protocol.md "Joining late"):
-
-* first contact (liveliness, status or tiles) asks for the snapshot; tiles received
-  while the reply is awaited are kept;
-* a snapshot holding ``frames = F`` already contains every tiles message the daemon
-  published with ``frames <= F`` (tiles carry current values of whole tiles, not
-  increments, and a grid only changes when a frame is added), so the kept messages with
-  ``frames <= F`` are dropped and the rest applied in sequence order;
-* from then on tiles apply in order; a jump in ``seq``, a ``seq`` going back (the daemon
-  restarted) or another grid hash asks for the snapshot again, and so does a status whose
-  ``tiles_seq`` stays ahead of the last applied message for ``trailing_gap_s`` (the last
-  messages of a flight were lost, so no later one reveals the gap).
+Per vehicle it rebuilds the daemon's grid exactly (docs/protocol.md "Joining late";
+ground/grid_sync.py): it asks for the snapshot on first contact and again after a gap, a
+restart or a status that disagrees, and applies the tiles in sequence.
 
 Each vehicle's mission geometry (docs/protocol.md "mission") is asked for once its grid
 hash is known (first status, or snapshot) and again whenever that hash changes; a failed or
 stale reply is asked again after ``mission_retry_s``.
 
-Each vehicle's detections (docs/protocol.md "detections") add and update its pins: a
-candidate is kept by its ``uid`` (durable across the daemon's restarts), so a candidate
-seen again, in a put or in a candidates reply, is updated in place, and the pins survive
-the vehicle's session changing (a restarted daemon's restored candidates merge with those
-held). The whole candidate list (queryable ``candidates``) is asked for whenever a snapshot
-is taken (first contact, and after every gap or restart: detections carry no sequence
-number, so the snapshot's resynchronisation is theirs too), again after
-``mission_retry_s`` when it did not come, and every ``candidates_refresh_s`` after an
-answer: a put carries only the candidates its detections touched, so a pin looked at again
-without a hit shows its p_person falling with the next refresh. At most
-``max_candidates`` candidates per vehicle are kept (beyond, the least probable, then the
-one with the fewest hits, then the oldest last detection, is forgotten and counted).
-Every detection taken goes to ``detection_log`` (the recording's, on disk:
-ground/record_exports.py) and the latest ``max_detections`` stay in memory for the views.
-Findings taken before the vehicle's first snapshot reply pinned a session are provisional:
-kept when the pin is their session's (their detections then logged, the latest
-``max_detections`` of them), dropped otherwise.
+Each vehicle's detections (docs/protocol.md "detections") add and update its pins, kept
+by ``uid`` (ground/findings.py). The whole candidate list (queryable ``candidates``) is
+asked for whenever a snapshot is taken (first contact, and after every gap or restart:
+detections carry no sequence number, so the snapshot's resynchronisation is theirs too),
+again after ``mission_retry_s`` when it did not come, and every ``candidates_refresh_s``
+after an answer: a put carries only the candidates its detections touched, so a pin looked
+at again without a hit shows its p_person falling with the next refresh.
 
 Each vehicle is pinned to the Zenoh session that answers its snapshot (ground/claims.py):
 status, tiles, mission, footprint and detections from any other session are refused and
-counted, and a
-snapshot query answered by two sessions leaves the vehicle contested (not trusted, shown).
-A status of the pinned session is checked against the grid rebuilt from its tiles whenever
-both describe the same frames; a disagreement beyond rounding is counted, shown and
-answered by a fresh snapshot.
+counted, and a snapshot query answered by two sessions leaves the vehicle contested (not
+trusted, shown).
 
 The fleet grid adds the log-miss sums of the vehicles that share one grid (DESIGN.md: grids
 merge by adding): the ground station's mission grid when it has one, else the grid most
 vehicles share (ties: the vehicle heard first). ``now_s`` is the watcher's own monotonic
-clock in seconds.
-
-One state machine, so over 500 lines: its inputs, timers and outputs share the
-per-vehicle state and read best together (what it holds is ground/feed.py, what it
-reports ground/fleet_report.py, who speaks for a vehicle ground/claims.py).
+clock in seconds. What it holds per vehicle is ground/feed.py, what it reports
+ground/fleet_report.py, who speaks for a vehicle ground/claims.py, the queries it asks its
+shell to make ground/queries.py.
 """
 
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections import Counter
+from collections.abc import Sequence
 from typing import Any
 
 from pdcov.bus.errors import BusPayloadError
@@ -67,60 +42,33 @@ from pdcov.bus.grid_state import GridState
 from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.sources import SessionId
 from pdcov.bus.status import merge_status
-from pdcov.bus.tiles import TileUpdate, apply_tiles
+from pdcov.bus.tiles import TileUpdate
 from pdcov.ground.claims import ClaimVerdict
 from pdcov.ground.feed import VehicleFeed
-from pdcov.ground.fleet_report import (
-    FleetReport,
-    merge_fleet,
-    status_agrees,
-    union_thresholds,
-    vehicle_report,
+from pdcov.ground.findings import (
+    MAX_CANDIDATES_KEPT,
+    MAX_DETECTIONS_KEPT,
+    DetectionLog,
+    settle_provisional,
+    take_findings,
 )
+from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
+from pdcov.ground.grid_sync import (
+    apply_in_order,
+    ensure_grid,
+    replay_pending,
+    requery,
+    sync_status,
+    take_snapshot,
+)
+from pdcov.ground.queries import QueryCandidates, QueryMission, QuerySnapshot
 from pdcov.ground.roster import NOT_ON_ROSTER, Roster
 
-__all__ = ["MAX_CANDIDATES_KEPT", "MAX_DETECTIONS_KEPT", "MAX_VEHICLES", "QueryCandidates",
-           "QueryMission", "QuerySnapshot", "Watcher"]
+__all__ = ["MAX_VEHICLES", "Watcher"]
 
 MAX_VEHICLES = 64
 """Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
 open bus could otherwise invent vehicles without end)."""
-MAX_CANDIDATES_KEPT = 2000
-"""Candidates kept per vehicle, fewer than a daemon may hold (bus/detections.py
-MAX_CANDIDATES) because a ground station follows up to MAX_VEHICLES: a flight over a crowd,
-or a detector gone wrong, must not grow it without end; the operator is told how many
-were forgotten."""
-MAX_DETECTIONS_KEPT = 500
-"""Recent detections kept in memory per vehicle, for the views (every one goes to the
-detection log: module docstring)."""
-
-DetectionLog = Callable[[str, Sequence[dict[str, Any]]], None]
-"""Called with (vehicle_id, detection entries) for every detection the watcher takes, in
-the order taken; it must not raise (ground/record_exports.py DetectionLog)."""
-
-
-@dataclass(frozen=True, slots=True)
-class QuerySnapshot:
-    """Action: query ``pdcov/<vehicle_id>/snapshot`` and hand the reply to on_snapshot
-    (or on_snapshot_failed)."""
-
-    vehicle_id: str
-
-
-@dataclass(frozen=True, slots=True)
-class QueryMission:
-    """Action: query ``pdcov/<vehicle_id>/mission`` and hand the reply to on_mission (or
-    on_mission_failed)."""
-
-    vehicle_id: str
-
-
-@dataclass(frozen=True, slots=True)
-class QueryCandidates:
-    """Action: query ``pdcov/<vehicle_id>/candidates`` and hand the replies to
-    on_candidates_replies."""
-
-    vehicle_id: str
 
 
 class Watcher:
@@ -192,7 +140,7 @@ class Watcher:
         if feed is None:
             return []
         feed.alive = alive
-        return self._ensure_grid(feed, now_s) if alive else []
+        return ensure_grid(feed, now_s) if alive else []
 
     def on_status(self, vehicle_id: str, doc: dict[str, Any], now_s: float,
                   source: SessionId = None) -> list[QuerySnapshot]:
@@ -206,40 +154,7 @@ class Watcher:
         pose = doc.get("pose")
         if isinstance(pose, dict):
             self._add_track_point(feed, pose)
-        actions = self._ensure_grid(feed, now_s)
-        if actions:
-            return actions
-        state = feed.state
-        if state is not None and doc["grid"]["hash"] != state.hash:
-            return self._requery(feed, now_s)  # the daemon now runs another mission
-        if previous is not None and doc["uptime_s"] < previous["uptime_s"]:
-            return self._requery(feed, now_s)  # the daemon restarted
-        announced = doc["tiles_seq"]
-        if feed.awaiting_since_s is not None:
-            return []
-        if state is not None and announced == feed.last_seq:
-            # Caught up: the grid holds every tiles message this status counts.
-            frames = doc["frames"]
-            n = frames.get("grid", frames.get("used"))
-            if isinstance(n, int) and n == state.frames and doc.get("tiles_behind") == 0:
-                if not status_agrees(state, doc):
-                    feed.status_disagreements += 1
-                    feed.status_agrees = False
-                    return self._requery(feed, now_s)
-                feed.status_agrees = True
-            elif isinstance(n, int) and n > state.frames:
-                # Frames added since the last tiles changed no cell, or their tiles are
-                # still to come: either way the next status tells.
-                state.frames = n
-        if feed.last_seq is None and feed.seq_floor is None:
-            feed.seq_floor = announced  # first status since the snapshot: no tiles owed yet
-        known = feed.last_seq if feed.last_seq is not None else feed.seq_floor
-        if known is not None and announced > known:
-            if feed.behind_since_s is None:
-                feed.behind_since_s = now_s
-        else:
-            feed.behind_since_s = None
-        return []
+        return ensure_grid(feed, now_s) or sync_status(feed, previous, doc, now_s)
 
     def on_tiles(self, vehicle_id: str, update: TileUpdate, now_s: float,
                  source: SessionId = None) -> list[QuerySnapshot]:
@@ -249,8 +164,8 @@ class Watcher:
             return refused
         if feed.state is None or feed.awaiting_since_s is not None:
             feed.pending.append((update, source))
-            return self._ensure_grid(feed, now_s)
-        return self._apply(feed, update, now_s)
+            return ensure_grid(feed, now_s)
+        return apply_in_order(feed, update, now_s)
 
     def on_snapshot(self, vehicle_id: str, state: GridState, now_s: float,
                     source: SessionId = None) -> list[QuerySnapshot]:
@@ -274,13 +189,7 @@ class Watcher:
             feed.awaiting_since_s = now_s
             return []
         session, state = replies[0]
-        feed.state = state
-        feed.snapshots += 1
-        feed.awaiting_since_s = None
-        feed.behind_since_s = None
-        feed.last_seq = None
-        feed.seq_floor = None
-        feed.status_agrees = None
+        take_snapshot(feed, state)
         # What came before the pin from another session was provisional: dropped.
         if feed.status_session != session:
             feed.status = None
@@ -288,18 +197,8 @@ class Watcher:
             feed.mission, feed.mission_asked_for = None, None
         if feed.footprint_session != session:
             feed.footprint = None
-        self._settle_provisional(feed, session)
-        pending, feed.pending = sorted(feed.pending, key=lambda u: u[0].seq), []
-        for update, source in pending:
-            if source != session or update.grid_hash != state.hash:
-                continue  # another session's, or for another grid (before a restart)
-            if update.frames <= state.frames:
-                feed.last_seq = update.seq  # already inside the snapshot
-                continue
-            actions = self._apply(feed, update, now_s, after_snapshot=True)
-            if actions:
-                return actions
-        return []
+        settle_provisional(feed, session, self.detection_log)
+        return replay_pending(feed, state, session, now_s)
 
     def on_snapshot_failed(self, vehicle_id: str, now_s: float) -> list[QuerySnapshot]:
         """No usable snapshot reply came (timeout, no queryable, bad payload): ask again at
@@ -349,7 +248,8 @@ class Watcher:
             return
         self._touch(feed, "detections", now_s)
         feed.detections_session = source
-        self._take_findings(feed, doc)
+        take_findings(feed, doc, self.max_candidates, self.max_detections,
+                      self.detection_log)
 
     def on_candidates_replies(self, vehicle_id: str,
                               replies: Sequence[tuple[SessionId, dict[str, Any]]],
@@ -368,7 +268,8 @@ class Watcher:
             self._touch(feed, "candidates", now_s)
             feed.detections_session = source
             feed.candidates_retry_at_s = now_s + self.candidates_refresh_s
-            self._take_findings(feed, doc)
+            take_findings(feed, doc, self.max_candidates, self.max_detections,
+                          self.detection_log)
             return
         feed.candidates_retry_at_s = now_s + self.mission_retry_s
 
@@ -440,7 +341,7 @@ class Watcher:
             elif (feed.behind_since_s is not None
                   and now_s - feed.behind_since_s >= self.trailing_gap_s):
                 feed.gaps += 1
-                actions += self._requery(feed, now_s)
+                actions += requery(feed, now_s)
         return actions
 
     # -- outputs ------------------------------------------------------------------------
@@ -508,7 +409,7 @@ class Watcher:
             return None, []
         if feed.claim.verdict(source, now_s) is ClaimVerdict.REFUSE:
             if feed.claim.recheck_due(now_s):
-                return None, self._requery(feed, now_s)
+                return None, requery(feed, now_s)
             return None, []
         return self._touch(feed, kind, now_s), []
 
@@ -532,90 +433,6 @@ class Watcher:
         if feed.status is not None:
             return str(feed.status["grid"]["hash"])
         return feed.state.hash if feed.state is not None else None
-
-    def _ensure_grid(self, feed: VehicleFeed, now_s: float) -> list[QuerySnapshot]:
-        if feed.state is None and feed.awaiting_since_s is None:
-            feed.awaiting_since_s = now_s
-            return [QuerySnapshot(feed.vehicle_id)]
-        return []
-
-    def _requery(self, feed: VehicleFeed, now_s: float) -> list[QuerySnapshot]:
-        if feed.awaiting_since_s is not None:
-            return []
-        feed.awaiting_since_s = now_s
-        feed.behind_since_s = None
-        feed.pending = []
-        return [QuerySnapshot(feed.vehicle_id)]
-
-    def _apply(self, feed: VehicleFeed, update: TileUpdate, now_s: float, *,
-               after_snapshot: bool = False) -> list[QuerySnapshot]:
-        """Apply the next tiles message in sequence; a gap or a message for another grid
-        asks for the snapshot and keeps the message for after it, but one that fails
-        against the snapshot just taken (``after_snapshot``) is dropped, never replayed."""
-        state = feed.state
-        if state is None:
-            raise RuntimeError("_apply without a grid")  # callers check; a bug if reached
-        if feed.last_seq is not None:
-            if update.seq == feed.last_seq:
-                return []  # a duplicate
-            if update.seq != feed.last_seq + 1:
-                feed.gaps += 1
-                actions = self._requery(feed, now_s)
-                feed.pending.append((update, feed.claim.session))
-                return actions
-        try:
-            apply_tiles(state, update, key=f"pdcov/{feed.vehicle_id}/tiles")
-        except BusPayloadError:
-            feed.bad_payloads += 1  # another grid: the daemon restarted with a new mission
-            if after_snapshot:
-                return []
-            actions = self._requery(feed, now_s)
-            feed.pending.append((update, feed.claim.session))
-            return actions
-        feed.last_seq = update.seq
-        status = feed.status
-        if status is not None and status["tiles_seq"] <= update.seq:
-            feed.behind_since_s = None
-        return []
-
-    def _take_findings(self, feed: VehicleFeed, doc: dict[str, Any]) -> None:
-        """Keep a detections document's candidates (by uid, the latest) and detections
-        (logged; the newest max_detections in memory), forgetting the least probable
-        candidates beyond max_candidates; provisional before the first pin."""
-        provisional = not feed.claim.pinned
-        for c in doc.get("candidates") or ():
-            feed.candidates[c["uid"]] = c
-            if provisional:
-                feed.provisional_uids.add(c["uid"])
-        detections = doc.get("detections") or ()
-        feed.detections.extend(detections)
-        while len(feed.detections) > self.max_detections:
-            feed.detections.popleft()
-        if provisional:
-            feed.unlogged = min(feed.unlogged + len(detections), len(feed.detections))
-        elif detections and self.detection_log is not None:
-            self.detection_log(feed.vehicle_id, detections)
-        extra = len(feed.candidates) - self.max_candidates
-        if extra > 0:
-            weakest = sorted(feed.candidates.values(), key=lambda c: (
-                c["p_person"], c["hits"], c["last_t_boot_s"]))[:extra]
-            for c in weakest:
-                del feed.candidates[c["uid"]]
-            feed.candidates_dropped += extra
-
-    def _settle_provisional(self, feed: VehicleFeed, session: SessionId) -> None:
-        """A snapshot reply pinned ``session``: the findings taken before are kept (and
-        their detections logged) when they are its, else dropped."""
-        if feed.detections_session == session:
-            if feed.unlogged and self.detection_log is not None:
-                held = list(feed.detections)
-                self.detection_log(feed.vehicle_id, held[len(held) - feed.unlogged:])
-        elif feed.provisional_uids or feed.unlogged:
-            dropped = feed.provisional_uids
-            for uid in dropped:
-                feed.candidates.pop(uid, None)
-            feed.detections = deque(d for d in feed.detections if d["uid"] not in dropped)
-        feed.provisional_uids, feed.unlogged = set(), 0
 
     def _add_track_point(self, feed: VehicleFeed, pose: dict[str, Any]) -> None:
         try:

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT
 from pdcov.errors import InputFileError

@@ -12,7 +12,8 @@ import math
 import sys
 from typing import Any
 
-from pdcov.config import Mission, PlanningSection
+from pdcov.config.mission import Mission
+from pdcov.config.planning import PlanningSection
 from pdcov.core.mission import AltitudeFrame
 from pdcov.errors import ConfigError, where
 from pdcov.planning.optimise import Scenario

@@ -15,7 +15,7 @@ import numpy as np
 
 from pdcov.atomic import write_text_atomic
 from pdcov.bus.detections import detections_document
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Detection
 from pdcov.core.geodesy import Origin

@@ -21,7 +21,7 @@ import numpy as np
 import shapely
 
 from pdcov.atomic import atomic_write, write_text_atomic
-from pdcov.config import Mission
+from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu

@@ -33,7 +33,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
 
 if TYPE_CHECKING:
-    from pdcov.config import Mission
+    from pdcov.config.mission import Mission
 
 DETECTIONS_PERIOD_S = 1.0
 """At most one detections message in this long (daemon's monotonic clock, s)."""

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from pdcov.flight.camera_frames import BATCH_OF_HISTORY, tracker_history_s
 
 if TYPE_CHECKING:
-    from pdcov.config import Mission
+    from pdcov.config.mission import Mission
 
 __all__ = ["BASE_BYTES", "BYTES_PER_BATCHED_FRAME", "BYTES_PER_CELL", "estimate_bytes",
            "memory_limit_bytes", "memory_refusal"]

@@ -1,7 +1,7 @@
 """The daemon's sections of the mission config, ``link`` and ``service`` (``bus`` is
 bus.session's), declared once as frozen dataclasses: their fields are the keys
 (``Section.of_dataclass``), so a misspelt key is refused with a suggestion before any value
-is read (config.mission_schema). docs/service.md lists every key.
+is read (config.keys.mission_schema). docs/service.md lists every key.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import numpy as np
 
 from pdcov.bus.operator_keys import OperatorPublicKey, load_public_key
 from pdcov.bus.session import BusConfig, bus_config_from_dict
-from pdcov.config import Mission, MissionCamera, load_mission
+from pdcov.config.load import load_mission
+from pdcov.config.mission import Mission, MissionCamera
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, where

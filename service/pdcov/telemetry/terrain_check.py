@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from pdcov.config import DEFAULT_TERRAIN_MARGIN_M
+from pdcov.config.terrain import DEFAULT_TERRAIN_MARGIN_M
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import R_from_quat_wxyz
 from pdcov.telemetry.frame_policy import TextEnum
@@ -52,7 +52,7 @@ from pdcov.telemetry.samples import (
 )
 
 if TYPE_CHECKING:
-    from pdcov.config import Mission
+    from pdcov.config.mission import Mission
     from pdcov.telemetry.logs import FlightLog
 
 __all__ = ["CheckSource", "HeightsMsl", "Mismatch", "Refused",
