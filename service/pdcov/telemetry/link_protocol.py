@@ -31,6 +31,7 @@ from typing import Any
 from pdcov.telemetry.adapters import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
+    is_autopilot_heartbeat,
     mavlink_boot_time_s,
     sample_from_mavlink,
 )
@@ -39,7 +40,6 @@ from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnu
 from pdcov.telemetry.samples import HeartbeatSample, ParamSample, Sample
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
-MAV_TYPE_GCS = 6
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_STATE_ACTIVE = 4
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
@@ -235,8 +235,7 @@ class LinkProtocol:
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
         early: list[Sample] = []
         if mtype == "HEARTBEAT" and not self.autopilot_known:
-            if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type != MAV_TYPE_GCS
-                    and (self.system_id is None or src_sys == self.system_id)):
+            if is_autopilot_heartbeat(msg, self.system_id):
                 self.system_id, self.autopilot_component = src_sys, src_comp
                 self.autopilot_type = int(msg.autopilot)
                 self.mav.srcSystem = src_sys
