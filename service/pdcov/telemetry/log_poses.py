@@ -1,7 +1,9 @@
-"""The offline driver: a whole flight log -> the camera poses at its frames (``poses_from_log``).
+"""The offline driver: a whole flight log -> the camera poses at its frames (``poses_of_log``
+of a log read once for every camera; ``poses_from_log`` of a file).
 
-Reads the log (``telemetry.logs``), loads it into one ``PoseTracker`` and asks for every
-frame time at once, in chunks; frames are placed by the rule the daemon uses
+Loads the log read (``telemetry.logs``) into one ``PoseTracker`` and asks for every
+frame time at once, in chunks; the frames used are ``frame_selection``'s (the daemon's
+rule); frames are placed by the rule the daemon uses
 (``frame_policy.FrameLattice``) or at the log's capture events. Times are seconds in the
 autopilot clock, positions ENU metres about the resolved origin, the ground altitude m MSL.
 """
