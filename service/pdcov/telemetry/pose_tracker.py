@@ -71,25 +71,6 @@ is skipped as 'position jump', never interpolated across it."""
 POSITION_JUMP_SLACK_M = 2.0
 
 
-def position_jump(a: PositionSample, b: PositionSample) -> bool:
-    """True when the reported position moved faster than MAX_SPEED_MPS (+ slack) from sample
-    ``a`` to the later sample ``b``: the rule ``frames_at`` skips frames by, for counting."""
-    dt = b.t_s - a.t_s
-    if not dt > 0:
-        return False
-    limit_m = MAX_SPEED_MPS * dt + POSITION_JUMP_SLACK_M
-    # A bound on the straight-line step, cheap (the log's every sample comes here): along
-    # the meridian, then the parallel (radius of curvature at most 6.4e6 m), then up.
-    r_m = 6.4e6 + max(abs(a.alt_msl_m), abs(b.alt_msl_m))
-    bound_m = (r_m * math.radians(abs(b.lat_deg - a.lat_deg) + abs(b.lon_deg - a.lon_deg))
-               + abs(b.alt_msl_m - a.alt_msl_m))
-    if bound_m <= limit_m:
-        return False
-    step = geodetic_to_enu(b.lat_deg, b.lon_deg, b.alt_msl_m,
-                           Origin(a.lat_deg, a.lon_deg, a.alt_msl_m))
-    return float(np.linalg.norm(step)) > limit_m
-
-
 def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For query times ``t`` in sorted sample times ``ts``: (lo, hi, w, inside, gap_ok) with

@@ -16,7 +16,10 @@ from __future__ import annotations
 import math
 from collections import Counter
 
-from pdcov.telemetry.pose_tracker import position_jump
+import numpy as np
+
+from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.telemetry.pose_tracker import MAX_SPEED_MPS, POSITION_JUMP_SLACK_M
 from pdcov.telemetry.samples import (
     AttitudeSample,
     GimbalSample,
@@ -26,7 +29,27 @@ from pdcov.telemetry.samples import (
     usable_quaternion,
 )
 
-__all__ = ["SampleGate"]
+__all__ = ["SampleGate", "position_jump"]
+
+
+def position_jump(a: PositionSample, b: PositionSample) -> bool:
+    """True when the reported position moved faster than pose_tracker.MAX_SPEED_MPS (+
+    slack) from sample ``a`` to the later sample ``b``: the rule ``PoseTracker.frames_at``
+    skips frames by, for counting."""
+    dt = b.t_s - a.t_s
+    if not dt > 0:
+        return False
+    limit_m = MAX_SPEED_MPS * dt + POSITION_JUMP_SLACK_M
+    # A bound on the straight-line step, cheap (the log's every sample comes here): along
+    # the meridian, then the parallel (radius of curvature at most 6.4e6 m), then up.
+    r_m = 6.4e6 + max(abs(a.alt_msl_m), abs(b.alt_msl_m))
+    bound_m = (r_m * math.radians(abs(b.lat_deg - a.lat_deg) + abs(b.lon_deg - a.lon_deg))
+               + abs(b.alt_msl_m - a.alt_msl_m))
+    if bound_m <= limit_m:
+        return False
+    step = geodetic_to_enu(b.lat_deg, b.lon_deg, b.alt_msl_m,
+                           Origin(a.lat_deg, a.lon_deg, a.alt_msl_m))
+    return float(np.linalg.norm(step)) > limit_m
 
 
 class SampleGate:
