@@ -30,7 +30,8 @@ from pdcov.core.zoom import FovLens
 from pdcov.errors import PdcovError
 from pdcov.ground.basemap import TileRefused, open_basemap, read_tile
 from pdcov.ids import valid_vehicle_id
-from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
 from pdcov.service.settings import load_serve_config, new_serve_grid
 from pdcov.telemetry.tlog import mavlink

@@ -52,11 +52,11 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
 from pdcov.report.outputs import evaluate_poses
-from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
 from pdcov.service.daemon import TICK_S
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_io import mavlink
 from pdcov.service.settings import load_serve_config
-from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner
 
@@ -219,8 +219,9 @@ def offline_pass(rec: Recording) -> PathRun:
                             origin_lon_deg=m.origin_lon_deg,
                             ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
                             frame_rate_hz=m.frame_rate_hz, frame_source=m.frame_source,
-                            max_gap_s=m.max_gap_s, system_id=m.system_id)
-        poses = [p for p in lp.poses if not below_min_height(p.r_cam_enu[2], m.min_height_m)]
+                            max_gap_s=m.max_gap_s, system_id=m.system_id,
+                            min_height_m=m.min_height_m)
+        poses = [p for p, low in zip(lp.poses, lp.low, strict=True) if not low]
         evaluate_poses(grid, poses, progress=False, total=len(poses))
         return messages, len(poses), grid
 

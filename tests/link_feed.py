@@ -18,8 +18,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from benchmarks.harness import small_mission
 from pdcov.core.grid import CoverageGrid
-from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
 from pdcov.service.coverage import LiveCoverage
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.settings import ServeConfig, load_serve_config, new_serve_grid
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.log_poses import LogPoses, poses_from_log

@@ -12,7 +12,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from retask_keys import UNIX_S, write_pub
 
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
-from pdcov.service.core import Actions, ServiceCore
+from pdcov.service.actions import Actions
+from pdcov.service.core import ServiceCore
 from pdcov.service.settings import load_serve_config
 
 WP = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, param4=math.nan,

@@ -36,9 +36,10 @@ from pdcov.service.candidate_store import (
 )
 from pdcov.service.checkpoint import CANDIDATES_MEMBER, CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta
-from pdcov.service.daemon import EPOCH_NAME, Daemon
+from pdcov.service.daemon import Daemon
 from pdcov.service.detections import DETECTIONS_PERIOD_S
 from pdcov.service.settings import load_serve_config
+from pdcov.service.state_files import EPOCH_NAME
 from pdcov.telemetry.tlog import mavlink
 
 CAMERA = CameraModel.from_fov(640, 480, 90.0)  # f = 320 px: 16 px per m at 20 m

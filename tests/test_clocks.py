@@ -11,7 +11,8 @@ import pytest
 from pdcov.core.geodesy import Origin
 from pdcov.core.pose import FixedMount
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, ComponentClock, VehicleClock
-from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
+from pdcov.telemetry.pose_tracker import PoseTracker
+from pdcov.telemetry.sample_gate import position_jump
 from pdcov.telemetry.samples import AttitudeSample, PositionSample
 
 OFFSET_S = -1.234  # autopilot time = gimbal time + OFFSET_S

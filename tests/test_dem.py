@@ -22,7 +22,7 @@ from pdcov.core.dem import Dem, terrain_surface
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import ConfigError, InputFileError
-from pdcov.service.origin import GroundAltitude
+from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service.settings import mission_hash
 
 rasterio = pytest.importorskip("rasterio")

@@ -16,8 +16,9 @@ from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames, encode_frames_v2
 from pdcov.cli import main as pdcov_main
 from pdcov.core.detections import Box, FrameBoxes
-from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
 from pdcov.service.detections import DETECTIONS_PERIOD_S
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.tlog import mavlink

@@ -39,11 +39,6 @@ from pdcov.config.load import mission_from_dict
 from pdcov.core.pose import FixedMount
 from pdcov.errors import ConfigError
 from pdcov.service.coverage import Due
-from pdcov.service.link_protocol import (
-    EKF_STATUS_REPORT,
-    ESTIMATOR_STATUS,
-    LinkProtocol,
-)
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.adapters import NAV_GPS_GLITCHING, sample_from_mavlink
 from pdcov.telemetry.estimator import (
@@ -53,6 +48,11 @@ from pdcov.telemetry.estimator import (
     NO_ABSOLUTE_POSITION,
     estimator_reasons,
     merge_estimator,
+)
+from pdcov.telemetry.link_protocol import (
+    EKF_STATUS_REPORT,
+    ESTIMATOR_STATUS,
+    LinkProtocol,
 )
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log

@@ -26,8 +26,8 @@ from pdcov.cli import main as pdcov_main
 from pdcov.core.detections import Box, FrameBoxes
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.geolocate import PositionAccuracy
-from pdcov.service.core import LinkReport
 from pdcov.service.detections import DETECTIONS_PERIOD_S
+from pdcov.service.link_setup import LinkReport
 from pdcov.telemetry.adapters import sample_from_mavlink, samples_from_dataflash
 from pdcov.telemetry.gnss_accuracy import (
     GNSS_ACCURACY_HOLD_S,

@@ -29,7 +29,7 @@ from pdcov.ground.retask import ReflyInputs, propose_refly
 from pdcov.ground.web_auth import post_allowed
 from pdcov.planning.refly import ReflySettings, independent_grid, refly_of_grid
 from pdcov.planning.scenario import scenario_of
-from pdcov.service.core import LinkReport
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.retask import RetaskRefusal
 from pdcov.service.settings import load_serve_config
 

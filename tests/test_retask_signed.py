@@ -32,7 +32,7 @@ from pdcov.core.mission import (
 from pdcov.errors import ConfigError
 from pdcov.ground.retask import RetaskNotSent, signed_request
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
-from pdcov.service.core import LinkReport
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.retask_auth import NonceBook, RetaskRefusal
 
 

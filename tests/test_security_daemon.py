@@ -35,10 +35,10 @@ from pdcov.core.pose import CameraPose
 from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.daemon import Daemon
-from pdcov.service.link_protocol import LinkProtocol
 from pdcov.service.mavlink_io import ReplyPeers
 from pdcov.service.query_limit import QueryLimiter, QueryLimits, QueryRefusal
 from pdcov.service.settings import load_serve_config
+from pdcov.telemetry.link_protocol import LinkProtocol
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink

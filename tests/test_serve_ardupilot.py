@@ -22,8 +22,12 @@ from serve_harness import Subscriber, free_port, process, router, serve_args, se
 
 from pdcov.cli import main as pdcov_main
 from pdcov.planning.plan_files import read_mission
-from pdcov.service.link_protocol import ATTITUDE, GIMBAL_DEVICE_ATTITUDE_STATUS, GLOBAL_POSITION_INT
 from pdcov.telemetry.link_params import wait_autopilot
+from pdcov.telemetry.link_protocol import (
+    ATTITUDE,
+    GIMBAL_DEVICE_ATTITUDE_STATUS,
+    GLOBAL_POSITION_INT,
+)
 from pdcov.telemetry.upload import mavlink2_connection
 
 pytestmark = pytest.mark.e2e

@@ -18,17 +18,12 @@ from pdcov.core.mount import GimbalMount
 from pdcov.errors import InputFileError
 from pdcov.service.checkpoint import read_checkpoint_meta, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta
-from pdcov.service.core import (
-    EARLY_FRAMES,
-    LinkReport,
-    ServiceCore,
-    link_requests,
-    link_state,
-)
-from pdcov.service.link_protocol import LinkState
+from pdcov.service.core import EARLY_FRAMES, ServiceCore
+from pdcov.service.link_setup import LinkReport, link_requests, link_state
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import FrameLattice
 from pdcov.telemetry.gimbal import mount_params_complete, resolve_interpretation
+from pdcov.telemetry.link_protocol import LinkState
 from pdcov.telemetry.recorded_frames import MARK, recorded_mark
 
 

@@ -15,12 +15,12 @@ from pdcov.config.load import mission_from_dict
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage
-from pdcov.service.link_protocol import (
+from pdcov.service.settings import LinkConfig, ServeConfig, ServiceConfig
+from pdcov.telemetry.link_protocol import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_COMP_ID_ONBOARD_COMPUTER,
     LinkProtocol,
 )
-from pdcov.service.settings import LinkConfig, ServeConfig, ServiceConfig
 from pdcov.telemetry.samples import AttitudeSample, PositionSample
 
 ORIGIN = Origin(47.0, 8.0, 400.0)

@@ -375,7 +375,7 @@ def test_the_daemon_counts_zoom_reports_of_another_camera(tmp_path):
 
 
 def test_the_daemon_asks_for_the_zoom_report_it_follows(tmp_path):
-    from pdcov.service.core import link_requests
+    from pdcov.service.link_setup import link_requests
 
     for doc, expected in ((zf.mission(), {271}), (zf.mission("none"), set())):
         cfg = load_serve_config(zf.write_mission(tmp_path / "s.yaml", doc, service=True))

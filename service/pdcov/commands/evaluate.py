@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from pdcov.config.mission import Mission
     from pdcov.core.grid import CoverageGrid
     from pdcov.core.pose import CameraPose
+    from pdcov.telemetry.logs import FlightLog
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -85,6 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.core.combine_cameras import combine_cameras
+    from pdcov.core.mount import GimbalMount
     from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
@@ -95,7 +97,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         write_outputs,
     )
     from pdcov.telemetry.frame_policy import below_min_height
-    from pdcov.telemetry.log_poses import poses_from_log
+    from pdcov.telemetry.log_poses import poses_of_log
+    from pdcov.telemetry.logs import read_flight_log
     from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
     from pdcov.telemetry.terrain_check import terrain_check_for
 
@@ -108,6 +111,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}"]
     log_warnings: tuple[str, ...] = ()
+    flight_log: FlightLog | None = None
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
@@ -125,14 +129,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
                          "as heights above the ground")
     else:
         terrain_check = terrain_check_for(mission)
-        log_poses = poses_from_log(
-            args.log, origin_lat_deg=mission.origin_lat_deg,
+        mount = mission.mount
+        flight_log = read_flight_log(  # once, for every camera
+            args.log, system_id=mission.system_id,
+            gimbal_instance=mount.instance if isinstance(mount, GimbalMount) else 1)
+        log_poses = poses_of_log(
+            flight_log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
-            mount=mission.mount, frame_rate_hz=mission.frame_rate_hz,
-            frame_source=frame_source,
-            max_gap_s=mission.max_gap_s, system_id=mission.system_id, progress=progress,
+            mount=mount, frame_rate_hz=mission.frame_rate_hz, frame_source=frame_source,
+            max_gap_s=mission.max_gap_s, progress=progress,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            terrain_check=terrain_check, zoom=mission.zoom)
+            terrain_check=terrain_check, zoom=mission.zoom, min_height_m=mission.min_height_m)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -147,12 +154,15 @@ def run_evaluate(args: argparse.Namespace) -> int:
     _check_near_origin(poses, args.poses or args.log, mission.source)
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
-    # The daemon's filter (frame_policy.below_min_height), applied to the poses of a CSV too.
-    low = sum(1 for p in poses if below_min_height(p.r_cam_enu[2], mission.min_height_m))
+    # The daemon's filter: the log's frames marked by frame_selection, a CSV's poses by
+    # frame_policy.below_min_height.
+    high = (~log_poses.low if log_poses is not None else
+            ~np.array([below_min_height(p.r_cam_enu[2], mission.min_height_m)
+                       for p in poses], bool))
+    low = int((~high).sum())
     cameras = log_poses.cameras if log_poses is not None else ()
     accuracies = log_poses.accuracies if log_poses is not None else ()
     if low:
-        high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in poses]
         poses = [p for p, h in zip(poses, high, strict=True) if h]
         cameras = tuple(c for c, h in zip(cameras, high, strict=False) if h)
         accuracies = tuple(a for a, h in zip(accuracies, high, strict=False) if h)
@@ -175,7 +185,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     evaluate_poses(grid, poses, progress=progress, total=len(poses), cameras=cameras)
     lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
                                grid.frames))
-    per_camera = _other_cameras(args, mission, frame_source, lines) if mission.extra_cameras else {}
+    per_camera = (_other_cameras(args, flight_log, mission, frame_source, lines)
+                  if mission.extra_cameras else {})
     if per_camera:
         # Each camera's looks in the same cells, by the one rule the daemon applies too.
         own, grid = grid, mission.new_combined_grid()
@@ -203,6 +214,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         extra["warnings"] = [*log_warnings, *warnings]
     if terrain_check is not None:
         extra["terrain_check"] = terrain_check.as_dict()
+    if log_poses is not None:  # the bad telemetry counted, as the daemon's status faults
+        extra["telemetry_faults"] = dict(log_poses.faults)
     if per_camera:
         extra["cameras"] = {name: metrics_document(g.metrics(mission.thresholds))
                             for name, g in per_camera.items()}
@@ -232,32 +245,34 @@ def run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _other_cameras(args: argparse.Namespace, mission: Mission, frame_source: str | None,
-                   lines: list[str]) -> dict[str, CoverageGrid]:
-    """The grids of the mission's cameras after the first, each from the log's frames at its
-    own rate, with its own mount, zoom and detector (the primary's frame rules)."""
+def _other_cameras(args: argparse.Namespace, log: FlightLog | None, mission: Mission,
+                   frame_source: str | None, lines: list[str]) -> dict[str, CoverageGrid]:
+    """The grids of the mission's cameras after the first, each from the frames of the
+    ``log`` read once (its own gimbal device's reports) at its own rate, with its own mount,
+    zoom and detector (the primary's frame rules)."""
+    from pdcov.core.mount import GimbalMount
     from pdcov.report.outputs import evaluate_poses
-    from pdcov.telemetry.frame_policy import below_min_height
-    from pdcov.telemetry.log_poses import poses_from_log
+    from pdcov.telemetry.log_poses import poses_of_log
+    from pdcov.telemetry.logs import for_gimbal
 
-    if args.log is None:
+    if log is None:
         raise PdcovError(f"{args.poses}: the mission lists {len(mission.all_cameras)} "
                          "cameras; a pose CSV holds one camera's poses: give the flight log "
                          "(--log)")
     grids = {}
     for cam in mission.extra_cameras:
-        lp = poses_from_log(
-            args.log, origin_lat_deg=mission.origin_lat_deg,
+        lp = poses_of_log(
+            for_gimbal(log, cam.mount.instance) if isinstance(cam.mount, GimbalMount) else log,
+            origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
             mount=cam.mount, frame_rate_hz=cam.frame_rate_hz,
-            frame_source=frame_source,
-            max_gap_s=mission.max_gap_s, system_id=mission.system_id,
+            frame_source=frame_source, max_gap_s=mission.max_gap_s,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            zoom=cam.zoom)
-        high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in lp.poses]
+            zoom=cam.zoom, min_height_m=mission.min_height_m)
         grid = mission.new_grid(cam)
-        evaluate_poses(grid, [p for p, h in zip(lp.poses, high, strict=True) if h],
-                       cameras=[c for c, h in zip(lp.cameras, high, strict=False) if h])
+        evaluate_poses(grid, [p for p, low in zip(lp.poses, lp.low, strict=True) if not low],
+                       cameras=[c for c, low in zip(lp.cameras, lp.low, strict=False)
+                                if not low])
         grids[cam.name] = grid
         lines.append(f"camera {cam.name}: {grid.frames} frames "
                      f"({next((x for x in lp.summary_lines if x.startswith('frames:')), '')})")

@@ -80,7 +80,8 @@ def run_serve(args: argparse.Namespace) -> int:
         return 0
     import asyncio
 
-    from pdcov.service.daemon import Daemon, setup_logging
+    from pdcov.service.daemon import Daemon
+    from pdcov.service.journal_log import setup_logging
 
     setup_logging()
     import faulthandler

@@ -31,8 +31,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -43,9 +42,9 @@ from pdcov.bus.frames import decode_frames
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.mount import GimbalMount
 from pdcov.ids import candidate_uid_prefix, new_epoch
 from pdcov.service import candidate_store
+from pdcov.service.actions import Actions
 from pdcov.service.candidate_store import MAX_JOURNAL_BYTES, Restored
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
 from pdcov.service.coverage import LiveCoverage
@@ -56,21 +55,14 @@ from pdcov.service.frame_admission import (
     refusal_of_time,
     split_by_class,
 )
-from pdcov.service.link_protocol import (
-    ATTITUDE,
-    GIMBAL_DEVICE_ATTITUDE_STATUS,
-    GLOBAL_POSITION_INT,
-    GPS_RAW_INT,
-    HOME_POSITION,
-    ZOOM_MESSAGES,
-    LinkProtocol,
-    LinkState,
-)
+from pdcov.service.link_setup import LinkReport, link_requests, link_state
 from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.retask import Retasker, RetaskPolicy
 from pdcov.service.retask_auth import NonceBook, RetaskAuthority
 from pdcov.telemetry.frame_policy import FrameSource
-from pdcov.telemetry.gimbal import mount_params_complete, mount_params_to_read
+from pdcov.telemetry.link_protocol import (
+    LinkProtocol,
+)
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
 from pdcov.telemetry.samples import CaptureSample
 
@@ -79,93 +71,9 @@ if TYPE_CHECKING:  # a value handed in: the decisions never load a config or ope
 
 EARLY_FRAMES = 100_000
 """Detector frame times kept while the autopilot is not known yet (then the oldest go)."""
-HOME_POSITION_HZ = 0.2
-GNSS_ACCURACY_HZ = 2.0
-"""The rate GPS_RAW_INT (the GNSS accuracy the boxes are geolocated with, telemetry/
-gnss_accuracy.py) is asked for: a few reports within each GNSS_ACCURACY_HOLD_S."""
-ZOOM_REPORT_HZ = 5.0
-"""The rate the zoom report camera.zoom follows is asked for, of the autopilot (ArduPilot
-sends its cameras' messages when asked; a MAVLink camera component streams its own)."""
 DROPS_WARNING_PERIOD_S = 60.0
 """The kernel-drop warning is logged at most once in this long (the count is always in the
 status)."""
-
-
-@dataclass(frozen=True, slots=True)
-class LinkReport:
-    """What the shell's links and files say, for the status (I/O facts the core cannot
-    see): each link's ``describe()`` and state, their URLs, losses, datagrams the kernel
-    dropped, chunks pymavlink failed to parse, the recording's error."""
-
-    links: tuple[dict[str, Any], ...] = ()
-    states: tuple[LinkState, ...] = ()
-    url: str = ""
-    losses: int = 0
-    kernel_drops: int = 0
-    parse_errors: int = 0
-    recording_error: str | None = None
-
-
-@dataclass(slots=True)
-class Actions:
-    """What the shell should do now, in this order: send these MAVLink messages on every
-    link; write these bytes to the recording; publish these tiles; append ``journal`` to
-    the candidates journal, flushed and fsynced, and report it back (``journal_written``),
-    then publish these detections messages (on pdcov/<id>/detections); if ``status_due``,
-    flush
-    the recording and publish ``ServiceCore.status``; write this checkpoint (grid and meta)
-    and report it back; empty the candidates journal (``journal_reset``, atomically);
-    answer these re-tasking queries (ticket, reply payload); write the
-    re-tasking nonces seen (``nonces``, to read back at start); log these (level, text)
-    lines."""
-
-    send: list[Any] = field(default_factory=list)
-    record: list[bytes] = field(default_factory=list)
-    tiles: bytes | None = None
-    journal: bytes | None = None
-    detections: list[bytes] = field(default_factory=list)
-    status_due: bool = False
-    checkpoint: CheckpointMeta | None = None
-    journal_reset: bool = False
-    replies: list[tuple[int, bytes]] = field(default_factory=list)
-    nonces: bytes | None = None
-    logs: list[tuple[int, str]] = field(default_factory=list)
-
-
-def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
-                                             Callable[[Mapping[str, float]], bool] | None]:
-    """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, the zoom reports
-    the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the
-    one list of mount parameters of each gimbal device (gimbal.mount_params_to_read, as
-    mount-check)."""
-    link, cams = cfg.link, cfg.mission.all_cameras
-    intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
-                 HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ}
-    for cam in cams:
-        if cam.zoom is not None:
-            intervals[ZOOM_MESSAGES[cam.zoom.lens.quantity]] = ZOOM_REPORT_HZ
-    instances = sorted({c.mount.instance for c in cams if isinstance(c.mount, GimbalMount)})
-    if not instances:
-        return intervals, (), None
-    intervals[GIMBAL_DEVICE_ATTITUDE_STATUS] = link.gimbal_hz
-    names: list[str] = []
-    for instance in instances:
-        current, legacy = mount_params_to_read(instance)
-        names += [*current, *legacy]
-    return (intervals, tuple(dict.fromkeys(names)),
-            lambda values: all(mount_params_complete(values, i) for i in instances))
-
-
-def link_state(states: Iterable[LinkState], autopilot_known: bool) -> LinkState:
-    """The links' state as one: connected once a link is and the autopilot is known;
-    waiting while a link is open (or silent) without it; else the first link's."""
-    states = list(states)
-    if LinkState.CONNECTED in states and autopilot_known:
-        return LinkState.CONNECTED
-    if LinkState.CONNECTED in states or LinkState.WAITING in states:
-        return LinkState.WAITING
-    return states[0] if states else LinkState.NONE
 
 
 class ServiceCore:

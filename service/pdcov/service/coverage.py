@@ -25,11 +25,11 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
-frames and grid to ``camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
+frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
 whose grids ``combine_cameras`` combines into the published one after every frame, as
 ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
-``frame_schedule.FrameSchedule``, the ground altitude to
-``origin.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
+``flight.frame_schedule.FrameSchedule``, the ground altitude to
+``ground_altitude.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
 """
 
@@ -48,17 +48,18 @@ from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from pdcov.flight.camera_frames import CameraFrames
+from pdcov.flight.frame_schedule import FrameSchedule
+from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service import status
-from pdcov.service.camera_frames import CameraFrames
 from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
-from pdcov.service.frame_schedule import FrameSchedule
-from pdcov.service.origin import GroundAltitude
 from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
 from pdcov.telemetry.frame_policy import FrameLattice, FrameSource
 from pdcov.telemetry.gimbal import GimbalInterpretation
-from pdcov.telemetry.pose_tracker import PoseTracker, position_jump
+from pdcov.telemetry.pose_tracker import PoseTracker
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -70,7 +71,6 @@ from pdcov.telemetry.samples import (
     LensSample,
     PositionSample,
     Sample,
-    usable_quaternion,
 )
 from pdcov.telemetry.terrain_check import TerrainCheck, terrain_check_for
 
@@ -130,7 +130,7 @@ class LiveCoverage:
         self.origin_how = ""
         self._ground = GroundAltitude(m.ground_alt_msl_m, cfg.service.home_wait_s,
                                       m.ground_alt_how)
-        self._last_position: PositionSample | None = None
+        self.gate = SampleGate(self.counters.faults)
         self._estimator_seen = False  # an estimator status came over the link
         self._note: str | None = None  # said once by poll (Due.note)
         self._noted_no_estimator = False
@@ -181,14 +181,9 @@ class LiveCoverage:
             check.add(sample)
             if check.home_refused is not None and not self.primary.dem_refused:
                 self._refuse_dem(check)
-        if not math.isfinite(sample.t_s):
-            self.counters.faults[Fault.UNTIMED_SAMPLES] += 1
+        if not self.gate.admit(sample):  # sample_gate: the tlog reader's rule too
             return
         if isinstance(sample, HomeSample):
-            if not (math.isfinite(sample.alt_msl_m) and abs(sample.lat_deg) <= 90
-                    and abs(sample.lon_deg) <= 180):
-                self.counters.faults[Fault.INVALID_SAMPLES] += 1
-                return
             self._ground.add_home(sample)
             return
         if isinstance(sample, HeartbeatSample):
@@ -198,31 +193,8 @@ class LiveCoverage:
             if self.frame_source == FrameSource.CAPTURE:
                 self.add_frame_times([sample.t_s])
             return
-        if isinstance(sample, AttitudeSample) and not usable_quaternion(
-                sample.q_ned_body_wxyz):
-            self.counters.faults[Fault.NAN_SAMPLES] += 1
-            return
         if isinstance(sample, PositionSample):
-            if not (math.isfinite(sample.lat_deg) and math.isfinite(sample.lon_deg)
-                    and math.isfinite(sample.alt_msl_m)):
-                self.counters.faults[Fault.NAN_SAMPLES] += 1
-                return
-            if abs(sample.lat_deg) > 90 or abs(sample.lon_deg) > 180:
-                self.counters.faults[Fault.INVALID_SAMPLES] += 1
-                return
             self._ground.add_position(sample)
-            last = self._last_position
-            if last is not None and position_jump(last, sample):
-                self.counters.faults[Fault.POSITION_JUMPS] += 1
-            if last is None or sample.t_s > last.t_s:
-                self._last_position = sample
-        if isinstance(sample, GimbalSample):
-            if sample.failure_flags:
-                self.counters.faults[Fault.GIMBAL_FAILURES] += 1
-            norm = math.sqrt(sum(v * v for v in sample.q_wxyz))
-            if not (math.isfinite(norm) and norm > 0.5):
-                self.counters.faults[Fault.NAN_SAMPLES] += 1
-                return
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
         if isinstance(sample, LensSample) and len(self.cameras) > 1:
@@ -338,7 +310,7 @@ class LiveCoverage:
 
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting
-        (origin.GroundAltitude)."""
+        (ground_altitude.GroundAltitude)."""
         w = self.primary.waiting
         return self._ground.ground_alt(w[-1].t_s if w else -math.inf)
 

@@ -17,7 +17,7 @@ candidates journal is appended and fsynced there too (one short line at most onc
 DETECTIONS_PERIOD_S, before the detections message it protects: the put must wait for it).
 
 Files in service.state_dir: checkpoint.npz, the candidates journal (candidate_store.py),
-``epoch`` (EPOCH_NAME), the re-tasking nonces, recordings/.
+``epoch``, the re-tasking nonces (state_files.py), recordings/.
 """
 
 from __future__ import annotations
@@ -25,15 +25,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import os
 import signal
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pdcov.atomic import atomic_write
 from pdcov.bus.footprint import encode_footprint
 from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
@@ -48,53 +45,28 @@ from pdcov.bus.session import (
 from pdcov.bus.sources import SourcedPublisher, source_session
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import ConfigError, PdcovError
-from pdcov.ids import EPOCH_RULE, new_epoch, valid_epoch
-from pdcov.service.candidate_store import JOURNAL_NAME, MAX_JOURNAL_BYTES
+from pdcov.service.actions import Actions
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState
-from pdcov.service.core import Actions, LinkReport, ServiceCore
+from pdcov.service.core import ServiceCore
 from pdcov.service.coverage import LiveCoverage
-from pdcov.service.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
+from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
-from pdcov.service.retask_auth import NonceBook
 from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
+from pdcov.service.state_files import StateFiles
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.frame_policy import FrameSource
+from pdcov.telemetry.link_protocol import MAV_COMP_ID_ONBOARD_COMPUTER, LinkProtocol
 
 log = logging.getLogger("pdcov.serve")
 TICK_S = 0.05
-NONCES_NAME = "retask_nonces.json"
-"""The re-tasking nonces seen, in service.state_dir (service/retask_auth.py)."""
-EPOCH_NAME = "epoch"
-"""The state dir's epoch token (ids.EPOCH_RULE) in every candidate uid: made once, when
-missing, and read back at every start."""
 OPEN_ATTEMPT_S = 2.0
 """Longest wait of one attempt to open a client session (for a router to answer)."""
 OPEN_RETRY_S = 1.0
 """Pause between two attempts to open a client session."""
 """The longest the loop sleeps between ticks (the core's timer may wake it sooner): links'
 silence is checked this often."""
-
-
-class JournalFormatter(logging.Formatter):
-    """``<N>message``: the syslog level as journald reads it from stderr; no time stamp
-    (journald adds its own)."""
-
-    LEVELS = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
-              logging.CRITICAL: 2}
-
-    def format(self, record: logging.LogRecord) -> str:
-        level = self.LEVELS.get(record.levelno, 6)
-        return f"<{level}>{record.name}: {super().format(record)}"
-
-
-def setup_logging(level: int = logging.INFO) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(JournalFormatter("%(message)s"))
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(level)
 
 
 class Daemon:
@@ -118,6 +90,7 @@ class Daemon:
         self.recorder: TlogRecorder | None = None
         self._process_scheduled = False
         self.state_dir.mkdir(parents=True, exist_ok=True)
+        self.files = StateFiles(self.state_dir)
         self.core = self._start_core()  # a new or resumed grid: there before the loop runs
         self.keys = self.core.keys
         self._mission_reply: tuple[float | None, bytes] | None = None  # (ground alt, bytes)
@@ -141,80 +114,23 @@ class Daemon:
                                 set_aside=str(r.set_aside) if r.set_aside else None)
         core = ServiceCore(self.cfg, r.grid or grid, self._clock(), mission_hash=mhash,
                            resumed=r.meta if r.grid is not None else None, checkpoint=state,
-                           camera_grids=r.cameras, nonces=self._read_nonces(),
-                           epoch=self._read_epoch())
+                           camera_grids=r.cameras, nonces=self.files.read_nonces(),
+                           epoch=self.files.read_epoch())
         self._restore_candidates(core, r.grid is not None, r.candidates, r.candidates_error)
         return core
-
-    def _read_epoch(self) -> str:
-        """The state dir's epoch token, made (atomically) when the file is missing; a file
-        that does not hold one is refused: a new token would change every restored
-        candidate's uid."""
-        path = self.state_dir / EPOCH_NAME
-        try:
-            text = path.read_text(encoding="ascii").strip()
-        except FileNotFoundError:
-            text = new_epoch()
-            with atomic_write(path, "w") as f:
-                f.write(text + "\n")
-            log.info("%s: new epoch %s (in every candidate uid)", path, text)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{path}: cannot read the epoch ({exc})") from None
-        if not valid_epoch(text):
-            raise ConfigError(f"{path}: {text[:40]!r} is not an epoch ({EPOCH_RULE}); remove "
-                              "the file to start a new one (the candidates' uids then change)")
-        return text
 
     def _restore_candidates(self, core: ServiceCore, resumed: bool, doc: Any,
                             error: str | None) -> None:
         """The candidates from the checkpoint and the journal (candidate_store.restore);
         the journal then cut to its valid lines, or set aside."""
-        path = self.state_dir / JOURNAL_NAME
-        journal, unreadable = None, False
-        try:
-            with path.open("rb") as f:
-                journal = f.read(MAX_JOURNAL_BYTES + 1)
-        except FileNotFoundError:
-            pass
-        except OSError as exc:
-            log.error("%s: cannot read (%s): the candidates are the checkpoint's", path, exc)
-            unreadable = True
+        journal, unreadable = self.files.read_journal()
         r = core.restore_candidates(resumed=resumed, checkpoint=doc, checkpoint_error=error,
-                                    journal=journal, journal_path=str(path))
+                                    journal=journal, journal_path=str(self.files.journal))
         for level, text in r.logs:
             log.log(level, "%s", text)
         log.info("candidates restored: %d (%d from the checkpoint, %d updated or added by "
                  "%d journal lines)", r.candidates, r.from_checkpoint, r.from_journal, r.lines)
-        try:
-            if r.set_aside or unreadable:
-                aside = path.with_name(f"candidates-{time.strftime('%Y%m%dT%H%M%S')}"
-                                       ".set-aside.journal")
-                path.replace(aside)
-                log.warning("%s set aside as %s", path, aside.name)
-            elif journal is not None and r.keep_bytes < len(journal):
-                os.truncate(path, r.keep_bytes)  # a torn last line: the next append after it
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot set it right ({exc})") from None
-
-    def _read_nonces(self) -> NonceBook:
-        """The re-tasking nonces seen before this start (none when the file is missing; a
-        damaged file is logged and set aside: its nonces are older than a restart, and a
-        request older than the window is refused anyway)."""
-        path = self.state_dir / NONCES_NAME
-        try:
-            return NonceBook.from_bytes(path.read_bytes())
-        except FileNotFoundError:
-            return NonceBook()
-        except (OSError, ValueError) as exc:
-            log.warning("%s: not read (%s); re-tasking nonces start empty", path, exc)
-            return NonceBook()
-
-    def _write_nonces(self, data: bytes) -> None:
-        try:
-            with atomic_write(self.state_dir / NONCES_NAME, "wb") as f:
-                f.write(data)
-        except PdcovError as exc:
-            log.error("re-tasking nonces not written: %s", exc)
+        self.files.settle_journal(journal, r.keep_bytes, r.set_aside or unreadable)
 
     @property
     def live(self) -> LiveCoverage:
@@ -472,7 +388,7 @@ class Daemon:
         if a.tiles is not None:
             self._put(self.pub_tiles, a.tiles)
         if a.journal is not None:  # before the detections: an id published is kept
-            self._append_journal(a.journal)
+            self.core.journal_written(self.files.append_journal(a.journal))
         for payload in a.detections:
             self._put(self.pub_detections, payload)
         if a.status_due:
@@ -482,40 +398,13 @@ class Daemon:
         if a.checkpoint is not None:
             self._write_checkpoint(a.checkpoint)
         if a.journal_reset:
-            self._reset_journal()
+            self.files.reset_journal()
         if a.nonces is not None:  # before the replies: a replay after a crash is refused
-            self._write_nonces(a.nonces)
+            self.files.write_nonces(a.nonces)
         for ticket, payload in a.replies:
             self._reply_retask(ticket, payload)
         for level, text in a.logs:
             log.log(level, "%s", text)
-
-    def _append_journal(self, line: bytes) -> None:
-        """Append to the candidates journal, flushed and fsynced; a failed write is cut
-        back off (the file keeps whole lines) and reported to the core."""
-        path = self.state_dir / JOURNAL_NAME
-        error = None
-        try:
-            with path.open("ab") as f:
-                before = f.tell()
-                try:
-                    f.write(line)
-                    f.flush()
-                    os.fsync(f.fileno())
-                except OSError:
-                    f.truncate(before)
-                    raise
-        except OSError as exc:
-            error = f"{path}: {exc.strerror or exc}"
-        self.core.journal_written(error)
-
-    def _reset_journal(self) -> None:
-        """Empty the candidates journal (atomically: a kill leaves it whole or empty)."""
-        try:
-            with atomic_write(self.state_dir / JOURNAL_NAME, "wb"):
-                pass
-        except PdcovError as exc:  # its lines are in the checkpoint: replayed, skipped
-            log.error("candidates journal not emptied: %s", exc)
 
     def _put(self, pub: SourcedPublisher | None, payload: bytes) -> None:
         if pub is None:  # no session yet (_open_bus): nobody to publish to

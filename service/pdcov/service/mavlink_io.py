@@ -36,7 +36,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: speak M
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.service.link_protocol import LinkState
+from pdcov.telemetry.link_protocol import LinkState
 
 log = logging.getLogger(__name__)
 READ_BYTES = 65536

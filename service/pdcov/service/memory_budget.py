@@ -4,7 +4,7 @@ flight (1e6 frames/s passed the check, then did) is refused on the ground.
 
 The estimate (bytes) is the largest two things the daemon holds: each camera's grid (its
 arrays, the snapshot being encoded, the tile diff: BYTES_PER_CELL per cell) and one batch of
-frames evaluated at once (service/camera_frames.py: frames spanning a quarter of the
+frames evaluated at once (flight/camera_frames.py: frames spanning a quarter of the
 tracker's history, max(20 s, 8 x max_gap_s), BYTES_PER_BATCHED_FRAME each: the tracker's
 interpolated poses, rotations, motion and masks), on top of BASE_BYTES for the interpreter,
 numpy, OpenCV and Zenoh. The limit is the least of the cgroup's memory.max (the systemd
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pdcov.service.camera_frames import BATCH_OF_HISTORY, tracker_history_s
+from pdcov.flight.camera_frames import BATCH_OF_HISTORY, tracker_history_s
 
 if TYPE_CHECKING:
     from pdcov.config.mission import Mission

@@ -30,8 +30,8 @@ from pdcov.bus.retask import RetaskRequest, encode_retask_reply
 from pdcov.core.geodesy import Origin
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
 from pdcov.planning.plan_items import home_item
-from pdcov.service.link_protocol import LinkProtocol
 from pdcov.service.retask_auth import NonceBook, Refused, RetaskAuthority, RetaskRefusal
+from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.mission_upload import MissionUpload, with_home
 
 __all__ = ["MISSION_MESSAGES", "RetaskPolicy", "RetaskRefusal", "Retasker", "pilot_notice"]

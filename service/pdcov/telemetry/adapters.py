@@ -35,6 +35,16 @@ from pdcov.telemetry.samples import (
 )
 
 MAV_AUTOPILOT_INVALID = 8  # common.xml MAV_AUTOPILOT: not a flight controller (GCS, gimbal)
+MAV_TYPE_GCS = 6
+
+
+def is_autopilot_heartbeat(msg: Any, system_id: int | None) -> bool:
+    """Whether a HEARTBEAT is an autopilot's (of ``system_id``, None: any): not a ground
+    station's (MAV_TYPE_GCS) nor of a component that is no autopilot (MAV_AUTOPILOT_INVALID:
+    gimbals, cameras, companions). The one rule of which autopilot is followed: the link
+    (LinkProtocol, which a .tlog replays through) and a parameter read (link_params)."""
+    return (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type != MAV_TYPE_GCS
+            and (system_id is None or msg.get_srcSystem() == system_id))
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 
 

@@ -25,7 +25,7 @@ from pdcov.telemetry.series import GnssAccuracySeries, merge_sorted_columns
 GNSS_ACCURACY_HOLD_S = 5.0
 """A report applies to frames up to this long after it (s). ArduPilot sends GPS_RAW_INT in
 its EXTENDED_STATUS stream (2 Hz as a ground station usually asks), PX4 at 1 Hz or more; the
-daemon asks service/core.py GNSS_ACCURACY_HZ."""
+daemon asks service/link_setup.py GNSS_ACCURACY_HZ."""
 
 
 def accuracy_at(series: GnssAccuracySeries, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,6 +21,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from pdcov.errors import TelemetryError
+from pdcov.telemetry.adapters import is_autopilot_heartbeat
 from pdcov.telemetry.gimbal import (
     legacy_mount_param_names,
     mount_param_names,
@@ -78,8 +79,7 @@ def wait_autopilot_heartbeat(conn: mavutil.mavfile, timeout_s: float, *,
         if msg is None:
             continue
         source = (msg.get_srcSystem(), msg.get_srcComponent())
-        if (msg.type == mavlink2.MAV_TYPE_GCS or msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID
-                or (system_id is not None and source[0] != system_id)):
+        if not is_autopilot_heartbeat(msg, system_id):
             ignored.add(source)
             continue
         return msg

@@ -1,7 +1,9 @@
-"""The offline driver: a whole flight log -> the camera poses at its frames (``poses_from_log``).
+"""The offline driver: a whole flight log -> the camera poses at its frames (``poses_of_log``
+of a log read once for every camera; ``poses_from_log`` of a file).
 
-Reads the log (``telemetry.logs``), loads it into one ``PoseTracker`` and asks for every
-frame time at once, in chunks; frames are placed by the rule the daemon uses
+Loads the log read (``telemetry.logs``) into one ``PoseTracker`` and asks for every
+frame time at once, in chunks; the frames used are ``frame_selection``'s (the daemon's
+rule); frames are placed by the rule the daemon uses
 (``frame_policy.FrameLattice``) or at the log's capture events. Times are seconds in the
 autopilot clock, positions ENU metres about the resolved origin, the ground altitude m MSL.
 """
@@ -13,6 +15,7 @@ from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +23,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
-from pdcov.core.pose import CameraPose, FixedMount, known_motion
+from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.core.zoom import Zoom
 from pdcov.errors import ConfigError, TelemetryError
@@ -29,15 +32,13 @@ from pdcov.telemetry.estimator import describe as describe_estimator
 from pdcov.telemetry.frame_policy import (
     FrameLattice,
     FrameSource,
-    frame_cameras,
-    frames_used,
     home_ground_alt,
     position_ground_alt,
-    rebuilt_R_enu_cam,
     untrusted_policy,
 )
+from pdcov.telemetry.frame_selection import select_frames
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
-from pdcov.telemetry.gnss_accuracy import describe_accuracy, position_accuracies
+from pdcov.telemetry.gnss_accuracy import describe_accuracy
 from pdcov.telemetry.lens_reports import LensReports, describe_lens
 from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
@@ -65,7 +66,9 @@ class LogPoses:
     evaluated (recorded_frames). cameras: per used frame, the camera of its zoom report
     (frame_policy.frame_cameras; None: the configured camera), empty without a zoom.
     accuracies: per used frame, the GNSS accuracy the autopilot reported in force at it
-    (gnss_accuracy.py; None: unknown).
+    (gnss_accuracy.py; None: unknown). faults: the bad messages and samples counted while
+    reading the log (FlightLog.faults: the daemon's fault keys). low: per used frame, the
+    camera below min_height_m (frame_selection: added to no grid, as live).
     """
 
     poses: tuple[CameraPose, ...]
@@ -85,6 +88,8 @@ class LogPoses:
     frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]] = field(default_factory=dict)
     cameras: tuple[CameraModel | None, ...] = ()
     accuracies: tuple[PositionAccuracy | None, ...] = ()
+    faults: Mapping[str, int] = field(default_factory=dict)
+    low: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -156,16 +161,27 @@ def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
 _CHUNK = 4096
 
 
-def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: float,
-                   ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
-                   frame_rate_hz: float, frame_source: str | None = "rate",
-                   max_gap_s: float = 1.0,
-                   system_id: int | None = None, progress: bool = False,
-                   estimator_status: bool = True,
-                   ground_alt_how: str = "configured",
-                   terrain_check: TerrainCheck | None = None,
-                   zoom: Zoom | None = None) -> LogPoses:
-    """Camera poses of a flight log (.tlog, DataFlash .bin, PX4 .ulg) at the camera's frames.
+def poses_from_log(path: str | Path, *, system_id: int | None = None,
+                   mount: FixedMount | GimbalMount, **how: Any) -> LogPoses:
+    """Camera poses of a flight log file (.tlog, DataFlash .bin, PX4 .ulg) at the camera's
+    frames: the log read (``read_flight_log``: ``system_id`` the MAVLink system to follow,
+    None: the autopilot announced by HEARTBEAT) and ``poses_of_log`` with ``mount`` and
+    ``how``, its other arguments."""
+    log = read_flight_log(path, system_id=system_id,
+                          gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
+                          else 1)
+    return poses_of_log(log, mount=mount, **how)
+
+
+def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float,
+                 ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
+                 frame_rate_hz: float, frame_source: str | None = "rate",
+                 max_gap_s: float = 1.0, progress: bool = False,
+                 estimator_status: bool = True, ground_alt_how: str = "configured",
+                 terrain_check: TerrainCheck | None = None, zoom: Zoom | None = None,
+                 min_height_m: float = -math.inf) -> LogPoses:
+    """Camera poses of a flight log read (``read_flight_log``; for a camera of another
+    gimbal device, ``logs.for_gimbal``) at the camera's frames.
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
     the autopilot's home altitude from the log; ground_alt_how: where a given one came from
@@ -177,12 +193,10 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     frames follow mount.untrusted. estimator_status: skip frames the autopilot's estimator
     calls bad (estimator.py). terrain_check: fed the log's samples
     (terrain_check.check_flight_log), when given. zoom: the camera's zoom (lens_reports.py
-    picks each frame's report; None: the configured camera for every frame). Raises
-    TelemetryError / ConfigError with a message naming the file.
+    picks each frame's report; None: the configured camera for every frame).
+    min_height_m: frames with the camera lower are marked in ``low`` (m above the ground;
+    -inf: none). Raises TelemetryError / ConfigError with a message naming the file.
     """
-    log = read_flight_log(path, system_id=system_id,
-                          gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
-                          else 1)
     if terrain_check is not None:
         check_flight_log(terrain_check, log)
     ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m, ground_alt_how)
@@ -222,15 +236,12 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
 
     valid = b.valid
     policy = untrusted_policy(mount)
-    use = frames_used(valid, b.trusted, policy)
-    q_cam, R_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
-    poses = tuple(CameraPose(R, r, float(ts), *known_motion(v, omega)) for R, r, ts, v, omega in
-                  zip(R_cam, b.r_cam_enu[use], b.t_s[use], b.v_cam_enu_m_s[use],
-                      b.omega_enu_rad_s[use], strict=True))
+    sel = select_frames(b, mount, zoom, min_height_m)
+    use, poses = sel.use, sel.poses
     rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))
 
     step = 1.0 / frame_rate_hz if frame_source == "rate" else max_gap_s
-    lines = [f"log: {log.path} ({log.format})", *log.notes,
+    lines = [f"log: {log.path} ({log.format})", *log.notes, describe_faults(log.faults),
              f"origin: {origin.lat_deg:.7f}, {origin.lon_deg:.7f}, ground {ground_alt:.2f} m "
              f"MSL ({ground_how})",
              *(x for x in (choice.line,) if x),
@@ -252,8 +263,7 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
                                     int(checkable.sum()), estimator_status))
     if lens is not None:
         lines.append(describe_lens(lens, b.lens_value[use]))
-    accuracies = position_accuracies(b.gnss_h_acc_m[use], b.gnss_v_acc_m[use])
-    lines.append(describe_accuracy(log.gnss_accuracy, accuracies))
+    lines.append(describe_accuracy(log.gnss_accuracy, sel.accuracies))
     if interp is not None:  # set exactly when the mount is a GimbalMount
         lines.append(interp.describe())
         lines.append(f"gimbal source (system, component, device id) {log.gimbal_source}")
@@ -273,14 +283,23 @@ def poses_from_log(path: str | Path, *, origin_lat_deg: float, origin_lon_deg: f
     else:
         lines.append("fixed mount: camera attitude from the vehicle attitude and the mount "
                      "angles")
-    return LogPoses(poses, origin, tracker.positions_enu, tuple(lines), q_cam, rpy,
+    return LogPoses(poses, origin, tracker.positions_enu, tuple(lines), sel.q_enu_cam_wxyz, rpy,
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
                     skipped, tuple(x for x in (choice.warning,) if x),
                     _frame_boxes(log) if frame_source == "capture" else {},
-                    tuple(frame_cameras(zoom, b.lens_value[use])) if zoom is not None else (),
-                    accuracies)
+                    sel.cameras if zoom is not None else (), sel.accuracies, log.faults,
+                    sel.low)
+
+
+def describe_faults(faults: Mapping[str, int]) -> str:
+    """The summary line of the bad telemetry counted (the daemon's status counts the same
+    under faults)."""
+    if not faults:
+        return "bad telemetry: none counted"
+    return ("bad telemetry counted (as pdcov serve counts it in its status): "
+            + ", ".join(f"{k} {n}" for k, n in faults.items()))
 
 
 def _frame_boxes(log: FlightLog) -> dict[float, tuple[float, tuple[Box, ...]]]:

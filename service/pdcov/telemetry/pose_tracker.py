@@ -71,17 +71,6 @@ is skipped as 'position jump', never interpolated across it."""
 POSITION_JUMP_SLACK_M = 2.0
 
 
-def position_jump(a: PositionSample, b: PositionSample) -> bool:
-    """True when the reported position moved faster than MAX_SPEED_MPS (+ slack) from sample
-    ``a`` to the later sample ``b``: the rule ``frames_at`` skips frames by, for counting."""
-    dt = b.t_s - a.t_s
-    if not dt > 0:
-        return False
-    step = geodetic_to_enu(b.lat_deg, b.lon_deg, b.alt_msl_m,
-                           Origin(a.lat_deg, a.lon_deg, a.alt_msl_m))
-    return float(np.linalg.norm(step)) > MAX_SPEED_MPS * dt + POSITION_JUMP_SLACK_M
-
-
 def _bracket(ts: np.ndarray, t: np.ndarray, max_gap_s: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For query times ``t`` in sorted sample times ``ts``: (lo, hi, w, inside, gap_ok) with

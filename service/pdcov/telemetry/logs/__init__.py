@@ -9,7 +9,8 @@ read becomes a ``TelemetryError`` that names the file; a damaged log is read up 
 its damage, which ``FlightLog.damage`` describes.
 """
 
+from pdcov.telemetry.logs.choose import for_gimbal
 from pdcov.telemetry.logs.flight_log import FlightLog
 from pdcov.telemetry.logs.reader import read_flight_log
 
-__all__ = ["FlightLog", "read_flight_log"]
+__all__ = ["FlightLog", "for_gimbal", "read_flight_log"]

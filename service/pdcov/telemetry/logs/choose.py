@@ -5,36 +5,25 @@ seen, and the gimbal (system, component, gimbal_device_id) among those reporting
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict
+from collections import defaultdict
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pdcov.errors import TelemetryError
-from pdcov.telemetry.adapters import MAV_AUTOPILOT_INVALID
 from pdcov.telemetry.gimbal import preferred_gimbal_source
-from pdcov.telemetry.samples import GimbalSample, HeartbeatSample
+from pdcov.telemetry.logs.flight_log import FlightLog
+from pdcov.telemetry.samples import GimbalSample
 from pdcov.telemetry.series import GimbalSeries
 
-if TYPE_CHECKING:
-    from pdcov.telemetry.logs.tlog import _Component
 
-
-def choose_system(comps: Mapping[tuple[int, int], _Component],
-                  heartbeats: list[HeartbeatSample], system_id: int | None,
-                  path: Path) -> tuple[int, int, str]:
+def choose_system(autopilots: Mapping[int, int], n_att: Mapping[int, int],
+                  seen: list[int], system_id: int | None, path: Path) -> tuple[int, int, str]:
     """(system, autopilot component, note): the configured system, else the one whose
-    HEARTBEAT names a real autopilot (MAV_AUTOPILOT != INVALID), else the one sending the
-    most attitudes; ties and alternatives are named in the note."""
-    autopilots: dict[int, int] = {}
-    for hb in heartbeats:
-        if hb.autopilot != MAV_AUTOPILOT_INVALID:
-            autopilots.setdefault(hb.system_id, hb.component_id)
-    n_att: Counter[int] = Counter()
-    for (s, _c), comp in comps.items():
-        n_att[s] += len(comp.samples.get("AttitudeSample", ())) + len(
-            comp.samples.get("AttitudeSampleQ", ()))
-    seen = sorted({s for s, _c in comps})
+    HEARTBEAT names a real autopilot (``autopilots``: {system: its component}, as
+    LinkProtocol follows one), the one sending the most attitude messages (``n_att``) among
+    several, else the one sending the most attitudes; ties and alternatives are named in
+    the note. ``seen``: every system of the log, sorted."""
     if system_id is not None:
         if system_id not in seen:
             raise TelemetryError(f"{path}: system id {system_id} does not appear in the log; "
@@ -70,3 +59,12 @@ def choose_gimbal(samples: list[GimbalSample], ap_comp: int, instance: int
         note = (f"gimbal status from {sorted(flags_seen)} (system, component, device id); "
                 f"following {source}")
     return GimbalSeries.from_samples(chosen), source, note
+
+
+def for_gimbal(log: FlightLog, instance: int) -> FlightLog:
+    """``log`` following the gimbal device ``instance`` (a camera's mount.instance) among its
+    gimbal reports, by the rule it was read with (``choose_gimbal``): each camera of a
+    mission from one reading of the log."""
+    gimbal, source, _note = choose_gimbal(list(log.gimbal_reports), log.autopilot_component,
+                                          instance)
+    return replace(log, gimbal=gimbal, gimbal_source=source)

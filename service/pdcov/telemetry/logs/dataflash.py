@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from pathlib import Path
@@ -21,7 +21,14 @@ from pdcov.errors import TelemetryError
 from pdcov.telemetry.adapters import DATAFLASH_TYPES, dataflash_boot_time_s, samples_from_dataflash
 from pdcov.telemetry.clocks import BootClock
 from pdcov.telemetry.logs.choose import choose_gimbal
-from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
+from pdcov.telemetry.logs.flight_log import (
+    FlightLog,
+    estimator_series,
+    gated,
+    restart_note,
+    shifted,
+)
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -139,7 +146,10 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     pos = positions.get("POS") or positions.get("GPS", [])
     if not positions.get("POS") and pos:
         notes.append("no POS messages: positions from GPS (3D fix only)")
-    gimbal, source, gnote = choose_gimbal(by_type[GimbalSample], 1, gimbal_instance)
+    faults: Counter = Counter()  # the daemon's checks (sample_gate), counted as it does
+    gate = SampleGate(faults)
+    gimbals = gated(gate, by_type[GimbalSample])
+    gimbal, source, gnote = choose_gimbal(gimbals, 1, gimbal_instance)
     if gnote:
         notes.append(gnote)
     if source is not None:
@@ -150,14 +160,16 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     params = {p.name: p.value for p in by_type[ParamSample]}
     estimator, est_source = _dataflash_estimator(estimators, params)
     return shifted(FlightLog(
-        str(path), "dataflash", None, AttitudeSeries.from_samples(by_type[AttitudeSample]),
-        PositionSeries.from_samples(pos), gimbal, source, tuple(by_type[HomeSample]),
+        str(path), "dataflash", None,
+        AttitudeSeries.from_samples(gated(gate, by_type[AttitudeSample])),
+        PositionSeries.from_samples(gated(gate, pos)), gimbal, source,
+        tuple(by_type[HomeSample]),
         tuple(sorted(by_type[CaptureSample], key=lambda c: c.t_s)), params,
         MountTargetSeries.from_samples(by_type[MountTargetSample]),
         tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source,
         tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample]),
-        gnss_accuracy=GnssAccuracySeries.from_samples(by_type[GnssAccuracySample])),
-        -clock.offset_s)
+        gnss_accuracy=GnssAccuracySeries.from_samples(by_type[GnssAccuracySample]),
+        faults=dict(sorted(faults.items())), gimbal_reports=tuple(gimbals)), -clock.offset_s)
 
 
 _EKF_LOGS = {3: ("XKF4", "EKF3"), 2: ("NKF4", "EKF2")}

@@ -8,18 +8,21 @@ estimator series with its source.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from pdcov.telemetry.clocks import REBOOT_GAP_S
 from pdcov.telemetry.recorded_frames import RecordedBox
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     CaptureSample,
     EstimatorSample,
+    GimbalSample,
     HomeSample,
     LensSample,
     RangefinderSample,
+    Sample,
     TerrainReportSample,
 )
 from pdcov.telemetry.series import (
@@ -31,6 +34,7 @@ from pdcov.telemetry.series import (
     PositionSeries,
 )
 
+_Sample = TypeVar("_Sample", bound=Sample)
 _Series = TypeVar("_Series", AttitudeSeries, PositionSeries, GimbalSeries, MountTargetSeries,
                    EstimatorSeries, GnssAccuracySeries)
 
@@ -52,7 +56,11 @@ class FlightLog:
     capture events. lens: the cameras' zoom reports (CAMERA_FOV_STATUS, CAMERA_SETTINGS,
     CAMERA_INFORMATION; a tlog's only), in log order. gnss_accuracy: the accuracy the
     autopilot's GNSS receiver reported (GPS_RAW_INT, GPA, vehicle_gps_position; empty when
-    the log carries none).
+    the log carries none). faults: the bad messages and samples counted while reading, by
+    the daemon's fault keys (a tlog's: telemetry/sample_gate.py, rejected_messages,
+    other_systems_messages; only those counted). gimbal_reports: every gimbal report of
+    the vehicle (any device; ``gimbal`` follows one: choose.for_gimbal follows another),
+    autopilot_component: the followed autopilot's MAVLink component (1 for other logs).
     """
 
     path: str
@@ -78,7 +86,17 @@ class FlightLog:
     lens: tuple[LensSample, ...] = ()
     gnss_accuracy: GnssAccuracySeries = field(
         default_factory=lambda: GnssAccuracySeries.from_samples([]))
+    faults: Mapping[str, int] = field(default_factory=dict)
+    gimbal_reports: tuple[GimbalSample, ...] = ()
+    autopilot_component: int = 1
 
+
+
+def gated(gate: SampleGate, samples: Iterable[_Sample]) -> list[_Sample]:
+    """The ``samples`` (time order) the sample gate admits, the others counted in its
+    faults: the daemon's checks (telemetry/sample_gate.py), for the readers whose log is
+    no MAVLink stream (DataFlash, ULog)."""
+    return [s for s in samples if gate.admit(s)]
 
 
 def estimator_series(samples: list[EstimatorSample], source: str
@@ -113,5 +131,7 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                                          for r in log.terrain_reports),
                    rangefinder=tuple(replace(r, t_s=r.t_s + dt_s) for r in log.rangefinder),
                    boxes=tuple(replace(b, t_s=b.t_s + dt_s) for b in log.boxes),
+                   gimbal_reports=tuple(replace(g, t_s=g.t_s + dt_s)
+                                        for g in log.gimbal_reports),
                    lens=tuple(replace(s, t_s=s.t_s + dt_s) for s in log.lens),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))

@@ -1,24 +1,31 @@
-"""MAVLink telemetry logs (.tlog) -> ``FlightLog``, stamped as the daemon stamped them live.
+"""MAVLink telemetry logs (.tlog) -> ``FlightLog``, replayed through the daemon's protocol.
 
-Times: time_boot_ms of the followed autopilot (s, monotonic across restarts); the other
-components' samples are mapped onto that clock by ``clocks.VehicleClock`` as on the link;
-the tlog's own wall-clock stamps are never used. Frames the daemon recorded
-(``recorded_frames``) become the capture events.
+Every message goes, in log order, through a ``LinkProtocol`` (telemetry/link_protocol.py,
+the object the daemon follows its link with: which autopilot, its clock and the other
+components' mapped onto it, the attitude source, the autopilot-only samples) and the
+``SampleGate`` (telemetry/sample_gate.py: what the daemon counts as bad samples, counted in
+``FlightLog.faults``), so that a log gives the samples the link gave. One protocol per
+system: the one followed is chosen at the end (logs/choose.py). The tlog's own wall-clock
+stamps are never used. Frames the daemon recorded (``recorded_frames``) become the capture
+events, at the times it took them.
 """
 
 from __future__ import annotations
 
 import math
-from array import array
-from collections import defaultdict
-from dataclasses import dataclass, field, replace
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.bus.faults import Fault
 from pdcov.core.detections import Box
 from pdcov.errors import TelemetryError
-from pdcov.telemetry.adapters import mavlink_boot_time_s, sample_from_mavlink
-from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S, BootClock, VehicleClock
-from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource
+from pdcov.telemetry.adapters import mavlink_boot_time_s
+from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S
+from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.logs.choose import choose_gimbal, choose_system
 from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
 from pdcov.telemetry.recorded_frames import (
@@ -33,12 +40,13 @@ from pdcov.telemetry.recorded_frames import (
 )
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.recorded_frames import boot_s as recorded_boot_s
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
+    AttitudeSample,
     CaptureSample,
     EstimatorSample,
     GimbalSample,
     GnssAccuracySample,
-    HeartbeatSample,
     HomeSample,
     LensSample,
     ParamSample,
@@ -56,213 +64,181 @@ from pdcov.telemetry.tlog import TlogScanner
 
 
 @dataclass(slots=True)
-class _Component:
-    """Per (system, component): its own boot clock, its samples (stamped in that clock) and
-    for each sample the index of its message in the log (``_Messages``)."""
+class _Vehicle:
+    """One system of the log, its messages replayed through a LinkProtocol of its own (as a
+    daemon following that system) and the sample gate; its samples by type in log order, the
+    message index of each capture event, per component the samples and those without a time
+    in the autopilot clock, and its attitude messages (for choosing the system)."""
 
-    clock: BootClock = field(default_factory=BootClock)
-    samples: dict[str, list] = field(default_factory=lambda: defaultdict(list))
-    message_index: dict[str, list[int]] = field(default_factory=lambda: defaultdict(list))
+    protocol: LinkProtocol
+    faults: Counter = field(default_factory=Counter)
+    gate: SampleGate = field(init=False)
+    samples: dict[type, list] = field(default_factory=lambda: defaultdict(list))
+    capture_index: list[int] = field(default_factory=list)
+    component_samples: Counter = field(default_factory=Counter)
+    component_untimed: Counter = field(default_factory=Counter)
+    attitudes: int = 0
+
+    def __post_init__(self) -> None:
+        self.gate = SampleGate(self.faults)
+
+    @classmethod
+    def following(cls, system_id: int, autopilot_component: int | None = None) -> _Vehicle:
+        """A vehicle whose autopilot is known from its HEARTBEAT (None), or named."""
+        protocol = LinkProtocol(mavlink.MAVLink(None), system_id=system_id, intervals={},
+                                param_names=(), param_timeout_s=0.0)
+        if autopilot_component is not None:
+            protocol.follow(system_id, autopilot_component)
+        return cls(protocol)
+
+    def receive(self, msg: Any, index: int) -> None:
+        """``msg``, the log's message ``index``, through the protocol and the gate."""
+        comp = msg.get_srcComponent()
+        for smp in self.protocol.receive(msg, 0.0):
+            self.component_samples[comp] += 1
+            if not math.isfinite(smp.t_s):
+                self.component_untimed[comp] += 1
+            kind = type(smp)
+            # A home refused stays in the log: the terrain check takes every sample before
+            # the gate, live too (a home needs no autopilot time).
+            if not self.gate.admit(smp) and kind is not HomeSample:
+                continue
+            self.samples[kind].append(smp)
+            if kind is CaptureSample:
+                self.capture_index.append(index)
 
 
 @dataclass(slots=True)
-class _Messages:
-    """Every message's source (system * 256 + component) and boot time (s, NaN for none),
-    in log order: what ``clocks.VehicleClock`` needs, once the autopilot is known, to stamp
-    other components' samples exactly as the daemon did on arrival."""
+class _Replay:
+    """A log's messages through a ``_Vehicle`` per system (``only``: that system's alone),
+    with the frames, boxes and not-taken marks the daemon recorded."""
 
-    source: array = field(default_factory=lambda: array("l"))
-    boot_s: array = field(default_factory=lambda: array("d"))
+    only: int | None = None
+    named: int | None = None  # the autopilot component, when ``only`` is followed unheard
+    vehicles: dict[int, _Vehicle] = field(default_factory=dict)
+    messages: Counter = field(default_factory=Counter)  # system -> messages
+    recorded: dict[int, tuple[int, int, float]] = field(default_factory=dict)
+    boxes: list[tuple[int, float, Box]] = field(default_factory=list)
+    bad_boxes: int = 0
+    not_taken: NotTakenCaptures = field(default_factory=NotTakenCaptures)
 
-    def autopilot_times(self, system_id: int, autopilot_component: int,
-                        wanted: set[int], read_off: frozenset[int] = frozenset()
-                        ) -> dict[int, float]:
-        """{message index: time in the autopilot clock (s)} for the ``wanted`` messages of
-        ``system_id``, every message of that system fed to one VehicleClock in order; the
-        ``read_off`` messages (frames the daemon recorded) carry a time read off the
-        autopilot's boot clock and are placed without feeding the clock
-        (VehicleClock.autopilot_boot_s, which LinkProtocol.autopilot_boot_s calls live)."""
-        clock = VehicleClock(autopilot_component)
-        out: dict[int, float] = {}
-        last = max(wanted, default=-1)
-        for i, (src, boot) in enumerate(zip(self.source, self.boot_s, strict=True)):
-            if i > last:
-                break
-            if src >> 8 != system_id:
+    def vehicle(self, system_id: int) -> _Vehicle:
+        v = self.vehicles.get(system_id)
+        if v is None:
+            v = self.vehicles[system_id] = _Vehicle.following(system_id, self.named)
+        return v
+
+    def run(self, scanner: TlogScanner) -> int:
+        """Replay every message; returns how many were read."""
+        last_mark: dict[tuple[int, int], int] = {}  # (system, image_index) -> latest MARK
+        n = 0
+        for n, msg in enumerate(scanner.messages(), 1):
+            sysid = msg.get_srcSystem()
+            self.messages[sysid] += 1
+            if self.only is not None and sysid != self.only:
                 continue
-            if i in read_off:
-                out[i] = clock.autopilot_boot_s(boot)
-                continue
-            t = clock.time_s(src & 0xFF, None if math.isnan(boot) else boot)
-            if i in wanted:
-                out[i] = t
-        return out
+            mark = recorded_mark(msg)  # the daemon's own (recorded_frames): not the link's
+            if mark == MARK:  # its time read off the autopilot's boot clock, as live
+                boot_s = mavlink_boot_time_s(msg)
+                t_s = self.vehicle(sysid).protocol.autopilot_boot_s(
+                    math.nan if boot_s is None else boot_s)
+                self.recorded[n - 1] = (sysid, int(msg.image_index), t_s)
+                last_mark[(sysid, int(msg.image_index))] = n - 1
+            elif mark == BOX:  # its frame's: the MARK of the same system and image_index
+                box, frame = box_of(msg), last_mark.get((sysid, int(msg.image_index)))
+                if box is None or frame is None:
+                    self.bad_boxes += 1
+                else:
+                    self.boxes.append((frame, recorded_boot_s(msg.time_boot_ms), box))
+            elif mark == NOT_TAKEN:
+                self.not_taken.mark(msg)
+            else:
+                v = self.vehicle(sysid)
+                if msg.get_type() in ("ATTITUDE", "ATTITUDE_QUATERNION"):
+                    v.attitudes += 1
+                elif msg.get_type() == "CAMERA_IMAGE_CAPTURED":
+                    self.not_taken.capture(msg, n - 1)
+                v.receive(msg, n - 1)
+        return n
 
 
+def _scanner(path: Path) -> TlogScanner:
+    try:
+        return TlogScanner(path.read_bytes())
+    except OSError as exc:
+        raise TelemetryError(f"{path}: cannot read log: {exc.strerror or exc}") from None
 
 
 def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> FlightLog:
-    comps: dict[tuple[int, int], _Component] = defaultdict(_Component)
-    heartbeats: list[HeartbeatSample] = []
-    messages = _Messages()
-    recorded: dict[int, tuple[int, int]] = {}  # message index -> (system, image_index)
-    last_mark: dict[tuple[int, int], int] = {}  # (system, image_index) -> its latest MARK
-    boxes: list[tuple[int, float, Box]] = []  # (its MARK's message index, t_boot_s, box)
-    bad_boxes = 0
-    not_taken = NotTakenCaptures()
-    first_euler: dict[tuple[int, int], int] = {}  # (system, component) -> first ATTITUDE
-    n_ok = 0
-    try:
-        scanner = TlogScanner(path.read_bytes())
-    except OSError as exc:
-        raise TelemetryError(f"{path}: cannot read log: {exc.strerror or exc}") from None
-    for msg in scanner.messages():
-        mtype = msg.get_type()
-        n_ok += 1
-        key = (msg.get_srcSystem(), msg.get_srcComponent())
-        comp = comps[key]
-        boot_s = mavlink_boot_time_s(msg)
-        if mtype == "ATTITUDE":
-            first_euler.setdefault(key, n_ok - 1)
-        mark = recorded_mark(msg)  # the daemon's own (recorded_frames): no clock's message
-        messages.source.append(-1 if mark in (NOT_TAKEN, BOX) else (key[0] << 8) | key[1])
-        messages.boot_s.append(math.nan if boot_s is None else boot_s)
-        if mark == MARK:  # placed below, once the autopilot is known
-            recorded[n_ok - 1] = (key[0], int(msg.image_index))
-            last_mark[recorded[n_ok - 1]] = n_ok - 1
-            continue
-        if mark == BOX:  # its frame's: the MARK of the same system and image_index before it
-            box, frame = box_of(msg), last_mark.get((key[0], int(msg.image_index)))
-            if box is None or frame is None:
-                bad_boxes += 1
-            else:
-                boxes.append((frame, recorded_boot_s(msg.time_boot_ms), box))
-            continue
-        if mark == NOT_TAKEN:
-            not_taken.mark(msg)
-            continue
-        # Stamped in the sender's own clock here; other components than the autopilot
-        # are restamped below, once it is known.
-        t_s = comp.clock.now_s if boot_s is None else comp.clock.to_s(boot_s)
-        sample = sample_from_mavlink(msg, t_s)
-        if isinstance(sample, HeartbeatSample):
-            heartbeats.append(sample)
-        elif sample is not None:
-            kind = type(sample).__name__ + ("Q" if mtype == "ATTITUDE_QUATERNION" else "")
-            comp.samples[kind].append(sample)
-            comp.message_index[kind].append(n_ok - 1)
-            if mtype == "CAMERA_IMAGE_CAPTURED":
-                not_taken.capture(msg, n_ok - 1)
-    if n_ok == 0:
+    scanner = _scanner(path)
+    replay = _Replay(only=system_id)
+    if replay.run(scanner) == 0:
         raise TelemetryError(f"{path}: no MAVLink messages found; not a .tlog, or corrupt")
     damage = scanner.damage.describe()
     notes = list(damage)
-    sysid, ap_comp, why = choose_system(comps, heartbeats, system_id, path)
+    autopilots = {s: v.protocol.autopilot_component for s, v in replay.vehicles.items()
+                  if v.protocol.autopilot_component is not None}
+    sysid, ap_comp, why = choose_system(
+        autopilots, Counter({s: v.attitudes for s, v in replay.vehicles.items()}),
+        sorted(replay.messages), system_id, path)
     notes.append(why)
-    ap = comps[(sysid, ap_comp)]
+    if sysid not in autopilots:  # no HEARTBEAT of its autopilot: followed as named
+        replay = _Replay(only=sysid, named=ap_comp)
+        replay.run(_scanner(path))
+    v = replay.vehicles[sysid]
+    proto = v.protocol
     notes.append(f"clock: time_boot_ms of the autopilot ({sysid}, {ap_comp}); "
                  "the tlog's wall-clock stamps are not used")
-    restarts = tuple(ap.clock.restarts_t_s)
+    restarts = proto.restarts_t_s
     if restarts:
         notes.append(restart_note(len(restarts), "time_boot_ms"))
-    if not_taken.dropped:
-        for comp in comps.values():
-            _drop_samples(comp, "CaptureSample", not_taken.dropped)
-        notes.append(f"{len(not_taken.dropped)} capture events pdcov serve did not take "
-                     f"(late: a later frame was decided; marked {NOT_TAKEN!r}) not used, "
+    captures = v.samples[CaptureSample]
+    if replay.not_taken.dropped:
+        captures = [c for c, i in zip(captures, v.capture_index, strict=True)
+                    if i not in replay.not_taken.dropped]
+        notes.append(f"{len(replay.not_taken.dropped)} capture events pdcov serve did not "
+                     f"take (late: a later frame was decided; marked {NOT_TAKEN!r}) not used, "
                      "as live")
-
-    # The autopilot's own samples are already in its clock (a BootClock, as VehicleClock
-    # keeps it); the other components' are restamped by the rule the daemon applies.
-    others = {c: comp for (s, c), comp in comps.items()
-              if s == sysid and c != ap_comp and comp.samples}
-    wanted = {i for comp in others.values() for idx in comp.message_index.values()
-              for i in idx}
-    read_off = frozenset(i for i, (s, _n) in recorded.items() if s == sysid)
-    wanted |= read_off
-    times = messages.autopilot_times(sysid, ap_comp, wanted, read_off) if wanted else {}
-    for c, comp in sorted(others.items()):
-        n_dropped = 0
-        for kind, items in comp.samples.items():
-            mapped = [replace(smp, t_s=times[i]) for smp, i in
-                      zip(items, comp.message_index[kind], strict=True)]
-            comp.samples[kind] = [smp for smp in mapped if math.isfinite(smp.t_s)]
-            n_dropped += len(mapped) - len(comp.samples[kind])
+    for c in sorted(v.component_samples):
+        if c == ap_comp:
+            continue
+        n_dropped = v.component_untimed[c]
         notes.append(f"component {c}'s own clock mapped onto the autopilot's (clocks."
                      f"ComponentClock: largest apparent offset over "
                      f"{COMPONENT_CLOCK_WINDOW_S:g} s)"
                      + (f"; {n_dropped} of its samples before the first autopilot time not "
                         "used" if n_dropped else ""))
-
-    def taken(kind: type) -> list:
-        """The samples of ``kind`` the daemon takes too: the autopilot component's own for
-        the frame_policy.AUTOPILOT_ONLY kinds, those of any component of the system else."""
-        if kind in AUTOPILOT_ONLY:
-            return list(ap.samples.get(kind.__name__, []))
-        out = []
-        for (s, _c), comp in comps.items():
-            if s == sysid:
-                out.extend(comp.samples.get(kind.__name__, []))
-        return out
-
-    attitude = _attitude_as_live(ap, first_euler.get((sysid, ap_comp)))
-    gimbals = taken(GimbalSample)
-    gimbal, source, gnote = choose_gimbal(gimbals, ap_comp, gimbal_instance)
+    gimbal, source, gnote = choose_gimbal(v.samples[GimbalSample], ap_comp, gimbal_instance)
     if gnote:
         notes.append(gnote)
-    params = {p.name: p.value for p in taken(ParamSample)}
-    captures = taken(CaptureSample)
+    read_off = {i: (t_s, image) for i, (s, image, t_s) in replay.recorded.items()
+                if s == sysid}
     frame_boxes: list[RecordedBox] = []
     if read_off:
         notes.append(_recorded_frames_note(len(read_off), len(captures)))
-        captures = [CaptureSample(times[i], recorded[i][1], RECORDED_SOURCE)
+        captures = [CaptureSample(read_off[i][0], read_off[i][1], RECORDED_SOURCE)
                     for i in sorted(read_off)]
-        frame_boxes = [RecordedBox(times[i], t_boot_s, box) for i, t_boot_s, box in boxes
-                       if i in read_off]
-    if bad_boxes:
-        notes.append(f"{bad_boxes} recorded boxes ({BOX!r}) unreadable or without their "
-                     "frame: not used")
+        frame_boxes = [RecordedBox(read_off[i][0], t_boot_s, box)
+                       for i, t_boot_s, box in replay.boxes if i in read_off]
+    if replay.bad_boxes:
+        notes.append(f"{replay.bad_boxes} recorded boxes ({BOX!r}) unreadable or without "
+                     "their frame: not used")
+    faults = Counter(v.faults)
+    faults[Fault.REJECTED_MESSAGES] = sum(proto.stats.rejected.values())
+    faults[Fault.OTHER_SYSTEMS_MESSAGES] = sum(replay.messages.values()) - replay.messages[sysid]
+    smp = v.samples
     return shifted(FlightLog(
-        str(path), "tlog", sysid, AttitudeSeries.from_samples(attitude),
-        PositionSeries.from_samples(taken(PositionSample)), gimbal, source,
-        tuple(taken(HomeSample)), tuple(sorted(captures, key=lambda c: c.t_s)),
-        params, MountTargetSeries.from_samples([]), restarts, tuple(notes), tuple(damage),
-        *estimator_series(taken(EstimatorSample), "EKF_STATUS_REPORT / "
-                          "ESTIMATOR_STATUS"),
-        tuple(taken(TerrainReportSample)), tuple(taken(RangefinderSample)),
-        tuple(frame_boxes), tuple(sorted(taken(LensSample), key=lambda s: s.t_s)),
-        GnssAccuracySeries.from_samples(taken(GnssAccuracySample))),
-        -ap.clock.offset_s)
-
-
-def _attitude_as_live(ap: _Component, first_euler: int | None) -> list:
-    """The autopilot's attitude samples by frame_policy.AttitudeSource, the rule
-    LinkProtocol.receive applies on the link: its messages fed in log order, its first
-    ATTITUDE message (index ``first_euler`` in the log, None: none) included even when it
-    gave no sample (the link sees that message too); of equal times the later message
-    wins (the series keeps log order)."""
-    events = [(i, 1, "ATTITUDE_QUATERNION", smp) for i, smp in zip(
-        ap.message_index.get("AttitudeSampleQ", []), ap.samples.get("AttitudeSampleQ", []),
-        strict=True)]
-    events += [(i, 1, "ATTITUDE", smp) for i, smp in zip(
-        ap.message_index.get("AttitudeSample", []), ap.samples.get("AttitudeSample", []),
-        strict=True)]
-    if first_euler is not None:
-        events.append((first_euler, 0, "ATTITUDE", None))
-    rule = AttitudeSource()
-    return [smp for _i, _k, mtype, smp in sorted(events, key=lambda e: (e[0], e[1]))
-            if rule.takes(mtype) and smp is not None]
-
-
-
-def _drop_samples(comp: _Component, kind: str, indices: set[int]) -> None:
-    """Remove ``comp``'s samples of ``kind`` whose message index is in ``indices``."""
-    idx = comp.message_index.get(kind)
-    if not idx:
-        return
-    keep = [j for j, i in enumerate(idx) if i not in indices]
-    comp.samples[kind] = [comp.samples[kind][j] for j in keep]
-    comp.message_index[kind] = [idx[j] for j in keep]
+        str(path), "tlog", sysid, AttitudeSeries.from_samples(smp[AttitudeSample]),
+        PositionSeries.from_samples(smp[PositionSample]), gimbal, source,
+        tuple(smp[HomeSample]), tuple(sorted(captures, key=lambda c: c.t_s)),
+        {p.name: p.value for p in smp[ParamSample]}, MountTargetSeries.from_samples([]),
+        restarts, tuple(notes), tuple(damage),
+        *estimator_series(smp[EstimatorSample], "EKF_STATUS_REPORT / ESTIMATOR_STATUS"),
+        tuple(smp[TerrainReportSample]), tuple(smp[RangefinderSample]),
+        tuple(frame_boxes), tuple(sorted(smp[LensSample], key=lambda s: s.t_s)),
+        GnssAccuracySeries.from_samples(smp[GnssAccuracySample]),
+        {k: n for k, n in sorted(faults.items()) if n}, tuple(v.samples[GimbalSample]),
+        ap_comp), -proto.clock_state()[0])
 
 
 def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:

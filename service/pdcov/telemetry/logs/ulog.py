@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import Counter
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -17,7 +18,8 @@ import numpy as np
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.adapters import CONST_POS_MODE, ESTIMATOR_GPS_GLITCH, POS_HORIZ_ABS
 from pdcov.telemetry.logs.choose import choose_gimbal
-from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series
+from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, gated
+from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -128,10 +130,13 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     def quat(topic: str) -> np.ndarray:
         return np.stack([col(topic, f"q[{i}]") for i in range(4)], axis=1)
 
+    faults: Counter = Counter()  # the daemon's checks (sample_gate), counted as it does
+    gate = SampleGate(faults)
     att = AttitudeSeries(np.zeros(0), np.zeros((0, 4)))
     if "vehicle_attitude" in topics:  # q: body FRD -> NED (PX4 vehicle_attitude.msg)
-        att = AttitudeSeries.from_samples([AttitudeSample(t, tuple(q)) for t, q in zip(
-            t_of("vehicle_attitude"), quat("vehicle_attitude"), strict=True)])
+        att = AttitudeSeries.from_samples(gated(gate, [
+            AttitudeSample(t, tuple(q)) for t, q in zip(
+                t_of("vehicle_attitude"), quat("vehicle_attitude"), strict=True)]))
     pos_samples: list[PositionSample] = []
     pos_note = ""
     if "vehicle_global_position" in topics:  # lat/lon deg, alt m AMSL
@@ -169,16 +174,20 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     params = dict(ulog.initial_parameters)
     for _t, name, value in ulog.changed_parameters:
         params[name] = value
+    gimbal_samples = gated(gate, gimbal_samples)
     gimbal, source, gnote = choose_gimbal(gimbal_samples, 1, gimbal_instance)
     damage = _ulog_damage(path, ulog.file_corruption)
     notes = [*damage, "clock: ULog timestamps (PX4 boot time)"]
     notes += [n for n in (pos_note, gnote) if n]
-    return FlightLog(str(path), "ulog", None, att, PositionSeries.from_samples(pos_samples),
+    return FlightLog(str(path), "ulog", None, att,
+                     PositionSeries.from_samples(gated(gate, pos_samples)),
                      gimbal, source, homes, tuple(captures), params,
                      MountTargetSeries.from_samples([]), (), tuple(notes), damage,
                      *_ulog_estimator(ekf_instances, topics.get("estimator_selector_status")),
                      (), tuple(sorted(rangefinder, key=lambda r: r.t_s)),
-                     gnss_accuracy=GnssAccuracySeries.from_samples(gnss))
+                     gnss_accuracy=GnssAccuracySeries.from_samples(gnss),
+                     faults=dict(sorted(faults.items())),
+                     gimbal_reports=tuple(gimbal_samples))
 
 
 _PX4_QUALITY_INVALID = 0  # distance_sensor.signal_quality: 0 invalid, -1 unknown, 100 best

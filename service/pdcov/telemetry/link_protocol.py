@@ -2,6 +2,8 @@
 
 ``LinkProtocol`` is fed every decoded message (``receive``) and the time (``poll``); it
 returns the telemetry samples (stamped in the autopilot's clock, s) and the messages to send.
+The daemon feeds it its links; the .tlog reader (telemetry/logs/tlog.py) replays a log's
+messages through it, so that a log gives the samples the link gave.
 It: follows one autopilot (the configured system id, else the first HEARTBEAT of a real
 autopilot); identifies as that system's component 191 (MAV_COMP_ID_ONBOARD_COMPUTER) --
 never system 255, which ArduPilot takes for its ground station (its HEARTBEAT would mask the
@@ -29,6 +31,7 @@ from typing import Any
 from pdcov.telemetry.adapters import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
+    is_autopilot_heartbeat,
     mavlink_boot_time_s,
     sample_from_mavlink,
 )
@@ -37,7 +40,6 @@ from pdcov.telemetry.frame_policy import AUTOPILOT_ONLY, AttitudeSource, TextEnu
 from pdcov.telemetry.samples import HeartbeatSample, ParamSample, Sample
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
-MAV_TYPE_GCS = 6
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_STATE_ACTIVE = 4
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
@@ -160,7 +162,17 @@ class LinkProtocol:
 
     @property
     def reboots(self) -> int:
-        return len(self._clock.autopilot.restarts_t_s) if self._clock else 0
+        return len(self.restarts_t_s)
+
+    @property
+    def restarts_t_s(self) -> tuple[float, ...]:
+        """The autopilot clock's times (s) at which its boot clock restarted (reboots)."""
+        return tuple(self._clock.autopilot.restarts_t_s) if self._clock else ()
+
+    def follow(self, system_id: int, autopilot_component: int) -> None:
+        """Follow this vehicle without waiting for its autopilot's HEARTBEAT: a log that
+        recorded none (the .tlog reader names the vehicle, telemetry/logs/choose.py)."""
+        self.system_id, self.autopilot_component = system_id, autopilot_component
 
     def from_autopilot(self, msg: Any) -> bool:
         """Whether ``msg`` (received) is the followed autopilot's own: its system and
@@ -223,8 +235,7 @@ class LinkProtocol:
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
         early: list[Sample] = []
         if mtype == "HEARTBEAT" and not self.autopilot_known:
-            if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type != MAV_TYPE_GCS
-                    and (self.system_id is None or src_sys == self.system_id)):
+            if is_autopilot_heartbeat(msg, self.system_id):
                 self.system_id, self.autopilot_component = src_sys, src_comp
                 self.autopilot_type = int(msg.autopilot)
                 self.mav.srcSystem = src_sys

@@ -19,20 +19,16 @@ import numpy as np
 from pdcov.bus.faults import Fault
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
-from pdcov.core.pose import CameraPose, known_motion
-from pdcov.service.frame_schedule import FrameSchedule
+from pdcov.core.pose import CameraPose
+from pdcov.flight.frame_schedule import FrameSchedule
 from pdcov.telemetry.frame_policy import (
     UNTRUSTED_PREFIX,
     FrameSource,
     SkipReason,
-    below_min_height,
-    frame_cameras,
-    frames_used,
-    rebuilt_R_enu_cam,
     untrusted_policy,
 )
+from pdcov.telemetry.frame_selection import select_frames
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
-from pdcov.telemetry.gnss_accuracy import position_accuracies
 from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.samples import (
@@ -211,33 +207,26 @@ class CameraFrames:
         mount says to use untrusted ones) and high enough; count the others by reason."""
         self.schedule.last_frame_t_s = float(t_s[-1])
         b = tr.frames_at(t_s)
-        policy = untrusted_policy(self.cam.mount)
-        valid = b.valid
-        use = frames_used(valid, b.trusted, policy)
+        mount = self.cam.mount
+        sel = select_frames(b, mount, self.cam.zoom, self.min_height_m)
+        valid, use = b.valid, sel.use
         for reason in b.skip_reason[~valid]:
             self.skipped[str(reason)] += 1
         untrusted = valid & ~b.trusted
         self.faults[Fault.FRAMES_UNTRUSTED] += int(untrusted.sum())
-        if policy != "use":
+        if untrusted_policy(mount) != "use":
             for reason in b.untrusted_reason[untrusted]:
                 self.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
         if self.dem_refused:
             self.skipped[SkipReason.HOME_OFF_DEM] += int(use.sum())
             return 0
-        if not use.any():
-            return 0
-        _q, R_enu_cam = rebuilt_R_enu_cam(b.R_enu_cam[use])
         added = unjudged = 0
-        cameras = frame_cameras(self.cam.zoom, b.lens_value[use])
-        accuracies = position_accuracies(b.gnss_h_acc_m[use], b.gnss_v_acc_m[use])
-        for R, r, t, R_body, judged, v, omega, camera, accuracy in zip(
-                R_enu_cam, b.r_cam_enu[use], b.t_s[use], b.R_ned_body[use],
-                b.estimator_judged[use], b.v_cam_enu_m_s[use], b.omega_enu_rad_s[use],
-                cameras, accuracies, strict=True):
-            pose = CameraPose(R, r, float(t), *known_motion(v, omega))
+        for pose, low, R_body, judged, camera, accuracy in zip(
+                sel.poses, sel.low, b.R_ned_body[use], b.estimator_judged[use], sel.cameras,
+                sel.accuracies, strict=True):
             self.last_pose, self.last_R_ned_body = pose, R_body
             self.last_accuracy = accuracy
-            if below_min_height(pose.r_cam_enu[2], self.min_height_m):
+            if low:
                 self.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
                 continue
             self.grid.update_with(pose, camera)
