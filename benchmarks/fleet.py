@@ -47,9 +47,9 @@ from pdcov.core.geodesy import Origin
 from pdcov.ground.demo import Children, FleetStatus, free_port
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan import write_plan
+from tests.support.harness import small_mission
 
 from .daemon import cpu_s, memory_bytes
-from .harness import small_mission
 from .report import write_marked_block
 
 ROOT = Path(__file__).resolve().parent.parent

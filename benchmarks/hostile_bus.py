@@ -38,10 +38,9 @@ from pdcov.ground.web import map_state
 # The watcher tests' stand-in publisher (a real CoverageGrid through the bus codecs), so
 # that these figures are of the same cases as tests/test_watcher_pinning.py.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from watch_fixtures import TinyPublisher
-
 from benchmarks.hostile_inputs import input_bound_cases
 from benchmarks.hostile_retask import retask_cases
+from tests.support.watch_fixtures import TinyPublisher
 
 DAEMON, ROGUE = "a1" * 16, "e7" * 16
 

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.frames import encode_frames_v2
 from pdcov.core.camera import CameraModel
@@ -33,6 +32,7 @@ from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
 from pdcov.service.settings import load_serve_config, new_serve_grid
 from pdcov.telemetry.tlog import mavlink
+from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 Case = tuple[str, str, str, bool]
 

@@ -13,9 +13,6 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
-from retask_keys import OTHER, UNIX_S, signed
-
 from pdcov.bus.retask import decode_retask_reply
 from pdcov.core.mission import (
     MAV_CMD_DO_CHANGE_SPEED,
@@ -26,6 +23,8 @@ from pdcov.core.mission import (
     MissionItem,
 )
 from pdcov.service.retask_auth import RetaskRefusal
+from tests.support.retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
+from tests.support.retask_keys import OTHER, UNIX_S, signed
 
 Case = tuple[str, str, str, bool]
 ACCEPTED = "ACCEPTED"

@@ -12,8 +12,8 @@ import numpy as np
 
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from tests.support.references import ReferenceGrid
 
-from .references import ReferenceGrid
 from .terrain_reference import TerrainReferenceGrid
 
 

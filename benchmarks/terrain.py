@@ -17,9 +17,9 @@ import yaml
 from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from tests.support.references import pixel_rays
 
 from .measure import TerrainAgreement, terrain_agreement, time_frames, time_updates
-from .references import pixel_rays
 from .report import Row
 from .scenarios import Scenario, spaced, strided
 from .terrain_reference import Heightfield, TerrainReferenceGrid, r3_update

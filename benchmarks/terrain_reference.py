@@ -35,8 +35,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.pose import CameraPose
-
-from .references import ReferenceGrid
+from tests.support.references import ReferenceGrid
 
 MIN_STEP_OF_SPACING = 0.25   # the march's smallest step, in lattice spacings
 BISECTIONS = 8               # a quarter spacing of 1 m refined to 1 mm

@@ -9,8 +9,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tests.support.harness import child, router
+
 from ..daemon import memory_bytes
-from ..harness import child, router
 from .rig import (
     WatcherThread,
     cells_differing,

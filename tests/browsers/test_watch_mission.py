@@ -16,12 +16,17 @@ import urllib.request
 
 import numpy as np
 import pytest
-from chromium import wait_for
-from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config
 
 from pdcov.bus.mission import decode_mission
-
-pytestmark = pytest.mark.e2e
+from tests.support.chromium import wait_for
+from tests.support.serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+)
 
 BOUNDARY = [[-10.0, -10.0], [50.0, -10.0], [50.0, 40.0], [-10.0, 40.0]]
 OBSTACLE = [[10.0, 10.0], [25.0, 10.0], [25.0, 22.0], [10.0, 22.0]]

@@ -17,15 +17,6 @@ import time
 import numpy as np
 import pymap3d
 import pytest
-from chromium import console_errors, requested_urls, wait_for
-from watch_fixtures import (
-    DEMO,
-    ThreadedWebMap,
-    TinyPublisher,
-    ZenohTinyDaemon,
-    free_port,
-    zenoh_conf,
-)
 
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin
@@ -33,8 +24,15 @@ from pdcov.ground.basemap import open_basemap
 from pdcov.ground.map_layers import rings_lat_lon
 from pdcov.ground.web import grid_payload
 from pdcov.ground.web_auth import WebAccess, served_names
-
-pytestmark = pytest.mark.e2e
+from tests.support.chromium import console_errors, requested_urls, wait_for
+from tests.support.watch_fixtures import (
+    DEMO,
+    ThreadedWebMap,
+    TinyPublisher,
+    ZenohTinyDaemon,
+    free_port,
+    zenoh_conf,
+)
 
 zenoh = pytest.importorskip("zenoh")
 pytest.importorskip("selenium.webdriver")

@@ -10,14 +10,13 @@ import shutil
 import subprocess
 
 import pytest
-from exports_fixtures import coverage, detections_doc
 
 from pdcov.report.exports import VehicleDetections, write_exports
+from tests.support.exports_fixtures import coverage, detections_doc
 
-pytestmark = [pytest.mark.e2e,
-              pytest.mark.skipif(shutil.which("ogr2ogr") is None,
-                                 reason="needs GDAL's ogrinfo and ogr2ogr (apt-get install "
-                                        "gdal-bin; .ci/run does)")]
+pytestmark = pytest.mark.skipif(shutil.which("ogr2ogr") is None,
+                                reason="needs GDAL's ogrinfo and ogr2ogr (apt-get install "
+                                       "gdal-bin; .ci/run does)")
 
 
 @pytest.fixture(scope="module")

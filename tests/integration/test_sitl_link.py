@@ -17,7 +17,6 @@ import pytest
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
-from sitl_feed import PARAMS, STREAMS_HZ, FeedThread
 
 from pdcov.core.geodesy import Origin
 from pdcov.planning.plan import Plan, Waypoint, home_item, mission_items
@@ -27,8 +26,7 @@ from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S, AutopilotEndpoint
 from pdcov_sitl.faults import FaultSpec
 from pdcov_sitl.link import LinkError, LinkUrl, open_link
 from pdcov_sitl.protocol import message_id
-
-pytestmark = pytest.mark.e2e
+from tests.support.sitl_feed import PARAMS, STREAMS_HZ, FeedThread
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 PLAN = Plan((Waypoint(0.0, 0.0, 10.0, 5.0), Waypoint(0.0, 40.0, 10.0, 5.0, 2.0),

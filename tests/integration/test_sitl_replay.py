@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import socket
-import struct
 import threading
 import time
 from pathlib import Path
@@ -14,55 +13,11 @@ import pytest
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
-from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov_sitl.replay import main, replay_schedule, scan_tlog
+from pdcov_sitl.replay import main, scan_tlog
+from tests.support.replay_packets import packets, tlog_bytes
 
-REAL_LOGS = Path(__file__).resolve().parents[2] / "shared" / "real-logs"
-T0_US = 1_767_225_600_000_000
-
-
-def packets(n, msg_type="attitude"):
-    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-    out = []
-    for i in range(n):
-        msg = mav.attitude_encode(i * 10, 0.1 * i, 0.0, 0.0, 0.0, 0.0, 0.0)
-        out.append(bytes(msg.pack(mav)))
-        mav.seq = (mav.seq + 1) % 256
-    return out
-
-
-def tlog_bytes(pkts, step_us=20_000):
-    return b"".join(struct.pack(">Q", T0_US + i * step_us) + p for i, p in enumerate(pkts))
-
-
-def test_scan_finds_every_record_of_a_clean_log():
-    pkts = packets(50)
-    scan = scan_tlog(tlog_bytes(pkts))
-    assert [p for _, p in scan.records] == pkts and scan.skipped_bytes == 0
-    assert scan.span_s == pytest.approx(49 * 0.02)
-
-
-def test_scan_skips_junk_bad_checksums_and_broken_stamps():
-    pkts = packets(6)
-    records = [struct.pack(">Q", T0_US + i * 1000) + p for i, p in enumerate(pkts)]
-    damaged = bytearray(records[2])
-    damaged[20] ^= 0xFF  # payload byte: the checksum fails
-    broken_stamp = b"\xff" * 8 + pkts[4]
-    data = (b"console text\r\n\xfd\x09" + records[0] + records[1] + bytes(damaged)
-            + records[3] + broken_stamp + records[5] + b"\x00\x01truncated\xfd")
-    scan = scan_tlog(data)
-    assert [p for _, p in scan.records] == [pkts[0], pkts[1], pkts[3], pkts[5]]
-    assert scan.skipped_bytes == len(data) - sum(len(records[i]) for i in (0, 1, 3, 5))
-
-
-def test_schedule_follows_the_log_pace():
-    times = [T0_US, T0_US + 1_000_000, T0_US + 500_000, T0_US + 3_000_000]
-    assert replay_schedule(times, 1.0) == [0.0, 1.0, 1.0, 3.0]  # never back in time
-    assert replay_schedule(times, 10.0) == pytest.approx([0.0, 0.1, 0.1, 0.3])
-    assert replay_schedule(times, 0.0) == [0.0] * 4
-    with pytest.raises(ValueError, match="-1"):
-        replay_schedule(times, -1.0)
+REAL_LOGS = Path(__file__).resolve().parents[3] / "shared" / "real-logs"
 
 
 class Listener(threading.Thread):
@@ -143,22 +98,6 @@ def test_a_log_with_console_junk_replays_its_mavlink_part():
         n_pymavlink += msg.get_type() != "BAD_DATA"
     assert 1000 < scan.skipped_bytes < 0.01 * len(data)
     assert len(scan.records) >= n_pymavlink - 10
-
-
-@pytest.mark.parametrize(("args", "says"), [
-    (["missing.tlog"], "cannot read missing.tlog"),
-    (["{junk}"], "no MAVLink tlog records found"),
-    (["{junk}", "--speed", "-2"], "--speed -2.0: expected a number >= 0"),
-    (["{clean}", "--connect", "udp:1:2"], "link 'udp:1:2': expected"),
-])
-def test_bad_input_exits_2_with_a_message(tmp_path, capsys, monkeypatch, args, says):
-    (tmp_path / "junk.tlog").write_bytes(b"not a tlog at all" * 10)
-    (tmp_path / "clean.tlog").write_bytes(tlog_bytes(packets(2)))
-    monkeypatch.chdir(tmp_path)
-    args = [a.format(junk=tmp_path / "junk.tlog", clean=tmp_path / "clean.tlog")
-            for a in args]
-    assert main(args) == 2
-    assert says in capsys.readouterr().err
 
 
 def test_replay_as_a_tcp_server_waits_for_its_client(tmp_path):

@@ -8,8 +8,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
-from evaluate_inputs import (
+
+from pdcov.core.pose import CameraPose
+from tests.support.evaluate_inputs import (
     assert_clean_failure,
     cli,
     expected_poses,
@@ -19,21 +20,7 @@ from evaluate_inputs import (
     write_pose_csv,
 )
 
-from pdcov.config import mission_from_dict
-from pdcov.core.pose import CameraPose
-from pdcov.errors import ConfigError
-
 SQUARE = [[0, 0], [40, 0], [40, 40], [0, 40]]
-
-
-@pytest.mark.parametrize("domain", [
-    {"polygon_enu_m": SQUARE, "obstacles_enu_m": [[[-1, -1], [41, -1], [41, 41], [-1, 41]]]},
-    {"polygon_enu_m": [[0, 0], [40, 0], [40, 0.3], [0, 0.3]], "cell_size_m": 1.0},
-    {"polygon_enu_m": [[0.1, 0.1], [0.4, 0.1], [0.4, 0.4], [0.1, 0.4]], "cell_size_m": 1.0},
-], ids=["obstacle-covers-it", "sliver-narrower-than-a-cell", "smaller-than-a-cell"])
-def test_domain_without_a_free_cell_is_refused_at_load(domain):
-    with pytest.raises(ConfigError, match=r"m.yaml: domain: no free cell to cover"):
-        mission_from_dict(mission_doc(domain=domain), source="m.yaml")
 
 
 def test_empty_domain_refused_by_evaluate_and_plan(tmp_path):

@@ -3,12 +3,8 @@ and every figure is measured (no timing is asserted)."""
 
 import math
 
-import pytest
-
 from benchmarks.daemon import rows, run
 from benchmarks.scenarios import scenarios
-
-pytestmark = pytest.mark.e2e
 
 
 def test_daemon_benchmark_smoke_measures_every_figure(tmp_path):

@@ -2,11 +2,8 @@
 flies twice), replayed through the daemon's decisions and evaluated offline, and the live
 grids equal the offline ones cell for cell (main exits 1 otherwise). No timing is asserted."""
 
-import pytest
 
 from benchmarks.live_path import main
-
-pytestmark = pytest.mark.e2e
 
 
 def test_smoke_run_live_equals_offline(capsys):

@@ -11,19 +11,16 @@ import io
 from pathlib import Path
 
 import numpy as np
-import pytest
-import two_camera_flight as tcf
-from evaluate_inputs import load_grid, run
-from link_feed import LAT_DEG, LON_DEG, feed_tlog
-from serve_harness import fly_udp, offline, same
 
 from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.npz_file import read_zip_member
 from pdcov.service.checkpoint import CHECKPOINT_NAME, camera_member
 from pdcov.service.settings import load_serve_config
-
-pytestmark = pytest.mark.e2e
+from tests.support import two_camera_flight as tcf
+from tests.support.evaluate_inputs import load_grid, run
+from tests.support.link_feed import LAT_DEG, LON_DEG, feed_tlog
+from tests.support.serve_harness import fly_udp, offline, same
 
 
 def _survey(tmp_path: Path, vehicle_id: str = "twocam") -> tuple[dict, Path]:

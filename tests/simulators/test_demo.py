@@ -2,11 +2,7 @@
 
 import json
 
-import pytest
-
 from pdcov.cli import main
-
-pytestmark = pytest.mark.e2e
 
 
 def test_demo_writes_both_runs_and_the_comparison(tmp_path, capsys):

@@ -8,73 +8,18 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_cli_inputs import mount_tmpfs
-from watch_fixtures import free_port
 
 from pdcov.atomic import MARKER
-
-pytestmark = pytest.mark.e2e
-
-ROOT = Path(__file__).resolve().parents[1]
-SPEED = "20"
-
-
-class Run:
-    """A child process in its own session whose output lines are collected by a thread;
-    killed (whole group) in ``close``."""
-
-    def __init__(self, args: list[str], cwd: Path) -> None:
-        env = dict(os.environ, PYTHONPATH=str(ROOT / "sitl") + os.pathsep
-                   + os.environ.get("PYTHONPATH", ""))
-        self.p = subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE,
-                                  stderr=subprocess.STDOUT, text=True, env=env,
-                                  start_new_session=True)
-        self.lines: list[str] = []
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
-
-    def _read(self) -> None:
-        for line in self.p.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_line(self, pattern: str, timeout_s: float) -> re.Match:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            for line in list(self.lines):
-                m = re.search(pattern, line)
-                if m:
-                    return m
-            if self.p.poll() is not None and not self.reader.is_alive():
-                break
-            time.sleep(0.1)
-        raise AssertionError(f"no line matching {pattern!r} in {timeout_s} s:\n"
-                             + "\n".join(self.lines[-30:]))
-
-    def wait(self, timeout_s: float) -> int:
-        rc = self.p.wait(timeout=timeout_s)
-        self.reader.join(timeout=10)
-        return rc
-
-    def close(self) -> None:
-        if self.p.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.p.pid, signal.SIGKILL)
-            self.p.wait(timeout=10)
-
-
-def demo_args(out: Path, *more: str, speed: str = SPEED) -> list[str]:
-    return [sys.executable, "-m", "pdcov.cli", "demo", "--out", str(out), "--plain",
-            "--speed", speed, *more]
+from tests.support.cli_inputs import mount_tmpfs
+from tests.support.demo_run import Run, demo_args
 
 
 def load(path: Path) -> dict:
@@ -130,66 +75,6 @@ def test_two_vehicle_demo_fleet_is_the_sum_and_a_late_watcher_agrees(tmp_path):
     for f in ("heatmap.png", "thresholds.png", "pd.tif"):
         assert (out / "report" / "fleet" / f).stat().st_size > 1000
     print(f"two-vehicle demo: {summary['wall_s']} s wall")
-
-
-def test_live_demo_in_a_headless_browser(tmp_path):
-    from chromium import CHROMEDRIVER, CHROMIUM, FLAGS, have_browser
-
-    if not have_browser():
-        pytest.skip("chromium and chromium-driver are not installed (.ci/run installs them)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-
-    out = tmp_path / "demo"
-    port = free_port()
-    # Slow enough that the browser, started once the page is served, sees the whole climb
-    # (the pattern takes ~47 s of simulated flight: ~12 s of wall time at 4x).
-    demo = Run(demo_args(out, "--web", f"127.0.0.1:{port}", speed="4"), tmp_path)
-    opts = Options()
-    opts.binary_location = CHROMIUM
-    for f in FLAGS:
-        opts.add_argument(f)
-    opts.add_argument(f"--user-data-dir={tmp_path / 'profile'}")
-    driver = None
-    readings: list[tuple[str, str, str, int]] = []
-    mid_shot = tmp_path / "web-map-mid-flight.png"
-    try:
-        url = demo.wait_line(rf"web map at (http://127\.0\.0\.1:{port}/\?token=\S+)",
-                             90).group(1)
-        driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
-        driver.set_page_load_timeout(30)
-        driver.get(url)
-        end = time.monotonic() + 300
-        while demo.p.poll() is None and time.monotonic() < end:
-            try:
-                el = driver.find_element("id", "coverage")
-                r = (el.text, el.get_attribute("data-share"),
-                     el.get_attribute("data-mean-pd"), int(el.get_attribute("data-version")
-                                                           or -1))
-            except Exception:  # noqa: BLE001 - the page goes away when the demo ends
-                break
-            if r[1]:
-                readings.append(r)
-                if not mid_shot.exists() and 0.3 < float(r[1]) < 0.9:
-                    driver.save_screenshot(str(mid_shot))
-            time.sleep(0.3)
-        assert demo.wait(120) == 0, "\n".join(demo.lines[-30:])
-    finally:
-        if driver is not None:
-            driver.quit()
-        demo.close()
-    status = json.loads((out / "demo.json").read_text())["status"]["uav1"]
-    shares = [float(r[1]) for r in readings]
-    # Live: the figure climbed through several values without a reload, never going back.
-    assert len(set(shares)) >= 5 and shares == sorted(shares), shares
-    assert len({r[3] for r in readings}) >= 5
-    text, share, mean_pd, _ = readings[-1]
-    expected = status["proportion_at_or_above"]["0.8"]
-    assert float(share) == expected
-    assert text == f"{100 * expected:.1f} %"
-    assert float(mean_pd) == pytest.approx(status["mean_pd"], rel=1e-12)
-    assert mid_shot.stat().st_size > 10_000
 
 
 def processes_mentioning(text: str) -> list[int]:

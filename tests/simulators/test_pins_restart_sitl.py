@@ -36,7 +36,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from serve_harness import (
+
+from pdcov.bus.detections import decode_detections
+from pdcov.bus.keys import VehicleKeys
+from pdcov.core.detections import Candidate
+from pdcov_sitl.pin_score import DetectionOwners, found_people, found_share, merges
+from tests.simulators.test_search_loop_e2e import DEMO, PEOPLE, demo_plan
+from tests.support.serve_harness import (
     candidates_query,
     fly_args,
     free_port,
@@ -46,16 +52,8 @@ from serve_harness import (
     stop,
     watched,
 )
-from test_search_loop_e2e import DEMO, PEOPLE, demo_plan
-
-from pdcov.bus.detections import decode_detections
-from pdcov.bus.keys import VehicleKeys
-from pdcov.core.detections import Candidate
-from pdcov_sitl.pin_score import DetectionOwners, found_people, found_share, merges
 
 pytest.importorskip("jsbsim")
-pytestmark = pytest.mark.e2e
-
 SEED = 3
 KEPT_WITHIN_M = 0.5
 KEYS = VehicleKeys("sim1")

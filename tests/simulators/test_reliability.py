@@ -13,8 +13,6 @@ from benchmarks.reliability.crash import crash
 from benchmarks.reliability.outages import disk_full, router_outage
 from benchmarks.reliability.soak import soak
 
-pytestmark = pytest.mark.e2e
-
 
 def test_soak_10_simulated_minutes_with_faults(tmp_path):
     r = soak(tmp_path, flight_s=600, speed=12, rss_every_s=1.0, timeout_s=240)

@@ -11,23 +11,29 @@ import subprocess
 import sys
 
 import pytest
-from ardupilot_sitl import (
-    FLIGHT_MISSION,
-    MOUNT_SERVO_PARM,
-    ardupilot_sitl,
-    fly_mission,
-    requires_ardupilot_sitl,
-)
-from retask_keys import write_key, write_pub
-from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
 
 from pdcov.cli import main as pdcov_main
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.planning.plan import read_mission
 from pdcov.telemetry.link_params import wait_autopilot
 from pdcov.telemetry.upload import mavlink2_connection
-
-pytestmark = pytest.mark.e2e
+from tests.support.ardupilot_sitl import (
+    FLIGHT_MISSION,
+    MOUNT_SERVO_PARM,
+    ardupilot_sitl,
+    fly_mission,
+    requires_ardupilot_sitl,
+)
+from tests.support.retask_keys import write_key, write_pub
+from tests.support.serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+    stop,
+)
 
 ITEMS = (MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, lat_deg=-35.3631,
                      lon_deg=149.1652, z_m=10.0),)

@@ -34,14 +34,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from serve_harness import fly_udp, offline, recording
+
+from tests.support.serve_harness import fly_udp, offline, recording
 
 pytest.importorskip("jsbsim")
-pytestmark = pytest.mark.e2e
-
 PEOPLE = 200
 SEED = 1
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
+DEMO = Path(__file__).resolve().parents[2] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 
 
 def demo_plan(folder: Path) -> Path:

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from serve_harness import (
+
+from tests.support.serve_harness import (
     Subscriber,
     free_port,
     process,
@@ -36,9 +37,7 @@ from serve_harness import (
 os.environ["MAVLINK20"] = "1"
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import small_mission
-
-pytestmark = pytest.mark.e2e
+from tests.support.harness import small_mission
 
 KEY = bytes(range(32))
 WRONG_KEY = bytes(range(1, 33))

@@ -10,23 +10,28 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pytest
-from ardupilot_sitl import (
-    FLIGHT_MISSION,
-    MOUNT_SERVO_PARM,
-    ardupilot_sitl,
-    fly_mission,
-    requires_ardupilot_sitl,
-)
-from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
 
 from pdcov.cli import main as pdcov_main
 from pdcov.planning.plan import read_mission
 from pdcov.service.link_protocol import ATTITUDE, GIMBAL_DEVICE_ATTITUDE_STATUS, GLOBAL_POSITION_INT
 from pdcov.telemetry.link_params import wait_autopilot
 from pdcov.telemetry.upload import mavlink2_connection
-
-pytestmark = pytest.mark.e2e
+from tests.support.ardupilot_sitl import (
+    FLIGHT_MISSION,
+    MOUNT_SERVO_PARM,
+    ardupilot_sitl,
+    fly_mission,
+    requires_ardupilot_sitl,
+)
+from tests.support.serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+    stop,
+)
 
 SPEEDUP = 10  # autopilot seconds per wall second; the daemon works in the autopilot's clock
 ALTITUDE_M = 10.0

@@ -22,7 +22,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from serve_harness import (
+
+from pdcov.bus.frames import encode_frames
+from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.session import BusConfig, open_session
+from pdcov.config import load_mission
+from pdcov.core.pose import CameraPose
+from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
+from pdcov.service.checkpoint import read_meta
+from pdcov.telemetry.logs import read_flight_log
+from pdcov.telemetry.pose_tracker import PoseTracker
+from tests.support.harness import small_mission
+from tests.support.serve_harness import (
     Subscriber,
     finish,
     fly_args,
@@ -39,19 +50,6 @@ from serve_harness import (
     stop,
     watched,
 )
-
-from benchmarks.harness import small_mission
-from pdcov.bus.frames import encode_frames
-from pdcov.bus.keys import VehicleKeys
-from pdcov.bus.session import BusConfig, open_session
-from pdcov.config import load_mission
-from pdcov.core.pose import CameraPose
-from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
-from pdcov.service.checkpoint import read_meta
-from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.pose_tracker import PoseTracker
-
-pytestmark = pytest.mark.e2e
 
 SIM = small_mission(vehicle_id="sim1", coverage={"min_revisit_s": 1.0})
 FIXED = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}

@@ -20,8 +20,6 @@ from pdcov.core.geodesy import Origin
 from pdcov.planning.plan import read_plan
 from pdcov.telemetry.pose_csv import read_pose_csv
 
-pytestmark = pytest.mark.e2e
-
 BIN = Path(sys.executable).parent
 FLY_TIMEOUT_S = 120
 ORIGIN = Origin(39.35, -76.33, 5.0)

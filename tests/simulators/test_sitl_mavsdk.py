@@ -15,11 +15,9 @@ from mavsdk import Autopilot, ComponentType, Configuration, Mavsdk  # noqa: E402
 from mavsdk.plugins.mission_raw import MissionItem as RawItem  # noqa: E402
 from mavsdk.plugins.mission_raw import MissionRaw  # noqa: E402
 from mavsdk.plugins.telemetry import Telemetry  # noqa: E402
-from sitl_feed import ALT_MSL_M, LAT_DEG, LON_DEG, PARAMS, STREAMS_HZ, FeedThread  # noqa: E402
 
 from pdcov_sitl.endpoint import AutopilotEndpoint  # noqa: E402
-
-pytestmark = pytest.mark.e2e
+from tests.support.sitl_feed import ALT_MSL_M, LAT_DEG, LON_DEG, PARAMS, STREAMS_HZ, FeedThread  # noqa: E402
 
 MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 MAV_CMD_NAV_WAYPOINT = 16

@@ -28,8 +28,6 @@ from pdcov.planning.plan import Plan, Waypoint, mission_items, wpl_text
 from pdcov.telemetry.pose_csv import read_pose_csv
 from pdcov_sitl.endpoint import TLOG_EPOCH_UNIX_S
 
-pytestmark = pytest.mark.e2e
-
 BIN = Path(sys.executable).parent
 TIMEOUT_S = 120
 ORIGIN = Origin(39.35, -76.33, 5.0)

@@ -22,8 +22,6 @@ from pdcov.core.geodesy import Origin
 from pdcov.planning.plan import read_plan
 from pdcov.telemetry.pose_csv import read_pose_csv
 
-pytestmark = pytest.mark.e2e
-
 BIN = Path(sys.executable).parent
 ORIGIN = Origin(39.35, -76.33, 5.0)
 TIMEOUT_S = 180

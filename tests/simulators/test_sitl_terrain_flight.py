@@ -14,15 +14,13 @@ import pytest
 pytest.importorskip("jsbsim")
 
 from pymavlink import mavutil
-from sitl_terrain import TiltedPlane
 
 from pdcov.config import load_mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
 from pdcov.planning.plan import wpl_text
 from pdcov_sitl.fly import FlyOptions, fly
-
-pytestmark = pytest.mark.e2e
+from tests.support.sitl_terrain import TiltedPlane
 
 LAT, LON, H0 = 46.5, 7.9, 1200.0
 # 10 % up to the east, a 3 m ridge every ~94 m northwards: 6 m of relief under the legs.

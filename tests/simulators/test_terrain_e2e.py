@@ -24,17 +24,14 @@ import yaml
 pytest.importorskip("jsbsim")
 pytest.importorskip("rasterio")
 
-import terrain_scene as scene
-from evaluate_inputs import survey_poses_csv
-from serve_harness import fly_udp, offline, same
-
 from pdcov.cli import main as pdcov_main
 from pdcov.config import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.planning.plan import read_plan
 from pdcov_sitl.cli import main as sitl_main
-
-pytestmark = pytest.mark.e2e
+from tests.support import terrain_scene as scene
+from tests.support.evaluate_inputs import survey_poses_csv
+from tests.support.serve_harness import fly_udp, offline, same
 
 LOOKING_EAST = {"type": "fixed", "roll_deg": 0, "pitch_deg": -60, "yaw_deg": 0}
 """A camera 30 deg off nadir, forward: on the eastward legs it looks at the ridge."""

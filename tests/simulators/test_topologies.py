@@ -15,14 +15,17 @@ import sys
 import time
 import urllib.request
 
-import pytest
-from routers import router_process
-from serve_harness import fly_args, free_port, process, serve_args, serve_config, small_plan
-from watch_fixtures import read_line, stop_watcher
-
-from benchmarks.harness import small_mission
-
-pytestmark = pytest.mark.e2e
+from tests.support.harness import small_mission
+from tests.support.routers import router_process
+from tests.support.serve_harness import (
+    fly_args,
+    free_port,
+    process,
+    serve_args,
+    serve_config,
+    small_plan,
+)
+from tests.support.watch_fixtures import read_line, stop_watcher
 
 SIM = small_mission(vehicle_id="sim1")
 AUTO = {"mode": None, "listen": None}

@@ -25,14 +25,11 @@ import yaml
 
 pytest.importorskip("jsbsim")
 
-from evaluate_inputs import survey_poses_csv
-
 from pdcov.cli import main as pdcov_main
 from pdcov.config import load_mission
 from pdcov.planning.plan import read_plan
 from pdcov_sitl.cli import main as sitl_main
-
-pytestmark = pytest.mark.e2e
+from tests.support.evaluate_inputs import survey_poses_csv
 
 AGREE_PD = 0.05
 AGREE_SHARE = {"nadir": 0.90, "oblique": 0.85}

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-SITL_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "ardupilot-sitl"
+SITL_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "ardupilot-sitl"
 ARDUCOPTER = SITL_DIR / "arducopter"
 COPTER_PARM = SITL_DIR / "copter.parm"
 MOUNT_SERVO_PARM = SITL_DIR / "mount_servo.parm"

@@ -11,17 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from mavlink_fixtures import KnownFlight
 
 from pdcov.cli import main
 from pdcov.core.geodesy import Origin
-from pdcov.core.pose import (
-    GimbalFrame,
-    R_ned_gimbal_from_quat,
-    camera_pose,
-    fixed_mount_pose,
-)
+from pdcov.core.pose import GimbalFrame, R_ned_gimbal_from_quat, camera_pose, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx, R_from_euler_zyx_many, quat_wxyz_from_R
+from tests.support.mavlink_fixtures import KnownFlight
 
 ORIGIN = Origin(39.35, -76.33, 5.0)
 RATE_HZ = 5.0

@@ -3,9 +3,8 @@ free loopback ports, an in-process Zenoh router, child processes that always end
 run, the ``pdcov serve`` command line and its stop, and the small mission the simulated
 flights survey (a 30 m square at 1 m cells, a 640x480 camera at 5 Hz on a gimbal).
 
-It lives here, not in tests/, because the benchmarks must not import from tests/, while the
-tests already import ``benchmarks.*``; tests/serve_harness.py builds the tests' Zenoh
-subscriber and config writer on it.
+The benchmarks import it from here (tests.support), the tests never import benchmarks;
+tests/support/serve_harness.py builds the tests' Zenoh subscriber and config writer on it.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ from typing import Any
 
 from pdcov.bus.session import BusConfig, open_session
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 SMALL_MISSION: dict[str, Any] = {
     "origin": {"lat_deg": 47.397742, "lon_deg": 8.545594, "ground_alt_msl_m": 488.0},

@@ -16,13 +16,13 @@ import yaml
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import small_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.service.core import LinkReport, ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.settings import ServeConfig, load_serve_config, new_serve_grid
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.log_poses import LogPoses, poses_from_log
+from tests.support.harness import small_mission
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
 MISSION = small_mission(vehicle_id="fuzz", mount={"type": "gimbal", "attitude_frame": "flags"},

@@ -7,13 +7,13 @@ from __future__ import annotations
 import math
 
 import yaml
-from link_feed import MISSION, Hover, pack
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from retask_keys import UNIX_S, write_pub
 
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.service.core import Actions, ServiceCore
 from pdcov.service.settings import load_serve_config
+from tests.support.link_feed import MISSION, Hover, pack
+from tests.support.retask_keys import UNIX_S, write_pub
 
 WP = MissionItem(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, param4=math.nan,
                  lat_deg=47.3978, lon_deg=8.5457, z_m=10.0)

@@ -22,7 +22,7 @@ def router_process(port: int, log: Path, *connect: str) -> Iterator[subprocess.P
     """A router process on tcp/127.0.0.1:``port`` linked to the routers at ``connect``,
     listening when this returns; its output is appended to ``log`` (a restarted router
     keeps one log); killed (SIGKILL) at the end if still running."""
-    from benchmarks.harness import child
+    from tests.support.harness import child
 
     start = log.stat().st_size if log.exists() else 0
     with child([sys.executable, __file__, str(port), *connect], log, "ab") as p:

@@ -2,7 +2,7 @@
 rebuilds the grid from tiles and snapshots exactly as docs/protocol.md says, and a flight of
 ``pdcov-sitl fly`` into the daemon with ``pdcov evaluate`` of its logs to compare. Ports, the
 in-process Zenoh router, processes that are always killed and the daemon's command line
-come from benchmarks.harness (shared with the benchmarks) and are re-exported here."""
+come from tests.support.harness (shared with the benchmarks) and are re-exported here."""
 
 from __future__ import annotations
 
@@ -16,8 +16,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from benchmarks.harness import ROOT, free_port, router, serve_args, stop
-from benchmarks.harness import child as process
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot
@@ -26,6 +24,8 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 from pdcov.cli import main as pdcov_main
+from tests.support.harness import ROOT, free_port, router, serve_args, stop
+from tests.support.harness import child as process
 
 __all__ = ["REAL", "ROOT", "SPEED", "Subscriber", "candidates_query", "finish", "fly_args",
            "fly_udp", "free_port", "offline", "process", "recording", "router", "same",

@@ -1,5 +1,5 @@
 """A small hilly scene for the end-to-end tests over terrain: a DEM GeoTIFF in UTM 32N (the
-projected CRS of benchmarks.harness.SMALL_MISSION's origin, Zurich) with a gentle hill and
+projected CRS of tests.support.harness.SMALL_MISSION's origin, Zurich) with a gentle hill and
 a steep north-south ridge, the mission over it, and hand-written survey plans.
 
 Heights are analytic in the mission's ENU frame (metres about the origin, z = 0 at its
@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from benchmarks.harness import small_mission
 from benchmarks.terrain_scene import write_enu_geotiff
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
 from pdcov.planning.plan import wpl_text
+from tests.support.harness import small_mission
 
 DOMAIN_M = 60.0
 """The domain: the square [0, DOMAIN_M] east by [0, 40] north (1 m cells)."""
@@ -62,7 +62,7 @@ def write_dem(path: Path, shift_m: float = 0.0) -> Path:
 
 
 def terrain_mission(dem: Path, **sections: Any) -> dict[str, Any]:
-    """benchmarks.harness.small_mission over the scene: its camera, origin and detector, the
+    """tests.support.harness.small_mission over the scene: its camera, origin and detector, the
     domain DOMAIN_ENU_M, ``terrain.dem`` the file given, ``sections`` set."""
     return small_mission(**{"domain": {"polygon_enu_m": DOMAIN_ENU_M, "cell_size_m": 1.0},
                             "terrain": {"dem": str(dem)}, **sections})

@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from link_feed import GROUND_M, LAT_DEG, LON_DEG, Frames
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.core.detector import DetectorModel
+from tests.support.link_feed import GROUND_M, LAT_DEG, LON_DEG, Frames
 
 SECONDS = 20.0
 HEIGHT_M = 60.0

@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.harness import free_port as free_port  # re-exported for the watch tests
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.sources import SourcedPublisher
 from pdcov.bus.status import decode_status, encode_status
@@ -21,8 +20,9 @@ from pdcov.config import load_mission
 from pdcov.core.grid import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.ground.watcher import QuerySnapshot, Watcher
+from tests.support.harness import free_port as free_port  # re-exported for the watch tests
 
-DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
+DEMO = str(Path(__file__).resolve().parents[2] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
 
 

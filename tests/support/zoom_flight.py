@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from link_feed import GROUND_M, LAT_DEG, LON_DEG, Frames
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from tests.support.link_feed import GROUND_M, LAT_DEG, LON_DEG, Frames
 
 WIDE_DEG, NARROW_DEG = 66.0, 28.0
 HEIGHT_M = 60.0

@@ -13,19 +13,15 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
-import serve_harness
-from link_feed import FIXED, Hover, pack
-from serve_harness import free_port, process, router, serve_args, serve_config, stop
-
-from benchmarks.harness import small_mission
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames_v2
 from pdcov.bus.keys import VehicleKeys
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.core.detections import Box, FrameBoxes
-
-pytestmark = pytest.mark.e2e
+from tests.support import serve_harness
+from tests.support.harness import small_mission
+from tests.support.link_feed import FIXED, Hover, pack
+from tests.support.serve_harness import free_port, process, router, serve_args, serve_config, stop
 
 KEYS = VehicleKeys("uav7")
 FRAMES = [FrameBoxes(1.2 + 0.2 * k, (

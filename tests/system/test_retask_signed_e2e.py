@@ -10,13 +10,7 @@ from __future__ import annotations
 import json
 import time
 
-import pytest
 import zenoh
-from autopilot_standin import AutopilotStandIn
-from link_feed import MISSION
-from retask_harness import FAR, WP
-from retask_keys import KEY, signed, write_key, write_pub
-from serve_harness import Subscriber, free_port, process, router, serve_args, serve_config, stop
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.retask import decode_retask_reply
@@ -24,8 +18,19 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.cli import main as pdcov_main
 from pdcov.core.geodesy import Origin
 from pdcov.planning.plan import wpl_text
-
-pytestmark = pytest.mark.e2e
+from tests.support.autopilot_standin import AutopilotStandIn
+from tests.support.link_feed import MISSION
+from tests.support.retask_harness import FAR, WP
+from tests.support.retask_keys import KEY, signed, write_key, write_pub
+from tests.support.serve_harness import (
+    Subscriber,
+    free_port,
+    process,
+    router,
+    serve_args,
+    serve_config,
+    stop,
+)
 
 
 def ask(session, key: str, payload: bytes) -> list[str]:

@@ -7,11 +7,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import pytest
 import yaml
-from watch_fixtures import DEMO, TinyPublisher, ZenohTinyDaemon, start_watcher, stop_watcher
 
-pytestmark = pytest.mark.e2e
+from tests.support.watch_fixtures import (
+    DEMO,
+    TinyPublisher,
+    ZenohTinyDaemon,
+    start_watcher,
+    stop_watcher,
+)
 
 
 def test_a_rogue_vehicle_not_on_the_roster_changes_no_figure_nor_export(

@@ -15,16 +15,14 @@ from pathlib import Path
 
 import pytest
 import yaml
-from retask_keys import signed, write_pub
-from serve_harness import ROOT, free_port, process, serve_args, stop
-from tls_certs import Authority
 
 from pdcov.bus.retask import decode_retask_reply
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, MissionItem
 from pdcov.errors import ConfigError
-
-pytestmark = pytest.mark.e2e
+from tests.support.retask_keys import signed, write_pub
+from tests.support.serve_harness import ROOT, free_port, process, serve_args, stop
+from tests.support.tls_certs import Authority
 
 EXAMPLES = ROOT / "systemd" / "zenoh"
 MISSION = {

@@ -10,8 +10,11 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
-from serve_harness import (
+
+from pdcov.bus.footprint import decode_footprint
+from pdcov.cli import main as pdcov_main
+from tests.support.cmac_mission import CMAC
+from tests.support.serve_harness import (
     REAL,
     Subscriber,
     free_port,
@@ -22,24 +25,7 @@ from serve_harness import (
     stop,
 )
 
-from pdcov.bus.footprint import decode_footprint
-from pdcov.cli import main as pdcov_main
-
 TLOG = REAL / "ardupilot_sitl_servo_gimbal.tlog"
-CMAC = {
-    "vehicle_id": "uav1",
-    "origin": {"lat_deg": -35.363261, "lon_deg": 149.165230},
-    "domain": {"polygon_enu_m": [[-10, -10], [50, -10], [50, 50], [-10, 50]],
-               "cell_size_m": 1.0},
-    "camera": {"width_px": 640, "height_px": 480,
-               "K": [[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]],
-               "distortion_model": "plumb_bob",
-               "distortion_coeffs": [-0.05, 0.01, 0.0, 0.0, 0.0], "frame_rate_hz": 5},
-    "mount": {"type": "gimbal", "roll_limits_deg": [-30, 30], "pitch_limits_deg": [-90, 20],
-              "yaw_limits_deg": [-180, 180]},
-    "detector": "illustrative",
-    "coverage": {"min_revisit_s": 1.0},
-}
 
 
 def evaluate_offline(config, tlog, out) -> dict:
@@ -98,16 +84,3 @@ def test_real_flight_replay_equals_offline(tmp_path):
     finally:
         sub.close()
         r.close()
-
-
-def test_check_reports_and_exits(tmp_path, capsys):
-    cfg = tmp_path / "m.yaml"
-    cfg.write_text(yaml.safe_dump({**CMAC, "service": {"state_dir": str(tmp_path / "s")}}))
-    assert pdcov_main(["serve", "--config", str(cfg), "--check"]) == 0
-    assert "ok" in capsys.readouterr().out
-    cfg.write_text(yaml.safe_dump({**CMAC, "link": {"conect": ["tcp:x:1"]}}))
-    assert pdcov_main(["serve", "--config", str(cfg), "--check"]) == 2
-    assert "did you mean 'connect'" in capsys.readouterr().err
-    cfg.write_text(yaml.safe_dump({**CMAC, "service": {"state_dir": "/proc/none"}}))
-    assert pdcov_main(["serve", "--config", str(cfg), "--check"]) == 2
-    assert "state_dir" in capsys.readouterr().err

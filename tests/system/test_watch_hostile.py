@@ -12,7 +12,10 @@ import time
 
 import numpy as np
 import pytest
-from watch_fixtures import (
+
+from pdcov.bus.keys import VehicleKeys
+from pdcov.bus.sources import source_session
+from tests.support.watch_fixtures import (
     TinyPublisher,
     ZenohTinyDaemon,
     forged_tiles,
@@ -22,10 +25,6 @@ from watch_fixtures import (
     zenoh_conf,
 )
 
-from pdcov.bus.keys import VehicleKeys
-from pdcov.bus.sources import source_session
-
-pytestmark = pytest.mark.e2e
 zenoh = pytest.importorskip("zenoh")
 
 

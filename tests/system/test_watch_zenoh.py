@@ -10,9 +10,15 @@ import time
 
 import numpy as np
 import pytest
-from watch_fixtures import TinyPublisher, ZenohTinyDaemon, load, start_watcher, stop_watcher
 
-pytestmark = pytest.mark.e2e
+from tests.support.watch_fixtures import (
+    TinyPublisher,
+    ZenohTinyDaemon,
+    load,
+    start_watcher,
+    stop_watcher,
+)
+
 zenoh = pytest.importorskip("zenoh")
 
 

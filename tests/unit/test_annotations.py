@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from labelled_sets import coco_set, visdrone_set, yolo_set
 from PIL import Image
 
 from pdcov.detection.annotations import detect_format, read_detections, read_truth
 from pdcov.errors import ConfigError, InputFileError
+from tests.support.labelled_sets import coco_set, visdrone_set, yolo_set
 
 
 def test_coco_truth_and_detections(tmp_path):

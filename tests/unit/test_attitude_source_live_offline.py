@@ -16,7 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from link_feed import (
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.telemetry.logs import read_flight_log
+from tests.support.blur_detector import blur_detector
+from tests.support.link_feed import (
     GROUND_M,
     LAT_DEG,
     LON_DEG,
@@ -26,11 +31,6 @@ from link_feed import (
     pack,
     serve_config,
 )
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from benchmarks.blur import blur_detector
-from pdcov.core.rotations import quat_wxyz_from_euler_zyx
-from pdcov.telemetry.logs import read_flight_log
 
 
 def flying_north(seconds: float = 6.0) -> list[mavlink.MAVLink_message]:

@@ -14,11 +14,11 @@ from benchmarks.__main__ import (
     main,
 )
 from benchmarks.measure import terrain_agreement, time_updates
-from benchmarks.references import pixel_rays
 from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
 from benchmarks.scenarios import scenarios, spaced
 from benchmarks.terrain import R3_TOLERANCE_PD, TerrainSite
 from pdcov.core.camera import CameraModel
+from tests.support.references import pixel_rays
 
 
 @pytest.mark.parametrize("name", ["S1", "S3", "S4"])

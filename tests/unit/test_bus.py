@@ -41,7 +41,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.errors import ConfigError
 
-DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
+DEMO = str(Path(__file__).resolve().parents[2] / "service/pdcov/data/demo_mission.yaml")
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from watch_fixtures import TinyPublisher
 
 from pdcov.bus import grid_state, tiles
 from pdcov.bus.errors import BusPayloadError, Refusal
@@ -31,6 +30,7 @@ from pdcov.bus.status import MAX_STATUS_BYTES, MAX_THRESHOLDS, decode_status
 from pdcov.bus.tiles import MAX_TILES_BYTES, decode_tiles
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
+from tests.support.watch_fixtures import TinyPublisher
 
 KEY = "pdcov/uav1/status"
 

@@ -14,13 +14,7 @@ import pytest
 
 from pdcov.bus.errors import BusPayloadError, Refusal
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot
-from pdcov.bus.tiles import (
-    BYTES_PER_CELL,
-    apply_tiles,
-    decode_tiles,
-    encode_tiles,
-    tile_grid_shape,
-)
+from pdcov.bus.tiles import BYTES_PER_CELL, apply_tiles, decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid, LimitingFactor
 from pdcov.core.pose import CameraPose
@@ -29,7 +23,7 @@ from pdcov.ground.record import LIMITING_NOT_SENT, Recording
 from pdcov.ground.watcher import Watcher
 from pdcov.service.tile_sender import TileSender
 
-DEMO = str(Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml")
+DEMO = str(Path(__file__).resolve().parents[2] / "service/pdcov/data/demo_mission.yaml")
 R_ENU_CAM_NADIR = np.diag([1.0, -1.0, -1.0])
 TILE = 8
 

@@ -12,7 +12,6 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from watch_fixtures import DEMO, TinyPublisher
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import decode_snapshot, grid_hash
@@ -24,6 +23,7 @@ from pdcov.core.domain import Domain
 from pdcov.core.geodesy import Origin
 from pdcov.ground.watcher import QueryMission, Watcher
 from pdcov.ground.web import domain_layer, map_state
+from tests.support.watch_fixtures import DEMO, TinyPublisher
 
 
 def payload_of(mission, vehicle_id: str | None = None, alt_known: bool = True) -> bytes:

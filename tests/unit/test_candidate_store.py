@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames_v2
@@ -28,21 +27,17 @@ from pdcov.detection.candidates import DetectionTracker
 from pdcov.errors import ConfigError
 from pdcov.ids import candidate_uid_prefix, valid_epoch
 from pdcov.service import candidate_store
-from pdcov.service.candidate_store import (
-    JOURNAL_NAME,
-    checkpoint_doc,
-    journal_line,
-    restore,
-)
+from pdcov.service.candidate_store import JOURNAL_NAME, checkpoint_doc, journal_line, restore
 from pdcov.service.checkpoint import CANDIDATES_MEMBER, CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta
 from pdcov.service.daemon import EPOCH_NAME, Daemon
 from pdcov.service.detections import DETECTIONS_PERIOD_S
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.tlog import mavlink
+from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 CAMERA = CameraModel.from_fov(640, 480, 90.0)  # f = 320 px: 16 px per m at 20 m
-DEMO = Path(__file__).resolve().parents[1] / "service/pdcov/data/demo_mission.yaml"
+DEMO = Path(__file__).resolve().parents[2] / "service/pdcov/data/demo_mission.yaml"
 
 
 def tracker() -> DetectionTracker:

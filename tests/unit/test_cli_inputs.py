@@ -3,7 +3,6 @@ work is done: shared argparse types (commands/args.py) and output checks (atomic
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -12,30 +11,7 @@ from pdcov import cli
 from pdcov.commands.plan import check_plan_size, scenario_of
 from pdcov.config import load_mission
 from pdcov.errors import ConfigError, DomainError
-
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
-POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,-40.0,-40.0,10.0,0.0,1.0,0.0,0.0\n"
-
-
-def usage_error(argv: list[str], capsys) -> str:
-    """argparse's usage error: exit 2, one message, no traceback."""
-    with pytest.raises(SystemExit) as exc:
-        cli.main(argv)
-    assert exc.value.code == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err and "error:" in err
-    return err
-
-
-@pytest.fixture
-def poses(tmp_path: Path) -> Path:
-    path = tmp_path / "poses.csv"
-    path.write_text(POSES)
-    return path
-
-
-def evaluate(out: str, poses: Path, *extra: str) -> list[str]:
-    return ["evaluate", "--config", str(DEMO), "--poses", str(poses), "--out", out, *extra]
+from tests.support.cli_inputs import DEMO, evaluate, usage_error
 
 
 def test_out_is_a_file_or_under_one(tmp_path: Path, poses: Path, capsys) -> None:
@@ -130,29 +106,3 @@ def test_absurd_plans_refused_or_warned(capsys) -> None:
     assert "WARNING" in capsys.readouterr().err
     check_plan_size(sc, 8.0, 5.0)
     assert capsys.readouterr().err == ""
-
-
-def mount_tmpfs(where: Path, options: str) -> None:
-    where.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
-                          capture_output=True, timeout=10)
-    if done.returncode != 0:
-        pytest.skip("cannot mount a tmpfs here (needs root)")
-
-
-def test_full_disk_and_read_only_are_one_line_errors(tmp_path: Path, poses: Path,
-                                                     capsys) -> None:
-    full, ro = tmp_path / "full", tmp_path / "ro"
-    mount_tmpfs(full, "size=48k")
-    try:
-        mount_tmpfs(ro, "ro,size=64k")
-        try:
-            assert "not writable" in usage_error(evaluate(str(ro / "run"), poses), capsys)
-        finally:
-            subprocess.run(["umount", str(ro)], timeout=10, check=False)
-        assert cli.main(evaluate(str(full / "run"), poses)) == 2
-        err = capsys.readouterr().err
-        assert "No space left on device" in err and "Traceback" not in err
-        assert not (full / "run").exists()  # a failed run writes nothing
-    finally:
-        subprocess.run(["umount", str(full)], timeout=10, check=False)

@@ -9,35 +9,15 @@ from dataclasses import dataclass
 
 import pytest
 import yaml
-from evaluate_inputs import (
-    assert_clean_failure,
-    cli,
-    expected_poses,
-    known_flight,
-    mission_doc,
-    write_config,
-    write_pose_csv,
-)
 
-from pdcov.config import load_mission, mission_from_dict
+from pdcov.config import mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import CalibrationError, ConfigError, DetectorModelError
 from pdcov.schema import Section, check_keys
-
-
-def renamed(doc: dict, path: str, new_key: str, value=None) -> dict:
-    """``doc`` with the key at ``path`` (a.b.c) renamed to ``new_key`` (or added with
-    ``value`` when absent)."""
-    doc = copy.deepcopy(doc)
-    *parents, key = path.split(".")
-    m = doc
-    for p in parents:
-        m = m.setdefault(p, {})
-    m[new_key] = m.pop(key) if key in m else value
-    return doc
-
+from tests.support.config_docs import renamed
+from tests.support.evaluate_inputs import mission_doc
 
 # The misspellings of issue 10, each silently ignored before: (key path, misspelt, expected).
 MISSPELLINGS = [
@@ -196,18 +176,6 @@ def test_check_keys_nested_dataclass_sections():
     with pytest.raises(ConfigError, match=r"f.yaml: inner.prot: unknown key; did you mean "
                                           r"'port'"):
         check_keys({"inner": {"prot": 1}}, schema, "f.yaml")
-
-
-def test_cli_refuses_a_misspelt_key_with_exit_2_and_writes_nothing(tmp_path):
-    config = write_config(tmp_path, renamed(mission_doc(), "domain.obstacles_enu_m",
-                                            "obstacle_enu_m"))
-    csv = write_pose_csv(tmp_path / "poses.csv", expected_poses(known_flight(), None)[:3])
-    proc = cli("evaluate", "--config", str(config), "--poses", str(csv), "--out",
-               str(tmp_path / "run"))
-    assert_clean_failure(proc, "mission.yaml: domain.obstacle_enu_m: unknown key",
-                         "did you mean 'obstacles_enu_m'?")
-    assert not (tmp_path / "run").exists()
-    assert load_mission(write_config(tmp_path, mission_doc(), "ok.yaml")).cell_size_m == 1.0
 
 
 def test_more_thresholds_than_the_bus_carries_are_refused():

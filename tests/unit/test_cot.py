@@ -13,18 +13,13 @@ from datetime import datetime, timedelta
 
 import numpy as np
 import pytest
-from exports_fixtures import candidate
 
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import ConfigError
-from pdcov.ground.cot import (
-    AIRCRAFT_TYPE,
-    CANDIDATE_TYPE,
-    CotSchedule,
-    sensor_from_footprint,
-)
+from pdcov.ground.cot import AIRCRAFT_TYPE, CANDIDATE_TYPE, CotSchedule, sensor_from_footprint
 from pdcov.ground.cot_feed import CotFeed, parse_cot_url
 from pdcov.ground.feed import VehicleFeed
+from tests.support.exports_fixtures import candidate
 
 AIR = Origin(46.5, 7.25, 0.0)
 

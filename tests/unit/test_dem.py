@@ -12,9 +12,6 @@ import re
 import numpy as np
 import pytest
 import yaml
-from evaluate_inputs import ORIGIN as EVAL_ORIGIN
-from evaluate_inputs import known_flight, mission_doc, run, write_config
-from mavlink_fixtures import samples_from_flight, write_tlog
 
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.config import mission_from_dict
@@ -24,6 +21,9 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import ConfigError, InputFileError
 from pdcov.service.origin import GroundAltitude
 from pdcov.service.settings import mission_hash
+from tests.support.evaluate_inputs import ORIGIN as EVAL_ORIGIN
+from tests.support.evaluate_inputs import known_flight, mission_doc, run, write_config
+from tests.support.mavlink_fixtures import samples_from_flight, write_tlog
 
 rasterio = pytest.importorskip("rasterio")
 from rasterio.transform import from_origin  # noqa: E402

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack, without_epoch
 
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames, encode_frames_v2
@@ -21,6 +20,7 @@ from pdcov.service.detections import DETECTIONS_PERIOD_S
 from pdcov.service.recorder import TlogRecorder
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.tlog import mavlink
+from tests.support.link_feed import FIXED, MISSION, Hover, pack, without_epoch
 
 
 def _config(tmp: Path) -> Path:

@@ -8,7 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic_detections import (
+
+from pdcov import cli
+from pdcov.core.detector import DetectorModel
+from tests.support.synthetic_detections import (
     BLUR_EDGES,
     EDGES,
     IMAGE_W,
@@ -19,9 +22,6 @@ from synthetic_detections import (
     synthetic_blur_set,
     write_coco,
 )
-
-from pdcov import cli
-from pdcov.core.detector import DetectorModel
 
 BINS = ",".join(f"{e:g}" for e in EDGES)
 BLUR_BINS = ",".join(f"{e:g}" for e in BLUR_EDGES)

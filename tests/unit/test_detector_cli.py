@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from labelled_sets import coco_set
 from PIL import Image
-from synthetic_detections import EDGES, INPUT, P_D, synthetic_set, write_coco
 
 from pdcov.core.detector import DetectorModel
+from tests.support.labelled_sets import coco_set
+from tests.support.synthetic_detections import EDGES, INPUT, P_D, synthetic_set, write_coco
 
 BINS = ",".join(f"{e:g}" for e in EDGES)
 

@@ -10,8 +10,6 @@ from pdcov.core.detector import BinCounts, DetectorModel
 from pdcov.detection.figures import detector_figure, plot_detector_model
 from pdcov.detection.statistics import BinTest, RateTest, ValidationReport
 
-pytestmark = pytest.mark.e2e
-
 pytest.importorskip("matplotlib")
 
 

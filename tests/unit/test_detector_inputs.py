@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from labelled_sets import coco_set, visdrone_set, yolo_set
 
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import detect_format, read_detections, read_truth
 from pdcov.errors import ConfigError, DetectorModelError, InputFileError
+from tests.support.labelled_sets import coco_set, visdrone_set, yolo_set
 
 
 def test_yolo_values_rounded_just_past_one_are_normalised(tmp_path):

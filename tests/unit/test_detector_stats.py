@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import special, stats
-from synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set, write_coco
 
 from pdcov.core.detector import DetectorModel
 from pdcov.detection.annotations import Boxes, ImageTruth, read_detections, read_truth
@@ -38,6 +37,7 @@ from pdcov.detection.statistics import (
     validate,
 )
 from pdcov.errors import ConfigError, DetectorModelError
+from tests.support.synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set, write_coco
 
 
 @pytest.fixture(scope="module")

@@ -14,17 +14,12 @@ import zipfile
 import numpy as np
 import pytest
 import shapely
-from exports_fixtures import ORIGIN, coverage, detections_doc
 from PIL import Image
 
 from pdcov.core.geodesy import geodetic_to_enu
 from pdcov.errors import OutputError
-from pdcov.report.exports import (
-    VehicleDetections,
-    map_layers,
-    pins,
-    write_exports,
-)
+from pdcov.report.exports import VehicleDetections, map_layers, pins, write_exports
+from tests.support.exports_fixtures import ORIGIN, coverage, detections_doc
 
 KML = "{http://www.opengis.net/kml/2.2}"
 

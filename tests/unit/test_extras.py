@@ -19,8 +19,8 @@ from pdcov.cli import main
 from pdcov.extras import DEMO, GIS, GROUND, PLOTS, ROUTING, SITL, Extra
 
 tomllib = pytest.importorskip("tomllib")  # Python 3.11
-ROOT = Path(__file__).resolve().parent.parent
-POSES = Path(__file__).with_name("data") / "poses_nadir_10m.csv"
+ROOT = Path(__file__).resolve().parents[2]
+POSES = Path(__file__).resolve().parents[1] / "data" / "poses_nadir_10m.csv"
 MISSION = str(resources.files("pdcov") / "data" / "demo_mission.yaml")
 
 

@@ -6,38 +6,16 @@ from __future__ import annotations
 
 import math
 import re
-import time
 from pathlib import Path
 
 import pytest
-from ardupilot_sitl import ardupilot_sitl, requires_ardupilot_sitl
 
 from pdcov.core.mount import GimbalMount
 from pdcov.telemetry.gimbal import mount_param_names, resolve_interpretation
-from pdcov.telemetry.link_params import read_params, wait_autopilot
-from pdcov.telemetry.upload import mavlink2_connection
+from tests.support.firmware_params import AP_47, PARAMS_DIR, read_parm
 
-PARAMS_DIR = Path(__file__).resolve().parents[1] / "firmware_params"
 AP_46 = PARAMS_DIR / "ardupilot-4.5-4.6.parm"
-AP_47 = PARAMS_DIR / "ardupilot-4.7.parm"
 PX4 = PARAMS_DIR / "px4.params"
-AP_NAME = re.compile(r"^[A-Z][A-Z0-9_]{0,15}$")  # AP_MAX_NAME_SIZE 16
-
-
-def read_parm(path: Path) -> dict[str, float]:
-    """An ArduPilot .parm file (NAME VALUE per line, '#' comments), refusing duplicates."""
-    out: dict[str, float] = {}
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        line = line.split("#", 1)[0].strip()
-        if not line:
-            continue
-        fields = line.replace(",", " ").split()
-        assert len(fields) == 2, f"{path.name}:{n}: expected NAME VALUE, got {line!r}"
-        name, value = fields
-        assert AP_NAME.match(name), f"{path.name}:{n}: bad parameter name {name!r}"
-        assert name not in out, f"{path.name}:{n}: {name} set twice"
-        out[name] = float(value)
-    return out
 
 
 def read_qgc_params(path: Path) -> dict[str, float]:
@@ -91,47 +69,3 @@ def test_px4_file_parses_and_sets_the_companion_link_and_gimbal() -> None:
     assert p["SER_TEL2_BAUD"] == 921600
     assert p["MAV_PROTO_VER"] == 2
     assert p["MNT_MODE_OUT"] == 2  # MAVLink gimbal protocol v2
-
-
-def _rate_hz(msgs: list) -> float:
-    """Messages per second of autopilot boot time (time_boot_ms), so --speedup cancels."""
-    t_ms = sorted({m.time_boot_ms for m in msgs})
-    return (len(t_ms) - 1) * 1000.0 / (t_ms[-1] - t_ms[0]) if len(t_ms) > 2 else 0.0
-
-
-@requires_ardupilot_sitl
-def test_47_file_is_accepted_by_the_real_firmware(tmp_path) -> None:
-    wanted = read_parm(AP_47)
-    t0 = time.monotonic()
-    with ardupilot_sitl(tmp_path / "sitl", [AP_47], speedup=5) as sitl:
-        gcs = mavlink2_connection(sitl.serial_url(0), 255, 190)
-        try:
-            sysid, compid = wait_autopilot(gcs, 30.0)
-            got = read_params(gcs, wanted, target_system=sysid, target_component=compid,
-                              timeout_s=15.0)
-        finally:
-            gcs.close()
-        missing = sorted(set(wanted) - set(got))
-        assert not missing, f"the firmware does not know {missing}"
-        for name, value in wanted.items():
-            assert got[name] == pytest.approx(value), name
-
-        # SERIAL2 streams what MAV3_* asks for without any request from us: MAV3 is SERIAL2.
-        companion = mavlink2_connection(sitl.serial_url(2), sysid, 191)
-        try:
-            seen: dict[str, list] = {"ATTITUDE": [], "GLOBAL_POSITION_INT": [],
-                                     "GIMBAL_DEVICE_ATTITUDE_STATUS": []}
-            t_end = time.monotonic() + 20.0
-            while time.monotonic() < t_end and min(len(v) for v in seen.values()) < 40:
-                msg = companion.recv_match(type=list(seen), blocking=True, timeout=1.0)
-                if msg is not None:
-                    seen[msg.get_type()].append(msg)
-        finally:
-            companion.close()
-    assert time.monotonic() - t0 < 60.0
-    rates = {k: _rate_hz(v) for k, v in seen.items()}
-    # ArduPilot's scheduler spreads a stream's messages over its slots; allow 30 % below.
-    assert rates["ATTITUDE"] >= 0.7 * wanted["MAV3_EXTRA1"], rates
-    assert rates["GLOBAL_POSITION_INT"] >= 0.7 * wanted["MAV3_POSITION"], rates
-    assert rates["GIMBAL_DEVICE_ATTITUDE_STATUS"] >= 0.7 * wanted["MAV3_EXTRA3"], rates
-    assert all(m.get_srcComponent() == 1 for m in seen["GIMBAL_DEVICE_ATTITUDE_STATUS"])

@@ -21,7 +21,6 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from link_feed import MISSION
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot
@@ -37,6 +36,7 @@ from pdcov.ground.watcher import Watcher
 from pdcov.planning.plan import Plan, Waypoint, read_mission, write_plan
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.telemetry.pose_csv import read_pose_csv
+from tests.support.link_feed import MISSION
 
 EXAMPLES = int(os.environ.get("PDCOV_FUZZ_EXAMPLES", "25"))
 SETTINGS = settings(max_examples=EXAMPLES, deadline=None,

@@ -13,7 +13,8 @@ import random
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from link_feed import Hover, LinkFeed, grid_is_sane, pack, serve_config
+
+from tests.support.link_feed import Hover, LinkFeed, grid_is_sane, pack, serve_config
 
 EXAMPLES = int(os.environ.get("PDCOV_FUZZ_EXAMPLES", "25"))
 """Examples per property; ``python -m benchmarks.reliability`` runs many more."""

@@ -15,9 +15,7 @@ import pytest
 import yaml
 
 os.environ.setdefault("MAVLINK20", "1")
-from link_feed import FIXED, MISSION, Hover, pack, without_epoch
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from test_detections_live import Driver
 
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames_v2
@@ -38,6 +36,8 @@ from pdcov.telemetry.gnss_accuracy import (
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.samples import GnssAccuracySample
 from pdcov.telemetry.series import GnssAccuracySeries
+from tests.support.link_feed import FIXED, MISSION, Hover, pack, without_epoch
+from tests.unit.test_detections_live import Driver
 
 
 def _in_force(sample: GnssAccuracySample) -> PositionAccuracy | None:
@@ -46,7 +46,7 @@ def _in_force(sample: GnssAccuracySample) -> PositionAccuracy | None:
     return position_accuracies(*accuracy_at(series, np.array([sample.t_s + 1.0])))[0]
 
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real-logs"
 UINT32_MAX = 2**32 - 1
 
 

@@ -10,34 +10,13 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.footprint import footprint_polygon, pixel_grid_rays, ray_count_map
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.pose import CameraPose, FixedMount, fixed_mount_pose
-from pdcov.core.rotations import R_from_euler_zyx
+from pdcov.core.pose import CameraPose
+from tests.support.square_grid import DETECTOR, PINHOLE, pose, square_grid
 
-DEG = math.pi / 180
-PINHOLE = CameraModel(640, 480, np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]))
 FISHEYE = CameraModel.from_fov(640, 480, 150, "fisheye", (0.01, -0.005, 0.001, 0.0))
-DETECTOR = DetectorModel.from_dict({"version": 4, "bin_edges_px": [1, 20, 40, 80, 2000],
-                                    "p_detect": [0.1, 0.4, 0.6, 0.3],
-                                    "p_false_alarm": [0.05, 0.1, 0.2, 0.3],
-                                    "fa_rate_per_mpx": [20.0, 40.0, 80.0, 120.0],
-                                    "input_size_px": None})
-
-
-def square_grid(half_m=40.0, cell_m=1.0, camera=PINHOLE, **kw):
-    dom = Domain.from_enu([[-half_m, -half_m], [half_m, -half_m], [half_m, half_m],
-                           [-half_m, half_m]])
-    g = dom.grid_geometry(cell_m)
-    return CoverageGrid(g, dom.free_mask(g), camera, DETECTOR, **kw)
-
-
-def pose(roll_deg=0.0, pitch_deg=0.0, yaw_deg=0.0, xyz=(0.0, 0.0, 10.0), cam_pitch_deg=-90.0,
-         t_s=float("nan")):
-    return fixed_mount_pose(R_from_euler_zyx(roll_deg * DEG, pitch_deg * DEG, yaw_deg * DEG),
-                            xyz, FixedMount(pitch_rad=cam_pitch_deg * DEG), t_s)
 
 
 def sizes_map(grid, p):
@@ -185,13 +164,6 @@ def test_max_range_limits_observation():
     dist = np.sqrt(X**2 + (Y + 90) ** 2 + 100)
     assert near.n_obs[dist > 30].sum() == 0
     assert far.n_obs[dist > 30].sum() > 0
-
-
-def test_window_does_not_grow_with_the_domain():
-    small, big = square_grid(half_m=50), square_grid(half_m=5000)
-    p = pose(xyz=(0, 0, 10))
-    (r0, r1, c0, c1), (R0, R1, C0, C1) = small._window(p)[0], big._window(p)[0]
-    assert (r1 - r0, c1 - c0) == (R1 - R0, C1 - C0)
 
 
 def test_min_revisit_counts_one_look_per_interval():

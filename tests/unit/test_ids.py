@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 
 import pytest
-from evaluate_inputs import mission_doc
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.frames import decode_frames
@@ -15,6 +14,7 @@ from pdcov.config import mission_from_dict
 from pdcov.errors import ConfigError
 from pdcov.ids import MAX_VEHICLE_ID_CHARS, SYSTEM_IDS, valid_system_id, valid_vehicle_id
 from pdcov.service.settings import LinkConfig
+from tests.support.evaluate_inputs import mission_doc
 
 NOT_VEHICLE_IDS = ["", "uav é", "uavé", "ｕａｖ1", "uav/1", "uav*", "uav 1", "uav.1", 7, None]
 

@@ -9,13 +9,7 @@ HEARTBEAT, other traffic and another system's PARAM_VALUE on the link before its
 
 from __future__ import annotations
 
-import subprocess
-import sys
-import threading
-
 import pytest
-from evaluate_inputs import mission_doc, write_config
-from pymavlink.dialects.v20 import common as mavlink2
 
 from pdcov.cli import main
 from pdcov.core.mount import GimbalMount
@@ -29,75 +23,14 @@ from pdcov.telemetry.link_params import (
     wait_autopilot,
 )
 from pdcov.telemetry.upload import mavlink2_connection
+from tests.support.evaluate_inputs import mission_doc, write_config
+from tests.support.link_params_autopilot import SYSID, gimbal_config
 
-SYSID = 7  # not 1: the ground station must learn it from the HEARTBEAT
 SERVO_PARAMS = {"MNT1_TYPE": 1, "MNT1_ROLL_MIN": -30, "MNT1_ROLL_MAX": 30,
                 "MNT1_PITCH_MIN": -90, "MNT1_PITCH_MAX": 20, "MNT1_YAW_MIN": -180,
                 "MNT1_YAW_MAX": 180, "MNT2_TYPE": 0, "SYSID_THISMAV": SYSID}
 GREMSY_PARAMS = {**SERVO_PARAMS, "MNT1_TYPE": 6, "MNT1_PITCH_MIN": -120}
 NO_MOUNT_PARAMS = {"SYSID_THISMAV": SYSID}  # a firmware without the mount library
-
-
-class Autopilot(threading.Thread):
-    """An ArduPilot autopilot's parameter server on a UDP port of 127.0.0.1."""
-
-    def __init__(self, params, drop_first=False, noisy=False):
-        super().__init__(daemon=True)
-        self.conn = mavlink2_connection("udpin:127.0.0.1:0", SYSID, 1)
-        self.port = self.conn.port.getsockname()[1]
-        # A ground station and a companion computer sharing the link (system 250).
-        self.other = mavlink2.MAVLink(self.conn, srcSystem=250, srcComponent=190)
-        self.params = dict(params)
-        self.drop_first = drop_first
-        self.noisy = noisy
-        self.requests: dict[str, int] = {}
-        self.stop = threading.Event()
-
-    def run(self):
-        while not self.stop.is_set():
-            msg = self.conn.recv_match(blocking=True, timeout=0.05)
-            if msg is None:
-                continue
-            if msg.get_type() == "HEARTBEAT":
-                if self.noisy:
-                    self.other.heartbeat_send(mavlink2.MAV_TYPE_GCS,
-                                              mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR,
-                                             mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0,
-                                             mavlink2.MAV_STATE_STANDBY)
-            elif (msg.get_type() == "PARAM_REQUEST_READ" and msg.target_system == SYSID
-                  and msg.param_index == -1):
-                self._answer(msg.param_id)
-        self.conn.close()
-
-    def _answer(self, name):
-        self.requests[name] = self.requests.get(name, 0) + 1
-        if self.drop_first and self.requests[name] == 1:
-            return  # lost on the link: the ground station must ask again
-        if self.noisy:
-            self.conn.mav.attitude_send(0, 0.1, -0.3, 1.0, 0, 0, 0)
-            self.other.param_value_send(name.encode(), 99.0,
-                                        mavlink2.MAV_PARAM_TYPE_REAL32, 1, 0)
-        if name in self.params:
-            names = sorted(self.params)
-            self.conn.mav.param_value_send(name.encode(), float(self.params[name]),
-                                           mavlink2.MAV_PARAM_TYPE_REAL32, len(names),
-                                           names.index(name))
-
-
-@pytest.fixture
-def autopilot():
-    started = []
-
-    def make(params, **kw):
-        peer = Autopilot(params, **kw)
-        peer.start()
-        started.append(peer)
-        return peer
-    yield make
-    for peer in started:
-        peer.stop.set()
-        peer.join(timeout=2)
 
 
 @pytest.fixture
@@ -111,10 +44,6 @@ def link():
     yield connect
     for conn in opened:
         conn.close()
-
-
-def gimbal_config(tmp_path, **mount):
-    return write_config(tmp_path, mission_doc(mount={"type": "gimbal", **mount}))
 
 
 def mount_check(config, peer, capsys, timeout_s=2.0):
@@ -207,18 +136,6 @@ def test_only_a_ground_station_is_no_autopilot(autopilot, link):
     with pytest.raises(TelemetryError, match=r"no HEARTBEAT of an autopilot of system 3 .*"
                                         r"ignored: system 7 component 1, system 250"):
         wait_autopilot(conn, 0.3, system_id=3)
-
-
-def test_no_autopilot_exits_2_with_one_clear_line(tmp_path):
-    config = gimbal_config(tmp_path)
-    proc = subprocess.run([sys.executable, "-m", "pdcov.cli", "mount-check", "--config",
-                           str(config), "--connect", "udpin:127.0.0.1:0", "--timeout-s", "0.3"],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2
-    assert "Traceback" not in proc.stderr and proc.stdout == ""
-    assert proc.stderr.strip().count("\n") == 0
-    assert "pdcov mount-check: error: no HEARTBEAT of an autopilot on 127.0.0.1:0 within 0.3 s" \
-        in proc.stderr
 
 
 def test_a_fixed_mount_is_refused(tmp_path, capsys):

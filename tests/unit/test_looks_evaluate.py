@@ -3,12 +3,12 @@ saved beside the derived P_D, the snapshot reloads), and its summary names the r
 
 from __future__ import annotations
 
-import evaluate_inputs as inputs
 import numpy as np
 
 from pdcov.config import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import CorrelatedLooks
+from tests.support import evaluate_inputs as inputs
 
 DETECTOR = {"version": 4, "input_size_px": None, "bin_edges_px": [4, 16, 40, 100, 400],
             "p_detect": [0.2, 0.4, 0.5, 0.3], "p_false_alarm": [0.02, 0.03, 0.04, 0.05],

@@ -22,18 +22,7 @@ from pdcov.detection.looks_fit import (
     measured_found_within,
 )
 from pdcov.errors import DetectorModelError
-
-
-def draw(rng: np.random.Generator, n_people: int, mu: float, rho: float,
-         max_looks: int = 30) -> tuple[np.ndarray, np.ndarray]:
-    """Looks n ~ U{2..max_looks} and hits k of people with p ~ Beta(mu, rho) (p = mu at 0)."""
-    n = rng.integers(2, max_looks + 1, n_people)
-    if rho > 0:
-        s = 1 / rho - 1
-        p = rng.beta(mu * s, (1 - mu) * s, n_people)
-    else:
-        p = np.full(n_people, mu)
-    return n, rng.binomial(n, p)
+from tests.support.looks_draws import draw
 
 
 def tarone_p(n: np.ndarray, k: np.ndarray) -> float:
@@ -78,33 +67,6 @@ def test_recovers_mean_and_correlation(mu, rho):
         assert abs(fit.correlation - rho) < 0.25 * rho
         assert fit.p_value_independent < 1e-6
         assert tarone_p(n, k) < 1e-6
-
-
-@pytest.mark.slow
-def test_intervals_cover_the_truth_at_their_level():
-    """Over 120 drawn sets the profile-likelihood 95 % intervals of mu and rho each hold the
-    truth about 95 % of the time (binomial sd 2 %)."""
-    reps, cover_mu, cover_rho = 120, 0, 0
-    rng = np.random.default_rng(11)
-    for _ in range(reps):
-        n, k = draw(rng, 200, 0.6, 0.25, max_looks=15)
-        fit = fit_beta_binomial(n, k)
-        cover_mu += fit.mean_pd_ci95[0] <= 0.6 <= fit.mean_pd_ci95[1]
-        cover_rho += fit.correlation_ci95[0] <= 0.25 <= fit.correlation_ci95[1]
-    assert 0.89 * reps <= cover_mu <= reps
-    assert 0.89 * reps <= cover_rho <= reps
-
-
-@pytest.mark.slow
-def test_independence_is_not_rejected_for_independent_looks():
-    """At rho = 0 the chi-bar-square p-value rejects at 5 % about 5 % of the time, and half
-    the estimates sit on the boundary (rho = 0, p = 1)."""
-    rng = np.random.default_rng(5)
-    p = np.array([fit_beta_binomial(*draw(rng, 300, 0.5, 0.0)).p_value_independent
-                  for _ in range(200)])
-    assert 0.01 <= np.mean(p < 0.05) <= 0.10
-    assert 0.35 <= np.mean(p == 1.0) <= 0.65
-    assert np.all((p >= 0) & (p <= 1))
 
 
 def test_no_estimate_without_enough_people_or_with_only_hits():

@@ -11,11 +11,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from link_feed import FIXED, GROUND_M, LAT_DEG, LON_DEG, MISSION, LinkFeed, offline_of, pack
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.core.looks import LooksRule
 from pdcov.service.settings import load_serve_config
+from tests.support.link_feed import (
+    FIXED,
+    GROUND_M,
+    LAT_DEG,
+    LON_DEG,
+    MISSION,
+    LinkFeed,
+    offline_of,
+    pack,
+)
 
 DETECTOR = {"version": 4, "input_size_px": 640,
             "fa_rate_per_mpx": [0.05, 0.06, 0.08, 0.1, 0.12],

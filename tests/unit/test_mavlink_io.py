@@ -11,8 +11,8 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink: MAVLink 2 frames
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from benchmarks.harness import free_port
 from pdcov.service.mavlink_io import MAX_DATAGRAMS_PER_EVENT, Connection
+from tests.support.harness import free_port
 
 
 def heartbeat_frames(n: int) -> list[bytes]:

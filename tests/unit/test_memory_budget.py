@@ -4,11 +4,11 @@ config bounds camera.frame_rate_hz."""
 from __future__ import annotations
 
 import pytest
-from evaluate_inputs import mission_doc
 
 from pdcov.config import mission_from_dict
 from pdcov.errors import ConfigError
 from pdcov.service.memory_budget import estimate_bytes, memory_limit_bytes, memory_refusal
+from tests.support.evaluate_inputs import mission_doc
 
 
 def _mission(rate_hz: float):

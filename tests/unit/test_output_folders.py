@@ -6,31 +6,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import stat
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from pdcov import cli
 from pdcov.atomic import MARKER, atomic_path, replacing_dir, write_text_atomic
 from pdcov.errors import OutputError
-
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
-POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,-40.0,-40.0,10.0,0.0,1.0,0.0,0.0\n"
-
-
-@pytest.fixture
-def umask():
-    old = os.umask(0o022)
-    yield lambda m: os.umask(m)
-    os.umask(old)
-
-
-def mode(path: Path) -> int:
-    return stat.S_IMODE(path.stat().st_mode)
+from tests.support.output_runs import mode, previous_run, snapshot
 
 
 def test_files_get_the_mode_of_a_new_file(tmp_path: Path, umask) -> None:
@@ -41,17 +23,6 @@ def test_files_get_the_mode_of_a_new_file(tmp_path: Path, umask) -> None:
     umask(0o027)
     write_text_atomic(tmp_path / "c.json", "{}")
     assert mode(tmp_path / "c.json") == 0o640
-
-
-def previous_run(out: Path) -> dict[str, bytes]:
-    with replacing_dir(out):
-        write_text_atomic(out / "metrics.json", '{"frames": 495}')
-        write_text_atomic(out / "heatmap.png", "495 frames")
-    return snapshot(out)
-
-
-def snapshot(out: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
 
 
 @pytest.mark.parametrize("interrupt", [KeyboardInterrupt, RuntimeError])
@@ -74,23 +45,6 @@ def test_new_run_replaces_the_old_whole(tmp_path: Path) -> None:
         write_text_atomic(out / "metrics.json", '{"frames": 186}')
     assert replaced
     assert set(snapshot(out)) == {MARKER, "metrics.json"}
-
-
-def test_evaluate_without_prior_drops_posterior_and_says_so(tmp_path: Path, umask,
-                                                            capsys) -> None:
-    poses = tmp_path / "poses.csv"
-    poses.write_text(POSES)
-    prior = tmp_path / "prior.npy"
-    np.save(prior, np.full((40, 40), 1 / 1600))
-    out = tmp_path / "run"
-    argv = ["evaluate", "--config", str(DEMO), "--poses", str(poses), "--out", str(out),
-            "--no-progress"]
-    assert cli.main([*argv, "--prior", str(prior)]) == 0
-    assert (out / "posterior.npy").exists()
-    assert cli.main(argv) == 0
-    assert not (out / "posterior.npy").exists() and not (out / "posterior.tif").exists()
-    assert f"replaced the previous outputs in {out}" in capsys.readouterr().out
-    assert {mode(p) for p in out.iterdir()} == {0o644}
 
 
 def killed_mid_run(out: Path, *, new_files: dict[str, str] | None, done: bool = False) -> Path:
@@ -163,36 +117,3 @@ def test_leftovers_that_need_a_choice_are_refused(tmp_path: Path) -> None:
     with replacing_dir(out) as replaced:
         pass
     assert replaced and (tmp_path / ".run2.abcdefgh.pdcov-old" / "run2").is_dir()
-
-
-KILLED_RUN = """
-import sys, time
-from pathlib import Path
-from pdcov.atomic import replacing_dir, write_text_atomic
-out = Path(sys.argv[1])
-with replacing_dir(out):
-    write_text_atomic(out / "metrics.json", '{"frames": 1')
-    print("writing", flush=True)
-    time.sleep(60)
-"""
-
-
-def test_a_real_kill_9_mid_run_is_recovered_by_the_next_run(tmp_path: Path) -> None:
-    out = tmp_path / "run"
-    before = previous_run(out)
-    child = subprocess.Popen([sys.executable, "-c", KILLED_RUN, str(out)],
-                             stdout=subprocess.PIPE, text=True)
-    try:
-        assert child.stdout is not None and child.stdout.readline() == "writing\n"
-        child.kill()
-        child.wait(timeout=10)
-    finally:
-        if child.poll() is None:
-            child.kill()
-            child.wait(timeout=10)
-    assert len(list(tmp_path.glob(".run.*.pdcov-old"))) == 1  # the state to recover from
-    assert snapshot(out) != before
-    with pytest.raises(KeyboardInterrupt), replacing_dir(out):
-        raise KeyboardInterrupt
-    assert snapshot(out) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

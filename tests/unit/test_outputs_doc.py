@@ -13,7 +13,7 @@ from pdcov.cli import main
 from pdcov.core.search_theory import search_outcome
 from pdcov.report.outputs import metrics_document
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "outputs.md"
 
 
 def documented_metrics_keys() -> tuple[set[str], set[str], set[str]]:

@@ -9,13 +9,13 @@ from importlib import resources
 import numpy as np
 import yaml
 
-from benchmarks.blur import blur_detector
 from pdcov.cli import main
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.pose import FixedMount
 from pdcov.planning.optimise import PlanParams, Scenario, build_plan, predict
+from tests.support.blur_detector import blur_detector
 
 
 def blur_model() -> DetectorModel:

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from mavlink_fixtures import KnownFlight, samples_from_flight
 
 from pdcov.core.geodesy import Origin
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import GIMBAL_FLAG_YAW_IN_EARTH_FRAME, R_ENU_NED, FixedMount
 from pdcov.core.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
 from pdcov.telemetry.pose_tracker import PoseTracker
+from tests.support.mavlink_fixtures import KnownFlight, samples_from_flight
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 YAW_RATE = 0.4  # rad/s, clockwise from north

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mavlink_fixtures import KnownFlight, samples_from_flight, write_tlog
 
 from pdcov.core.geodesy import Origin
 from pdcov.core.mount import GimbalMount
@@ -26,6 +25,7 @@ from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
 from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.samples import AttitudeSample, CaptureSample, GimbalSample, PositionSample
+from tests.support.mavlink_fixtures import KnownFlight, samples_from_flight, write_tlog
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 RATE_HZ = 20.0  # telemetry rate; frames at 5 Hz fall on telemetry samples

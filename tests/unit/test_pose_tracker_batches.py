@@ -8,7 +8,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from mavlink_fixtures import KnownFlight, samples_from_flight
 
 from pdcov.core.geodesy import Origin
 from pdcov.core.mount import GimbalMount
@@ -19,6 +18,7 @@ from pdcov.core.pose import (
 )
 from pdcov.core.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
+from tests.support.mavlink_fixtures import KnownFlight, samples_from_flight
 
 ORIGIN = Origin(-35.363261, 149.165230, 584.0)
 RATE_HZ = 20.0

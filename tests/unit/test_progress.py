@@ -7,7 +7,7 @@ from pathlib import Path
 from pdcov import cli
 from pdcov.planning.progress import progress
 
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
+DEMO = Path(__file__).resolve().parents[2] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 
 
 def test_lines_not_redraws_off_a_terminal(capsys) -> None:

@@ -16,7 +16,7 @@ from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-logs"
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real-logs"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present")
 
 TLOG = REAL / "ardupilot_sitl_servo_gimbal.tlog"

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.frames import encode_frames
 from pdcov.cli import main as pdcov_main
@@ -31,6 +30,7 @@ from pdcov.telemetry.recorded_frames import (
     recorded_mark,
 )
 from pdcov.telemetry.tlog import mavlink
+from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 CAMERA = 100  # MAV_COMP_ID_CAMERA
 

@@ -11,10 +11,7 @@ import math
 import numpy as np
 import pytest
 import yaml
-from link_feed import MISSION, Hover, pack
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from retask_harness import ITEMS, KEY_EXPR, WP, Autopilot, core_with, feed, fly, heard
-from retask_keys import KEY, UNIX_S, signed
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState, grid_hash
@@ -32,6 +29,9 @@ from pdcov.planning.scenario import scenario_of
 from pdcov.service.core import LinkReport
 from pdcov.service.retask import RetaskRefusal
 from pdcov.service.settings import load_serve_config
+from tests.support.link_feed import MISSION, Hover, pack
+from tests.support.retask_harness import ITEMS, KEY_EXPR, WP, Autopilot, core_with, feed, fly, heard
+from tests.support.retask_keys import KEY, UNIX_S, signed
 
 
 def _body_doc() -> dict:

@@ -11,8 +11,6 @@ import re
 import stat
 
 import pytest
-from retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
-from retask_keys import KEY, OTHER, UNIX_S, signed
 from shapely.geometry import Polygon
 
 from pdcov.bus.operator_keys import load_private_key, load_public_key
@@ -34,6 +32,8 @@ from pdcov.ground.retask import RetaskNotSent, signed_request
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
 from pdcov.service.core import LinkReport
 from pdcov.service.retask_auth import NonceBook, RetaskRefusal
+from tests.support.retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
+from tests.support.retask_keys import KEY, OTHER, UNIX_S, signed
 
 
 def reason(core, payload: bytes, **kw) -> str:

@@ -8,7 +8,11 @@ import math
 
 import numpy as np
 import pytest
-from evaluate_inputs import (
+
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose
+from pdcov.errors import InputFileError
+from tests.support.evaluate_inputs import (
     expected_poses,
     known_flight,
     load_grid,
@@ -17,11 +21,7 @@ from evaluate_inputs import (
     write_config,
     write_pose_csv,
 )
-from test_grid import DETECTOR, PINHOLE, pose, square_grid
-
-from pdcov.core.grid import CoverageGrid
-from pdcov.core.pose import CameraPose
-from pdcov.errors import InputFileError
+from tests.support.square_grid import DETECTOR, PINHOLE, pose, square_grid
 
 EPOCH_S = 1.7e9
 

@@ -5,12 +5,12 @@ and the views say there is none."""
 from __future__ import annotations
 
 import pytest
-from watch_fixtures import Link, TinyPublisher
 
 from pdcov.errors import ConfigError
 from pdcov.ground.roster import NO_ROSTER, Roster, roster_of
 from pdcov.ground.terminal import plain_lines
 from pdcov.ground.watcher import Watcher
+from tests.support.watch_fixtures import Link, TinyPublisher
 
 
 def fly_with_rogue(watcher: Watcher) -> None:

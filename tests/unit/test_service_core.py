@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.frames import encode_frames
@@ -18,18 +17,13 @@ from pdcov.core.mount import GimbalMount
 from pdcov.errors import InputFileError
 from pdcov.service.checkpoint import read_checkpoint_meta, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta
-from pdcov.service.core import (
-    EARLY_FRAMES,
-    LinkReport,
-    ServiceCore,
-    link_requests,
-    link_state,
-)
+from pdcov.service.core import EARLY_FRAMES, LinkReport, ServiceCore, link_requests, link_state
 from pdcov.service.link_protocol import LinkState
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import FrameLattice
 from pdcov.telemetry.gimbal import mount_params_complete, resolve_interpretation
 from pdcov.telemetry.recorded_frames import MARK, recorded_mark
+from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 
 def core_of(tmp: Path, *, gimbal: bool = False, **service) -> ServiceCore:

@@ -11,7 +11,6 @@ import random
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from sitl_terrain import TiltedPlane
 
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MissionItem
@@ -22,6 +21,7 @@ from pdcov_sitl.messages import MessageBuilder, Rangefinder, Snapshot, autopilot
 from pdcov_sitl.mission import ReturnRule, flight_plan_from_items
 from pdcov_sitl.protocol import AutopilotProtocol, StreamSchedule
 from pdcov_sitl.terrain import FlatGround, LocalGround, slant_range_m
+from tests.support.sitl_terrain import TiltedPlane
 
 LAT, LON, H0 = 46.5, 7.9, 1200.0
 ORIGIN = Origin(LAT, LON, H0)

@@ -3,14 +3,10 @@
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
 
 from pdcov.core.mount import GimbalMount
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
@@ -18,26 +14,9 @@ from pdcov.errors import TelemetryError
 from pdcov.telemetry.clocks import REBOOT_GAP_S, BootClock
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
-from pdcov.telemetry.samples import (
-    AttitudeSample,
-    GimbalSample,
-    HomeSample,
-    ParamSample,
-    PositionSample,
-)
-
-LAT, LON, ALT = -35.363261, 149.165230, 584.0
-
-
-def flight(t0: float = 1.0, n: int = 50, dt: float = 0.1, sysid: int = 1) -> list[object]:
-    out: list[object] = []
-    for k in range(n):
-        t = t0 + k * dt
-        q = tuple(quat_wxyz_from_euler_zyx(0.01 * k, -0.02 * k, 0.03 * k))
-        out.append(AttitudeSample(t, q))
-        out.append(PositionSample(t, LAT + 1e-6 * k, LON, ALT + 10.0, 10.0))
-    out.append(HomeSample(t0, LAT, LON, ALT, "HOME_POSITION"))
-    return out
+from pdcov.telemetry.samples import AttitudeSample, GimbalSample, ParamSample, PositionSample
+from tests.support.mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
+from tests.support.telemetry_flights import ALT, LAT, LON, flight, gimbal_flight
 
 
 def test_boot_clock_restart() -> None:
@@ -185,12 +164,6 @@ def test_zero_position_before_fix_is_dropped(tmp_path: Path) -> None:
 
 # --- damaged tlogs: resynchronise, read up to the damage, say where it stopped --------------
 
-def gimbal_flight() -> list[object]:
-    samples = flight()
-    q = tuple(quat_wxyz_from_euler_zyx(0, -1.0, 0))
-    samples += [GimbalSample(1.0 + 0.1 * k, q, 44, 0, 1, 1, 1) for k in range(50)]
-    return samples
-
 
 @pytest.mark.parametrize("junk", [
     b"\xfe\x05" + b"\x00" * 20,  # a MAVLink 1 magic first: pymavlink then drops MAVLink 2
@@ -202,19 +175,6 @@ def test_junk_at_start_keeps_mavlink2_messages(tmp_path: Path, junk: bytes) -> N
     assert len(log.attitude.t_s) == 50
     assert len(log.gimbal.t_s) == 50  # GIMBAL_DEVICE_ATTITUDE_STATUS is MAVLink 2 only
     assert any("not MAVLink" in n and "at byte 0" in n for n in log.damage)
-
-
-def test_mavlink2_kept_in_a_fresh_process(tmp_path: Path) -> None:
-    """pymavlink chooses the protocol from the process environment and the first magic byte
-    it meets; pdcov's reading must depend on neither (the CLI imports pymavlink cold)."""
-    path = write_tlog(tmp_path / "j.tlog", gimbal_flight(),
-                      prefix=bytes(8) + b"\xfe\x05" + bytes(12))
-    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
-    code = ("import sys; from pdcov.telemetry.logs import read_flight_log; "
-            "print(len(read_flight_log(sys.argv[1]).gimbal.t_s))")
-    out = subprocess.run([sys.executable, "-c", code, str(path)], env=env, timeout=120,
-                         capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "50"
 
 
 def test_junk_appended_is_read_up_to_and_located(tmp_path: Path) -> None:

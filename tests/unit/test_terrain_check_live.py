@@ -9,7 +9,6 @@ import struct
 from pathlib import Path
 
 import pytest
-from link_feed import GROUND_M, Hover, LinkFeed, pack, serve_config
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
@@ -18,6 +17,7 @@ from pdcov.service.coverage import TERRAIN_WARNING_PERIOD_S
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.samples import TerrainReportSample
 from pdcov.telemetry.terrain_check import TerrainCheck
+from tests.support.link_feed import GROUND_M, Hover, LinkFeed, pack, serve_config
 
 
 class FlatDem:
@@ -152,31 +152,6 @@ def test_brief_status_leaves_it_out_and_the_merge_keeps_it(tmp_path: Path) -> No
     assert merge_status(full, brief)["terrain_check"] == full["terrain_check"]
 
 
-@pytest.mark.slow  # a whole evaluate run with its figures: about 3 s
-def test_evaluate_says_it_in_the_summary_and_metrics(tmp_path: Path, monkeypatch, capsys
-                                                      ) -> None:
-    from evaluate_inputs import ORIGIN, known_flight, mission_doc, run, write_config
-    from mavlink_fixtures import samples_from_flight, write_tlog
-
-    import pdcov.telemetry.terrain_check as terrain_check
-
-    dem = FlatDem(ORIGIN.ground_alt_msl_m + 12.0)  # the home is 12 m below it
-    monkeypatch.setattr(terrain_check, "terrain_check_for", lambda mission: TerrainCheck(dem))
-    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(known_flight()))
-    config = write_config(tmp_path, mission_doc())
-    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
-               str(tmp_path / "run"), "--no-progress") == 0
-    out, err = capsys.readouterr()
-    line = ("terrain check: 1 of 1 measurements (1 home) disagree with the DEM by more than "
-            "10 m, largest +12.0 m (home at 39.350000, -76.330000")
-    assert line in out and line in err
-    doc = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    assert doc["terrain_check"]["checked"] == {"terrain_report": 0, "rangefinder": 0,
-                                               "home": 1}
-    assert doc["terrain_check"]["largest"]["difference_m"] == 12.0
-    assert any(w.startswith("terrain check: 1 of 1") for w in doc["warnings"])
-
-
 def test_a_home_beyond_max_home_offset_refuses_the_dem_live_and_offline(tmp_path: Path
                                                                         ) -> None:
     """The DEM 188 m above the home (a wrong datum), terrain.max_home_offset_m 30: the daemon
@@ -224,23 +199,3 @@ def test_a_home_beyond_max_home_offset_refuses_the_dem_live_and_offline(tmp_path
                    ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
                    frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s, terrain_check=offline)
     assert offline.home_refusal() == refusal
-
-
-@pytest.mark.slow  # an evaluate run up to the refusal
-def test_evaluate_refuses_a_dem_off_the_home_and_writes_nothing(tmp_path: Path, monkeypatch,
-                                                                capsys) -> None:
-    from evaluate_inputs import ORIGIN, known_flight, mission_doc, run, write_config
-    from mavlink_fixtures import samples_from_flight, write_tlog
-
-    import pdcov.telemetry.terrain_check as terrain_check
-
-    dem = FlatDem(ORIGIN.ground_alt_msl_m + 188.0)
-    monkeypatch.setattr(terrain_check, "terrain_check_for",
-                        lambda mission: TerrainCheck(dem, max_home_offset_m=30.0))
-    tlog = write_tlog(tmp_path / "flight.tlog", samples_from_flight(known_flight()))
-    config = write_config(tmp_path, mission_doc())
-    assert run("evaluate", "--config", str(config), "--log", str(tlog), "--out",
-               str(tmp_path / "run"), "--no-progress") == 2
-    _out, err = capsys.readouterr()
-    assert "-188.0 m from the DEM" in err and "raise terrain.max_home_offset_m" in err
-    assert not (tmp_path / "run" / "metrics.json").exists()

@@ -43,7 +43,7 @@ from pdcov.planning.terrain_follow import (
 )
 from pdcov.planning.trajectory import fly
 
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
+DEMO = Path(__file__).resolve().parents[2] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 ORIGIN = Origin(46.5, 8.0, 1200.0)
 GEO = GridGeometry(-20.0, -20.0, 1.0, 160, 160)  # x, y in [-20, 140] m
 AMSL = TerrainFollowing(AltitudeFrame.AMSL)

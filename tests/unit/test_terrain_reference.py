@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from benchmarks.measure import terrain_agreement, time_updates
-from benchmarks.references import ReferenceGrid, pixel_rays, r1_update
 from benchmarks.scenarios import scenarios
 from benchmarks.terrain import R3_MIN_SHARE, R3_TOLERANCE_PD, VALLEY_STEP_PX, TerrainSite
 from benchmarks.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
@@ -17,6 +16,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.pose import CameraPose
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update
 
 NADIR = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # optical x east, y south, z down
 

@@ -13,7 +13,7 @@ from pdcov.errors import ConfigError, InputFileError
 from pdcov.planning.plan import read_mission
 from pdcov.telemetry.pose_csv import read_pose_csv
 
-DEMO = Path(__file__).resolve().parents[1] / "service" / "pdcov" / "data" / "demo_mission.yaml"
+DEMO = Path(__file__).resolve().parents[2] / "service" / "pdcov" / "data" / "demo_mission.yaml"
 POSES = "t_s,x_m,y_m,z_m,qw,qx,qy,qz\n0.0,1.0,2.0,10.0,0.0,1.0,0.0,0.0\n" \
         "0.2,1.5,2.0,10.0,0.0,1.0,0.0,0.0\n"
 

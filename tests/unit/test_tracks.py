@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mot_fixtures import TrueLooks, write_mot
 from PIL import Image
 
 from pdcov.core.detector import DetectorModel
@@ -16,6 +15,7 @@ from pdcov.detection.looks_fit import collect_looks, fit_looks
 from pdcov.detection.matching import MatchSettings
 from pdcov.detection.tracks import read_tracked, tracked_format
 from pdcov.errors import InputFileError
+from tests.support.mot_fixtures import TrueLooks, write_mot
 
 EDGES = (8.0, 16.0, 32.0, 48.0)
 MEANS = (0.3, 0.6, 0.85)
@@ -129,40 +129,6 @@ def test_missing_ground_truth_detections_and_sizes(tmp_path, pdcov):
                            "--out", tmp_path / "m.yaml", "--quiet")
     assert status == 2 and "image size of sequence 'SEQ' unknown" in err
     assert not (tmp_path / "m.yaml").exists()
-
-
-@pytest.mark.slow
-def test_fit_recovers_a_known_per_person_detectability(tmp_path):
-    """The issue's criterion: from tracks drawn with Beta-distributed per-person
-    detectability (rho 0.3 in every bin) the fit recovers the mean within 0.02 and the
-    correlation within 25 %, rejects independence, and its 95 % intervals hold the truth
-    (at most one of the six misses: about 0.3 misses are expected)."""
-    truth = TrueLooks(EDGES, MEANS, (0.3, 0.3, 0.3))
-    *_, fit = fit_folder(write_mot(tmp_path, truth, n_people=2000, seed=0))
-    misses = 0
-    for b, mu, rho in zip(fit.bins, truth.mean_pd, truth.correlation, strict=True):
-        assert b.estimated and b.n_people > 500
-        assert abs(b.mean_pd - mu) < 0.02
-        assert abs(b.correlation - rho) < 0.25 * rho
-        assert b.p_value_independent < 1e-10
-        misses += not b.mean_pd_ci95[0] <= mu <= b.mean_pd_ci95[1]
-        misses += not b.correlation_ci95[0] <= rho <= b.correlation_ci95[1]
-    assert misses <= 1
-
-
-@pytest.mark.slow
-def test_independent_looks_are_not_rejected_over_seeds(tmp_path):
-    """Truly independent looks: over 4 seeds x 3 bins the test rejects at 5 % in at most 2
-    of the 12 bins (about 0.6 expected), and the correlation stays near 0."""
-    truth = TrueLooks(EDGES, MEANS, (0.0, 0.0, 0.0))
-    p = []
-    for seed in range(4):
-        *_, fit = fit_folder(write_mot(tmp_path / str(seed), truth, n_people=800, seed=seed))
-        for b, mu in zip(fit.bins, MEANS, strict=True):
-            assert abs(b.mean_pd - mu) < 0.02 and b.correlation < 0.03
-            assert b.correlation_ci95[0] == 0.0 or b.p_value_independent < 0.05
-            p.append(b.p_value_independent)
-    assert sum(v < 0.05 for v in p) <= 2
 
 
 def test_cli_fit_writes_a_model_with_looks_and_the_looks_plot(tmp_path, pdcov):

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from pyulog import ULog
-from ulog_fixture import write_ulog
 
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.logs import read_flight_log
+from tests.support.ulog_fixture import write_ulog
 
 T0_US = 1_000_000
 ATTITUDE = ([("uint64_t", "timestamp"), ("float[4]", "q")],

@@ -15,7 +15,6 @@ import shapely
 from scipy import sparse
 from shapely.geometry import LineString, Point, Polygon
 
-from benchmarks.references import ReferenceGrid, pixel_rays, r1_update
 from pdcov.cli import main as pdcov_main
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -49,6 +48,7 @@ from pdcov.planning.tours import Fleet
 from pdcov.planning.trajectory import Flight, camera_poses, fly
 from pdcov.planning.vantage import VantageSettings, hover_looks, lattice_enu_m
 from pdcov.planning.vantage_missions import plan_vantage_missions
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update
 
 OBSTACLE = [(4, -4), (12, -4), (12, 5), (4, 5)]
 TARGET_PD = 0.9
@@ -166,10 +166,9 @@ def hover_poses(sc: Scenario, missions):
     return poses
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("which", ["single", "oblique"])
 def test_hover_frames_reach_the_target_by_the_per_pixel_reference(which, request):
-    """R1 (benchmarks/references.py: one ray per pixel, the cell's area = rays landing in
+    """R1 (tests/support/references.py: one ray per pixel, the cell's area = rays landing in
     it), fed only the hover frames, finds P_D >= target on >= 98 % of the free cells: with
     the nadir fixed camera, and with the gimbal's oblique views at earth-frame yaws."""
     missions = request.getfixturevalue(which)
@@ -198,7 +197,6 @@ def test_hover_frames_reach_the_target_by_the_per_pixel_reference(which, request
     assert share_ref >= 0.98
 
 
-@pytest.mark.slow
 def test_hover_points_and_transits_stay_in_free_space(single):
     sc = scene()
     obstacle = Polygon(OBSTACLE)
@@ -211,7 +209,6 @@ def test_hover_points_and_transits_stay_in_free_space(single):
         assert not LineString(flown).intersects(obstacle)
 
 
-@pytest.mark.slow
 def test_two_vehicles_each_fly_at_most_60_percent_of_one(single):
     two = plan_vantage_missions(scene(), SETTINGS, Fleet(2), routing_time_s=ROUTING_S)
     one_s = single.missions[0].flight_time_s
@@ -223,7 +220,6 @@ def test_two_vehicles_each_fly_at_most_60_percent_of_one(single):
     assert stops == list(range(len(two.cover.points)))
 
 
-@pytest.mark.slow
 def test_sorties_keep_to_the_flight_time_and_visit_every_point(single):
     limit = 0.4 * single.missions[0].flight_time_s
     split = plan_vantage_missions(scene(), SETTINGS, Fleet(1, limit), routing_time_s=ROUTING_S)
@@ -430,7 +426,6 @@ def test_the_simulated_gimbal_holds_a_locked_yaw_while_the_vehicle_turns(mode, a
     assert np.abs(err).max() < lag_deg + (1.0 if axes == 3 else 0.5), np.abs(err).max()
 
 
-@pytest.mark.slow
 def test_a_gimbal_mission_commands_the_scenarios_pitch():
     sc = scene(GimbalMount())
     m = plan_vantage_missions(sc, GREEDY, routing_time_s=0.5)
@@ -448,7 +443,6 @@ def test_a_target_no_candidate_reaches_names_the_cells_and_why():
                                                        lattice_m=8.0, exact_time_limit_s=0))
 
 
-@pytest.mark.slow
 def test_more_vehicles_than_points_is_refused(single):
     n = len(single.cover.points)
     with pytest.raises(ConfigError, match=f"--vehicles {n + 1}: more vehicles than vantage "
@@ -510,7 +504,6 @@ def test_cli_bad_vantage_input_is_one_line_and_fails(tmp_path, capsys, extra, me
     assert len(err) == 1 and message in err[0], err
 
 
-@pytest.mark.slow
 def test_cli_vantage_writes_one_mission_per_vehicle(tmp_path, capsys):
     import json
 
@@ -552,7 +545,6 @@ def test_cli_oblique_pitches_default_to_eight_earth_frame_yaws(tmp_path):
     assert sum(e["command"] == 19 for e in items) == len(doc["points"])
 
 
-@pytest.mark.slow
 def test_optimise_puts_vantage_beside_the_sweeps(tmp_path):
     import csv
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from watch_fixtures import Link, TinyPublisher
 
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.tiles import decode_tiles
 from pdcov.ground.watcher import QuerySnapshot, Watcher
+from tests.support.watch_fixtures import Link, TinyPublisher
 
 
 def assert_same_grid(state, grid) -> None:

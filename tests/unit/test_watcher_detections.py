@@ -11,9 +11,6 @@ from __future__ import annotations
 import json
 import logging
 
-from exports_fixtures import candidate, detection, uid
-from watch_fixtures import TinyPublisher
-
 from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.status import decode_status
 from pdcov.errors import OutputError
@@ -22,6 +19,8 @@ from pdcov.ground.record_exports import ExportRecorder
 from pdcov.ground.terminal import plain_lines
 from pdcov.ground.watcher import QueryCandidates, QuerySnapshot, Watcher
 from pdcov.ground.web import map_state
+from tests.support.exports_fixtures import candidate, detection, uid
+from tests.support.watch_fixtures import TinyPublisher
 
 DAEMON = "a1" * 16
 ROGUE = "e7" * 16

@@ -7,13 +7,13 @@ the ground station's headline threshold. Sessions are hex ids as Zenoh gives the
 from __future__ import annotations
 
 import numpy as np
-from watch_fixtures import TinyPublisher, forged_tiles
 
 from pdcov.bus.errors import BusPayloadError, Refusal
 from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles
 from pdcov.ground.watcher import QuerySnapshot, Watcher
+from tests.support.watch_fixtures import TinyPublisher, forged_tiles
 
 DAEMON = "a1" * 16
 ROGUE = "e7" * 16

@@ -9,24 +9,11 @@ import http.client
 import json
 
 import pytest
-from watch_fixtures import ThreadedWebMap
 
 from pdcov.errors import ConfigError
-from pdcov.ground.web_auth import (
-    NO_OPERATOR,
-    Granted,
-    Refusal,
-    Role,
-    WebAccess,
-    served_names,
-    web_access,
-)
-
-VIEW = "view-Token_of.the~map-0123456789"
-OPERATOR = "operator-Token_of.the~map-9876543210"
-NAMES = served_names("127.0.0.1", "groundstation")
-BOTH = WebAccess(VIEW, NAMES, OPERATOR)
-VIEW_ONLY = WebAccess(VIEW, NAMES)
+from pdcov.ground.web_auth import NO_OPERATOR, Granted, Refusal, Role, WebAccess, web_access
+from tests.support.operator_access import BOTH, NAMES, OPERATOR, VIEW, VIEW_ONLY
+from tests.support.watch_fixtures import ThreadedWebMap
 
 
 def test_each_token_grants_its_role_by_query_cookie_or_bearer():
@@ -135,27 +122,3 @@ def test_every_command_endpoint_needs_the_operator_token(access):
         assert request(port, "GET", "/state.json", VIEW)[0] == 200  # the viewer reads
     finally:
         s.close()
-
-
-def test_the_page_shows_commands_to_the_operator_only(browser):
-    from chromium import wait_for
-
-    for access in (BOTH, VIEW_ONLY):
-        s = ThreadedWebMap(lambda: {"version": 7, "vehicles": [], "grid": None}, access)
-        base = f"http://127.0.0.1:{s.web.port}/"
-        try:
-            for token, commands in ((VIEW, False), (OPERATOR, access is BOTH), (VIEW, False)):
-                # Without an operator token, OPERATOR is a wrong token: the view cookie
-                # of the first visit serves the page, as a viewer's.
-                browser.get(f"{base}?token={token}")
-                note = wait_for(lambda: browser.execute_script(
-                    "const n = document.getElementById('command-note');"
-                    "return n && (n.textContent || (!document.getElementById("
-                    "'refly-commands').hidden && 'commands'));"), 30, "the page asked whoami")
-                shown = browser.find_element("id", "refly-ask").is_displayed()
-                assert shown is commands, (token, note)
-                if not commands:
-                    assert note.startswith("view only: "), note
-                    assert (NO_OPERATOR if access is VIEW_ONLY else "view token") in note
-        finally:
-            s.close()

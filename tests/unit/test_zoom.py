@@ -1,6 +1,6 @@
 """Zoom: each frame evaluated with the camera of the zoom report in force (core/zoom.py,
 telemetry/lens_reports.py), live and offline alike; more than one camera's looks in the
-same cells. The reference is the per-pixel ray cast of benchmarks/references.py (R1) with
+same cells. The reference is the per-pixel ray cast of tests/support/references.py (R1) with
 each frame's own camera built from its field of view (CameraModel.from_fov), independently
 of the focal-length scaling under test."""
 
@@ -11,11 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zoom_flight as zf
-from evaluate_inputs import load_grid, run
-from link_feed import LinkFeed
 
-from benchmarks.references import ReferenceGrid, pixel_rays, r1_update
 from pdcov.config import load_mission, mission_from_dict
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -37,6 +33,10 @@ from pdcov.telemetry.frame_policy import SkipReason
 from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.samples import LensSample
+from tests.support import zoom_flight as zf
+from tests.support.evaluate_inputs import load_grid, run
+from tests.support.link_feed import LinkFeed
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update
 
 
 def _evaluate(tmp_path: Path, doc: dict, tlog: Path, name: str) -> dict:
@@ -407,7 +407,7 @@ def test_boxes_of_a_zoomed_frame_are_located_with_its_camera():
 def test_zoom_jitter_reuses_cameras_and_quantising_changes_no_cell():
     """A report jittering by 0.01 deg builds a handful of cameras, not one per frame; the
     quantised camera's grid equals the exact one's to 1e-5 in P_D (FOV_FOCAL_STEP)."""
-    m = load_mission(Path(__file__).resolve().parents[1]
+    m = load_mission(Path(__file__).resolve().parents[2]
                      / "service/pdcov/data/demo_mission.yaml")
     wide = m.camera
     lens = FovLens(wide, math.radians(10.0))
