@@ -1,6 +1,6 @@
 """The input bounds of issue 34, measured for ``python -m benchmarks.hostile_bus``: each case
 returns (finding, red team's figure, now, holds). In memory: the daemon's decisions
-(ServiceCore) fed MAVLink bytes as tests/link_feed.py feeds them, the config and model
+(ServiceCore) fed MAVLink bytes as tests/support/link_feed.py feeds them, the config and model
 loaders, the zoom lens and the basemap reader.
 """
 

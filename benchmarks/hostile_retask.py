@@ -1,6 +1,6 @@
 """The command path of issue 34, measured for ``python -m benchmarks.hostile_bus``: the
 red team's re-tasking requests sent to the daemon's decisions (``ServiceCore`` with
-``service.retask: true`` and one operator key, tests/retask_harness.py) with an autopilot
+``service.retask: true`` and one operator key, tests/support/retask_harness.py) with an autopilot
 stand-in answering the mission protocol. Each case returns (finding, red team's figure,
 now, holds): holds when the daemon refused with the expected reason and not one mission
 message reached the autopilot, or, for the signed in-bounds plan, when the autopilot got

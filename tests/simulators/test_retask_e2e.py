@@ -1,5 +1,6 @@
 """Re-tasking end to end, on loopback (the router's access control on pdcov/<id>/retask:
-tests/test_security_zenoh.py; the signed requests' refusals: tests/test_retask_signed_e2e.py):
+tests/system/test_security_zenoh.py; the signed requests' refusals:
+tests/system/test_retask_signed_e2e.py):
 ``pdcov watch --refly --operator-key`` sends a signed re-fly of the live grid's gaps,
 over real Zenoh, to the daemon flying the real ArduCopter (../shared/ardupilot-sitl) in
 AUTO, which accepts it with MISSION_ACK; read back with MISSION_REQUEST_LIST it is the new

@@ -1,5 +1,5 @@
 """End to end over terrain (issue 21, "Done when"), on the hill and ridge of
-tests/terrain_scene.py:
+tests/support/terrain_scene.py:
 
 * live = offline: ``pdcov-sitl fly`` over the DEM -> ``pdcov serve`` over UDP -> the daemon's
   snapshot, tiles and checkpoint equal ``pdcov evaluate`` of the simulator's tlog cell for

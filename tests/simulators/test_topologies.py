@@ -1,6 +1,6 @@
 """Every topology of docs/ground-station.md "Topologies" with the defaults (bus.mode auto,
 `pdcov watch` without --mode): the real daemon, routers as processes of their own
-(tests/routers.py), `pdcov watch` as a process, all on 127.0.0.1 with multicast scouting
+(tests/support/routers.py), `pdcov watch` as a process, all on 127.0.0.1 with multicast scouting
 off. The defect of issue 22 was a watcher and a daemon, both peers listening nowhere, that
 exchanged nothing through a router: each `--once` below exits 1 with an empty table then."""
 

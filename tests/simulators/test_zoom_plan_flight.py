@@ -19,8 +19,9 @@ from tests.support import zoom_flight as zf
 
 AGREE_PD = 0.05
 DETECTOR_SCALE = 0.08
-"""The illustrative detector's P_D per look scaled down (as tests/test_vantage_e2e.py), so
-that the hovers bring cells well below 1 (where flight and prediction agree trivially)."""
+"""The illustrative detector's P_D per look scaled down (as
+tests/simulators/test_vantage_e2e.py), so that the hovers bring cells well below 1 (where
+flight and prediction agree trivially)."""
 
 
 AGREE_SHARE = 0.8

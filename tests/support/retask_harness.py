@@ -1,6 +1,6 @@
 """The daemon's re-tasking decisions driven in memory: ``ServiceCore`` of link_feed's
 MISSION with an operator key, a scripted autopilot on a fake link, and the exchange of a
-request with it (tests/test_retask.py, tests/test_retask_signed.py)."""
+request with it (tests/unit/test_retask.py, tests/unit/test_retask_signed.py)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Zenoh routers as processes of their own, as zenohd runs on a ground station: killed and
 started again by the tests of docs/ground-station.md "Topologies".
 
-``python tests/routers.py PORT [ENDPOINT ...]`` runs a router listening on
+``python tests/support/routers.py PORT [ENDPOINT ...]`` runs a router listening on
 tcp/127.0.0.1:PORT (multicast scouting off, nothing leaves loopback) that connects to the
 other routers' ENDPOINTs, until SIGTERM or SIGINT; it prints one line once it listens."""
 

@@ -1,5 +1,5 @@
 """Command authority end to end: a real daemon (``pdcov serve``) with an autopilot
-stand-in on its MAVLink link (tests/autopilot_standin.py) over a real Zenoh router on
+stand-in on its MAVLink link (tests/support/autopilot_standin.py) over a real Zenoh router on
 loopback. ``pdcov upload --bus`` sends a signed in-bounds plan, which the autopilot
 accepts and the pilot is told of (STATUSTEXT); an out-of-bounds plan, queries through
 wildcard key expressions and a replay (also after the daemon restarted) are refused and

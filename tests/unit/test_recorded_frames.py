@@ -4,7 +4,8 @@ cell (telemetry.recorded_frames). In memory: the daemon's own message, frames an
 steps on a running event loop, a real recorder, MAVLink bytes through pymavlink; the frames
 payloads held before the autopilot is known, out of order, duplicated, late, damaged, with
 sub-millisecond times, across an autopilot reboot, and a camera's own capture events in the
-same log. The end-to-end flight with a real Zenoh publisher is tests/test_serve_fly.py."""
+same log. The end-to-end flight with a real Zenoh publisher is
+tests/simulators/test_serve_fly.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Re-tasking in memory: the request payload's strict decoder, the daemon's decisions
 (``ServiceCore`` with its ``Retasker``) against a scripted autopilot on a fake link, the
 ground station's proposal (the same re-fly as ``pdcov refly``) and the web map's CSRF rule.
-Real Zenoh and the real ArduCopter: tests/test_retask_e2e.py."""
+Real Zenoh and the real ArduCopter: tests/simulators/test_retask_e2e.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Command authority in memory: who may re-task (signature, key, time, nonce across a
 restart, vehicle, key expression), where to (service.retask_limits, the same rule on the
 ground), the pilot's STATUSTEXT, the status's last re-task, and ``pdcov keys new``.
-Real Zenoh and a daemon: tests/test_retask_signed_e2e.py."""
+Real Zenoh and a daemon: tests/system/test_retask_signed_e2e.py."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The DEM cross-check live (ServiceCore fed a link in memory, tests/link_feed.py) and offline
-(the same bytes as a tlog through ``poses_from_log``, as ``pdcov evaluate`` does): the same
+"""The DEM cross-check live (ServiceCore fed a link in memory, tests/support/link_feed.py) and
+offline (the same bytes as a tlog through ``poses_from_log``, as ``pdcov evaluate`` does): the same
 counts; the daemon's warning rate; the status field and its decoder."""
 
 from __future__ import annotations

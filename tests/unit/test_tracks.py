@@ -1,6 +1,6 @@
 """``pdcov detector fit`` on tracked sequences (MOTChallenge layout): the reader
 (detection/tracks.py) and its errors, and the fit recovering a known per-person
-detectability from generated sequences (tests/mot_fixtures.py)."""
+detectability from generated sequences (tests/support/mot_fixtures.py)."""
 
 from __future__ import annotations
 

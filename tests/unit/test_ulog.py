@@ -1,5 +1,5 @@
 """PX4 ULog reading: GPS fallback when the log has no global position, and a log cut short
-(ULogs written by tests/ulog_fixture.py; pyulog reads them back as the oracle)."""
+(ULogs written by tests/support/ulog_fixture.py; pyulog reads them back as the oracle)."""
 
 from __future__ import annotations
 

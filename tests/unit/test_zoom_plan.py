@@ -1,7 +1,7 @@
 """Plans that zoom per waypoint (planning/plan.py Waypoint.zoom_hfov_deg, optimise.predict):
 the mission items where the zoom changes, the files read back, the simulator's legs, the
 prediction frame by frame against cameras chosen from where the flight hovers, and bad
-input. The mission is tests/zoom_flight.py's: a 66 deg camera whose lens zooms to 20 deg
+input. The mission is tests/support/zoom_flight.py's: a 66 deg camera whose lens zooms to 20 deg
 (camera.zoom fov_status) over an 80 m square of 2 m cells."""
 
 from __future__ import annotations

@@ -9,9 +9,7 @@ from benchmarks.__main__ import (
     R1_TOLERANCE_PD,
     R2_MIN_SHARE,
     R2_TOLERANCE_PD,
-    SMOKE,
     compare_reference,
-    main,
 )
 from benchmarks.measure import terrain_agreement, time_updates
 from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
@@ -54,17 +52,6 @@ def test_terrain_reference_agrees_with_pdcov(tmp_path):
     assert a.never_seen_counted == 0 and a.hidden_counted == 0
     assert f.never_seen_counted > 500
     assert a.share_within_observed >= 0.85 and f.share_within_observed <= 0.6
-
-
-def test_smoke_run_completes(capsys):
-    assert main(["--smoke", "--scenarios", "S1", "S2", "S5"]) == 0
-    out = capsys.readouterr().out
-    for figure in ("update: frames/s", "floor passes", "R1 / pdcov", "R2 vs pdcov grid",
-                   "offline evaluate (tlog)", "planner: plans/min",
-                   "update with the DEM / flat S1", "R3 / pdcov with the DEM",
-                   "R3 vs flat pdcov grid", "R3 vs pdcov grid with the DEM"):
-        assert figure in out
-    assert f"{SMOKE.r1_frames} frames" in out
 
 
 def test_lattice_projection_matches_opencv_project_points():

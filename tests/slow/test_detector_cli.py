@@ -192,7 +192,7 @@ def test_plot_without_validation_and_a_bad_report(pdcov, tmp_path):
 
 
 def test_fit_writes_the_confidence_histograms_of_a_labelled_set(pdcov, tmp_path):
-    """tests/labelled_sets.py's COCO set: the person of image 1 (34.6 px) found at 0.9 and
+    """tests/support/labelled_sets.py's COCO set: the person of image 1 (34.6 px) found at 0.9 and
     again at 0.7 (a duplicate: false), a false box at 0.6 beside it, a box below the
     threshold; a false box of 16 px (20 image px at 640 / 800) at 0.95 in image 2."""
     gt = coco_set(tmp_path)
