@@ -30,7 +30,7 @@ def random_faults(flight_s: float, seed: int) -> str:
     """Link faults all along and, every ~5 simulated minutes, an outage (2-15 s: longer than
     half the daemon's 20 s history too), a GPS glitch or a NaN window. Not included:
     ``reboot`` (pdcov evaluate re-bases a log's clock on its last boot, the live daemon on its
-    first, so frames fall on other times; covered by tests/unit/test_fuzz_link.py and
+    first, so frames fall on other times; covered by tests/slow/test_fuzz_link.py and
     tests/simulators/test_serve_fly.py) and ``gimbal_fail`` (the simulated gimbal stays silent
     after it: the rest of the flight would be unusable)."""
     rng = random.Random(seed)

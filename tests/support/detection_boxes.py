@@ -15,7 +15,7 @@ def truth_image(gt, labels=None, ignore=None, regions=()):
                       np.asarray(regions, float).reshape(-1, 4))
 
 
-def boxes(rows, scores, labels=None):
+def dets_of(rows, scores, labels=None):
     return Boxes.from_rows(rows, labels or ["person"] * len(rows), scores)
 
 

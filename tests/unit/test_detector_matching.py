@@ -24,7 +24,7 @@ from pdcov.detection.matching import (
 )
 from pdcov.detection.statistics import count_in_bins
 from pdcov.errors import ConfigError
-from tests.support.detection_boxes import S, boxes, truth_image
+from tests.support.detection_boxes import S, dets_of, truth_image
 from tests.support.synthetic_detections import EDGES, synthetic_set, write_coco
 
 
@@ -42,14 +42,14 @@ def test_greedy_highest_confidence_takes_its_best_iou():
     gt = [(0, 0, 10, 10), (3, 0, 10, 10)]
     det1 = (2.0, 0, 10, 10)  # IoU with A 8/12 = 0.667, with B 9/11 = 0.818
     det2 = (4.0, 0, 10, 10)  # IoU with A 6/14 = 0.43, with B 0.818
-    m = match_image(truth_image(gt), boxes([det1, det2], [0.9, 0.8]), S)
+    m = match_image(truth_image(gt), dets_of([det1, det2], [0.9, 0.8]), S)
     assert m.truth_status.tolist() == [TruthStatus.MISSED, TruthStatus.DETECTED]
     assert m.detection_status.tolist() == [DetectionStatus.TRUE, DetectionStatus.FALSE]
 
 
 def test_duplicate_detections_one_true_rest_false():
     m = match_image(truth_image([(10, 10, 20, 20)]),
-                    boxes([(10, 10, 20, 20), (11, 10, 20, 20), (10, 11, 20, 20)],
+                    dets_of([(10, 10, 20, 20), (11, 10, 20, 20), (10, 11, 20, 20)],
                           [0.6, 0.9, 0.7]), S)
     assert m.truth_status.tolist() == [TruthStatus.DETECTED]
     assert m.detection_status.tolist() == [DetectionStatus.FALSE, DetectionStatus.TRUE,
@@ -57,16 +57,16 @@ def test_duplicate_detections_one_true_rest_false():
 
 
 def test_image_without_boxes_and_without_truth():
-    empty = match_image(truth_image([]), boxes([], []), S)
+    empty = match_image(truth_image([]), dets_of([], []), S)
     assert empty.truth_status.size == 0 and empty.detection_status.size == 0
-    m = match_image(truth_image([]), boxes([(0, 0, 5, 5), (50, 50, 8, 8)], [0.9, 0.2]), S)
+    m = match_image(truth_image([]), dets_of([(0, 0, 5, 5), (50, 50, 8, 8)], [0.9, 0.2]), S)
     assert m.detection_status.tolist() == [DetectionStatus.FALSE,
                                            DetectionStatus.BELOW_THRESHOLD]
 
 
 def test_zero_and_negative_sizes_are_not_counted():
     m = match_image(truth_image([(0, 0, 0, 10), (0, 0, 10, -3), (20, 20, 10, 10)]),
-                    boxes([(0, 0, 0, 10), (20, 20, 10, 10), (20, 20, -1, -1)],
+                    dets_of([(0, 0, 0, 10), (20, 20, 10, 10), (20, 20, -1, -1)],
                           [0.9, 0.9, 0.9]), S)
     assert m.truth_status.tolist() == [TruthStatus.DEGENERATE, TruthStatus.DEGENERATE,
                                        TruthStatus.DETECTED]
@@ -78,7 +78,7 @@ def test_other_classes_are_left_out():
     s = MatchSettings(0.5, 0.5, None, ("pedestrian", "people"))
     m = match_image(truth_image([(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10)],
                            ["pedestrian", "car", "people"]),
-                    boxes([(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10)], [0.9] * 3,
+                    dets_of([(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10)], [0.9] * 3,
                           ["people", "car", "people"]), s)
     # matched within each class (COCO), then merged: a 'people' box never detects a
     # 'pedestrian', even when both are target classes
@@ -92,7 +92,7 @@ def test_max_detections_keeps_the_highest_scores_per_class():
     s = MatchSettings(0.5, 0.5, None, None, max_detections=2)
     boxes = [(0, 0, 10, 10), (20, 0, 10, 10), (40, 0, 10, 10), (60, 0, 10, 10)]
     m = match_image(truth_image(boxes, ["a", "a", "a", "b"]),
-                    boxes(boxes, [0.6, 0.9, 0.8, 0.7], ["a", "a", "a", "b"]), s)
+                    dets_of(boxes, [0.6, 0.9, 0.8, 0.7], ["a", "a", "a", "b"]), s)
     # class a: the 0.9 and 0.8 detections count, the 0.6 one is over the cap; b has one
     assert m.detection_status.tolist() == [DetectionStatus.OVER_MAX_DETECTIONS,
                                            DetectionStatus.TRUE, DetectionStatus.TRUE,
@@ -105,7 +105,7 @@ def test_max_detections_keeps_the_highest_scores_per_class():
 
 def test_crowd_truth_absorbs_detections_without_being_counted():
     m = match_image(truth_image([(0, 0, 50, 50), (60, 60, 10, 10)], ignore=[True, False]),
-                    boxes([(5, 5, 10, 10), (20, 20, 10, 10), (60, 60, 10, 10)],
+                    dets_of([(5, 5, 10, 10), (20, 20, 10, 10), (60, 60, 10, 10)],
                           [0.9, 0.8, 0.7]), S)
     assert m.truth_status.tolist() == [TruthStatus.IGNORED, TruthStatus.DETECTED]
     assert m.detection_status.tolist() == [DetectionStatus.ON_IGNORED_TRUTH] * 2 + [
@@ -115,7 +115,7 @@ def test_crowd_truth_absorbs_detections_without_being_counted():
 def test_real_truth_beats_crowd():
     # a detection on both a crowd box and a real object is the object's
     m = match_image(truth_image([(0, 0, 50, 50), (10, 10, 10, 10)], ignore=[True, False]),
-                    boxes([(10, 10, 10, 10)], [0.9]), S)
+                    dets_of([(10, 10, 10, 10)], [0.9]), S)
     assert m.truth_status.tolist() == [TruthStatus.IGNORED, TruthStatus.DETECTED]
 
 
@@ -124,7 +124,7 @@ def test_ignored_regions_drop_boxes_at_least_half_inside():
     regions = [(0, 0, 30, 20), (20, 0, 30, 20)]
     gt = [(40, 0, 20, 10), (45, 0, 10, 10), (80, 80, 10, 10)]  # 50 % in, 50 % in, out
     m = match_image(truth_image(gt, regions=regions),
-                    boxes([(40, 0, 20, 10), (48, 0, 10, 10), (80, 80, 10, 10)], [0.9] * 3), S)
+                    dets_of([(40, 0, 20, 10), (48, 0, 10, 10), (80, 80, 10, 10)], [0.9] * 3), S)
     assert m.truth_status.tolist() == [TruthStatus.IN_IGNORED_REGION,
                                        TruthStatus.IN_IGNORED_REGION, TruthStatus.DETECTED]
     assert m.detection_status.tolist() == [DetectionStatus.IN_IGNORED_REGION,
@@ -133,13 +133,14 @@ def test_ignored_regions_drop_boxes_at_least_half_inside():
 
 def test_iou_threshold_one_matches_identical_boxes():
     s = MatchSettings(0.5, 1.0, None, None)
-    m = match_image(truth_image([(1.5, 2.5, 7.25, 3.5)]), boxes([(1.5, 2.5, 7.25, 3.5)], [0.9]), s)
+    m = match_image(truth_image([(1.5, 2.5, 7.25, 3.5)]), dets_of([(1.5, 2.5, 7.25, 3.5)], [0.9]),
+                    s)
     assert m.truth_status.tolist() == [TruthStatus.DETECTED]
 
 
 def test_sizes_are_scaled_to_the_detector_input():
     image = ImageTruth("a", 1920, 1080, Boxes.from_rows([(0, 0, 40, 90)], ["p"]))
-    m = match_images([(image, boxes([(0, 0, 40, 90)], [0.9], ["p"]))],
+    m = match_images([(image, dets_of([(0, 0, 40, 90)], [0.9], ["p"]))],
                      MatchSettings(0.5, 0.5, 640, None))
     assert m.truth_size_px[0] == pytest.approx(60 / 3)  # sqrt(40*90) * 640/1920
     assert m.detection_size_px[0] == pytest.approx(20)

@@ -26,7 +26,7 @@ from pdcov.detection.statistics import (
     validate,
 )
 from pdcov.errors import ConfigError, DetectorModelError
-from tests.support.detection_boxes import S, boxes, truth_image
+from tests.support.detection_boxes import S, dets_of, truth_image
 from tests.support.synthetic_detections import EDGES, INPUT, P_D, P_FA, synthetic_set
 
 
@@ -93,7 +93,7 @@ def test_confidence_histograms_by_hand():
     """One image: 3 people found at 0.9, 0.8, 0.6 and a false box at 0.55, a box below the
     threshold. Two confidence bins [0.5, 0.75), [0.75, 1]; add-one smoothing."""
     gt = [(0, 0, 20, 20), (30, 0, 20, 20), (60, 0, 20, 20)]
-    dets = boxes(gt + [(0, 50, 20, 20), (30, 50, 20, 20)], [0.9, 0.8, 0.6, 0.55, 0.3])
+    dets = dets_of(gt + [(0, 50, 20, 20), (30, 50, 20, 20)], [0.9, 0.8, 0.6, 0.55, 0.3])
     matches = match_images([(truth_image(gt), dets)], S)
     np.testing.assert_array_equal(matches.detection_confidence, [0.9, 0.8, 0.6, 0.55])
     conf = fit_confidence(matches, (10.0, 30.0, 100.0), n_bins=2)

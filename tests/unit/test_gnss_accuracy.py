@@ -36,8 +36,8 @@ from pdcov.telemetry.gnss_accuracy import (
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.samples import GnssAccuracySample
 from pdcov.telemetry.series import GnssAccuracySeries
+from tests.support.detections_driver import Driver
 from tests.support.link_feed import FIXED, MISSION, Hover, pack, without_epoch
-from tests.unit.test_detections_live import Driver
 
 
 def _in_force(sample: GnssAccuracySample) -> PositionAccuracy | None:

@@ -15,11 +15,9 @@ from pdcov.bus.detections import decode_detections
 from pdcov.bus.frames import encode_frames, encode_frames_v2
 from pdcov.cli import main as pdcov_main
 from pdcov.core.detections import Box, FrameBoxes
-from pdcov.service.core import LinkReport, ServiceCore
+from pdcov.service.core import LinkReport
 from pdcov.service.detections import DETECTIONS_PERIOD_S
-from pdcov.service.recorder import TlogRecorder
-from pdcov.service.settings import load_serve_config
-from pdcov.telemetry.tlog import mavlink
+from tests.support.detections_driver import Driver
 from tests.support.link_feed import FIXED, MISSION, Hover, pack, without_epoch
 
 
@@ -40,40 +38,6 @@ def _boxes(k: int, rng: np.random.Generator) -> tuple[Box, ...]:
         out.append(Box("car", 0.6, 500.0 + rng.normal(0, 1), 100.0, 60.0, 30.0))
     out.append(Box("person", 0.51, -0.5, 300.0, 12.0, 30.0))
     return tuple(out)
-
-
-class Driver:
-    """The shell's part, in memory: what the core says to record is recorded; detections
-    messages are kept; time steps by hand."""
-
-    def __init__(self, cfg_path: Path, rec_dir: Path) -> None:
-        self.core = ServiceCore(load_serve_config(cfg_path),
-                                load_serve_config(cfg_path).mission.new_grid(), 0.0,
-                                mission_hash="test")
-        self.recorder = TlogRecorder(rec_dir, 1 << 22, 1 << 30)
-        self.parser = mavlink.MAVLink(None)
-        self.now_s = 0.0
-        self.published: list[dict] = []
-
-    def _do(self) -> None:
-        a = self.core.actions()
-        for data in a.record:
-            self.recorder.write(data, 1.7e9 + self.now_s)
-        self.published += [decode_detections(p, vehicle_id="uav7") for p in a.detections]
-
-    def link(self, data: bytes) -> None:
-        self.core.receive_mavlink(self.parser.parse_buffer(data) or [], self.now_s)
-        self.core.process()
-        self._do()
-
-    def frames(self, payload: bytes) -> None:
-        self.core.receive_frames(payload)
-        self._do()
-
-    def tick(self, dt_s: float) -> None:
-        self.now_s += dt_s
-        self.core.tick(self.now_s, 0.0)
-        self._do()
 
 
 def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> None:
