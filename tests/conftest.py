@@ -2,7 +2,7 @@
 and it is marked with that folder's name (``pytest -m unit`` is ``pytest tests/unit``):
 
 * unit: in memory and quick, the fast tier;
-* slow: in memory, but more than a few seconds;
+* slow: in memory, but seconds per test (real logs, whole flights, fits, fuzz properties);
 * integration: starts processes (pdcov commands, the simulator's link, GDAL, systemd);
 * system: Zenoh routers and sessions, several daemons;
 * simulators: JSBSim flights, the real ArduCopter SITL, MAVSDK;

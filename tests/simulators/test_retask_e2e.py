@@ -104,7 +104,7 @@ def test_refly_uploaded_mid_flight_to_real_arducopter(tmp_path) -> None:
                         # In AUTO, a few legs into the lawnmower: mid-flight, gaps left.
                         fly_mission(gcs, target, 4, altitude_m=ALTITUDE_M, timeout_s=120.0)
                         assert mode_of(gcs, target) == 3  # AUTO, set by the "pilot"
-                        sub.wait(lambda s: s["frames"]["used"] > 0, 10.0, "frames")
+                        sub.wait(lambda s: s["frames"]["used"] > 0, 30.0, "frames")
                         watch = subprocess.run(
                             [sys.executable, "-m", "pdcov.cli", "watch", "--config",
                              str(config), "--vehicle", "ardu1", "--mode", "client",
@@ -117,7 +117,7 @@ def test_refly_uploaded_mid_flight_to_real_arducopter(tmp_path) -> None:
                         mode_after = mode_of(gcs, target)
                         back = read_back(gcs, target)
                         st = sub.wait(lambda s: (s.get("retask") or {}).get("last")
-                                      is not None, 10.0, "the status's retask")
+                                      is not None, 30.0, "the status's retask")
                         assert stop(daemon) == 0
                     finally:
                         sub.close()

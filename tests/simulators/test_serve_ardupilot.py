@@ -68,7 +68,7 @@ def test_daemon_flies_with_real_arducopter_and_equals_offline(tmp_path) -> None:
                                            str(plan)]) == 0
                         fly_mission(gcs, target, last_waypoint_seq, altitude_m=ALTITUDE_M,
                                     timeout_s=120.0)
-                        flown = sub.wait(lambda s: s["frames"]["used"] > 0, 10.0, "frames")
+                        flown = sub.wait(lambda s: s["frames"]["used"] > 0, 30.0, "frames")
                         # Telemetry ends with the autopilot; once the daemon has seen the
                         # link go and its frame count holds still, its snapshot is final (a
                         # frame after the last sample stays pending: nothing to interpolate).

@@ -1,6 +1,7 @@
-"""Pins over simulated search flights: the share found within 3 sd of the prediction,
-distinct groups, one box per pin and frame, a restart keeps them, P(person) calibrated
-(tests/unit/test_pins_identity.py: the identity rules)."""
+"""Pins over every scenario of ``pdcov_sitl.pin_scenarios`` flown in memory (two seeds each):
+the share found within 3 sd of the prediction, distinct groups 1.5 m apart, one box per pin
+and frame, a restart keeps them, P(person) calibrated (tests/unit/test_pins_identity.py: the
+score rules on hand-made records)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""R3, the per-pixel DEM ray caster (benchmarks/terrain_reference.py): rays against surfaces
+"""R3, the per-pixel DEM ray caster (tests/support/terrain_reference.py): rays against surfaces
 with answers by hand, the valley DEM read back through its CRS, flat ground equal to R1; then
 the issue 21 check on the valley flight: flat pdcov misjudges it, pdcov with the DEM agrees."""
 
@@ -10,13 +10,13 @@ import pytest
 from benchmarks.measure import terrain_agreement, time_updates
 from benchmarks.scenarios import scenarios
 from benchmarks.terrain import R3_MIN_SHARE, R3_TOLERANCE_PD, VALLEY_STEP_PX, TerrainSite
-from benchmarks.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
-from benchmarks.terrain_scene import Valley, ValleyDem
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.pose import CameraPose
 from tests.support.references import ReferenceGrid, pixel_rays, r1_update
+from tests.support.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
+from tests.support.valley import Valley, ValleyDem
 
 NADIR = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # optical x east, y south, z down
 

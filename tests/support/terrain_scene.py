@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from benchmarks.terrain_scene import write_enu_geotiff
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.mission import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_NAV_WAYPOINT, MissionItem
 from pdcov.planning.plan import wpl_text
 from tests.support.harness import small_mission
+from tests.support.valley import write_enu_geotiff
 
 DOMAIN_M = 60.0
 """The domain: the square [0, DOMAIN_M] east by [0, 40] north (1 m cells)."""

@@ -69,7 +69,7 @@ def test_signed_plan_flies_others_never_reach_the_autopilot(tmp_path, capsys) ->
             s = open_session(BusConfig(mode="client", connect=(f"tcp/127.0.0.1:{zport}",),
                                        multicast_scouting=False))
             try:
-                sub.wait(lambda st: st["link"]["state"] == "connected", 20.0, "connected")
+                sub.wait(lambda st: st["link"]["state"] == "connected", 30.0, "connected")
                 # No key: the ground station refuses to send, and says why.
                 assert pdcov_main(["upload", "--bus", "fuzz", "--plan", str(plan), *bus]) == 1
                 assert "no operator key" in capsys.readouterr().err

@@ -139,10 +139,10 @@ def test_access_control_lets_vehicles_publish_their_keys_and_the_ground_only_rea
         assert at_uav1.payloads() == [b"genuine"]  # its own put, nothing from the others
         assert at_stranger.payloads() == []
         replies = [r.ok.payload.to_bytes() for r in ground.get("pdcov/uav1/snapshot",
-                                                                timeout=3.0) if r.ok]
+                                                                timeout=10.0) if r.ok]
         assert replies == [b"SNAPSHOT"]
         tokens = [str(r.ok.key_expr) for r in ground.liveliness().get("pdcov/*/alive",
-                                                                     timeout=3.0) if r.ok]
+                                                                     timeout=10.0) if r.ok]
         assert tokens == ["pdcov/uav1/alive"]
         assert [r for r in stranger.get("pdcov/uav1/snapshot", timeout=2.0) if r.ok] == []
         assert [r for r in stranger.liveliness().get("pdcov/*/alive", timeout=2.0)

@@ -58,7 +58,7 @@ def test_real_flight_replay_equals_offline(tmp_path):
             sub.wait(lambda s: s["frames"]["grid"] >= int(ref["frames"]), 150,
                      f"{int(ref['frames'])} frames")
             replay.wait(timeout=60)
-            st = sub.wait(lambda s: s["tiles_seq"] == sub.last_seq, 10, "the last tiles")
+            st = sub.wait(lambda s: s["tiles_seq"] == sub.last_seq, 30, "the last tiles")
             fp = decode_footprint(sub.footprint())
             snap = sub.snapshot()
             assert stop(daemon) == 0

@@ -1,7 +1,7 @@
 """Pins scored by person identity (issue 35, "Done when"): the score rules on hand-made
-records, then every scenario of ``pdcov_sitl.pin_scenarios`` flown in memory (two seeds
-each, about 30 s in all: marked slow; ``python -m benchmarks.pins`` flies four and prints
-the table of docs/simulator.md)."""
+records. Every scenario of ``pdcov_sitl.pin_scenarios`` flown in memory (two seeds each,
+about 30 s in all) is tests/slow/test_pins_identity_flights.py; ``python -m benchmarks.pins``
+flies four and prints the table of docs/simulator.md."""
 
 from __future__ import annotations
 
