@@ -13,7 +13,7 @@ import pytest
 from benchmarks.fleet import FleetRun, markdown, run
 from pdcov.bus.session import BusConfig
 
-VEHICLES, SPEED = 4, 4.0
+VEHICLES, SPEED = 4, 2.0
 STATUS_BUDGET_B_PER_S = 1000.0  # issue 13
 PERIOD_S = BusConfig().status_period_s
 
