@@ -1,7 +1,8 @@
 # Developer commands (CONTRIBUTING.md), in the activated virtual environment.
 PYTHON ?= python
 # pytest-xdist workers; --dist loadscope keeps a module's tests (and its module-scoped
-# fixtures: a flight, a fleet) on one worker.
+# fixtures: a flight, a fleet, a plan) on one worker; the unit tier has none worth it and
+# balances better test by test.
 JOBS ?= 2
 PYTEST = $(PYTHON) -m pytest -q -n $(JOBS) --dist loadscope
 
@@ -15,7 +16,7 @@ types:  ## mypy over both packages (about a minute)
 	mypy
 
 fast:  ## tests/unit: in memory and quick (about a minute on 2 cores)
-	$(PYTEST) tests/unit
+	$(PYTHON) -m pytest -q -n $(JOBS) tests/unit
 
 slow:  ## tests/slow: in memory, but long
 	$(PYTEST) tests/slow

@@ -41,7 +41,7 @@ from pdcov.bus.detections import decode_detections
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Candidate
 from pdcov_sitl.pin_score import DetectionOwners, found_people, found_share, merges
-from tests.simulators.test_search_loop_e2e import DEMO, PEOPLE, demo_plan
+from tests.support.search_demo import DEMO, PEOPLE, demo_plan
 from tests.support.serve_harness import (
     candidates_query,
     fly_args,

@@ -35,26 +35,11 @@ import numpy as np
 import pytest
 import yaml
 
+from tests.support.search_demo import DEMO, PEOPLE, demo_plan
 from tests.support.serve_harness import fly_udp, offline, recording
 
 pytest.importorskip("jsbsim")
-PEOPLE = 200
 SEED = 1
-DEMO = Path(__file__).resolve().parents[2] / "service" / "pdcov" / "data" / "demo_mission.yaml"
-
-
-def demo_plan(folder: Path) -> Path:
-    """The live demo's plan: a spiral over the scene at 10 m, 5 m/s (commands/demo.py)."""
-    from pdcov.commands.plan import scenario_of
-    from pdcov.config import load_mission
-    from pdcov.planning.optimise import PlanParams, build_plan
-    from pdcov.planning.plan import write_plan
-
-    mission = load_mission(DEMO)
-    plan, _ = build_plan(scenario_of(mission), PlanParams("spiral", 10.0, 5.0))
-    path = folder / "demo.plan"
-    write_plan(path, plan, mission.origin())
-    return path
 
 
 @pytest.fixture(scope="module")

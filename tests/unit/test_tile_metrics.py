@@ -20,7 +20,7 @@ from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
-from tests.unit.test_service_decisions import feed, serve_cfg
+from tests.support.service_feed import feed, serve_cfg
 
 CAMERA = CameraModel(640, 480, np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]))
 DETECTOR = DetectorModel.from_dict({"version": 4, "bin_edges_px": [1, 20, 40, 80, 2000],
