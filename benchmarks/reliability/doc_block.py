@@ -18,7 +18,8 @@ from .soak import SoakResult
 
 
 def fuzz(examples: int) -> dict[str, object]:
-    """Run the fuzz properties (tests/unit/test_fuzz_*.py) with ``examples`` examples each."""
+    """Run the fuzz properties (tests/slow/test_fuzz_link.py, tests/unit/test_fuzz_inputs.py)
+    with ``examples`` examples each."""
     env = dict(os.environ, PDCOV_FUZZ_EXAMPLES=str(examples))
     start = time.monotonic()
     res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
