@@ -1,7 +1,12 @@
 # Developer commands (CONTRIBUTING.md), in the activated virtual environment.
 PYTHON ?= python
+# pytest-xdist workers; --dist loadscope keeps a module's tests (and its module-scoped
+# fixtures: a flight, a fleet, a plan) on one worker; the unit tier has none worth it and
+# balances better test by test.
+JOBS ?= 2
+PYTEST = $(PYTHON) -m pytest -q -n $(JOBS) --dist loadscope
 
-.PHONY: lint types fast e2e slow test base-install ci
+.PHONY: lint types fast slow integration system simulators browsers test base-install ci
 
 lint:  ## ruff and the import contracts
 	ruff check .
@@ -10,17 +15,26 @@ lint:  ## ruff and the import contracts
 types:  ## mypy over both packages (about a minute)
 	mypy
 
-fast:  ## the unit tier: no process, router, simulator or browser
-	$(PYTHON) -m pytest -q -m unit
+fast:  ## tests/unit: in memory and quick (about a minute on 2 cores)
+	$(PYTHON) -m pytest -q -n $(JOBS) tests/unit
 
-e2e:  ## processes, Zenoh, the simulator, the browser, real firmware
-	$(PYTHON) -m pytest -q -m e2e
+slow:  ## tests/slow: in memory, but long
+	$(PYTEST) tests/slow
 
-slow:  ## in memory, but long
-	$(PYTHON) -m pytest -q -m slow
+integration:  ## tests/integration: pdcov commands and other processes
+	$(PYTEST) tests/integration
 
-test:  ## every tier (about 20 minutes on a quiet 2-core machine)
-	$(PYTHON) -m pytest -q
+system:  ## tests/system: Zenoh routers and sessions, several daemons
+	$(PYTEST) tests/system
+
+simulators:  ## tests/simulators: JSBSim flights, the real ArduCopter SITL, MAVSDK
+	$(PYTEST) tests/simulators
+
+browsers:  ## tests/browsers: chromium
+	$(PYTEST) tests/browsers
+
+test:  ## every tier, in parallel (CONTRIBUTING.md "Tests" for the time)
+	$(PYTEST)
 
 base-install:  ## pip install . with no extra in /tmp: serve --check and evaluate
 	.ci/base-install

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pdcov.core.looks import LooksConfig, LooksRule
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update, r2_update
 
 from .blur import blur_rows
 from .measure import (
@@ -24,7 +25,6 @@ from .measure import (
     time_updates,
 )
 from .offline import evaluate_run, optimise_run
-from .references import ReferenceGrid, pixel_rays, r1_update, r2_update
 from .report import Row, machine, markdown, write_readme_block
 from .scenarios import Scenario, scenarios, spaced, strided
 from .terrain import TerrainSite, s5_rows, valley_rows

@@ -3,24 +3,12 @@ into one with camera.exposure_s and a detector model with blur bins, side by sid
 
 from __future__ import annotations
 
-from pdcov.core.detector import DetectorModel
 from pdcov.core.grid import CoverageGrid
+from tests.support.blur_detector import blur_detector
 
 from .measure import time_updates
 from .report import Row
 from .scenarios import Scenario, strided
-
-
-def blur_detector(edges_px: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0, 64.0),
-                  factors: tuple[float, ...] = (1.0, 0.8, 0.5, 0.2)) -> DetectorModel:
-    """The illustrative model with blur bins ``edges_px`` (detector-input px) whose P_D is
-    its own times ``factors`` (one per blur bin), P_FA unchanged."""
-    doc = DetectorModel.illustrative().to_dict()
-    doc.update(blur={
-        "edges_px": list(edges_px),
-        "p_detect": [[p * k for p in doc["p_detect"]] for k in factors],
-        "p_false_alarm": [doc["p_false_alarm"]] * len(factors)})
-    return DetectorModel.from_dict(doc)
 
 
 def blur_rows(sc: Scenario, max_frames: int, exposure_s: float = 0.004) -> list[Row]:

@@ -47,8 +47,8 @@ from pdcov.core.mission import AltitudeFrame
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
 from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
+from tests.support.harness import child, free_port, serve_args
 
-from .harness import child, free_port, serve_args
 from .report import Row, machine, markdown
 from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario, scenarios
 

@@ -44,9 +44,9 @@ from pdcov.core.geodesy import Origin
 from pdcov.ground.demo import Children, FleetStatus, free_port
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
+from tests.support.harness import small_mission
 
 from .daemon import cpu_s, memory_bytes
-from .harness import small_mission
 from .report import write_marked_block
 from .security import SECURITY_TESTS, security_checks, security_table
 
@@ -311,7 +311,7 @@ def docs_block(fleet_md: str, sec: dict[str, str], command: str) -> str:
     return f"""## Fleet load
 
 Regenerated with the security checks below by `{command}`; CI flies 4 vehicles at
-`--speed 2` with the same code (`tests/test_fleet.py`, about a minute). N simulators
+`--speed 2` with the same code (`tests/simulators/test_fleet.py`, about a minute). N simulators
 (`pdcov-sitl fly`, JSBSim, each its own system id and vehicle id, a lawnmower over its own
 30 m square at 5 frames/s), their N daemons (`pdcov serve`, peer sessions, bus defaults:
 status 1 s, tiles 0.2 s) and 2 watchers (`pdcov watch --record`, client sessions) through

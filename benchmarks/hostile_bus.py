@@ -5,11 +5,11 @@ snapshot, 2,000 invented vehicle ids and the 83-byte replayed tiles message cost
 the input bounds of issue 34 (a far-future frames flood, invented classes, a 1M-bin detector
 model, zoom jitter, a folding lens, a DEM far off the home, 1e6 frames/s, a 65-character
 vehicle id, a slow MBTiles) against the daemon's decisions (ServiceCore, fed MAVLink bytes
-as tests/link_feed.py does) and the loaders, with the process's RSS before, during and
+as tests/support/link_feed.py does) and the loaders, with the process's RSS before, during and
 after the flood.
 Prints a markdown table (docs/reliability.md "Hostile participant"); exit 1 when a bound
-does not hold. The same cases run over real Zenoh in tests/test_watch_hostile.py and
-tests/test_bus_hostile.py.
+does not hold. The same cases run over real Zenoh in tests/system/test_watch_hostile.py and
+tests/unit/test_bus_hostile.py.
 """
 
 from __future__ import annotations
@@ -36,12 +36,11 @@ from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
 
 # The watcher tests' stand-in publisher (a real CoverageGrid through the bus codecs), so
-# that these figures are of the same cases as tests/test_watcher_pinning.py.
+# that these figures are of the same cases as tests/unit/test_watcher_pinning.py.
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from watch_fixtures import TinyPublisher
-
 from benchmarks.hostile_inputs import input_bound_cases
 from benchmarks.hostile_retask import retask_cases
+from tests.support.watch_fixtures import TinyPublisher
 
 DAEMON, ROGUE = "a1" * 16, "e7" * 16
 

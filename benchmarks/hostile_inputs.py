@@ -1,6 +1,6 @@
 """The input bounds of issue 34, measured for ``python -m benchmarks.hostile_bus``: each case
 returns (finding, red team's figure, now, holds). In memory: the daemon's decisions
-(ServiceCore) fed MAVLink bytes as tests/link_feed.py feeds them, the config and model
+(ServiceCore) fed MAVLink bytes as tests/support/link_feed.py feeds them, the config and model
 loaders, the zoom lens and the basemap reader.
 """
 
@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from link_feed import FIXED, MISSION, Hover, pack
 
 from pdcov.bus.faults import Fault
 from pdcov.bus.frames import encode_frames_v2
@@ -35,6 +34,7 @@ from pdcov.service.link_setup import LinkReport
 from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
 from pdcov.service.settings import load_serve_config, new_serve_grid
 from pdcov.telemetry.tlog import mavlink
+from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 Case = tuple[str, str, str, bool]
 

@@ -1,6 +1,6 @@
 """The command path of issue 34, measured for ``python -m benchmarks.hostile_bus``: the
 red team's re-tasking requests sent to the daemon's decisions (``ServiceCore`` with
-``service.retask: true`` and one operator key, tests/retask_harness.py) with an autopilot
+``service.retask: true`` and one operator key, tests/support/retask_harness.py) with an autopilot
 stand-in answering the mission protocol. Each case returns (finding, red team's figure,
 now, holds): holds when the daemon refused with the expected reason and not one mission
 message reached the autopilot, or, for the signed in-bounds plan, when the autopilot got
@@ -13,9 +13,6 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
-from retask_keys import OTHER, UNIX_S, signed
-
 from pdcov.bus.retask import decode_retask_reply
 from pdcov.core.mission import (
     MAV_CMD_DO_CHANGE_SPEED,
@@ -26,6 +23,8 @@ from pdcov.core.mission import (
     MissionItem,
 )
 from pdcov.service.retask_auth import RetaskRefusal
+from tests.support.retask_harness import FAR, ITEMS, WP, Autopilot, core_with, fly, heard
+from tests.support.retask_keys import OTHER, UNIX_S, signed
 
 Case = tuple[str, str, str, bool]
 ACCEPTED = "ACCEPTED"

@@ -5,7 +5,7 @@ measured in the same run).
 Recordings, made first and not timed:
 
 * gimbal: ``pdcov-sitl fly --speed 0`` over the small simulated mission
-  (benchmarks.harness.small_mission: 640x480 at 5 frames/s, gimbal read by its flags) on a
+  (tests.support.harness.small_mission: 640x480 at 5 frames/s, gimbal read by its flags) on a
   square of ``--side-m``, lawnmower 10 m up, 10 m apart, 5 m/s; its tlog is the recording;
 * fixed: the same flight with a fixed nadir camera (``--gimbal fixed``);
 * S1: the survey scenario (benchmarks.scenarios: 1920x1080 fixed 20 deg off nadir, 30
@@ -59,8 +59,8 @@ from pdcov.service.mavlink_io import mavlink
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner
+from tests.support.harness import SMALL_MISSION, child, small_mission
 
-from .harness import SMALL_MISSION, child, small_mission
 from .offline import write_tlog
 from .report import Row, machine, markdown
 from .scenarios import scenarios

@@ -12,9 +12,8 @@ import numpy as np
 
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
-
-from .references import ReferenceGrid
-from .terrain_reference import TerrainReferenceGrid
+from tests.support.references import ReferenceGrid
+from tests.support.terrain_reference import TerrainReferenceGrid
 
 
 @dataclass(frozen=True)

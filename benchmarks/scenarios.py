@@ -23,8 +23,7 @@ from pdcov.core.looks import LooksConfig
 from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.planning.patterns import lawnmower, spiral
 from pdcov.planning.trajectory import Flight, camera_poses, fly
-
-from .terrain_scene import Valley, ValleyDem
+from tests.support.valley import Valley, ValleyDem
 
 MILD_PLUMB_BOB = (-0.05, 0.01, 0.0005, -0.0005, 0.0)
 FISHEYE_COEFFS = (0.01, -0.005, 0.001, 0.0)

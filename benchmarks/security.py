@@ -11,13 +11,16 @@ import subprocess
 import sys
 import time
 
-from .harness import ROOT
+from tests.support.harness import ROOT
 
-SECURITY_TESTS = ("tests/test_security_zenoh.py", "tests/test_security_mavlink.py",
-                  "tests/test_status_size.py", "tests/test_web_auth.py",
-                  "tests/test_bus_hostile.py", "tests/test_web_hostile.py",
-                  "tests/test_record_errors.py", "tests/test_security_daemon.py",
-                  "tests/test_watcher_pinning.py", "tests/test_watch_hostile.py")
+SECURITY_TESTS = ("tests/system/test_security_zenoh.py",
+                  "tests/simulators/test_security_mavlink.py", "tests/unit/test_status_size.py",
+                  "tests/unit/test_web_auth.py", "tests/integration/test_web_auth_watch.py",
+                  "tests/unit/test_bus_hostile.py", "tests/unit/test_web_hostile.py",
+                  "tests/system/test_web_hostile_zenoh.py", "tests/unit/test_record_errors.py",
+                  "tests/unit/test_security_daemon.py",
+                  "tests/system/test_security_daemon_zenoh.py",
+                  "tests/unit/test_watcher_pinning.py", "tests/system/test_watch_hostile.py")
 SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
     ('Zenoh over TLS',
      "a TLS router; a client trusting the CA receives a peer's put; a client trusting "
@@ -71,9 +74,9 @@ SECURITY_ROWS = (  # check, how it is tested (docs/reliability.md "Security")
      '"Access")'),
     ('Status within 1 kB/s',
      "full and brief statuses (docs/protocol.md): a minute of a flying daemon's "
-     'statuses averages under 1000 B/s (tests/test_status_size.py); per vehicle in the '
+     'statuses averages under 1000 B/s (tests/unit/test_status_size.py); per vehicle in the '
      "fleet above on the daemon's clock: see its status column (a checkpoint's progress "
-     'no longer makes its status full, tests/test_fleet.py)'),
+     'no longer makes its status full, tests/simulators/test_fleet.py)'),
     ('Forged coverage on the default bus',
      "`pdcov watch` as a process through a real router, a rogue session beside the "
      "vehicle's publisher: tiles with the vehicle's next seq and every cell at P_D 1, "

@@ -17,12 +17,12 @@ import yaml
 from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from tests.support.references import pixel_rays
+from tests.support.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
 
 from .measure import TerrainAgreement, terrain_agreement, time_frames, time_updates
-from .references import pixel_rays
 from .report import Row
 from .scenarios import Scenario, spaced, strided
-from .terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
 
 DEM_FILE = "valley.tif"
 # R3 on S5 casts every pixel's ray (1920 x 1080: 2 M rays per frame). Over the whole valley

@@ -21,7 +21,7 @@
 
 ``--write-docs`` runs the documented sizes (a 2-hour soak, 50 kills, a 60 s router outage)
 plus the fuzz properties with many examples, and writes docs/reliability.md; ``--quick``
-runs the CI sizes (tests/test_reliability.py uses the functions directly).
+runs the CI sizes (tests/simulators/test_reliability.py uses the functions directly).
 
 Modules: ``rig`` (mission, plan, ports, command lines, the watcher thread), one per scenario
 (``soak``, ``crash``, ``outages``: router and disk), ``doc_block`` (fuzz figures, the

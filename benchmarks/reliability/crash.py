@@ -12,7 +12,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..harness import child, router
+from tests.support.harness import child, router
+
 from .rig import WatcherThread, fly, make_rig, serve, side_for, sigterm
 
 

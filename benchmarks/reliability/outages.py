@@ -11,7 +11,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..harness import child, router
+from tests.support.harness import child, router
+
 from .rig import (
     VEHICLE,
     WatcherThread,

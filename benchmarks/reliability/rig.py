@@ -28,8 +28,7 @@ from pdcov.ground.live import WatchShell
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
-
-from ..harness import free_port, serve_args, small_mission
+from tests.support.harness import free_port, serve_args, small_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "reliability.md"

@@ -9,8 +9,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tests.support.harness import child, router
+
 from ..daemon import memory_bytes
-from ..harness import child, router
 from .rig import (
     WatcherThread,
     cells_differing,
@@ -29,9 +30,9 @@ def random_faults(flight_s: float, seed: int) -> str:
     """Link faults all along and, every ~5 simulated minutes, an outage (2-15 s: longer than
     half the daemon's 20 s history too), a GPS glitch or a NaN window. Not included:
     ``reboot`` (pdcov evaluate re-bases a log's clock on its last boot, the live daemon on its
-    first, so frames fall on other times; covered by tests/test_fuzz_link.py and
-    tests/test_serve_fly.py) and ``gimbal_fail`` (the simulated gimbal stays silent after it:
-    the rest of the flight would be unusable)."""
+    first, so frames fall on other times; covered by tests/slow/test_fuzz_link.py and
+    tests/simulators/test_serve_fly.py) and ``gimbal_fail`` (the simulated gimbal stays silent
+    after it: the rest of the flight would be unusable)."""
     rng = random.Random(seed)
     items = ["drop=0.01", "corrupt=0.0005", "reorder=0.01", "duplicate=0.01"]
     t = rng.uniform(40, 120)

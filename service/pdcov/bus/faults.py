@@ -1,6 +1,6 @@
 """The keys of the status's ``faults`` counts: what the daemon survived, counted and reported,
 never raised. Declared here once; docs/protocol.md "Fault keys" lists the same names
-(tests/test_fault_keys.py holds the two equal and every count to these names).
+(tests/unit/test_fault_keys.py holds the two equal and every count to these names).
 
 A count is keyed by a ``Fault`` (a str: its value is the key on the bus), or by a
 ``FaultFamily`` key: a prefix and the lower-case name of a reason enum member.

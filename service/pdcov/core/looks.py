@@ -171,7 +171,7 @@ class Quadrature:
 
 
 # 144 nodes; against the exact beta-binomial 1 - B(a, b + n) / B(a, b) its P_D errs by at
-# most 1.2e-4 over a in 0.05..100, b in 0.05..100, n in 1..108,000 (tests/test_looks.py).
+# most 1.2e-4 over a in 0.05..100, b in 0.05..100, n in 1..108,000 (tests/unit/test_looks.py).
 QUADRATURE = Quadrature.composite(n_uniform=32, ratio=0.25, n_geometric=8, order=3)
 # log(1 - p) for p = 1 (a bin the model calls certain) would be -inf, and 0 looks * -inf
 # NaN in the matrix product: this finite floor gives exp(n * floor) = 0 for any n >= 1.

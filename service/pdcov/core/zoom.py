@@ -40,7 +40,7 @@ from pdcov.errors import CalibrationError
 _CACHE_SIZE = 128  # cameras kept per lens (distinct reported values)
 FOV_FOCAL_STEP = 2e-4
 """Step of ln(focal length) a reported field of view is quantised to: the focal length moves
-by at most 1e-4 of itself, 0.1 px at the edge of a 1920 px picture (tests/test_zoom.py
+by at most 1e-4 of itself, 0.1 px at the edge of a 1920 px picture (tests/unit/test_zoom.py
 shows the grids agree); 0.01 deg of jitter at 60 deg spans two steps."""
 
 

@@ -8,7 +8,7 @@ ENU raster would be off by the curvature of the plane's east-west lines (about
 x**2 * tan(lat) / (2 R)), by the change of Mercator's scale across it and by Leaflet's
 sphere being not quite conformal on the ellipsoid's latitudes: a square centred on the
 origin at 47 deg N, 200 m a side, would be off by 3 mm, 1 km a side by 8 cm, 10 km a side
-by 8.5 m (``overlay_error_m`` measures it; tests/test_map_layers.py holds these figures).
+by 8.5 m (``overlay_error_m`` measures it; tests/unit/test_map_layers.py holds these figures).
 Rather than bound the mission's size, ``mercator_raster`` resamples the grid onto a web
 Mercator raster of the same cell size: each output pixel shows the cell its centre falls in
 (nearest cell). At mission scale that is the identity (the pixels are the cells); over tens

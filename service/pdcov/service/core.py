@@ -12,7 +12,7 @@ value the shell passes for the checkpoint's ``written_unix_s``. What to do comes
 status is due, a checkpoint to write, lines to log); ``status(now_s, report)`` builds the
 status once the shell has flushed its recording; ``get_timer()`` says when ``tick`` is next
 needed. The shell (daemon.py) does the I/O; tests and benchmarks drive this object directly
-(tests/link_feed.py).
+(tests/support/link_feed.py).
 
 What it decides, delegating to the decision classes beside it: the MAVLink conversation
 (``LinkProtocol``: which autopilot, what intervals and parameters to ask for), the frames

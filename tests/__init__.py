@@ -1,0 +1,1 @@
+"""pdcov's tests, one folder per tier (CONTRIBUTING.md "Tests")."""

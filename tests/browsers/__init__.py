@@ -1,0 +1,1 @@
+"""The browsers tier (tests/conftest.py)."""

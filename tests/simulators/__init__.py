@@ -1,0 +1,1 @@
+"""The simulators tier (tests/conftest.py)."""

@@ -1,0 +1,1 @@
+"""The slow tier (tests/conftest.py)."""

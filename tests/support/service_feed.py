@@ -1,0 +1,41 @@
+"""A ServeConfig over a small square and a level flight fed to the daemon's decisions in
+memory, for the tests of the service's decisions and of the tile metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pdcov.bus.session import BusConfig
+from pdcov.config.load import mission_from_dict
+from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.service.settings import LinkConfig, ServeConfig, ServiceConfig
+from pdcov.telemetry.samples import AttitudeSample, PositionSample
+
+ORIGIN = Origin(47.0, 8.0, 400.0)
+
+
+def serve_cfg(**service) -> ServeConfig:
+    doc = {"origin": {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg,
+                      "ground_alt_msl_m": ORIGIN.ground_alt_msl_m},
+           "domain": {"polygon_enu_m": [[16, 0], [48, 0], [48, 64], [16, 64]]},
+           "camera": {"width_px": 640, "height_px": 480,
+                      "K": [[480.0, 0, 319.5], [0, 480.0, 239.5], [0, 0, 1]],
+                      "frame_rate_hz": 5},
+           "mount": {"type": "fixed", "pitch_deg": -90}, "detector": "illustrative"}
+    return ServeConfig(mission_from_dict(doc), LinkConfig(),
+                       BusConfig(tile_size=16, tiles_max_bytes_per_s=4096),
+                       ServiceConfig(**service), None)
+
+
+def feed(live, t0, t1, *, rate=10.0, skip=()):
+    """Level flight north along x = 32 at 10 m, samples every 1/rate s except in ``skip``
+    intervals (both streams silent)."""
+    q = quat_wxyz_from_euler_zyx(0.0, 0.0, 0.0)
+    for k in range(int(round((t1 - t0) * rate)) + 1):
+        t = t0 + k / rate
+        if any(a <= t < b for a, b in skip):
+            continue
+        lat, lon, alt = enu_to_geodetic(np.array([32.0, 2.0 * t, 10.0]), ORIGIN)
+        live.add_sample(AttitudeSample(t, tuple(q)))
+        live.add_sample(PositionSample(t, float(lat), float(lon), float(alt)))
