@@ -73,7 +73,7 @@ class Connection:
 
     def _lost(self, why: str) -> None:
         log.warning("link %s: lost (%s); reopening", self.link.url, why)
-        self.link.close_socket(self._unwatch, LinkState.LOST)
+        self.link.lost(self._unwatch)
         if not self._closing:
             self.start()
 
@@ -81,4 +81,4 @@ class Connection:
         self._closing = True
         if self._task is not None:
             self._task.cancel()
-        self.link.close_socket(self._unwatch, LinkState.CLOSED)
+        self.link.close(self._unwatch)

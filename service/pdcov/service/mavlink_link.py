@@ -158,11 +158,19 @@ class MavlinkLink:
             if self._stream:
                 self._on_lost(f"write failed: {exc}")
 
-    def close_socket(self, unwatch: Callable[[int], None], state: LinkState) -> None:
-        """Close the socket, once ``unwatch(fd)`` has stopped the loop watching it; the
-        link is then in ``state`` (LOST, counted, or CLOSED)."""
-        if state == LinkState.LOST:
-            self.losses += 1
+    def lost(self, unwatch: Callable[[int], None]) -> None:
+        """The link is lost (after ``on_lost``): counted, its socket closed (below); LOST."""
+        self.losses += 1
+        self._close_socket(unwatch)
+        self.state = LinkState.LOST
+
+    def close(self, unwatch: Callable[[int], None]) -> None:
+        """The link is closed for good: its socket closed (below); CLOSED."""
+        self._close_socket(unwatch)
+        self.state = LinkState.CLOSED
+
+    def _close_socket(self, unwatch: Callable[[int], None]) -> None:
+        """Close the socket once ``unwatch(fd)`` has stopped the loop watching it."""
         self._drops_closed, self._drops_now = self.kernel_drops, 0
         if self._fd is not None:
             unwatch(self._fd)
@@ -173,7 +181,6 @@ class MavlinkLink:
             except Exception:  # noqa: BLE001
                 pass
             self.conn = None
-        self.state = state
 
     def describe(self, now_s: float) -> dict[str, Any]:
         out = {"url": self.url, "state": str(self.state), "opens": self.opens,
