@@ -15,7 +15,7 @@ Recordings, made first and not timed:
 Each recording is then run, in this process, twice:
 
 * live: every message's bytes, one message at a time as a link delivers them, through
-  pymavlink's parser (robust parsing, as mavlink_io) and the daemon's decisions
+  pymavlink's parser (robust parsing, as mavlink_socket) and the daemon's decisions
   (``ServiceCore``) as the shell drives them (``receive_mavlink``, ``process``), and every
   50 ms of the autopilot's clock its ``tick`` (LinkProtocol.poll, LiveCoverage.poll with
   its tiles, ``status`` when one is due); no socket, Zenoh or file. Zenoh puts and status
@@ -55,7 +55,7 @@ from pdcov.report.outputs import evaluate_poses
 from pdcov.service.core import ServiceCore
 from pdcov.service.daemon import TICK_S
 from pdcov.service.link_setup import LinkReport
-from pdcov.service.mavlink_io import mavlink
+from pdcov.service.mavlink_socket import mavlink
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.tlog import TlogScanner

@@ -96,7 +96,7 @@ async def _fly(d: Daemon, steps: list[bytes]) -> None:
         if isinstance(step, Link):
             d._on_messages(None, _parse(step))
         else:
-            d._on_frames(step)
+            d.bus.on_frames(step)
         await asyncio.sleep(0)
     d.live.process()
 
@@ -104,7 +104,7 @@ async def _fly(d: Daemon, steps: list[bytes]) -> None:
 def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> None:
     cfg_path = _config(tmp_path)
     d = Daemon(load_serve_config(cfg_path))
-    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    d.effects.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
     first, second = _segment(), _segment(boot_shift_ms=-500)  # the autopilot rebooted
     half = len(first) // 2
     frames = encode_frames
@@ -122,7 +122,7 @@ def test_evaluate_of_the_recording_is_the_live_grid(tmp_path: Path, capsys) -> N
         frames([0.95, 2.6, 2.61]),                   # the new boot's clock
     ]
     asyncio.run(_fly(d, steps))
-    d.recorder.close()
+    d.effects.recorder.close()
     live = d.live
     c = live.counters
     assert c.skipped["late frame time"] == 1, c.skipped
@@ -175,7 +175,7 @@ def test_capture_frames_duplicated_or_late_evaluate_to_the_live_grid(tmp_path: P
     the live grid."""
     cfg_path = _config(tmp_path, "capture")
     d = Daemon(load_serve_config(cfg_path))
-    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    d.effects.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
     mav = mavlink.MAVLink(None)
 
     def capture(ms: int) -> bytes:
@@ -194,7 +194,7 @@ def test_capture_frames_duplicated_or_late_evaluate_to_the_live_grid(tmp_path: P
         if ms == 1500:
             steps.append(Link(capture(1500)))                 # a duplicate at once
     asyncio.run(_fly(d, steps))
-    d.recorder.close()
+    d.effects.recorder.close()
     live = d.live
     assert live.counters.skipped["late frame time"] == 2, live.counters.skipped
     assert live.frames_pending == 0
@@ -216,12 +216,12 @@ def test_evaluate_uses_the_recorded_frames_unless_rate_is_chosen(tmp_path: Path,
     in the config is honoured (a rate lattice, not the daemon's grid) with a warning."""
     cfg_path = _config(tmp_path)
     d = Daemon(load_serve_config(cfg_path))
-    d.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
+    d.effects.recorder = TlogRecorder(tmp_path / "rec", 1 << 20, 1 << 30)
     link = _segment()
     half = len(link) // 2
     asyncio.run(_fly(d, [Link(b"".join(link[:half])), encode_frames([1.5, 2.0]),
                          Link(b"".join(link[half:])), encode_frames([2.5, 3.25, 4.0])]))
-    d.recorder.close()
+    d.effects.recorder.close()
     live = d.live
     assert live.grid.frames == live.counters.used == 5, live.counters.skipped
     rec = next((tmp_path / "rec").glob("flight-*.tlog"))

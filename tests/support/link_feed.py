@@ -1,5 +1,5 @@
 """The daemon's MAVLink read path in memory, for fuzzing: bytes -> pymavlink's parser (robust
-parsing, as mavlink_io opens links) -> the daemon's decisions (``ServiceCore``, the object
+parsing, as mavlink_socket opens links) -> the daemon's decisions (``ServiceCore``, the object
 the asyncio shell drives), with no socket, Zenoh or clock; and a hovering vehicle's messages
 to mutate."""
 

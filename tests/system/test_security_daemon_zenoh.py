@@ -152,11 +152,12 @@ async def autopilot_among_rogues(d: Daemon, mport: int, n_rogues: int
     autopilot = udp_socket()
     target = ("127.0.0.1", mport)
     try:
+        links = d.effects.links
         for _ in range(400):
-            if d.links and d.links[0].state == "connected" and d.stop_event is not None:
+            if links and links[0].state == "connected" and d.stop_event is not None:
                 break
             await asyncio.sleep(0.025)
-        assert d.links[0].state == "connected"
+        assert links[0].state == "connected"
 
         async def rogue_wave(n: int) -> None:
             for k, datagram in enumerate(rogue_datagrams(n)):
@@ -176,7 +177,7 @@ async def autopilot_among_rogues(d: Daemon, mport: int, n_rogues: int
         for _ in range(3):  # the daemon's HEARTBEAT (1 Hz) and request retries (1 s)
             autopilot.sendto(beat, target)
             await asyncio.sleep(1.0)
-        link = d.links[0]
+        link = links[0]
         parser = mavlink.MAVLink(None)
         got = [m for data in drain(autopilot) for m in parser.parse_buffer(data) or []]
         rogue_got = [data for s in rogues for data in drain(s)]

@@ -287,7 +287,7 @@ def test_a_restart_keeps_every_candidate_its_id_and_uid(tmp_path, caplog):
     assert candidates(killed) == [{**c, "pd": 0.0, "pfa": 0.0} for c in before]
     assert killed.live.detections.tracker.candidates(killed.live.grid)[2].uid == \
         f"uav7.{epoch}.2"
-    info = killed._checkpoint_info
+    info = killed.core.checkpoint.describe()
     assert (info["resumed"], info["candidates_restored"], info["candidates_from_journal"]) \
         == (False, 3, 3)
     # A clean stop: the final checkpoint holds them and the journal is emptied.
@@ -296,8 +296,8 @@ def test_a_restart_keeps_every_candidate_its_id_and_uid(tmp_path, caplog):
     again, _ = started(tmp_path)
     fly(again, clock, [])
     assert candidates(again) == before  # the same grid: the same looks, P_D, P_FA too
-    assert again._checkpoint_info["candidates_restored"] == 3
-    assert again._checkpoint_info["candidates_from_journal"] == 0
+    info = again.core.checkpoint.describe()
+    assert info["candidates_restored"] == 3 and info["candidates_from_journal"] == 0
     # New candidates continue the ids: a person far off is id 3.
     far = Box("person", 0.9, 600.0, 440.0, 12.0, 30.0)
     fly(again, clock, [FrameBoxes(4.2, (far,))], 5.0)
@@ -308,7 +308,7 @@ def test_a_clean_stop_publishes_the_pending_detections_before_its_checkpoint(tmp
     d, clock = started(tmp_path)
     fly(d, clock, [FrameBoxes(1.2, boxes(0))])  # published: candidates 0 and 1
     published: list[dict] = []
-    d._put = lambda pub, p: published.append(  # type: ignore[method-assign]
+    d.bus.put = lambda pub, p: published.append(  # type: ignore[method-assign]
         decode_detections(p)) if b'"pdcov.detections"' in p else None
     for t_s in (1.4, 1.6):  # the first published at once, the second within the period
         d.core.receive_frames(encode_frames_v2([FrameBoxes(t_s, boxes(1))]))

@@ -1,5 +1,6 @@
-"""service.mavlink_io.Connection on a real UDP socket (loopback): one readable event drains
-the datagrams waiting (bounded), and replies go to the sender of the autopilot's messages."""
+"""service.mavlink_io.Connection and its mavlink_link.MavlinkLink on a real UDP socket
+(loopback): one readable event drains the datagrams waiting (bounded), and replies go to the
+sender of the autopilot's messages."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink: MAVLink 2 frames
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.service.mavlink_io import MAX_DATAGRAMS_PER_EVENT, Connection
+from pdcov.service.mavlink_io import Connection
+from pdcov.service.mavlink_link import MAX_DATAGRAMS_PER_EVENT
 from tests.support.harness import free_port
 
 
@@ -27,10 +29,10 @@ async def open_udpin(port: int, on_messages) -> Connection:
                       signing_key=None, timeout_s=5.0, reconnect_max_s=1.0)
     conn.start()
     for _ in range(500):
-        if conn.state == "connected":
+        if conn.link.state == "connected":
             break
         await asyncio.sleep(0.01)
-    assert conn.state == "connected"
+    assert conn.link.state == "connected"
     return conn
 
 
@@ -54,7 +56,7 @@ async def receive_bursts(bursts: list[int]) -> tuple[list[int], bytes]:
                 await asyncio.sleep(0.01)
                 if sum(calls) >= sent:
                     break
-        conn.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3))
+        conn.link.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3))
         reply = await asyncio.get_running_loop().run_in_executor(None, peer.recv, 4096)
         return calls, reply
     finally:
@@ -83,11 +85,11 @@ async def overflow(n: int) -> tuple[int, int]:
     conn = await open_udpin(port, lambda c, m: got.append(len(m)))
     peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        conn.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        assert conn.kernel_drops == 0
+        conn.link.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        assert conn.link.kernel_drops == 0
         for frame in heartbeat_frames(n):  # no await: the loop cannot read meanwhile
             peer.sendto(frame, ("127.0.0.1", port))
-        drops = conn.kernel_drops
+        drops = conn.link.kernel_drops
         for _ in range(100):
             await asyncio.sleep(0.01)
         return drops, sum(got)

@@ -16,7 +16,7 @@ from pdcov.core.pose import CameraPose
 from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.daemon import Daemon
-from pdcov.service.mavlink_io import ReplyPeers
+from pdcov.service.mavlink_socket import ReplyPeers
 from pdcov.service.query_limit import QueryLimiter, QueryLimits, QueryRefusal
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.link_protocol import LinkProtocol
@@ -35,17 +35,17 @@ def test_a_checkpoint_resumes_under_its_vehicle_id_only(tmp_path, caplog) -> Non
     for k in range(3):
         first.live.grid.update(CameraPose(np.diag([1.0, -1.0, -1.0]),
                                           np.array([10.0 + 4 * k, 15.0, 12.0]), float(k)))
-    first._checkpoint()
+    first.effects.checkpoint()
     saved = first.live.grid.frames
     assert saved == 3
     again = Daemon(load_serve_config(config(tmp_path, "uav1", state=state)))
-    assert again.live.grid.frames == saved and again._checkpoint_info["resumed"]
+    assert again.live.grid.frames == saved and again.core.checkpoint.describe()["resumed"]
     # The same mission flown as uav2 with the same state directory (a copied config):
     # uav1's frames must not be counted again under uav2.
     with caplog.at_level(logging.WARNING, logger="pdcov.serve"):
         other = Daemon(load_serve_config(config(tmp_path, "uav2", state=state)))
     assert other.live.grid.frames == 0 and not other.live.grid.n_obs.any()
-    info = other._checkpoint_info
+    info = other.core.checkpoint.describe()
     assert not info["resumed"] and info["set_aside"] is not None
     aside = Path(info["set_aside"])
     assert aside.is_file() and not (state / CHECKPOINT_NAME).exists()
