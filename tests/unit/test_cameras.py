@@ -169,9 +169,9 @@ def test_cameras_may_share_a_gimbal_and_an_autopilot_camera_id(tmp_path):
         return f
 
     m = mission_from_dict(_doc(c1=same_gimbal))
-    assert m.extra_cameras[0].mount.instance == 1
+    assert [c.mount.instance for c in m.cameras] == [1, 1]
     m = mission_from_dict(_doc(c0=attached(1), c1=attached(2)))
-    assert [c.zoom.camera_id for c in m.all_cameras] == [(1, 1), (1, 2)]
+    assert [c.zoom.camera_id for c in m.cameras] == [(1, 1), (1, 2)]
 
 
 def test_an_extra_camera_without_looks_is_named_under_correlated_looks():

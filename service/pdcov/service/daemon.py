@@ -53,7 +53,7 @@ from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_io import Connection
 from pdcov.service.recorder import TlogRecorder
-from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
+from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.state_files import StateFiles
 from pdcov.service.systemd_notify import SystemdNotifier
 from pdcov.telemetry.frame_policy import FrameSource
@@ -104,9 +104,9 @@ class Daemon:
         """The core with the grid resumed from the state dir's checkpoint when it belongs
         to this mission, else a new one."""
         m = self.cfg.mission
-        grid = new_serve_grid(m)
+        grid = m.new_mission_grid()
         mhash = mission_hash(m, grid)
-        cameras = {c.name: m.new_grid(c) for c in m.all_cameras} if m.extra_cameras else None
+        cameras = {c.name: m.new_grid(c) for c in m.cameras} if m.several_cameras else None
         r = resume(self.state_dir, mhash, grid, cameras)
         (log.warning if r.set_aside else log.info)("%s", r.message)
         state = CheckpointState(path=str(self.state_dir / CHECKPOINT_NAME),
