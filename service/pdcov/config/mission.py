@@ -123,7 +123,7 @@ class Mission:
         """The camera of the rules that follow one camera whatever the list (the first in
         config order; docs/mission-config.md "More than one camera"): the detector boxes'
         geolocation, the status's pose and footprint, the detector's frame times, the
-        footprint figure and planning."""
+        footprint figure, planning and refly, mount-check and the simulator."""
         return self.cameras[0]
 
     def only_camera(self, at: str | Path, why: str) -> MissionCamera:
@@ -138,7 +138,7 @@ class Mission:
 
     def cameras_frame_source(self, frame_source: str | None, key: str) -> str | None:
         """The frame source to frame the mission's cameras by: ``frame_source`` itself with
-        one camera; with a cameras list 'rate' (also when None: not set), and ConfigError
+        one camera; with several 'rate' (also when None: not set), and ConfigError
         naming ``key`` (a config key, or a command-line option '--...') for any other:
         capture events and detector frames do not say which camera took them."""
         if frame_source in (None, "rate"):
@@ -167,7 +167,7 @@ class Mission:
     def several_cameras(self) -> bool:
         """More than one camera: the one rule for what a second camera changes. The
         mission's grid is then its cameras' grids combined (``combine_cameras`` into
-        ``new_combined_grid``), each camera's grid an output of its own (cameras/<name>/,
+        ``new_mission_grid``), each camera's grid an output of its own (cameras/<name>/,
         the checkpoint's, ``frames.by_camera``), frames at the cameras' rates only
         (``cameras_frame_source``), zoom reports given to the camera that follows their
         component, and every camera in the checkpoint's hash. With one camera the

@@ -79,7 +79,7 @@ status)."""
 class ServiceCore:
     """The decisions of one ``pdcov serve`` (module docstring). ``grid``: a new grid
     (``Mission.new_mission_grid``), or the resumed one with its ``resumed`` metadata (and,
-    with a cameras list, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
+    with several cameras, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
     checkpoint's state to report (its path, whether it resumed or was set aside);
     ``now_s``: the shell's monotonic clock at start; ``nonces``: the re-tasking nonces seen
     before (read back from the state dir); ``epoch``: the state dir's token in every

@@ -25,9 +25,9 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
-frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
-whose grids ``combine_cameras`` combines into the published one after every frame, as
-``pdcov evaluate`` combines them), where frames fall and when they can be decided to
+frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of the mission;
+several cameras' grids ``combine_cameras`` combines into the published one after every
+frame, as ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
 ``flight.frame_schedule.FrameSchedule``, the ground altitude to
 ``ground_altitude.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
@@ -240,7 +240,7 @@ class LiveCoverage:
     @property
     def schedule(self) -> FrameSchedule:
         """The first camera's frame schedule (capture and detector frame times go there:
-        a cameras list has rate frames only)."""
+        several cameras have rate frames only)."""
         return self.first.schedule
 
     @property
@@ -356,7 +356,7 @@ class LiveCoverage:
                 for c in self.cameras}
 
     def resume_cameras(self, cameras: dict[str, CameraResume]) -> None:
-        """Continue every camera of a cameras list from its checkpointed lattice, last
+        """Continue every camera (several) from its checkpointed lattice, last
         frame and count (a camera the checkpoint lacks starts anew)."""
         for cam in self.cameras:
             r = cameras.get(cam.cam.name)
