@@ -32,7 +32,7 @@ from pdcov.ids import valid_vehicle_id
 from pdcov.service.core import ServiceCore
 from pdcov.service.link_setup import LinkReport
 from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
-from pdcov.service.settings import load_serve_config, new_serve_grid
+from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.tlog import mavlink
 from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
@@ -51,7 +51,7 @@ def _core(tmp: Path, seconds: float) -> ServiceCore:
                       "record": False, "reorder_s": 0.0}
     (tmp / "m.yaml").write_text(yaml.safe_dump(doc))
     cfg = load_serve_config(tmp / "m.yaml")
-    core = ServiceCore(cfg, new_serve_grid(cfg.mission), 0.0, mission_hash="bench")
+    core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="bench")
     parser = mavlink.MAVLink(None)
     data = b"".join(pack(m, seq=i) for i, m in enumerate(Hover(seconds=seconds).messages()))
     core.receive_mavlink(parser.parse_buffer(data) or [], 1.0)

@@ -172,7 +172,7 @@ def live_pass(rec: Recording) -> PathRun:
     cfg = load_serve_config(rec.config)
     frames = [m.get_msgbuf() for m in TlogScanner(rec.tlog.read_bytes()).messages()]
     ticks = _Ticks()
-    core = ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="bench")
+    core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="bench")
     live = core.coverage
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
@@ -212,13 +212,13 @@ def offline_pass(rec: Recording) -> PathRun:
     """What ``pdcov evaluate --log`` computes for the recording (no outputs written)."""
     m: Mission = load_serve_config(rec.config).mission
     messages = sum(1 for _ in TlogScanner(rec.tlog.read_bytes()).messages())
-    grid = m.new_grid()
+    grid = m.new_mission_grid()
 
     def run() -> tuple[int, int, CoverageGrid]:
         lp = poses_from_log(rec.tlog, origin_lat_deg=m.origin_lat_deg,
                             origin_lon_deg=m.origin_lon_deg,
-                            ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
-                            frame_rate_hz=m.frame_rate_hz, frame_source=m.frame_source,
+                            ground_alt_msl_m=m.ground_alt_msl_m, mount=m.first_camera.mount,
+                            frame_rate_hz=m.first_camera.frame_rate_hz, frame_source=m.frame_source,
                             max_gap_s=m.max_gap_s, system_id=m.system_id,
                             min_height_m=m.min_height_m)
         poses = [p for p, low in zip(lp.poses, lp.low, strict=True) if not low]

@@ -60,7 +60,7 @@ class TerrainSite:
 
     def terrain_grid(self) -> CoverageGrid:
         """pdcov's grid over the terrain of the mission config (its DEM)."""
-        return load_mission(self.mission_path).new_grid()
+        return load_mission(self.mission_path).new_mission_grid()
 
     def reference(self, grid: CoverageGrid, step_px: int = 1) -> TerrainReferenceGrid:
         """An empty R3 grid like ``grid`` (cells, camera, detector, range)."""

@@ -60,7 +60,7 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
     est_wall_s = kills * 8.0
     rig = make_rig(folder, side_for(est_wall_s * speed + 120), checkpoint_period_s=period_s)
     mission = load_mission(rig.config)
-    mhash = mission_hash(mission, mission.new_grid())
+    mhash = mission_hash(mission, mission.new_mission_grid())
     res = CrashResult(kills, 0, 0, 0, period_s=period_s)
     t_kill = math.nan
     r = router(rig.zenoh_port)
@@ -111,7 +111,7 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
                 shutil.rmtree(copy, ignore_errors=True)
                 shutil.copytree(rig.state, copy, ignore=shutil.ignore_patterns("recordings"))
                 meta = read_meta(copy / CHECKPOINT_NAME)
-                grid = resume(copy, mhash, mission.new_grid()).grid
+                grid = resume(copy, mhash, mission.new_mission_grid()).grid
                 if grid is None:
                     res.failures.append(f"kill {k + 1}: the checkpoint does not resume")
                     continue

@@ -158,7 +158,7 @@ def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[flo
     m = load_mission(config)
     poses = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg,
                            origin_lon_deg=m.origin_lon_deg, ground_alt_msl_m=m.ground_alt_msl_m,
-                           mount=m.mount, frame_rate_hz=m.frame_rate_hz,
+                           mount=m.first_camera.mount, frame_rate_hz=m.first_camera.frame_rate_hz,
                            frame_source=m.frame_source, max_gap_s=m.max_gap_s)
     spec = FaultSpec.parse(faults)
     windows = [(w.start_s - 1.5, w.start_s + w.duration_s + m.max_gap_s + 0.5)

@@ -146,7 +146,7 @@ def run_fly(args: argparse.Namespace) -> int:
         people = _people(args, mission)
         opts = FlyOptions(mission=mission, plan_path=args.plan, out_dir=args.out,
                           connect=args.connect, speed=args.speed, seed=args.seed,
-                          gimbal_mode=args.gimbal or _default_gimbal(mission.mount),
+                          gimbal_mode=args.gimbal or _default_gimbal(mission.first_camera.mount),
                           gimbal_axes=args.gimbal_axes, faults=faults,
                           wind_mps=args.wind_mps, wind_from_deg=args.wind_from_deg,
                           autopilot=args.autopilot, system_id=system_id,

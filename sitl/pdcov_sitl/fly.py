@@ -33,7 +33,7 @@ import numpy as np
 
 from pdcov.atomic import atomic_write
 from pdcov.bus.session import BusConfig
-from pdcov.config.mission import Mission
+from pdcov.config.mission import Mission, MissionCamera
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.mission import MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL
 from pdcov.core.pose import R_ENU_NED, R_GIMBAL_CAM, CameraPose, FixedMount
@@ -223,9 +223,10 @@ def fly(opts: FlyOptions) -> FlightResult:
                    wind_ned_mps=wind, turbulence_mps=opts.wind_mps,
                    seed=rng.randrange(2**31), ground=opts.ground)
     controller = Controller(vehicle.dt_s)
-    gcfg = _gimbal_config(opts.gimbal_mode, opts.gimbal_axes, m.mount)
+    cam = m.first_camera  # the simulator flies one camera
+    gcfg = _gimbal_config(opts.gimbal_mode, opts.gimbal_axes, cam.mount)
     gimbal = GimbalModel(gcfg, seed=opts.seed)
-    lever = np.asarray(getattr(m.mount, "lever_arm_frd_m", (0.0, 0.0, 0.0)), float)
+    lever = np.asarray(getattr(cam.mount, "lever_arm_frd_m", (0.0, 0.0, 0.0)), float)
     limits_deg = tuple((math.degrees(lo), math.degrees(hi)) for lo, hi in gcfg.limits_rad)
     has_gimbal = opts.gimbal_mode != "fixed"
     device = opts.gimbal_mode == "device-earth"
@@ -240,7 +241,7 @@ def fly(opts: FlyOptions) -> FlightResult:
                                 opts.rangefinder if ground is not None else None),
         streams=streams, faults=opts.faults, seed=opts.seed, tlog_path=tlog,
         signing_key=opts.signing_key)
-    endpoint.camera = _zoom_camera(m, endpoint, opts.seed)
+    endpoint.camera = _zoom_camera(cam, endpoint, opts.seed)
     detect = None
     try:
         if opts.people is not None:
@@ -253,15 +254,15 @@ def fly(opts: FlyOptions) -> FlightResult:
             detect.output.close()
 
 
-def _zoom_camera(m: Mission, endpoint, seed: int) -> ZoomCamera | None:
-    """The camera component of a mission whose camera zooms by its field of view
-    (camera.zoom fov_status): from the configured K's field of view (the widest) to
+def _zoom_camera(cam: MissionCamera, endpoint, seed: int) -> ZoomCamera | None:
+    """The camera component of a camera that zooms by its field of view (camera.zoom
+    fov_status): from the configured K's field of view (the widest) to
     camera.zoom_lens.min_hfov_deg; None otherwise."""
-    if m.zoom is None or not isinstance(m.zoom.lens, FovLens):
+    if cam.zoom is None or not isinstance(cam.zoom.lens, FovLens):
         return None
-    lens = m.zoom.lens
+    lens = cam.zoom.lens
     return ZoomCamera(endpoint.mav, system_id=endpoint.mav.srcSystem,
-                      width_px=m.camera.width_px, height_px=m.camera.height_px,
+                      width_px=cam.camera.width_px, height_px=cam.camera.height_px,
                       wide_hfov_deg=math.degrees(hfov_rad(lens.wide)),
                       narrow_hfov_deg=math.degrees(lens.min_hfov_rad),
                       zoom_rate_per_s=0.5 * lens.max_rate_per_s, seed=seed)
@@ -280,7 +281,8 @@ def _detection_loop(people: People, m: Mission, origin: Origin, opts: FlyOptions
     """Write targets.csv; the detector (seeded by --seed) and its outputs (detections.csv,
     the Zenoh session)."""
     write_targets(opts.out_dir / "targets.csv", people.targets, origin)
-    detector = SimulatedDetector(m.new_grid(), people.targets, people.detector, opts.seed)
+    detector = SimulatedDetector(m.new_grid(m.first_camera), people.targets, people.detector,
+                                 opts.seed)
     return _DetectionLoop(detector, DetectionOutput(people.bus, m.vehicle_id,
                                                     opts.out_dir / "detections.csv"))
 
@@ -315,7 +317,7 @@ def _run(opts, endpoint, vehicle, controller, gimbal, mission, home, origin, gro
                        if device else None)
     need = {"ATTITUDE", "GLOBAL_POSITION_INT"} | ({"GIMBAL_DEVICE_ATTITUDE_STATUS"}
                                                    if has_gimbal else set())
-    frame_rate_hz = opts.mission.frame_rate_hz
+    frame_rate_hz = opts.mission.first_camera.frame_rate_hz  # the one camera flown
     first_sent: dict[str, float] = {}
     trigger = opts.camera_trigger or opts.mission.frame_source == "capture"
     guidance_box: list[Guidance | None] = [None]

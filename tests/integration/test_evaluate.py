@@ -37,7 +37,7 @@ def test_pose_csv_gives_the_core_grid(tmp_path):
     csv = write_pose_csv(tmp_path / "poses.csv", poses)
     assert run("evaluate", "--config", str(config), "--poses", str(csv), "--out",
                str(tmp_path / "run"), "--no-progress") == 0
-    grid = load_mission(config).new_grid()
+    grid = load_mission(config).new_mission_grid()
     for p in poses:
         grid.update(p)
     out = load_grid(tmp_path / "run")

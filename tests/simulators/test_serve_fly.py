@@ -128,9 +128,9 @@ def grid_at_times(cfg: Path, tlog: Path, times: list[float]):
     coverage.min_height_m not added); (grid, frames added)."""
     m = load_mission(cfg)
     tracker = PoseTracker.from_flight_log(read_flight_log(tlog), m.origin(m.ground_alt_msl_m),
-                                          m.mount, None, m.max_gap_s)
+                                          m.first_camera.mount, None, m.max_gap_s)
     b = tracker.frames_at(np.asarray(times, float))
-    grid = m.new_grid()
+    grid = m.new_mission_grid()
     R_enu_cam = R_from_quat_wxyz(quat_wxyz_from_R(b.R_enu_cam[b.valid]).reshape(-1, 4))
     added = 0
     for R, r, t in zip(R_enu_cam.reshape(-1, 3, 3), b.r_cam_enu[b.valid], b.t_s[b.valid],

@@ -68,7 +68,8 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
     doc["detector"] = {**det, "p_detect": [p * DETECTOR_SCALE for p in det["p_detect"]]}
     mission = load_mission(zf.write_mission(tmp_path / "m.yaml", doc))
     cfg = tmp_path / "m.yaml"
-    wide_deg = math.degrees(hfov_rad(mission.camera))  # 66 deg; the simulator's: not wider
+    (cam,) = mission.cameras
+    wide_deg = math.degrees(hfov_rad(cam.camera))  # 66 deg; the simulator's: not wider
     plan = Plan((Waypoint(-12.0, -8.0, 12.0, 4.0, hover_s=6.0),
                  Waypoint(-12.0, 8.0, 12.0, 4.0, hover_s=6.0, zoom_hfov_deg=40.0),
                  Waypoint(0.0, 10.0, 12.0, 4.0, hover_s=6.0),
@@ -81,19 +82,19 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
     t0, t1 = _hover_window_s(truth, plan)
     lp = poses_from_log(tmp_path / "fly" / "flight.tlog", origin_lat_deg=mission.origin_lat_deg,
                         origin_lon_deg=mission.origin_lon_deg,
-                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=mission.mount,
-                        frame_rate_hz=mission.frame_rate_hz, max_gap_s=mission.max_gap_s,
-                        zoom=mission.zoom)
+                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=cam.mount,
+                        frame_rate_hz=cam.frame_rate_hz, max_gap_s=mission.max_gap_s,
+                        zoom=cam.zoom)
     keep = [t0 <= p.t_s <= t1 for p in lp.poses]
     poses = [p for p, k in zip(lp.poses, keep, strict=True) if k]
     cameras = [c for c, k in zip(lp.cameras, keep, strict=True) if k]
-    flown = evaluate_poses(mission.new_grid(), poses, cameras=cameras)
-    wide = evaluate_poses(mission.new_grid(), poses)
+    flown = evaluate_poses(mission.new_mission_grid(), poses, cameras=cameras)
+    wide = evaluate_poses(mission.new_mission_grid(), poses)
     pred = predict(scenario_of(mission), read_plan_file(path, mission.origin())).grid
     fx = np.array([c.K[0, 0] for c in cameras])
-    f_wide, f_40 = float(mission.camera.K[0, 0]), 160 / math.tan(math.radians(20.0))
+    f_wide, f_40 = float(cam.camera.K[0, 0]), 160 / math.tan(math.radians(20.0))
     moving = int(((fx > f_wide * 1.001) & (fx < f_40 * 0.999)).sum())
-    mask = mission.new_grid().mask
+    mask = mission.new_mission_grid().mask
     seen = mask & ((pred.pd > 0.01) | (flown.pd > 0.01))
     diff = np.abs(flown.pd - pred.pd)
     share, share_seen = (float((diff[m] <= AGREE_PD).mean()) for m in (mask, seen))

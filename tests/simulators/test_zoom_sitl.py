@@ -41,17 +41,18 @@ def test_a_simulated_hover_zooming_gives_the_same_grid_live_and_offline(tmp_path
                    gimbal_mode="fixed", connect="udpout:127.0.0.1:9"))
     tlog = tmp_path / "run" / "flight.tlog"
 
+    (cam,) = mission.cameras
     lp = poses_from_log(tlog, origin_lat_deg=mission.origin_lat_deg,
                         origin_lon_deg=mission.origin_lon_deg,
-                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=mission.mount,
-                        frame_rate_hz=mission.frame_rate_hz, max_gap_s=mission.max_gap_s,
-                        zoom=mission.zoom)
+                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=cam.mount,
+                        frame_rate_hz=cam.frame_rate_hz, max_gap_s=mission.max_gap_s,
+                        zoom=cam.zoom)
     high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in lp.poses]
-    offline = mission.new_grid()
+    offline = mission.new_mission_grid()
     evaluate_poses(offline, [p for p, h in zip(lp.poses, high, strict=True) if h],
                    cameras=[c for c, h in zip(lp.cameras, high, strict=True) if h])
     fx = sorted({c.K[0, 0] for c in lp.cameras})
-    assert fx[0] == pytest.approx(mission.camera.K[0, 0])
+    assert fx[0] == pytest.approx(cam.camera.K[0, 0])
     assert fx[-1] == pytest.approx(160 / math.tan(math.radians(10.0)), rel=1e-4)  # 20 deg
 
     feed = feed_tlog(load_serve_config(config), tlog)

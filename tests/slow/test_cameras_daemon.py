@@ -14,7 +14,7 @@ from pdcov.config.load import mission_from_dict
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.grid import CoverageGrid
 from pdcov.service.checkpoint import resume, write_checkpoint
-from pdcov.service.settings import load_serve_config, mission_hash, new_serve_grid
+from pdcov.service.settings import load_serve_config, mission_hash
 from tests.support import two_camera_flight as tcf
 from tests.support import zoom_flight as zf
 from tests.support.evaluate_inputs import load_grid, run
@@ -85,7 +85,7 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
     config = tcf.write_mission(tmp_path / "m.yaml", tcf.mission())
     cfg = load_serve_config(config)
     m = cfg.mission
-    fresh = new_serve_grid(m)
+    fresh = m.new_mission_grid()
     mhash = mission_hash(m, fresh)
     data = tcf.frames()
     half = len(data) // 2  # 0.02 s apart: the mount parameters' wait ends before it
@@ -101,7 +101,7 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
     assert meta.cameras is not None and meta.cameras["visible"].frames_used > 10
     write_checkpoint(state / "checkpoint.npz", first.live.grid, meta,
                      first.live.checkpoint_cameras)
-    r = resume(state, mhash, fresh, {c.name: m.new_grid(c) for c in m.all_cameras})
+    r = resume(state, mhash, fresh, {c.name: m.new_grid(c) for c in m.cameras})
     assert r.grid is not None and r.cameras is not None and r.meta is not None, r.message
     second = LinkFeed(cfg)
     second.core = ServiceCore(cfg, r.grid, 0.0, mission_hash=mhash, resumed=r.meta,
@@ -116,7 +116,7 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
         assert done.schedule.last_frame_t_s == cam.schedule.last_frame_t_s, cam.cam.name
         assert before < done.grid.frames <= cam.grid.frames <= done.grid.frames + 1
         assert done.used == done.grid.frames
-    check = new_serve_grid(m)
+    check = m.new_mission_grid()
     combine_cameras(check, second.live.camera_grids)
     for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
         np.testing.assert_array_equal(getattr(second.live.grid, key), getattr(check, key))
@@ -124,4 +124,4 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
         c.cam.name: c.grid.frames for c in second.live.cameras}
     # Another camera list is another mission: its checkpoint is set aside.
     other = mission_from_dict(dict(tcf.mission(), cameras=tcf.cameras()[:1]))
-    assert mission_hash(other, new_serve_grid(other)) != mhash
+    assert mission_hash(other, other.new_mission_grid()) != mhash

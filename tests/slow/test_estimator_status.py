@@ -199,7 +199,7 @@ def live_and_offline(tmp: Path, msgs: list[mavlink.MAVLink_message], **log: obje
 def test_glitch_window_live_equals_offline(tmp_path: Path) -> None:
     feed, lp, off = live_and_offline(tmp_path, glitch_hover())
     live = feed.live
-    rate = feed.cfg.mission.frame_rate_hz
+    rate = feed.cfg.mission.first_camera.frame_rate_hz
     # Reports at 1.0, 1.4, ... s: glitching from 10.2 to 13.8 s; frames every 0.2 s from
     # 1.08 s. Skipped: the frames after the 10.2 s report (strictly after it) up to the
     # 14.2 s one, 10.28 ... 14.08 s (the 13.8 s report is in force at 14.08 s).

@@ -26,7 +26,7 @@ def test_evaluate_with_correlated_looks(tmp_path, capsys):
     assert "looks: correlated (the detector model's per-person correlation" in \
         capsys.readouterr().out
     mission = load_mission(config)
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     independent = CoverageGrid(grid.geometry, grid.mask, grid.camera, grid.detector)
     for p in poses:
         grid.update(p)
@@ -42,6 +42,7 @@ def test_evaluate_with_correlated_looks(tmp_path, capsys):
     # more than once, equal where once.
     twice = grid.n_obs >= 2
     assert (grid.pd[twice] < independent.pd[twice] - 1e-6).mean() > 0.9
-    again = CoverageGrid.load_npz(tmp_path / "run" / "grid.npz", mission.camera,
-                                  mission.detector, looks=mission.looks)
+    (cam,) = mission.cameras
+    again = CoverageGrid.load_npz(tmp_path / "run" / "grid.npz", cam.camera, cam.detector,
+                                  looks=mission.looks)
     np.testing.assert_array_equal(again.pd, grid.pd)

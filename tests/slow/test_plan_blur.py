@@ -118,4 +118,4 @@ def test_a_bad_exposure_is_named(tmp_path):
     cfg["camera"]["exposure_s"] = 0.002
     path.write_text(yaml.safe_dump(cfg))
     m = load_mission(path)
-    assert m.exposure_s == 0.002 and m.new_grid().exposure_s == 0.002
+    assert m.first_camera.exposure_s == 0.002 and m.new_mission_grid().exposure_s == 0.002

@@ -18,7 +18,7 @@ class Driver:
 
     def __init__(self, cfg_path: Path, rec_dir: Path) -> None:
         self.core = ServiceCore(load_serve_config(cfg_path),
-                                load_serve_config(cfg_path).mission.new_grid(), 0.0,
+                                load_serve_config(cfg_path).mission.new_mission_grid(), 0.0,
                                 mission_hash="test")
         self.recorder = TlogRecorder(rec_dir, 1 << 22, 1 << 30)
         self.parser = mavlink.MAVLink(None)

@@ -20,7 +20,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.service.core import ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_setup import LinkReport
-from pdcov.service.settings import ServeConfig, load_serve_config, new_serve_grid
+from pdcov.service.settings import ServeConfig, load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.log_poses import LogPoses, poses_from_log
 from tests.support.harness import small_mission
@@ -47,7 +47,7 @@ class LinkFeed:
 
     def __init__(self, cfg: ServeConfig) -> None:
         self.cfg = cfg
-        self.core = ServiceCore(cfg, new_serve_grid(cfg.mission), 0.0, mission_hash="fuzz")
+        self.core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="fuzz")
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
         self.messages = 0
@@ -83,10 +83,10 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
     added)."""
     m = cfg.mission
     lp = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
-                        ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
-                        frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s,
+                        ground_alt_msl_m=m.ground_alt_msl_m, mount=m.first_camera.mount,
+                        frame_rate_hz=m.first_camera.frame_rate_hz, max_gap_s=m.max_gap_s,
                         estimator_status=m.estimator_status)
-    grid = m.new_grid()
+    grid = m.new_mission_grid()
     for p in lp.poses:
         if not below_min_height(p.r_cam_enu[2], m.min_height_m):
             grid.update(p)

@@ -59,7 +59,8 @@ def core_with(tmp_path, nonces=None, **service) -> ServiceCore:
                                  **service})
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
     cfg = load_serve_config(tmp_path / "m.yaml")
-    return ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="retask", nonces=nonces)
+    return ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="retask",
+                       nonces=nonces)
 
 
 def feed(core: ServiceCore, data: bytes, now_s: float) -> Actions:

@@ -34,7 +34,7 @@ class TinyPublisher:
                  mission_path: str = DEMO) -> None:
         self.mission = load_mission(mission_path)
         self.vehicle_id = vehicle_id
-        self.grid = self.mission.new_grid()
+        self.grid = self.mission.new_mission_grid()
         self.y_m = y_m
         self.tile_size = tile_size
         self.seq = 0

@@ -48,7 +48,7 @@ DEMO = str(Path(__file__).resolve().parents[2] / "service/pdcov/data/demo_missio
 def grid():
     """The demo mission's grid after a few nadir frames."""
     mission = load_mission(DEMO)
-    g = mission.new_grid()
+    g = mission.new_mission_grid()
     R_enu_cam = np.diag([1.0, -1.0, -1.0])  # optical axis down, image x east
     for k in range(12):
         g.update(CameraPose(R_enu_cam @ R_from_euler_zyx(0.02 * k, 0, 0),
@@ -243,7 +243,7 @@ def test_footprint_and_frames():
 def json_payloads() -> dict[str, tuple]:
     """Each JSON payload kind: its decoder and a good payload."""
     mission = load_mission(DEMO)
-    g = mission.new_grid()
+    g = mission.new_mission_grid()
     ring = np.array([[149.1, -35.3], [149.2, -35.3], [149.2, -35.2]])
     return {
         "status": (decode_status, encode_status(STATUS_FIELDS)),

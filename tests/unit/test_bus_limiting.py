@@ -37,7 +37,7 @@ def mission():
 def short_range_grid(mission) -> CoverageGrid:
     """The demo mission's grid (same cells and hash) with a 25 m range, so that tilted
     frames mark cells too far, also beyond the window they observe."""
-    g = mission.new_grid()
+    g = mission.new_mission_grid()
     return CoverageGrid(g.geometry, g.mask, g.camera, g.detector, max_range_m=25.0)
 
 
@@ -102,7 +102,7 @@ def test_two_vehicles_merge_by_the_maximum_as_coverage_grids_do(mission):
 
 def every_code_grid(mission) -> CoverageGrid:
     """The demo grid flown a little, then every cell given a random limiting code (0..5)."""
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     for pose in fly(grid, 6, -60.0, 0.0):
         grid.update(pose)
     grid.limiting[:] = np.random.default_rng(5).integers(0, len(LimitingFactor),
@@ -162,7 +162,7 @@ def recorded_report(tmp_path: Path, watcher: Watcher, mission) -> tuple[str, dic
 
 
 def test_the_fleet_report_shows_the_vehicles_limiting_counts(tmp_path, mission):
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     w = Watcher()
     flown_to_watcher(w, "demo", grid, fly(grid, 24, -70.0, 0.0))
     text, doc = recorded_report(tmp_path, w, mission)
@@ -176,7 +176,7 @@ def test_the_fleet_report_shows_the_vehicles_limiting_counts(tmp_path, mission):
 
 
 def test_the_fleet_report_says_when_a_vehicle_sent_no_limiting(tmp_path, mission):
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     for pose in fly(grid, 6, -60.0, 0.0):
         grid.update(pose)
     w = Watcher()
@@ -203,7 +203,7 @@ def test_a_limiting_code_outside_the_factors_is_refused_and_counted(mission, cod
         decode_tiles(payload, "pdcov/uav1/tiles")
     assert err.value.reason is Refusal.BAD_FIELD
     w = Watcher()
-    w.on_snapshot("uav1", decode_snapshot(encode_snapshot(mission.new_grid())), 0.0)
+    w.on_snapshot("uav1", decode_snapshot(encode_snapshot(mission.new_mission_grid())), 0.0)
     w.on_bad_payload("uav1", err.value)
     assert w.refused["payloads: bad field"] == 1 and w.feeds["uav1"].bad_payloads == 1
     assert not w.feeds["uav1"].state.limiting.any()  # nothing applied

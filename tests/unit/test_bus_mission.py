@@ -28,7 +28,7 @@ from tests.support.watch_fixtures import DEMO, TinyPublisher
 
 
 def payload_of(mission, vehicle_id: str | None = None, alt_known: bool = True) -> bytes:
-    g = mission.new_grid()
+    g = mission.new_mission_grid()
     return encode_mission(vehicle_id or mission.vehicle_id, mission.origin(), mission.domain,
                           g.geometry, grid_hash(g.geometry, g.mask), ground_alt_known=alt_known,
                           thresholds=mission.thresholds, target_pd=max(mission.thresholds))
@@ -64,7 +64,7 @@ def test_key_and_round_trip_of_the_demo_mission(demo):
     assert VehicleKeys("uav1").mission == "pdcov/uav1/mission"
     assert parse_key("pdcov/uav1/mission") == ("uav1", "mission")
     m = decode_mission(payload_of(demo, "uav1"), "pdcov/uav1/mission", "uav1")
-    g = demo.new_grid()
+    g = demo.new_mission_grid()
     assert m.vehicle_id == "uav1" and m.grid_hash == grid_hash(g.geometry, g.mask)
     assert (m.origin_lat_deg, m.origin_lon_deg, m.ground_alt_msl_m) == (39.35, -76.33, 5.0)
     assert m.geometry == g.geometry and m.obstacles_enu_m == ()
@@ -213,7 +213,7 @@ def test_web_map_draws_the_domain_of_the_grid_shown(demo, geodetic_mission):
     shown = w.fleet_state()[0].hash
     demo_hash = decode_mission(payload_of(demo)).grid_hash
     assert shown == demo_hash
-    other_grid = geodetic_mission.new_grid()
+    other_grid = geodetic_mission.new_mission_grid()
     other_hash = grid_hash(other_grid.geometry, other_grid.mask)
     # No mission reply yet, no --config: nothing drawn, and the page says why.
     domain, note = domain_layer(w, shown, None, None)

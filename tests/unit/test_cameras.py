@@ -5,6 +5,8 @@ daemon fed a two-camera flight's bytes gives ``pdcov evaluate``'s grids of its t
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 
@@ -96,6 +98,33 @@ def test_cameras_of_different_models_are_independent(rule):
     assert both.frames == 10
 
 
+@pytest.mark.parametrize("rule", list(LooksRule))
+def test_one_camera_combined_is_its_grid_but_for_the_looks_state(rule):
+    """Why one camera's grid is the mission's grid, not combined (``Mission.several_cameras``):
+    combining one grid gives its P_D, P_FA, counts, limiting, clocks and frame counts bit for
+    bit (and, with independent looks, the same grid.npz bytes), but as an independent-looks
+    grid: the correlated or viewpoint looks state its grid.npz and checkpoint keep is lost."""
+    rho = None if rule is LooksRule.INDEPENDENT else 0.3
+    g = GridGeometry(0.0, 0.0, 1.0, 40, 40)
+    kw = {"min_revisit_s": 1.0, "exposure_s": 0.01}
+    one = CoverageGrid(g, np.ones(g.shape, bool), CameraModel.from_fov(320, 240, 60.0),
+                       _model(1.0, rho), looks=LooksConfig(rule), **kw)
+    for p in _poses(8, 10.0):
+        one.update(p)
+    one.refresh()
+    both = CoverageGrid(g, one.mask, one.camera, one.base_detector, **kw)
+    combine_cameras(both, [one])
+    for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting", "last_obs_s"):
+        assert getattr(both, key).tobytes() == getattr(one, key).tobytes(), key
+    assert (both.frames, both.frames_blurred, both.latest_frame_t_s) == \
+        (one.frames, one.frames_blurred, one.latest_frame_t_s)
+    assert one.frames == 8 and one.n_obs.sum() > 200
+    a, b = io.BytesIO(), io.BytesIO()
+    one.write_npz(a)
+    both.write_npz(b)
+    assert (a.getvalue() == b.getvalue()) is (rule is LooksRule.INDEPENDENT)
+
+
 def test_a_window_combined_frame_by_frame_equals_the_whole_grid_combined():
     """The daemon combines the window each frame touched; evaluate the whole grid once."""
     rule = LooksRule.CORRELATED
@@ -155,6 +184,30 @@ def test_bad_camera_ids_say_which_camera(tmp_path, change, message):
     assert f"{path}: {message}" in str(err.value)
 
 
+def test_a_mission_is_a_list_of_cameras_in_config_order():
+    """The single camera/mount/detector form is one camera named 'camera'; a list, its
+    entries in order. A rule that cannot tell cameras apart refuses several, naming the
+    key it was asked by (``only_camera``); a list of one entry is one camera."""
+    doc = tcf.mission()
+    m = mission_from_dict(doc, source="m.yaml")
+    assert [c.name for c in m.cameras] == ["visible", "thermal"] and m.several_cameras
+    assert m.first_camera is m.cameras[0]
+    with pytest.raises(ConfigError, match=r"^m.yaml: log.frame_source: capture with a "):
+        m.cameras_frame_source("capture", "log.frame_source")
+    assert m.cameras_frame_source(None, "log.frame_source") == "rate"
+    one = mission_from_dict(dict(doc, cameras=doc["cameras"][1:]))
+    assert [c.name for c in one.cameras] == ["thermal"] and not one.several_cameras
+    assert one.only_camera("--poses", "why") is one.cameras[0]
+    assert one.cameras_frame_source("capture", "--frame-source") == "capture"
+    flat = {k: v for k, v in doc.items() if k != "cameras"}
+    entry = doc["cameras"][0]
+    single = mission_from_dict({**flat, **{k: entry[k] for k in ("camera", "mount",
+                                                                 "detector")}})
+    (cam,), visible = single.cameras, m.cameras[0]
+    assert (cam.name, cam.mount, cam.frame_rate_hz) == ("camera", visible.mount, 2.0)
+    np.testing.assert_array_equal(cam.camera.K, visible.camera.K)
+
+
 def test_cameras_may_share_a_gimbal_and_an_autopilot_camera_id(tmp_path):
     """Two cameras on one gimbal device with their own lever arms, and autopilot-attached
     cameras (component 1, camera_device_id 1 and 2), are a valid mission."""
@@ -169,9 +222,9 @@ def test_cameras_may_share_a_gimbal_and_an_autopilot_camera_id(tmp_path):
         return f
 
     m = mission_from_dict(_doc(c1=same_gimbal))
-    assert m.extra_cameras[0].mount.instance == 1
+    assert [c.mount.instance for c in m.cameras] == [1, 1]
     m = mission_from_dict(_doc(c0=attached(1), c1=attached(2)))
-    assert [c.zoom.camera_id for c in m.all_cameras] == [(1, 1), (1, 2)]
+    assert [c.zoom.camera_id for c in m.cameras] == [(1, 1), (1, 2)]
 
 
 def test_an_extra_camera_without_looks_is_named_under_correlated_looks():

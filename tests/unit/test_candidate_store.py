@@ -72,7 +72,7 @@ def as_tuples(t: DetectionTracker, grid) -> list[tuple]:
 
 @pytest.fixture(scope="module")
 def grid():
-    return load_mission(DEMO).new_grid()
+    return load_mission(DEMO).new_mission_grid()
 
 
 # --- the tracker's state ----------------------------------------------------------------------
@@ -203,14 +203,14 @@ def test_the_checkpoint_carries_the_candidates_and_an_older_or_damaged_one_keeps
     doc = checkpoint_doc(three(), 4)
     path = tmp_path / CHECKPOINT_NAME
     write_checkpoint(path, grid, CheckpointMeta("h", "uav1"), candidates=doc)
-    r = resume(tmp_path, "h", load_mission(DEMO).new_grid())
+    r = resume(tmp_path, "h", load_mission(DEMO).new_mission_grid())
     assert r.grid is not None and r.candidates == doc and r.candidates_error is None
     write_checkpoint(path, grid, CheckpointMeta("h", "uav1"))  # older: no member
-    r = resume(tmp_path, "h", load_mission(DEMO).new_grid())
+    r = resume(tmp_path, "h", load_mission(DEMO).new_mission_grid())
     assert r.grid is not None and r.candidates is None and r.candidates_error is None
     with zipfile.ZipFile(path, "a") as zf:
         zf.writestr(CANDIDATES_MEMBER, b'{"version": 1, "journal_seq": ')
-    r = resume(tmp_path, "h", load_mission(DEMO).new_grid())
+    r = resume(tmp_path, "h", load_mission(DEMO).new_mission_grid())
     assert r.grid is not None and r.candidates is None
     assert "JSONDecodeError" in (r.candidates_error or "")
 

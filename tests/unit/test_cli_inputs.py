@@ -92,7 +92,7 @@ def test_huge_grid_is_refused_with_the_figure(tmp_path: Path, capsys) -> None:
     config = tmp_path / "m.yaml"
     config.write_text(DEMO.read_text().replace("cell_size_m: 1.0", "cell_size_m: 0.0001"))
     with pytest.raises(DomainError, match=r"160,000,000,000 cells, about [\d,.]+ GiB"):
-        load_mission(config).new_grid()
+        load_mission(config).new_mission_grid()
     assert cli.main(["plan", "--config", str(config), "--altitude-m", "10", "--out",
                      str(tmp_path / "p")]) == 2
     assert "use cells of at least" in capsys.readouterr().err

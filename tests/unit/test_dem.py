@@ -195,14 +195,14 @@ def test_flat_dem_at_the_ground_altitude_gives_the_curvature_drop_only(tmp_path)
                           base_dir=tmp_path)
     assert (m.ground_alt_msl_m, m.ground_alt_how) == (H0, "the DEM at the origin")
     z = m.terrain.z_corner_m
-    assert z.shape == (21, 21) and m.new_grid().terrain is m.terrain
+    assert z.shape == (21, 21) and m.new_mission_grid().terrain is m.terrain
     assert abs(z[10, 10]) < 1e-9  # the corner at the origin
     x, y = np.meshgrid(-100.0 + 10 * np.arange(21), -100.0 + 10 * np.arange(21))
     np.testing.assert_allclose(z, -drop_m(x, y), atol=1e-8)  # 1.57 mm at the corners
     # Without a terrain section the ground is today's plane z = 0.
     flat = mission_from_dict({**terrain_doc("-"), "terrain": None}, source="m.yaml",
                              base_dir=tmp_path)
-    assert flat.terrain is None and flat.dem is None and flat.new_grid().terrain is None
+    assert flat.terrain is None and flat.dem is None and flat.new_mission_grid().terrain is None
 
 
 def test_corners_outside_the_free_cells_may_lack_heights(tmp_path):
@@ -341,7 +341,7 @@ def test_a_checkpoint_belongs_to_its_terrain(tmp_path):
                               base_dir=tmp_path) for f in ("a.tif", "b.tif"))
     flat = mission_from_dict({**terrain_doc("-", ground_alt_msl_m=H0), "terrain": None},
                              source="m.yaml", base_dir=tmp_path)
-    hashes = {mission_hash(m, m.new_grid()) for m in (a, b, flat)}
+    hashes = {mission_hash(m, m.new_mission_grid()) for m in (a, b, flat)}
     assert len(hashes) == 3
 
 

@@ -28,9 +28,10 @@ def test_calibration_file_and_relative_detector_path(tmp_path):
     doc["camera"] = {"calibration": "cam.yaml", "frame_rate_hz": 5}
     mission = load_mission(write_config(tmp_path, doc))
     inline = load_mission(write_config(tmp_path, mission_doc(), "inline.yaml"))
-    np.testing.assert_array_equal(mission.camera.K, inline.camera.K)
-    assert mission.detector.p_detect == inline.detector.p_detect
-    assert math.isclose(mission.frame_rate_hz, 5.0)
+    (cam,), (inline_cam,) = mission.cameras, inline.cameras
+    np.testing.assert_array_equal(cam.camera.K, inline_cam.camera.K)
+    assert cam.detector.p_detect == inline_cam.detector.p_detect
+    assert math.isclose(cam.frame_rate_hz, 5.0)
 
 
 def test_prior_from_geojson_segments_and_geotiff(tmp_path):

@@ -203,7 +203,7 @@ def grid_and_checkpoint(tmp_path_factory):
     """A mission grid that saw a few frames and its checkpoint's bytes."""
     d = tmp_path_factory.mktemp("ckpt")
     mission = mission_from_dict(MISSION, "m.yaml", d)
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     R_down = np.diag([1.0, -1.0, -1.0])
     for k in range(6):
         grid.update(CameraPose(R_down, np.array([5.0 + 3 * k, 15.0, 12.0]), 2.0 * k))
@@ -235,7 +235,7 @@ def check_resume(tmp_path: Path, mission, grid, data: bytes) -> None:
     for f in state.iterdir():
         f.unlink()
     (state / CHECKPOINT_NAME).write_bytes(data)
-    fresh = mission.new_grid()
+    fresh = mission.new_mission_grid()
     r = only_pdcov_errors(resume, state, "h", fresh)
     assert r is not None, "resume must not raise: a bad checkpoint is set aside"
     if r.grid is None:
@@ -286,7 +286,7 @@ def test_checkpoints_with_bad_values_are_set_aside(tmp_path, grid_and_checkpoint
     state = tmp_path / "state"
     state.mkdir()
     (state / CHECKPOINT_NAME).write_bytes(bad)
-    r = resume(state, "h", mission.new_grid())
+    r = resume(state, "h", mission.new_mission_grid())
     assert r.grid is None and r.set_aside is not None, r.message
 
 

@@ -126,7 +126,7 @@ def test_grouping_joins_within_the_gate_and_weights_by_variance():
     assert [d.candidate_id for d in a + b] == [0, 0, 1, 2]
     from pdcov.config.load import load_mission
     grid = load_mission(Path(__file__).resolve().parents[2]
-                        / "service/pdcov/data/demo_mission.yaml").new_grid()
+                        / "service/pdcov/data/demo_mission.yaml").new_mission_grid()
     c0 = t.candidates(grid)[0]
     assert (c0.hits, c0.first_t_boot_s, c0.last_t_boot_s) == (2, 1.0, 1.2)
     np.testing.assert_allclose(c0.r_enu_m, [0.2, 0, 0], atol=1e-9)  # equal weights: the mean

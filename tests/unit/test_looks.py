@@ -213,8 +213,8 @@ def test_config_chooses_the_rule_and_names_bad_values():
                        "frame_rate_hz": 5},
             "detector": model(*zip(of_ab(1.0, 2.0), strict=True)).to_dict()}
     m = mission_from_dict(dict(base, coverage={"looks": "correlated", "min_revisit_s": 1}))
-    assert m.looks.rule is LooksRule.CORRELATED and m.new_grid().looks == m.looks
-    assert mission_from_dict(base).new_grid().looks.rule is LooksRule.INDEPENDENT
+    assert m.looks.rule is LooksRule.CORRELATED and m.new_mission_grid().looks == m.looks
+    assert mission_from_dict(base).new_mission_grid().looks.rule is LooksRule.INDEPENDENT
     v = mission_from_dict(dict(base, coverage={"looks": "viewpoint",
                                                "viewpoint": {"azimuth_bins": 6}}))
     assert v.looks.viewpoint == ViewpointBins(6, 3)

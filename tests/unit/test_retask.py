@@ -219,7 +219,7 @@ def test_proposal_is_pdcov_reflys_plan_from_where_the_vehicle_is(tmp_path) -> No
     cfg = load_serve_config(tmp_path / "m.yaml")
     mission = cfg.mission
     sc = scenario_of(mission)
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
     L = np.zeros(grid.mask.shape, dtype=np.float32)
     L[:, : L.shape[1] // 2] = -5.0  # the west half seen well, the east half not at all
     settings = ReflySettings(0.8, alt_agl_m=10.0, speed_mps=3.0)

@@ -31,7 +31,7 @@ def core_of(tmp: Path, *, gimbal: bool = False, **service) -> ServiceCore:
     doc["service"] = {"state_dir": str(tmp / "state"), "reorder_s": 0.0, **service}
     (tmp / "m.yaml").write_text(yaml.safe_dump(doc))
     cfg = load_serve_config(tmp / "m.yaml")
-    return ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="h")
+    return ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h")
 
 
 def parsed(data: bytes) -> list:
@@ -123,10 +123,10 @@ def test_a_resumed_core_continues_lattice_clock_and_counts(tmp_path):
     cfg = first.cfg
     meta = CheckpointMeta("h", "uav1", t0_s=1.0, last_frame_t_s=3.0, clock_offset_s=70.0,
                           clock_boot_s=4.0, tiles_seq=41, frames_used=11)
-    core = ServiceCore(cfg, cfg.mission.new_grid(), 0.0, mission_hash="h", resumed=meta)
+    core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h", resumed=meta)
     live = core.coverage
     assert live.tiles_seq == 42 and live.counters.used == 11
-    assert live.lattice == FrameLattice(1.0, cfg.mission.frame_rate_hz)
+    assert live.lattice == FrameLattice(1.0, cfg.mission.first_camera.frame_rate_hz)
     assert live.last_frame_t_s == 3.0
     assert core.protocol._primed == (70.0, 4.0)
 

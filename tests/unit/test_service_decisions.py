@@ -103,7 +103,7 @@ def test_a_gimbal_heartbeat_before_the_autopilots_is_held_once():
 
 
 def test_frames_skip_gaps_and_wait_for_telemetry():
-    live = LiveCoverage(serve_cfg(), serve_cfg().mission.new_grid(), 0.0)
+    live = LiveCoverage(serve_cfg(), serve_cfg().mission.new_mission_grid(), 0.0)
     feed(live, 0.0, 10.0, skip=[(4.0, 6.5)])
     live.process()
     # 0..10 s at 5 Hz: 51 frames; those bracketed by the 2.6 s gap (> max_gap_s 1 s) skip.
@@ -117,7 +117,7 @@ def test_frames_skip_gaps_and_wait_for_telemetry():
 
 def test_tiles_stay_within_the_byte_budget_and_statustext_fires_once():
     cfg = serve_cfg()
-    live = LiveCoverage(cfg, cfg.mission.new_grid(), 0.0)
+    live = LiveCoverage(cfg, cfg.mission.new_mission_grid(), 0.0)
     feed(live, 0.0, 30.0)
     live.process()
     sent, texts, now = 0, [], 0.0

@@ -56,8 +56,8 @@ def test_unit_has_the_promised_directives() -> None:
 
 def test_example_config_loads_and_passes_serve_check(tmp_path, capsys) -> None:
     cfg = load_serve_config(SYSTEMD_DIR / "pdcov.yaml")
-    assert cfg.mission.new_grid().mask.sum() > 0
-    assert cfg.mission.mount.attitude_frame == "auto"
+    assert cfg.mission.new_mission_grid().mask.sum() > 0
+    assert cfg.mission.first_camera.mount.attitude_frame == "auto"
     # auto, listening: a peer the ground station reaches; without listen, a router's client
     assert cfg.bus.mode == "auto" and session_mode(cfg.bus) == "peer"
     assert not cfg.bus.multicast_scouting

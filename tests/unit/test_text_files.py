@@ -50,7 +50,7 @@ def test_yaml_not_utf8_is_one_clear_error(tmp_path: Path) -> None:
 def test_yaml_with_a_bom_is_read(tmp_path: Path) -> None:
     path = tmp_path / "mission.yaml"
     path.write_bytes(b"\xef\xbb\xbf" + DEMO.read_bytes())
-    assert load_mission(path).camera is not None
+    assert load_mission(path).cameras
 
 
 def test_cli_exits_2_without_traceback(tmp_path: Path, capsys) -> None:

@@ -132,7 +132,7 @@ def whole_grid_tiles(cfg, grid, now_s):
 @pytest.mark.parametrize("resumed", [False, True])
 def test_tiles_and_status_equal_the_whole_grid_comparison(resumed):
     cfg = serve_cfg()
-    grids = [cfg.mission.new_grid(), cfg.mission.new_grid()]
+    grids = [cfg.mission.new_mission_grid(), cfg.mission.new_mission_grid()]
     if resumed:  # a checkpointed grid: its observed tiles are sent first
         for gg in grids:
             feed_grid = LiveCoverage(cfg, gg, 0.0)

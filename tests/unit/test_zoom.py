@@ -48,10 +48,12 @@ def _evaluate(tmp_path: Path, doc: dict, tlog: Path, name: str) -> dict:
 
 def _poses(doc: dict, tlog: Path):
     m = mission_from_dict(doc)
+    (cam,) = m.cameras
     return m, poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg,
                              origin_lon_deg=m.origin_lon_deg,
-                             ground_alt_msl_m=m.ground_alt_msl_m, mount=m.mount,
-                             frame_rate_hz=m.frame_rate_hz, max_gap_s=m.max_gap_s, zoom=m.zoom)
+                             ground_alt_msl_m=m.ground_alt_msl_m, mount=cam.mount,
+                             frame_rate_hz=cam.frame_rate_hz, max_gap_s=m.max_gap_s,
+                             zoom=cam.zoom)
 
 
 def _reference_pd(tlog: Path) -> np.ndarray:
@@ -63,9 +65,9 @@ def _reference_pd(tlog: Path) -> np.ndarray:
     ref = None
     for pose in (p for p in lp.poses if p.t_s > zf.FIRST_REPORT_S):
         cam = CameraModel.from_fov(zf.WIDTH_PX, zf.HEIGHT_PX, zf.hfov_deg(pose.t_s - 0.1))
-        rng = default_max_range_m(cam, m.detector, m.cell_size_m)
+        rng = default_max_range_m(cam, m.first_camera.detector, m.cell_size_m)
         if ref is None:
-            ref = ReferenceGrid(g, m.domain.free_mask(g), cam, m.detector, rng)
+            ref = ReferenceGrid(g, m.domain.free_mask(g), cam, m.first_camera.detector, rng)
         ref.max_range_m = rng
         r1_update(ref, pixel_rays(cam), pose)
     assert ref is not None
@@ -99,15 +101,15 @@ def test_zoom_none_gives_todays_grid_exactly(tmp_path, hover):
     bare = dict(doc, camera={k: v for k, v in doc["camera"].items() if k != "zoom"})
     m, lp = _poses(bare, hover)
     assert lp.cameras == ()
-    grid = m.new_grid()
+    grid = m.new_mission_grid()
     for p in lp.poses:
         grid.update(p)
     for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
         np.testing.assert_array_equal(out[key], getattr(grid, key), err_msg=key)
     # And update_with the grid's own camera is update.
-    again = m.new_grid()
+    again = m.new_mission_grid()
     for p in lp.poses:
-        again.update_with(p, m.camera, m.detector)
+        again.update_with(p, m.first_camera.camera, m.first_camera.detector)
     np.testing.assert_array_equal(again.log_miss_d, grid.log_miss_d)
 
 
@@ -255,14 +257,14 @@ def test_a_zoom_table_follows_camera_settings(tmp_path):
     doc["camera"] = dict(doc["camera"], zoom="table", zoom_lens={"table": [
         {"zoom_level": 0, "K": [[f0, 0, 159.5], [0, f0, 119.5], [0, 0, 1]]},
         {"zoom_level": 100, "K": [[3 * f0, 0, 159.5], [0, 3 * f0, 119.5], [0, 0, 1]]}]})
-    m = mission_from_dict(doc)
-    assert m.zoom is not None and m.zoom.lens.quantity == LensQuantity.ZOOM_LEVEL
-    reports = LensReports(m.zoom)
+    (cam,) = mission_from_dict(doc).cameras
+    assert cam.zoom is not None and cam.zoom.lens.quantity == LensQuantity.ZOOM_LEVEL
+    reports = LensReports(cam.zoom)
     reports.add(LensSample(1.0, zoom_level=100.0))
     reports.add(LensSample(1.0, hfov_rad=0.5))  # another message of the camera: not this one
     value, reason = reports.at(np.array([1.5]))
     assert reason[0] == "" and value[0] == 100.0
-    assert m.zoom.lens.camera(50.0).K[0, 0] == pytest.approx(2 * f0)
+    assert cam.zoom.lens.camera(50.0).K[0, 0] == pytest.approx(2 * f0)
 
 
 def test_a_two_camera_flight_combines_both_cameras_looks(tmp_path, hover):
@@ -390,8 +392,8 @@ def test_boxes_of_a_zoomed_frame_are_located_with_its_camera():
     from pdcov.detection.candidates import DetectionTracker
 
     m = mission_from_dict(zf.mission())
-    assert m.zoom is not None
-    narrow = m.zoom.lens.camera(math.radians(28.0))
+    assert m.first_camera.zoom is not None
+    narrow = m.first_camera.zoom.lens.camera(math.radians(28.0))
     R_down = np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]])
     pose = CameraPose(R_down, np.array([40.0, 40.0, 60.0]), 1.0)
     box = Box("person", 0.9, 159.5 + 140 - 2.0, 119.5 - 2.0, 4.0, 4.0)
@@ -401,4 +403,4 @@ def test_boxes_of_a_zoomed_frame_are_located_with_its_camera():
         xs.append(det.r_enu_m[0] - 40.0)
     f_narrow = 160 / math.tan(math.radians(14.0))
     assert xs[0] == pytest.approx(60 * 140 / f_narrow, abs=0.1)
-    assert xs[1] == pytest.approx(60 * 140 / m.camera.K[0, 0], abs=0.3)
+    assert xs[1] == pytest.approx(60 * 140 / m.first_camera.camera.K[0, 0], abs=0.3)

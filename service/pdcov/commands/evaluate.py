@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -112,11 +112,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
     lines = [f"pdcov evaluate: {args.config}"]
     log_warnings: tuple[str, ...] = ()
     flight_log: FlightLog | None = None
+    # The first camera's frames are the run's (its track, boxes and summary lines); every
+    # camera's grid is evaluated, and several combined (Mission.several_cameras).
+    first = mission.first_camera
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
-        if mission.zoom is not None:
-            raise PdcovError(f"{args.poses}: camera.zoom {mission.zoom.lens.quantity} follows "
+        zoom = mission.only_camera(
+            args.poses, f"the mission lists {len(mission.cameras)} cameras; a pose CSV holds "
+            "one camera's poses: give the flight log (--log)").zoom
+        if zoom is not None:
+            raise PdcovError(f"{args.poses}: camera.zoom {zoom.lens.quantity} follows "
                              "the camera's zoom reports, which a pose CSV does not hold: give "
                              "the flight log (--log), or set camera.zoom none")
         log_poses = None
@@ -129,17 +135,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
                          "as heights above the ground")
     else:
         terrain_check = terrain_check_for(mission)
-        mount = mission.mount
+        mount = first.mount
         flight_log = read_flight_log(  # once, for every camera
             args.log, system_id=mission.system_id,
             gimbal_instance=mount.instance if isinstance(mount, GimbalMount) else 1)
         log_poses = poses_of_log(
             flight_log, origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
-            mount=mount, frame_rate_hz=mission.frame_rate_hz, frame_source=frame_source,
+            mount=mount, frame_rate_hz=first.frame_rate_hz, frame_source=frame_source,
             max_gap_s=mission.max_gap_s, progress=progress,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            terrain_check=terrain_check, zoom=mission.zoom, min_height_m=mission.min_height_m)
+            terrain_check=terrain_check, zoom=first.zoom, min_height_m=mission.min_height_m)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -177,20 +183,20 @@ def run_evaluate(args: argparse.Namespace) -> int:
         from pdcov.planning.plan_files import read_plan
         # Only drawn: a file without a speed command still gives its waypoints.
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
-    grid = mission.new_grid()
+    grid = mission.new_mission_grid()
+    per_camera = mission.camera_grids(grid)
     prior = (read_prior(args.prior, grid.geometry, grid.mask, origin)
              if args.prior is not None else None)
     if prior is not None:
         lines.extend(prior.notes)
-    evaluate_poses(grid, poses, progress=progress, total=len(poses), cameras=cameras)
-    lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
-                               grid.frames))
-    per_camera = (_other_cameras(args, flight_log, mission, frame_source, lines)
-                  if mission.extra_cameras else {})
-    if per_camera:
+    own = per_camera[first.name]
+    evaluate_poses(own, poses, progress=progress, total=len(poses), cameras=cameras)
+    lines.append(describe_blur(own.blur_effect, own.exposure_s, own.frames_blurred,
+                               own.frames))
+    if flight_log is not None:
+        _other_cameras(flight_log, mission, per_camera, frame_source, lines)
+    if mission.several_cameras:
         # Each camera's looks in the same cells, by the one rule the daemon applies too.
-        own, grid = grid, mission.new_combined_grid()
-        per_camera = {mission.camera_name: own, **per_camera}
         combine_cameras(grid, list(per_camera.values()))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
@@ -216,7 +222,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         extra["terrain_check"] = terrain_check.as_dict()
     if log_poses is not None:  # the bad telemetry counted, as the daemon's status faults
         extra["telemetry_faults"] = dict(log_poses.faults)
-    if per_camera:
+    if mission.several_cameras:  # each camera's outputs beside the combined grid's
         extra["cameras"] = {name: metrics_document(g.metrics(mission.thresholds))
                             for name, g in per_camera.items()}
     with replacing_dir(args.out) as replaced:
@@ -231,11 +237,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)
-        for name, g in per_camera.items():
-            write_outputs(args.out / "cameras" / name, mission, g, origin,
-                          title=f"{mission.vehicle_id} {name}: {source}",
-                          track_enu=finite_track(track), plan_enu=plan_enu,
-                          outline_threshold=args.outline_threshold)
+        if mission.several_cameras:  # each camera's outputs beside the combined grid's
+            for name, g in per_camera.items():
+                write_outputs(args.out / "cameras" / name, mission, g, origin,
+                              title=f"{mission.vehicle_id} {name}: {source}",
+                              track_enu=finite_track(track), plan_enu=plan_enu,
+                              outline_threshold=args.outline_threshold)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if log_poses is not None and args.export_poses:
@@ -245,22 +252,19 @@ def run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _other_cameras(args: argparse.Namespace, log: FlightLog | None, mission: Mission,
-                   frame_source: str | None, lines: list[str]) -> dict[str, CoverageGrid]:
-    """The grids of the mission's cameras after the first, each from the frames of the
-    ``log`` read once (its own gimbal device's reports) at its own rate, with its own mount,
-    zoom and detector (the primary's frame rules)."""
+def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, CoverageGrid],
+                   frame_source: str | None, lines: list[str]) -> None:
+    """Evaluate into ``grids`` (by name) the mission's cameras after the first, each from
+    the frames of the ``log`` read once (its own gimbal device's reports) at its own rate,
+    with its own mount, zoom and detector (the mission's frame rules)."""
     from pdcov.core.mount import GimbalMount
     from pdcov.report.outputs import evaluate_poses
     from pdcov.telemetry.log_poses import poses_of_log
     from pdcov.telemetry.logs import for_gimbal
 
-    if log is None:
-        raise PdcovError(f"{args.poses}: the mission lists {len(mission.all_cameras)} "
-                         "cameras; a pose CSV holds one camera's poses: give the flight log "
-                         "(--log)")
-    grids = {}
-    for cam in mission.extra_cameras:
+    for cam in mission.cameras:
+        if cam is mission.first_camera:
+            continue
         lp = poses_of_log(
             for_gimbal(log, cam.mount.instance) if isinstance(cam.mount, GimbalMount) else log,
             origin_lat_deg=mission.origin_lat_deg,
@@ -269,14 +273,12 @@ def _other_cameras(args: argparse.Namespace, log: FlightLog | None, mission: Mis
             frame_source=frame_source, max_gap_s=mission.max_gap_s,
             estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
             zoom=cam.zoom, min_height_m=mission.min_height_m)
-        grid = mission.new_grid(cam)
+        grid = grids[cam.name]
         evaluate_poses(grid, [p for p, low in zip(lp.poses, lp.low, strict=True) if not low],
                        cameras=[c for c, low in zip(lp.cameras, lp.low, strict=False)
                                 if not low])
-        grids[cam.name] = grid
         lines.append(f"camera {cam.name}: {grid.frames} frames "
                      f"({next((x for x in lp.summary_lines if x.startswith('frames:')), '')})")
-    return grids
 
 
 def _why_no_frame(n_read: int, top_m: float, min_height_m: float) -> str:
@@ -360,10 +362,11 @@ def run_footprint(args: argparse.Namespace) -> int:
     from pdcov.report.plots import ray_count_figure
 
     mission = load_mission_warned(args.config, "footprint")
+    cam = mission.first_camera
     R_ned_body = R_from_euler_zyx(*np.radians([args.roll_deg, args.pitch_deg, args.yaw_deg]))
     r = np.array([0.0, 0.0, args.altitude_m])
-    if isinstance(mission.mount, FixedMount) and args.camera_pitch_deg is None:
-        pose = fixed_mount_pose(R_ned_body, r, mission.mount)
+    if isinstance(cam.mount, FixedMount) and args.camera_pitch_deg is None:
+        pose = fixed_mount_pose(R_ned_body, r, cam.mount)
         how = "fixed mount"
     else:
         pitch = math.radians(-90.0 if args.camera_pitch_deg is None else args.camera_pitch_deg)
@@ -371,21 +374,21 @@ def run_footprint(args: argparse.Namespace) -> int:
         pose = camera_pose(R_ned_body, r, R_ned_gimbal)
         how = f"camera pitch {math.degrees(pitch):g} deg"
     # The coverage grid's range, without building the grid (its free mask) just to read it.
-    max_range_m = mission.max_range_m or default_max_range_m(mission.camera, mission.detector,
+    max_range_m = mission.max_range_m or default_max_range_m(cam.camera, cam.detector,
                                                              mission.cell_size_m)
-    fp = footprint_polygon(mission.camera, pose, max_range_m)
+    fp = footprint_polygon(cam.camera, pose, max_range_m)
     if fp.is_empty:
         raise PdcovError("the camera sees no ground from this pose")
     cell = args.cell_size_m or mission.cell_size_m
     x0, y0, x1, y1 = fp.bounds
     geometry = GridGeometry(math.floor(x0 / cell) * cell, math.floor(y0 / cell) * cell, cell,
                             math.ceil((y1 - y0) / cell) + 2, math.ceil((x1 - x0) / cell) + 2)
-    counts = ray_count_map(pixel_grid_rays(mission.camera, args.pixel_step), pose, geometry,
+    counts = ray_count_map(pixel_grid_rays(cam.camera, args.pixel_step), pose, geometry,
                            max_range_m)
     outline = np.asarray(fp.exterior.coords)
     ray_count_figure(args.out, counts, geometry, outline, r[:2],
-                     title=f"{mission.camera.distortion_model} camera "
-                           f"{mission.camera.width_px}x{mission.camera.height_px} at "
+                     title=f"{cam.camera.distortion_model} camera "
+                           f"{cam.camera.width_px}x{cam.camera.height_px} at "
                            f"{args.altitude_m:g} m, {how}")
     print(f"footprint area {fp.area:.1f} m^2, {int((counts > 0).sum())} cells hit, "
           f"max {int(counts.max())} rays per cell; wrote {args.out}")

@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_mount_check(args: argparse.Namespace) -> int:
     mission = load_mission_warned(args.config, "mount-check")
-    mount = mission.mount
+    mount = mission.first_camera.mount
     if not isinstance(mount, GimbalMount):
         raise ConfigError(f"{where(mission.source, 'mount.type')}: mount-check reads a gimbal "
                           f"mount's parameters; this mount is fixed (set type: gimbal)")

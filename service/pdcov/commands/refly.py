@@ -43,10 +43,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_refly(args: argparse.Namespace) -> int:
     mission = load_mission_warned(args.config, "refly")
     sc = scenario_of(mission, planning_overrides(args))
-    flown = CoverageGrid.load_npz(args.grid, mission.camera, mission.detector,
+    cam = mission.first_camera  # the planner's (scenario_of)
+    flown = CoverageGrid.load_npz(args.grid, cam.camera, cam.detector,
                                   max_range_m=mission.max_range_m,
                                   min_revisit_s=mission.min_revisit_s,
-                                  terrain=mission.terrain, exposure_s=mission.exposure_s)
+                                  terrain=mission.terrain, exposure_s=cam.exposure_s)
     if flown.geometry != sc.geometry:
         raise ConfigError(f"{args.grid}: its grid {flown.geometry} is not the mission's "
                           f"{sc.geometry} (same domain and cell_size_m?)")

@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_serve(args: argparse.Namespace) -> int:
     from pdcov.errors import ConfigError
-    from pdcov.service.settings import load_serve_config, new_serve_grid, replace_endpoints
+    from pdcov.service.settings import load_serve_config, replace_endpoints
 
     cfg = replace_endpoints(load_serve_config(args.config), connect=args.connect,
                             zenoh_connect=args.zenoh_connect, zenoh_listen=args.zenoh_listen,
@@ -57,7 +57,7 @@ def run_serve(args: argparse.Namespace) -> int:
         for w in cfg.mission.warnings:
             print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
 
-        grid = new_serve_grid(cfg.mission)
+        grid = cfg.mission.new_mission_grid()
         from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
 
         too_much = memory_refusal(cfg.mission, grid.geometry.n_rows * grid.geometry.n_cols,
@@ -73,7 +73,7 @@ def run_serve(args: argparse.Namespace) -> int:
               f"grid {grid.geometry.n_rows} x {grid.geometry.n_cols} cells "
               f"({int(grid.mask.sum())} free), "
               + ", ".join(f"camera {c.name} {c.camera.width_px}x{c.camera.height_px} at "
-                          f"{c.frame_rate_hz:g} Hz" for c in cfg.mission.all_cameras)
+                          f"{c.frame_rate_hz:g} Hz" for c in cfg.mission.cameras)
               + ", frames by "
               f"{cfg.frame_source}, links {list(cfg.link.connect) or 'none'}, zenoh "
               f"{cfg.bus.mode}, state dir {state}")

@@ -23,6 +23,7 @@ from pdcov.config.values import mapping
 from pdcov.core import dem as dem_rules
 from pdcov.core.dem import height_mismatch, terrain_surface
 from pdcov.core.geodesy import Origin
+from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, PdcovError, where
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 from pdcov.schema import Section, check_keys
@@ -94,10 +95,6 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     cameras = ([mission_camera(e, f"cameras[{i}].", str(e.get("name", f"camera{i + 1}")),
                                src, base) for i, e in enumerate(listed)]
                if listed else [mission_camera(doc, "", "camera", src, base)])
-    first = cameras[0]
-    camera, rate, mount, detector, zoom, exposure = (
-        first.camera, first.frame_rate_hz, first.mount, first.detector, first.zoom,
-        first.exposure_s)
 
     thresholds = doc.get("thresholds", list(DEFAULT_THRESHOLDS))
     if (not isinstance(thresholds, list) or not thresholds or not all(
@@ -119,16 +116,16 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     if not valid_vehicle_id(vehicle_id):
         raise ConfigError(f"{where(src, 'vehicle_id')}: expected {VEHICLE_ID_RULE}, "
                           f"got {vehicle_id!r}")
+    looks = LooksConfig()
+    for i, cam in enumerate(cameras):  # every camera's detector model serves the looks
+        looks = cov.looks_config(cam.detector, src,
+                                 f"cameras[{i}].detector" if listed else "coverage.looks")
     if listed:
-        for i, cam in enumerate(cameras):
-            cov.looks_config(cam.detector, src, f"cameras[{i}].detector")
         check_camera_ids(cameras, src)
-    looks = cov.looks_config(detector, src)
     return Mission(
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
-        ground_alt_msl_m=ground_alt,
-        domain=domain, cell_size_m=cell, camera=camera, frame_rate_hz=rate, mount=mount,
-        detector=detector, exposure_s=exposure, thresholds=tuple(float(t) for t in thresholds),
+        ground_alt_msl_m=ground_alt, domain=domain, cell_size_m=cell, cameras=tuple(cameras),
+        thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
         min_height_m=cov.min_height_m, looks=looks,
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
@@ -139,5 +136,4 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
                                    else dem_rules.DEFAULT_MAX_HOME_OFFSET_M),
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,
         prior_people_per_km2=search.prior_people_per_km2,
-        warnings=tuple(warnings), zoom=zoom, extra_cameras=tuple(cameras[1:]),
-        camera_name=first.name, source=src, raw=doc)
+        warnings=tuple(warnings), source=src, raw=doc)

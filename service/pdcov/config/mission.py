@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from pdcov.config.terrain import DEFAULT_TERRAIN_MARGIN_M
@@ -32,8 +33,9 @@ more; bus/status.py)."""
 @dataclass(frozen=True, slots=True)
 class MissionCamera:
     """One camera of the mission: its name (outputs per camera), calibration, frame rate
-    (Hz), mount (or gimbal device), detector model, zoom (None: a fixed lens) and exposure
-    time (s; None: not given, no motion blur effect)."""
+    (Hz), mount (or gimbal device), detector model, zoom (its zoom lens and reports,
+    core/zoom.py; None: a fixed lens, the configured K for every frame) and exposure time
+    (s, motion blur is computed over; None: not given, no motion blur effect)."""
 
     name: str
     camera: CameraModel
@@ -63,13 +65,10 @@ class Mission:
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
     z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
-    grouped). prior_people_per_km2: ``search.prior_people_per_km2``. exposure_s:
-    camera.exposure_s, the exposure time (s) motion blur is computed over (None: not
-    given, no blur effect).
-    zoom: the camera's zoom lens and reports (core/zoom.py; None: camera.zoom
-    none, the configured K for every frame). extra_cameras: the ``cameras`` list's entries
-    after the first (whose camera, mount, detector and zoom are the fields above, named
-    camera_name); their looks go into the same cells (``all_cameras``).
+    grouped). prior_people_per_km2: ``search.prior_people_per_km2``. cameras: every camera,
+    at least one, in config order (the single ``camera``, ``mount`` and ``detector``
+    sections are one camera named 'camera'; a ``cameras`` list its entries); their looks go
+    into the same cells (``several_cameras``).
     """
 
     vehicle_id: str
@@ -78,11 +77,7 @@ class Mission:
     ground_alt_msl_m: float | None
     domain: Domain
     cell_size_m: float
-    camera: CameraModel
-    frame_rate_hz: float
-    mount: FixedMount | GimbalMount
-    detector: DetectorModel
-    exposure_s: float | None = None
+    cameras: tuple[MissionCamera, ...]
     thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS
     max_range_m: float | None = None
     min_revisit_s: float | None = None
@@ -102,9 +97,6 @@ class Mission:
     gate_sigmas: float = 3.0
     prior_people_per_km2: float = 1.0
     warnings: tuple[str, ...] = ()
-    zoom: Zoom | None = None
-    extra_cameras: tuple[MissionCamera, ...] = ()
-    camera_name: str = "camera"
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
 
@@ -121,47 +113,90 @@ class Mission:
         daemon = service.get("frame_source") if isinstance(service, Mapping) else None
         return daemon if daemon in ("rate", "capture") else None
 
-    def cameras_frame_source(self, frame_source: str | None, key: str) -> str | None:
-        """The frame source to frame the mission's cameras by: ``frame_source`` itself with
-        one camera; with a cameras list 'rate' (also when None: not set), and ConfigError
-        naming ``key`` (a config key, or a command-line option '--...') for any other:
-        capture events and detector frames do not say which camera took them."""
-        if not self.extra_cameras:
-            return frame_source
-        if frame_source not in (None, "rate"):
-            at = key if key.startswith("--") else where(self.source, key)
-            raise ConfigError(f"{at}: {frame_source} with a cameras list: capture events and "
-                              "detector frames do not say which camera took them; several "
-                              "cameras are framed at their camera.frame_rate_hz (frame_source "
-                              "rate)")
-        return "rate"
+    def __post_init__(self) -> None:
+        if not self.cameras:
+            raise ConfigError(f"{where(self.source, 'cameras')}: no camera (give camera, "
+                              "mount and detector, or a cameras list)")
 
     @property
-    def all_cameras(self) -> tuple[MissionCamera, ...]:
-        """Every camera of the mission, the primary (the fields above) first."""
-        return (MissionCamera(self.camera_name, self.camera, self.frame_rate_hz, self.mount,
-                              self.detector, self.zoom, self.exposure_s), *self.extra_cameras)
+    def first_camera(self) -> MissionCamera:
+        """The camera of the rules that follow one camera whatever the list (the first in
+        config order; docs/mission-config.md "More than one camera"): the detector boxes'
+        geolocation, the status's pose and footprint, the detector's frame times, the
+        footprint figure, planning and refly, mount-check and the simulator."""
+        return self.cameras[0]
+
+    def only_camera(self, at: str | Path, why: str) -> MissionCamera:
+        """The mission's one camera, for a rule that cannot tell cameras apart; with
+        ``several_cameras``, ConfigError naming ``at`` (a key of this config, a command-line
+        option '--...', or a file) and saying ``why``."""
+        if not self.several_cameras:
+            return self.cameras[0]
+        named = (str(at) if isinstance(at, Path) or at.startswith("--")
+                 else where(self.source, at))
+        raise ConfigError(f"{named}: {why}")
+
+    def cameras_frame_source(self, frame_source: str | None, key: str) -> str | None:
+        """The frame source to frame the mission's cameras by: ``frame_source`` itself with
+        one camera; with several 'rate' (also when None: not set), and ConfigError
+        naming ``key`` (a config key, or a command-line option '--...') for any other:
+        capture events and detector frames do not say which camera took them."""
+        if frame_source in (None, "rate"):
+            return "rate" if self.several_cameras else frame_source
+        self.only_camera(key, f"{frame_source} with a cameras list: capture events and "
+                         "detector frames do not say which camera took them; several "
+                         "cameras are framed at their camera.frame_rate_hz (frame_source "
+                         "rate)")
+        return frame_source
 
     def origin(self, ground_alt_msl_m: float | None = None) -> Origin:
         """The ENU origin; the ground altitude given here overrides the configured one."""
         alt = ground_alt_msl_m if ground_alt_msl_m is not None else self.ground_alt_msl_m
         return Origin(self.origin_lat_deg, self.origin_lon_deg, alt or 0.0)
 
-    def new_grid(self, camera: MissionCamera | None = None) -> CoverageGrid:
-        """An empty coverage grid over the domain's free cells, for ``camera`` (one of
-        ``all_cameras``; None: the primary)."""
+    def new_grid(self, cam: MissionCamera) -> CoverageGrid:
+        """An empty coverage grid over the domain's free cells, for ``cam`` (one of
+        ``cameras``)."""
         g = self.domain.grid_geometry(self.cell_size_m)
-        cam = self.all_cameras[0] if camera is None else camera
         return CoverageGrid(g, self.domain.free_mask(g), cam.camera, cam.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
                             terrain=self.terrain, exposure_s=cam.exposure_s,
                             looks=self.looks)
 
-    def new_combined_grid(self) -> CoverageGrid:
-        """An empty grid for the looks of all the mission's cameras together
-        (``grid.combine_cameras`` writes them; independent looks: it holds the derived
-        log-miss)."""
+    @property
+    def several_cameras(self) -> bool:
+        """More than one camera: the one rule for what a second camera changes. The
+        mission's grid is then its cameras' grids combined (``combine_cameras`` into
+        ``new_mission_grid``), each camera's grid an output of its own (cameras/<name>/,
+        the checkpoint's, ``frames.by_camera``), frames at the cameras' rates only
+        (``cameras_frame_source``), zoom reports given to the camera that follows their
+        component, and every camera in the checkpoint's hash. With one camera the
+        mission's grid is that camera's: combining one grid gives its P_D, P_FA, counts,
+        limiting and clocks bit for bit, but as an independent-looks grid, without the
+        correlated or viewpoint looks state its grid.npz and checkpoint keep
+        (tests/unit/test_cameras.py)."""
+        return len(self.cameras) > 1
+
+    def new_mission_grid(self) -> CoverageGrid:
+        """An empty grid of the mission's looks: its one camera's (``new_grid``), or with
+        ``several_cameras`` one for their looks together (``combine_cameras`` writes it;
+        independent looks: it holds the derived log-miss; the first camera's camera and
+        detector for its range and figures)."""
+        if not self.several_cameras:
+            return self.new_grid(self.cameras[0])
         g = self.domain.grid_geometry(self.cell_size_m)
-        return CoverageGrid(g, self.domain.free_mask(g), self.camera, self.detector,
+        first = self.first_camera
+        return CoverageGrid(g, self.domain.free_mask(g), first.camera, first.detector,
                             max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=self.exposure_s)
+                            terrain=self.terrain, exposure_s=first.exposure_s)
+
+    def camera_grids(self, mission_grid: CoverageGrid,
+                     resumed: Mapping[str, CoverageGrid] | None = None
+                     ) -> dict[str, CoverageGrid]:
+        """Each camera's grid by name, beside ``mission_grid`` (``new_mission_grid``, or
+        resumed): with one camera that grid itself; with ``several_cameras`` the
+        ``resumed`` one of that name, else a new one (``new_grid``)."""
+        if not self.several_cameras:
+            return {self.cameras[0].name: mission_grid}
+        resumed = resumed or {}
+        return {c.name: resumed.get(c.name) or self.new_grid(c) for c in self.cameras}

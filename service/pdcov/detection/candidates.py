@@ -159,13 +159,14 @@ class DetectionTracker:
     @classmethod
     def for_mission(cls, mission: Mission, uid_prefix: str = "",
                     poa: np.ndarray | None = None) -> DetectionTracker:
-        """The tracker of ``mission``'s camera, terrain, cells, ``detections`` and
-        ``search`` sections; ``poa``: a probability of area per cell (``pdcov evaluate
-        --prior``) for the prior instead of ``search.prior_people_per_km2``."""
+        """The tracker of ``mission``'s first camera (whose frames carry the boxes),
+        terrain, cells, ``detections`` and ``search`` sections; ``poa``: a probability of
+        area per cell (``pdcov evaluate --prior``) for the prior instead of
+        ``search.prior_people_per_km2``."""
         prior = (mission.prior_people_per_km2 / 1e6 if poa is None
                  else PeoplePrior.from_poa(poa, mission.cell_size_m).per_m2)
-        return cls(mission.camera, mission.geolocation, mission.cell_size_m, mission.terrain,
-                   mission.gate_sigmas, uid_prefix, prior)
+        return cls(mission.first_camera.camera, mission.geolocation, mission.cell_size_m,
+                   mission.terrain, mission.gate_sigmas, uid_prefix, prior)
 
     def __len__(self) -> int:
         return len(self._groups)

@@ -145,7 +145,7 @@ async def _main(opts: WatchOptions) -> int:
         loop.add_signal_handler(sig, stop.set)
     config_hash = None
     if opts.mission is not None:
-        grid = opts.mission.new_grid()
+        grid = opts.mission.new_mission_grid()
         config_hash = grid_hash(grid.geometry, grid.mask)
     exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
         if opts.record else None

@@ -260,7 +260,7 @@ class Recording:
         fleet.mkdir(exist_ok=True)
         # The fleet's state is the vehicles' derived log-misses added: an independent-looks
         # grid holds it (a correlated one would write zero counts beside it).
-        grid = replace(mission, looks=LooksConfig()).new_grid() if mission is not None \
+        grid = replace(mission, looks=LooksConfig()).new_mission_grid() if mission is not None \
             else None
         if mission is not None and grid is not None \
                 and grid_hash(grid.geometry, grid.mask) == merged.hash:

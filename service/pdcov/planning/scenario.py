@@ -46,10 +46,11 @@ def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Sc
         raise ConfigError(f"{where(mission.source, 'planning')}: {exc}") from None
     pitch = math.radians(cfg.gimbal_pitch_deg)
     g = mission.domain.grid_geometry(mission.cell_size_m)
-    return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), mission.camera,
-                    mission.detector, mission.mount, mission.frame_rate_hz,
+    cam = mission.first_camera  # the planner flies one camera
+    return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), cam.camera,
+                    cam.detector, cam.mount, cam.frame_rate_hz,
                     mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain,
-                    following, mission.exposure_s, mission.looks, mission.zoom)
+                    following, cam.exposure_s, mission.looks, cam.zoom)
 
 
 # Refused above this many predicted camera frames (the flight is sampled at the camera's

@@ -41,11 +41,11 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
     accuracy the autopilot reported, if any) with boxes in ``frame_boxes``
     ({t_s: (t_boot_s, boxes)}), and every candidate with ``grid``'s (the published one)
     P_D and P_FA at its cell. The tracker sees each frame's looks as the daemon's did: a
-    fresh grid of the mission's camera takes the frames one by one. ``uid_prefix``: the
+    fresh grid of the mission's first camera takes the frames one by one. ``uid_prefix``: the
     candidates' (ids.candidate_uid_prefix, with the log's epoch, ``log_epoch``); ``poa``: a
     probability of area per cell for the candidates' prior."""
     tracker = DetectionTracker.for_mission(mission, uid_prefix, poa)
-    own = mission.new_grid()
+    own = mission.new_grid(mission.first_camera)
     detections: list[Detection] = []
     for i, pose in enumerate(poses):
         camera = cameras[i] if cameras else None

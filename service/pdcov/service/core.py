@@ -78,8 +78,8 @@ status)."""
 
 class ServiceCore:
     """The decisions of one ``pdcov serve`` (module docstring). ``grid``: a new grid
-    (``settings.new_serve_grid``), or the resumed one with its ``resumed`` metadata (and,
-    with a cameras list, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
+    (``Mission.new_mission_grid``), or the resumed one with its ``resumed`` metadata (and,
+    with several cameras, each camera's resumed grid, ``camera_grids``); ``checkpoint``: the
     checkpoint's state to report (its path, whether it resumed or was set aside);
     ``now_s``: the shell's monotonic clock at start; ``nonces``: the re-tasking nonces seen
     before (read back from the state dir); ``epoch``: the state dir's token in every
@@ -118,7 +118,7 @@ class ServiceCore:
         # Detector frames (boot ms, boxes) before a HEARTBEAT.
         self._early_frames: deque[tuple[int, tuple[Box, ...]]] = deque()
         self._early_boxes = 0  # boxes in _early_frames (at most MAX_HELD_BOXES)
-        self._classes = known_classes(m.detector)
+        self._classes = known_classes(m.first_camera.detector)  # the detector frames'
         self._status_seq = 0
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
@@ -174,7 +174,7 @@ class ServiceCore:
         clock). A message refused (bus.frames: a box outside the picture, NaN, a flood of
         boxes, another vehicle's) is counted by reason and logged."""
         faults = self.coverage.counters.faults
-        camera = self.cfg.mission.camera
+        camera = self.cfg.mission.first_camera.camera  # whose boxes the frames carry
         try:
             frames = decode_frames(payload, self.keys.frames,
                                    (camera.width_px, camera.height_px), self.keys.vehicle_id)
@@ -217,7 +217,7 @@ class ServiceCore:
         counted."""
         proto, live = self.protocol, self.coverage
         t_s: dict[float, tuple[int, tuple[Box, ...]]] = {}
-        faults, history_s = live.counters.faults, live.primary.history_s
+        faults, history_s = live.counters.faults, live.first.history_s
         for v, boxes in frames:
             t = proto.autopilot_boot_s(boot_s(v))
             refusal = refusal_of_time(t, proto.clock_now_s, history_s)

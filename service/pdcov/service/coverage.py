@@ -25,9 +25,9 @@ DEM, every sample also goes to the mission's ``terrain_check.TerrainCheck`` (the
 most one every TERRAIN_WARNING_PERIOD_S.
 
 ``LiveCoverage`` holds these decisions together and delegates: each camera's tracker,
-frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of a ``cameras`` list,
-whose grids ``combine_cameras`` combines into the published one after every frame, as
-``pdcov evaluate`` combines them), where frames fall and when they can be decided to
+frames and grid to ``flight.camera_frames.CameraFrames`` (one per camera of the mission;
+several cameras' grids ``combine_cameras`` combines into the published one after every
+frame, as ``pdcov evaluate`` combines them), where frames fall and when they can be decided to
 ``flight.frame_schedule.FrameSchedule``, the ground altitude to
 ``ground_altitude.GroundAltitude``, the tiles to ``tile_sender.TileSender``, the status fields to
 ``status``.
@@ -108,9 +108,10 @@ class Counters:
 
 
 class LiveCoverage:
-    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid (with a
-    cameras list, the combination, ``Mission.new_combined_grid``); ``camera_grids``: a
-    cameras list's resumed grids by name (None: new ones); ``uid_prefix``: the candidates'
+    """The daemon's decisions (module docstring). ``grid``: a new or resumed grid of the
+    mission (``Mission.new_mission_grid``; with several cameras their combination);
+    ``camera_grids``: several cameras' resumed grids by name (None: new ones);
+    ``uid_prefix``: the candidates'
     (ids.candidate_uid_prefix; ``c``: tests of the grid alone)."""
 
     def __init__(self, cfg: ServeConfig, grid: CoverageGrid, now_s: float, *,
@@ -138,23 +139,22 @@ class LiveCoverage:
         self._dem_statustext: str | None = None  # told the pilot once by poll
         self._terrain_said = 0  # mismatches counted when the last warning was logged
         self._next_terrain_warning_s = -math.inf
-        # One camera: its grid is the published one. A cameras list: each camera its own
-        # grid, the published one their combination (core.combine_cameras, as evaluate).
-        several = bool(m.extra_cameras)
-        if several and grid.looks_state is not None:
-            raise ValueError("a cameras list publishes Mission.new_combined_grid()")
-        grids = camera_grids or {}
+        # Each camera its own grid; the published one is their combination
+        # (core.combine_cameras, as evaluate), or the one camera's own (Mission.camera_grids).
+        if m.several_cameras and grid.looks_state is not None:
+            raise ValueError("several cameras publish Mission.new_mission_grid()")
+        grids = m.camera_grids(grid, camera_grids)
         self.cameras = [
-            CameraFrames(cam, (grids.get(cam.name) or m.new_grid(cam)) if several else grid,
-                         frame_source=self.frame_source, max_gap_s=m.max_gap_s,
-                         reorder_s=cfg.service.reorder_s, min_height_m=m.min_height_m,
-                         use_estimator=m.estimator_status, skipped=self.counters.skipped,
-                         faults=self.counters.faults, took=self._took)
-            for cam in m.all_cameras]
-        self.primary = self.cameras[0]  # frame times, detections, the status's pose
+            CameraFrames(cam, grids[cam.name], frame_source=self.frame_source,
+                         max_gap_s=m.max_gap_s, reorder_s=cfg.service.reorder_s,
+                         min_height_m=m.min_height_m, use_estimator=m.estimator_status,
+                         skipped=self.counters.skipped, faults=self.counters.faults,
+                         took=self._took)
+            for cam in m.cameras]
+        self.first = self.cameras[0]  # Mission.first_camera's: frame times, detections, pose
         self._zoom_followers = {cam.cam.zoom.camera_id: cam for cam in self.cameras
                                 if cam.cam.zoom is not None}
-        if several:
+        if m.several_cameras:
             combine_cameras(grid, self.camera_grids)
             self.state.frames = grid.frames
         ts = cfg.bus.tile_size
@@ -179,7 +179,7 @@ class LiveCoverage:
         check = self.terrain_check
         if check is not None:  # every sample, as offline: it refuses its own
             check.add(sample)
-            if check.home_refused is not None and not self.primary.dem_refused:
+            if check.home_refused is not None and not self.first.dem_refused:
                 self._refuse_dem(check)
         if not self.gate.admit(sample):  # sample_gate: the tlog reader's rule too
             return
@@ -197,9 +197,10 @@ class LiveCoverage:
             self._ground.add_position(sample)
         if isinstance(sample, EstimatorSample):
             self._estimator_seen = True
-        if isinstance(sample, LensSample) and len(self.cameras) > 1:
-            # A cameras list: each report to the camera that follows its camera component;
-            # a report of a camera none follows is counted, not used.
+        if isinstance(sample, LensSample) and self.cfg.mission.several_cameras:
+            # Each report to the camera that follows its camera component; a report of a
+            # camera none follows is counted, not used. (One camera follows the first heard
+            # when zoom_lens.component_id is not set, and counts the others itself.)
             follower = self._zoom_followers.get(sample.camera_id)
             if follower is None:
                 self.counters.faults[Fault.ZOOM_REPORTS_OTHER_CAMERA] += 1
@@ -230,36 +231,36 @@ class LiveCoverage:
 
     @property
     def checkpoint_cameras(self) -> dict[str, CoverageGrid] | None:
-        """With a cameras list, each camera's own grid by name (a checkpoint holds them: the
+        """With several cameras, each camera's own grid by name (a checkpoint holds them: the
         published grid is their combination); None with one camera."""
-        if len(self.cameras) == 1:
+        if not self.cfg.mission.several_cameras:
             return None
         return {cam.cam.name: cam.grid for cam in self.cameras}
 
     @property
     def schedule(self) -> FrameSchedule:
-        """The primary camera's frame schedule (capture and detector frame times go there:
-        a cameras list has rate frames only)."""
-        return self.primary.schedule
+        """The first camera's frame schedule (capture and detector frame times go there:
+        several cameras have rate frames only)."""
+        return self.first.schedule
 
     @property
     def interpretation(self) -> GimbalInterpretation | None:
-        """The primary camera's gimbal reading, once resolved."""
-        return self.primary.interpretation
+        """The first camera's gimbal reading, once resolved."""
+        return self.first.interpretation
 
     @property
     def tracker(self) -> PoseTracker | None:
-        """The primary camera's pose tracker, once started."""
-        return self.primary.tracker
+        """The first camera's pose tracker, once started."""
+        return self.first.tracker
 
     @property
     def last_pose(self) -> CameraPose | None:
-        """The primary camera's last frame (the status's pose and footprint)."""
-        return self.primary.last_pose
+        """The first camera's last frame (the status's pose and footprint)."""
+        return self.first.last_pose
 
     @property
     def last_R_ned_body(self) -> np.ndarray:
-        return self.primary.last_R_ned_body
+        return self.first.last_R_ned_body
 
     def add_frame_times(self, t_s: list[float] | tuple[float, ...]) -> list[float]:
         """Frame times (autopilot clock, s) from capture events or the detector; returns
@@ -311,7 +312,7 @@ class LiveCoverage:
     def _ground_alt(self) -> tuple[float | None, str]:
         """The ground altitude (m MSL) and how it was found, or None while waiting
         (ground_altitude.GroundAltitude)."""
-        w = self.primary.waiting
+        w = self.first.waiting
         return self._ground.ground_alt(w[-1].t_s if w else -math.inf)
 
     @property
@@ -326,8 +327,8 @@ class LiveCoverage:
         if not self.ready:
             self._try_start()
         added = sum(cam.process() for cam in self.cameras)
-        other = self.primary.zoom_reports_other_camera
-        if other and len(self.cameras) == 1:  # a cameras list counts them in add_sample
+        other = self.first.zoom_reports_other_camera
+        if other and not self.cfg.mission.several_cameras:  # else counted in add_sample
             self.counters.faults[Fault.ZOOM_REPORTS_OTHER_CAMERA] = other
         self.state.frames = self.grid.frames
         self.counters.used += added
@@ -347,15 +348,15 @@ class LiveCoverage:
         self.schedule.resume_lattice(t0_s, last_frame_t_s)
 
     def camera_resume(self) -> dict[str, CameraResume] | None:
-        """With a cameras list, what a checkpoint keeps of each camera to continue it."""
-        if len(self.cameras) == 1:
+        """With several cameras, what a checkpoint keeps of each camera to continue it."""
+        if not self.cfg.mission.several_cameras:
             return None
         return {c.cam.name: CameraResume(c.schedule.t0_s,
                                          finite_or_none(c.schedule.last_frame_t_s), c.used)
                 for c in self.cameras}
 
     def resume_cameras(self, cameras: dict[str, CameraResume]) -> None:
-        """Continue every camera of a cameras list from its checkpointed lattice, last
+        """Continue every camera (several) from its checkpointed lattice, last
         frame and count (a camera the checkpoint lacks starts anew)."""
         for cam in self.cameras:
             r = cameras.get(cam.cam.name)
@@ -368,15 +369,15 @@ class LiveCoverage:
     def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel,
               accuracy: PositionAccuracy | None) -> None:
         """A camera's grid took a frame: the published grid's cells it may have changed
-        (the combination, with a cameras list), their tiles and status metrics marked; the
-        primary's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
+        (the combination, with several cameras), their tiles and status metrics marked; the
+        first camera's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
         window = cam.grid.touched
-        if cam.grid is not self.grid:  # limiting over the whole grid, even with no window
+        if self.cfg.mission.several_cameras:  # limiting: the whole grid's, even no window
             combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
         if window is not None:
             self.tile_sender.touch(window)
             self.metrics.mark(window)
-        if cam is self.primary:
+        if cam is self.first:
             self.detections.frame(pose, camera, accuracy, grid=cam.grid)
 
     @property

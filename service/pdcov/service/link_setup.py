@@ -59,7 +59,7 @@ def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
     the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the
     one list of mount parameters of each gimbal device (gimbal.mount_params_to_read, as
     mount-check)."""
-    link, cams = cfg.link, cfg.mission.all_cameras
+    link, cams = cfg.link, cfg.mission.cameras
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
                  HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ}
     for cam in cams:

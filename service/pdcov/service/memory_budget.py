@@ -44,7 +44,7 @@ def memory_refusal(mission: Mission, n_cells: int, limit: tuple[int, str] | None
                    ) -> str | None:
     """Why ``mission`` (``n_cells`` per grid) does not fit ``limit`` (bytes, and what it is;
     None: unknown, then nothing is refused), naming the figures; None when it fits."""
-    rates = [c.frame_rate_hz for c in mission.all_cameras]
+    rates = [c.frame_rate_hz for c in mission.cameras]
     need = estimate_bytes(n_cells, rates, mission.max_gap_s)
     if limit is None or need <= limit[0]:
         return None

@@ -218,21 +218,17 @@ def load_serve_config(path: str | Path) -> ServeConfig:
     return cfg
 
 
-def new_serve_grid(mission: Mission) -> CoverageGrid:
-    """The grid the daemon publishes, new: the camera's; with a cameras list, the grid of
-    their looks combined (each camera's own grid is the daemon's, ``LiveCoverage``)."""
-    return mission.new_combined_grid() if mission.extra_cameras else mission.new_grid()
-
-
 def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     """What a checkpoint must match to be resumed: SHA-256 (16 hex digits) of the vehicle
     id (another vehicle's frames resumed here would count twice in the fleet), the origin,
     the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
     heights when it has them), the camera (size, intrinsics, distortion) and the detector
     model (bins, P_D, P_FA, input size), and the looks rule when not independent (rule,
-    viewpoint bins, the model's correlation; each camera's with a cameras list), and with a
-    cameras list every camera (``_camera_doc``)."""
-    cam, det, g = mission.camera, mission.detector, grid.geometry
+    viewpoint bins, the model's correlation; each camera's with several), and with several
+    cameras every camera (``_camera_doc``). The first camera's are hashed as the one camera
+    was before cameras lists existed."""
+    first, g = mission.first_camera, grid.geometry
+    cam, det = first.camera, first.detector
     doc = {"vehicle_id": mission.vehicle_id,
            "origin": [mission.origin_lat_deg, mission.origin_lon_deg, mission.ground_alt_msl_m],
            "grid": [g.x0_m, g.y0_m, g.cell_size_m, g.n_rows, g.n_cols, grid.max_range_m,
@@ -242,17 +238,17 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
            "detector": [list(det.bin_edges_px), list(det.p_detect), list(det.p_false_alarm),
                         det.input_size_px, det.size_metric,
                         *([] if det.fa_rate_per_mpx is None else [list(det.fa_rate_per_mpx)])]}
-    if mission.zoom is not None:  # none: hashed as before zoom existed
-        doc["zoom"] = repr(mission.zoom)
-    if mission.extra_cameras:  # one camera: hashed as before cameras lists existed
-        doc["cameras"] = [_camera_doc(c) for c in mission.all_cameras]
+    if first.zoom is not None:  # none: hashed as before zoom existed
+        doc["zoom"] = repr(first.zoom)
+    if mission.several_cameras:  # one camera: hashed as before cameras lists existed
+        doc["cameras"] = [_camera_doc(c) for c in mission.cameras]
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
     h.update(np.packbits(grid.mask).tobytes())
     if mission.looks != LooksConfig():  # independent looks: hashed as before looks existed
         rho = [None if c.detector.looks is None else c.detector.looks.correlation
-               for c in mission.all_cameras]
+               for c in mission.cameras]
         h.update(repr((str(mission.looks.rule), mission.looks.viewpoint,
-                       rho[0] if len(rho) == 1 else rho)).encode())
+                       rho if mission.several_cameras else rho[0])).encode())
     if grid.terrain is not None:  # none: the flat ground, hashed as before terrain existed
         h.update(grid.terrain.z_corner_m.tobytes())
     return h.hexdigest()[:16]

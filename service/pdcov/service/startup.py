@@ -15,7 +15,7 @@ from pdcov.service.checkpoint import CHECKPOINT_NAME, resume
 from pdcov.service.checkpoint_meta import CheckpointState
 from pdcov.service.core import ServiceCore
 from pdcov.service.recorder import TlogRecorder
-from pdcov.service.settings import ServeConfig, mission_hash, new_serve_grid
+from pdcov.service.settings import ServeConfig, mission_hash
 from pdcov.service.state_files import StateFiles
 
 __all__ = ["start_core", "start_recorder", "signing_key"]
@@ -28,9 +28,9 @@ def start_core(cfg: ServeConfig, files: StateFiles, clock: Callable[[], float]) 
     to this mission, else a new one; ``clock``: the daemon's monotonic clock (s)."""
     m = cfg.mission
     state_dir = files.state_dir
-    grid = new_serve_grid(m)
+    grid = m.new_mission_grid()
     mhash = mission_hash(m, grid)
-    cameras = {c.name: m.new_grid(c) for c in m.all_cameras} if m.extra_cameras else None
+    cameras = {c.name: m.new_grid(c) for c in m.cameras} if m.several_cameras else None
     r = resume(state_dir, mhash, grid, cameras)
     (log.warning if r.set_aside else log.info)("%s", r.message)
     state = CheckpointState(path=str(state_dir / CHECKPOINT_NAME),

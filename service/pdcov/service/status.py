@@ -79,19 +79,19 @@ def status_fields(live: LiveCoverage, *, uptime_s: float, seq: int, link: dict[s
     if live.last_pose is not None and live.origin is not None:
         lat, lon, alt = enu_to_geodetic(live.last_pose.r_cam_enu, live.origin)
         R = live.last_R_ned_body
-        accuracy = live.primary.last_accuracy
+        accuracy = live.first.last_accuracy
         pose = {"lat_deg": float(lat), "lon_deg": float(lon), "alt_msl_m": float(alt),
                 "heading_deg": math.degrees(math.atan2(R[1, 0], R[0, 0])) % 360.0,
                 "t_s": live.last_pose.t_s,
                 "gnss_h_acc_m": None if accuracy is None else accuracy.horizontal_m}
     interp = live.interpretation
     gimbal = ({"mount": "fixed", "interpretation": "fixed", "describe": "fixed mount"}
-              if not isinstance(m.mount, GimbalMount) else
+              if not isinstance(m.first_camera.mount, GimbalMount) else
               {"mount": "gimbal", "interpretation": interp.frame if interp else None,
                "describe": interp.describe() if interp else "waiting for the mount "
                                                             "parameters"})
     faults = {str(k): n for k, n in live.counters.faults.items()}  # Fault: its key
-    by_camera = ({} if len(live.cameras) == 1 else  # a cameras list: each one's frames
+    by_camera = ({} if not m.several_cameras else  # each camera's frames
                  {"by_camera": {cam.cam.name: cam.used for cam in live.cameras}})
     check = live.terrain_check
     terrain: dict[str, Any] = {}
