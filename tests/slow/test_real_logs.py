@@ -11,8 +11,9 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import PdcovError, TelemetryError
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.telemetry.gimbal import resolve_interpretation
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
 
@@ -31,7 +32,7 @@ SERVO = dict(roll_limits_deg=(-30, 30), pitch_limits_deg=(-90, 20), yaw_limits_d
 def test_every_log_evaluates_or_fails_clearly(name: str) -> None:
     path = REAL / name
     try:
-        lp = poses_from_log(path, **HOME, mount=FixedMount(), frame_rate_hz=5.0)
+        lp = poses_from_log(path, Framing(FixedMount(), 5.0), **HOME)
     except PdcovError as exc:
         assert name.endswith(".log") and "text DataFlash" in str(exc) and name in str(exc)
         return
@@ -45,8 +46,8 @@ def test_text_dataflash_log_is_refused() -> None:
 
 def test_fast_recorded_log_uses_autopilot_time() -> None:
     # Every frame, also those on the ground before the EKF fused GPS (skipped by default).
-    lp = poses_from_log(REAL / "uavlogviewer_flight_logs.tlog", **HOME, mount=FixedMount(),
-                        frame_rate_hz=2.0, estimator_status=False)
+    lp = poses_from_log(REAL / "uavlogviewer_flight_logs.tlog",
+                        Framing(FixedMount(), 2.0, estimator_status=False), **HOME)
     t = np.array([p.t_s for p in lp.poses])
     assert t[-1] - t[0] > 290.0  # 301.7 s of time_boot_ms, not the 12.3 s of wall clock
     assert t[-1] == pytest.approx(304.18, abs=0.5)
@@ -63,7 +64,7 @@ def servo_flight() -> dict:
             ("body", TLOG, GimbalMount(attitude_frame="body", untrusted="use", **SERVO)),
             ("flags", TLOG, GimbalMount(attitude_frame="flags", untrusted="use")),
             ("bin", BIN, GimbalMount(attitude_frame="auto", untrusted="use"))]:
-        out[name] = poses_from_log(path, **HOME, mount=mount, frame_rate_hz=5.0)
+        out[name] = poses_from_log(path, Framing(mount, 5.0), **HOME)
     targets = read_flight_log(BIN).mount_targets
     t = np.array([p.t_s for p in out["body"].poses])
     i = np.clip(np.searchsorted(targets.t_s, t), 1, len(targets.t_s) - 1)
@@ -79,7 +80,7 @@ def off_nadir_deg(lp) -> np.ndarray:
 
 def test_auto_picks_body_from_dataflash_params(servo_flight: dict) -> None:
     assert any("'body': auto: MNT1_TYPE=1" in x for x in servo_flight["bin"].summary_lines)
-    flags = poses_from_log(TLOG, **HOME, mount=GimbalMount(), frame_rate_hz=1.0)
+    flags = poses_from_log(TLOG, Framing(GimbalMount(), 1.0), **HOME)
     assert any("no MNT1_TYPE" in x for x in flags.summary_lines)  # tlog: config decides
 
 

@@ -49,6 +49,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.flight.camera_frames import CameraFrames
+from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.frame_schedule import FrameSchedule
 from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service import status
@@ -146,9 +147,8 @@ class LiveCoverage:
         grids = camera_grids or {}
         self.cameras = [
             CameraFrames(cam, (grids.get(cam.name) or m.new_grid(cam)) if several else grid,
-                         frame_source=self.frame_source, max_gap_s=m.max_gap_s,
-                         reorder_s=cfg.service.reorder_s, min_height_m=m.min_height_m,
-                         use_estimator=m.estimator_status, skipped=self.counters.skipped,
+                         framing=framing_of(cam, m, self.frame_source),
+                         reorder_s=cfg.service.reorder_s, skipped=self.counters.skipped,
                          faults=self.counters.faults, took=self._took)
             for cam in m.all_cameras]
         self.primary = self.cameras[0]  # frame times, detections, the status's pose
@@ -365,7 +365,7 @@ class LiveCoverage:
                 cam.schedule.resume_lattice(r.t0_s, r.last_frame_t_s)
             cam.used = r.frames_used
 
-    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel,
+    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel | None,
               accuracy: PositionAccuracy | None) -> None:
         """A camera's grid took a frame: the published grid's cells it may have changed
         (the combination, with a cameras list), their tiles and status metrics marked; the
