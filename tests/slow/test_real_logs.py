@@ -12,7 +12,8 @@ from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import PdcovError, TelemetryError
 from pdcov.flight.frame_decision import Framing
-from pdcov.flight.log_frames import poses_from_log
+from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S, GroundAltitude
+from pdcov.flight.log_frames import ground_alt_of_log, poses_from_log
 from pdcov.telemetry.gimbal import resolve_interpretation
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
@@ -184,3 +185,22 @@ def test_damaged_real_log_reads_up_to_the_damage(tmp_path: Path, whole: dict, so
         assert any("reading stopped at byte" in line for line in log.damage)
     # Every message read is one of the original's: none is made up from the junk.
     assert np.isin(np.round(log.attitude.t_s, 4), np.round(ref.attitude.t_s, 4)).all()
+
+
+def test_the_tlog_and_its_dataflash_arm_together_and_give_the_home_at_arming() -> None:
+    """The same flight's HEARTBEATs (1 Hz) and DataFlash ARM records arm within a second,
+    and both logs give the home ArduPilot set at arming (the DataFlash's ORGN home, not the
+    EKF origin logged at the same instant)."""
+    tlog, dataflash = read_flight_log(TLOG), read_flight_log(BIN)
+    assert tlog.armed_states is not None and dataflash.armed_states is not None
+    armed = [[t for t, a in log.armed_states if a] for log in (tlog, dataflash)]
+    assert len(armed[0]) == len(armed[1]) == 1
+    assert abs(armed[0][0] - armed[1][0]) < 1.0
+    assert dataflash.armed_states[0] == (-np.inf, False)
+    for log, source in ((tlog, "HOME_POSITION"), (dataflash, "ORGN home")):
+        assert ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S)) == (
+            584.08, f"the autopilot's home at arming ({source})")
+    # A real flight from before ARM records (ArduCopter 3.4): its EV ARMED / DISARMED.
+    old = read_flight_log(REAL / "beast_log_0036_mechanical_failure.bin")
+    assert old.armed_states is not None
+    assert [a for _t, a in old.armed_states] == [False, True, False]

@@ -110,8 +110,8 @@ def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, st
     """The ground altitude (m MSL) ``ground`` (the daemon's rule) gives a whole log, and how
     it was found: told the log's homes (those the daemon's sample gate admits), armed
     states and first position with a height above home in time order, and asked before
-    each as the daemon asks after every sample (with the newest attitude or position
-    before it), then at the log's end."""
+    each new time as the daemon asks after every sample (with the newest attitude or
+    position before it), then at the log's end."""
     att_t, pos_t = log.attitude.t_s, log.position.t_s
 
     def newest_before(t_s: float) -> float:
@@ -122,8 +122,8 @@ def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, st
                 newest = max(newest, float(times[i - 1]))
         return newest
 
-    # At one time: an arming before a home (the home ArduPilot sets at arming is sent
-    # after the HEARTBEAT that says so), a home before the first position.
+    # What a log holds of one instant is told at once (DataFlash logs ORGN's EKF origin and
+    # home at the arming's TimeUS; a link delivers such messages in one read).
     events: list[tuple[float, int, Callable[[], None]]] = [
         (t_s, 0, partial(ground.add_armed_state, t_s, armed))
         for t_s, armed in log.armed_states or ()]
@@ -136,10 +136,13 @@ def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, st
         events.append((float(p.t_s[i]), 2, partial(ground.add_position, PositionSample(
             float(p.t_s[i]), float(p.lat_deg[i]), float(p.lon_deg[i]), float(p.alt_msl_m[i]),
             float(p.relative_alt_m[i])))))
-    for t_s, _rank, tell in sorted(events, key=lambda e: e[:2]):
-        alt, how = ground.ground_alt(newest_before(t_s))
-        if alt is not None:
-            return alt, how
+    told_t_s = math.nan
+    for t_s, _kind, tell in sorted(events, key=lambda e: e[:2]):
+        if t_s != told_t_s:
+            alt, how = ground.ground_alt(newest_before(t_s))
+            if alt is not None:
+                return alt, how
+            told_t_s = t_s
         tell()
     end_s = max(float(att_t[-1]) if len(att_t) else -math.inf,
                 float(pos_t[-1]) if len(pos_t) else -math.inf)
