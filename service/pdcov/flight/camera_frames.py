@@ -5,7 +5,8 @@ its own PoseTracker (its mount or gimbal device, the gimbal reading of that devi
 parameters, the zoom reports of its own camera component), its own ``FrameSchedule`` (its
 frame rate's lattice) and its own grid, as ``pdcov evaluate`` builds one per camera. Every
 tracked sample of the link is given to every camera; what one camera takes of them (its
-gimbal device, its zoom reports) is its tracker's choice, offline as live.
+gimbal device, its zoom reports) is its tracker's choice, offline as live. Each batch of
+decidable frames is decided by ``frame_decision.decide_frames``, as offline.
 """
 
 from __future__ import annotations
