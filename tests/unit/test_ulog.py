@@ -104,3 +104,21 @@ def test_a_ulogs_arming_gives_the_home_in_force_at_arming(tmp_path):
     assert log.armed_states is None
     alt, _how = ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S))
     assert alt == 470.0
+
+
+def test_a_log_whose_vehicle_never_armed_takes_the_latest_home_and_says_so(tmp_path):
+    """The daemon waits for arming; a log has ended: the latest home, said so."""
+    status = ([("uint64_t", "timestamp"), ("uint8_t", "arming_state")],
+              [(T0_US + 500_000 * i, 1) for i in range(10)])
+    home = ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
+             ("float", "alt")],
+            [(T0_US + 1_500_000, 47.4, 8.5, 480.0), (T0_US + 4_000_000, 47.4, 8.5, 470.0)])
+    log = read_flight_log(write_ulog(tmp_path / "disarmed.ulg", {
+        "vehicle_attitude": ATTITUDE, "vehicle_global_position": GLOBAL,
+        "vehicle_status": status, "home_position": home}))
+    assert log.armed_states == ((1.0, False),)
+    alt, how = ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S))
+    assert alt == 470.0 and "never armed" in how
+    # A configured ground altitude is taken at once, armed or not.
+    assert ground_alt_of_log(log, GroundAltitude(488.0, DEFAULT_HOME_WAIT_S)) == (
+        488.0, "configured")
