@@ -49,6 +49,8 @@ from shapely.geometry import box
 from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
 from pdcov.report.outputs import evaluate_poses
@@ -57,7 +59,7 @@ from pdcov.service.daemon import TICK_S
 from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_socket import mavlink
 from pdcov.service.settings import load_serve_config
-from pdcov.telemetry.log_poses import poses_from_log
+from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.tlog import TlogScanner
 from tests.support.harness import SMALL_MISSION, child, small_mission
 
@@ -215,12 +217,13 @@ def offline_pass(rec: Recording) -> PathRun:
     grid = m.new_mission_grid()
 
     def run() -> tuple[int, int, CoverageGrid]:
-        lp = poses_from_log(rec.tlog, origin_lat_deg=m.origin_lat_deg,
+        lp = poses_from_log(rec.tlog, Framing(m.first_camera.mount, m.first_camera.frame_rate_hz,
+                                              frame_source=FrameSource(m.frame_source),
+                                              max_gap_s=m.max_gap_s,
+                                              min_height_m=m.min_height_m),
+                            origin_lat_deg=m.origin_lat_deg,
                             origin_lon_deg=m.origin_lon_deg,
-                            ground_alt_msl_m=m.ground_alt_msl_m, mount=m.first_camera.mount,
-                            frame_rate_hz=m.first_camera.frame_rate_hz, frame_source=m.frame_source,
-                            max_gap_s=m.max_gap_s, system_id=m.system_id,
-                            min_height_m=m.min_height_m)
+                            ground_alt_msl_m=m.ground_alt_msl_m, system_id=m.system_id)
         poses = [p for p, low in zip(lp.poses, lp.low, strict=True) if not low]
         evaluate_poses(grid, poses, progress=False, total=len(poses))
         return messages, len(poses), grid

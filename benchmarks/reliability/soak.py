@@ -152,14 +152,17 @@ def skipped_frames(config: Path, tlog: Path, faults: str) -> tuple[int, list[flo
     widened by the 1 s gap rule, and the times of the others
     (frames lost to something else: the daemon not keeping up, a dropped burst)."""
     from pdcov.config.load import load_mission
-    from pdcov.telemetry.log_poses import poses_from_log
+    from pdcov.flight.frame_decision import Framing
+    from pdcov.flight.log_frames import poses_from_log
+    from pdcov.telemetry.frame_policy import FrameSource
     from pdcov_sitl.faults import FaultSpec
 
     m = load_mission(config)
-    poses = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg,
-                           origin_lon_deg=m.origin_lon_deg, ground_alt_msl_m=m.ground_alt_msl_m,
-                           mount=m.first_camera.mount, frame_rate_hz=m.first_camera.frame_rate_hz,
-                           frame_source=m.frame_source, max_gap_s=m.max_gap_s)
+    poses = poses_from_log(tlog, Framing(m.first_camera.mount, m.first_camera.frame_rate_hz,
+                                         frame_source=FrameSource(m.frame_source),
+                                         max_gap_s=m.max_gap_s),
+                           origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                           ground_alt_msl_m=m.ground_alt_msl_m)
     spec = FaultSpec.parse(faults)
     windows = [(w.start_s - 1.5, w.start_s + w.duration_s + m.max_gap_s + 0.5)
                for w in (*spec.outages, *(n.window for n in spec.nans),

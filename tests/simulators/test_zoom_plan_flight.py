@@ -56,8 +56,9 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
     seen)."""
     pytest.importorskip("jsbsim")
     from pdcov.config.load import load_mission
+    from pdcov.flight.frame_decision import Framing
+    from pdcov.flight.log_frames import poses_from_log
     from pdcov.report.outputs import evaluate_poses
-    from pdcov.telemetry.log_poses import poses_from_log
     from pdcov_sitl.cli import main as sitl_main
 
     doc = zf.mission(min_hfov_deg=30.0)
@@ -80,11 +81,12 @@ def test_a_flown_plan_zooming_between_waypoints_evaluates_to_its_prediction(tmp_
                       "--speed", "0"]) == 0
     truth = np.loadtxt(tmp_path / "fly" / "truth.csv", delimiter=",", skiprows=1)
     t0, t1 = _hover_window_s(truth, plan)
-    lp = poses_from_log(tmp_path / "fly" / "flight.tlog", origin_lat_deg=mission.origin_lat_deg,
+    lp = poses_from_log(tmp_path / "fly" / "flight.tlog",
+                        Framing(cam.mount, cam.frame_rate_hz, cam.zoom,
+                                max_gap_s=mission.max_gap_s),
+                        origin_lat_deg=mission.origin_lat_deg,
                         origin_lon_deg=mission.origin_lon_deg,
-                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=cam.mount,
-                        frame_rate_hz=cam.frame_rate_hz, max_gap_s=mission.max_gap_s,
-                        zoom=cam.zoom)
+                        ground_alt_msl_m=mission.ground_alt_msl_m)
     keep = [t0 <= p.t_s <= t1 for p in lp.poses]
     poses = [p for p, k in zip(lp.poses, keep, strict=True) if k]
     cameras = [c for c, k in zip(lp.cameras, keep, strict=True) if k]

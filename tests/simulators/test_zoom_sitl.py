@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from pdcov.config.load import load_mission
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.report.outputs import evaluate_poses
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height
-from pdcov.telemetry.log_poses import poses_from_log
 from tests.support import zoom_flight as zf
 from tests.support.link_feed import feed_tlog
 
@@ -42,11 +43,11 @@ def test_a_simulated_hover_zooming_gives_the_same_grid_live_and_offline(tmp_path
     tlog = tmp_path / "run" / "flight.tlog"
 
     (cam,) = mission.cameras
-    lp = poses_from_log(tlog, origin_lat_deg=mission.origin_lat_deg,
+    lp = poses_from_log(tlog, Framing(cam.mount, cam.frame_rate_hz, cam.zoom,
+                                      max_gap_s=mission.max_gap_s),
+                        origin_lat_deg=mission.origin_lat_deg,
                         origin_lon_deg=mission.origin_lon_deg,
-                        ground_alt_msl_m=mission.ground_alt_msl_m, mount=cam.mount,
-                        frame_rate_hz=cam.frame_rate_hz, max_gap_s=mission.max_gap_s,
-                        zoom=cam.zoom)
+                        ground_alt_msl_m=mission.ground_alt_msl_m)
     high = [not below_min_height(p.r_cam_enu[2], mission.min_height_m) for p in lp.poses]
     offline = mission.new_mission_grid()
     evaluate_poses(offline, [p for p, h in zip(lp.poses, high, strict=True) if h],

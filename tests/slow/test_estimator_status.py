@@ -22,6 +22,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pdcov.config.load import mission_from_dict
 from pdcov.core.pose import FixedMount
 from pdcov.errors import ConfigError
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.service.coverage import Due
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.adapters import NAV_GPS_GLITCHING, sample_from_mavlink
@@ -34,7 +36,6 @@ from pdcov.telemetry.estimator import (
     merge_estimator,
 )
 from pdcov.telemetry.link_protocol import EKF_STATUS_REPORT, ESTIMATOR_STATUS, LinkProtocol
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.samples import EstimatorSample
 from pdcov.telemetry.series import EstimatorSeries
@@ -377,9 +378,9 @@ LOST_ON_THE_GROUND = {"ardupilot_sitl_servo_gimbal.tlog": 159,
 @real
 @pytest.mark.parametrize("name", sorted(LOST_ON_THE_GROUND))
 def test_real_healthy_flights_lose_only_frames_on_the_ground(name: str) -> None:
-    args = dict(**HOME, mount=FixedMount(), frame_rate_hz=5.0)
-    on = poses_from_log(REAL / name, **args)
-    off = poses_from_log(REAL / name, **args, estimator_status=False)
+    on = poses_from_log(REAL / name, Framing(FixedMount(), 5.0), **HOME)
+    off = poses_from_log(REAL / name, Framing(FixedMount(), 5.0, estimator_status=False),
+                         **HOME)
     kept = {p.t_s for p in on.poses}
     assert kept <= {p.t_s for p in off.poses}
     lost = np.array(sorted({p.t_s for p in off.poses} - kept))
@@ -460,8 +461,8 @@ def test_ulog_follows_the_primary_ekf_instance(tmp_path: Path) -> None:
         "estimator_status solution_status_flags, the primary EKF instance "
         "(estimator_selector_status.primary_instance): 0 from 0.00 s, 1 from 1.45 s, 0 from "
         "3.55 s; instances logged [0, 1, 2]")
-    lp = poses_from_log(path, origin_lat_deg=LAT_DEG, origin_lon_deg=LON_DEG,
-                        ground_alt_msl_m=GROUND_M, mount=FixedMount(), frame_rate_hz=10.0)
+    lp = poses_from_log(path, Framing(FixedMount(), 10.0), origin_lat_deg=LAT_DEG,
+                        origin_lon_deg=LON_DEG, ground_alt_msl_m=GROUND_M)
     line = next(x for x in lp.summary_lines if x.startswith("position estimate:"))
     assert "1 from 1.45 s" in line and "40 reports" in line, line
     # Frames 1.1..1.5 s (instance 0 glitching) and 3.1..3.6 (instance 1 without absolute

@@ -11,8 +11,10 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
 from pdcov.errors import PdcovError, TelemetryError
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S, GroundAltitude
+from pdcov.flight.log_frames import ground_alt_of_log, poses_from_log
 from pdcov.telemetry.gimbal import resolve_interpretation
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
 
@@ -31,7 +33,7 @@ SERVO = dict(roll_limits_deg=(-30, 30), pitch_limits_deg=(-90, 20), yaw_limits_d
 def test_every_log_evaluates_or_fails_clearly(name: str) -> None:
     path = REAL / name
     try:
-        lp = poses_from_log(path, **HOME, mount=FixedMount(), frame_rate_hz=5.0)
+        lp = poses_from_log(path, Framing(FixedMount(), 5.0), **HOME)
     except PdcovError as exc:
         assert name.endswith(".log") and "text DataFlash" in str(exc) and name in str(exc)
         return
@@ -45,8 +47,8 @@ def test_text_dataflash_log_is_refused() -> None:
 
 def test_fast_recorded_log_uses_autopilot_time() -> None:
     # Every frame, also those on the ground before the EKF fused GPS (skipped by default).
-    lp = poses_from_log(REAL / "uavlogviewer_flight_logs.tlog", **HOME, mount=FixedMount(),
-                        frame_rate_hz=2.0, estimator_status=False)
+    lp = poses_from_log(REAL / "uavlogviewer_flight_logs.tlog",
+                        Framing(FixedMount(), 2.0, estimator_status=False), **HOME)
     t = np.array([p.t_s for p in lp.poses])
     assert t[-1] - t[0] > 290.0  # 301.7 s of time_boot_ms, not the 12.3 s of wall clock
     assert t[-1] == pytest.approx(304.18, abs=0.5)
@@ -63,7 +65,7 @@ def servo_flight() -> dict:
             ("body", TLOG, GimbalMount(attitude_frame="body", untrusted="use", **SERVO)),
             ("flags", TLOG, GimbalMount(attitude_frame="flags", untrusted="use")),
             ("bin", BIN, GimbalMount(attitude_frame="auto", untrusted="use"))]:
-        out[name] = poses_from_log(path, **HOME, mount=mount, frame_rate_hz=5.0)
+        out[name] = poses_from_log(path, Framing(mount, 5.0), **HOME)
     targets = read_flight_log(BIN).mount_targets
     t = np.array([p.t_s for p in out["body"].poses])
     i = np.clip(np.searchsorted(targets.t_s, t), 1, len(targets.t_s) - 1)
@@ -79,7 +81,7 @@ def off_nadir_deg(lp) -> np.ndarray:
 
 def test_auto_picks_body_from_dataflash_params(servo_flight: dict) -> None:
     assert any("'body': auto: MNT1_TYPE=1" in x for x in servo_flight["bin"].summary_lines)
-    flags = poses_from_log(TLOG, **HOME, mount=GimbalMount(), frame_rate_hz=1.0)
+    flags = poses_from_log(TLOG, Framing(GimbalMount(), 1.0), **HOME)
     assert any("no MNT1_TYPE" in x for x in flags.summary_lines)  # tlog: config decides
 
 
@@ -183,3 +185,22 @@ def test_damaged_real_log_reads_up_to_the_damage(tmp_path: Path, whole: dict, so
         assert any("reading stopped at byte" in line for line in log.damage)
     # Every message read is one of the original's: none is made up from the junk.
     assert np.isin(np.round(log.attitude.t_s, 4), np.round(ref.attitude.t_s, 4)).all()
+
+
+def test_the_tlog_and_its_dataflash_arm_together_and_give_the_home_at_arming() -> None:
+    """The same flight's HEARTBEATs (1 Hz) and DataFlash ARM records arm within a second,
+    and both logs give the home ArduPilot set at arming (the DataFlash's ORGN home, not the
+    EKF origin logged at the same instant)."""
+    tlog, dataflash = read_flight_log(TLOG), read_flight_log(BIN)
+    assert tlog.armed_states is not None and dataflash.armed_states is not None
+    armed = [[t for t, a in log.armed_states if a] for log in (tlog, dataflash)]
+    assert len(armed[0]) == len(armed[1]) == 1
+    assert abs(armed[0][0] - armed[1][0]) < 1.0
+    assert dataflash.armed_states[0] == (-np.inf, False)
+    for log, source in ((tlog, "HOME_POSITION"), (dataflash, "ORGN home")):
+        assert ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S)) == (
+            584.08, f"the autopilot's home at arming ({source})")
+    # A real flight from before ARM records (ArduCopter 3.4): its EV ARMED / DISARMED.
+    old = read_flight_log(REAL / "beast_log_0036_mechanical_failure.bin")
+    assert old.armed_states is not None
+    assert [a for _t, a in old.armed_states] == [False, True, False]

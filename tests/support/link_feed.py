@@ -17,12 +17,13 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.core.grid import CoverageGrid
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import LogPoses, poses_from_log
 from pdcov.service.core import ServiceCore
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.link_setup import LinkReport
 from pdcov.service.settings import ServeConfig, load_serve_config
 from pdcov.telemetry.frame_policy import below_min_height
-from pdcov.telemetry.log_poses import LogPoses, poses_from_log
 from tests.support.harness import small_mission
 
 LAT_DEG, LON_DEG, GROUND_M = 47.397742, 8.545594, 488.0
@@ -82,10 +83,11 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
     and the grid built from them as the daemon builds it (frames below min_height_m not
     added)."""
     m = cfg.mission
-    lp = poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
-                        ground_alt_msl_m=m.ground_alt_msl_m, mount=m.first_camera.mount,
-                        frame_rate_hz=m.first_camera.frame_rate_hz, max_gap_s=m.max_gap_s,
-                        estimator_status=m.estimator_status)
+    cam = m.first_camera
+    lp = poses_from_log(tlog, Framing(cam.mount, cam.frame_rate_hz, max_gap_s=m.max_gap_s,
+                                      estimator_status=m.estimator_status),
+                        origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                        ground_alt_msl_m=m.ground_alt_msl_m)
     grid = m.new_mission_grid()
     for p in lp.poses:
         if not below_min_height(p.r_cam_enu[2], m.min_height_m):

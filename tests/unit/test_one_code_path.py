@@ -1,11 +1,13 @@
 """One code path for a .tlog: the daemon fed the log's bytes as a link delivers them and
 ``pdcov evaluate`` of the same file go through the same protocol object
 (telemetry/link_protocol.LinkProtocol: which autopilot, the clocks, the attitude source, the
-autopilot-only samples), the same sample gate (telemetry/sample_gate.SampleGate) and the
-same frame selection (telemetry/frame_selection.select_frames: trust policy, quaternion
-rebuild, min height), shown by counting their calls in both: the same messages received,
-the same samples admitted or refused in the same order, the same frames used and marked
-low, the same bad telemetry counted, the same grid."""
+autopilot-only samples), the same sample gate (telemetry/sample_gate.SampleGate), the same
+ground altitude (flight/ground_altitude.GroundAltitude) and the same frame decision
+(flight/frame_decision.decide_frames: the tracker's frames, flight/frame_selection's trust
+policy, quaternion rebuild and min height, the frames not used counted), shown by counting
+their calls in both: the same messages received, the same samples admitted or refused in
+the same order, the same ground altitude, the same frames decided, used and marked low, the
+same frames skipped and bad telemetry counted, the same grid."""
 
 from __future__ import annotations
 
@@ -18,11 +20,19 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.cli import main
-from pdcov.flight import camera_frames
-from pdcov.telemetry import frame_selection, log_poses
+from pdcov.flight import camera_frames, frame_decision, log_frames
+from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.sample_gate import SampleGate
-from tests.support.link_feed import Hover, feed_tlog, pack, serve_config
+from tests.support.link_feed import (
+    GROUND_M,
+    LAT_DEG,
+    LON_DEG,
+    Hover,
+    feed_tlog,
+    pack,
+    serve_config,
+)
 
 GATE_KEYS = ("untimed_samples", "nan_samples", "invalid_samples", "position_jumps",
              "gimbal_failures")
@@ -30,9 +40,11 @@ GATE_KEYS = ("untimed_samples", "nan_samples", "invalid_samples", "position_jump
 
 def hover_with_bad_telemetry(tmp_path: Path) -> Path:
     """Hover's messages as a tlog, with a position 2 km off (a jump: counted, kept), a
-    gimbal report of failure flags and a gimbal report whose quaternion is no rotation."""
+    gimbal report of failure flags, a gimbal report whose quaternion is no rotation and no
+    attitude from 2.5 to 4 s (a gap: its frames skipped)."""
     mav = mavlink.MAVLink(None)
-    msgs = Hover(seconds=4.0).messages()
+    msgs = [m for m in Hover(seconds=6.0).messages()
+            if not (m.get_type() == "ATTITUDE" and 2500 < m.time_boot_ms < 4000)]
     bad = [mav.gimbal_device_attitude_status_encode(0, 0, 2005, 4 | 8 | 16, [0.0] * 4,
                                                     0, 0, 0, 0),
            mav.gimbal_device_attitude_status_encode(0, 0, 2105, 4 | 8 | 16,
@@ -50,17 +62,16 @@ def hover_with_bad_telemetry(tmp_path: Path) -> Path:
 
 class Calls:
     """Every LinkProtocol.receive (protocol object, message type), SampleGate.admit
-    (gate object, sample type, t_s, admitted) and select_frames (the used frames' times and
-    low marks; the daemon's flight/camera_frames and evaluate's log_poses both import it)
-    call, in order."""
+    (gate object, sample type, t_s, admitted), GroundAltitude.ground_alt (object, the
+    answer) and decide_frames (the frame times decided; the daemon's flight/camera_frames
+    and evaluate's flight/log_frames both import it) with the select_frames it makes (the
+    used frames' times and low marks) call, in order."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        self.received: list[tuple[int, str]] = []
-        self.admitted: list[tuple[int, str, float, bool]] = []
-        self.selected: list[tuple[float, bool]] = []
-        self.selections = 0
+        self.reset()
         receive, admit = LinkProtocol.receive, SampleGate.admit
-        select = frame_selection.select_frames
+        ground_alt = GroundAltitude.ground_alt
+        decide, select = frame_decision.decide_frames, frame_decision.select_frames
 
         def counted_receive(proto, msg, now_s):
             self.received.append((id(proto), msg.get_type()))
@@ -71,25 +82,46 @@ class Calls:
             self.admitted.append((id(gate), type(sample).__name__, sample.t_s, ok))
             return ok
 
+        def counted_ground_alt(ground, newest_t_s, **kw):
+            alt, how = ground_alt(ground, newest_t_s, **kw)
+            self.grounds.append((id(ground), alt, how))
+            return alt, how
+
+        def counted_decide(tracker, t_s, framing, counts, **kw):
+            self.decided += [float(t) for t in t_s]
+            self.decisions += 1
+            return decide(tracker, t_s, framing, counts, **kw)
+
         def counted_select(b, mount, zoom, min_height_m):
             sel = select(b, mount, zoom, min_height_m)
-            self.selections += 1
             self.selected += [(p.t_s, bool(low)) for p, low in zip(sel.poses, sel.low,
                                                                     strict=True)]
             return sel
 
         monkeypatch.setattr(LinkProtocol, "receive", counted_receive)
         monkeypatch.setattr(SampleGate, "admit", counted_admit)
-        assert camera_frames.select_frames is log_poses.select_frames is select
-        monkeypatch.setattr(camera_frames, "select_frames", counted_select)
-        monkeypatch.setattr(log_poses, "select_frames", counted_select)
+        monkeypatch.setattr(GroundAltitude, "ground_alt", counted_ground_alt)
+        assert camera_frames.decide_frames is log_frames.decide_frames is decide
+        monkeypatch.setattr(camera_frames, "decide_frames", counted_decide)
+        monkeypatch.setattr(log_frames, "decide_frames", counted_decide)
+        monkeypatch.setattr(frame_decision, "select_frames", counted_select)
 
     def reset(self) -> None:
-        self.received, self.admitted, self.selected, self.selections = [], [], [], 0
+        self.received: list[tuple[int, str]] = []
+        self.admitted: list[tuple[int, str, float, bool]] = []
+        self.grounds: list[tuple[int, float | None, str]] = []
+        self.decided: list[float] = []
+        self.selected: list[tuple[float, bool]] = []
+        self.decisions = 0
 
     def stream(self) -> list[tuple[str, float, bool]]:
         """What the gate saw, whichever object it was."""
         return [(kind, t_s, ok) for _g, kind, t_s, ok in self.admitted]
+
+    def ground(self) -> tuple[int, float | None, str]:
+        """How many GroundAltitude objects were asked, and the first answer."""
+        answers = [(alt, how) for _g, alt, how in self.grounds if alt is not None]
+        return len({g for g, *_r in self.grounds}), *answers[0]
 
 
 @pytest.mark.parametrize("gimbal", [True, False], ids=["gimbal", "fixed"])
@@ -103,8 +135,11 @@ def test_the_daemon_and_evaluate_go_through_one_protocol_object_and_gate(
     live_received, live_stream = list(calls.received), calls.stream()
     live_protocols = {p for p, _t in calls.received}
     live_gates = {g for g, *_r in calls.admitted}
-    live_selected, live_selections = list(calls.selected), calls.selections
-    faults = feed.status()["faults"]
+    live_ground = calls.ground()
+    live_decided, live_decisions = list(calls.decided), calls.decisions
+    live_selected = list(calls.selected)
+    status = feed.status()
+    faults = status["faults"]
     calls.reset()
 
     out, config = tmp_path / "run", tmp_path / ("gimbal.yaml" if gimbal else "fixed.yaml")
@@ -119,18 +154,77 @@ def test_the_daemon_and_evaluate_go_through_one_protocol_object_and_gate(
     # The same samples, admitted or refused alike, in the same order.
     assert calls.stream() == live_stream
     assert sum(not ok for *_r, ok in live_stream) >= 1
-    # The same frames used (batches as decided live, the whole log at once offline).
-    assert calls.selections == 1 and live_selections >= (1 if gimbal else 2)
+    # One GroundAltitude each, giving the same ground altitude.
+    assert calls.ground() == live_ground
+    assert live_ground[0] == 1
+    # The same frames decided (batches as decidable live, chunks of the whole log offline)
+    # and used.
+    assert calls.decisions == 1 and live_decisions >= (1 if gimbal else 2)
+    assert calls.decided == live_decided
     assert calls.selected == live_selected
     assert len(live_selected) >= 20
-    # The same bad telemetry counted, in the daemon's status and evaluate's metrics.
+    # The same frames skipped and bad telemetry counted, in the daemon's status and
+    # evaluate's metrics.
     metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames_skipped"] == status["frames"]["skipped"]
+    assert sum(metrics["frames_skipped"].values()) >= 1
     counted = metrics["telemetry_faults"]
     assert counted.get("position_jumps") == faults.get("position_jumps") == 1
     assert counted.get("gimbal_failures") == faults.get("gimbal_failures") == 1
     assert counted.get("nan_samples") == faults.get("nan_samples") == 1
-    for key in GATE_KEYS:
+    for key in (*GATE_KEYS, "frames_untrusted", "frames_without_estimator_status"):
         assert counted.get(key, 0) == faults.get(key, 0), key
     # And the same grid.
     with np.load(out / "grid.npz") as g:
         np.testing.assert_array_equal(g["n_obs"], feed.live.grid.n_obs)
+
+
+def hover_with_home_moved(tmp_path: Path) -> Path:
+    """Hover's messages as a tlog (8 s) whose autopilot arms at 3 s, with its home at
+    GROUND_M sent at 1.5 s and moved 13 m down at 5.5 s (after arming)."""
+    mav = mavlink.MAVLink(None)
+    home_at = {1500: GROUND_M, 5500: GROUND_M - 13.0}
+    out = []
+    for m in Hover(seconds=8.0).messages()[2:]:  # its armed HEARTBEAT and home replaced
+        if m.get_type() == "HEARTBEAT":
+            armed = bool(out) and out[-1].time_boot_ms >= 2900
+            m = mav.heartbeat_encode(2, 3, (128 if armed else 0) | 1, 4, 4)
+        out.append(m)
+        alt_m = home_at.pop(getattr(m, "time_boot_ms", -1), None) \
+            if m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS" else None
+        if alt_m is not None:
+            out.append(mav.home_position_encode(round(LAT_DEG * 1e7), round(LON_DEG * 1e7),
+                                                round(alt_m * 1000), 0, 0, 0, [1, 0, 0, 0],
+                                                0, 0, 0))
+    assert not home_at
+    tlog = tmp_path / "moved.tlog"
+    tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i)
+                              + pack(m, seq=i) for i, m in enumerate(out)))
+    return tlog
+
+
+def test_a_home_moved_after_arming_gives_the_daemon_and_evaluate_the_home_at_arming(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Without origin.ground_alt_msl_m both take the home in force at arming (once,
+    GroundAltitude's rule), not the log's last home (what evaluate took before)."""
+    tlog = hover_with_home_moved(tmp_path)
+    cfg = serve_config(tmp_path, gimbal=False, origin={"lat_deg": LAT_DEG, "lon_deg": LON_DEG})
+    assert cfg.mission.ground_alt_msl_m is None
+    calls = Calls(monkeypatch)
+    feed = feed_tlog(cfg, tlog)
+    live_ground = calls.ground()
+    assert feed.live.origin is not None
+    assert feed.live.origin.ground_alt_msl_m == GROUND_M
+    calls.reset()
+    out = tmp_path / "run"
+    assert main(["evaluate", "--config", str(tmp_path / "fixed.yaml"), "--log", str(tlog),
+                 "--out", str(out), "--no-progress"]) == 0
+    assert calls.ground() == live_ground == (1, GROUND_M,
+                                             "the autopilot's home at arming (HOME_POSITION)")
+    assert (f"ground {GROUND_M:.2f} m MSL (the autopilot's home at arming"
+            in capsys.readouterr().out)
+    with np.load(out / "grid.npz") as g:
+        assert g["frames"] == feed.live.grid.frames >= 30
+        np.testing.assert_array_equal(g["n_obs"], feed.live.grid.n_obs)
+        np.testing.assert_array_equal(g["log_miss_d"], feed.live.grid.log_miss_d)

@@ -21,7 +21,9 @@ from pdcov.core.pose import (
 )
 from pdcov.core.rotations import R_from_euler_zyx_many, quat_wxyz_from_euler_zyx
 from pdcov.errors import InputFileError, TelemetryError
-from pdcov.telemetry.log_poses import poses_from_log
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
+from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
 from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.samples import AttitudeSample, CaptureSample, GimbalSample, PositionSample
@@ -43,10 +45,12 @@ def known_flight(n: int = 200, gimbal_flags: int | None = None) -> KnownFlight:
     return KnownFlight(ORIGIN, t, R, r, q_g, flags)
 
 
-def evaluate(path: Path, mount: object, **kw: object):
-    args = dict(origin_lat_deg=ORIGIN.lat_deg, origin_lon_deg=ORIGIN.lon_deg,
-                ground_alt_msl_m=None, mount=mount, frame_rate_hz=5.0)
-    return poses_from_log(path, **{**args, **kw})
+def evaluate(path: Path, mount: FixedMount | GimbalMount, *, max_gap_s: float = 1.0,
+             frame_source: str = "rate", ground_alt_msl_m: float | None = None):
+    return poses_from_log(path, Framing(mount, 5.0, frame_source=FrameSource(frame_source),
+                                        max_gap_s=max_gap_s),
+                          origin_lat_deg=ORIGIN.lat_deg, origin_lon_deg=ORIGIN.lon_deg,
+                          ground_alt_msl_m=ground_alt_msl_m)
 
 
 def check_equal(poses: tuple, expected: list) -> None:

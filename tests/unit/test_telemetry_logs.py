@@ -11,8 +11,9 @@ import pytest
 from pdcov.core.mount import GimbalMount
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
 from pdcov.errors import TelemetryError
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.telemetry.clocks import REBOOT_GAP_S, BootClock
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.samples import AttitudeSample, GimbalSample, ParamSample, PositionSample
 from tests.support.mavlink_fixtures import Heartbeat, encode, tlog_bytes, write_tlog
@@ -231,8 +232,8 @@ def test_truncated_log_says_it_was_cut(tmp_path: Path) -> None:
 def test_missing_gimbal_never_suggests_another_mount(tmp_path: Path) -> None:
     path = write_tlog(tmp_path / "ng.tlog", flight(), prefix=b"\x01" * 40)
     with pytest.raises(TelemetryError) as exc:
-        poses_from_log(path, origin_lat_deg=LAT, origin_lon_deg=LON, ground_alt_msl_m=ALT,
-                       mount=GimbalMount(), frame_rate_hz=5.0)
+        poses_from_log(path, Framing(GimbalMount(), 5.0), origin_lat_deg=LAT,
+                       origin_lon_deg=LON, ground_alt_msl_m=ALT)
     message = str(exc.value)
     assert "no gimbal attitude" in message and "fixed" not in message
     assert "not MAVLink" in message  # what reading the log skipped is named

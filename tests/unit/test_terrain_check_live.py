@@ -13,8 +13,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.status import StatusEncoder, decode_status, encode_status, merge_status
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.service.coverage import TERRAIN_WARNING_PERIOD_S
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.samples import TerrainReportSample
 from pdcov.telemetry.terrain_check import TerrainCheck
 from tests.support.link_feed import GROUND_M, Hover, LinkFeed, pack, serve_config
@@ -78,9 +79,9 @@ def test_live_and_offline_counts_are_the_same(tmp_path: Path) -> None:
     offline = TerrainCheck(dem)
     m = cfg.mission
     (cam,) = m.cameras
-    poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
-                   ground_alt_msl_m=m.ground_alt_msl_m, mount=cam.mount,
-                   frame_rate_hz=cam.frame_rate_hz, max_gap_s=m.max_gap_s, terrain_check=offline)
+    poses_from_log(tlog, Framing(cam.mount, cam.frame_rate_hz, max_gap_s=m.max_gap_s),
+                   origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                   ground_alt_msl_m=m.ground_alt_msl_m, terrain_check=offline)
     assert offline.as_dict() == live
     # 40 readings (k = 0..39): 8 forward-facing (k % 5 == 0), 3 of 12 m beyond their 10 m
     # maximum (k = 7, 14, 21), the last waits for a position after it; 28 compared: 20 of
@@ -197,7 +198,7 @@ def test_a_home_beyond_max_home_offset_refuses_the_dem_live_and_offline(tmp_path
     offline = TerrainCheck(dem, max_home_offset_m=30.0)
     m = cfg.mission
     (cam,) = m.cameras
-    poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
-                   ground_alt_msl_m=m.ground_alt_msl_m, mount=cam.mount,
-                   frame_rate_hz=cam.frame_rate_hz, max_gap_s=m.max_gap_s, terrain_check=offline)
+    poses_from_log(tlog, Framing(cam.mount, cam.frame_rate_hz, max_gap_s=m.max_gap_s),
+                   origin_lat_deg=m.origin_lat_deg, origin_lon_deg=m.origin_lon_deg,
+                   ground_alt_msl_m=m.ground_alt_msl_m, terrain_check=offline)
     assert offline.home_refusal() == refusal

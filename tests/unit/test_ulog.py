@@ -8,6 +8,8 @@ import pytest
 from pyulog import ULog
 
 from pdcov.errors import TelemetryError
+from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S, GroundAltitude
+from pdcov.flight.log_frames import ground_alt_of_log
 from pdcov.telemetry.logs import read_flight_log
 from tests.support.ulog_fixture import write_ulog
 
@@ -79,3 +81,44 @@ def test_a_ulog_cut_short_says_so(tmp_path):
     assert 0 < len(short.attitude.t_s) < len(full.attitude.t_s)
     (line,) = [n for n in short.notes if "cut short" in n]
     assert f"of {cut.stat().st_size})" in line and line in short.damage
+
+
+def test_a_ulogs_arming_gives_the_home_in_force_at_arming(tmp_path):
+    """vehicle_status.arming_state 2 (armed) from 2 s: the home then (vehicle_status read
+    as the daemon reads HEARTBEAT), not the one PX4 moved it to later."""
+    status = ([("uint64_t", "timestamp"), ("uint8_t", "arming_state")],
+              [(T0_US + 500_000 * i, 2 if i >= 2 else 1) for i in range(10)])
+    home = ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
+             ("float", "alt")],
+            [(T0_US + 1_500_000, 47.4, 8.5, 480.0), (T0_US + 4_000_000, 47.4, 8.5, 470.0)])
+    log = read_flight_log(write_ulog(tmp_path / "armed.ulg", {
+        "vehicle_attitude": ATTITUDE, "vehicle_global_position": GLOBAL,
+        "vehicle_status": status, "home_position": home}))
+    assert log.armed_states == ((1.0, False), (2.0, True))
+    ground = ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S))
+    assert ground == (480.0, "the autopilot's home at arming (home_position)")
+    # Without vehicle_status: as a link without HEARTBEAT, the latest home.
+    log = read_flight_log(write_ulog(tmp_path / "bare.ulg", {
+        "vehicle_attitude": ATTITUDE, "vehicle_global_position": GLOBAL,
+        "home_position": home}))
+    assert log.armed_states is None
+    alt, _how = ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S))
+    assert alt == 470.0
+
+
+def test_a_log_whose_vehicle_never_armed_takes_the_latest_home_and_says_so(tmp_path):
+    """The daemon waits for arming; a log has ended: the latest home, said so."""
+    status = ([("uint64_t", "timestamp"), ("uint8_t", "arming_state")],
+              [(T0_US + 500_000 * i, 1) for i in range(10)])
+    home = ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
+             ("float", "alt")],
+            [(T0_US + 1_500_000, 47.4, 8.5, 480.0), (T0_US + 4_000_000, 47.4, 8.5, 470.0)])
+    log = read_flight_log(write_ulog(tmp_path / "disarmed.ulg", {
+        "vehicle_attitude": ATTITUDE, "vehicle_global_position": GLOBAL,
+        "vehicle_status": status, "home_position": home}))
+    assert log.armed_states == ((1.0, False),)
+    alt, how = ground_alt_of_log(log, GroundAltitude(None, DEFAULT_HOME_WAIT_S))
+    assert alt == 470.0 and "never armed" in how
+    # A configured ground altitude is taken at once, armed or not.
+    assert ground_alt_of_log(log, GroundAltitude(488.0, DEFAULT_HOME_WAIT_S)) == (
+        488.0, "configured")

@@ -28,10 +28,11 @@ from pdcov.core.zoom import (
     jumps,
 )
 from pdcov.errors import CalibrationError, ConfigError
+from pdcov.flight.frame_decision import Framing
+from pdcov.flight.log_frames import poses_from_log
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import SkipReason
 from pdcov.telemetry.lens_reports import LensReports
-from pdcov.telemetry.log_poses import poses_from_log
 from pdcov.telemetry.samples import LensSample
 from tests.support import zoom_flight as zf
 from tests.support.evaluate_inputs import load_grid, run
@@ -49,11 +50,11 @@ def _evaluate(tmp_path: Path, doc: dict, tlog: Path, name: str) -> dict:
 def _poses(doc: dict, tlog: Path):
     m = mission_from_dict(doc)
     (cam,) = m.cameras
-    return m, poses_from_log(tlog, origin_lat_deg=m.origin_lat_deg,
+    return m, poses_from_log(tlog, Framing(cam.mount, cam.frame_rate_hz, cam.zoom,
+                                           max_gap_s=m.max_gap_s),
+                             origin_lat_deg=m.origin_lat_deg,
                              origin_lon_deg=m.origin_lon_deg,
-                             ground_alt_msl_m=m.ground_alt_msl_m, mount=cam.mount,
-                             frame_rate_hz=cam.frame_rate_hz, max_gap_s=m.max_gap_s,
-                             zoom=cam.zoom)
+                             ground_alt_msl_m=m.ground_alt_msl_m)
 
 
 def _reference_pd(tlog: Path) -> np.ndarray:

@@ -87,6 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.core.combine_cameras import combine_cameras
     from pdcov.core.mount import GimbalMount
+    from pdcov.flight.frame_decision import framing_of
+    from pdcov.flight.log_frames import poses_of_log
     from pdcov.report.exports import VehicleDetections
     from pdcov.report.outputs import (
         evaluate_poses,
@@ -97,7 +99,6 @@ def run_evaluate(args: argparse.Namespace) -> int:
         write_outputs,
     )
     from pdcov.telemetry.frame_policy import below_min_height
-    from pdcov.telemetry.log_poses import poses_of_log
     from pdcov.telemetry.logs import read_flight_log
     from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
     from pdcov.telemetry.terrain_check import terrain_check_for
@@ -140,12 +141,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
             args.log, system_id=mission.system_id,
             gimbal_instance=mount.instance if isinstance(mount, GimbalMount) else 1)
         log_poses = poses_of_log(
-            flight_log, origin_lat_deg=mission.origin_lat_deg,
-            origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
-            mount=mount, frame_rate_hz=first.frame_rate_hz, frame_source=frame_source,
-            max_gap_s=mission.max_gap_s, progress=progress,
-            estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            terrain_check=terrain_check, zoom=first.zoom, min_height_m=mission.min_height_m)
+            flight_log, framing_of(first, mission, frame_source),
+            origin_lat_deg=mission.origin_lat_deg, origin_lon_deg=mission.origin_lon_deg,
+            ground_alt_msl_m=mission.ground_alt_msl_m, progress=progress,
+            ground_alt_how=mission.ground_alt_how, terrain_check=terrain_check)
         poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
         lines += list(log_poses.summary_lines)  # its warnings among them
         log_warnings = log_poses.warnings
@@ -222,6 +221,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         extra["terrain_check"] = terrain_check.as_dict()
     if log_poses is not None:  # the bad telemetry counted, as the daemon's status faults
         extra["telemetry_faults"] = dict(log_poses.faults)
+        extra["frames_skipped"] = dict(log_poses.frames_skipped)
     if mission.several_cameras:  # each camera's outputs beside the combined grid's
         extra["cameras"] = {name: metrics_document(g.metrics(mission.thresholds))
                             for name, g in per_camera.items()}
@@ -258,8 +258,9 @@ def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, Coverag
     the frames of the ``log`` read once (its own gimbal device's reports) at its own rate,
     with its own mount, zoom and detector (the mission's frame rules)."""
     from pdcov.core.mount import GimbalMount
+    from pdcov.flight.frame_decision import framing_of
+    from pdcov.flight.log_frames import poses_of_log
     from pdcov.report.outputs import evaluate_poses
-    from pdcov.telemetry.log_poses import poses_of_log
     from pdcov.telemetry.logs import for_gimbal
 
     for cam in mission.cameras:
@@ -267,12 +268,9 @@ def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, Coverag
             continue
         lp = poses_of_log(
             for_gimbal(log, cam.mount.instance) if isinstance(cam.mount, GimbalMount) else log,
-            origin_lat_deg=mission.origin_lat_deg,
+            framing_of(cam, mission, frame_source), origin_lat_deg=mission.origin_lat_deg,
             origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
-            mount=cam.mount, frame_rate_hz=cam.frame_rate_hz,
-            frame_source=frame_source, max_gap_s=mission.max_gap_s,
-            estimator_status=mission.estimator_status, ground_alt_how=mission.ground_alt_how,
-            zoom=cam.zoom, min_height_m=mission.min_height_m)
+            ground_alt_how=mission.ground_alt_how)
         grid = grids[cam.name]
         evaluate_poses(grid, [p for p, low in zip(lp.poses, lp.low, strict=True) if not low],
                        cameras=[c for c, low in zip(lp.cameras, lp.low, strict=False)

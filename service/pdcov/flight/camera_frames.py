@@ -5,7 +5,8 @@ its own PoseTracker (its mount or gimbal device, the gimbal reading of that devi
 parameters, the zoom reports of its own camera component), its own ``FrameSchedule`` (its
 frame rate's lattice) and its own grid, as ``pdcov evaluate`` builds one per camera. Every
 tracked sample of the link is given to every camera; what one camera takes of them (its
-gimbal device, its zoom reports) is its tracker's choice, offline as live.
+gimbal device, its zoom reports) is its tracker's choice, offline as live. Each batch of
+decidable frames is decided by ``frame_decision.decide_frames``, as offline.
 """
 
 from __future__ import annotations
@@ -20,14 +21,9 @@ from pdcov.bus.faults import Fault
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import CameraPose
+from pdcov.flight.frame_decision import FrameCounts, Framing, decide_frames
 from pdcov.flight.frame_schedule import FrameSchedule
-from pdcov.telemetry.frame_policy import (
-    UNTRUSTED_PREFIX,
-    FrameSource,
-    SkipReason,
-    untrusted_policy,
-)
-from pdcov.telemetry.frame_selection import select_frames
+from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.gimbal import GimbalInterpretation, resolve_interpretation
 from pdcov.telemetry.lens_reports import LensReports
 from pdcov.telemetry.pose_tracker import PoseTracker
@@ -57,10 +53,11 @@ MAX_WAITING_SAMPLES = 2_000_000
 TrackedSample = (AttitudeSample | PositionSample | GimbalSample | EstimatorSample | LensSample
                  | GnssAccuracySample)
 """The samples the PoseTracker takes (the others are read by LiveCoverage itself)."""
-FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel", "PositionAccuracy | None"],
-                     None]
-"""Told of every frame a camera's grid took (after ``grid.update_with``), with the GNSS
-accuracy in force at it (gnss_accuracy.py; None: unknown)."""
+FrameSink = Callable[["CameraFrames", CameraPose, "CameraModel | None",
+                      "PositionAccuracy | None"], None]
+"""Told of every frame a camera's grid took (after ``grid.update_with``), with its zoomed
+camera (None: the configured one) and the GNSS accuracy in force at it (gnss_accuracy.py;
+None: unknown)."""
 
 
 BATCH_OF_HISTORY = 0.25
@@ -73,21 +70,22 @@ def tracker_history_s(max_gap_s: float) -> float:
 
 
 class CameraFrames:
-    """One camera's tracker, schedule and grid (module docstring). ``skipped`` / ``faults``:
+    """One camera's tracker, schedule and grid (module docstring), its frames decided by
+    ``framing`` (frame_decision.framing_of; frame_source set). ``skipped`` / ``faults``:
     the daemon's counters (counted into); ``took``: called with each frame taken."""
 
-    def __init__(self, cam: MissionCamera, grid: CoverageGrid, *, frame_source: FrameSource,
-                 max_gap_s: float, reorder_s: float, min_height_m: float,
-                 use_estimator: bool, skipped: Counter, faults: Counter,
+    def __init__(self, cam: MissionCamera, grid: CoverageGrid, *, framing: Framing,
+                 reorder_s: float, skipped: Counter, faults: Counter,
                  took: FrameSink) -> None:
+        if framing.frame_source is None:
+            raise ValueError("the daemon's framing has a frame source")
         self.cam = cam
         self.grid = grid
-        self.frame_source = frame_source
-        self.max_gap_s = max_gap_s
-        self.history_s = tracker_history_s(max_gap_s)
-        self.min_height_m = min_height_m
-        self.use_estimator = use_estimator
+        self.framing = framing
+        self.frame_source = framing.frame_source
+        self.history_s = tracker_history_s(framing.max_gap_s)
         self.skipped, self.faults = skipped, faults
+        self._counts = FrameCounts(skipped, faults)
         self._took = took
         self.used = 0  # frames this camera's grid took
         self.dem_refused = False  # the DEM is refused (terrain_check.home_refused): no frame
@@ -96,8 +94,9 @@ class CameraFrames:
         self.waiting: deque[TrackedSample] = deque()  # not yet given to the tracker
         needed = ("attitude", "position") + (
             ("gimbal",) if isinstance(cam.mount, GimbalMount) else ())
-        self.schedule = FrameSchedule(frame_source, cam.frame_rate_hz, max_gap_s, reorder_s,
-                                      needed, self.waiting, skipped)
+        self.schedule = FrameSchedule(framing.frame_source, framing.frame_rate_hz,
+                                      framing.max_gap_s, reorder_s, needed, self.waiting,
+                                      skipped)
         self.last_pose: CameraPose | None = None
         self.last_R_ned_body = np.eye(3)  # the body attitude at last_pose (once there is one)
         self.last_accuracy: PositionAccuracy | None = None  # the GNSS's at last_pose
@@ -119,11 +118,11 @@ class CameraFrames:
         """Start the tracker once the origin (and for a gimbal its reading) is known."""
         if self.tracker is None and not (isinstance(self.cam.mount, GimbalMount)
                                          and self.interpretation is None):
-            zoom = self.cam.zoom
-            self.tracker = PoseTracker(origin, self.cam.mount,
-                                       interpretation=self.interpretation,
-                                       max_gap_s=self.max_gap_s, history_s=self.history_s,
-                                       use_estimator=self.use_estimator,
+            f = self.framing
+            zoom = f.zoom
+            self.tracker = PoseTracker(origin, f.mount, interpretation=self.interpretation,
+                                       max_gap_s=f.max_gap_s, history_s=self.history_s,
+                                       use_estimator=f.estimator_status,
                                        lens=None if zoom is None else LensReports(zoom))
         return self.tracker is not None
 
@@ -203,37 +202,22 @@ class CameraFrames:
             added += self._evaluate(tr, np.array(batch))
 
     def _evaluate(self, tr: PoseTracker, t_s: np.ndarray) -> int:
-        """Add the frames at times ``t_s`` (increasing) that are valid, trusted (or the
-        mount says to use untrusted ones) and high enough; count the others by reason."""
+        """Add the frames at times ``t_s`` (increasing) that frame_decision.decide_frames
+        uses and are high enough; it counts the others."""
         self.schedule.last_frame_t_s = float(t_s[-1])
-        b = tr.frames_at(t_s)
-        mount = self.cam.mount
-        sel = select_frames(b, mount, self.cam.zoom, self.min_height_m)
-        valid, use = b.valid, sel.use
-        for reason in b.skip_reason[~valid]:
-            self.skipped[str(reason)] += 1
-        untrusted = valid & ~b.trusted
-        self.faults[Fault.FRAMES_UNTRUSTED] += int(untrusted.sum())
-        if untrusted_policy(mount) != "use":
-            for reason in b.untrusted_reason[untrusted]:
-                self.skipped[f"{UNTRUSTED_PREFIX}{reason}"] += 1
+        d = decide_frames(tr, t_s, self.framing, self._counts, home_off_dem=self.dem_refused)
         if self.dem_refused:
-            self.skipped[SkipReason.HOME_OFF_DEM] += int(use.sum())
             return 0
-        added = unjudged = 0
-        for pose, low, R_body, judged, camera, accuracy in zip(
-                sel.poses, sel.low, b.R_ned_body[use], b.estimator_judged[use], sel.cameras,
-                sel.accuracies, strict=True):
+        sel = d.selected
+        added = 0
+        for pose, low, R_body, camera, accuracy in zip(
+                sel.poses, sel.low, d.R_ned_body, sel.cameras, sel.accuracies, strict=True):
             self.last_pose, self.last_R_ned_body = pose, R_body
             self.last_accuracy = accuracy
             if low:
-                self.skipped[SkipReason.BELOW_MIN_HEIGHT] += 1
                 continue
             self.grid.update_with(pose, camera)
             self._took(self, pose, camera, accuracy)
             added += 1
-            unjudged += not judged
         self.used += added
-        if unjudged and self.use_estimator:
-            self.faults[Fault.FRAMES_WITHOUT_ESTIMATOR_STATUS] += unjudged
         return added

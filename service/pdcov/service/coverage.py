@@ -3,20 +3,22 @@ times and ``now_s`` (the daemon's monotonic clock, s) and says what to do.
 
 Frames follow ``pdcov evaluate`` by the same code (one pipeline, two drivers): the same
 PoseTracker interpolates the camera pose at each frame time of the autopilot clock; frames
-are placed on the same ``frame_policy.FrameLattice`` (every 1/rate s from the first time
-all needed streams have samples), or at capture / detector frame times; the use/trust
-policy, the quaternion rebuild, the min-height filter and the ground altitude's fallbacks
-are frame_policy's functions, which the offline path calls too. What only a stream needs is
-decided here: a frame is decided once every stream has a sample at or after it (then its
-bracketing samples are final), or once some stream's last sample lies more than max_gap_s
-(+ reorder_s) behind the newest telemetry (then it is skipped as the tracker would call it
-offline, and counted; never guessed). So a live grid equals the offline grid of the same
-telemetry, cell for cell.
+are placed on the same ``frame_policy.FrameLattice`` (every 1/rate s from the first time all
+needed streams have samples), or at capture / detector frame times; each batch is decided by
+``flight.frame_decision.decide_frames`` (the use/trust policy, the quaternion rebuild, the
+min-height filter, the frames not used counted) and the ground altitude found by
+``flight.ground_altitude.GroundAltitude``, which the offline path calls too. What only a
+stream needs is decided here: a frame is decided once every stream has a sample at or after
+it (then its bracketing samples are final), or once some stream's last sample lies more than
+max_gap_s (+ reorder_s) behind the newest telemetry (then it is skipped as the tracker would
+call it offline, and counted; never guessed). So a live grid equals the offline grid of the
+same telemetry, cell for cell.
 
 Before the grid can run it needs the ENU origin's ground altitude (configured, else the
-autopilot's first HOME_POSITION, else -- after home_wait_s of autopilot time -- the first
-position's altitude minus its height above home) and, for a gimbal, the reading of its
-reports (the mount parameters, gimbal.resolve_interpretation); samples wait meanwhile.
+autopilot's home at arming, else -- after home_wait_s of autopilot time -- the latest home
+or the first position's altitude minus its height above home) and, for a gimbal, the reading
+of its reports (the mount parameters, gimbal.resolve_interpretation); samples wait
+meanwhile.
 
 It also says when to publish status, which tiles changed and may be sent within the
 bandwidth budget, when to checkpoint, and the NAMED_VALUE_FLOAT / STATUSTEXT values; with a
@@ -49,6 +51,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
 from pdcov.flight.camera_frames import CameraFrames
+from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.frame_schedule import FrameSchedule
 from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service import status
@@ -145,11 +148,9 @@ class LiveCoverage:
             raise ValueError("several cameras publish Mission.new_mission_grid()")
         grids = m.camera_grids(grid, camera_grids)
         self.cameras = [
-            CameraFrames(cam, grids[cam.name], frame_source=self.frame_source,
-                         max_gap_s=m.max_gap_s, reorder_s=cfg.service.reorder_s,
-                         min_height_m=m.min_height_m, use_estimator=m.estimator_status,
-                         skipped=self.counters.skipped, faults=self.counters.faults,
-                         took=self._took)
+            CameraFrames(cam, grids[cam.name], framing=framing_of(cam, m, self.frame_source),
+                         reorder_s=cfg.service.reorder_s, skipped=self.counters.skipped,
+                         faults=self.counters.faults, took=self._took)
             for cam in m.cameras]
         self.first = self.cameras[0]  # Mission.first_camera's: frame times, detections, pose
         self._zoom_followers = {cam.cam.zoom.camera_id: cam for cam in self.cameras
@@ -366,7 +367,7 @@ class LiveCoverage:
                 cam.schedule.resume_lattice(r.t0_s, r.last_frame_t_s)
             cam.used = r.frames_used
 
-    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel,
+    def _took(self, cam: CameraFrames, pose: CameraPose, camera: CameraModel | None,
               accuracy: PositionAccuracy | None) -> None:
         """A camera's grid took a frame: the published grid's cells it may have changed
         (the combination, with several cameras), their tiles and status metrics marked; the

@@ -24,6 +24,7 @@ from pdcov.config.mission import Mission, MissionCamera
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError, where
+from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S
 from pdcov.ids import valid_system_id
 from pdcov.planning.mission_bounds import RetaskLimits
 from pdcov.schema import Section
@@ -116,7 +117,7 @@ class ServiceConfig:
     record: bool = True
     record_max_bytes: int = 256 << 20
     record_keep_bytes: int = 4 << 30
-    home_wait_s: float = 5.0
+    home_wait_s: float = DEFAULT_HOME_WAIT_S
     retask: bool = False
     retask_operator_keys: tuple[str, ...] = ()
     retask_window_s: float = 120.0

@@ -19,7 +19,7 @@ from pdcov.errors import InputFileError
 from pdcov.yaml_file import read_text
 
 if TYPE_CHECKING:
-    from pdcov.telemetry.log_poses import LogPoses
+    from pdcov.flight.log_frames import LogPoses
 
 POSE_CSV_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
 EXPORT_EXTRA_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "gimbal_qw", "gimbal_qx",

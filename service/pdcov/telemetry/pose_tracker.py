@@ -2,8 +2,9 @@
 
 One ``PoseTracker`` serves both drivers (DESIGN.md "one pipeline, two drivers"): the live
 daemon feeds samples as they arrive (``add_attitude`` / ``add_position`` / ``add_gimbal``)
-and asks ``pose_at(t_s)`` per camera frame; offline, ``log_poses.poses_from_log`` loads a
-whole ``FlightLog`` into one and asks ``frames_at`` for every frame time at once (vectorised).
+and asks ``pose_at(t_s)`` per camera frame; offline, ``flight/log_frames.poses_from_log``
+loads a whole ``FlightLog`` into one and asks ``frames_at`` for every frame time, in chunks
+(vectorised).
 
 Interpolation: attitude and gimbal quaternions by slerp, positions linearly in ENU, between
 the two samples that bracket the frame time; a frame whose bracketing samples of any stream
@@ -353,15 +354,19 @@ class PoseTracker:
         n = len(t)
         reason = np.full(n, "", dtype=object)
 
-        def check(name: str, inside: np.ndarray, gap_ok: np.ndarray) -> None:
-            reason[~inside & (reason == "")] = f"outside the {name} samples"
-            reason[inside & ~gap_ok & (reason == "")] = f"{name} gap"
+        def check(name: str, ts: np.ndarray, inside: np.ndarray, gap_ok: np.ndarray) -> None:
+            # After a stream's last sample is a gap in it: the daemon decides such a frame
+            # once the gap is longer than max_gap_s, before it knows whether the stream
+            # resumes (as a log then shows), so both call it a gap.
+            before = t < ts[0] if len(ts) else np.ones(n, bool)
+            reason[~inside & before & (reason == "")] = f"outside the {name} samples"
+            reason[~(inside & gap_ok) & (reason == "")] = f"{name} gap"
 
         lo, hi, w, inside, gap_ok = _bracket(self._att.t_s, t, self.max_gap_s)
-        check("attitude", inside, gap_ok)
+        check("attitude", self._att.t_s, inside, gap_ok)
         att = (lo, hi, w)
         lo, hi, w, inside, gap_ok = _bracket(self._pos_t, t, self.max_gap_s)
-        check("position", inside, gap_ok)
+        check("position", self._pos_t, inside, gap_ok)
         pos = (lo, hi, w)
         if len(self._pos_t):
             step = self._pos_enu[hi] - self._pos_enu[lo]
@@ -371,7 +376,7 @@ class PoseTracker:
         gim = (lo, hi, w)  # unused for a fixed mount
         if isinstance(self.mount, GimbalMount):
             lo, hi, w, inside, gap_ok = _bracket(self._gim.t_s, t, self.max_gap_s)
-            check("gimbal", inside, gap_ok)
+            check("gimbal", self._gim.t_s, inside, gap_ok)
             gim = (lo, hi, w)
         c = self._interpolate(n, att, pos, gim, gim[2])
         v_cam, omega = self._rates(t, c)

@@ -30,7 +30,14 @@ from pdcov.telemetry.samples import (
     usable_quaternion,
 )
 
-__all__ = ["SampleGate", "position_jump"]
+__all__ = ["SampleGate", "position_jump", "valid_home"]
+
+
+def valid_home(home: HomeSample) -> bool:
+    """A home with a finite altitude and a latitude and longitude in range (the gate
+    admits no other, once timed)."""
+    return (math.isfinite(home.alt_msl_m) and abs(home.lat_deg) <= 90
+            and abs(home.lon_deg) <= 180)
 
 
 def position_jump(a: PositionSample, b: PositionSample) -> bool:
@@ -80,9 +87,7 @@ class SampleGate:
             if not (math.isfinite(norm) and norm > 0.5):
                 self.faults[Fault.NAN_SAMPLES] += 1
                 return False
-        elif isinstance(sample, HomeSample) and not (
-                math.isfinite(sample.alt_msl_m) and abs(sample.lat_deg) <= 90
-                and abs(sample.lon_deg) <= 180):
+        elif isinstance(sample, HomeSample) and not valid_home(sample):
             self.faults[Fault.INVALID_SAMPLES] += 1
             return False
         return True

@@ -7,6 +7,7 @@ summarised in one line; the EKF verdicts are those of the core the AHRS used.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from collections import Counter, defaultdict
@@ -23,6 +24,7 @@ from pdcov.telemetry.clocks import BootClock
 from pdcov.telemetry.logs.choose import choose_gimbal
 from pdcov.telemetry.logs.flight_log import (
     FlightLog,
+    armed_changes,
     estimator_series,
     gated,
     restart_note,
@@ -112,6 +114,7 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     by_type: dict[type, list] = defaultdict(list)
     positions: dict[str, list[PositionSample]] = defaultdict(list)
     estimators: dict[str, list[EstimatorSample]] = defaultdict(list)
+    armed: list[tuple[float, bool]] = []  # ARM records, else EV ARMED / DISARMED
     error = ""
     try:
         with _silenced_output():
@@ -122,13 +125,16 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
     try:
         with _silenced_output():
             while True:
-                msg = reader.recv_match(type=list(DATAFLASH_TYPES))
+                msg = reader.recv_match(type=[*DATAFLASH_TYPES, *_ARMING_TYPES])
                 if msg is None:
                     break
                 if reader.offset - reader.formats[reader.name_to_id[msg.get_type()]].len in drop:
                     continue
                 boot_s = dataflash_boot_time_s(msg)
                 t_s = clock.now_s if boot_s is None else clock.to_s(boot_s)
+                if msg.get_type() in _ARMING_TYPES:
+                    armed += _armed_state(msg, t_s)
+                    continue
                 for sample in samples_from_dataflash(msg, t_s):
                     if isinstance(sample, PositionSample):
                         positions[msg.get_type()].append(sample)
@@ -169,7 +175,31 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
         tuple(clock.restarts_t_s), tuple(notes), tuple(damage_lines), estimator, est_source,
         tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample]),
         gnss_accuracy=GnssAccuracySeries.from_samples(by_type[GnssAccuracySample]),
-        faults=dict(sorted(faults.items())), gimbal_reports=tuple(gimbals)), -clock.offset_s)
+        faults=dict(sorted(faults.items())), gimbal_reports=tuple(gimbals),
+        armed_states=_armed_states(armed)), -clock.offset_s)
+
+
+_ARMING_TYPES = ("ARM", "EV")
+_EV_ARMED, _EV_DISARMED = 10, 11  # AP_Logger LogEvent
+
+
+def _armed_state(msg: Any, t_s: float) -> list[tuple[float, bool]]:
+    """The armed state a record gives: ARM (ArmState, ArduPilot 4.0+) or EV ARMED /
+    DISARMED (older logs have only these)."""
+    if msg.get_type() == "ARM":
+        return [(t_s, bool(msg.ArmState))]
+    if int(msg.Id) in (_EV_ARMED, _EV_DISARMED):
+        return [(t_s, int(msg.Id) == _EV_ARMED)]
+    return []
+
+
+def _armed_states(armed: list[tuple[float, bool]]) -> tuple[tuple[float, bool], ...] | None:
+    """The log's armed states (FlightLog.armed_states): before its first arming record
+    the vehicle was in the other state, from the log's start."""
+    changes = armed_changes(armed)
+    if changes is None:
+        return None
+    return ((-math.inf, not changes[0][1]), *changes)
 
 
 _EKF_LOGS = {3: ("XKF4", "EKF3"), 2: ("NKF4", "EKF2")}

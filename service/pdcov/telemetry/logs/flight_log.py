@@ -61,6 +61,10 @@ class FlightLog:
     other_systems_messages; only those counted). gimbal_reports: every gimbal report of
     the vehicle (any device; ``gimbal`` follows one: choose.for_gimbal follows another),
     autopilot_component: the followed autopilot's MAVLink component (1 for other logs).
+    armed_states: (t_s, armed) where the autopilot's armed state is first known and where
+    it changes (a tlog's HEARTBEATs, DataFlash ARM / EV records, ULog vehicle_status; t_s
+    -inf: known from the log's start); None: the log tells none (as a link without
+    HEARTBEAT).
     """
 
     path: str
@@ -89,6 +93,7 @@ class FlightLog:
     faults: Mapping[str, int] = field(default_factory=dict)
     gimbal_reports: tuple[GimbalSample, ...] = ()
     autopilot_component: int = 1
+    armed_states: tuple[tuple[float, bool], ...] | None = None
 
 
 
@@ -97,6 +102,17 @@ def gated(gate: SampleGate, samples: Iterable[_Sample]) -> list[_Sample]:
     faults: the daemon's checks (telemetry/sample_gate.py), for the readers whose log is
     no MAVLink stream (DataFlash, ULog)."""
     return [s for s in samples if gate.admit(s)]
+
+
+def armed_changes(states: Iterable[tuple[float, bool]]
+                  ) -> tuple[tuple[float, bool], ...] | None:
+    """The first of ``states`` ((t_s, armed), time order) and those that change it; None
+    without any."""
+    out: list[tuple[float, bool]] = []
+    for t_s, armed in states:
+        if not out or out[-1][1] != armed:
+            out.append((t_s, armed))
+    return tuple(out) if out else None
 
 
 def estimator_series(samples: list[EstimatorSample], source: str
@@ -134,4 +150,6 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                    gimbal_reports=tuple(replace(g, t_s=g.t_s + dt_s)
                                         for g in log.gimbal_reports),
                    lens=tuple(replace(s, t_s=s.t_s + dt_s) for s in log.lens),
-                   restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s))
+                   restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s),
+                   armed_states=None if log.armed_states is None else
+                   tuple((t + dt_s, a) for t, a in log.armed_states))

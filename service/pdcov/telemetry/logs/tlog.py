@@ -27,7 +27,13 @@ from pdcov.telemetry.adapters import mavlink_boot_time_s
 from pdcov.telemetry.clocks import COMPONENT_CLOCK_WINDOW_S
 from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.logs.choose import choose_gimbal, choose_system
-from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, restart_note, shifted
+from pdcov.telemetry.logs.flight_log import (
+    FlightLog,
+    armed_changes,
+    estimator_series,
+    restart_note,
+    shifted,
+)
 from pdcov.telemetry.recorded_frames import (
     BOX,
     MARK,
@@ -47,6 +53,7 @@ from pdcov.telemetry.samples import (
     EstimatorSample,
     GimbalSample,
     GnssAccuracySample,
+    HeartbeatSample,
     HomeSample,
     LensSample,
     ParamSample,
@@ -238,7 +245,8 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         tuple(frame_boxes), tuple(sorted(smp[LensSample], key=lambda s: s.t_s)),
         GnssAccuracySeries.from_samples(smp[GnssAccuracySample]),
         {k: n for k, n in sorted(faults.items()) if n}, tuple(v.samples[GimbalSample]),
-        ap_comp), -proto.clock_state()[0])
+        ap_comp, armed_changes((h.t_s, h.armed) for h in smp[HeartbeatSample])),
+        -proto.clock_state()[0])
 
 
 def _recorded_frames_note(n_recorded: int, n_camera: int) -> str:

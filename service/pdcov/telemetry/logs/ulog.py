@@ -18,7 +18,7 @@ import numpy as np
 from pdcov.errors import TelemetryError
 from pdcov.telemetry.adapters import CONST_POS_MODE, ESTIMATOR_GPS_GLITCH, POS_HORIZ_ABS
 from pdcov.telemetry.logs.choose import choose_gimbal
-from pdcov.telemetry.logs.flight_log import FlightLog, estimator_series, gated
+from pdcov.telemetry.logs.flight_log import FlightLog, armed_changes, estimator_series, gated
 from pdcov.telemetry.sample_gate import SampleGate
 from pdcov.telemetry.samples import (
     AttitudeSample,
@@ -43,7 +43,8 @@ _ULOG_GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 _ULOG_TOPICS = ["vehicle_attitude", "vehicle_global_position", *_ULOG_GPS_TOPICS,
                 "gimbal_device_attitude_status", "home_position", "camera_capture",
                 "camera_trigger", "estimator_status", "estimator_selector_status",
-                "distance_sensor"]
+                "distance_sensor", "vehicle_status"]
+_ARMING_STATE_ARMED = 2  # vehicle_status.arming_state (PX4 VehicleStatus.msg)
 _GPS_FIX_3D = 3  # fix_type: 0-1 no fix, 2 2D, 3 3D, 4 DGPS, 5 RTK float, 6 RTK fixed
 
 
@@ -187,7 +188,11 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
                      (), tuple(sorted(rangefinder, key=lambda r: r.t_s)),
                      gnss_accuracy=GnssAccuracySeries.from_samples(gnss),
                      faults=dict(sorted(faults.items())),
-                     gimbal_reports=tuple(gimbal_samples))
+                     gimbal_reports=tuple(gimbal_samples),
+                     armed_states=armed_changes(
+                         (float(t), int(a) == _ARMING_STATE_ARMED) for t, a in zip(
+                             t_of("vehicle_status"), col("vehicle_status", "arming_state"),
+                             strict=True)) if "vehicle_status" in topics else None)
 
 
 _PX4_QUALITY_INVALID = 0  # distance_sensor.signal_quality: 0 invalid, -1 unknown, 100 best

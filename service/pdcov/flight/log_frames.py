@@ -1,21 +1,23 @@
 """The offline driver: a whole flight log -> the camera poses at its frames (``poses_of_log``
 of a log read once for every camera; ``poses_from_log`` of a file).
 
-Loads the log read (``telemetry.logs``) into one ``PoseTracker`` and asks for every
-frame time at once, in chunks; the frames used are ``frame_selection``'s (the daemon's
-rule); frames are placed by the rule the daemon uses
-(``frame_policy.FrameLattice``) or at the log's capture events. Times are seconds in the
-autopilot clock, positions ENU metres about the resolved origin, the ground altitude m MSL.
+Loads the log read (``telemetry.logs``) into one ``PoseTracker`` and decides every frame
+time, in chunks, by the daemon's own decision (``frame_decision.decide_frames``: the frames
+used, the others counted under the daemon's keys); frames are placed by the rule the daemon
+uses (``frame_policy.FrameLattice``) or at the log's capture events; the ground altitude is
+the daemon's ``GroundAltitude`` fed the log's homes, armed states and first position in time
+order (``ground_alt_of_log``). Times are seconds in the autopilot clock, positions ENU
+metres about the resolved origin, the ground altitude m MSL.
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -23,20 +25,15 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box
 from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
-from pdcov.core.pose import CameraPose, FixedMount
+from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import euler_zyx_from_R_many
-from pdcov.core.zoom import Zoom
 from pdcov.errors import ConfigError, TelemetryError
+from pdcov.flight.frame_decision import FrameCounts, Framing, decide_frames
+from pdcov.flight.frame_selection import SelectedFrames
+from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S, GroundAltitude
 from pdcov.telemetry.estimator import REASONS as ESTIMATOR_REASONS
 from pdcov.telemetry.estimator import describe as describe_estimator
-from pdcov.telemetry.frame_policy import (
-    FrameLattice,
-    FrameSource,
-    home_ground_alt,
-    position_ground_alt,
-    untrusted_policy,
-)
-from pdcov.telemetry.frame_selection import select_frames
+from pdcov.telemetry.frame_policy import FrameLattice, FrameSource, untrusted_policy
 from pdcov.telemetry.gimbal import GimbalMount, resolve_interpretation
 from pdcov.telemetry.gnss_accuracy import describe_accuracy
 from pdcov.telemetry.lens_reports import LensReports, describe_lens
@@ -44,6 +41,8 @@ from pdcov.telemetry.logs import FlightLog, read_flight_log
 from pdcov.telemetry.pose_tracker import FrameBatch, PoseTracker
 from pdcov.telemetry.recorded_frames import SOURCE as RECORDED_SOURCE
 from pdcov.telemetry.recorded_frames import frame_source_for
+from pdcov.telemetry.sample_gate import valid_home
+from pdcov.telemetry.samples import PositionSample
 from pdcov.telemetry.terrain_check import TerrainCheck, check_flight_log
 
 
@@ -69,6 +68,8 @@ class LogPoses:
     (gnss_accuracy.py; None: unknown). faults: the bad messages and samples counted while
     reading the log (FlightLog.faults: the daemon's fault keys). low: per used frame, the
     camera below min_height_m (frame_selection: added to no grid, as live).
+    frames_skipped: the frames not used, by the daemon's reasons (its status's
+    frames.skipped: frame_decision.decide_frames, low frames among them).
     """
 
     poses: tuple[CameraPose, ...]
@@ -90,6 +91,7 @@ class LogPoses:
     accuracies: tuple[PositionAccuracy | None, ...] = ()
     faults: Mapping[str, int] = field(default_factory=dict)
     low: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    frames_skipped: Mapping[str, int] = field(default_factory=dict)
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -104,23 +106,55 @@ class LogPoses:
                     self.untrusted_reason[i]])
 
 
-def _ground_alt(log: FlightLog, ground_alt_msl_m: float | None,
-                ground_alt_how: str) -> tuple[float, str]:
-    """The ground altitude of a whole log: the mission's (``ground_alt_how`` says where it came
-    from), else the last home (frame_policy.home_ground_alt, as the daemon falls back to),
-    else the first position's (frame_policy.position_ground_alt)."""
-    if ground_alt_msl_m is not None:
-        return float(ground_alt_msl_m), ground_alt_how
-    home = home_ground_alt(log.homes)
-    if home is not None:
-        return home
+def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, str]:
+    """The ground altitude (m MSL) ``ground`` (the daemon's rule) gives a whole log, and how
+    it was found: told the log's homes (those the daemon's sample gate admits), armed
+    states and first position with a height above home in time order, and asked before
+    each new time as the daemon asks after every sample (with the newest attitude or
+    position before it), then at the log's end."""
+    att_t, pos_t = log.attitude.t_s, log.position.t_s
+
+    def newest_before(t_s: float) -> float:
+        newest = -math.inf
+        for times in (att_t, pos_t):
+            i = int(np.searchsorted(times, t_s, side="left"))
+            if i:
+                newest = max(newest, float(times[i - 1]))
+        return newest
+
+    # What a log holds of one instant is told at once (DataFlash logs ORGN's EKF origin and
+    # home at the arming's TimeUS; a link delivers such messages in one read).
+    events: list[tuple[float, int, Callable[[], None]]] = [
+        (t_s, 0, partial(ground.add_armed_state, t_s, armed))
+        for t_s, armed in log.armed_states or ()]
+    events += [(h.t_s, 1, partial(ground.add_home, h)) for h in log.homes
+               if math.isfinite(h.t_s) and valid_home(h)]
     p = log.position
-    ok = np.isfinite(p.relative_alt_m)
-    if ok.any():
-        i = int(np.argmax(ok))
-        return position_ground_alt(p.alt_msl_m[i], p.relative_alt_m[i])
-    raise TelemetryError(f"{log.path}: the log gives no home altitude (no HOME_POSITION, ORGN "
-                         "or relative altitude); set origin.ground_alt_msl_m in the config")
+    first = np.flatnonzero(np.isfinite(p.relative_alt_m))
+    if len(first):
+        i = int(first[0])
+        events.append((float(p.t_s[i]), 2, partial(ground.add_position, PositionSample(
+            float(p.t_s[i]), float(p.lat_deg[i]), float(p.lon_deg[i]), float(p.alt_msl_m[i]),
+            float(p.relative_alt_m[i])))))
+    told_t_s = math.nan
+    for t_s, _kind, tell in sorted(events, key=lambda e: e[:2]):
+        if t_s != told_t_s:
+            alt, how = ground.ground_alt(newest_before(t_s))
+            if alt is not None:
+                return alt, how
+            told_t_s = t_s
+        tell()
+    end_s = max(float(att_t[-1]) if len(att_t) else -math.inf,
+                float(pos_t[-1]) if len(pos_t) else -math.inf)
+    alt, how = ground.ground_alt(end_s, ended=True)
+    if alt is None:
+        raise TelemetryError(f"{log.path}: the log gives no home altitude (no HOME_POSITION, "
+                             "ORGN or relative altitude); set origin.ground_alt_msl_m in the "
+                             "config")
+    if (ground.configured_m is None and log.armed_states is not None
+            and ground.armed_t_s is None):
+        how += "; the vehicle never armed in the log (pdcov serve waits for arming)"
+    return alt, how
 
 
 def _intervals(t: np.ndarray, step_s: float) -> list[tuple[float, float, int]]:
@@ -161,45 +195,51 @@ def frame_times(tracker: PoseTracker, log: FlightLog, frame_rate_hz: float,
 _CHUNK = 4096
 
 
-def poses_from_log(path: str | Path, *, system_id: int | None = None,
-                   mount: FixedMount | GimbalMount, **how: Any) -> LogPoses:
+def poses_from_log(path: str | Path, framing: Framing, *, origin_lat_deg: float,
+                   origin_lon_deg: float, ground_alt_msl_m: float | None,
+                   system_id: int | None = None, ground_alt_how: str = "configured",
+                   home_wait_s: float = DEFAULT_HOME_WAIT_S, progress: bool = False,
+                   terrain_check: TerrainCheck | None = None) -> LogPoses:
     """Camera poses of a flight log file (.tlog, DataFlash .bin, PX4 .ulg) at the camera's
     frames: the log read (``read_flight_log``: ``system_id`` the MAVLink system to follow,
-    None: the autopilot announced by HEARTBEAT) and ``poses_of_log`` with ``mount`` and
-    ``how``, its other arguments."""
+    None: the autopilot announced by HEARTBEAT) and ``poses_of_log`` with the other
+    arguments."""
+    mount = framing.mount
     log = read_flight_log(path, system_id=system_id,
                           gimbal_instance=mount.instance if isinstance(mount, GimbalMount)
                           else 1)
-    return poses_of_log(log, mount=mount, **how)
+    return poses_of_log(log, framing, origin_lat_deg=origin_lat_deg,
+                        origin_lon_deg=origin_lon_deg, ground_alt_msl_m=ground_alt_msl_m,
+                        ground_alt_how=ground_alt_how, home_wait_s=home_wait_s,
+                        progress=progress, terrain_check=terrain_check)
 
 
-def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float,
-                 ground_alt_msl_m: float | None, mount: FixedMount | GimbalMount,
-                 frame_rate_hz: float, frame_source: str | None = "rate",
-                 max_gap_s: float = 1.0, progress: bool = False,
-                 estimator_status: bool = True, ground_alt_how: str = "configured",
-                 terrain_check: TerrainCheck | None = None, zoom: Zoom | None = None,
-                 min_height_m: float = -math.inf) -> LogPoses:
+def poses_of_log(log: FlightLog, framing: Framing, *, origin_lat_deg: float,
+                 origin_lon_deg: float, ground_alt_msl_m: float | None,
+                 ground_alt_how: str = "configured", home_wait_s: float = DEFAULT_HOME_WAIT_S,
+                 progress: bool = False, terrain_check: TerrainCheck | None = None
+                 ) -> LogPoses:
     """Camera poses of a flight log read (``read_flight_log``; for a camera of another
-    gimbal device, ``logs.for_gimbal``) at the camera's frames.
+    gimbal device, ``logs.for_gimbal``) at the frames of ``framing`` (frame_decision).
 
     origin_*_deg: the ENU origin; ground_alt_msl_m: ground altitude there (m MSL), None =
-    the autopilot's home altitude from the log; ground_alt_how: where a given one came from
-    ('configured', 'the DEM at the origin'), for the summary. frame_source 'rate' places
-    frames every 1/frame_rate_hz s; 'capture' at the log's capture events; None (the user
-    chose none): at the detector frames ``pdcov serve`` recorded in the log if it holds any,
-    else 'rate' (recorded_frames.frame_source_for; a chosen 'rate' over such a log warns).
-    Frames whose telemetry has a gap longer than max_gap_s are skipped; untrusted gimbal
-    frames follow mount.untrusted. estimator_status: skip frames the autopilot's estimator
-    calls bad (estimator.py). terrain_check: fed the log's samples
-    (terrain_check.check_flight_log), when given. zoom: the camera's zoom (lens_reports.py
-    picks each frame's report; None: the configured camera for every frame).
-    min_height_m: frames with the camera lower are marked in ``low`` (m above the ground;
-    -inf: none). Raises TelemetryError / ConfigError with a message naming the file.
+    the autopilot's home at arming, as the daemon finds it (``ground_alt_of_log``, waiting
+    home_wait_s of autopilot time for it); ground_alt_how: where a given one came from
+    ('configured', 'the DEM at the origin'), for the summary. framing.frame_source 'rate'
+    places frames every 1/frame_rate_hz s; 'capture' at the log's capture events; None (the
+    user chose none): at the detector frames ``pdcov serve`` recorded in the log if it holds
+    any, else 'rate' (recorded_frames.frame_source_for; a chosen 'rate' over such a log
+    warns). Frames are decided by ``frame_decision.decide_frames`` (gaps longer than
+    max_gap_s, untrusted gimbal frames by mount.untrusted, the estimator's verdicts, the
+    zoom report in force, ``low``: below min_height_m). terrain_check: fed the log's
+    samples (terrain_check.check_flight_log), when given. Raises TelemetryError /
+    ConfigError with a message naming the file.
     """
+    mount, zoom = framing.mount, framing.zoom
     if terrain_check is not None:
         check_flight_log(terrain_check, log)
-    ground_alt, ground_how = _ground_alt(log, ground_alt_msl_m, ground_alt_how)
+    ground_alt, ground_how = ground_alt_of_log(
+        log, GroundAltitude(ground_alt_msl_m, home_wait_s, ground_alt_how))
     origin = Origin(origin_lat_deg, origin_lon_deg, ground_alt)
     interp = None
     if isinstance(mount, GimbalMount):
@@ -218,9 +258,10 @@ def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float
                  "ulog": "the ULog parameters"}[log.format]
         interp = resolve_interpretation(mount, log.params, where)
     lens = None if zoom is None else LensReports(zoom)
+    max_gap_s, frame_rate_hz = framing.max_gap_s, framing.frame_rate_hz
     tracker = PoseTracker.from_flight_log(log, origin, mount, interp, max_gap_s,
-                                          use_estimator=estimator_status, lens=lens)
-    choice = frame_source_for(frame_source,
+                                          use_estimator=framing.estimator_status, lens=lens)
+    choice = frame_source_for(framing.frame_source,
                               sum(c.source == RECORDED_SOURCE for c in log.captures))
     frame_source = choice.source
     t, how = frame_times(tracker, log, frame_rate_hz, frame_source)
@@ -229,15 +270,15 @@ def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float
     if progress:
         from tqdm import tqdm
         chunks = tqdm(chunks, desc="poses", unit="chunk", total=len(chunks))
-    batches = [tracker.frames_at(t[i:i + _CHUNK]) for i in chunks]
-    cat = {name: np.concatenate([getattr(b, name) for b in batches]) if batches else
-           np.zeros(0) for name in FrameBatch.__slots__}
-    b = FrameBatch(**cat)
+    counts = FrameCounts.new()
+    decided = [decide_frames(tracker, t[i:i + _CHUNK], framing, counts) for i in chunks]
+    b = FrameBatch(**{name: np.concatenate([getattr(d.batch, name) for d in decided])
+                      for name in FrameBatch.__slots__})
+    sel = SelectedFrames.concatenate([d.selected for d in decided])
+    use, poses = sel.use, sel.poses
 
     valid = b.valid
     policy = untrusted_policy(mount)
-    sel = select_frames(b, mount, zoom, min_height_m)
-    use, poses = sel.use, sel.poses
     rpy = np.degrees(euler_zyx_from_R_many(b.R_ned_body[use])) if use.any() else np.zeros((0, 3))
 
     step = 1.0 / frame_rate_hz if frame_source == "rate" else max_gap_s
@@ -260,7 +301,8 @@ def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float
     checkable = valid | np.isin(b.skip_reason, ESTIMATOR_REASONS)
     lines.append(describe_estimator(log.estimator, log.estimator_source,
                                     int((b.estimator_judged & checkable).sum()),
-                                    int(checkable.sum()), estimator_status))
+                                    int(checkable.sum()), framing.estimator_status))
+    lines.append(describe_skipped(counts))
     if lens is not None:
         lines.append(describe_lens(lens, b.lens_value[use]))
     lines.append(describe_accuracy(log.gnss_accuracy, sel.accuracies))
@@ -289,8 +331,9 @@ def poses_of_log(log: FlightLog, *, origin_lat_deg: float, origin_lon_deg: float
                     tuple(str(s) for s in b.untrusted_reason[use]), b.at_limit[use].copy(),
                     skipped, tuple(x for x in (choice.warning,) if x),
                     _frame_boxes(log) if frame_source == "capture" else {},
-                    sel.cameras if zoom is not None else (), sel.accuracies, log.faults,
-                    sel.low)
+                    sel.cameras if zoom is not None else (), sel.accuracies,
+                    {**log.faults, **{str(k): n for k, n in counts.faults.items() if n}},
+                    sel.low, dict(counts.skipped))
 
 
 def describe_faults(faults: Mapping[str, int]) -> str:
@@ -300,6 +343,18 @@ def describe_faults(faults: Mapping[str, int]) -> str:
         return "bad telemetry: none counted"
     return ("bad telemetry counted (as pdcov serve counts it in its status): "
             + ", ".join(f"{k} {n}" for k, n in faults.items()))
+
+
+def describe_skipped(counts: FrameCounts) -> str:
+    """The summary line of the frames not used, by the reasons and fault keys the daemon's
+    status counts them under (frames.skipped, faults)."""
+    faults = {str(k): n for k, n in counts.faults.items() if n}
+    if not counts.skipped and not faults:
+        return "frames skipped (as pdcov serve counts them in its status): none"
+    return ("frames skipped (as pdcov serve counts them in its status): "
+            + (", ".join(f"{r} {n}" for r, n in counts.skipped.most_common()) or "none")
+            + ("; faults: " + ", ".join(f"{k} {n}" for k, n in faults.items())
+               if faults else ""))
 
 
 def _frame_boxes(log: FlightLog) -> dict[float, tuple[float, tuple[Box, ...]]]:

@@ -1,6 +1,6 @@
-"""Which frames of a ``FrameBatch`` are used, and their poses: ``select_frames``, the one rule
-both drivers apply (the daemon's flight/camera_frames.py per batch of decided frames,
-``pdcov evaluate``'s log_poses.py over a whole log).
+"""Which frames of a ``FrameBatch`` are used, and their poses: ``select_frames``, the rule
+both drivers apply through flight/frame_decision.decide_frames (the daemon's per batch of
+decided frames, ``pdcov evaluate``'s per chunk of a whole log).
 
 A frame is used when it is valid (every stream brackets it) and trusted, or the mount uses
 untrusted frames too (frame_policy.frames_used); its camera rotation is rebuilt from its
@@ -11,6 +11,7 @@ marked ``low`` and added to no grid.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -49,6 +50,16 @@ class SelectedFrames:
     cameras: tuple[CameraModel | None, ...]
     accuracies: tuple[PositionAccuracy | None, ...]
     low: np.ndarray
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[SelectedFrames]) -> SelectedFrames:
+        """The selections of consecutive batches as one (of their batches concatenated)."""
+        return cls(np.concatenate([p.use for p in parts]),
+                   tuple(x for p in parts for x in p.poses),
+                   np.concatenate([p.q_enu_cam_wxyz for p in parts]),
+                   tuple(x for p in parts for x in p.cameras),
+                   tuple(x for p in parts for x in p.accuracies),
+                   np.concatenate([p.low for p in parts]))
 
 
 def select_frames(b: FrameBatch, mount: FixedMount | GimbalMount, zoom: Zoom | None,
