@@ -50,7 +50,7 @@ from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
-from pdcov.flight.camera_frames import CameraFrames
+from pdcov.flight.camera_frames import CameraFrames, TrackedSample
 from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.frame_schedule import FrameSchedule
 from pdcov.flight.ground_altitude import GroundAltitude
@@ -59,22 +59,11 @@ from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
 from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
+from pdcov.telemetry import samples as smp
 from pdcov.telemetry.frame_policy import FrameLattice, FrameSource
 from pdcov.telemetry.gimbal import GimbalInterpretation
 from pdcov.telemetry.pose_tracker import PoseTracker
 from pdcov.telemetry.sample_gate import SampleGate
-from pdcov.telemetry.samples import (
-    AttitudeSample,
-    CaptureSample,
-    EstimatorSample,
-    GimbalSample,
-    GnssAccuracySample,
-    HeartbeatSample,
-    HomeSample,
-    LensSample,
-    PositionSample,
-    Sample,
-)
 from pdcov.telemetry.terrain_check import TerrainCheck, terrain_check_for
 
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
@@ -175,7 +164,7 @@ class LiveCoverage:
 
     # --- telemetry in ---------------------------------------------------------------------
 
-    def add_sample(self, sample: Sample) -> None:
+    def add_sample(self, sample: smp.Sample) -> None:
         """A sample from the link, stamped in the autopilot clock (s)."""
         check = self.terrain_check
         if check is not None:  # every sample, as offline: it refuses its own
@@ -184,21 +173,21 @@ class LiveCoverage:
                 self._refuse_dem(check)
         if not self.gate.admit(sample):  # sample_gate: the tlog reader's rule too
             return
-        if isinstance(sample, HomeSample):
+        if isinstance(sample, smp.HomeSample):
             self._ground.add_home(sample)
             return
-        if isinstance(sample, HeartbeatSample):
+        if isinstance(sample, smp.HeartbeatSample):
             self._ground.add_heartbeat(sample)
             return
-        if isinstance(sample, CaptureSample):
+        if isinstance(sample, smp.CaptureSample):
             if self.frame_source == FrameSource.CAPTURE:
                 self.add_frame_times([sample.t_s])
             return
-        if isinstance(sample, PositionSample):
+        if isinstance(sample, smp.PositionSample):
             self._ground.add_position(sample)
-        if isinstance(sample, EstimatorSample):
+        if isinstance(sample, smp.EstimatorSample):
             self._estimator_seen = True
-        if isinstance(sample, LensSample) and self.cfg.mission.several_cameras:
+        if isinstance(sample, smp.LensSample) and self.cfg.mission.several_cameras:
             # Each report to the camera that follows its camera component; a report of a
             # camera none follows is counted, not used. (One camera follows the first heard
             # when zoom_lens.component_id is not set, and counts the others itself.)
@@ -208,8 +197,7 @@ class LiveCoverage:
             else:
                 follower.add(sample)
             return
-        if isinstance(sample, (AttitudeSample, PositionSample, GimbalSample, EstimatorSample,
-                               LensSample, GnssAccuracySample)):
+        if isinstance(sample, TrackedSample):
             for cam in self.cameras:
                 cam.add(sample)
 
