@@ -194,9 +194,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                own.frames))
     if flight_log is not None:
         _other_cameras(flight_log, mission, per_camera, frame_source, lines)
-    if mission.several_cameras:
-        # Each camera's looks in the same cells, by the one rule the daemon applies too.
-        combine_cameras(grid, list(per_camera.values()))
+    # Each camera's looks in the same cells, by the one rule the daemon applies too.
+    combine_cameras(grid, list(per_camera.values()))
     detections = None
     if log_poses is not None and log_poses.frame_boxes:
         from pdcov.ids import candidate_uid_prefix

@@ -24,7 +24,11 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
     log-misses add, P_D = 1 - prod over models of P_miss. With independent looks every
     camera's log-miss adds. P_FA and the observation counts add; the limiting factor is the
     best (over the whole grid, whatever the window); the frame counts are the sums
-    (``min_revisit_s`` applies per camera, in its own grid)."""
+    (``min_revisit_s`` applies per camera, in its own grid). One camera's grid that is
+    ``into`` itself (config.Mission.camera_grids) is already the combination: left as is,
+    its looks state with it."""
+    if len(grids) == 1 and grids[0] is into:
+        return
     if into.looks_state is not None:
         raise ValueError("combine_cameras writes derived log-misses: into must be a grid of "
                          "independent looks")

@@ -133,8 +133,6 @@ class LiveCoverage:
         self._next_terrain_warning_s = -math.inf
         # Each camera its own grid; the published one is their combination
         # (core.combine_cameras, as evaluate), or the one camera's own (Mission.camera_grids).
-        if m.several_cameras and grid.looks_state is not None:
-            raise ValueError("several cameras publish Mission.new_mission_grid()")
         grids = m.camera_grids(grid, camera_grids)
         self.cameras = [
             CameraFrames(cam, grids[cam.name], framing=framing_of(cam, m, self.frame_source),
@@ -144,9 +142,8 @@ class LiveCoverage:
         self.first = self.cameras[0]  # Mission.first_camera's: frame times, detections, pose
         self._zoom_followers = {cam.cam.zoom.camera_id: cam for cam in self.cameras
                                 if cam.cam.zoom is not None}
-        if m.several_cameras:
-            combine_cameras(grid, self.camera_grids)
-            self.state.frames = grid.frames
+        combine_cameras(grid, self.camera_grids)
+        self.state.frames = grid.frames
         ts = cfg.bus.tile_size
         self.tile_size = ts
         self.tile_sender = TileSender(grid, self.state, self.grid_hash, ts,
@@ -361,8 +358,8 @@ class LiveCoverage:
         (the combination, with several cameras), their tiles and status metrics marked; the
         first camera's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
         window = cam.grid.touched
-        if self.cfg.mission.several_cameras:  # limiting: the whole grid's, even no window
-            combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
+        # limiting: the whole grid's, even with no window
+        combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
         if window is not None:
             self.tile_sender.touch(window)
             self.metrics.mark(window)
