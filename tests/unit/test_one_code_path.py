@@ -17,11 +17,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.cli import main
 from pdcov.flight import camera_frames, frame_decision, log_frames
 from pdcov.flight.ground_altitude import GroundAltitude
+from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.sample_gate import SampleGate
 from tests.support.link_feed import (
@@ -227,4 +229,36 @@ def test_a_home_moved_after_arming_gives_the_daemon_and_evaluate_the_home_at_arm
     with np.load(out / "grid.npz") as g:
         assert g["frames"] == feed.live.grid.frames >= 30
         np.testing.assert_array_equal(g["n_obs"], feed.live.grid.n_obs)
+        np.testing.assert_array_equal(g["log_miss_d"], feed.live.grid.log_miss_d)
+
+
+def test_a_parameter_read_before_the_autopilots_first_time_is_used_by_both(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A PARAM_VALUE the autopilot answers before its first timed message (as real
+    ArduCopter does when the daemon asks at once): counted untimed by both, and its value
+    used by both -- the daemon's LinkProtocol keeps it, so evaluate's reader must too (it
+    once dropped it, read the gimbal by its flags, and gave another grid)."""
+    mav = mavlink.MAVLink(None)
+    msgs = Hover(seconds=4.0).messages()
+    servo = mav.param_value_encode(b"MNT1_TYPE", 1.0, 9, 900, 0)  # servo: a body-frame gimbal
+    out = [*msgs[:2], servo, *msgs[2:]]
+    assert out[3].get_type() == "HEARTBEAT" and out[4].get_type() == "ATTITUDE"
+    tlog = tmp_path / "param_first.tlog"
+    tlog.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 1000 * i)
+                              + pack(m, seq=i) for i, m in enumerate(out)))
+    path = tmp_path / "gimbal.yaml"
+    serve_config(tmp_path)
+    doc = yaml.safe_load(path.read_text())
+    doc["mount"]["attitude_frame"] = "auto"  # MNT1_TYPE decides how the gimbal is read
+    path.write_text(yaml.safe_dump(doc))
+    feed = feed_tlog(load_serve_config(path), tlog)
+    assert feed.core.protocol.params["MNT1_TYPE"] == 1.0
+    out_dir = tmp_path / "run"
+    assert main(["evaluate", "--config", str(tmp_path / "gimbal.yaml"), "--log", str(tlog),
+                 "--out", str(out_dir), "--no-progress"]) == 0
+    assert "has no MNT1_TYPE" not in capsys.readouterr().out
+    faults = json.loads((out_dir / "metrics.json").read_text())["telemetry_faults"]
+    assert faults["untimed_samples"] == feed.live.counters.faults["untimed_samples"] >= 1
+    with np.load(out_dir / "grid.npz") as g:
+        assert g["frames"] == feed.live.grid.frames >= 20
         np.testing.assert_array_equal(g["log_miss_d"], feed.live.grid.log_miss_d)

@@ -107,8 +107,10 @@ class _Vehicle:
                 self.component_untimed[comp] += 1
             kind = type(smp)
             # A home refused stays in the log: the terrain check takes every sample before
-            # the gate, live too (a home needs no autopilot time).
-            if not self.gate.admit(smp) and kind is not HomeSample:
+            # the gate, live too (a home needs no autopilot time). So does a parameter: the
+            # daemon's LinkProtocol keeps every PARAM_VALUE it reads, timed or not (one read
+            # before the autopilot's first timed message is counted untimed, and used).
+            if not self.gate.admit(smp) and kind not in (HomeSample, ParamSample):
                 continue
             self.samples[kind].append(smp)
             if kind is CaptureSample:
