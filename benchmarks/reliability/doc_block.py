@@ -18,12 +18,13 @@ from .soak import SoakResult
 
 
 def fuzz(examples: int) -> dict[str, object]:
-    """Run the fuzz properties (tests/slow/test_fuzz_link.py, tests/unit/test_fuzz_inputs.py)
-    with ``examples`` examples each."""
+    """Run the fuzz properties (tests/slow/test_fuzz_link.py, tests/unit/test_fuzz_files.py,
+    tests/unit/test_fuzz_state.py) with ``examples`` examples each."""
     env = dict(os.environ, PDCOV_FUZZ_EXAMPLES=str(examples))
     start = time.monotonic()
     res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                          "tests/slow/test_fuzz_link.py", "tests/unit/test_fuzz_inputs.py"],
+                          "tests/slow/test_fuzz_link.py", "tests/unit/test_fuzz_files.py",
+                          "tests/unit/test_fuzz_state.py"],
                          cwd=ROOT, env=env, capture_output=True, text=True)
     last = (res.stdout.strip().splitlines() or [""])[-1]
     return {"examples": examples, "exit": res.returncode, "summary": last,
