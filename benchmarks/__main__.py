@@ -13,28 +13,25 @@ from pathlib import Path
 import numpy as np
 
 from pdcov.core.looks import LooksConfig, LooksRule
-from tests.support.references import ReferenceGrid, pixel_rays, r1_update, r2_update
-
-from .blur import blur_rows
-from .measure import (
+from tests.support.grid_agreement import (
+    R1_MIN_SHARE,
+    R1_TOLERANCE_PD,
+    R2_MIN_SHARE,
+    R2_TOLERANCE_PD,
     Agreement,
     agreement,
-    floor_pass_s,
-    peak_update_memory_bytes,
-    time_frames,
-    time_updates,
 )
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update, r2_update
+from tests.support.scenarios import Scenario, scenarios, spaced, strided
+from tests.support.terrain_site import TerrainSite
+
+from .blur import blur_rows
+from .measure import floor_pass_s, peak_update_memory_bytes, time_frames, time_updates
 from .offline import evaluate_run, optimise_run
 from .report import Row, machine, markdown, write_readme_block
-from .scenarios import Scenario, scenarios, spaced, strided
-from .terrain import TerrainSite, s5_rows, valley_rows
+from .terrain import s5_rows, valley_rows
 
 README = Path(__file__).resolve().parent.parent / "README.md"
-# R1 counts pixel centres: a cell's count differs from its area by up to about its perimeter
-# in pixels, which moves cells near a bin edge into the next bin. R2 computes what pdcov does
-# with OpenCV's projectPoints in float64; pdcov's float32 pixel maps differ by ~1e-4 px.
-R1_TOLERANCE_PD, R1_MIN_SHARE = 0.05, 0.95
-R2_TOLERANCE_PD, R2_MIN_SHARE = 1e-5, 0.999
 
 
 @dataclass(frozen=True)

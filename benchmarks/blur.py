@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from pdcov.core.grid import CoverageGrid
 from tests.support.blur_detector import blur_detector
+from tests.support.scenarios import Scenario, strided
 
 from .measure import time_updates
 from .report import Row
-from .scenarios import Scenario, strided
 
 
 def blur_rows(sc: Scenario, max_frames: int, exposure_s: float = 0.004) -> list[Row]:

@@ -31,7 +31,7 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,9 +48,9 @@ from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
 from pdcov.planning.terrain_follow import TerrainFollowing, follow_terrain
 from tests.support.harness import child, free_port, serve_args
+from tests.support.scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario, scenarios
 
 from .report import Row, machine, markdown
-from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario, scenarios
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -241,21 +241,28 @@ def rows(r: DaemonRun, sc: Scenario) -> list[Row]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.daemon", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--window-s", type=float, default=60.0,
-                        help="seconds measured once frames are counted (60)")
+    parser.add_argument("--window-s", type=float,
+                        help="seconds measured once frames are counted (60; --smoke: 3)")
     parser.add_argument("--smoke", action="store_true", help="tiny scenario, a few seconds")
     parser.add_argument("--scenario", choices=("S1", "S5"), default="S1",
                         help="S1 on flat ground (default), or S5: the same survey over a 1 km "
                              "valley DEM, the plan following the terrain")
+    parser.add_argument("--json", type=Path, metavar="PATH",
+                        help="also write the figures and each row's verdict (null: no target) "
+                             "to PATH as JSON")
     args = parser.parse_args(argv)
     sc = scenarios(args.smoke)[args.scenario]
-    window = 3.0 if args.smoke else args.window_s
+    window = args.window_s if args.window_s is not None else (3.0 if args.smoke else 60.0)
     with tempfile.TemporaryDirectory(prefix="pdcov-bench-daemon-") as tmp:
         result = run(Path(tmp), sc, window, start_timeout_s=120.0)
     command = ("python -m benchmarks.daemon" + (" --smoke" if args.smoke else "")
                + ("" if args.scenario == "S1" else f" --scenario {args.scenario}"))
-    print(markdown(rows(result, sc), machine(), command))
+    table = rows(result, sc)
+    print(markdown(table, machine(), command))
     print(json.dumps({"skipped": result.skipped, "memory": result.memory}), file=sys.stderr)
+    if args.json:
+        args.json.write_text(json.dumps({"run": asdict(result),
+                                         "rows_ok": [row.ok for row in table]}, indent=1))
     return 0
 
 

@@ -45,9 +45,9 @@ from pdcov.ground.demo import Children, FleetStatus, free_port
 from pdcov.planning.patterns import lawnmower
 from pdcov.planning.plan_files import write_plan
 from tests.support.harness import small_mission
+from tests.support.marked_block import write_marked_block
 
 from .daemon import cpu_s, memory_bytes
-from .report import write_marked_block
 from .security import SECURITY_TESTS, security_checks, security_table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -365,7 +365,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="simulator speed-up (1: real time)")
     parser.add_argument("--watchers", type=int, default=2, help="watchers (2)")
     parser.add_argument("--keep", type=Path, help="run in this folder and keep it")
-    parser.add_argument("--json", action="store_true", help="also print the figures as JSON")
+    parser.add_argument("--json", type=Path, metavar="PATH",
+                        help="also write the figures, the mismatches and the table to PATH "
+                             "as JSON")
     parser.add_argument("--write-docs", action="store_true",
                         help=f"also run the security checks and write both into "
                              f"{DOC.relative_to(ROOT)} (between its fleet-security markers)")
@@ -387,11 +389,12 @@ def main(argv: list[str] | None = None) -> int:
         write_docs(docs_block(table, sec, docs_command))
         print(f"wrote {DOC}")
     if args.json:
-        print(json.dumps({"vehicles": [v.__dict__ for v in result.vehicles],
-                          "flight_wall_s": result.flight_wall_s,
-                          "window_s": result.window_s,
-                          "watcher_cpu_s": result.watcher_cpu_s,
-                          "mismatches": result.mismatches}, indent=1))
+        args.json.write_text(json.dumps({"vehicles": [v.__dict__ for v in result.vehicles],
+                                         "flight_wall_s": result.flight_wall_s,
+                                         "window_s": result.window_s,
+                                         "watcher_cpu_s": result.watcher_cpu_s,
+                                         "mismatches": result.mismatches,
+                                         "table": table}, indent=1))
     return 1 if result.mismatches else 0
 
 

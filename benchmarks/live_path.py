@@ -8,7 +8,7 @@ Recordings, made first and not timed:
   (tests.support.harness.small_mission: 640x480 at 5 frames/s, gimbal read by its flags) on a
   square of ``--side-m``, lawnmower 10 m up, 10 m apart, 5 m/s; its tlog is the recording;
 * fixed: the same flight with a fixed nadir camera (``--gimbal fixed``);
-* S1: the survey scenario (benchmarks.scenarios: 1920x1080 fixed 20 deg off nadir, 30
+* S1: the survey scenario (tests.support.scenarios: 1920x1080 fixed 20 deg off nadir, 30
   frames/s, 1 km square at 1 m), its first ``--s1-s`` seconds written as a tlog by
   benchmarks.offline.write_tlog (ATTITUDE and GLOBAL_POSITION_INT at 10 Hz).
 
@@ -62,10 +62,10 @@ from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import FrameSource
 from pdcov.telemetry.tlog import TlogScanner
 from tests.support.harness import SMALL_MISSION, child, small_mission
+from tests.support.scenarios import scenarios
 
 from .offline import write_tlog
 from .report import Row, machine, markdown
-from .scenarios import scenarios
 
 CLOCK_MESSAGES = ("ATTITUDE", "GLOBAL_POSITION_INT")
 FIXED_NADIR = {"type": "fixed", "roll_deg": 0, "pitch_deg": -90, "yaw_deg": 0}

@@ -21,8 +21,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import euler_zyx_from_R_many
 from pdcov.telemetry.pose_csv import POSE_CSV_COLUMNS
-
-from .scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario
+from tests.support.scenarios import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, Scenario
 
 TELEMETRY_RATE_HZ = 10.0  # ATTITUDE and GLOBAL_POSITION_INT, a usual stream rate
 MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA = 2, 3

@@ -37,8 +37,9 @@ from pdcov_sitl.pin_score import (
     Z_MAX,
     Calibration,
 )
+from tests.support.marked_block import write_marked_block
 
-from .report import Row, machine, markdown, write_marked_block
+from .report import Row, machine, markdown
 
 ROOT = Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "simulator.md"

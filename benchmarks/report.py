@@ -12,6 +12,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tests.support.marked_block import write_marked_block
+
 START_MARKER = "<!-- benchmarks:start -->"
 END_MARKER = "<!-- benchmarks:end -->"
 
@@ -59,17 +61,3 @@ def write_readme_block(readme: Path, block: str) -> None:
     """Replace the text between the benchmark markers of ``readme`` (appending the markers
     at its end when absent); nothing else in the file changes."""
     write_marked_block(readme, block, START_MARKER, END_MARKER)
-
-
-def write_marked_block(path: Path, block: str, start: str, end: str) -> None:
-    """Replace the text between the markers ``start`` and ``end`` of ``path`` (appending
-    them at its end when absent, creating the file when missing); nothing else changes."""
-    text = path.read_text() if path.exists() else ""
-    body = f"{start}\n{block}\n{end}"
-    if start in text and end in text:
-        head, rest = text.split(start, 1)
-        tail = rest.split(end, 1)[1]
-        text = head + body + tail
-    else:
-        text = text.rstrip("\n") + ("\n\n" if text else "") + body + "\n"
-    path.write_text(text)

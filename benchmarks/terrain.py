@@ -1,78 +1,24 @@
 """Terrain scenarios (issue 21): pdcov over a valley DEM against R3, the per-pixel DEM ray
-caster, and the cost of terrain against flat S1.
-
-Each run writes the scenario's valley DEM (GeoTIFF, UTM 32 N) and its mission config
-(``terrain: {dem: valley.tif}``) into a folder; pdcov takes its terrain from the loaded
-mission (``mission.terrain``), R3 reads the same file on its own.
-"""
+caster (its site: tests.support.terrain_site), and the cost of terrain against flat S1."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
-import numpy as np
-import yaml
-
-from pdcov.config.load import load_mission
-from pdcov.core.grid import CoverageGrid
-from pdcov.core.pose import CameraPose
+from tests.support.grid_agreement import (
+    R3_MIN_SHARE,
+    R3_TOLERANCE_PD,
+    TerrainAgreement,
+    terrain_agreement,
+)
 from tests.support.references import pixel_rays
-from tests.support.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
+from tests.support.scenarios import spaced, strided
+from tests.support.terrain_reference import r3_update
+from tests.support.terrain_site import VALLEY_STEP_PX, TerrainSite
 
-from .measure import TerrainAgreement, terrain_agreement, time_frames, time_updates
+from .measure import time_frames, time_updates
 from .report import Row
-from .scenarios import Scenario, spaced, strided
 
-DEM_FILE = "valley.tif"
-# R3 on S5 casts every pixel's ray (1920 x 1080: 2 M rays per frame). Over the whole valley
-# flight, to keep it to minutes, it casts through the centre of every 2 x 2 block (518 400
-# rays): flown over level ground that still puts 99.7 % of cells within 0.05 of flat pdcov.
-VALLEY_STEP_PX = 2
-R3_TOLERANCE_PD, R3_MIN_SHARE = 0.05, 0.97   # issue 21's "done when"
 TERRAIN_COST_MAX = 2.0   # per-frame cost with the DEM over flat S1's
 R3_SPEEDUP_MIN = 20.0
-
-
-@dataclass(frozen=True)
-class TerrainSite:
-    """A terrain scenario's files in ``folder`` and R3's heightfield over its DEM."""
-
-    scenario: Scenario
-    mission_path: Path
-    heightfield: Heightfield
-
-    @classmethod
-    def prepare(cls, folder: Path, sc: Scenario) -> TerrainSite:
-        """Write the DEM and the mission config into ``folder``; sample R3's heightfield
-        over the domain and the DEM's margin."""
-        relief = sc.relief
-        if relief is None:
-            raise ValueError(f"{sc.name} has no relief")
-        dem = relief.write_geotiff(folder / DEM_FILE)
-        mission_path = folder / "mission.yaml"
-        mission_path.write_text(yaml.safe_dump(sc.mission_doc(DEM_FILE), sort_keys=False))
-        m = relief.margin_m - relief.spacing_m  # the lattice stays inside the raster
-        hf = Heightfield.from_dem(dem, relief.origin_lat_deg, relief.origin_lon_deg,
-                                  relief.floor_alt_msl_m,
-                                  (-m, -m, sc.side_m + m, sc.side_m + m), relief.spacing_m)
-        return cls(sc, mission_path, hf)
-
-    def terrain_grid(self) -> CoverageGrid:
-        """pdcov's grid over the terrain of the mission config (its DEM)."""
-        return load_mission(self.mission_path).new_mission_grid()
-
-    def reference(self, grid: CoverageGrid, step_px: int = 1) -> TerrainReferenceGrid:
-        """An empty R3 grid like ``grid`` (cells, camera, detector, range)."""
-        return TerrainReferenceGrid(grid.geometry, grid.mask, grid.camera, grid.detector,
-                                    grid.max_range_m, self.heightfield, step_px)
-
-    def run_reference(self, grid: CoverageGrid, poses: list[CameraPose],
-                      step_px: int = 1) -> tuple[TerrainReferenceGrid, np.ndarray]:
-        """R3 over ``poses`` in a fresh grid like ``grid``, and its seconds per frame."""
-        ref = self.reference(grid, step_px)
-        rays = pixel_rays(grid.camera, step_px)
-        return ref, time_frames(lambda p: r3_update(ref, rays, p), poses)
 
 
 def agreement_text(a: TerrainAgreement) -> str:
@@ -96,7 +42,7 @@ def valley_rows(site: TerrainSite, max_frames: int) -> list[Row]:
     poses = strided(sc.poses(), max_frames)
     flat = sc.new_grid()
     time_updates(flat, poses)
-    ref, _ = site.run_reference(flat, poses, VALLEY_STEP_PX)
+    ref = site.run_reference(flat, poses, VALLEY_STEP_PX)
     terrain = site.terrain_grid()
     time_updates(terrain, poses)
     target = f">= {R3_MIN_SHARE:.0%} within {R3_TOLERANCE_PD:g}, no hidden cell seen"
@@ -123,7 +69,9 @@ def s5_rows(site: TerrainSite, s1_frame_s: float, max_timed_frames: int,
     frames = spaced(poses, r3_frames, max(1, round(sc.rate_hz * 0.5)))
     grid = site.terrain_grid()
     mine = time_updates(grid, frames)
-    ref, ref_s = site.run_reference(grid, frames)
+    ref = site.reference(grid)
+    rays = pixel_rays(grid.camera)
+    ref_s = time_frames(lambda p: r3_update(ref, rays, p), frames)
     speedup = float(ref_s.mean()) / mine.mean_s
     a = terrain_agreement(grid, ref, R3_TOLERANCE_PD)
     return [

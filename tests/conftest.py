@@ -18,6 +18,7 @@ module outside the tier folders stops the collection. Shared helpers live in tes
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,6 +26,15 @@ from pathlib import Path
 import pytest
 
 from pdcov import cli
+
+# One BLAS thread per process. The suite runs a pytest-xdist worker per core (.ci/run), and
+# many tests start processes of their own; an OpenBLAS pool of a thread per core in each of
+# them oversubscribes the cores (its threads spin while they wait): R3's 518,400 ray
+# rotations per frame took 4 times as long. Set before numpy's first import (the plugins
+# below import it; nothing above does), so this process, the xdist workers and every
+# process a test starts inherit it.
+for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_blas_threads, "1")
 
 # The support modules that hold fixtures of more than one tier: watch_fixtures: router,
 # processes, daemons (real Zenoh on loopback); chromium: browser; cli_inputs: poses;

@@ -1,7 +1,7 @@
 """Reading .npz files (grid snapshots, checkpoints, snapshot payloads) so that a damaged one
 fails with one exception the caller chooses, never with what numpy or zipfile raise inside.
 
-A damaged .npz fails in many places (found by fuzzing, tests/unit/test_fuzz_inputs.py): zipfile
+A damaged .npz fails in many places (found by fuzzing, tests/unit/test_fuzz_state.py): zipfile
 (BadZipFile, NotImplementedError for an unknown compression method, EOFError, OSError),
 zlib while inflating a member (zlib.error), numpy's .npy header parser (ast.literal_eval:
 SyntaxError, ValueError; for old-format headers its tokenize fallback: tokenize.TokenError),

@@ -1,7 +1,7 @@
 """Pins survive restarts of ``pdcov serve`` in a real flight (issue 35, "a restart"): the
-JSBSim simulator flies the demo plan over 200 people at real time (``--speed 1``), its
-detector's boxes published as frames v2 on Zenoh (service.frame_source: zenoh) into a daemon
-reading the autopilot over UDP with a state directory. Mid-flight the daemon is stopped with
+JSBSim simulator flies the demo plan over 200 people at twice real time (``--speed 2``),
+its detector's boxes published as frames v2 on Zenoh (service.frame_source: zenoh) into a
+daemon reading the autopilot over UDP with a state directory. Mid-flight the daemon is stopped with
 SIGTERM (exit 0) and started again on the same config and state directory; later, after at
 least one detections publish since that restart, it is killed with SIGKILL and started again.
 
@@ -19,8 +19,9 @@ landing (its snapshot); no pin holds two boxes of one frame; hits <= looks on ev
 While the daemon is down the simulator keeps flying: those frames' boxes never reach it, so
 people seen only then are not found. That is fair: the prediction is the daemon's own grid,
 which lacks those frames too (the grid resumes from the checkpoint; after SIGKILL it loses
-at most the checkpoint period, 1 s, of frames, as the candidates restored from the journal
-may hold a few detections of them).
+at most the checkpoint period of frames, 0.5 s of the daemon's clock: 1 simulated second at
+``--speed 2``, as the candidates restored from the journal may hold a few detections of
+them).
 """
 
 from __future__ import annotations
@@ -57,6 +58,9 @@ pytest.importorskip("jsbsim")
 SEED = 3
 KEPT_WITHIN_M = 0.5
 KEYS = VehicleKeys("sim1")
+SPEED = 2.0
+CHECKPOINT_PERIOD_S = 0.5
+"""Half the 1 s that --speed 1 had: a SIGKILL still loses at most 1 simulated second."""
 
 
 class Pins:
@@ -127,7 +131,7 @@ def restart_flight(tmp: Path) -> dict:
     plan = demo_plan(tmp)
     zport, mport = free_port(), free_port(socket.SOCK_DGRAM)
     cfg = serve_config(doc, tmp / "m.yaml", zenoh_port=zport, state_dir=tmp / "st",
-                       frame_source="zenoh")
+                       frame_source="zenoh", checkpoint_period_s=CHECKPOINT_PERIOD_S)
     args = serve_args(cfg, "--connect", f"udpin:127.0.0.1:{mport}")
     out: dict = {"moves": []}
     with watched(zport) as sub:
@@ -137,7 +141,7 @@ def restart_flight(tmp: Path) -> dict:
                 sub.wait(lambda s: True, 60, "the daemon's first status")
                 with process(fly_args(cfg, plan, tmp / "fly", f"udpout:127.0.0.1:{mport}",
                                       "--targets", str(PEOPLE), "--seed", str(SEED),
-                                      speed=1.0), tmp / "fly.log") as fly:
+                                      speed=SPEED), tmp / "fly.log") as fly:
                     # 1. SIGTERM once some pins are out.
                     end = time.monotonic() + 120
                     while len(pins.published()[1]) < 10:

@@ -1,22 +1,47 @@
-"""The benchmarks at their tiny CI size: every step runs, and the reference grids agree with
-pdcov's within the tolerances the benchmark states. No timing is asserted."""
+"""The benchmarks' references at their tiny CI size: the reference grids agree with pdcov's
+within the tolerances the benchmark states (tests.support.grid_agreement), and the helpers
+the benchmark writes its results with. No timing is asserted."""
 
 import numpy as np
 import pytest
 
-from benchmarks.__main__ import (
+from pdcov.core.camera import CameraModel
+from pdcov.core.grid import CoverageGrid
+from pdcov.core.pose import CameraPose
+from tests.support.grid_agreement import (
     R1_MIN_SHARE,
     R1_TOLERANCE_PD,
     R2_MIN_SHARE,
     R2_TOLERANCE_PD,
-    compare_reference,
+    R3_TOLERANCE_PD,
+    Agreement,
+    agreement,
+    terrain_agreement,
 )
-from benchmarks.measure import terrain_agreement, time_updates
-from benchmarks.report import END_MARKER, START_MARKER, write_readme_block
-from benchmarks.scenarios import scenarios, spaced
-from benchmarks.terrain import R3_TOLERANCE_PD, TerrainSite
-from pdcov.core.camera import CameraModel
-from tests.support.references import pixel_rays
+from tests.support.marked_block import write_marked_block
+from tests.support.references import ReferenceGrid, pixel_rays, r1_update, r2_update
+from tests.support.scenarios import Scenario, scenarios, spaced
+from tests.support.terrain_site import TerrainSite
+
+
+def updated(grid: CoverageGrid, frames: list[CameraPose]) -> CoverageGrid:
+    for pose in frames:
+        grid.update(pose)
+    return grid
+
+
+def compare_reference(sc: Scenario, frames: list[CameraPose], which: str, rays: np.ndarray,
+                      tolerance: float) -> tuple[Agreement, int]:
+    """(agreement, observed cells the reference could not compute) of pdcov and R1 or R2
+    over the same ``frames``, each in a fresh grid (as benchmarks/__main__.py compares them)."""
+    grid = updated(sc.new_grid(), frames)
+    ref = ReferenceGrid(grid.geometry, grid.mask, grid.camera, grid.detector, grid.max_range_m)
+    for pose in frames:
+        if which == "R1":
+            r1_update(ref, rays, pose)
+        else:
+            r2_update(ref, pose)
+    return agreement(grid, ref, tolerance), ref.not_comparable
 
 
 @pytest.mark.parametrize("name", ["S1", "S3", "S4"])
@@ -24,8 +49,8 @@ def test_references_agree_with_pdcov(name):
     sc = scenarios(smoke=True)[name]
     frames = spaced(sc.poses(), 4, max(1, round(sc.rate_hz * 0.5)))
     rays = pixel_rays(sc.camera)
-    _, _, r1, _ = compare_reference(sc, frames, "R1", rays, R1_TOLERANCE_PD)
-    _, _, r2, skipped = compare_reference(sc, frames, "R2", rays, R2_TOLERANCE_PD)
+    r1, _ = compare_reference(sc, frames, "R1", rays, R1_TOLERANCE_PD)
+    r2, skipped = compare_reference(sc, frames, "R2", rays, R2_TOLERANCE_PD)
     assert r1.cells_compared > 100 and r2.cells_compared > 100
     assert r2.looks_differ == 0 and skipped == 0
     assert r2.share_within >= R2_MIN_SHARE
@@ -42,10 +67,8 @@ def test_terrain_reference_agrees_with_pdcov(tmp_path):
     sc = scenarios(smoke=True)["S5"]
     site = TerrainSite.prepare(tmp_path, sc)
     frames = spaced(sc.poses(), 4, max(1, round(sc.rate_hz * 0.5)))
-    grid, flat = site.terrain_grid(), sc.new_grid()
-    time_updates(grid, frames)
-    time_updates(flat, frames)
-    ref, _ = site.run_reference(grid, frames)
+    grid, flat = updated(site.terrain_grid(), frames), updated(sc.new_grid(), frames)
+    ref = site.run_reference(grid, frames)
     a = terrain_agreement(grid, ref, R3_TOLERANCE_PD)
     f = terrain_agreement(flat, ref, R3_TOLERANCE_PD)
     assert a.cells_observed > 1500
@@ -69,10 +92,11 @@ def test_lattice_projection_matches_opencv_project_points():
 
 
 def test_readme_block_is_replaced_between_markers_only(tmp_path):
+    start, end = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
     readme = tmp_path / "README.md"
     readme.write_text("# title\n\ntext\n")
-    write_readme_block(readme, "table 1")
-    write_readme_block(readme, "table 2")
+    write_marked_block(readme, "table 1", start, end)
+    write_marked_block(readme, "table 2", start, end)
     text = readme.read_text()
-    assert text.startswith("# title\n\ntext\n\n" + START_MARKER)
-    assert "table 2" in text and "table 1" not in text and text.count(END_MARKER) == 1
+    assert text.startswith("# title\n\ntext\n\n" + start)
+    assert "table 2" in text and "table 1" not in text and text.count(end) == 1

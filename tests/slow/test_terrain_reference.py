@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.measure import terrain_agreement, time_updates
-from benchmarks.scenarios import scenarios
-from benchmarks.terrain import R3_MIN_SHARE, R3_TOLERANCE_PD, VALLEY_STEP_PX, TerrainSite
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.pose import CameraPose
+from tests.support.grid_agreement import R3_MIN_SHARE, R3_TOLERANCE_PD, terrain_agreement
 from tests.support.references import ReferenceGrid, pixel_rays, r1_update
+from tests.support.scenarios import scenarios
 from tests.support.terrain_reference import Heightfield, TerrainReferenceGrid, r3_update
+from tests.support.terrain_site import VALLEY_STEP_PX, TerrainSite
 from tests.support.valley import Valley, ValleyDem
 
 NADIR = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # optical x east, y south, z down
@@ -104,14 +104,15 @@ def valley(tmp_path_factory):
     sc = scenarios(smoke=True)["S5 valley"]
     site = TerrainSite.prepare(tmp_path_factory.mktemp("valley"), sc)
     poses = sc.poses()
-    ref, _ = site.run_reference(sc.new_grid(), poses, VALLEY_STEP_PX)
+    ref = site.run_reference(sc.new_grid(), poses, VALLEY_STEP_PX)
     return site, poses, ref
 
 
 def test_flat_pdcov_misjudges_the_valley(valley):
     site, poses, ref = valley
     flat = site.scenario.new_grid()
-    time_updates(flat, poses)
+    for pose in poses:
+        flat.update(pose)
     a = terrain_agreement(flat, ref, R3_TOLERANCE_PD)
     assert a.hidden > 10 and a.never_seen > 100  # the valley hides ground, and ends sight
     assert a.share_within < 0.8
@@ -123,7 +124,8 @@ def test_pdcov_with_the_dem_agrees_with_r3(valley):
 
     site, poses, ref = valley
     grid = site.terrain_grid()
-    time_updates(grid, poses)
+    for pose in poses:
+        grid.update(pose)
     a = terrain_agreement(grid, ref, R3_TOLERANCE_PD)
     assert a.hidden_counted == 0, a
     assert a.share_within >= R3_MIN_SHARE, a

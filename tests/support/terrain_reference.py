@@ -110,13 +110,15 @@ class Heightfield:
         v = (np.asarray(y_m, dtype=np.float64) - self.y0_m) / self.spacing_m
         with np.errstate(invalid="ignore"):
             inside = (u >= 0) & (u <= n_cols - 1) & (v >= 0) & (v <= n_rows - 1)
-        j = np.minimum(np.floor(np.where(inside, u, 0.0)), n_cols - 2).astype(np.intp)
-        i = np.minimum(np.floor(np.where(inside, v, 0.0)), n_rows - 2).astype(np.intp)
+        j = np.minimum(np.floor(np.where(inside, u, 0.0)), n_cols - 2)
+        i = np.minimum(np.floor(np.where(inside, v, 0.0)), n_rows - 2)
         fu, fv = u - j, v - i
-        k = i * n_cols + j
+        k = i.astype(np.intp) * n_cols + j.astype(np.intp)
+        # The four corners, each gathered from the lattice shifted by its offset.
         z = self.z_m.ravel()
-        south = z[k] + fu * (z[k + 1] - z[k])
-        north = z[k + n_cols] + fu * (z[k + n_cols + 1] - z[k + n_cols])
+        sw, se, nw, ne = z[k], z[1:][k], z[n_cols:][k], z[n_cols + 1:][k]
+        south = sw + fu * (se - sw)
+        north = nw + fu * (ne - nw)
         return np.where(inside, south + fv * (north - south), np.nan)
 
     def first_hit_t(self, r_enu: np.ndarray, d_enu: np.ndarray, t_max_m: np.ndarray | float
@@ -134,7 +136,12 @@ class Heightfield:
 
     def _gap_m(self, r: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Height (m) of the ray points above the ground (NaN off the lattice)."""
-        return r[2] + t * d[:, 2] - self.height_m(r[0] + t * d[:, 0], r[1] + t * d[:, 1])
+        return self._gap_xyz_m(r, d[:, 0], d[:, 1], d[:, 2], t)
+
+    def _gap_xyz_m(self, r: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray,
+                   t: np.ndarray) -> np.ndarray:
+        """``_gap_m`` with the directions' components as separate (contiguous) arrays."""
+        return r[2] + t * dz - self.height_m(r[0] + t * dx, r[1] + t * dy)
 
     def _march(self, r: np.ndarray, d: np.ndarray, t_max: np.ndarray) -> np.ndarray:
         z_lo, z_hi = self.z_range_m
@@ -149,19 +156,22 @@ class Heightfield:
         closing = np.maximum(-d[:, 2] + self.slope_bound * np.hypot(d[:, 0], d[:, 1]), 1e-9)
         min_step = MIN_STEP_OF_SPACING * self.spacing_m
         idx = np.flatnonzero(t0 <= t_end)
-        t = t0[idx]
+        # The marching rays' own copies, kept as short as the rays still marching.
+        t, dx, dy, dz = t0[idx], d[idx, 0], d[idx, 1], d[idx, 2]
+        closing, t_end = closing[idx], t_end[idx]
         t_prev = t
-        gap = self._gap_m(r, d[idx], t)
+        gap = self._gap_xyz_m(r, dx, dy, dz, t)
         found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         while len(idx):
             crossed = gap <= 0  # (a ray starting below the ground crosses at t0)
             if crossed.any():
                 found.append((idx[crossed], t_prev[crossed], t[crossed]))
-            going = ~crossed & np.isfinite(gap) & (t < t_end[idx])
+            going = ~crossed & np.isfinite(gap) & (t < t_end)
             idx, t, gap = idx[going], t[going], gap[going]
+            dx, dy, dz, closing, t_end = (a[going] for a in (dx, dy, dz, closing, t_end))
             t_prev = t
-            t = np.minimum(t + np.maximum(gap / closing[idx], min_step), t_end[idx])
-            gap = self._gap_m(r, d[idx], t)
+            t = np.minimum(t + np.maximum(gap / closing, min_step), t_end)
+            gap = self._gap_xyz_m(r, dx, dy, dz, t)
         out = np.full(len(d), np.inf)
         if found:
             idx, lo, hi = (np.concatenate(a) for a in zip(*found, strict=True))
