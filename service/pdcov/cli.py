@@ -47,12 +47,29 @@ class _DefaultsFormatter(argparse.HelpFormatter):
         return text
 
 
+class _StoreOnce(argparse._StoreAction):
+    """An option's value, given at most once: argparse keeps the last of two silently
+    (``pdcov evaluate --log A --log B`` evaluated B alone and exited 0); a second is a usage
+    error naming both. Options meant to repeat say so (``action="append"``, ``nargs``)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        before = getattr(namespace, self.dest, self.default)
+        if before is not self.default:
+            raise argparse.ArgumentError(self, f"given twice ({before} and {values}): it "
+                                               "takes one value")
+        setattr(namespace, self.dest, values)
+
+
 class _Parser(argparse.ArgumentParser):
-    """Every command's parser: help shows the defaults (_DefaultsFormatter)."""
+    """Every command's parser: help shows the defaults (_DefaultsFormatter); an option given
+    twice is refused (_StoreOnce)."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         kwargs.setdefault("formatter_class", _DefaultsFormatter)
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
