@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from pdcov.bus.errors import BusPayloadError, Refusal
-from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot
+from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot, grid_hash
 from pdcov.bus.tiles import BYTES_PER_CELL, apply_tiles, decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -53,12 +54,9 @@ def flown_to_watcher(watcher: Watcher, vid: str, grid: CoverageGrid, poses) -> N
     then a tiles message after every frame (no bandwidth limit: the watcher's grid equals
     the vehicle's after each)."""
     watcher.on_snapshot(vid, decode_snapshot(encode_snapshot(grid)), 0.0)
-    state = GridState(grid.geometry, grid.mask, grid.log_miss_d, grid.log_miss_fa, grid.n_obs,
-                      grid.frames, grid.limiting)  # views, as LiveCoverage
-    sender = TileSender(grid, state, state.hash, TILE, 1e9, 0.0)
+    sender = TileSender(grid, grid_hash(grid.geometry, grid.mask), TILE, 1e9, 0.0)
     for k, pose in enumerate(poses):
         grid.update(pose)
-        state.frames = grid.frames
         if grid.touched is not None:
             sender.touch(grid.touched)
         payload = sender.send(0.1 * (k + 1), pose.t_s)
@@ -105,8 +103,9 @@ def every_code_grid(mission) -> CoverageGrid:
     grid = mission.new_mission_grid()
     for pose in fly(grid, 6, -60.0, 0.0):
         grid.update(pose)
-    grid.limiting[:] = np.random.default_rng(5).integers(0, len(LimitingFactor),
-                                                        grid.geometry.shape)
+    grid.layer(Layer.LIMITING).write(
+        (0, grid.geometry.n_rows, 0, grid.geometry.n_cols),
+        np.random.default_rng(5).integers(0, len(LimitingFactor), grid.geometry.shape))
     return grid
 
 
@@ -207,7 +206,7 @@ def test_a_limiting_code_outside_the_factors_is_refused_and_counted(mission, cod
     w.on_bad_payload("uav1", err.value)
     assert w.refused["payloads: bad field"] == 1 and w.feeds["uav1"].bad_payloads == 1
     assert not w.feeds["uav1"].state.limiting.any()  # nothing applied
-    grid.limiting[3, 5] = code
+    grid.layer(Layer.LIMITING).write((3, 4, 5, 6), code)
     with pytest.raises(BusPayloadError, match="snapshot.*limiting: codes must lie in 0..5"):
         decode_snapshot(encode_snapshot(grid))
 

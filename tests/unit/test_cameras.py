@@ -112,7 +112,7 @@ def test_one_camera_combined_is_its_grid_but_for_the_looks_state(rule):
     for p in _poses(8, 10.0):
         one.update(p)
     one.refresh()
-    both = CoverageGrid(g, one.mask, one.camera, one.base_detector, **kw)
+    both = CoverageGrid(g, one.mask, one.camera, one.detector, **kw)
     combine_cameras(both, [one])
     for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting", "last_obs_s"):
         assert getattr(both, key).tobytes() == getattr(one, key).tobytes(), key

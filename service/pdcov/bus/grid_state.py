@@ -27,6 +27,7 @@ import numpy as np
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer, Window
 from pdcov.core.grid_snapshot import READABLE_SNAPSHOT_VERSIONS
 from pdcov.core.limiting import LimitingFactor
 from pdcov.errors import DomainError
@@ -106,6 +107,29 @@ class GridState:
     @property
     def hash(self) -> str:
         return grid_hash(self.geometry, self.mask)
+
+    @property
+    def n_free(self) -> int:
+        return int(np.count_nonzero(self.mask))
+
+    def read(self, layer: Layer, window: Window | None = None) -> np.ndarray:
+        """The cells of ``window`` (None: all) of ``layer`` (``core.grid_layer.CellSource``):
+        a new array. ValueError for the limiting factors when unknown, or a layer a
+        subscriber does not hold."""
+        r0, r1, c0, c1 = window or (0, self.geometry.n_rows, 0, self.geometry.n_cols)
+        if layer is Layer.PD:
+            return 0.0 - np.expm1(self.log_miss_d[r0:r1, c0:c1].astype(np.float64))
+        if layer is Layer.PFA:
+            return 0.0 - np.expm1(self.log_miss_fa[r0:r1, c0:c1].astype(np.float64))
+        arrays = {Layer.MASK: self.mask, Layer.LOG_MISS_D: self.log_miss_d,
+                  Layer.LOG_MISS_FA: self.log_miss_fa, Layer.N_OBS: self.n_obs,
+                  Layer.LIMITING: self.limiting}
+        a = arrays.get(layer)
+        if a is None:
+            raise ValueError(f"a ground station's grid holds no {layer.value}"
+                             + (" (limiting factors unknown)" if layer is Layer.LIMITING
+                                else ""))
+        return a[r0:r1, c0:c1].copy()
 
     @property
     def pd(self) -> np.ndarray:

@@ -30,6 +30,8 @@ import numpy as np
 
 from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
 from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
+from pdcov.bus.grid_state import grid_hash as hash_of_grid
+from pdcov.core.grid_layer import CellSource, Layer
 
 MAGIC = b"PDTL"
 TILES_VERSION = 2
@@ -94,15 +96,15 @@ def tile_wire_bytes(tile_size: int, version: int = TILES_VERSION) -> int:
     return _TILE_ID.size + BYTES_PER_CELL[version] * tile_size * tile_size
 
 
-def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int,
+def encode_tiles(source: CellSource, tiles: Iterable[tuple[int, int]], *, seq: int,
                  t_s: float, tile_size: int, level: int = 6,
                  grid_hash: str | None = None) -> bytes:
-    """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col)).
-    ``grid_hash``: ``state.hash`` when the caller keeps it (it reads the whole mask); the
-    cost otherwise follows the tiles sent, not the grid. ``state.limiting`` must be known."""
-    g = state.geometry
-    if state.limiting is None:
-        raise ValueError("encode_tiles needs the grid's limiting factors")
+    """The tiles message carrying the current values of ``tiles`` ((tile_row, tile_col))
+    of ``source`` (the daemon's grid, or a GridState, whose limiting factors must be
+    known). ``grid_hash``: the source's (``grid_state.grid_hash``) when the caller keeps
+    it (it reads the whole mask); the cost otherwise follows the tiles sent, not the
+    grid."""
+    g = source.geometry
     ids = list(dict.fromkeys((int(r), int(c)) for r, c in tiles))
     if not 1 <= tile_size <= MAX_TILE_SIZE:
         raise ValueError(f"tile_size {tile_size}: expected 1..{MAX_TILE_SIZE}")
@@ -113,16 +115,16 @@ def encode_tiles(state: GridState, tiles: Iterable[tuple[int, int]], *, seq: int
         r0, r1, c0, c1 = tile_bounds(tr, tc, tile_size, g.n_rows, g.n_cols)
         if r0 >= r1 or c0 >= c1:
             raise ValueError(f"tile ({tr}, {tc}) lies outside the grid")
-        win = np.s_[r0:r1, c0:c1]
-        parts += [_TILE_ID.pack(tr, tc), state.log_miss_d[win].astype("<f4").tobytes(),
-                  state.log_miss_fa[win].astype("<f4").tobytes(),
-                  state.n_obs[win].astype("<u4").tobytes(),
-                  # P_D as GridState.pd, over the tile only
-                  np.rint((0.0 - np.expm1(state.log_miss_d[win].astype(np.float64)))
-                          * 65535.0).astype("<u2").tobytes(),
-                  state.limiting[win].astype("u1").tobytes()]
-    header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(grid_hash or state.hash),
-                          float(t_s), min(state.frames, 0xFFFFFFFF), tile_size, len(ids),
+        win = (r0, r1, c0, c1)
+        parts += [_TILE_ID.pack(tr, tc),
+                  source.read(Layer.LOG_MISS_D, win).astype("<f4").tobytes(),
+                  source.read(Layer.LOG_MISS_FA, win).astype("<f4").tobytes(),
+                  source.read(Layer.N_OBS, win).astype("<u4").tobytes(),
+                  np.rint(source.read(Layer.PD, win) * 65535.0).astype("<u2").tobytes(),
+                  source.read(Layer.LIMITING, win).astype("u1").tobytes()]
+    header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(
+        grid_hash or hash_of_grid(g, source.read(Layer.MASK))),
+                          float(t_s), min(source.frames, 0xFFFFFFFF), tile_size, len(ids),
                           g.n_rows, g.n_cols)
     return header + zlib.compress(b"".join(parts), level)
 

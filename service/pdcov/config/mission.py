@@ -14,6 +14,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.dem import Dem
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
+from pdcov.core.free_cells import FreeCells
 from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import Geolocation
 from pdcov.core.grid import CoverageGrid
@@ -157,11 +158,7 @@ class Mission:
     def new_grid(self, cam: MissionCamera) -> CoverageGrid:
         """An empty coverage grid over the domain's free cells, for ``cam`` (one of
         ``cameras``)."""
-        g = self.domain.grid_geometry(self.cell_size_m)
-        return CoverageGrid(g, self.domain.free_mask(g), cam.camera, cam.detector,
-                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=cam.exposure_s,
-                            looks=self.looks)
+        return self._grid(cam, self.looks)
 
     @property
     def several_cameras(self) -> bool:
@@ -184,11 +181,16 @@ class Mission:
         detector for its range and figures)."""
         if not self.several_cameras:
             return self.new_grid(self.cameras[0])
+        return self._grid(self.first_camera, None)
+
+    def _grid(self, cam: MissionCamera, looks: LooksConfig | None) -> CoverageGrid:
+        """An empty grid over the domain's free cells (found tile by tile as frames touch
+        them) with ``cam``'s camera, detector model and exposure."""
         g = self.domain.grid_geometry(self.cell_size_m)
-        first = self.first_camera
-        return CoverageGrid(g, self.domain.free_mask(g), first.camera, first.detector,
-                            max_range_m=self.max_range_m, min_revisit_s=self.min_revisit_s,
-                            terrain=self.terrain, exposure_s=first.exposure_s)
+        return CoverageGrid(g, FreeCells(g, free_space=self.domain.free_space), cam.camera,
+                            cam.detector, max_range_m=self.max_range_m,
+                            min_revisit_s=self.min_revisit_s, terrain=self.terrain,
+                            exposure_s=cam.exposure_s, looks=looks)
 
     def camera_grids(self, mission_grid: CoverageGrid,
                      resumed: Mapping[str, CoverageGrid] | None = None

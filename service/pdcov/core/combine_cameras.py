@@ -7,7 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.looks import CorrelatedLooks, ViewpointLooks, same_looks_tables
+from pdcov.core.grid_layer import Layer
+from pdcov.core.looks import same_looks_tables
 
 
 def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
@@ -29,29 +30,34 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
     its looks state with it."""
     if len(grids) == 1 and grids[0] is into:
         return
-    if into.looks_state is not None:
+    if into.looks_model is not None:
         raise ValueError("combine_cameras writes derived log-misses: into must be a grid of "
                          "independent looks")
     g = into.geometry
-    r0, r1, c0, c1 = window or (0, g.n_rows, 0, g.n_cols)
-    cells = np.s_[r0:r1, c0:c1]
+    w = window or (0, g.n_rows, 0, g.n_cols)
     for grid in grids:  # the masks compared once, when the whole grid is combined
-        if grid.geometry != g or (window is None and not np.array_equal(grid.mask,
-                                                                         into.mask)):
+        if grid.geometry != g or (window is None and not grid.free.same_as(into.free)):
             raise ValueError("cannot combine grids of different geometry or free-space mask")
-    into.log_miss_d[cells] = _combined_log_miss(grids, (r0, r1, c0, c1))
-    into.log_miss_fa[cells] = 0.0
-    into.n_obs[cells] = 0
+    into.layer(Layer.LOG_MISS_D).write(w, _combined_log_miss(grids, w))
+    for layer, dtype in ((Layer.LOG_MISS_FA, np.float32), (Layer.N_OBS, np.int32)):
+        into.layer(layer).write(w, np.asarray(np.sum([grid.read(layer, w) for grid in grids],
+                                                     axis=0, dtype=dtype)))
     # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
-    # outside its window (``GridView.mark_too_far``).
-    np.maximum.reduce([grid.limiting for grid in grids], out=into.limiting)
-    for grid in grids:
-        into.log_miss_fa[cells] += grid.log_miss_fa[cells]
-        into.n_obs[cells] += grid.n_obs[cells]
-        if into.last_obs_s is not None and grid.last_obs_s is not None:
-            np.maximum(into.last_obs_s[cells], grid.last_obs_s[cells],
-                       out=into.last_obs_s[cells])
-            into.latest_frame_t_s = max(into.latest_frame_t_s, grid.latest_frame_t_s)
+    # outside its window (``GridView.mark_too_far``): every tile any camera touched.
+    limiting = into.layer(Layer.LIMITING)
+    for key in sorted({k for grid in grids for k in grid.layer(Layer.LIMITING).tiles}):
+        tile = limiting.tile(key)
+        np.maximum.reduce([tile, *(t for grid in grids
+                                   if (t := grid.layer(Layer.LIMITING).get(key)) is not None)],
+                          out=tile)
+    if into.keeps(Layer.LAST_OBS_S):
+        clocks = [grid.read(Layer.LAST_OBS_S, w) for grid in grids
+                  if grid.keeps(Layer.LAST_OBS_S)]
+        if clocks:
+            into.layer(Layer.LAST_OBS_S).write(w, np.maximum.reduce(
+                [into.read(Layer.LAST_OBS_S, w), *clocks]))
+            into.latest_frame_t_s = max(into.latest_frame_t_s, *(
+                grid.latest_frame_t_s for grid in grids if grid.keeps(Layer.LAST_OBS_S)))
     into.frames = sum(grid.frames for grid in grids)
     into.frames_blurred = sum(grid.frames_blurred for grid in grids)
 
@@ -62,8 +68,7 @@ def combined_pd(grids: Sequence[CoverageGrid]) -> np.ndarray:
     detector model as one sensor (two flights of a mission: their counts add, as ``merge``
     adds them), the others independent."""
     g = grids[0].geometry
-    if any(grid.geometry != g or not np.array_equal(grid.mask, grids[0].mask)
-           for grid in grids):
+    if any(grid.geometry != g or not grid.free.same_as(grids[0].free) for grid in grids):
         raise ValueError("cannot combine grids of different geometry or free-space mask")
     L = _combined_log_miss(grids, (0, g.n_rows, 0, g.n_cols))
     return 0.0 - np.expm1(L.astype(np.float64))
@@ -73,21 +78,15 @@ def _combined_log_miss(grids: Sequence[CoverageGrid], window: tuple[int, int, in
                        ) -> np.ndarray:
     """log(1 - P_D) (float32) over ``window`` of ``grids`` together (``combine_cameras``)."""
     r0, r1, c0, c1 = window
-    cells = np.s_[r0:r1, c0:c1]
     log_miss_d = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
     for group in _detector_groups(grids):
-        looks = [grid.looks_state for grid in group]
-        first = looks[0]
+        first = group[0].looks_model
         if len(group) == 1 or first is None:
             for grid in group:
-                log_miss_d += grid.log_miss_d[cells]
+                log_miss_d += grid.read(Layer.LOG_MISS_D, window)
             continue
-        if isinstance(first, CorrelatedLooks):
-            state = sum(s.counts[cells] for s in looks if isinstance(s, CorrelatedLooks))
-        else:
-            state = np.maximum.reduce([s.best[cells] for s in looks
-                                       if isinstance(s, ViewpointLooks)])
-        flat = np.asarray(state).reshape(-1, np.shape(state)[-1])
+        state = first.combined([grid.read(Layer.LOOKS, window) for grid in group])
+        flat = state.reshape(-1, state.shape[-1])
         log_miss_d += first.log_miss_of(flat).reshape(r1 - r0, c1 - c0).astype(np.float32)
     return log_miss_d
 
@@ -97,9 +96,9 @@ def _detector_groups(grids: Sequence[CoverageGrid]) -> list[list[CoverageGrid]]:
     with independent looks each grid alone (their log-misses add either way)."""
     groups: list[list[CoverageGrid]] = []
     for grid in grids:
-        same = next((grp for grp in groups if grid.looks_state is not None
+        same = next((grp for grp in groups if grid.looks_model is not None
                      and grp[0].looks == grid.looks
-                     and same_looks_tables(grp[0].base_detector, grid.base_detector)), None)
+                     and same_looks_tables(grp[0].detector, grid.detector)), None)
         if same is None:
             groups.append([grid])
         else:

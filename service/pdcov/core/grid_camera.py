@@ -6,9 +6,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pdcov.core.blur import blur_lattice_px, blur_xyz_px
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
+from pdcov.core.domain import GridGeometry
 from pdcov.core.limiting import LimitingFactor
+from pdcov.core.pose import CameraPose
+from pdcov.core.terrain import TerrainSurface
 
 
 def default_max_range_m(camera: CameraModel, detector: DetectorModel,
@@ -64,3 +68,25 @@ class GridCamera:
         seen_code[-1] = LimitingFactor.TOO_LARGE
         return cls(camera, detector, fov_box, size_scale, float(max_range_m),
                    (area_edges, area_edges.astype(np.float32)), seen_code, tables)
+
+    def blur_rows(self, pose: CameraPose, geometry: GridGeometry,
+                  relief: TerrainSurface | None, window: tuple[int, int, int, int],
+                  observed: np.ndarray, exposure_s: float) -> np.ndarray:
+        """The detector model's blur row (``DetectorModel.blur_row``) of the ``observed``
+        cells of ``window`` of ``geometry``, from the blur over ``exposure_s`` (s) at their
+        centres (on ``relief``, None: the plane z = 0), scaled to detector-input pixels as
+        sizes are; 0 elsewhere."""
+        r0, r1, c0, c1 = window
+        g = geometry
+        cs = g.cell_size_m
+        if relief is None:  # the centres' lattice on the plane z = 0
+            blur = blur_lattice_px(self.camera, pose, g.x0_m + cs * (c0 + 0.5),
+                                   g.y0_m + cs * (r0 + 0.5), cs, c1 - c0, r1 - r0, exposure_s)
+            return self.detector.blur_row(self.size_scale * blur) * observed
+        rows, cols = np.nonzero(observed)
+        z = relief.centre_z_m(r0, r1, c0, c1)[rows, cols]
+        blur = blur_xyz_px(self.camera, pose, g.x0_m + cs * (cols + c0 + 0.5),
+                           g.y0_m + cs * (rows + r0 + 0.5), z, exposure_s)
+        out = np.zeros(observed.shape, dtype=np.intp)
+        out[rows, cols] = self.detector.blur_row(self.size_scale * blur)
+        return out

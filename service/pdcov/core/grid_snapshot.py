@@ -20,6 +20,7 @@ import numpy as np
 
 from pdcov.atomic import atomic_write
 from pdcov.core.domain import GridGeometry
+from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.looks import CorrelatedLooks, LooksRule, ViewpointLooks
 from pdcov.errors import InputFileError
@@ -27,6 +28,8 @@ from pdcov.npz_file import read_npz
 
 if TYPE_CHECKING:
     from pdcov.core.grid import CoverageGrid
+
+_LOOKS_KEY = {CorrelatedLooks: "looks_counts", ViewpointLooks: "looks_best"}
 
 SNAPSHOT_VERSION = 3  # 3: the looks state; 2: the revisit clock in float64; 1: float32
 READABLE_SNAPSHOT_VERSIONS = (1, 2, 3)
@@ -49,11 +52,9 @@ def write_snapshot(grid: CoverageGrid, fh: IO[bytes], *, with_limiting: bool = T
         {} if grid.last_obs_s is None else {"last_obs_s": grid.last_obs_s})
     if with_limiting:
         optional["limiting"] = grid.limiting
-    looks = grid.looks_state
-    if isinstance(looks, CorrelatedLooks):
-        optional["looks_counts"] = looks.counts
-    elif isinstance(looks, ViewpointLooks):
-        optional["looks_best"] = looks.best
+    looks = grid.looks_model
+    if looks is not None:
+        optional[_LOOKS_KEY[type(looks)]] = grid.read(Layer.LOOKS)
     np.savez_compressed(
         fh, version=SNAPSHOT_VERSION, pd=grid.pd, pfa=grid.pfa, n_obs=grid.n_obs,
         mask=grid.mask, log_miss_d=grid.log_miss_d, log_miss_fa=grid.log_miss_fa,
@@ -80,18 +81,24 @@ class Snapshot:
         2^13 s and more, e.g. Unix epoch times) when ``grid`` uses one; a snapshot of
         another looks rule than the grid's is refused (InputFileError)."""
         path, data, mask = self.path, self.arrays, self.mask
-        grid.log_miss_d[:] = data["log_miss_d"]  # a new grid: nothing to refresh
+        everything = (0, grid.geometry.n_rows, 0, grid.geometry.n_cols)
+
+        def write(layer: Layer, values: np.ndarray) -> None:
+            grid.layer(layer).write(everything, values)
+
+        write(Layer.LOG_MISS_D, data["log_miss_d"])  # a new grid: nothing to refresh
         _load_looks(path, data, grid)
-        grid.log_miss_fa[:] = data["log_miss_fa"]
-        grid.n_obs[:] = data["n_obs"]
+        write(Layer.LOG_MISS_FA, data["log_miss_fa"])
+        write(Layer.N_OBS, data["n_obs"])
         if "limiting" in data:
-            grid.limiting[:] = data["limiting"]
+            write(Layer.LIMITING, data["limiting"])
         else:  # written before limiting factors: what the sums and counts still tell
-            grid.limiting[:] = np.where(grid.log_miss_d < 0, LimitingFactor.SEEN,
-                                        np.where(grid.n_obs > 0, LimitingFactor.TOO_SMALL,
-                                                 LimitingFactor.NEVER_IN_VIEW))
+            write(Layer.LIMITING, np.where(
+                data["log_miss_d"] < 0, LimitingFactor.SEEN,
+                np.where(data["n_obs"] > 0, LimitingFactor.TOO_SMALL,
+                         LimitingFactor.NEVER_IN_VIEW)))
         grid.frames = int(data.get("frames", 0))
-        if grid.last_obs_s is not None and "last_obs_s" in data:
+        if grid.keeps(Layer.LAST_OBS_S) and "last_obs_s" in data:
             last = data["last_obs_s"]
             if last.shape != mask.shape:
                 raise InputFileError(f"{path}: last_obs_s has shape {last.shape}, the mask "
@@ -105,7 +112,7 @@ class Snapshot:
                     f"which resolves only {np.spacing(np.float32(latest)):g} s at t = "
                     f"{latest:.0f} s; re-create the grid with this pdcov, or load it "
                     "without coverage.min_revisit_s")
-            grid.last_obs_s[:] = last
+            write(Layer.LAST_OBS_S, last)
             grid.latest_frame_t_s = float(data.get("latest_frame_t_s", latest))
 
 
@@ -182,21 +189,21 @@ def _load_looks(path: Path, data: dict[str, np.ndarray], grid: CoverageGrid) -> 
         raise InputFileError(f"{path}: the grid snapshot was made with coverage.looks: "
                              f"{written}, the mission says {rule}; load it with the same "
                              "looks rule")
-    looks = grid.looks_state
-    key, target = (("looks_counts", looks.counts) if isinstance(looks, CorrelatedLooks)
-                   else ("looks_best", looks.best) if isinstance(looks, ViewpointLooks)
-                   else (None, None))
-    if key is None or target is None:
+    looks = grid.looks_model
+    if looks is None:
         return
+    key = _LOOKS_KEY[type(looks)]
+    shape = (*grid.geometry.shape, *looks.depth)
     a = data.get(key)
-    if a is None or a.shape != target.shape or a.dtype != target.dtype:
+    if a is None or a.shape != shape or a.dtype != looks.dtype:
         raise InputFileError(
-            f"{path}: {key}: expected {target.dtype} {target.shape} (the {rule} looks of "
+            f"{path}: {key}: expected {looks.dtype} {shape} (the {rule} looks of "
             f"this mission's grid and detector model), got "
             f"{'nothing' if a is None else f'{a.dtype} {a.shape}'}")
     if isinstance(looks, ViewpointLooks) and a.size and int(a.max()) >= len(
             looks.log1m_by_rank):
         raise InputFileError(f"{path}: looks_best: ranks above the detector model's "
                              f"{len(looks.log1m_by_rank) - 1}")
-    target[:] = a
-    grid.mark_looks_changed((0, grid.geometry.n_rows, 0, grid.geometry.n_cols))
+    everything = (0, grid.geometry.n_rows, 0, grid.geometry.n_cols)
+    grid.layer(Layer.LOOKS).write(everything, a)
+    grid.mark_looks_changed(everything)

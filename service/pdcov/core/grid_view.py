@@ -24,11 +24,13 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_rings_enu
+from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid_camera import GridCamera
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import BLOCK, TerrainSurface
+from pdcov.core.tiles import TiledLayer
 
 _SUBDIVISIONS = 8  # sub-cells per side for cells only partly inside the picture
 _TOO_FAR_BAND_ROWS = 32
@@ -45,13 +47,13 @@ def window_union(a: tuple[int, int, int, int] | None, b: tuple[int, int, int, in
 
 @dataclass(frozen=True, slots=True, eq=False)
 class GridView:
-    """The view geometry of a grid's cells: ``geometry`` (ENU), ``mask`` (bool, the grid's
-    shape, True for free cells: only those are in view) and ``relief`` (the ground under the
+    """The view geometry of a grid's cells: ``geometry`` (ENU), ``free`` (the free cells:
+    only those are in view) and ``relief`` (the ground under the
     cells; None: the plane z = 0, the flat-earth path). Windows are (r0, r1, c0, c1) of
     grid rows and columns."""
 
     geometry: GridGeometry
-    mask: np.ndarray
+    free: FreeCells
     relief: TerrainSurface | None
 
     def observe_area(self, frame: GridCamera, pose: CameraPose,
@@ -130,12 +132,12 @@ class GridView:
         return observed, area, reach
 
     def mark_too_far(self, frame: GridCamera, pose: CameraPose,
-                     window: tuple[int, int, int, int] | None, limiting: np.ndarray
+                     window: tuple[int, int, int, int] | None, limiting: TiledLayer
                      ) -> tuple[int, int, int, int] | None:
         """Mark TOO_FAR the cells in view beyond the maximum range, out to twice it, outside
         ``window`` (the window's own cells are judged by ``observe_area``); the terrain's
         line of sight is not tested there. For frames whose picture reaches past the range.
-        ``limiting``: the grid's LimitingFactor per cell (uint8), raised in place. Returns
+        ``limiting``: the grid's LimitingFactor per cell (uint8 tiles), raised. Returns
         the window (r0, r1, c0, c1) of the cells it marked, None for none."""
         wide, _ = self.window(frame, pose, 2.0 * frame.max_range_m)
         if wide is None or wide == window:
@@ -144,7 +146,7 @@ class GridView:
         r0, r1, c0, c1 = wide
         # Only free cells below TOO_FAR can change: each band of rows is judged over the
         # columns that hold such cells.
-        unmarked = self.mask[r0:r1, c0:c1] & (limiting[r0:r1, c0:c1] < LimitingFactor.TOO_FAR)
+        unmarked = self.free.window(wide) & (limiting.read(wide) < LimitingFactor.TOO_FAR)
         for b0 in range(0, r1 - r0, _TOO_FAR_BAND_ROWS):
             band = unmarked[b0:b0 + _TOO_FAR_BAND_ROWS]
             cols = np.flatnonzero(band.any(axis=0))
@@ -156,8 +158,8 @@ class GridView:
             mr, mc = np.flatnonzero(marked.any(axis=1)), np.flatnonzero(marked.any(axis=0))
             if not len(mr):
                 continue
-            part = limiting[sub[0]:sub[1], sub[2]:sub[3]]
-            np.maximum(part, marked.view(np.uint8) * np.uint8(LimitingFactor.TOO_FAR), out=part)
+            limiting.write(sub, np.maximum(limiting.read(sub), marked.view(np.uint8)
+                                           * np.uint8(LimitingFactor.TOO_FAR)))
             changed = window_union(changed, (sub[0] + int(mr[0]), sub[0] + int(mr[-1]) + 1,
                                        sub[2] + int(mc[0]), sub[2] + int(mc[-1]) + 1))
         return changed
@@ -198,7 +200,7 @@ class GridView:
         with np.errstate(invalid="ignore", over="ignore"):
             px_c = (cam.project_lattice(H_centre, n_cols, n_rows) if relief is None
                     else cam.project_xyz(*xyz_c))
-            in_view = self.mask[r0:r1, c0:c1] & cam.in_picture(px_c)
+            in_view = self.free.window(window) & cam.in_picture(px_c)
             if in_view.any():
                 in_view &= cam.in_fov_xyz(*xyz_c)
         return H, in_view, in_range

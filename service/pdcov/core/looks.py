@@ -39,7 +39,8 @@ from pdcov.core.detector import DetectorModel
 
 __all__ = ["QUADRATURE", "CorrelatedLooks", "LooksConfig", "LooksRule", "Quadrature",
            "ViewpointBins", "ViewpointLooks", "beta_shape", "detectability_quantile",
-           "log_miss_of_nodes", "looks_state", "pd_of_node_log_miss", "same_looks_tables"]
+           "LooksModel", "log_miss_of_nodes", "looks_model", "pd_of_node_log_miss",
+           "same_looks_tables"]
 
 Window = tuple[int, int, int, int]  # r0, r1, c0, c1: rows r0:r1, columns c0:c1
 
@@ -204,10 +205,11 @@ def log_miss_of_nodes(log_miss_nodes: np.ndarray) -> np.ndarray:
 # -- what the grid stores per cell ----------------------------------------------------------
 
 class CorrelatedLooks:
-    """Per cell, the number of its counted looks in each bin of the detector model:
-    ``counts`` uint32 (n_rows, n_cols, K). The sufficient statistic of ``CORRELATED``: given
-    the latent q the looks are independent, so P_miss depends only on how many fell in each
-    bin, not on their order, time or vehicle; grids merge by adding counts.
+    """The state ``CORRELATED`` keeps per cell: the number of its counted looks in each bin
+    of the detector model, ``counts`` uint32 (rows, cols, K) (the grid's, tile by tile;
+    ``dtype`` and ``depth``). The sufficient statistic: given the latent q the looks are
+    independent, so P_miss depends only on how many fell in each bin, not on their order,
+    time or vehicle; grids merge by adding counts (``combined``).
 
     The bins are those of the kernel's table (``DetectorModel.padded_tables_by_blur``): the
     N size bins (K = N), and with blur bins also each (blur bin, size bin) pair
@@ -218,7 +220,9 @@ class CorrelatedLooks:
     over it (uint16 would overflow after 36 minutes of such a hover).
     """
 
-    def __init__(self, shape: tuple[int, int], detector: DetectorModel) -> None:
+    dtype = np.dtype(np.uint32)
+
+    def __init__(self, detector: DetectorModel) -> None:
         if detector.looks is None:
             raise ValueError(f"coverage.looks: correlated needs the detector model's looks "
                              f"section (looks.correlation, written by pdcov detector fit); "
@@ -233,47 +237,41 @@ class CorrelatedLooks:
         # Slot in ``counts`` of each table index, -1 for indices that are not bins.
         self.slot = np.full(len(pd), -1, dtype=np.int64)
         self.slot[is_bin] = np.arange(self.n_bins)
-        self.counts = np.zeros((*shape, self.n_bins), dtype=np.uint32)
         # log(1 - Q_k(q_j)): (K, J), the bins' detectability at the quadrature nodes.
         rho = np.asarray(detector.looks.correlation)[size_bin[is_bin] - 1]
         p = detectability_quantile(pd[is_bin][:, None], rho[:, None], QUADRATURE.q[None, :])
         with np.errstate(divide="ignore"):
             self.log1m_nodes = np.maximum(np.log1p(-p), _LOG_MISS_FLOOR)
 
-    def add(self, window: Window, idx: np.ndarray) -> np.ndarray:
-        """Count one look in ``window`` per cell whose table index ``idx`` (the kernel's:
-        0 for cells not counted) is a bin; returns those cells (bool, the window's
-        shape)."""
-        r0, _, c0, _ = window
+    @property
+    def depth(self) -> tuple[int]:
+        return (self.n_bins,)
+
+    def add(self, counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Count one look in ``counts`` (rows, cols, K; written in place) per cell whose
+        table index ``idx`` (rows, cols; the kernel's: 0 for cells not counted) is a bin;
+        returns those cells (bool, (rows, cols))."""
         slot = self.slot.take(idx)
         counted = slot >= 0
         rows, cols = np.nonzero(counted)
-        flat = self.counts.reshape(-1)
-        n_cols = self.counts.shape[1]
         # One look per cell: the targets are distinct, so a fancy += counts each once.
-        flat[((rows + r0) * n_cols + (cols + c0)) * self.n_bins
-             + slot[rows, cols]] += np.uint32(1)
+        counts[rows, cols, slot[rows, cols]] += np.uint32(1)
         return counted
 
-    def log_miss_nodes(self, window: Window) -> np.ndarray:
-        """Per cell of ``window``, log P_miss given q at each node: (rows, cols, J) float64,
-        sum_i n_i log(1 - Q_i(q_j))."""
-        r0, r1, c0, c1 = window
-        counts = self.counts[r0:r1, c0:c1].astype(np.float64)
-        out: np.ndarray = np.einsum("rci,ij->rcj", counts, self.log1m_nodes)
+    def log_miss_nodes(self, counts: np.ndarray) -> np.ndarray:
+        """Per cell of ``counts`` (rows, cols, K), log P_miss given q at each node:
+        (rows, cols, J) float64, sum_i n_i log(1 - Q_i(q_j))."""
+        out: np.ndarray = np.einsum("rci,ij->rcj", counts.astype(np.float64),
+                                    self.log1m_nodes)
         return out
 
-    def log_miss_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """log P_miss (float64, (k,)) of the cells (rows, cols): 0 where no look was
-        counted. Each cell's value depends on its counts only, not on which other cells
-        are computed with it (a fixed order of operations): the daemon, reading windows as
-        frames come, and ``pdcov evaluate``, reading once, get the same bits."""
-        return self.log_miss_of(self.counts[rows, cols])
-
     def log_miss_of(self, counts: np.ndarray) -> np.ndarray:
-        """log P_miss (float64, (k,)) of cells with these counts ((k, K), one row a cell, as
-        ``counts`` holds them): 0 where no look was counted. The counts of two grids of
-        this detector model added give the P_miss of one person seen by both."""
+        """log P_miss (float64, (k,)) of cells with these counts ((k, K), one row a cell):
+        0 where no look was counted. Each cell's value depends on its counts only, not on
+        which other cells are computed with it (a fixed order of operations): the daemon,
+        reading windows as frames come, and ``pdcov evaluate``, reading once, get the same
+        bits. The counts of two grids of this detector model added give the P_miss of one
+        person seen by both."""
         seen = counts.any(axis=1)
         out = np.zeros(len(counts))
         at = np.flatnonzero(seen)
@@ -285,24 +283,27 @@ class CorrelatedLooks:
             out[k] = log_miss_of_nodes(nodes)
         return out
 
-    def merge(self, other: CorrelatedLooks) -> None:
-        self.counts += other.counts
+    @staticmethod
+    def combined(states: list[np.ndarray]) -> np.ndarray:
+        """The counts of one person seen in all of ``states`` (the same cells): their sum."""
+        return np.asarray(np.sum(states, axis=0, dtype=np.uint32))
 
 
 class ViewpointLooks:
-    """Per cell and viewpoint bin, the best look: ``best`` uint8 (n_rows, n_cols, V), the
-    rank by P_D of its padded bin index (0: none); grids merge by the maximum. The
-    cumulative P_D is 1 - prod over viewpoint bins of (1 - P_D of the best look)."""
+    """The state ``VIEWPOINT`` keeps per cell and viewpoint bin: the best look, ``best``
+    uint8 (rows, cols, V), the rank by P_D of its padded bin index (0: none); grids merge
+    by the maximum (``combined``). The cumulative P_D is 1 - prod over viewpoint bins of
+    (1 - P_D of the best look)."""
 
-    def __init__(self, shape: tuple[int, int], detector: DetectorModel,
-                 bins: ViewpointBins) -> None:
+    dtype = np.dtype(np.uint8)
+
+    def __init__(self, detector: DetectorModel, bins: ViewpointBins) -> None:
         pd, _ = detector.padded_tables_by_blur()
         if len(pd) > 255:
             raise ValueError(f"coverage.looks: viewpoint ranks bins in uint8; the detector "
                              f"model's table has {len(pd)} entries (size bins + 2, times "
                              f"the blur rows), at most 255")
         self.bins = bins
-        self.best = np.zeros((*shape, bins.n_bins), dtype=np.uint8)
         # Ranks 1.. in order of P_D of the bins with P_D > 0; 0 (no look) for the others.
         order = np.argsort(pd, kind="stable")
         ranked = order[pd[order] > 0]
@@ -312,12 +313,16 @@ class ViewpointLooks:
         with np.errstate(divide="ignore"):
             self.log1m_by_rank[1:] = np.log1p(-pd[ranked])
 
-    def add(self, window: Window, idx: np.ndarray, x_m: np.ndarray, y_m: np.ndarray,
+    @property
+    def depth(self) -> tuple[int]:
+        return (self.bins.n_bins,)
+
+    def add(self, best: np.ndarray, idx: np.ndarray, x_m: np.ndarray, y_m: np.ndarray,
             z_m: np.ndarray | float, r_cam_enu: np.ndarray) -> np.ndarray:
-        """Keep, per cell of ``window`` and viewpoint bin, the better of its best look and
-        this one (padded bin index ``idx``, 0 for cells not counted); x_m (cols,), y_m
-        (rows,) and z_m (rows, cols or scalar): the cells' centres (ENU m). Returns the
-        cells with a look of P_D > 0 (bool, the window's shape)."""
+        """Keep in ``best`` (rows, cols, V; written in place), per cell and viewpoint bin,
+        the better of its best look and this one (padded bin index ``idx``, 0 for cells not
+        counted); x_m (cols,), y_m (rows,) and z_m (rows, cols or scalar): the cells'
+        centres (ENU m). Returns the cells with a look of P_D > 0 (bool, (rows, cols))."""
         rank = self.rank.take(idx)
         counted = rank != 0
         rows, cols = np.nonzero(counted)
@@ -326,15 +331,14 @@ class ViewpointLooks:
         z = z_m if np.ndim(z_m) == 0 else np.asarray(z_m)[rows, cols]
         v = self.bins.bin_of(r_cam_enu[0] - x_m[cols], r_cam_enu[1] - y_m[rows],
                              r_cam_enu[2] - z)
-        r0, _, c0, _ = window
-        flat = self.best.reshape(-1)
-        at = ((rows + r0) * self.best.shape[1] + (cols + c0)) * self.bins.n_bins + v
-        flat[at] = np.maximum(flat[at], rank[rows, cols])
+        best[rows, cols, v] = np.maximum(best[rows, cols, v], rank[rows, cols])
         return counted
 
-    def log_miss_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """log P_miss (float64, (k,)) of the cells (rows, cols)."""
-        return self.log_miss_of(self.best[rows, cols])
+    def log_miss_nodes(self, best: np.ndarray) -> np.ndarray:
+        """Per cell of ``best`` (rows, cols, V), log P_miss at every quadrature node (the
+        viewpoint rule does not depend on the latent): (rows, cols, J) float64."""
+        flat = self.log_miss_of(best.reshape(-1, best.shape[-1])).reshape(best.shape[:2])
+        return np.repeat(flat[..., None], len(QUADRATURE.q), axis=2)
 
     def log_miss_of(self, best: np.ndarray) -> np.ndarray:
         """log P_miss (float64, (k,)) of cells with these best ranks ((k, V), one row a
@@ -343,17 +347,22 @@ class ViewpointLooks:
         out: np.ndarray = self.log1m_by_rank.take(best).sum(axis=1)
         return out
 
-    def merge(self, other: ViewpointLooks) -> None:
-        np.maximum(self.best, other.best, out=self.best)
+    @staticmethod
+    def combined(states: list[np.ndarray]) -> np.ndarray:
+        """The best looks of one person seen in all of ``states`` (the same cells)."""
+        return np.asarray(np.maximum.reduce(states))
 
 
-def looks_state(config: LooksConfig, shape: tuple[int, int], detector: DetectorModel
-                ) -> CorrelatedLooks | ViewpointLooks | None:
-    """The per-cell looks state a rule keeps (None: independent, the log-miss sums)."""
+LooksModel = CorrelatedLooks | ViewpointLooks
+
+
+def looks_model(config: LooksConfig, detector: DetectorModel) -> LooksModel | None:
+    """The model of the per-cell looks state a rule keeps (None: independent, the
+    log-miss sums)."""
     if config.rule is LooksRule.CORRELATED:
-        return CorrelatedLooks(shape, detector)
+        return CorrelatedLooks(detector)
     if config.rule is LooksRule.VIEWPOINT:
-        return ViewpointLooks(shape, detector, config.viewpoint)
+        return ViewpointLooks(detector, config.viewpoint)
     return None
 
 

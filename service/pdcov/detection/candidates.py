@@ -68,6 +68,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detections import Box, Candidate, Detection
 from pdcov.core.geolocate import Geolocation, PositionAccuracy, locate_boxes
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer
 from pdcov.core.last_look import LastLook
 from pdcov.core.looks import CorrelatedLooks
 from pdcov.core.pose import CameraPose
@@ -206,9 +207,9 @@ class DetectionTracker:
                                 sigmas[located], ids, held, pos, self.gate_sigmas)
         looks = None if grid is None else _FrameLooks(
             grid, grid.last_look,
-            grid.looks_state if isinstance(grid.looks_state, CorrelatedLooks) else None)
+            grid.looks_model if isinstance(grid.looks_model, CorrelatedLooks) else None)
         scale = (1.0 if grid is None else
-                 grid.base_detector.image_to_input_scale(camera.width_px, camera.height_px))
+                 grid.detector.image_to_input_scale(camera.width_px, camera.height_px))
         hit_by: dict[int, Box] = {}
         found: dict[int, int] = {}  # box index -> candidate id
         for k, cid in zip(located, assigned, strict=True):  # joins first: births may evict
@@ -263,7 +264,8 @@ class DetectionTracker:
         row, col = (int(v) for v in geo.cell_of(r[0], r[1]))
         if not (0 <= row < geo.n_rows and 0 <= col < geo.n_cols):
             return cid
-        g.looks = int(grid.n_obs[row, col])
+        cell = (row, row + 1, col, col + 1)
+        g.looks = int(grid.read(Layer.N_OBS, cell)[0, 0])
         if not g.looks:  # no look yet: nothing to make a hit
             return cid
         log_miss_d, lam, index = 0.0, 0.0, 0
@@ -273,9 +275,9 @@ class DetectionTracker:
             log_miss_d = float(looks.look.log_miss_d(at)[0])
             lam = -float(log_fa[0]) * math.pi * gate_m**2 / geo.cell_size_m**2
         if looks.nodes is not None:
-            g.log_lr_nodes = grid.log_miss_nodes((row, row + 1, col, col + 1))[0, 0].copy()
+            g.log_lr_nodes = grid.log_miss_nodes(cell)[0, 0].copy()
         else:
-            g.log_lr = float(grid.log_miss_d[row, col])
+            g.log_lr = float(grid.read(Layer.LOG_MISS_D, cell)[0, 0])
         g.look = CountedLook(False, log_miss_d, lam, index)
         self._hit(looks, g, box, scale)
         return cid
@@ -316,7 +318,7 @@ class DetectionTracker:
         look.hit = True
         g.hits += 1
         size_px = scale * math.sqrt(box.width_px * box.height_px)
-        g.log_lr += float(looks.grid.base_detector.confidence_log_lr(
+        g.log_lr += float(looks.grid.detector.confidence_log_lr(
             np.array([size_px]), np.array([box.confidence]))[0])
 
     @staticmethod
@@ -366,8 +368,9 @@ class DetectionTracker:
             r = g.r_enu_m
             row, col = (int(v) for v in geo.cell_of(r[0], r[1]))
             inside = 0 <= row < geo.n_rows and 0 <= col < geo.n_cols
-            pd = float(-np.expm1(float(grid.log_miss_d[row, col]))) if inside else 0.0
-            pfa = float(-np.expm1(float(grid.log_miss_fa[row, col]))) if inside else 0.0
+            cell = (row, row + 1, col, col + 1)
+            pd = float(grid.read(Layer.PD, cell)[0, 0]) if inside else 0.0
+            pfa = float(grid.read(Layer.PFA, cell)[0, 0]) if inside else 0.0
             log_odds = (prior_log_odds(self.prior.at(row, col), math.pi * g.gate_m**2)
                         + g.log_odds_evidence())
             out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, g.looks,

@@ -36,6 +36,7 @@ import numpy as np
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.bus.grid_state import GridState, grid_hash
 from pdcov.config.mission import Mission
+from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_snapshot import SNAPSHOT_VERSION
 from pdcov.core.limiting import limiting_counts
 from pdcov.core.looks import LooksConfig
@@ -266,11 +267,10 @@ class Recording:
                 and grid_hash(grid.geometry, grid.mask) == merged.hash:
             from pdcov.report.outputs import summary_text, write_outputs
 
-            grid.log_miss_d[:] = merged.log_miss_d
-            grid.log_miss_fa[:] = merged.log_miss_fa
-            grid.n_obs[:] = merged.n_obs
-            if merged.limiting is not None:
-                grid.limiting[:] = merged.limiting
+            everything = (0, grid.geometry.n_rows, 0, grid.geometry.n_cols)
+            for layer in (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS, Layer.LIMITING):
+                if layer is not Layer.LIMITING or merged.limiting is not None:
+                    grid.layer(layer).write(everything, merged.read(layer))
             grid.frames = merged.frames
             track = _track_enu(watcher, ids, mission) if len(ids) == 1 else None
             run = write_outputs(fleet, mission, grid, mission.origin(),

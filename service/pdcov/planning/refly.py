@@ -33,6 +33,7 @@ from shapely.geometry import LineString, MultiPolygon, Polygon, box
 
 from pdcov.core.combine_cameras import combined_pd
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer
 from pdcov.core.looks import LooksConfig
 from pdcov.errors import ConfigError
 from pdcov.planning.decomposition import SweepFrame, polygons_of
@@ -310,7 +311,8 @@ def independent_grid(scenario: Scenario, log_miss_d: np.ndarray) -> CoverageGrid
     ``log_miss_d`` (float (n_rows, n_cols), <= 0): what the ground station's fleet merge
     gives (it adds the vehicles' derived log-misses)."""
     grid = replace(scenario, looks=LooksConfig()).new_grid()
-    grid.log_miss_d[...] = log_miss_d
+    grid.layer(Layer.LOG_MISS_D).write((0, grid.geometry.n_rows, 0, grid.geometry.n_cols),
+                                       log_miss_d)
     return grid
 
 

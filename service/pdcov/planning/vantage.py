@@ -39,6 +39,7 @@ from scipy import sparse
 from shapely.geometry import MultiPolygon, Polygon
 
 from pdcov.core.camera import CameraModel
+from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError
@@ -283,9 +284,8 @@ def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float,
         w = scratch_grid.touched
         if w is None:
             return None
-        r0, r1, c0, c1 = w
-        views.append((w, scratch_grid.log_miss_d[r0:r1, c0:c1].astype(np.float64)))
-        scratch_grid.log_miss_d[r0:r1, c0:c1] = 0.0  # the scratch grid keeps one frame
+        views.append((w, scratch_grid.read(Layer.LOG_MISS_D, w).astype(np.float64)))
+        scratch_grid.layer(Layer.LOG_MISS_D).write(w, 0.0)  # the scratch grid keeps one frame
     r0 = min(v[0][0] for v in views)
     r1 = max(v[0][1] for v in views)
     c0 = min(v[0][2] for v in views)

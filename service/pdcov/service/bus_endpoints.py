@@ -167,9 +167,9 @@ class BusEndpoints:
         m, origin = self.cfg.mission, self.core.coverage.origin
         alt = origin.ground_alt_msl_m if origin is not None else None
         if self._mission_reply is None or self._mission_reply[0] != alt:
-            state = self.core.coverage.state
+            live = self.core.coverage
             self._mission_reply = (alt, encode_mission(
-                m.vehicle_id, m.origin(alt), m.domain, state.geometry, state.hash,
+                m.vehicle_id, m.origin(alt), m.domain, live.grid.geometry, live.grid_hash,
                 ground_alt_known=alt is not None, thresholds=m.thresholds,
                 target_pd=self.cfg.target_pd))
         return self._mission_reply[1]

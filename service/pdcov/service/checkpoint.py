@@ -162,7 +162,7 @@ def _candidates(path: Path) -> dict[str, Any]:
 def _load_like(path: Path, new: CoverageGrid, data: bytes | None = None) -> CoverageGrid:
     """The snapshot at ``path`` (or its member's bytes ``data``) as a grid of ``new``'s
     camera, detector and options."""
-    return CoverageGrid.load_npz(path, new.camera, new.base_detector,
+    return CoverageGrid.load_npz(path, new.camera, new.detector,
                                  max_range_m=new.max_range_m,
                                  min_revisit_s=new.min_revisit_s, terrain=new.terrain,
                                  exposure_s=new.exposure_s, looks=new.looks, data=data)

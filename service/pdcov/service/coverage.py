@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.bus.faults import Fault
-from pdcov.bus.grid_state import GridState
+from pdcov.bus.grid_state import grid_hash
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
@@ -112,9 +112,7 @@ class LiveCoverage:
         m = cfg.mission
         self.cfg = cfg
         self.grid = grid
-        self.state = GridState(grid.geometry, grid.mask, grid.log_miss_d, grid.log_miss_fa,
-                               grid.n_obs, grid.frames, grid.limiting)  # views: current
-        self.grid_hash = self.state.hash  # the geometry and mask never change
+        self.grid_hash = grid_hash(grid.geometry, grid.mask)  # they never change
         self.frame_source = FrameSource(cfg.frame_source)
         self.max_gap_s = m.max_gap_s
         self.counters = Counters()
@@ -143,10 +141,9 @@ class LiveCoverage:
         self._zoom_followers = {cam.cam.zoom.camera_id: cam for cam in self.cameras
                                 if cam.cam.zoom is not None}
         combine_cameras(grid, self.camera_grids)
-        self.state.frames = grid.frames
         ts = cfg.bus.tile_size
         self.tile_size = ts
-        self.tile_sender = TileSender(grid, self.state, self.grid_hash, ts,
+        self.tile_sender = TileSender(grid, self.grid_hash, ts,
                                       cfg.bus.tiles_max_bytes_per_s, now_s, tiles_seq)
         self._next_status_s = now_s
         self._next_tiles_s = now_s
@@ -154,8 +151,7 @@ class LiveCoverage:
         self._next_value_s = now_s
         self._frames_at_checkpoint = grid.frames
         self.target_pd = cfg.target_pd
-        self.metrics = TileMetrics(self.state, ts, (*m.thresholds, self.target_pd),
-                                   grid.refresh)
+        self.metrics = TileMetrics(grid, ts, (*m.thresholds, self.target_pd))
         share = self.share_at_target()
         self._milestones = [x for x in MILESTONES if share < x - 1e-12]
 
@@ -316,7 +312,6 @@ class LiveCoverage:
         other = self.first.zoom_reports_other_camera
         if other and not self.cfg.mission.several_cameras:  # else counted in add_sample
             self.counters.faults[Fault.ZOOM_REPORTS_OTHER_CAMERA] = other
-        self.state.frames = self.grid.frames
         self.counters.used += added
         if (self.counters.faults[Fault.FRAMES_WITHOUT_ESTIMATOR_STATUS]
                 and not self._estimator_seen and not self._noted_no_estimator):

@@ -13,13 +13,13 @@ differ from a whole-grid ``sum`` only by rounding (about 1e-16 relative).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.bus.grid_state import GridState
-from pdcov.bus.tiles import tile_grid_shape
+from pdcov.bus.tiles import tile_bounds, tile_grid_shape
+from pdcov.core.grid_layer import CellSource, Layer
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,23 +44,21 @@ class GridSummary:
 
 
 class TileMetrics:
-    """Per-tile status metrics of ``state`` (whose arrays the grid updates in place) for
-    ``thresholds`` (P_D values). ``refresh``: called before the state is read (the grid's
-    ``CoverageGrid.refresh``, which derives P_D with correlated or viewpoint looks)."""
+    """Per-tile status metrics of ``source`` (the daemon's grid, read by window) for
+    ``thresholds`` (P_D values)."""
 
-    def __init__(self, state: GridState, tile_size: int, thresholds: Iterable[float],
-                 refresh: Callable[[], None] | None = None) -> None:
-        self.state = state
-        self._refresh_state = refresh
+    def __init__(self, source: CellSource, tile_size: int, thresholds: Iterable[float]
+                 ) -> None:
+        self.source = source
         self.tile_size = tile_size
         self.thresholds = tuple(sorted({float(t) for t in thresholds}))
-        shape = tile_grid_shape(tile_size, *state.geometry.shape)
+        shape = tile_grid_shape(tile_size, *source.geometry.shape)
         self._at_or_above = np.zeros((len(self.thresholds), *shape), np.int64)
         self._observed = np.zeros(shape, np.int64)
         self._sum_pd = np.zeros(shape, np.float64)
         self._sum_pfa = np.zeros(shape, np.float64)
         self._stale = np.ones(shape, bool)
-        self.cells_free = int(np.count_nonzero(state.mask))  # the mask never changes
+        self.cells_free = source.n_free  # the mask never changes
 
     def mark(self, window: tuple[int, int, int, int]) -> None:
         """Cells rows r0:r1, columns c0:c1 may have changed."""
@@ -70,8 +68,6 @@ class TileMetrics:
 
     def summary(self) -> GridSummary:
         """The metrics now, recomputing the stale tiles first."""
-        if self._refresh_state is not None:
-            self._refresh_state()
         for tr, tc in zip(*np.nonzero(self._stale), strict=True):
             self._refresh(int(tr), int(tc))
         self._stale[:] = False
@@ -83,14 +79,14 @@ class TileMetrics:
             sum_pd=float(self._sum_pd.sum()), expected_false_alarms=float(self._sum_pfa.sum()))
 
     def _refresh(self, tr: int, tc: int) -> None:
-        ts, s = self.tile_size, self.state
-        win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-        free = s.mask[win]
-        pd = 0.0 - np.expm1(s.log_miss_d[win][free].astype(np.float64))  # as CoverageGrid.pd
+        ts, s = self.tile_size, self.source
+        g = s.geometry
+        win = tile_bounds(tr, tc, ts, g.n_rows, g.n_cols)
+        free = s.read(Layer.MASK, win)
+        pd = s.read(Layer.PD, win)[free]
         for i, t in enumerate(self.thresholds):
             self._at_or_above[i, tr, tc] = np.count_nonzero(pd >= t)
-        observed = free & (s.n_obs[win] > 0)
+        observed = free & (s.read(Layer.N_OBS, win) > 0)
         self._observed[tr, tc] = np.count_nonzero(observed)
         self._sum_pd[tr, tc] = pd.sum()
-        self._sum_pfa[tr, tc] = (0.0 - np.expm1(
-            s.log_miss_fa[win][observed].astype(np.float64))).sum()
+        self._sum_pfa[tr, tc] = s.read(Layer.PFA, win)[observed].sum()

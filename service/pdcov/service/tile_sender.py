@@ -11,30 +11,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdcov.bus.grid_state import GridState
-from pdcov.bus.tiles import encode_tiles, tile_grid_shape, tile_wire_bytes
-from pdcov.core.grid import CoverageGrid
+from pdcov.bus.tiles import encode_tiles, tile_bounds, tile_grid_shape, tile_wire_bytes
+from pdcov.core.grid_layer import CellSource, Layer
 
 __all__ = ["TileSender"]
 
 
 class TileSender:
-    """The tiles of ``grid`` (``state``: views of its arrays, ``grid_hash`` its hash) sent so
-    far. seq: the next tiles message's sequence number. Every tile counts as touched at
+    """The tiles of ``grid`` (read by window; ``grid_hash`` its hash) sent so far. seq: the
+    next tiles message's sequence number. Every tile counts as touched at
     first (a resumed grid's observed tiles are sent)."""
 
-    def __init__(self, grid: CoverageGrid, state: GridState, grid_hash: str, tile_size: int,
+    def __init__(self, grid: CellSource, grid_hash: str, tile_size: int,
                  max_bytes_per_s: float, now_s: float, seq: int = 0) -> None:
         self.grid = grid
-        self.state = state
         self.grid_hash = grid_hash
         self.tile_size = tile_size
         self.seq = seq
         # Values as last sent, per tile; the tiles frames touched since the last comparison;
         # when each tile first changed unsent.
         self._tile_shape = tile_grid_shape(tile_size, *grid.geometry.shape)
-        self.sent_n_obs = np.zeros_like(grid.n_obs)
-        self.sent_limiting = np.zeros_like(grid.limiting)
+        # Per tile sent, its counts and limiting factors as sent (a tile never sent: 0).
+        self._sent: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._touched_tiles = np.ones(self._tile_shape, bool)
         self._dirty_since: dict[tuple[int, int], float] = {}
         self._rate = float(max_bytes_per_s)
@@ -67,11 +65,9 @@ class TileSender:
         # whole-grid comparison this replaces); a frame can change a cell's limiting factor
         # (in view too far, hidden) without a look.
         for tr, tc in zip(*np.nonzero(self._touched_tiles), strict=True):
-            win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-            if (int(tr), int(tc)) not in self._dirty_since and (
-                    (grid.n_obs[win] != self.sent_n_obs[win]).any()
-                    or (grid.limiting[win] != self.sent_limiting[win]).any()):
-                self._dirty_since[(int(tr), int(tc))] = now_s
+            key = (int(tr), int(tc))
+            if key not in self._dirty_since and self._differs(key):
+                self._dirty_since[key] = now_s
         self._touched_tiles[:] = False
         if not self._dirty_since or self._allowance <= 0:
             return None
@@ -79,14 +75,26 @@ class TileSender:
         per_tile = tile_wire_bytes(ts) * self._ratio
         n = max(1, min(len(order), int(self._allowance // max(per_tile, 1.0)), 0xFFFF))
         ids = order[:n]
-        payload = encode_tiles(self.state, ids, seq=self.seq, t_s=t_s, tile_size=ts,
+        payload = encode_tiles(grid, ids, seq=self.seq, t_s=t_s, tile_size=ts,
                                grid_hash=self.grid_hash)
         self.seq += 1
         self._allowance -= len(payload)
         self._ratio = max(0.01, len(payload) / (n * tile_wire_bytes(ts)))
-        for tr, tc in ids:
-            del self._dirty_since[(tr, tc)]
-            win = np.s_[tr * ts:(tr + 1) * ts, tc * ts:(tc + 1) * ts]
-            self.sent_n_obs[win] = grid.n_obs[win]
-            self.sent_limiting[win] = grid.limiting[win]
+        for key in ids:
+            del self._dirty_since[key]
+            win = self._window(key)
+            self._sent[key] = (grid.read(Layer.N_OBS, win), grid.read(Layer.LIMITING, win))
         return payload
+
+    def _window(self, key: tuple[int, int]) -> tuple[int, int, int, int]:
+        g = self.grid.geometry
+        return tile_bounds(*key, self.tile_size, g.n_rows, g.n_cols)
+
+    def _differs(self, key: tuple[int, int]) -> bool:
+        """Whether tile ``key``'s counts or limiting factors differ from what was sent."""
+        win = self._window(key)
+        n_obs, limiting = self.grid.read(Layer.N_OBS, win), self.grid.read(Layer.LIMITING, win)
+        sent = self._sent.get(key)
+        if sent is None:
+            return bool(n_obs.any() or limiting.any())
+        return bool((n_obs != sent[0]).any() or (limiting != sent[1]).any())
