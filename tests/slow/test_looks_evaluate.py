@@ -7,6 +7,7 @@ import numpy as np
 
 from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer
 from pdcov.core.looks import CorrelatedLooks
 from tests.support import evaluate_inputs as inputs
 
@@ -33,9 +34,8 @@ def test_evaluate_with_correlated_looks(tmp_path, capsys):
         independent.update(p)
     out = inputs.load_grid(tmp_path / "run")
     assert str(out["looks"]) == "correlated" and int(out["version"]) == 3
-    state = grid.looks_state
-    assert isinstance(state, CorrelatedLooks)
-    np.testing.assert_array_equal(out["looks_counts"], state.counts)
+    assert isinstance(grid.looks_model, CorrelatedLooks)
+    np.testing.assert_array_equal(out["looks_counts"], grid.read(Layer.LOOKS))
     np.testing.assert_array_equal(out["log_miss_d"], grid.log_miss_d)
     assert grid.n_obs.max() > 10
     # Many looks: the correlated P_D is below the independent one where cells were seen
