@@ -21,9 +21,9 @@ side by side: a checkpoint keeps two stores and names the complete one
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,10 +41,15 @@ from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_snapshot import check_snapshot_values
 from pdcov.core.looks import LooksConfig, LooksRule, ViewpointLooks
 from pdcov.core.terrain import TerrainSurface
-from pdcov.core.tiles import TileKey
+from pdcov.core.tiles import TileKey, TileLayout
 from pdcov.errors import InputFileError
+from pdcov.npz_file import DAMAGED
 
 STORE_VERSION = 1
+# What reading a damaged store raises: a file's errors (npz_file.DAMAGED: JSON, shapes,
+# memory), and a chunk's codecs' (Blosc and zstd raise RuntimeError, a negative size
+# SystemError).
+_DAMAGED_STORE = (*DAMAGED, RuntimeError, SystemError)
 _COMPRESSORS = (BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle"),)
 _STORED = (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS, Layer.LIMITING,
            Layer.LAST_OBS_S, Layer.LOOKS)
@@ -65,54 +70,87 @@ def _array_name(grid_looks: LooksRule, layer: Layer) -> str:
     return layer.value
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class StoreUpdate:
+    """What ``write_update`` writes into a store, copied from a grid at one moment
+    (``store_update``), so that the grid may go on while it is written (a checkpoint off
+    the daemon's loop): ``tiles`` per stored layer, tile key -> a copy of its array;
+    ``layers``: each stored layer's (dtype, fill, depth); ``attrs``: the group's
+    attributes; ``mask``: the free cells of a grid made from a mask array, else None."""
+
+    geometry: GridGeometry
+    tile_cells: int
+    looks: LooksRule
+    layers: dict[Layer, tuple[np.dtype, float | bool, tuple[int, ...]]]
+    keys: list[TileKey]
+    tiles: dict[Layer, dict[TileKey, np.ndarray]]
+    attrs: dict[str, Any]
+    mask: np.ndarray | None
+
+
+def store_update(grid: CoverageGrid, keys: Iterable[TileKey] | None = None) -> StoreUpdate:
+    """The tiles ``keys`` (None: every tile the grid holds) of every stored layer of
+    ``grid`` and its attributes, copied now: the cost follows the tiles, not the grid."""
+    todo = grid.tile_keys() if keys is None else sorted(set(keys))
+    layers = {layer: grid.layer(layer) for layer in _STORED if grid.keeps(layer)}
+    tiles = {layer: {k: t.copy() for k in todo if (t := tiled.get(k)) is not None}
+             for layer, tiled in layers.items()}
+    return StoreUpdate(
+        grid.geometry, grid.layout.size, grid.looks.rule,
+        {layer: (t.dtype, t.fill, t.depth) for layer, t in layers.items()}, todo, tiles,
+        _attributes(grid, grid.geometry),
+        grid.free.dense() if grid.free.free_space is None else None)
+
+
 def write_store(path: str | Path, grid: CoverageGrid,
                 keys: Iterable[TileKey] | None = None) -> None:
-    """Write ``grid`` into the store at ``path``: created for the grid's geometry when
-    absent (ValueError for a store of another grid), then the tiles ``keys`` (None: every
-    tile the grid holds) of every layer, then the attributes. OSError from the disk."""
+    """``write_update`` of ``store_update(grid, keys)``."""
+    write_update(path, store_update(grid, keys))
+
+
+def write_update(path: str | Path, update: StoreUpdate) -> None:
+    """Write ``update`` into the store at ``path``: created for its grid when absent
+    (ValueError for a store of another grid), then its tiles, then the attributes.
+    OSError from the disk."""
     path = Path(path)
-    g = grid.geometry
     root = zarr.open_group(store=str(path), mode="a", zarr_format=3)
     if "pdcov_grid" in root.attrs:
-        _check_same_grid(path, root.attrs.asdict(), grid)
+        _check_same_grid(path, root.attrs.asdict(), update)
     else:
-        _create(root, grid)
-    arrays = {layer: _array(root, _array_name(grid.looks.rule, layer)) for layer in _STORED
-              if grid.keeps(layer)}
+        _create(root, update)
+    arrays = {layer: _array(root, _array_name(update.looks, layer)) for layer in update.layers}
     written = _array(root, _TILES)
-    todo = grid.tile_keys() if keys is None else sorted(set(keys))
     marks = np.asarray(written[...])
-    for key in todo:
-        r0, r1, c0, c1 = grid.layout.window_of(key)
+    layout = TileLayout(update.geometry.n_rows, update.geometry.n_cols, update.tile_cells)
+    for key in update.keys:
+        r0, r1, c0, c1 = layout.window_of(key)
         for layer, arr in arrays.items():
-            tile = grid.layer(layer).get(key)
+            tile = update.tiles[layer].get(key)
             if tile is not None:
                 arr[r0:r1, c0:c1] = tile
         marks[key] = 1
-    if todo:
+    if update.keys:
         written[...] = marks
-    root.attrs.update(_attributes(grid, g))
+    root.attrs.update(update.attrs)
 
 
-def _create(root: zarr.Group, grid: CoverageGrid) -> None:
-    """The store's arrays for ``grid``: every layer it keeps, the tiles written, and the
-    free cells (a mask array when the grid was made from one)."""
-    g, layout = grid.geometry, grid.layout
-    chunks = (layout.size, layout.size)
-    for layer in _STORED:
-        if not grid.keeps(layer):
-            continue
-        tiled = grid.layer(layer)
-        root.create_array(name=_array_name(grid.looks.rule, layer),
-                          shape=(*g.shape, *tiled.depth), chunks=(*chunks, *tiled.depth),
-                          dtype=tiled.dtype, fill_value=tiled.fill, compressors=_COMPRESSORS)
+def _create(root: zarr.Group, update: StoreUpdate) -> None:
+    """The store's arrays for ``update``'s grid: every layer it keeps, the tiles written,
+    and the free cells (a mask array when the grid was made from one)."""
+    g = update.geometry
+    chunks = (update.tile_cells, update.tile_cells)
+    for layer, (dtype, fill, depth) in update.layers.items():
+        root.create_array(name=_array_name(update.looks, layer), shape=(*g.shape, *depth),
+                          chunks=(*chunks, *depth), dtype=dtype, fill_value=fill,
+                          compressors=_COMPRESSORS)
+    layout = TileLayout(g.n_rows, g.n_cols, update.tile_cells)
     root.create_array(name=_TILES, shape=(layout.n_tile_rows, layout.n_tile_cols),
                       chunks=(layout.n_tile_rows, layout.n_tile_cols), dtype="uint8",
                       fill_value=0)
-    if grid.free.free_space is None:
+    if update.mask is not None:
         mask = root.create_array(name="mask", shape=g.shape, chunks=chunks, dtype="bool",
                                  fill_value=False, compressors=_COMPRESSORS)
-        mask[...] = grid.free.dense()
+        mask[...] = update.mask
 
 
 def _attributes(grid: CoverageGrid, g: GridGeometry) -> dict[str, Any]:
@@ -127,10 +165,10 @@ def _attributes(grid: CoverageGrid, g: GridGeometry) -> dict[str, Any]:
                                else shapely.to_wkb(free_space, hex=True))}
 
 
-def _check_same_grid(path: Path, attrs: dict[str, Any], grid: CoverageGrid) -> None:
-    g = grid.geometry
-    mine = (g.x0_m, g.y0_m, g.cell_size_m, g.n_rows, g.n_cols, grid.layout.size,
-            str(grid.looks.rule))
+def _check_same_grid(path: Path, attrs: dict[str, Any], update: StoreUpdate) -> None:
+    g = update.geometry
+    mine = (g.x0_m, g.y0_m, g.cell_size_m, g.n_rows, g.n_cols, update.tile_cells,
+            str(update.looks))
     theirs = tuple(attrs.get(k) for k in ("x0_m", "y0_m", "cell_size_m", "n_rows", "n_cols",
                                           "tile_cells", "looks"))
     if mine != theirs:
@@ -144,33 +182,32 @@ def read_store(path: str | Path, camera: CameraModel, detector: DetectorModel, *
     """The grid stored at ``path`` (``write_store``), its tiles read and checked as a
     snapshot's arrays are (core/grid_snapshot.py) before any enters the grid; the
     arguments as ``CoverageGrid``'s. InputFileError for a store that is not a readable,
-    undamaged pdcov grid, or one of another looks rule than ``looks``."""
+    undamaged pdcov grid (a chunk that does not decode among them), or one of another
+    looks rule than ``looks``."""
     path = Path(path)
     try:
         root = zarr.open_group(store=str(path), mode="r", zarr_format=3)
         attrs = root.attrs.asdict()
-    except (FileNotFoundError, ValueError, KeyError, TypeError, json.JSONDecodeError) as e:
-        raise InputFileError(f"{path}: cannot read the grid store ({e})") from None
-    geometry, free = _free_cells(path, root, attrs)
-    rule = (looks or LooksConfig()).rule
-    if attrs.get("looks") != str(rule):
-        raise InputFileError(f"{path}: the grid store was made with coverage.looks: "
-                             f"{attrs.get('looks')}, the mission says {rule}; load it with "
-                             "the same looks rule")
-    grid = CoverageGrid(geometry, free, camera, detector, max_range_m=max_range_m,
-                        min_revisit_s=min_revisit_s, terrain=terrain, exposure_s=exposure_s,
-                        looks=looks)
-    if attrs.get("tile_cells") != grid.layout.size:
-        raise InputFileError(f"{path}: tiles of {attrs.get('tile_cells')} cells, this pdcov "
-                             f"keeps {grid.layout.size}")
-    try:
+        geometry, free = _free_cells(path, root, attrs)
+        rule = (looks or LooksConfig()).rule
+        if attrs.get("looks") != str(rule):
+            raise InputFileError(f"{path}: the grid store was made with coverage.looks: "
+                                 f"{attrs.get('looks')}, the mission says {rule}; load it "
+                                 "with the same looks rule")
+        grid = CoverageGrid(geometry, free, camera, detector, max_range_m=max_range_m,
+                            min_revisit_s=min_revisit_s, terrain=terrain,
+                            exposure_s=exposure_s, looks=looks)
+        if attrs.get("tile_cells") != grid.layout.size:
+            raise InputFileError(f"{path}: tiles of {attrs.get('tile_cells')} cells, this "
+                                 f"pdcov keeps {grid.layout.size}")
         written = np.argwhere(np.asarray(_array(root, _TILES)[...]) != 0)
         arrays = {layer: _array(root, _array_name(rule, layer)) for layer in _STORED
-                  if grid.keeps(layer) and _array_name(rule, layer) in root}
-    except (KeyError, ValueError) as e:
-        raise InputFileError(f"{path}: not a usable grid store ({e})") from None
-    for tr, tc in written.tolist():
-        _read_tile(path, grid, arrays, (tr, tc))
+                  if grid.keeps(layer)}
+        for tr, tc in written.tolist():
+            _read_tile(path, grid, arrays, (tr, tc))
+    except _DAMAGED_STORE as e:
+        raise InputFileError(f"{path}: not a usable grid store ({type(e).__name__}: "
+                             f"{e})") from None
     grid.frames = _count(path, attrs, "frames")
     grid.frames_blurred = _count(path, attrs, "frames_blurred")
     latest = attrs.get("latest_frame_t_s")
@@ -195,8 +232,9 @@ def _free_cells(path: Path, root: zarr.Group, attrs: dict[str, Any]
         if mask.shape != geometry.shape:
             raise ValueError(f"mask of shape {mask.shape}")
         return geometry, FreeCells(geometry, mask=np.asarray(mask[...]))
-    except (KeyError, ValueError, TypeError, shapely.errors.ShapelyError) as e:
-        raise InputFileError(f"{path}: not a usable grid store ({e})") from None
+    except shapely.errors.ShapelyError as e:
+        raise InputFileError(f"{path}: not a usable grid store (free_space_wkb: {e})") \
+            from None
 
 
 def _read_tile(path: Path, grid: CoverageGrid, arrays: dict[Layer, zarr.Array], key: TileKey
