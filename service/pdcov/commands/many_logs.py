@@ -1,0 +1,177 @@
+"""Several flight logs into one map: each log evaluated by ``input_run.run_input`` (the one
+flight engine), in this process, in worker processes (all cores) or on a Dask cluster, and
+the grids merged with ``CoverageGrid.merge`` in log order, not completion order: the map is
+the same however the logs ran, and equals evaluating them one by one and merging.
+
+The logs must share one ENU frame: the mission's origin. Without a configured ground
+altitude each log's origin takes its own home's, and logs whose origins differ are refused
+(their ENU heights are above different grounds). A worker sends its grids back as snapshot
+bytes (``input_run.PackedGrids``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Generator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import closing
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TypeAlias, cast
+
+from pdcov.commands.input_run import InputGrids, InputJob, InputRun, run_input, run_input_packed
+from pdcov.config.mission import Mission
+from pdcov.errors import ConfigError, InputFileError, PdcovError
+from pdcov.extras import CLUSTER
+
+Done: TypeAlias = Generator[tuple[int, InputRun], None, None]  # (log index, run), as done
+
+# What --log DIR takes from a folder: the flight log formats pdcov reads (any case: an
+# ArduPilot SD card names them 00000012.BIN).
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
+
+
+def log_paths(given: Sequence[Path]) -> list[Path]:
+    """The logs of ``--log`` values in order: a file as given, a folder as its flight logs
+    (LOG_SUFFIXES) sorted by name. InputFileError naming the folder when it holds none, or
+    naming the log given twice (the same file, whatever its spelling)."""
+    paths: list[Path] = []
+    for p in given:
+        if p.is_dir():
+            found = sorted((f for f in p.iterdir()
+                            if f.suffix.lower() in LOG_SUFFIXES and f.is_file()),
+                           key=lambda f: f.name)
+            if not found:
+                raise InputFileError(f"{p}: no flight log in this folder (expected "
+                                     f"{', '.join(LOG_SUFFIXES)} files)")
+            paths += found
+        else:
+            paths.append(p)
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            same = "" if seen[key] == p else f" (as {seen[key]})"
+            raise InputFileError(f"{p}: given twice{same}: each log counts once in the map")
+        seen[key] = p
+    return paths
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MergedLogs:
+    """Logs evaluated and merged: ``grids`` the merged grids (in log order), ``runs`` each
+    log's run in log order without its grids (``InputRun.grids`` None)."""
+
+    grids: InputGrids
+    runs: tuple[InputRun, ...]
+
+
+def evaluate_logs(jobs: Sequence[InputJob], *, workers: int, dask_address: str | None = None,
+                  progress: bool = False) -> MergedLogs:
+    """Evaluate ``jobs`` (one per log, in log order) with ``workers`` processes (1: in this
+    process) or on the Dask scheduler at ``dask_address``, and merge them in log order
+    (module docstring); a bar over the logs with ``progress``. Raises the first failing
+    log's PdcovError, naming it, before any output is written."""
+    from pdcov.planning.progress import progress as bar
+
+    if not jobs:
+        raise ValueError("no log to evaluate")
+    mission = jobs[0].mission
+    if dask_address is not None:
+        done = _on_dask(jobs, dask_address)
+    elif workers > 1 and len(jobs) > 1:
+        done = _in_processes(jobs, min(workers, len(jobs)))
+    else:
+        done = _here(jobs)
+    pending: dict[int, InputRun] = {}
+    runs: list[InputRun] = []
+    merged: InputGrids | None = None
+    with closing(done):  # a failure cancels the logs still running
+        for i, run in bar(done, desc="logs", unit="log", total=len(jobs), enabled=progress):
+            pending[i] = run
+            while len(runs) in pending:  # the next log in order is done: merge it
+                run = pending.pop(len(runs)).unpacked(mission)
+                if runs and run.origin != runs[0].origin:
+                    raise _origins_differ(runs[0], run, mission)
+                merged = run.loaded if merged is None else _merged(merged, run.loaded)
+                runs.append(replace(run, grids=None))
+    return MergedLogs(cast(InputGrids, merged), tuple(runs))
+
+
+def _merged(into: InputGrids, other: InputGrids) -> InputGrids:
+    """``other`` merged into ``into`` (CoverageGrid.merge of the mission grid and of each
+    camera's)."""
+    into.grid.merge(other.grid)
+    for name, g in into.cameras.items():
+        g.merge(other.cameras[name])
+    return into
+
+
+def _origins_differ(first: InputRun, run: InputRun, mission: Mission) -> ConfigError:
+    a, b = first.origin, run.origin
+    return ConfigError(
+        f"{first.path} and {run.path} have different ENU origins (ground "
+        f"{a.ground_alt_msl_m:.2f} and {b.ground_alt_msl_m:.2f} m MSL, each from its own "
+        "home): their maps do not line up; set origin.ground_alt_msl_m in "
+        f"{mission.source} to evaluate them in one frame")
+
+
+def _named(exc: PdcovError, path: Path) -> PdcovError:
+    """``exc`` with ``path`` in its message (a failing log among several is named)."""
+    if str(path) in str(exc):
+        return exc
+    return type(exc)(f"{path}: {exc}")
+
+
+def _here(jobs: Sequence[InputJob]) -> Done:
+    """(log index, run) evaluated one after the other in this process."""
+    for i, job in enumerate(jobs):
+        try:
+            yield i, run_input(job)
+        except PdcovError as exc:
+            raise _named(exc, job.path) from None
+
+
+def _in_processes(jobs: Sequence[InputJob], workers: int) -> Done:
+    """(log index, run) as the worker processes finish them; the rest cancelled on the
+    first failure."""
+    # forkserver: a worker never inherits this process's threads (tqdm's, a BLAS pool).
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("forkserver")
+                             ) as pool:
+        futures = {pool.submit(run_input_packed, job): i for i, job in enumerate(jobs)}
+        try:
+            for f in as_completed(futures):
+                i = futures[f]
+                try:
+                    yield i, f.result()
+                except PdcovError as exc:
+                    raise _named(exc, jobs[i].path) from None
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _on_dask(jobs: Sequence[InputJob], address: str) -> Done:
+    """(log index, run) as the Dask workers at ``address`` finish them (the logs' paths
+    must be readable there: a shared file system); the rest cancelled on the first
+    failure."""
+    CLUSTER.require()
+    from distributed import Client
+    from distributed import as_completed as dask_completed
+
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise PdcovError(f"--dask {address}: cannot reach the Dask scheduler ({exc})"
+                         ) from None
+    with client:
+        futures = client.map(run_input_packed, list(jobs), pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for f in dask_completed(futures):
+                i = index[f.key]
+                try:
+                    yield i, f.result()
+                except PdcovError as exc:
+                    raise _named(exc, jobs[i].path) from None
+        finally:
+            client.cancel(futures)
