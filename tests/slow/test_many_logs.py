@@ -155,3 +155,63 @@ def test_jobs_need_logs(tmp_path, capsys):
     assert run("evaluate", "--config", str(config), "--poses", str(tmp_path / "poses.csv"),
                "--out", str(tmp_path / "run"), "--jobs", "2") == 2
     assert "a pose CSV is one input" in capsys.readouterr().err
+
+
+def _recording(tmp: Path, cfg: Path, seed: int) -> Path:
+    """A hover recorded by the daemon's core with a detector's boxes on 16 frames (a person
+    near the centre, a car every other frame); ``seed`` varies the boxes (and the bytes)."""
+    from pdcov.bus.frames import encode_frames_v2
+    from pdcov.core.detections import Box, FrameBoxes
+    from tests.support.detections_driver import Driver
+    from tests.support.link_feed import Hover, pack
+
+    rng = np.random.default_rng(seed)
+    d = Driver(cfg, tmp / f"rec{seed}")
+    d.link(b"".join(pack(m, seq=i) for i, m in enumerate(Hover(seconds=4.0).messages())))
+    d.frames(encode_frames_v2([FrameBoxes(1.2 + 0.2 * k, (
+        Box("person", 0.8, 310 + rng.normal(0, 1.5), 200 + rng.normal(0, 1.5), 18.0, 40.0),
+        *((Box("car", 0.6, 500.0, 100.0, 60.0, 30.0),) if k % 2 else ())))
+        for k in range(16)]))
+    d.core.process()
+    d.tick(1.0)
+    d.recorder.close()
+    return next((tmp / f"rec{seed}").glob("flight-*.tlog"))
+
+
+def test_detections_of_several_logs_keep_unique_ids_and_uids(tmp_path):
+    import yaml
+
+    from pdcov.bus.detections import decode_detections
+    from pdcov.config.load import load_mission
+    from pdcov.core.grid_snapshot import read_snapshot
+    from tests.support.link_feed import FIXED, MISSION
+
+    doc = dict(MISSION, mount=FIXED, vehicle_id="uav7")
+    doc["service"] = {"state_dir": str(tmp_path / "state"), "frame_source": "zenoh",
+                      "reorder_s": 0.0}
+    cfg = tmp_path / "m.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    logs = [_recording(tmp_path, cfg, seed) for seed in (1, 2)]
+    for k, log in enumerate(logs):
+        assert evaluate(cfg, tmp_path / f"alone{k}", log) == 0
+    assert evaluate(cfg, tmp_path / "both", *logs, more=("--jobs", "2")) == 0
+    alone = [decode_detections((tmp_path / f"alone{k}" / "detections.json").read_bytes(),
+                               vehicle_id="uav7") for k in range(2)]
+    both = decode_detections((tmp_path / "both" / "detections.json").read_bytes(),
+                             vehicle_id="uav7")
+    assert len(both["detections"]) == sum(len(a["detections"]) for a in alone) > 0
+    uids = [c["uid"] for c in both["candidates"]]
+    assert uids == [c["uid"] for a in alone for c in a["candidates"]]
+    assert len(set(uids)) == len(uids) == 4  # the person and the car, in each log
+    assert len({c["id"] for c in both["candidates"]}) == len(uids)
+    assert {x["uid"] for x in both["detections"]} == set(uids)
+    # Each candidate's P_D and P_FA are the merged map's at its cell.
+    mission = load_mission(cfg)
+    grid = mission.new_mission_grid()
+    read_snapshot(tmp_path / "both" / "grid.npz").restore(grid)
+    for c in both["candidates"]:
+        row, col = grid.geometry.cell_of(c["x_m"], c["y_m"])
+        assert c["pd"] == pytest.approx(grid.pd[row, col], abs=1e-12)
+        assert c["pfa"] == pytest.approx(grid.pfa[row, col], abs=1e-12)
+        assert c["pd"] > max(a["pd"] for a in alone[0]["candidates"] + alone[1]["candidates"]
+                             if a["uid"] == c["uid"]) - 1e-12
