@@ -21,7 +21,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.core.blur import describe_blur
+from pdcov.core.combine_cameras import combine_cameras
+from pdcov.core.grid_snapshot import read_snapshot
+from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, InputFileError, PdcovError
+from pdcov.flight.frame_decision import framing_of
+from pdcov.flight.log_frames import poses_of_log
+from pdcov.report.outputs import evaluate_poses, finite_track, read_prior
+from pdcov.telemetry.frame_policy import below_min_height
+from pdcov.telemetry.logs import FlightLog, for_gimbal, read_flight_log
+from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
+from pdcov.telemetry.terrain_check import terrain_check_for
 
 if TYPE_CHECKING:
     from pdcov.config.mission import Mission
@@ -29,7 +39,6 @@ if TYPE_CHECKING:
     from pdcov.core.grid import CoverageGrid
     from pdcov.core.pose import CameraPose
     from pdcov.report.outputs import Prior
-    from pdcov.telemetry.logs import FlightLog
 
 
 class InputKind(Enum):
@@ -149,9 +158,6 @@ def run_input_packed(job: InputJob) -> InputRun:
 def run_input(job: InputJob) -> InputRun:
     """Evaluate ``job`` (module docstring). Raises PdcovError naming the input when it
     cannot be read or gives no camera frame."""
-    from pdcov.core.combine_cameras import combine_cameras
-    from pdcov.report.outputs import evaluate_poses, finite_track, read_prior
-    from pdcov.telemetry.frame_policy import below_min_height
 
     mission = job.mission
     frames = _log_frames(job) if job.kind is InputKind.LOG else _csv_frames(job)
@@ -203,7 +209,6 @@ def run_input(job: InputJob) -> InputRun:
                      f"recorded, in {len(detections['candidates'])} candidates")
     warnings = _unseen_domain_warnings(grid, mission, poses)
     if frames.export is not None and job.export_poses is not None:
-        from pdcov.telemetry.pose_csv import write_pose_csv
         write_pose_csv(job.export_poses, frames.export)
     return InputRun(job.path, frames.origin, grid.frames, tuple(lines), frames.warnings,
                     tuple(warnings), finite_track(frames.track_enu),
@@ -236,7 +241,6 @@ class _Frames:
 
 def _csv_frames(job: InputJob) -> _Frames:
     """The poses of a pose CSV (``job.path``)."""
-    from pdcov.telemetry.pose_csv import read_pose_csv
 
     mission = job.mission
     zoom = mission.only_camera(
@@ -258,11 +262,6 @@ def _csv_frames(job: InputJob) -> _Frames:
 def _log_frames(job: InputJob) -> _Frames:
     """The camera frames of the mission's first camera in a flight log (``job.path``),
     with the daemon's terrain check over the same samples when the mission has a DEM."""
-    from pdcov.core.mount import GimbalMount
-    from pdcov.flight.frame_decision import framing_of
-    from pdcov.flight.log_frames import poses_of_log
-    from pdcov.telemetry.logs import read_flight_log
-    from pdcov.telemetry.terrain_check import terrain_check_for
 
     mission = job.mission
     terrain_check = terrain_check_for(mission)
@@ -297,11 +296,6 @@ def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, Coverag
     """Evaluate into ``grids`` (by name) the mission's cameras after the first, each from
     the frames of the ``log`` read once (its own gimbal device's reports) at its own rate,
     with its own mount, zoom and detector (the mission's frame rules)."""
-    from pdcov.core.mount import GimbalMount
-    from pdcov.flight.frame_decision import framing_of
-    from pdcov.flight.log_frames import poses_of_log
-    from pdcov.report.outputs import evaluate_poses
-    from pdcov.telemetry.logs import for_gimbal
 
     for cam in mission.cameras:
         if cam is mission.first_camera:
@@ -372,7 +366,6 @@ def _snapshot(grid: CoverageGrid) -> bytes:
 def _restored(mission: Mission, camera: Any, data: bytes, source: Path) -> CoverageGrid:
     """A grid of ``mission`` (its mission grid with ``camera`` None, else that camera's:
     Mission.new_mission_grid / new_grid) holding the snapshot ``data``."""
-    from pdcov.core.grid_snapshot import read_snapshot
 
     grid = mission.new_mission_grid() if camera is None else mission.new_grid(camera)
     read_snapshot(source, data).restore(grid)

@@ -135,9 +135,12 @@ def _here(jobs: Sequence[InputJob]) -> Done:
 def _in_processes(jobs: Sequence[InputJob], workers: int) -> Done:
     """(log index, run) as the worker processes finish them; the rest cancelled on the
     first failure."""
-    # forkserver: a worker never inherits this process's threads (tqdm's, a BLAS pool).
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("forkserver")
-                             ) as pool:
+    # forkserver: a worker never inherits this process's threads (tqdm's, a BLAS pool);
+    # the server imports the evaluation (input_run and the engine it imports) once, and each
+    # worker forks from it ready to run.
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([run_input_packed.__module__])
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
         futures = {pool.submit(run_input_packed, job): i for i, job in enumerate(jobs)}
         try:
             for f in as_completed(futures):
