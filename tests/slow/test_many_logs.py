@@ -215,3 +215,24 @@ def test_detections_of_several_logs_keep_unique_ids_and_uids(tmp_path):
         assert c["pfa"] == pytest.approx(grid.pfa[row, col], abs=1e-12)
         assert c["pd"] > max(a["pd"] for a in alone[0]["candidates"] + alone[1]["candidates"]
                              if a["uid"] == c["uid"]) - 1e-12
+
+
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "real-logs"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason=f"{REAL} not present")
+def test_real_logs_of_two_formats_merge_as_one_by_one(tmp_path):
+    """ArduPilot's tlog and its onboard DataFlash log of one CMAC flight (../shared/
+    real-logs), each placed about its own home: one frame (the same home), one map."""
+    import yaml
+
+    from tests.support.cmac_mission import CMAC
+
+    config = tmp_path / "cmac.yaml"
+    config.write_text(yaml.safe_dump(CMAC))
+    logs = [REAL / "ardupilot_sitl_servo_gimbal.tlog", REAL / "ardupilot_sitl_servo_gimbal.BIN"]
+    assert evaluate(config, tmp_path / "merged", *logs, more=("--jobs", "2")) == 0
+    assert_same_map(tmp_path / "merged", one_by_one(config, logs, tmp_path))
+    metrics = json.loads((tmp_path / "merged" / "metrics.json").read_text())
+    assert [x["log"] for x in metrics["logs"]] == [str(p) for p in logs]
+    assert all(x["frames"] > 100 for x in metrics["logs"])

@@ -14,6 +14,7 @@ from __future__ import annotations
 import multiprocessing
 from collections.abc import Generator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -149,6 +150,9 @@ def _in_processes(jobs: Sequence[InputJob], workers: int) -> Done:
                     yield i, f.result()
                 except PdcovError as exc:
                     raise _named(exc, jobs[i].path) from None
+                except BrokenProcessPool:
+                    raise PdcovError(f"{jobs[i].path}: the worker process evaluating it "
+                                     "died (out of memory?); try fewer --jobs") from None
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
