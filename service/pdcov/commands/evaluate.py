@@ -122,16 +122,16 @@ def run_evaluate(args: argparse.Namespace) -> int:
                              f"{len(paths)} given")
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}", f"looks: {mission.looks.summary}"]
-    jobs = [InputJob(p, kind, mission, frame_source, args.prior, args.export_poses,
+    jobs = [InputJob(p, kind, frame_source, args.prior, args.export_poses,
                      progress and len(paths) == 1) for p in paths]
     if len(jobs) == 1:
-        run = run_input(jobs[0])
+        run = run_input(jobs[0], mission)
         grids, runs = run.loaded, [run]
         lines += run.lines
     else:
         from pdcov.commands.many_logs import evaluate_logs
         workers = args.jobs or os.cpu_count() or 1
-        merged = evaluate_logs(jobs, workers=workers, dask_address=args.dask,
+        merged = evaluate_logs(mission, jobs, workers=workers, dask_address=args.dask,
                                progress=progress)
         grids, runs = merged.grids, list(merged.runs)
         lines += _logs_lines(runs, f"on the Dask cluster at {args.dask}" if args.dask

@@ -50,14 +50,14 @@ class InputKind(Enum):
 
 @dataclass(frozen=True, slots=True)
 class InputJob:
-    """One input to evaluate: ``path`` of ``kind`` under ``mission`` with ``frame_source``
-    (resolved: Mission.cameras_frame_source); ``prior``: the --prior file (for the
-    detections' prior and the outputs); ``export_poses``: where to write the camera poses
-    used (a log only); ``progress``: bars for the frames (in process only)."""
+    """One input to evaluate: ``path`` of ``kind`` with ``frame_source`` (resolved:
+    Mission.cameras_frame_source); ``prior``: the --prior file (for the detections' prior
+    and the outputs); ``export_poses``: where to write the camera poses used (a log only);
+    ``progress``: bars for the frames (in process only). The mission is handed beside it:
+    a worker receives it once, not with every log (with a DEM it holds grid-sized arrays)."""
 
     path: Path
     kind: InputKind
-    mission: Mission
     frame_source: str | None
     prior: Path | None = None
     export_poses: Path | None = None
@@ -149,18 +149,17 @@ class InputRun:
         return self.grids
 
 
-def run_input_packed(job: InputJob) -> InputRun:
+def run_input_packed(job: InputJob, mission: Mission) -> InputRun:
     """``run_input`` with the grids as bytes: the function a worker process or a Dask
     worker runs."""
-    return run_input(job).packed()
+    return run_input(job, mission).packed()
 
 
-def run_input(job: InputJob) -> InputRun:
-    """Evaluate ``job`` (module docstring). Raises PdcovError naming the input when it
-    cannot be read or gives no camera frame."""
-
-    mission = job.mission
-    frames = _log_frames(job) if job.kind is InputKind.LOG else _csv_frames(job)
+def run_input(job: InputJob, mission: Mission) -> InputRun:
+    """Evaluate ``job`` under ``mission`` (module docstring). Raises PdcovError naming the
+    input when it cannot be read or gives no camera frame."""
+    frames = (_log_frames(job, mission) if job.kind is InputKind.LOG
+              else _csv_frames(job, mission))
     lines = list(frames.lines)
     poses = frames.poses
     _check_near_origin(poses, job.path, mission.source)
@@ -239,10 +238,8 @@ class _Frames:
     skipped: dict[str, int] | None = None
 
 
-def _csv_frames(job: InputJob) -> _Frames:
+def _csv_frames(job: InputJob, mission: Mission) -> _Frames:
     """The poses of a pose CSV (``job.path``)."""
-
-    mission = job.mission
     zoom = mission.only_camera(
         job.path, f"the mission lists {len(mission.cameras)} cameras; a pose CSV holds "
         "one camera's poses: give the flight log (--log)").zoom
@@ -259,11 +256,9 @@ def _csv_frames(job: InputJob) -> _Frames:
     return _Frames(poses, mission.origin(), track, tuple(lines))
 
 
-def _log_frames(job: InputJob) -> _Frames:
+def _log_frames(job: InputJob, mission: Mission) -> _Frames:
     """The camera frames of the mission's first camera in a flight log (``job.path``),
     with the daemon's terrain check over the same samples when the mission has a DEM."""
-
-    mission = job.mission
     terrain_check = terrain_check_for(mission)
     first = mission.first_camera
     mount = first.mount
@@ -296,7 +291,6 @@ def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, Coverag
     """Evaluate into ``grids`` (by name) the mission's cameras after the first, each from
     the frames of the ``log`` read once (its own gimbal device's reports) at its own rate,
     with its own mount, zoom and detector (the mission's frame rules)."""
-
     for cam in mission.cameras:
         if cam is mission.first_camera:
             continue
@@ -366,7 +360,6 @@ def _snapshot(grid: CoverageGrid) -> bytes:
 def _restored(mission: Mission, camera: Any, data: bytes, source: Path) -> CoverageGrid:
     """A grid of ``mission`` (its mission grid with ``camera`` None, else that camera's:
     Mission.new_mission_grid / new_grid) holding the snapshot ``data``."""
-
     grid = mission.new_mission_grid() if camera is None else mission.new_grid(camera)
     read_snapshot(source, data).restore(grid)
     return grid

@@ -67,23 +67,22 @@ class MergedLogs:
     runs: tuple[InputRun, ...]
 
 
-def evaluate_logs(jobs: Sequence[InputJob], *, workers: int, dask_address: str | None = None,
-                  progress: bool = False) -> MergedLogs:
-    """Evaluate ``jobs`` (one per log, in log order) with ``workers`` processes (1: in this
-    process) or on the Dask scheduler at ``dask_address``, and merge them in log order
-    (module docstring); a bar over the logs with ``progress``. Raises the first failing
-    log's PdcovError, naming it, before any output is written."""
+def evaluate_logs(mission: Mission, jobs: Sequence[InputJob], *, workers: int,
+                  dask_address: str | None = None, progress: bool = False) -> MergedLogs:
+    """Evaluate ``jobs`` (one per log, in log order) under ``mission`` with ``workers``
+    processes (1: in this process) or on the Dask scheduler at ``dask_address``, and merge
+    them in log order (module docstring); a bar over the logs with ``progress``. Raises the
+    first failing log's PdcovError, naming it, before any output is written."""
     from pdcov.planning.progress import progress as bar
 
     if not jobs:
         raise ValueError("no log to evaluate")
-    mission = jobs[0].mission
     if dask_address is not None:
-        done = _on_dask(jobs, dask_address)
+        done = _on_dask(mission, jobs, dask_address)
     elif workers > 1 and len(jobs) > 1:
-        done = _in_processes(jobs, min(workers, len(jobs)))
+        done = _in_processes(mission, jobs, min(workers, len(jobs)))
     else:
-        done = _here(jobs)
+        done = _here(mission, jobs)
     pending: dict[int, InputRun] = {}
     runs: list[InputRun] = []
     merged: InputGrids | None = None
@@ -124,25 +123,26 @@ def _named(exc: PdcovError, path: Path) -> PdcovError:
     return type(exc)(f"{path}: {exc}")
 
 
-def _here(jobs: Sequence[InputJob]) -> Done:
+def _here(mission: Mission, jobs: Sequence[InputJob]) -> Done:
     """(log index, run) evaluated one after the other in this process."""
     for i, job in enumerate(jobs):
         try:
-            yield i, run_input(job)
+            yield i, run_input(job, mission)
         except PdcovError as exc:
             raise _named(exc, job.path) from None
 
 
-def _in_processes(jobs: Sequence[InputJob], workers: int) -> Done:
+def _in_processes(mission: Mission, jobs: Sequence[InputJob], workers: int) -> Done:
     """(log index, run) as the worker processes finish them; the rest cancelled on the
-    first failure."""
+    first failure. Each worker receives ``mission`` once (``_hold_mission``)."""
     # forkserver: a worker never inherits this process's threads (tqdm's, a BLAS pool);
     # the server imports the evaluation (input_run and the engine it imports) once, and each
     # worker forks from it ready to run.
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([run_input_packed.__module__])
-    with ProcessPoolExecutor(workers, mp_context=context) as pool:
-        futures = {pool.submit(run_input_packed, job): i for i, job in enumerate(jobs)}
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_hold_mission,
+                             initargs=(mission,)) as pool:
+        futures = {pool.submit(_run_held, job): i for i, job in enumerate(jobs)}
         try:
             for f in as_completed(futures):
                 i = futures[f]
@@ -157,7 +157,22 @@ def _in_processes(jobs: Sequence[InputJob], workers: int) -> Done:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _on_dask(jobs: Sequence[InputJob], address: str) -> Done:
+# The mission of this worker process (``_in_processes``): sent once by the pool's
+# initializer rather than with each log.
+_worker_mission: list[Mission] = []
+
+
+def _hold_mission(mission: Mission) -> None:
+    """The pool's initializer: keep ``mission`` for this worker's logs."""
+    _worker_mission[:] = [mission]
+
+
+def _run_held(job: InputJob) -> InputRun:
+    """``run_input_packed`` of ``job`` under this worker's mission."""
+    return run_input_packed(job, _worker_mission[0])
+
+
+def _on_dask(mission: Mission, jobs: Sequence[InputJob], address: str) -> Done:
     """(log index, run) as the Dask workers at ``address`` finish them (the logs' paths
     must be readable there: a shared file system); the rest cancelled on the first
     failure."""
@@ -171,7 +186,8 @@ def _on_dask(jobs: Sequence[InputJob], address: str) -> Done:
         raise PdcovError(f"--dask {address}: cannot reach the Dask scheduler ({exc})"
                          ) from None
     with client:
-        futures = client.map(run_input_packed, list(jobs), pure=False)
+        held = client.scatter(mission, broadcast=True, hash=False)  # once to each worker
+        futures = [client.submit(run_input_packed, job, held, pure=False) for job in jobs]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for f in dask_completed(futures):
