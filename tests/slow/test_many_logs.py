@@ -236,3 +236,17 @@ def test_real_logs_of_two_formats_merge_as_one_by_one(tmp_path):
     metrics = json.loads((tmp_path / "merged" / "metrics.json").read_text())
     assert [x["log"] for x in metrics["logs"]] == [str(p) for p in logs]
     assert all(x["frames"] > 100 for x in metrics["logs"])
+
+
+def test_a_prior_scores_the_merged_map(tmp_path):
+    config = write_config(tmp_path, mission_doc())
+    logs = write_sorties(tmp_path / "logs", 2)
+    poa = np.zeros((40, 40))
+    poa[:, 5:25] = 1.0 / (40 * 20)
+    np.save(tmp_path / "prior.npy", poa)
+    assert evaluate(config, tmp_path / "run", *logs,
+                    more=("--prior", str(tmp_path / "prior.npy"), "--jobs", "2")) == 0
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    with np.load(tmp_path / "run" / "grid.npz") as z:
+        pd, mask = z["pd"], z["mask"]
+    assert metrics["probability_of_success"] == pytest.approx((poa * pd * mask).sum())

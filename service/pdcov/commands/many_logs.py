@@ -61,7 +61,8 @@ def log_paths(given: Sequence[Path]) -> list[Path]:
 @dataclass(frozen=True, slots=True, eq=False)
 class MergedLogs:
     """Logs evaluated and merged: ``grids`` the merged grids (in log order), ``runs`` each
-    log's run in log order without its grids (``InputRun.grids`` None)."""
+    log's run in log order without its grids (``InputRun.grids`` None) and, after the
+    first, without the prior (the first's holds it)."""
 
     grids: InputGrids
     runs: tuple[InputRun, ...]
@@ -94,7 +95,8 @@ def evaluate_logs(mission: Mission, jobs: Sequence[InputJob], *, workers: int,
                 if runs and run.origin != runs[0].origin:
                     raise _origins_differ(runs[0], run, mission)
                 merged = run.loaded if merged is None else _merged(merged, run.loaded)
-                runs.append(replace(run, grids=None))
+                # The prior is the same about the one origin: the first log's serves all.
+                runs.append(replace(run, grids=None, prior=None if runs else run.prior))
     return MergedLogs(cast(InputGrids, merged), tuple(runs))
 
 
