@@ -12,6 +12,7 @@ bytes (``input_run.PackedGrids``).
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections.abc import Generator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -142,8 +143,9 @@ def _in_processes(mission: Mission, jobs: Sequence[InputJob], workers: int) -> D
     # worker forks from it ready to run.
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([run_input_packed.__module__])
+    cv_threads = max(1, (os.cpu_count() or 1) // workers)
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_hold_mission,
-                             initargs=(mission,)) as pool:
+                             initargs=(mission, cv_threads)) as pool:
         futures = {pool.submit(_run_held, job): i for i, job in enumerate(jobs)}
         try:
             for f in as_completed(futures):
@@ -164,8 +166,13 @@ def _in_processes(mission: Mission, jobs: Sequence[InputJob], workers: int) -> D
 _worker_mission: list[Mission] = []
 
 
-def _hold_mission(mission: Mission) -> None:
-    """The pool's initializer: keep ``mission`` for this worker's logs."""
+def _hold_mission(mission: Mission, cv_threads: int) -> None:
+    """The pool's initializer: keep ``mission`` for this worker's logs, and give OpenCV
+    ``cv_threads`` threads (its share of the cores: more would only contend with the other
+    workers)."""
+    import cv2
+
+    cv2.setNumThreads(cv_threads)
     _worker_mission[:] = [mission]
 
 
