@@ -124,18 +124,19 @@ def run_evaluate(args: argparse.Namespace) -> int:
     lines = [f"pdcov evaluate: {args.config}", f"looks: {mission.looks.summary}"]
     jobs = [InputJob(p, kind, frame_source, args.prior, args.export_poses,
                      progress and len(paths) == 1) for p in paths]
-    if len(jobs) == 1:
+    if len(jobs) == 1 and args.dask is None:
         run = run_input(jobs[0], mission)
         grids, runs = run.loaded, [run]
         lines += run.lines
     else:
         from pdcov.commands.many_logs import evaluate_logs
-        workers = args.jobs or os.cpu_count() or 1
+        workers = min(args.jobs or os.cpu_count() or 1, len(jobs))
         merged = evaluate_logs(mission, jobs, workers=workers, dask_address=args.dask,
                                progress=progress)
         grids, runs = merged.grids, list(merged.runs)
         lines += _logs_lines(runs, f"on the Dask cluster at {args.dask}" if args.dask
-                             else f"{min(workers, len(runs))} processes")
+                             else "in this process" if workers == 1
+                             else f"in {workers} worker processes")
     grid, first = grids.grid, runs[0]
     if len(runs) > 1:  # the merged grid's frames and their blur
         lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
