@@ -252,3 +252,36 @@ def test_a_prior_scores_the_merged_map(tmp_path):
     with np.load(tmp_path / "run" / "grid.npz") as z:
         pd, mask = z["pd"], z["mask"]
     assert metrics["probability_of_success"] == pytest.approx((poa * pd * mask).sum())
+
+
+@pytest.mark.parametrize("looks", ["independent", "correlated"])
+def test_two_cameras_merge_per_camera_and_combined(tmp_path, looks):
+    """Each camera's grid and the mission's (the cameras combined) merge log by log."""
+    import shutil
+
+    from pdcov.config.load import load_mission
+    from pdcov.core.grid_snapshot import read_snapshot
+    from tests.support import two_camera_flight as tcf
+    from tests.support import zoom_flight as zf
+
+    config = tcf.write_mission(tmp_path / "m.yaml", tcf.mission(looks))
+    first = zf.write_tlog(tmp_path / "a.tlog", tcf.frames())
+    logs = [first, Path(shutil.copyfile(first, tmp_path / "b.tlog"))]  # a second sortie
+    assert evaluate(config, tmp_path / "both", *logs, more=("--jobs", "2")) == 0
+    for k, log in enumerate(logs):
+        assert evaluate(config, tmp_path / f"alone{k}", log) == 0
+    mission = load_mission(config)
+
+    def merged(sub: str, new) -> object:
+        grids = []
+        for k in range(2):
+            g = new()
+            read_snapshot(tmp_path / f"alone{k}" / sub / "grid.npz").restore(g)
+            grids.append(g)
+        grids[0].merge(grids[1])
+        return grids[0]
+
+    assert_same_map(tmp_path / "both", merged("", mission.new_mission_grid))
+    for cam in mission.cameras:
+        assert_same_map(tmp_path / "both" / "cameras" / cam.name,
+                        merged(f"cameras/{cam.name}", lambda c=cam: mission.new_grid(c)))
