@@ -31,7 +31,6 @@ from pdcov.report.outputs import evaluate_poses, finite_track, read_prior
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.logs import FlightLog, for_gimbal, read_flight_log
 from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
-from pdcov.telemetry.terrain_check import terrain_check_for
 
 if TYPE_CHECKING:
     from pdcov.config.mission import Mission
@@ -259,6 +258,8 @@ def _csv_frames(job: InputJob, mission: Mission) -> _Frames:
 def _log_frames(job: InputJob, mission: Mission) -> _Frames:
     """The camera frames of the mission's first camera in a flight log (``job.path``),
     with the daemon's terrain check over the same samples when the mission has a DEM."""
+    from pdcov.telemetry.terrain_check import terrain_check_for  # looked up per call
+
     terrain_check = terrain_check_for(mission)
     first = mission.first_camera
     mount = first.mount
