@@ -10,7 +10,6 @@ autopilot's (a log) or the CSV's seconds.
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -22,7 +21,7 @@ import numpy as np
 
 from pdcov.core.blur import describe_blur
 from pdcov.core.combine_cameras import combine_cameras
-from pdcov.core.grid_snapshot import read_snapshot
+from pdcov.core.grid_store import StoreUpdate, restore_update, store_update
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.flight.frame_decision import framing_of
@@ -72,33 +71,29 @@ class InputGrids:
     cameras: Mapping[str, CoverageGrid]
 
     def packed(self) -> PackedGrids:
-        """Their snapshots (CoverageGrid.write_npz) and blurred-frame counts, to send to
-        another process."""
-        return PackedGrids(_snapshot(self.grid), self.grid.frames_blurred,
-                           {n: _snapshot(g) for n, g in self.cameras.items()},
-                           {n: g.frames_blurred for n, g in self.cameras.items()})
+        """Their tiles (core.grid_store.store_update: the cells seen), to send to another
+        process."""
+        return PackedGrids(store_update(self.grid),
+                           {n: store_update(g) for n, g in self.cameras.items()})
 
 
 @dataclass(frozen=True, slots=True)
 class PackedGrids:
-    """``InputGrids`` as snapshot bytes (CoverageGrid.write_npz; the snapshot leaves out
-    frames_blurred, carried beside): what a worker process or a Dask worker sends back."""
+    """``InputGrids`` as their tiles (core.grid_store.StoreUpdate: the cells seen, not the
+    domain): what a worker process or a Dask worker sends back."""
 
-    grid_npz: bytes
-    grid_frames_blurred: int
-    cameras_npz: Mapping[str, bytes]
-    cameras_frames_blurred: Mapping[str, int]
+    grid: StoreUpdate
+    cameras: Mapping[str, StoreUpdate]
 
     def unpacked(self, mission: Mission, source: Path) -> InputGrids:
-        """The grids restored (CoverageGrid.load_npz of the bytes) with ``mission``'s
-        cameras, detectors and rules; ``source`` names them in messages."""
-        grid = _restored(mission, None, self.grid_npz, source)
-        grid.frames_blurred = self.grid_frames_blurred
+        """The grids restored (grid_store.restore_update) with ``mission``'s cameras,
+        detectors and rules; ``source`` names them in messages."""
+        grid = mission.new_mission_grid()
+        restore_update(self.grid, grid, source)
         cameras = {}
-        for cam in mission.cameras if self.cameras_npz else ():
-            g = _restored(mission, cam, self.cameras_npz[cam.name], source)
-            g.frames_blurred = self.cameras_frames_blurred[cam.name]
-            cameras[cam.name] = g
+        for cam in mission.cameras if self.cameras else ():
+            cameras[cam.name] = g = mission.new_grid(cam)
+            restore_update(self.cameras[cam.name], g, source)
         return InputGrids(grid, cameras)
 
 
@@ -349,18 +344,3 @@ def _check_near_origin(poses: Sequence[CameraPose], source: Path, config: str | 
         raise InputFileError(
             f"{source}: the camera is {dist_km:,.0f} km from the mission origin; "
             f"check origin.lat_deg / origin.lon_deg in {config}")
-
-
-def _snapshot(grid: CoverageGrid) -> bytes:
-    """``grid``'s snapshot bytes (CoverageGrid.write_npz)."""
-    buf = io.BytesIO()
-    grid.write_npz(buf)
-    return buf.getvalue()
-
-
-def _restored(mission: Mission, camera: Any, data: bytes, source: Path) -> CoverageGrid:
-    """A grid of ``mission`` (its mission grid with ``camera`` None, else that camera's:
-    Mission.new_mission_grid / new_grid) holding the snapshot ``data``."""
-    grid = mission.new_mission_grid() if camera is None else mission.new_grid(camera)
-    read_snapshot(source, data).restore(grid)
-    return grid

@@ -5,8 +5,8 @@ the same however the logs ran, and equals evaluating them one by one and merging
 
 The logs must share one ENU frame: the mission's origin. Without a configured ground
 altitude each log's origin takes its own home's, and logs whose origins differ are refused
-(their ENU heights are above different grounds). A worker sends its grids back as snapshot
-bytes (``input_run.PackedGrids``).
+(their ENU heights are above different grounds). A worker sends its grids back as their tiles
+(``input_run.PackedGrids``: the cells its log saw).
 """
 
 from __future__ import annotations

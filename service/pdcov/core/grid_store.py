@@ -134,6 +134,25 @@ def write_update(path: str | Path, update: StoreUpdate) -> None:
     root.attrs.update(update.attrs)
 
 
+def restore_update(update: StoreUpdate, into: CoverageGrid, source: str | Path) -> None:
+    """Load ``update`` (a whole grid's: ``store_update`` with no keys) into ``into``, a new
+    grid of the same geometry, free cells and looks rule: what another process sent back
+    (the many-logs merge). Each tile is checked as a store's are; InputFileError naming
+    ``source`` for one that is not."""
+    if (update.geometry != into.geometry or update.looks is not into.looks.rule
+            or update.tile_cells != into.layout.size):
+        raise InputFileError(f"{source}: a grid of another geometry or looks rule")
+    path = Path(source)
+    for key in update.keys:
+        _load_tile(path, into, key, {layer: tiles[key] for layer, tiles in
+                                     update.tiles.items() if key in tiles})
+    into.frames = _count(path, update.attrs, "frames")
+    into.frames_blurred = _count(path, update.attrs, "frames_blurred")
+    latest = update.attrs.get("latest_frame_t_s")
+    if into.keeps(Layer.LAST_OBS_S) and isinstance(latest, (int, float)):
+        into.latest_frame_t_s = float(latest)
+
+
 def _create(root: zarr.Group, update: StoreUpdate) -> None:
     """The store's arrays for ``update``'s grid: every layer it keeps, the tiles written,
     and the free cells (a mask array when the grid was made from one)."""
@@ -240,11 +259,17 @@ def _free_cells(path: Path, root: zarr.Group, attrs: dict[str, Any]
 def _read_tile(path: Path, grid: CoverageGrid, arrays: dict[Layer, zarr.Array], key: TileKey
                ) -> None:
     """Tile ``key`` of every stored layer, checked, into ``grid``."""
-    window = grid.layout.window_of(key)
-    r0, r1, c0, c1 = window
+    r0, r1, c0, c1 = grid.layout.window_of(key)
     if r0 >= r1 or c0 >= c1:
         raise InputFileError(f"{path}: tile {key} lies outside the grid")
-    values = {layer: np.asarray(arr[r0:r1, c0:c1]) for layer, arr in arrays.items()}
+    _load_tile(path, grid, key, {layer: np.asarray(arr[r0:r1, c0:c1])
+                                 for layer, arr in arrays.items()})
+
+
+def _load_tile(path: Path, grid: CoverageGrid, key: TileKey,
+               values: dict[Layer, np.ndarray]) -> None:
+    """Tile ``key``'s arrays (by layer) checked as a snapshot's are, then into ``grid``."""
+    window = grid.layout.window_of(key)
     checked = {layer.value: v for layer, v in values.items() if layer is not Layer.LOOKS}
     check_snapshot_values(path, {"mask": grid.read(Layer.MASK, window), **checked})
     looks = grid.looks_model
