@@ -21,6 +21,7 @@ import numpy as np
 
 from pdcov.core.blur import describe_blur
 from pdcov.core.combine_cameras import combine_cameras
+from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_store import StoreUpdate, restore_update, store_update
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, InputFileError, PdcovError
@@ -316,7 +317,8 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
                             poses: Sequence[CameraPose]) -> list[str]:
     """A warning when no frame saw a free cell of the domain, with the horizontal distance
     from the camera track to the domain (the usual cause: a wrong origin)."""
-    if grid.n_obs[grid.mask].any():
+    if any((grid.read(Layer.N_OBS, w) > 0)[grid.read(Layer.MASK, w)].any()
+           for w in map(grid.layout.window_of, grid.tile_keys())):
         return []
     import shapely
 
@@ -330,7 +332,7 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
         where_ = ("the camera passed over the domain but saw none of it: check the camera "
                   "attitude (mount), the heights, and coverage.max_range_m "
                   f"({grid.max_range_m:.0f} m)")
-    return [f"no frame observed any of the {int(grid.mask.sum())} free cells of the domain: "
+    return [f"no frame observed any of the {grid.n_free} free cells of the domain: "
             f"{where_}"]
 
 
