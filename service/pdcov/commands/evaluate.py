@@ -132,6 +132,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         from pdcov.commands.many_logs import evaluate_logs
         workers = min(args.jobs or os.cpu_count() or 1, len(jobs))
         merged = evaluate_logs(mission, jobs, workers=workers, dask_address=args.dask,
+                               meeting=args.out.with_name(f".{args.out.name}.logs"),
                                progress=progress)
         grids, runs = merged.grids, list(merged.runs)
         lines += _logs_lines(runs, f"on the Dask cluster at {args.dask}" if args.dask

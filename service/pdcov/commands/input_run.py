@@ -22,7 +22,13 @@ import numpy as np
 from pdcov.core.blur import describe_blur
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.grid_layer import Layer
-from pdcov.core.grid_store import StoreUpdate, restore_update, store_update
+from pdcov.core.grid_store import (
+    StoreUpdate,
+    read_store_like,
+    restore_update,
+    store_update,
+    write_store,
+)
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.flight.frame_decision import framing_of
@@ -98,6 +104,33 @@ class PackedGrids:
         return InputGrids(grid, cameras)
 
 
+@dataclass(frozen=True, slots=True)
+class StoredGrids:
+    """``InputGrids`` written into grid stores in ``folder`` (core/grid_store.py:
+    grid.zarr, and cameras/<name>.zarr for ``cameras``): what a Dask worker leaves on the
+    shared disk, the meeting place of the logs' grids."""
+
+    folder: Path
+    cameras: tuple[str, ...]
+
+    @classmethod
+    def write(cls, grids: InputGrids, folder: Path) -> StoredGrids:
+        write_store(folder / "grid.zarr", grids.grid)
+        for name, g in grids.cameras.items():
+            write_store(folder / "cameras" / f"{name}.zarr", g)
+        return cls(folder, tuple(grids.cameras))
+
+    def unpacked(self, mission: Mission, source: Path) -> InputGrids:
+        """The grids read back (grid_store.read_store_like) with ``mission``'s cameras,
+        detectors and rules; ``source``: the log they are of."""
+        del source  # the stores name themselves in messages
+        grid = read_store_like(self.folder / "grid.zarr", mission.new_mission_grid())
+        cams = {c.name: c for c in mission.cameras}
+        return InputGrids(grid, {n: read_store_like(self.folder / "cameras" / f"{n}.zarr",
+                                                    mission.new_grid(cams[n]))
+                                 for n in self.cameras})
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class InputRun:
     """An input evaluated (``run_input``). path: the input. origin: its ENU origin as
@@ -118,7 +151,7 @@ class InputRun:
     input_warnings: tuple[str, ...]
     warnings: tuple[str, ...]
     track_enu: np.ndarray | None
-    grids: InputGrids | PackedGrids | None
+    grids: InputGrids | PackedGrids | StoredGrids | None
     detections: dict[str, Any] | None
     terrain_check: dict[str, Any] | None
     telemetry_faults: dict[str, int] | None
@@ -134,7 +167,7 @@ class InputRun:
         """This run with its grids restored (InputGrids)."""
         g = self.grids
         return replace(self, grids=g.unpacked(mission, self.path)
-                       if isinstance(g, PackedGrids) else g)
+                       if isinstance(g, (PackedGrids, StoredGrids)) else g)
 
     @property
     def loaded(self) -> InputGrids:
@@ -145,9 +178,15 @@ class InputRun:
 
 
 def run_input_packed(job: InputJob, mission: Mission) -> InputRun:
-    """``run_input`` with the grids as bytes: the function a worker process or a Dask
-    worker runs."""
+    """``run_input`` with the grids as their tiles: the function a worker process runs."""
     return run_input(job, mission).packed()
+
+
+def run_input_stored(job: InputJob, mission: Mission, folder: Path) -> InputRun:
+    """``run_input`` with the grids written into grid stores in ``folder`` (StoredGrids):
+    the function a Dask worker runs."""
+    run = run_input(job, mission)
+    return replace(run, grids=StoredGrids.write(run.loaded, folder))
 
 
 def run_input(job: InputJob, mission: Mission) -> InputRun:

@@ -1,7 +1,8 @@
 """Several flight logs into one map: each log evaluated by ``input_run.run_input`` (the one
 flight engine), in this process, in worker processes (all cores) or on a Dask cluster, and
 the grids merged with ``CoverageGrid.merge`` in log order, not completion order: the map is
-the same however the logs ran, and equals evaluating them one by one and merging.
+the same however the logs ran, and equals evaluating them one by one and merging. On Dask
+the logs' grids meet in grid stores (Zarr) on the shared disk, read back one at a time.
 
 The logs must share one ENU frame: the mission's origin. Without a configured ground
 altitude each log's origin takes its own home's, and logs whose origins differ are refused
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import shutil
 from collections.abc import Generator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -21,7 +23,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TypeAlias, cast
 
-from pdcov.commands.input_run import InputGrids, InputJob, InputRun, run_input, run_input_packed
+from pdcov.commands.input_run import (
+    InputGrids,
+    InputJob,
+    InputRun,
+    run_input,
+    run_input_packed,
+    run_input_stored,
+)
 from pdcov.config.mission import Mission
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.extras import CLUSTER
@@ -70,9 +79,12 @@ class MergedLogs:
 
 
 def evaluate_logs(mission: Mission, jobs: Sequence[InputJob], *, workers: int,
-                  dask_address: str | None = None, progress: bool = False) -> MergedLogs:
+                  dask_address: str | None = None, meeting: Path | None = None,
+                  progress: bool = False) -> MergedLogs:
     """Evaluate ``jobs`` (one per log, in log order) under ``mission`` with ``workers``
-    processes (1: in this process) or on the Dask scheduler at ``dask_address``, and merge
+    processes (1: in this process) or on the Dask scheduler at ``dask_address`` (its
+    workers write each log's grids into stores under the folder ``meeting``, on a disk
+    they share with this process, removed when merged), and merge
     them in log order (module docstring); a bar over the logs with ``progress``. Raises the
     first failing log's PdcovError, naming it, before any output is written."""
     from pdcov.planning.progress import progress as bar
@@ -80,7 +92,9 @@ def evaluate_logs(mission: Mission, jobs: Sequence[InputJob], *, workers: int,
     if not jobs:
         raise ValueError("no log to evaluate")
     if dask_address is not None:
-        done = _on_dask(mission, jobs, dask_address)
+        if meeting is None:
+            raise ValueError("a Dask run needs the folder its workers write the grids to")
+        done = _on_dask(mission, jobs, dask_address, meeting)
     elif workers > 1 and len(jobs) > 1:
         done = _in_processes(mission, jobs, min(workers, len(jobs)))
     else:
@@ -181,10 +195,12 @@ def _run_held(job: InputJob) -> InputRun:
     return run_input_packed(job, _worker_mission[0])
 
 
-def _on_dask(mission: Mission, jobs: Sequence[InputJob], address: str) -> Done:
-    """(log index, run) as the Dask workers at ``address`` finish them (the logs' paths
-    must be readable there: a shared file system); the rest cancelled on the first
-    failure."""
+def _on_dask(mission: Mission, jobs: Sequence[InputJob], address: str,
+             meeting: Path) -> Done:
+    """(log index, run) as the Dask workers at ``address`` finish them, each log's grids
+    in stores under ``meeting`` (input_run.StoredGrids; the logs' paths must be readable
+    there and ``meeting`` writable: a shared file system); the rest cancelled on the first
+    failure, ``meeting`` removed at the end."""
     CLUSTER.require()
     from distributed import Client
     from distributed import as_completed as dask_completed
@@ -196,7 +212,8 @@ def _on_dask(mission: Mission, jobs: Sequence[InputJob], address: str) -> Done:
                          ) from None
     with client:
         held = client.scatter(mission, broadcast=True, hash=False)  # once to each worker
-        futures = [client.submit(run_input_packed, job, held, pure=False) for job in jobs]
+        futures = [client.submit(run_input_stored, job, held, meeting / f"{i:04d}",
+                                 pure=False) for i, job in enumerate(jobs)]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for f in dask_completed(futures):
@@ -207,3 +224,4 @@ def _on_dask(mission: Mission, jobs: Sequence[InputJob], address: str) -> Done:
                     raise _named(exc, jobs[i].path) from None
         finally:
             client.cancel(futures)
+            shutil.rmtree(meeting, ignore_errors=True)

@@ -235,6 +235,14 @@ def read_store(path: str | Path, camera: CameraModel, detector: DetectorModel, *
     return grid
 
 
+def read_store_like(path: str | Path, like: CoverageGrid) -> CoverageGrid:
+    """``read_store`` with ``like``'s camera, detector model and rules (a grid made as the
+    stored one was: Mission.new_mission_grid or new_grid)."""
+    return read_store(path, like.camera, like.detector, max_range_m=like.max_range_m,
+                      min_revisit_s=like.min_revisit_s, terrain=like.terrain,
+                      exposure_s=like.exposure_s, looks=like.looks)
+
+
 def _free_cells(path: Path, root: zarr.Group, attrs: dict[str, Any]
                 ) -> tuple[GridGeometry, FreeCells]:
     if attrs.get("pdcov_grid") != STORE_VERSION:

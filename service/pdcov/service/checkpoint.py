@@ -29,7 +29,7 @@ from typing import Any
 
 from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.grid_store import StoreUpdate, read_store, store_update, write_update
+from pdcov.core.grid_store import StoreUpdate, read_store_like, store_update, write_update
 from pdcov.errors import InputFileError, PdcovError
 from pdcov.service.checkpoint_meta import META_VERSION, CheckpointMeta
 
@@ -238,8 +238,8 @@ def resume(state_dir: Path, mission_hash: str, new_grid: CoverageGrid,
                    f"hash {meta.mission_hash}, this daemon's is {mission_hash} (the "
                    "vehicle id, domain, camera, detector or grid settings differ)")
         else:
-            grid = _load_like(slot / GRID_STORE, new_grid)
-            cameras = {name: _load_like(slot / camera_store(name), g)
+            grid = read_store_like(slot / GRID_STORE, new_grid)
+            cameras = {name: read_store_like(slot / camera_store(name), g)
                        for name, g in (new_cameras or {}).items()}
             if any(g.geometry != new_grid.geometry or not g.free.same_as(new_grid.free)
                    for g in (grid, *cameras.values())):
@@ -264,10 +264,3 @@ def _candidates(slot: Path) -> dict[str, Any]:
         return {"candidates": _read_json(slot / CANDIDATES_FILE)}
     except InputFileError as exc:
         return {"candidates_error": str(exc)}
-
-
-def _load_like(path: Path, new: CoverageGrid) -> CoverageGrid:
-    """The grid store at ``path`` as a grid of ``new``'s camera, detector and options."""
-    return read_store(path, new.camera, new.detector, max_range_m=new.max_range_m,
-                      min_revisit_s=new.min_revisit_s, terrain=new.terrain,
-                      exposure_s=new.exposure_s, looks=new.looks)
