@@ -26,7 +26,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import footprint_rings_enu
 from pdcov.core.grid_camera import GridCamera
 from pdcov.core.limiting import LimitingFactor
-from pdcov.core.occlusion import hidden_by_terrain
+from pdcov.core.occlusion import hidden_by_terrain, sight_clear
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import BLOCK, TerrainSurface
 
@@ -60,7 +60,7 @@ class GridView:
         """The observed mask of ``window``, the image area (px^2) inside the picture of
         every cell of it (meaningful only where observed; float32 or float64), and the
         LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN)."""
-        H, in_view, in_range = self.centres(frame, pose, window)
+        H, in_view, in_range, z_c = self._centres(frame, pose, window)
         if not in_view.any():
             return in_view, np.zeros(in_view.shape), np.zeros(in_view.shape, np.uint8)
         r0, r1, c0, c1 = window
@@ -74,16 +74,23 @@ class GridView:
         reach = np.where(in_view, np.uint8(LimitingFactor.TOO_FAR),
                          np.uint8(LimitingFactor.NEVER_IN_VIEW))
         if relief is not None and observed.any():
-            assert z_v is not None
-            z_c = relief.centre_z_m(r0, r1, c0, c1)
-            rows, cols = np.nonzero(observed)
-            blocked = ~self._faces_camera(r, z_v, rows, cols, r0, c0)
-            front = ~blocked
-            x = g.x0_m + cs * (cols[front] + c0 + 0.5)
-            y = g.y0_m + cs * (rows[front] + r0 + 0.5)
-            blocked[front] = hidden_by_terrain(relief, r, x, y, z_c[rows[front], cols[front]])
-            observed[rows[blocked], cols[blocked]] = False
-            reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
+            assert z_v is not None and z_c is not None
+            # Cells whose line of sight is steeper than any terrain on the way face the camera
+            # and are not hidden: only the others are tested, and when none is left (gentle
+            # terrain seen from above), nothing is.
+            clear = sight_clear(relief, r, window, z_c)
+            if not (clear | ~observed).all():
+                rows, cols = np.nonzero(observed)
+                front = clear[rows, cols]
+                test = ~front
+                front[test] = self._faces_camera(r, z_v, rows[test], cols[test], r0, c0)
+                x = g.x0_m + cs * (cols[front] + c0 + 0.5)
+                y = g.y0_m + cs * (rows[front] + r0 + 0.5)
+                blocked = ~front
+                blocked[front] = hidden_by_terrain(relief, r, x, y,
+                                                   z_c[rows[front], cols[front]])
+                observed[rows[blocked], cols[blocked]] = False
+                reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
         if not observed.any():
             return observed, np.zeros(observed.shape), reach
         with np.errstate(invalid="ignore", over="ignore"):
@@ -167,6 +174,12 @@ class GridView:
         """H, the map of window lattice indices [j, i, 1] to the optical frame on the plane
         z = 0, and per cell of ``window``: whether it is in view (free, its centre in the
         picture and in the calibrated field of view) and within the maximum slant range."""
+        return self._centres(frame, pose, window)[:3]
+
+    def _centres(self, frame: GridCamera, pose: CameraPose, window: tuple[int, int, int, int]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """``centres``, and the heights (m) of the window's cell centres on the terrain
+        (None: flat)."""
         r0, r1, c0, c1 = window
         n_rows, n_cols = r1 - r0, c1 - c0
         g = self.geometry
@@ -187,6 +200,7 @@ class GridView:
         dx2 = (g.x0_m + cs * (np.arange(c0, c1) + 0.5) - r[0]) ** 2
         dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
         xyz_c = [H_centre[k, 0] * j + (H_centre[k, 1] * i + H_centre[k, 2]) for k in range(3)]
+        z_c = None
         if relief is None:
             in_range = dy2[:, None] + (dx2 + r[2] ** 2) <= frame.max_range_m**2
         else:
@@ -201,7 +215,7 @@ class GridView:
             in_view = self.mask[r0:r1, c0:c1] & cam.in_picture(px_c)
             if in_view.any():
                 in_view &= cam.in_fov_xyz(*xyz_c)
-        return H, in_view, in_range
+        return H, in_view, in_range, z_c
 
     def _faces_camera(self, r_cam_enu: np.ndarray, z_corner_m: np.ndarray, rows: np.ndarray,
                       cols: np.ndarray, r0: int, c0: int) -> np.ndarray:
