@@ -23,7 +23,7 @@ import numpy as np
 from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.domain import GridGeometry
-from pdcov.core.footprint import footprint_rings_enu
+from pdcov.core.footprint import BorderRaysEnu
 from pdcov.core.grid_camera import GridCamera
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.occlusion import hidden_by_terrain, sight_clear
@@ -275,10 +275,11 @@ class GridView:
         the range under that window a second, tighter one."""
         relief = self.relief
         range_m = frame.max_range_m if range_m is None else range_m
+        rays = BorderRaysEnu.of(frame.camera, pose)
         if relief is None:
-            return self._window_between(frame.camera, pose, range_m, (0.0, 0.0))
+            return self._window_between(rays, range_m, (0.0, 0.0))
         z_range = relief.z_range_m
-        window, clipped = self._window_between(frame.camera, pose, range_m, z_range)
+        window, clipped = self._window_between(rays, range_m, z_range)
         if window is None:
             return None, clipped
         window = self._blocks_in_view(frame.fov_box, pose, range_m, window)
@@ -287,7 +288,7 @@ class GridView:
         local = relief.window_z_range_m(*window)
         if local == z_range:
             return window, clipped
-        return self._window_between(frame.camera, pose, range_m, local, window)[0], clipped
+        return self._window_between(rays, range_m, local, window)[0], clipped
 
     def _blocks_in_view(self, fov_box: tuple[float, float, float, float], pose: CameraPose,
                         range_m: float, window: tuple[int, int, int, int]
@@ -336,30 +337,34 @@ class GridView:
                 max(c0, (b_c0 + int(cols.min())) * BLOCK),
                 min(c1, (b_c0 + int(cols.max()) + 1) * BLOCK))
 
-    def _window_between(self, camera: CameraModel, pose: CameraPose, range_m: float,
+    def _window_between(self, rays: BorderRaysEnu, range_m: float,
                         z_range_m: tuple[float, float],
                         within: tuple[int, int, int, int] | None = None
                         ) -> tuple[tuple[int, int, int, int] | None, bool]:
-        """The window of the footprints on the ground planes through the lowest and the
-        highest height of ``z_range_m``, inside ``within``, and whether the picture reaches
-        beyond ``range_m``; all within range when the camera is not above the highest."""
+        """The window of the footprints of ``rays`` on the ground planes through the lowest
+        and the highest height of ``z_range_m``, inside ``within``, and whether the picture
+        reaches beyond ``range_m``; all within range when the camera is not above the
+        highest."""
         z_lo, z_hi = z_range_m
-        found = footprint_rings_enu(camera, pose, range_m,
-                                    (z_lo,) if z_lo == z_hi else (z_lo, z_hi))
-        rings = list(found.rings)
-        if z_hi > z_lo and len(rings[1]) == 0:
-            rings.append(pose.r_cam_enu[:2] + range_m * np.array([[-1.0, -1.0], [1.0, 1.0]]))
-        ring = np.concatenate(rings)
-        if len(ring) == 0:
-            return None, found.clipped
+        lo, clipped = rays.extent_enu(range_m, z_lo)
+        extents = [lo]
+        if z_hi > z_lo:
+            hi, clipped_hi = rays.extent_enu(range_m, z_hi)
+            clipped = clipped or clipped_hi
+            cx, cy = (float(v) for v in rays.pose.r_cam_enu[:2])
+            extents.append(hi if hi is not None else
+                           (cx - range_m, cx + range_m, cy - range_m, cy + range_m))
+        found = [e for e in extents if e is not None]
+        if not found:
+            return None, clipped
         g = self.geometry
         pad = 1.5 * g.cell_size_m + 0.01 * range_m
-        row_lo, col_lo = g.cell_of(ring[:, 0].min() - pad, ring[:, 1].min() - pad)
-        row_hi, col_hi = g.cell_of(ring[:, 0].max() + pad, ring[:, 1].max() + pad)
+        box = np.array(found)  # (x_min, x_max, y_min, y_max) per plane
+        row_lo, col_lo = g.cell_of(box[:, 0].min() - pad, box[:, 2].min() - pad)
+        row_hi, col_hi = g.cell_of(box[:, 1].max() + pad, box[:, 3].max() + pad)
         w_r0, w_r1, w_c0, w_c1 = within or (0, g.n_rows, 0, g.n_cols)
         r0, r1 = max(int(row_lo), w_r0), min(int(row_hi) + 1, w_r1)
         c0, c1 = max(int(col_lo), w_c0), min(int(col_hi) + 1, w_c1)
         if r0 >= r1 or c0 >= c1:
-            return None, found.clipped
-        return (r0, r1, c0, c1), found.clipped
-
+            return None, clipped
+        return (r0, r1, c0, c1), clipped
