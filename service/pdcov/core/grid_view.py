@@ -313,17 +313,19 @@ class GridView:
         # For each side plane n . p >= 0 of the pyramid (and z > 0), a box is wholly outside
         # when the largest n . p over its corners is negative: per axis, the larger of the
         # two extremes weighted by n's component.
-        out = np.zeros(z_lo.shape, dtype=bool)
-        for k_x, k_y in ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
+        n_enu = np.empty((5, 3, 1, 1))
+        for k, (k_x, k_y) in enumerate(((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0),
+                                        (0.0, -1.0))):
             bound = (x_min if k_x > 0 else x_max) if k_x else (
                 (y_min if k_y > 0 else y_max) if k_y else 0.0)
             # n = k_x e_x + k_y e_y - (k bound - [no side]) e_z, in the optical frame.
             n_cam = np.array([k_x, k_y, 1.0 if not (k_x or k_y) else -(k_x + k_y) * bound])
-            n_enu = R_cam_enu.T @ n_cam
-            top = (np.maximum(n_enu[0] * x_lo, n_enu[0] * x_hi)
-                   + np.maximum(n_enu[1] * y_lo, n_enu[1] * y_hi)
-                   + np.maximum(n_enu[2] * z_lo, n_enu[2] * z_hi))
-            out |= top < 0
+            n_enu[k, :, 0, 0] = R_cam_enu.T @ n_cam
+        # All five planes at once: (plane, block row, block column).
+        n_x, n_y, n_z = n_enu[:, 0], n_enu[:, 1], n_enu[:, 2]
+        top = (np.maximum(n_x * x_lo, n_x * x_hi) + np.maximum(n_y * y_lo, n_y * y_hi)
+               + np.maximum(n_z * z_lo, n_z * z_hi))
+        out = (top < 0).any(axis=0)
         # Nearest point of each box to the camera.
         near2 = (np.clip(0.0, x_lo, x_hi) ** 2 + np.clip(0.0, y_lo, y_hi) ** 2
                  + np.clip(0.0, z_lo, z_hi) ** 2)
