@@ -107,9 +107,9 @@ class GridView:
             corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1],
                                 [n_cols, n_rows, 1]], dtype=np.float64)
             hull = corners @ H.T
-            if z_v is not None:  # the window's box between its lowest and highest corner
-                hull = np.concatenate([hull + up_cam * float(z_v.min()),
-                                       hull + up_cam * float(z_v.max())])
+            if relief is not None:  # the window's box between its lowest and highest corner
+                z_lo, z_hi = relief.window_z_range_m(r0, r1, c0, c1)  # (or a little wider)
+                hull = np.concatenate([hull + up_cam * z_lo, hull + up_cam * z_hi])
             v_ok = None  # all projectable
             if not cam.all_projectable(hull):
                 jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
@@ -207,7 +207,8 @@ class GridView:
             z_c = relief.centre_z_m(r0, r1, c0, c1)
             in_range = dy2[:, None] + (dx2 + (z_c - r[2]) ** 2) <= frame.max_range_m**2
             up_cam = pose.R_enu_cam[2]
-            xyz_c = [xyz_c[k] + up_cam[k] * z_c for k in range(3)]
+            for k in range(3):
+                xyz_c[k] += up_cam[k] * z_c
         # Behind the camera the maps hold meaningless values; the tests below reject those.
         with np.errstate(invalid="ignore", over="ignore"):
             px_c = (cam.project_lattice(H_centre, n_cols, n_rows) if relief is None

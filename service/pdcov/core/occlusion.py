@@ -114,12 +114,13 @@ def sight_clear(terrain: TerrainSurface, r_cam_enu: np.ndarray,
     box = (max(min(r0, row) - 1, 0), min(max(r1, row + 1) + 1, g.n_rows),
            max(min(c0, col) - 1, 0), min(max(c1, col + 1) + 1, g.n_cols))
     slope = terrain.window_max_slope(*box) * (1.0 + _CLEAR_REL)
-    dx = g.x0_m + cs * (np.arange(c0, c1) + 0.5) - cx
-    dy = g.y0_m + cs * (np.arange(r0, r1) + 0.5) - cy
-    # First for the whole window at once: its highest terrain from its farthest centre.
-    rho_far = math.hypot(max(-dx[0], dx[-1]), max(-dy[0], dy[-1]))
+    # First for the whole window at once: its highest terrain from its farthest corner.
+    rho_far = math.hypot(max(cx - (g.x0_m + cs * c0), g.x0_m + cs * c1 - cx),
+                         max(cy - (g.y0_m + cs * r0), g.y0_m + cs * r1 - cy))
     if cz - terrain.window_z_range_m(*window)[1] > slope * rho_far + _CLEAR_ABS_M:
         return np.ones(z_centre_m.shape, dtype=bool)
+    dx = g.x0_m + cs * (np.arange(c0, c1) + 0.5) - cx
+    dy = g.y0_m + cs * (np.arange(r0, r1) + 0.5) - cy
     rho = np.sqrt((dy * dy)[:, None] + dx * dx)
     return cz - z_centre_m > slope * rho + _CLEAR_ABS_M
 
