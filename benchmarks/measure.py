@@ -17,14 +17,21 @@ from pdcov.core.pose import CameraPose
 
 @dataclass(frozen=True)
 class UpdateTiming:
-    """Per-frame times (s) of ``CoverageGrid.update`` and the cells each frame updated."""
+    """Per-frame times (s) of ``CoverageGrid.update``, wall clock and the process's CPU
+    time, and the cells each frame updated."""
 
     frame_s: np.ndarray
     cells: np.ndarray
+    frame_cpu_s: np.ndarray
 
     @property
     def mean_s(self) -> float:
         return float(self.frame_s.mean())
+
+    @property
+    def mean_cpu_s(self) -> float:
+        """Mean CPU time per frame (s): what other work on a shared machine leaves alone."""
+        return float(self.frame_cpu_s.mean())
 
     @property
     def frames_per_s(self) -> float:
@@ -41,14 +48,17 @@ class UpdateTiming:
 def time_updates(grid: CoverageGrid, poses: Sequence[CameraPose]) -> UpdateTiming:
     """Update ``grid`` with every pose, timing each call."""
     times = np.empty(len(poses))
+    cpu = np.empty(len(poses))
     cells = np.empty(len(poses), dtype=np.int64)
-    clock = time.perf_counter
+    clock, cpu_clock = time.perf_counter, time.process_time
     gc.collect()
     for k, pose in enumerate(poses):
+        c0 = cpu_clock()
         t0 = clock()
         cells[k] = grid.update(pose)
         times[k] = clock() - t0
-    return UpdateTiming(times, cells)
+        cpu[k] = cpu_clock() - c0
+    return UpdateTiming(times, cells, cpu)
 
 
 def time_frames(step: Callable[[CameraPose], None], poses: Sequence[CameraPose]) -> np.ndarray:

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from pdcov.core.camera import CameraModel
-from pdcov.core.footprint import footprint_polygon, ground_range_m
+from pdcov.core.footprint import (
+    BorderRaysEnu,
+    footprint_polygon,
+    footprint_rings_enu,
+    ground_range_m,
+)
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
 
@@ -39,3 +44,29 @@ def test_range_clips_a_nadir_footprint_to_a_disk():
     fp = footprint_polygon(CAM, looking_north(-90), max_range_m=math.hypot(10, 5))
     # Rectangle 20 m x 15 m about the nadir point, cut by a 5 m disk: the disk itself.
     assert fp.area == pytest.approx(math.pi * 25, rel=2e-3)
+
+
+@pytest.mark.parametrize(("pitch_deg", "yaw_deg", "range_m", "z_m"), [
+    (-90, 0, 100.0, 0.0),     # nadir, within range: the closed form
+    (-60, 30, 100.0, 4.0),    # tilted, a raised plane: the closed form
+    (-60, 30, 14.0, 0.0),     # the far edge beyond the range: clipped, the ring
+    (-20, 200, 100.0, -5.0),  # above the horizon: the ring
+    (-90, 0, 5.0, 0.0),       # the range shorter than the height: nothing
+    (-90, 0, 100.0, 12.0),    # the plane above the camera: nothing
+])
+def test_border_rays_extent_is_the_rings(pitch_deg, yaw_deg, range_m, z_m):
+    """BorderRaysEnu.extent_enu: the extent of footprint_rings_enu's ring and its clipping,
+    without the ring when no ray reaches the range circle."""
+    pose = fixed_mount_pose(R_from_euler_zyx(0, 0, math.radians(yaw_deg)), (3.0, -2.0, 10.0),
+                            FixedMount(pitch_rad=math.radians(pitch_deg)))
+    found = footprint_rings_enu(CAM, pose, range_m, (z_m,))
+    extent, clipped = BorderRaysEnu.of(CAM, pose).extent_enu(range_m, z_m)
+    assert clipped == found.clipped
+    ring = found.rings[0]
+    if len(ring) == 0:
+        assert extent is None
+        return
+    assert extent is not None
+    np.testing.assert_allclose(extent, (ring[:, 0].min(), ring[:, 0].max(),
+                                        ring[:, 1].min(), ring[:, 1].max()), rtol=0,
+                               atol=1e-9)

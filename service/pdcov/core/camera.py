@@ -232,30 +232,65 @@ class CameraModel:
             inv_z = 1.0 / z
             a = x * inv_z
             b = y * inv_z
-            r2 = a * a + b * b
-            if self.is_fisheye:
+            r2 = a * a
+            r2 += b * b
+            if self._distorted and not self.is_fisheye:
+                # The plumb_bob / rational terms below, in the same order, in place: the
+                # terrain's lattices are the kernel's largest arrays.
+                self._distort_in_place(a, b, r2, px)
+            elif self.is_fisheye:
                 r = np.sqrt(r2)
                 theta = np.arctan(r)
                 t2 = theta * theta
                 theta_d = theta * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
                 scale = np.where(r > 1e-12, theta_d / r, 1.0)
                 xd, yd = a * scale, b * scale
-            elif self._distorted:
-                k = np.zeros(8)
-                k[:d.size] = d
-                radial = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
-                if k[5:].any():
-                    radial /= 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
-                ab2 = 2 * a * b
-                xd = a * radial + k[2] * ab2 + k[3] * (r2 + 2 * a * a)
-                yd = b * radial + k[2] * (r2 + 2 * b * b) + k[3] * ab2
             else:
                 xd, yd = a, b
-            px[..., 0] = K[0, 0] * xd + K[0, 2]
-            px[..., 1] = K[1, 1] * yd + K[1, 2]
+            if not self._distorted or self.is_fisheye:
+                px[..., 0] = K[0, 0] * xd + K[0, 2]
+                px[..., 1] = K[1, 1] * yd + K[1, 2]
         if self._skew:
             px[..., 0] += self._skew * (px[..., 1] - K[1, 2]) / K[1, 1]
         return px
+
+    def _distort_in_place(self, a: np.ndarray, b: np.ndarray, r2: np.ndarray, px: np.ndarray
+                          ) -> None:
+        """Pixels ``px`` (..., 2) of normalised coordinates a, b (r2 = a^2 + b^2) through the
+        plumb_bob / rational polynomial: x_d = a radial + 2 p1 a b + p2 (r2 + 2 a^2), y_d =
+        b radial + p1 (r2 + 2 b^2) + 2 p2 a b, radial = (1 + k1 r2 + k2 r2^2 + k3 r2^3) /
+        (1 + k4 r2 + k5 r2^2 + k6 r2^3); ``a`` and ``b`` are overwritten."""
+        k = np.zeros(8)
+        k[:self.dist_coeffs.size] = self.dist_coeffs
+        radial = r2 * k[4]
+        radial += k[1]
+        radial *= r2
+        radial += k[0]
+        radial *= r2
+        radial += 1
+        if k[5:].any():
+            radial /= 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+        ab2 = 2 * a
+        ab2 *= b
+        tx = 2 * a                    # p2 (r2 + 2 a^2)
+        tx *= a
+        tx += r2
+        tx *= k[3]
+        ty = 2 * b                    # p1 (r2 + 2 b^2)
+        ty *= b
+        ty += r2
+        ty *= k[2]
+        a *= radial
+        a += ab2 * k[2]
+        a += tx
+        b *= radial
+        b += ty
+        ab2 *= k[3]
+        b += ab2
+        np.multiply(a, self.K[0, 0], out=px[..., 0])
+        px[..., 0] += self.K[0, 2]
+        np.multiply(b, self.K[1, 1], out=px[..., 1])
+        px[..., 1] += self.K[1, 2]
 
     def pixel_rays(self, px: np.ndarray) -> np.ndarray:
         """Unit direction vectors (N, 3) in the optical frame of pixels (N, 2)."""

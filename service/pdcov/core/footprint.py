@@ -9,7 +9,7 @@ are clipped to the circle of ground points at that slant range.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
@@ -56,25 +56,76 @@ class FootprintRings:
 def footprint_rings_enu(camera: CameraModel, pose: CameraPose, max_range_m: float,
                         ground_z_m: tuple[float, ...]) -> FootprintRings:
     """``footprint_ring_enu`` on each of the ground planes z = ground_z_m (m, ENU)."""
-    d = camera.border_rays_cam @ pose.R_enu_cam.T
-    looks_down = not (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS)
-    rings = []
-    clipped = False
-    for z in ground_z_m:
-        rho_max = ground_range_m(pose, max_range_m, z)
-        if rho_max <= 0 or not looks_down:
-            rings.append(np.empty((0, 2)))
-            continue
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # Ray parameter to the ground, at most to the disk's circle:
-            # min(h / -d_z, rho / |d_xy|).
-            t = np.where(d[:, 2] < -_HORIZON_EPS, (pose.r_cam_enu[2] - z) / -d[:, 2], np.inf)
-            t_circle = rho_max / np.hypot(d[:, 0], d[:, 1])
-        clipped = clipped or bool((t_circle < t).any())
-        np.minimum(t, t_circle, out=t)
-        t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
-        rings.append(pose.r_cam_enu[:2] + d[:, :2] * t[:, None])
-    return FootprintRings(rings, clipped)
+    return BorderRaysEnu.of(camera, pose).rings(max_range_m, ground_z_m)
+
+
+@dataclass(frozen=True, slots=True)
+class BorderRaysEnu:
+    """One frame's rays through the picture's border: directions ``d_enu`` (M, 3, ENU) from
+    the camera at ``pose``; ``looks_down``: some reach the ground. Per frame, the extents of
+    the footprints on several level planes (``extent_enu``) share them."""
+
+    pose: CameraPose
+    d_enu: np.ndarray
+    looks_down: bool
+    _all_down: bool = field(repr=False)
+    # Horizontal offsets per metre of descent along the rays (x, y: lowest and highest; the
+    # largest horizontal length), meaningful when all look down.
+    _per_m_descent: tuple[float, float, float, float, float] = field(repr=False)
+
+    @classmethod
+    def of(cls, camera: CameraModel, pose: CameraPose) -> BorderRaysEnu:
+        d = camera.border_rays_cam @ pose.R_enu_cam.T
+        looks_down = not (pose.R_enu_cam[2, 2] >= 0 and d[:, 2].min() >= -_HORIZON_EPS)
+        all_down = bool(d[:, 2].max() < -_HORIZON_EPS)
+        per_m = (0.0,) * 5
+        if all_down:
+            u, v = d[:, 0] / -d[:, 2], d[:, 1] / -d[:, 2]
+            per_m = (float(u.min()), float(u.max()), float(v.min()), float(v.max()),
+                     float((np.hypot(d[:, 0], d[:, 1]) / -d[:, 2]).max()))
+        return cls(pose, d, looks_down, all_down, per_m)
+
+    def rings(self, max_range_m: float, ground_z_m: tuple[float, ...]) -> FootprintRings:
+        """``footprint_ring_enu`` on each of the ground planes z = ground_z_m (m, ENU)."""
+        d, pose = self.d_enu, self.pose
+        rings = []
+        clipped = False
+        for z in ground_z_m:
+            rho_max = ground_range_m(pose, max_range_m, z)
+            if rho_max <= 0 or not self.looks_down:
+                rings.append(np.empty((0, 2)))
+                continue
+            with np.errstate(divide="ignore", invalid="ignore"):
+                # Ray parameter to the ground, at most to the disk's circle:
+                # min(h / -d_z, rho / |d_xy|).
+                t = np.where(d[:, 2] < -_HORIZON_EPS, (pose.r_cam_enu[2] - z) / -d[:, 2],
+                             np.inf)
+                t_circle = rho_max / np.hypot(d[:, 0], d[:, 1])
+            clipped = clipped or bool((t_circle < t).any())
+            np.minimum(t, t_circle, out=t)
+            t[t == np.inf] = 0.0  # straight up: no horizontal direction to follow
+            rings.append(pose.r_cam_enu[:2] + d[:, :2] * t[:, None])
+        return FootprintRings(rings, clipped)
+
+    def extent_enu(self, max_range_m: float, ground_z_m: float
+                   ) -> tuple[tuple[float, float, float, float] | None, bool]:
+        """(x_min, x_max, y_min, y_max) (m, ENU) of ``footprint_ring_enu`` on the plane z =
+        ground_z_m (None: the ring is empty), and whether it is clipped to the range circle.
+        When every ray looks down and none reaches the circle, each ring point is the nadir
+        point plus the height above the plane times the ray's offset per metre of descent,
+        so the extent is that of the offsets: no ring is built."""
+        rho_max = ground_range_m(self.pose, max_range_m, ground_z_m)
+        if rho_max <= 0 or not self.looks_down:
+            return None, False
+        h = float(self.pose.r_cam_enu[2]) - ground_z_m
+        u_lo, u_hi, v_lo, v_hi, w_max = self._per_m_descent
+        if self._all_down and rho_max > h * w_max * (1.0 + 1e-9):
+            cx, cy = (float(v) for v in self.pose.r_cam_enu[:2])
+            return (cx + h * u_lo, cx + h * u_hi, cy + h * v_lo, cy + h * v_hi), False
+        found = self.rings(max_range_m, (ground_z_m,))
+        ring = found.rings[0]
+        return ((float(ring[:, 0].min()), float(ring[:, 0].max()), float(ring[:, 1].min()),
+                 float(ring[:, 1].max())), found.clipped)
 
 
 def footprint_polygon(camera: CameraModel, pose: CameraPose, max_range_m: float) -> Polygon:

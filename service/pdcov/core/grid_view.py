@@ -23,11 +23,11 @@ import numpy as np
 from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area, quad_area
 from pdcov.core.domain import GridGeometry
-from pdcov.core.footprint import footprint_rings_enu
+from pdcov.core.footprint import BorderRaysEnu
 from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid_camera import GridCamera
 from pdcov.core.limiting import LimitingFactor
-from pdcov.core.occlusion import hidden_by_terrain
+from pdcov.core.occlusion import hidden_by_terrain, sight_clear
 from pdcov.core.pose import CameraPose
 from pdcov.core.terrain import BLOCK, TerrainSurface
 from pdcov.core.tiles import TiledLayer
@@ -62,7 +62,7 @@ class GridView:
         """The observed mask of ``window``, the image area (px^2) inside the picture of
         every cell of it (meaningful only where observed; float32 or float64), and the
         LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN)."""
-        H, in_view, in_range = self.centres(frame, pose, window)
+        H, in_view, in_range, z_c = self._centres(frame, pose, window)
         if not in_view.any():
             return in_view, np.zeros(in_view.shape), np.zeros(in_view.shape, np.uint8)
         r0, r1, c0, c1 = window
@@ -76,16 +76,23 @@ class GridView:
         reach = np.where(in_view, np.uint8(LimitingFactor.TOO_FAR),
                          np.uint8(LimitingFactor.NEVER_IN_VIEW))
         if relief is not None and observed.any():
-            assert z_v is not None
-            z_c = relief.centre_z_m(r0, r1, c0, c1)
-            rows, cols = np.nonzero(observed)
-            blocked = ~self._faces_camera(r, z_v, rows, cols, r0, c0)
-            front = ~blocked
-            x = g.x0_m + cs * (cols[front] + c0 + 0.5)
-            y = g.y0_m + cs * (rows[front] + r0 + 0.5)
-            blocked[front] = hidden_by_terrain(relief, r, x, y, z_c[rows[front], cols[front]])
-            observed[rows[blocked], cols[blocked]] = False
-            reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
+            assert z_v is not None and z_c is not None
+            # Cells whose line of sight is steeper than any terrain on the way face the camera
+            # and are not hidden: only the others are tested, and when none is left (gentle
+            # terrain seen from above), nothing is.
+            clear = sight_clear(relief, r, window, z_c)
+            if not (clear | ~observed).all():
+                rows, cols = np.nonzero(observed)
+                front = clear[rows, cols]
+                test = ~front
+                front[test] = self._faces_camera(r, z_v, rows[test], cols[test], r0, c0)
+                x = g.x0_m + cs * (cols[front] + c0 + 0.5)
+                y = g.y0_m + cs * (rows[front] + r0 + 0.5)
+                blocked = ~front
+                blocked[front] = hidden_by_terrain(relief, r, x, y,
+                                                   z_c[rows[front], cols[front]])
+                observed[rows[blocked], cols[blocked]] = False
+                reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
         if not observed.any():
             return observed, np.zeros(observed.shape), reach
         with np.errstate(invalid="ignore", over="ignore"):
@@ -102,9 +109,9 @@ class GridView:
             corners = np.array([[0, 0, 1], [n_cols, 0, 1], [0, n_rows, 1],
                                 [n_cols, n_rows, 1]], dtype=np.float64)
             hull = corners @ H.T
-            if z_v is not None:  # the window's box between its lowest and highest corner
-                hull = np.concatenate([hull + up_cam * float(z_v.min()),
-                                       hull + up_cam * float(z_v.max())])
+            if relief is not None:  # the window's box between its lowest and highest corner
+                z_lo, z_hi = relief.window_z_range_m(r0, r1, c0, c1)  # (or a little wider)
+                hull = np.concatenate([hull + up_cam * z_lo, hull + up_cam * z_hi])
             v_ok = None  # all projectable
             if not cam.all_projectable(hull):
                 jj, ii = np.meshgrid(np.arange(n_cols + 1), np.arange(n_rows + 1))
@@ -169,6 +176,12 @@ class GridView:
         """H, the map of window lattice indices [j, i, 1] to the optical frame on the plane
         z = 0, and per cell of ``window``: whether it is in view (free, its centre in the
         picture and in the calibrated field of view) and within the maximum slant range."""
+        return self._centres(frame, pose, window)[:3]
+
+    def _centres(self, frame: GridCamera, pose: CameraPose, window: tuple[int, int, int, int]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """``centres``, and the heights (m) of the window's cell centres on the terrain
+        (None: flat)."""
         r0, r1, c0, c1 = window
         n_rows, n_cols = r1 - r0, c1 - c0
         g = self.geometry
@@ -189,13 +202,15 @@ class GridView:
         dx2 = (g.x0_m + cs * (np.arange(c0, c1) + 0.5) - r[0]) ** 2
         dy2 = (g.y0_m + cs * (np.arange(r0, r1) + 0.5) - r[1]) ** 2
         xyz_c = [H_centre[k, 0] * j + (H_centre[k, 1] * i + H_centre[k, 2]) for k in range(3)]
+        z_c = None
         if relief is None:
             in_range = dy2[:, None] + (dx2 + r[2] ** 2) <= frame.max_range_m**2
         else:
             z_c = relief.centre_z_m(r0, r1, c0, c1)
             in_range = dy2[:, None] + (dx2 + (z_c - r[2]) ** 2) <= frame.max_range_m**2
             up_cam = pose.R_enu_cam[2]
-            xyz_c = [xyz_c[k] + up_cam[k] * z_c for k in range(3)]
+            for k in range(3):
+                xyz_c[k] += up_cam[k] * z_c
         # Behind the camera the maps hold meaningless values; the tests below reject those.
         with np.errstate(invalid="ignore", over="ignore"):
             px_c = (cam.project_lattice(H_centre, n_cols, n_rows) if relief is None
@@ -203,7 +218,7 @@ class GridView:
             in_view = self.free.window(window) & cam.in_picture(px_c)
             if in_view.any():
                 in_view &= cam.in_fov_xyz(*xyz_c)
-        return H, in_view, in_range
+        return H, in_view, in_range, z_c
 
     def _faces_camera(self, r_cam_enu: np.ndarray, z_corner_m: np.ndarray, rows: np.ndarray,
                       cols: np.ndarray, r0: int, c0: int) -> np.ndarray:
@@ -263,10 +278,11 @@ class GridView:
         the range under that window a second, tighter one."""
         relief = self.relief
         range_m = frame.max_range_m if range_m is None else range_m
+        rays = BorderRaysEnu.of(frame.camera, pose)
         if relief is None:
-            return self._window_between(frame.camera, pose, range_m, (0.0, 0.0))
+            return self._window_between(rays, range_m, (0.0, 0.0))
         z_range = relief.z_range_m
-        window, clipped = self._window_between(frame.camera, pose, range_m, z_range)
+        window, clipped = self._window_between(rays, range_m, z_range)
         if window is None:
             return None, clipped
         window = self._blocks_in_view(frame.fov_box, pose, range_m, window)
@@ -275,7 +291,7 @@ class GridView:
         local = relief.window_z_range_m(*window)
         if local == z_range:
             return window, clipped
-        return self._window_between(frame.camera, pose, range_m, local, window)[0], clipped
+        return self._window_between(rays, range_m, local, window)[0], clipped
 
     def _blocks_in_view(self, fov_box: tuple[float, float, float, float], pose: CameraPose,
                         range_m: float, window: tuple[int, int, int, int]
@@ -300,17 +316,19 @@ class GridView:
         # For each side plane n . p >= 0 of the pyramid (and z > 0), a box is wholly outside
         # when the largest n . p over its corners is negative: per axis, the larger of the
         # two extremes weighted by n's component.
-        out = np.zeros(z_lo.shape, dtype=bool)
-        for k_x, k_y in ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)):
+        n_enu = np.empty((5, 3, 1, 1))
+        for k, (k_x, k_y) in enumerate(((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0),
+                                        (0.0, -1.0))):
             bound = (x_min if k_x > 0 else x_max) if k_x else (
                 (y_min if k_y > 0 else y_max) if k_y else 0.0)
             # n = k_x e_x + k_y e_y - (k bound - [no side]) e_z, in the optical frame.
             n_cam = np.array([k_x, k_y, 1.0 if not (k_x or k_y) else -(k_x + k_y) * bound])
-            n_enu = R_cam_enu.T @ n_cam
-            top = (np.maximum(n_enu[0] * x_lo, n_enu[0] * x_hi)
-                   + np.maximum(n_enu[1] * y_lo, n_enu[1] * y_hi)
-                   + np.maximum(n_enu[2] * z_lo, n_enu[2] * z_hi))
-            out |= top < 0
+            n_enu[k, :, 0, 0] = R_cam_enu.T @ n_cam
+        # All five planes at once: (plane, block row, block column).
+        n_x, n_y, n_z = n_enu[:, 0], n_enu[:, 1], n_enu[:, 2]
+        top = (np.maximum(n_x * x_lo, n_x * x_hi) + np.maximum(n_y * y_lo, n_y * y_hi)
+               + np.maximum(n_z * z_lo, n_z * z_hi))
+        out = (top < 0).any(axis=0)
         # Nearest point of each box to the camera.
         near2 = (np.clip(0.0, x_lo, x_hi) ** 2 + np.clip(0.0, y_lo, y_hi) ** 2
                  + np.clip(0.0, z_lo, z_hi) ** 2)
@@ -324,30 +342,34 @@ class GridView:
                 max(c0, (b_c0 + int(cols.min())) * BLOCK),
                 min(c1, (b_c0 + int(cols.max()) + 1) * BLOCK))
 
-    def _window_between(self, camera: CameraModel, pose: CameraPose, range_m: float,
+    def _window_between(self, rays: BorderRaysEnu, range_m: float,
                         z_range_m: tuple[float, float],
                         within: tuple[int, int, int, int] | None = None
                         ) -> tuple[tuple[int, int, int, int] | None, bool]:
-        """The window of the footprints on the ground planes through the lowest and the
-        highest height of ``z_range_m``, inside ``within``, and whether the picture reaches
-        beyond ``range_m``; all within range when the camera is not above the highest."""
+        """The window of the footprints of ``rays`` on the ground planes through the lowest
+        and the highest height of ``z_range_m``, inside ``within``, and whether the picture
+        reaches beyond ``range_m``; all within range when the camera is not above the
+        highest."""
         z_lo, z_hi = z_range_m
-        found = footprint_rings_enu(camera, pose, range_m,
-                                    (z_lo,) if z_lo == z_hi else (z_lo, z_hi))
-        rings = list(found.rings)
-        if z_hi > z_lo and len(rings[1]) == 0:
-            rings.append(pose.r_cam_enu[:2] + range_m * np.array([[-1.0, -1.0], [1.0, 1.0]]))
-        ring = np.concatenate(rings)
-        if len(ring) == 0:
-            return None, found.clipped
+        lo, clipped = rays.extent_enu(range_m, z_lo)
+        extents = [lo]
+        if z_hi > z_lo:
+            hi, clipped_hi = rays.extent_enu(range_m, z_hi)
+            clipped = clipped or clipped_hi
+            cx, cy = (float(v) for v in rays.pose.r_cam_enu[:2])
+            extents.append(hi if hi is not None else
+                           (cx - range_m, cx + range_m, cy - range_m, cy + range_m))
+        found = [e for e in extents if e is not None]
+        if not found:
+            return None, clipped
         g = self.geometry
         pad = 1.5 * g.cell_size_m + 0.01 * range_m
-        row_lo, col_lo = g.cell_of(ring[:, 0].min() - pad, ring[:, 1].min() - pad)
-        row_hi, col_hi = g.cell_of(ring[:, 0].max() + pad, ring[:, 1].max() + pad)
+        box = np.array(found)  # (x_min, x_max, y_min, y_max) per plane
+        row_lo, col_lo = g.cell_of(box[:, 0].min() - pad, box[:, 2].min() - pad)
+        row_hi, col_hi = g.cell_of(box[:, 1].max() + pad, box[:, 3].max() + pad)
         w_r0, w_r1, w_c0, w_c1 = within or (0, g.n_rows, 0, g.n_cols)
         r0, r1 = max(int(row_lo), w_r0), min(int(row_hi) + 1, w_r1)
         c0, c1 = max(int(col_lo), w_c0), min(int(col_hi) + 1, w_c1)
         if r0 >= r1 or c0 >= c1:
-            return None, found.clipped
-        return (r0, r1, c0, c1), found.clipped
-
+            return None, clipped
+        return (r0, r1, c0, c1), clipped

@@ -30,10 +30,14 @@ import numpy as np
 
 from pdcov.core.terrain import TerrainSurface
 
-__all__ = ["hidden_by_terrain"]
+__all__ = ["hidden_by_terrain", "sight_clear"]
 
 _MAX_AZIMUTH_BINS = 4096
 _TAN_TOL = 1e-9  # elevation tangents closer than this count as equal (not hidden)
+# ``sight_clear``'s margin over the steepest slope, relative and in metres: far above the
+# rounding of the facing test's sums (~1e-13 m), far below any terrain's detail.
+_CLEAR_REL = 1e-6
+_CLEAR_ABS_M = 1e-6
 _COS_80 = math.cos(math.radians(80.0))
 
 
@@ -90,6 +94,35 @@ def hidden_by_terrain(terrain: TerrainSurface, r_cam_enu: np.ndarray, x_m: np.nd
                                  ).astype(np.intp)
     hidden[test] = tan_t < h_run.take(at).max(axis=0) - _TAN_TOL
     return hidden
+
+
+def sight_clear(terrain: TerrainSurface, r_cam_enu: np.ndarray,
+                window: tuple[int, int, int, int], z_centre_m: np.ndarray) -> np.ndarray:
+    """True for the cells of ``window`` (r0, r1, c0, c1), their centres at heights
+    ``z_centre_m`` (m, ENU; the window's shape), whose line of sight from the camera at
+    ``r_cam_enu`` descends more steeply than the steepest terrain S (m/m) between the window
+    and the camera's nadir point: no terrain rises above it (``hidden_by_terrain`` prunes
+    such targets, with a box no larger), and the cell faces the camera (a cell's plane
+    through its diagonals has a gradient of at most S, so its normal (n_xy, 2 cs) meets the
+    camera's offset (d_xy, dz) at n . d >= 2 cs (dz - S |d_xy|) > 0). A margin of 1e-6
+    (relative) and 1e-6 m keeps rounding out: the cells it leaves out are tested exactly."""
+    g = terrain.geometry
+    cs = g.cell_size_m
+    r0, r1, c0, c1 = window
+    cx, cy, cz = (float(v) for v in r_cam_enu)
+    row, col = (int(v) for v in g.cell_of(np.array(cx), np.array(cy)))
+    box = (max(min(r0, row) - 1, 0), min(max(r1, row + 1) + 1, g.n_rows),
+           max(min(c0, col) - 1, 0), min(max(c1, col + 1) + 1, g.n_cols))
+    slope = terrain.window_max_slope(*box) * (1.0 + _CLEAR_REL)
+    # First for the whole window at once: its highest terrain from its farthest corner.
+    rho_far = math.hypot(max(cx - (g.x0_m + cs * c0), g.x0_m + cs * c1 - cx),
+                         max(cy - (g.y0_m + cs * r0), g.y0_m + cs * r1 - cy))
+    if cz - terrain.window_z_range_m(*window)[1] > slope * rho_far + _CLEAR_ABS_M:
+        return np.ones(z_centre_m.shape, dtype=bool)
+    dx = g.x0_m + cs * (np.arange(c0, c1) + 0.5) - cx
+    dy = g.y0_m + cs * (np.arange(r0, r1) + 0.5) - cy
+    rho = np.sqrt((dy * dy)[:, None] + dx * dx)
+    return cz - z_centre_m > slope * rho + _CLEAR_ABS_M
 
 
 def _cells_between(terrain: TerrainSurface, cx: float, cy: float, x_m: np.ndarray,
