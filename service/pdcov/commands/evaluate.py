@@ -90,6 +90,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.flight.frame_decision import framing_of
     from pdcov.flight.log_frames import poses_of_log
     from pdcov.report.exports import VehicleDetections
+    from pdcov.report.output_extent import check_prior_fits
     from pdcov.report.outputs import (
         evaluate_poses,
         finite_track,
@@ -184,6 +185,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
     grid = mission.new_mission_grid()
     per_camera = mission.camera_grids(grid)
+    if args.prior is not None:
+        check_prior_fits(grid.geometry)
     prior = (read_prior(args.prior, grid.geometry, grid.mask, origin)
              if args.prior is not None else None)
     if prior is not None:
@@ -291,7 +294,7 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
                             poses: Sequence[CameraPose]) -> list[str]:
     """A warning when no frame saw a free cell of the domain, with the horizontal distance
     from the camera track to the domain (the usual cause: a wrong origin)."""
-    if grid.n_obs[grid.mask].any():
+    if grid.metrics(()).cells_observed:  # tile by tile: a county's grid is never read whole
         return []
     import shapely
 
@@ -305,7 +308,7 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
         where_ = ("the camera passed over the domain but saw none of it: check the camera "
                   "attitude (mount), the heights, and coverage.max_range_m "
                   f"({grid.max_range_m:.0f} m)")
-    return [f"no frame observed any of the {int(grid.mask.sum())} free cells of the domain: "
+    return [f"no frame observed any of the {grid.n_free} free cells of the domain: "
             f"{where_}"]
 
 

@@ -22,11 +22,13 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import DomainError, where
 from pdcov.yaml_file import read_text
 
-# Bytes a coverage grid needs per cell while it is built and written: float32 log-miss sums
-# (2), int32 looks, bool mask, float64 revisit clock, float64 P_D / P_FA and cell-centre
-# coordinates at output. 2**28 cells (about 16 km x 16 km of 1 m cells) is ~13 GiB.
+# Bytes a coverage grid needs per cell when every cell is touched (its tiles: core/tiles.py)
+# and it is written whole: float32 log-miss sums (2), int32 looks, bool mask, float64
+# revisit clock, float64 P_D / P_FA and cell-centre coordinates at output. A grid holds only
+# the tiles its frames touch and a large one writes only its touched extent
+# (report/output_extent.py): 2**32 cells (about 65 km x 65 km of 1 m cells) are allowed.
 GRID_BYTES_PER_CELL = 52
-MAX_GRID_CELLS = 2**28
+MAX_GRID_CELLS = 2**32
 
 
 def _count(n: int) -> str:
