@@ -28,9 +28,12 @@ rasterio = pytest.importorskip("rasterio")
 
 SMALL_M, COUNTY_M = 200, 30_000
 MEMORY_RATIO = 1.5
-# The child's own peak resident set (kB), printed after the run.
-_RUN = ("import resource, sys\nfrom pdcov.cli import main\nrc = main(sys.argv[1:])\n"
-        "print('maxrss_kb', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+# The child's own peak resident set (kB), printed after the run: VmHWM, not getrusage's
+# ru_maxrss, which Linux carries across fork and exec from the parent (pytest's).
+_RUN = ("import sys\nfrom pathlib import Path\nfrom pdcov.cli import main\n"
+        "rc = main(sys.argv[1:])\n"
+        "print(next(x for x in Path('/proc/self/status').read_text().splitlines()\n"
+        "           if x.startswith('VmHWM:')))\n"
         "sys.exit(rc)\n")
 
 
@@ -48,7 +51,7 @@ def evaluate_square(tmp_path: Path, side_m: int, poses_csv: Path) -> tuple[Path,
          "--poses", str(poses_csv), "--out", str(out), "--no-progress"],
         capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    found = re.search(r"^maxrss_kb (\d+)$", proc.stdout, re.MULTILINE)
+    found = re.search(r"^VmHWM:\s+(\d+) kB$", proc.stdout, re.MULTILINE)
     assert found is not None, proc.stdout
     return out, proc.stdout, int(found.group(1))
 
