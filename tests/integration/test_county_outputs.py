@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pdcov.cli import main
 from tests.support.evaluate_inputs import (
     expected_poses,
     known_flight,
@@ -74,6 +75,7 @@ def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
         assert (county / name).is_file() and (small / name).is_file(), name
     assert (small / "grid.npz").is_file() and not (county / "grid.npz").exists()
     assert "grid.npz not written" in county_out
+    assert main(["compare", str(county), "--out", str(tmp_path / "c.png")]) == 2
 
     # pd.tif: the county's holds the small run's values on the same georeferenced cells.
     a, ta = read_bands(small / "pd.tif")

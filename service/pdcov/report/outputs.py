@@ -33,8 +33,9 @@ from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
 from pdcov.report.exports import Coverage, VehicleDetections, write_exports
-from pdcov.report.grid_file import write_grid_file
+from pdcov.report.grid_file import GRID_NPZ, write_grid_file
 from pdcov.report.output_extent import (
+    CROP_ABOVE_CELLS,
     check_prior_fits,
     drawn_raster,
     grid_proportion_curve,
@@ -322,7 +323,10 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], np.ndarray, np.ndarra
     run = Path(run_dir)
     try:
         doc = json.loads((run / "metrics.json").read_text())
-        grid = read_npz(run / "grid.npz", ValueError)
+        if not (run / GRID_NPZ).exists() and (doc.get("extent") or {}).get("cropped"):
+            raise InputFileError(f"{run}: a run over more than {CROP_ABOVE_CELLS:,} cells has "
+                                 f"no {GRID_NPZ} to compare (docs/outputs.md \"Extent\")")
+        grid = read_npz(run / GRID_NPZ, ValueError)
         pd, mask = grid["pd"], grid["mask"].astype(bool)
     except (OSError, ValueError, KeyError) as exc:
         raise InputFileError(f"{run}: not a pdcov run folder ({exc})") from None
