@@ -113,3 +113,28 @@ def test_geotiff_is_written_block_by_block(tmp_path, shape):
         assert tuple(src.transform)[:6] == (2.0, 0.0, 10.0, 0.0, -2.0, -20.0 + 2.0 * shape[0])
         back = np.flipud(src.read(1))
     np.testing.assert_array_equal(back, np.where(free, values, np.nan).astype(np.float32))
+
+
+def test_terrain_and_hidden_cells_are_drawn_by_block(monkeypatch):
+    from pdcov.core.domain import Domain
+    from pdcov.core.grid import CoverageGrid
+    from pdcov.core.limiting import LimitingFactor
+    from pdcov.core.terrain import TerrainSurface
+    from tests.support.square_grid import DETECTOR, PINHOLE
+
+    monkeypatch.setattr(output_extent, "DRAW_MAX_SIDE", 20)
+    dom = Domain.from_enu([[-30, -30], [30, -30], [30, 30], [-30, 30]])
+    g = dom.grid_geometry(1.0)
+    x = np.arange(g.n_cols + 1) - 30.0
+    ridge = np.tile(12.0 * np.exp(-0.5 * (x / 2.0) ** 2), (g.n_rows + 1, 1))  # along x = 0
+    grid = CoverageGrid(g, dom.free_mask(g), PINHOLE, DETECTOR,
+                        terrain=TerrainSurface(g, ridge))
+    for y in (-10.0, 0.0, 10.0):
+        grid.update(pose(yaw_deg=90.0, xyz=(-15.0, y, 16.0), cam_pitch_deg=-50.0))
+    hidden = grid.limiting == LimitingFactor.HIDDEN
+    assert hidden.any()
+    drawn = drawn_raster(grid, extent_of(grid), hidden=True)
+    assert drawn.pd.shape == (20, 20) and drawn.terrain_z_m is not None
+    z = grid.terrain.centre_z_m(0, 60, 0, 60)
+    np.testing.assert_allclose(drawn.terrain_z_m, z.reshape(20, 3, 20, 3).mean(axis=(1, 3)))
+    np.testing.assert_array_equal(drawn.hidden, hidden.reshape(20, 3, 20, 3).any(axis=(1, 3)))

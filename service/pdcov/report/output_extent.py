@@ -27,6 +27,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.tiles import MAX_DENSE_CELLS, TILE_CELLS, Window
 from pdcov.errors import PdcovError
 
@@ -110,8 +111,8 @@ class DrawnRaster:
     """The extent as drawn: ``pd`` (float64) and ``mask`` (bool) per drawn cell (rows
     growing north), on ``geometry`` (drawn cells of ``stride`` grid cells a side; at
     stride > 1 its last row and column may reach past the window), ``hidden`` (bool: cells
-    terrain hid from every frame; None when not asked) and ``terrain_z_m`` (drawn cells'
-    centre heights, m; None without terrain)."""
+    terrain hid from every frame; None when not asked) and ``terrain_z_m`` (the ground's
+    height at the cell centres, m, a block's mean; None without terrain)."""
 
     pd: np.ndarray
     mask: np.ndarray
@@ -123,9 +124,7 @@ class DrawnRaster:
 def drawn_raster(grid: CoverageGrid, extent: OutputExtent, *, hidden: bool) -> DrawnRaster:
     """``extent`` drawn from ``grid`` (module docstring): every cell at stride 1, else
     blocks of cells read a strip of blocks at a time (each block: its free cells'
-    smallest P_D, free if any cell is, hidden if any free cell is)."""
-    from pdcov.core.limiting import LimitingFactor
-
+    smallest P_D, free if any cell is, hidden if any free cell is, its mean height)."""
     w, s = extent.window, extent.stride
     terrain = grid.terrain
     if s == 1:
@@ -152,7 +151,7 @@ def drawn_raster(grid: CoverageGrid, extent: OutputExtent, *, hidden: bool) -> D
             hid[rows] = (free & _blocks(grid.read(Layer.LIMITING, strip)
                                         == LimitingFactor.HIDDEN, s, False)).any(axis=(1, 3))
         if z is not None and terrain is not None:
-            z[rows] = _blocks(terrain.centre_z_m(*strip), s, np.nan)[:, 0, :, 0]
+            z[rows] = np.nanmean(_blocks(terrain.centre_z_m(*strip), s, np.nan), axis=(1, 3))
     pd[~mask] = 0.0
     g = extent.geometry
     return DrawnRaster(pd, mask, GridGeometry(g.x0_m, g.y0_m, g.cell_size_m * s, h, n),
