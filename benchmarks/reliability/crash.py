@@ -32,18 +32,23 @@ class CrashResult:
     tmp_sizes: list[int] = field(default_factory=list)     # left temporary files, bytes
 
 
+def writing(state: Path) -> list[Path]:
+    """The temporary files of a checkpoint being written in ``state``: a chunk of a slot's
+    grid store (zarr's ``.partial``), its metadata or ``current`` (atomic_write's ``.tmp``)."""
+    from pdcov.service.checkpoint import CHECKPOINT_NAME
+
+    return [p for p in (state / CHECKPOINT_NAME).rglob("*")
+            if p.name.endswith((".partial", ".tmp"))]
+
+
 def kill_during_write(pid: int, state: Path, timeout_s: float) -> bool:
     """``kill -9`` process group ``pid`` the moment a checkpoint's temporary file appears in
     ``state`` (polled in a tight loop); True when it did, False (no kill) after timeout_s."""
-    from pdcov.service.checkpoint import CHECKPOINT_NAME
-
-    prefix = f".{CHECKPOINT_NAME}."
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
-        with os.scandir(state) as it:
-            if any(e.name.startswith(prefix) and e.name.endswith(".tmp") for e in it):
-                os.killpg(pid, signal.SIGKILL)
-                return True
+        if writing(state):
+            os.killpg(pid, signal.SIGKILL)
+            return True
     return False
 
 
@@ -103,10 +108,10 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
                         os.killpg(daemon.pid, signal.SIGKILL)
                     daemon.wait(timeout=10)
                 # The state directory as the next start finds it (checked on a copy).
-                left = list(rig.state.glob(f".{CHECKPOINT_NAME}.*.tmp"))
+                left = [p for p in writing(rig.state) if p.exists()]
                 if left:
                     res.during_write += 1
-                    res.tmp_sizes.extend(p.stat().st_size for p in left)
+                    res.tmp_sizes.extend(p.stat().st_size for p in left if p.exists())
                 copy = folder / "copy"
                 shutil.rmtree(copy, ignore_errors=True)
                 shutil.copytree(rig.state, copy, ignore=shutil.ignore_patterns("recordings"))

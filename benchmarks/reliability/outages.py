@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.harness import child, router
 
 from .rig import (
@@ -18,7 +19,6 @@ from .rig import (
     WatcherThread,
     cells_differing,
     fly,
-    load,
     make_rig,
     serve,
     settled,
@@ -72,7 +72,7 @@ def router_outage(folder: Path, outage_s: float, speed: float = 4.0) -> RouterRe
     finally:
         w.close()
         r.close()
-    final = load(rig.state / "checkpoint.npz")
+    final = read_checkpoint(rig.state / "checkpoint")
     return RouterResult(outage_s, before, after, int(final["frames"]),
                         cells_differing(final, grid), feed.snapshots, feed.gaps, code)
 
@@ -163,7 +163,7 @@ def disk_full(folder: Path, full_s: float = 8.0, speed: float = 4.0,
                    "recording again", daemon, log)
             res.recording_again = True
             res.exit_code = sigterm(daemon)
-            res.final_frames = int(load(state / "checkpoint.npz")["frames"])
+            res.final_frames = int(read_checkpoint(state / "checkpoint")["frames"])
     finally:
         w.close()
         r.close()

@@ -191,11 +191,6 @@ def offline(config: Path, tlog: Path, out: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def load(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path) as z:
-        return {k: z[k] for k in z.files}
-
-
 def cells_differing(a, b) -> int:
     """Cells where log_miss_d, log_miss_fa, n_obs or limiting differ (any of a/b a dict or
     GridState; a limiting factor missing or unknown differs everywhere)."""

@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.harness import child, router
 
 from ..daemon import memory_bytes
@@ -16,7 +17,6 @@ from .rig import (
     WatcherThread,
     cells_differing,
     fly,
-    load,
     make_rig,
     offline,
     serve,
@@ -130,7 +130,7 @@ def soak(folder: Path, flight_s: float, speed: float, seed: int = 1,
         w.close()
         r.close()
     wall = time.monotonic() - start
-    final = load(rig.state / "checkpoint.npz")
+    final = read_checkpoint(rig.state / "checkpoint")
     recs = sorted((rig.state / "recordings").glob("*.tlog"))
     ref = offline(rig.config, recs[-1], folder / "offline-recording")
     sim_ref = offline(rig.config, folder / "sim" / "flight.tlog", folder / "offline-sim")

@@ -54,6 +54,7 @@ GIS = Extra("gis", ("rasterio",), "GeoTIFF and GeoJSON outputs need")
 GROUND = Extra("ground", ("rich", "aiohttp"), "pdcov watch needs")
 COT = Extra("ground", ("pytak",), "pdcov watch --cot needs")
 ROUTING = Extra("routing", ("ortools",), "pdcov plan --pattern vantage needs")
+CLUSTER = Extra("cluster", ("distributed",), "pdcov evaluate --dask needs")
 SITL = Extra("sitl", ("jsbsim",), "the simulator needs")
 DEMO = Extra("demo", ("jsbsim", "rich", "aiohttp", "matplotlib", "rasterio"),
              "pdcov demo needs")

@@ -7,17 +7,16 @@ and the combined grid is neither camera's alone."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 
 from pdcov.config.load import load_mission
 from pdcov.core.grid import CoverageGrid
-from pdcov.npz_file import read_zip_member
-from pdcov.service.checkpoint import CHECKPOINT_NAME, camera_member
+from pdcov.service.checkpoint import CHECKPOINT_NAME
 from pdcov.service.settings import load_serve_config
 from tests.support import two_camera_flight as tcf
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.evaluate_inputs import load_grid, run
 from tests.support.link_feed import LAT_DEG, LON_DEG, feed_tlog
 from tests.support.serve_harness import fly_udp, offline, same
@@ -103,9 +102,7 @@ def test_a_two_camera_flight_into_the_daemon_equals_evaluate(tmp_path):
     for name in ("visible", "thermal"):
         with np.load(tmp_path / "off" / "cameras" / name / "grid.npz") as z:
             off = {k: z[k] for k in z.files}
-        data = read_zip_member(ck, camera_member(name), AssertionError)
-        with np.load(io.BytesIO(data)) as z:
-            mine = {k: z[k] for k in z.files}
+        mine = read_checkpoint(ck, name)
         for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting", "frames"):
             np.testing.assert_array_equal(mine[key], off[key], err_msg=f"{name} {key}")
         cams[name] = int(off["frames"])

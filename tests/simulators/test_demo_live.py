@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from pdcov.atomic import MARKER
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.cli_inputs import mount_tmpfs
 from tests.support.demo_run import Run, demo_args
 
@@ -51,7 +52,7 @@ def test_two_vehicle_demo_fleet_is_the_sum_and_a_late_watcher_agrees(tmp_path):
         if late is not None:
             late.close()
     summary = json.loads((out / "demo.json").read_text())
-    ck = {v: load(out / "state" / v / "checkpoint.npz") for v in ("uav1", "uav2")}
+    ck = {v: read_checkpoint(out / "state" / v / "checkpoint") for v in ("uav1", "uav2")}
     for name in ("log_miss_d", "log_miss_fa", "n_obs"):
         total = ck["uav1"][name] + ck["uav2"][name]
         for rec in (out / "report", tmp_path / "late"):
@@ -150,8 +151,8 @@ def test_finished_demo_replaces_the_previous_folder_whole(tmp_path):
     files = tree(out)
     assert "compare.png" not in files and "spiral/metrics.json" not in files
     assert "previous" not in json.loads(files["demo.json"])
-    with np.load(out / "state" / "uav1" / "checkpoint.npz") as ck:
-        assert int(ck["frames"]) > 100  # this flight's, not resumed from the earlier one
+    ck = read_checkpoint(out / "state" / "uav1" / "checkpoint")
+    assert int(ck["frames"]) > 100  # this flight's, not resumed from the earlier one
     assert {"plans/uav1.plan", "configs/uav1.yaml", "logs/serve-uav1.log",
             "report/fleet/metrics.json", MARKER} <= set(files)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo"]

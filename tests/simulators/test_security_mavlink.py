@@ -253,7 +253,7 @@ def test_a_signed_flight_sends_only_allowed_messages_listens_nowhere_writes_only
     assert writing and all(Path(p).is_relative_to(state) for p in writing), writing
     for d in (home, cwd, tmpdir):
         assert list(d.rglob("*")) == [], d
-    assert (state / "checkpoint.npz").is_file()
+    assert (state / "checkpoint" / "current").is_file()
 
 
 @pytest.mark.parametrize("sim_key", [None, WRONG_KEY], ids=["unsigned", "wrong key"])

@@ -32,6 +32,7 @@ from pdcov.core.rotations import R_from_quat_wxyz, quat_wxyz_from_R
 from pdcov.service.checkpoint import read_meta
 from pdcov.telemetry.logs import read_flight_log
 from pdcov.telemetry.pose_tracker import PoseTracker
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.harness import small_mission
 from tests.support.serve_harness import (
     Subscriber,
@@ -153,8 +154,7 @@ def kill_9_resumes(tmp: Path, plan: Path) -> None:
             time.sleep(1.5)  # one checkpoint period
             os.killpg(daemon.pid, signal.SIGKILL)
             daemon.wait(timeout=10)
-            with np.load(tmp / "st" / "checkpoint.npz") as z:
-                saved = {k: z[k] for k in z.files}
+            saved = read_checkpoint(tmp / "st" / "checkpoint")
             assert int(saved["frames"]) >= st1["frames"]["grid"]
             with process(serve_args(cfg, "--connect", f"udpin:127.0.0.1:{mport}"),
                          tmp / "serve2.log") as daemon2:
@@ -162,8 +162,7 @@ def kill_9_resumes(tmp: Path, plan: Path) -> None:
                                > int(saved["frames"]) + 20, 120, "resumed frames")
                 fly.wait(timeout=240)
                 assert stop(daemon2) == 0
-    with np.load(tmp / "st" / "checkpoint.npz") as z:
-        final = {k: z[k] for k in z.files}
+    final = read_checkpoint(tmp / "st" / "checkpoint")
     assert st2["checkpoint"]["set_aside"] is None
     assert int(final["frames"]) > int(saved["frames"])
     # Coverage only grows from the checkpoint: nothing of it was lost.
@@ -206,8 +205,7 @@ def router_gone_20_s(tmp: Path, plan: Path) -> None:
                 tiles_grid = sub.grid
             assert daemon.poll() is None
             assert stop(daemon) == 0
-        with np.load(tmp / "st" / "checkpoint.npz") as z:
-            same(snap, {k: z[k] for k in z.files}, "snapshot after the outage")
+        same(snap, read_checkpoint(tmp / "st" / "checkpoint"), "snapshot after the outage")
         # The subscriber that joined after the outage rebuilt the whole grid.
         assert tiles_grid is not None
         same(tiles_grid, {"log_miss_d": snap.log_miss_d, "log_miss_fa": snap.log_miss_fa,
@@ -291,8 +289,7 @@ def test_live_equals_offline(flights, gimbal):
     same(snap, mine, "snapshot vs pdcov evaluate of the daemon's recording")
     assert st["frames"]["grid"] == int(mine["frames"]) > 100, log[-3000:]
     same(grid, mine, "tiles")
-    with np.load(tmp / "st" / "checkpoint.npz") as z:
-        same(snap, {k: z[k] for k in z.files}, "checkpoint")
+    same(snap, read_checkpoint(tmp / "st" / "checkpoint"), "checkpoint")
     if gimbal == "fixed":
         # Over the late serial device the daemon missed what the simulator wrote before it
         # opened the terminal (a UART drops it too), so only its recording is the flight.
@@ -327,7 +324,7 @@ def test_gps_glitch_reported_never_interpolated_across(flights):
     north_m = (pos.lat_deg - pos.lat_deg[0]) * 111_195.0
     jumps = np.flatnonzero(np.abs(np.diff(north_m)) > 10.0)
     assert len(jumps) == 2, jumps
-    meta = read_meta(tmp / "st" / "checkpoint.npz")
+    meta = read_meta(tmp / "st" / "checkpoint")
     rate = SIM["camera"]["frame_rate_hz"]
     k = np.arange(0, int((pos.t_s[-1] - meta["t0_s"]) * rate) + 2)
     lattice = meta["t0_s"] + k / rate
@@ -369,9 +366,9 @@ def test_zenoh_frames_recorded_and_evaluated_offline(flights):
     log = read_flight_log(recording(tmp))
     assert [c.t_s for c in log.captures] == pytest.approx(f["times"], abs=1e-9)
     assert "not the camera's" in mine["summary"], mine["summary"]
-    with np.load(tmp / "st" / "checkpoint.npz") as z:
-        for key in ("log_miss_d", "log_miss_fa", "n_obs", "frames"):
-            assert np.array_equal(z[key], mine[key]), key
+    z = read_checkpoint(tmp / "st" / "checkpoint")
+    for key in ("log_miss_d", "log_miss_fa", "n_obs", "frames"):
+        assert np.array_equal(z[key], mine[key]), key
     assert int(mine["frames"]) == f["st"]["frames"]["used"] > 100
 
 

@@ -13,7 +13,7 @@ from pdcov.bus.status import decode_status, encode_status
 from pdcov.config.load import mission_from_dict
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.grid import CoverageGrid
-from pdcov.service.checkpoint import resume, write_checkpoint
+from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
 from pdcov.service.settings import load_serve_config, mission_hash
 from tests.support import two_camera_flight as tcf
 from tests.support import zoom_flight as zf
@@ -77,7 +77,7 @@ def test_the_daemon_follows_both_cameras_as_evaluate_does(tmp_path, looks):
 
 
 def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
-    """The checkpoint holds the combined grid (what np.load and evaluate read) and each
+    """The checkpoint holds the combined grid (a Zarr store any reader opens) and each
     camera's own grid, lattice and count; a daemon stopped half-way and resumed from it
     continues every camera where it was."""
     from pdcov.service.core import ServiceCore
@@ -99,7 +99,7 @@ def test_a_two_camera_checkpoint_resumes_every_camera(tmp_path):
     state.mkdir()
     meta = dataclasses.replace(first.core.checkpoint_meta(0.0), mission_hash=mhash)
     assert meta.cameras is not None and meta.cameras["visible"].frames_used > 10
-    write_checkpoint(state / "checkpoint.npz", first.live.grid, meta,
+    write_checkpoint(state / CHECKPOINT_NAME, first.live.grid, meta,
                      first.live.checkpoint_cameras)
     r = resume(state, mhash, fresh, {c.name: m.new_grid(c) for c in m.cameras})
     assert r.grid is not None and r.cameras is not None and r.meta is not None, r.message

@@ -5,7 +5,6 @@ and ``pdcov evaluate`` of the same telemetry, cell for cell."""
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
@@ -13,6 +12,7 @@ import pytest
 
 from pdcov.bus.footprint import decode_footprint
 from pdcov.cli import main as pdcov_main
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.cmac_mission import CMAC
 from tests.support.serve_harness import (
     REAL,
@@ -71,9 +71,9 @@ def test_real_flight_replay_equals_offline(tmp_path):
         assert not sub.errors
         assert_same_grid(sub.grid, ref, "tiles")
         assert_same_grid(snap, ref, "snapshot")
-        with np.load(tmp_path / "st" / "checkpoint.npz") as z:
-            assert_same_grid(snap, {k: z[k] for k in z.files}, "checkpoint")
-            meta = json.loads(z["pdcov_checkpoint.json"])
+        z = read_checkpoint(tmp_path / "st" / "checkpoint")
+        assert_same_grid(snap, z, "checkpoint")
+        meta = z["meta"]
         assert meta["mission_hash"] and meta["last_frame_t_s"] > 100
         # The daemon's own recording evaluates to the same grid.
         rec = sorted((tmp_path / "st" / "recordings").glob("*.tlog"))

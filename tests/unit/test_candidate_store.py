@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +27,13 @@ from pdcov.errors import ConfigError
 from pdcov.ids import candidate_uid_prefix, valid_epoch
 from pdcov.service import candidate_store
 from pdcov.service.candidate_store import JOURNAL_NAME, checkpoint_doc, journal_line, restore
-from pdcov.service.checkpoint import CANDIDATES_MEMBER, CHECKPOINT_NAME, resume, write_checkpoint
+from pdcov.service.checkpoint import (
+    CANDIDATES_FILE,
+    CHECKPOINT_NAME,
+    current_slot,
+    resume,
+    write_checkpoint,
+)
 from pdcov.service.checkpoint_meta import CheckpointMeta
 from pdcov.service.daemon import Daemon
 from pdcov.service.detections import DETECTIONS_PERIOD_S
@@ -208,8 +213,7 @@ def test_the_checkpoint_carries_the_candidates_and_an_older_or_damaged_one_keeps
     write_checkpoint(path, grid, CheckpointMeta("h", "uav1"))  # older: no member
     r = resume(tmp_path, "h", load_mission(DEMO).new_mission_grid())
     assert r.grid is not None and r.candidates is None and r.candidates_error is None
-    with zipfile.ZipFile(path, "a") as zf:
-        zf.writestr(CANDIDATES_MEMBER, b'{"version": 1, "journal_seq": ')
+    (current_slot(path) / CANDIDATES_FILE).write_bytes(b'{"version": 1, "journal_seq": ')
     r = resume(tmp_path, "h", load_mission(DEMO).new_mission_grid())
     assert r.grid is not None and r.candidates is None
     assert "JSONDecodeError" in (r.candidates_error or "")

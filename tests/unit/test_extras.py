@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from pdcov.cli import main
-from pdcov.extras import DEMO, GIS, GROUND, PLOTS, ROUTING, SITL, Extra
+from pdcov.extras import CLUSTER, DEMO, GIS, GROUND, PLOTS, ROUTING, SITL, Extra
 
 tomllib = pytest.importorskip("tomllib")  # Python 3.11
 ROOT = Path(__file__).resolve().parents[2]
@@ -117,12 +117,13 @@ def test_pyproject_extras_install_what_extras_py_names():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     extras = project["optional-dependencies"]
     base = {re.match(r"[A-Za-z0-9_.-]+", r).group(0).lower() for r in project["dependencies"]}
-    for extra in (PLOTS, GIS, GROUND, SITL, DEMO, ROUTING):
+    for extra in (PLOTS, GIS, GROUND, SITL, DEMO, ROUTING, CLUSTER):
         installs = _requirements(extras, extra.name)
         assert set(extra.modules) <= installs, extra.name  # module and distribution alike
         assert not set(extra.modules) & base, extra.name  # the companion computer's install
     assert set(DEMO.modules) <= _requirements(extras, "test")
     assert set(ROUTING.modules) <= _requirements(extras, "test")
+    assert set(CLUSTER.modules) <= _requirements(extras, "test")
 
 
 def test_vantage_plans_without_ortools_exit_2_naming_the_routing_extra(tmp_path, monkeypatch,

@@ -124,7 +124,7 @@ def test_a_bad_file_is_exit_2_without_a_traceback(tmp_path, files, capsys):
     ("mount", "lever_arm_frd_m", [0, 0, -10**400], "mount.lever_arm_frd_m: expected"),
     # Cells so small that the cell count has no float quotient (OverflowError before), or
     # that the domain's width in cells is infinite.
-    ("domain", "cell_size_m", 1.8e-274, "= 10^550 cells, more memory than any machine has"),
+    ("domain", "cell_size_m", 1.8e-274, "= 10^550 cells; at most 4,294,967,296 cells"),
     ("domain", "cell_size_m", 5e-324, "too small for a 30 x 30 m domain"),
 ], ids=["K-empty-row", "K-long-row", "model-list", "model-mapping", "K-huge-int",
         "lat-huge-int", "lever-arm-huge-int", "cell-1e-274", "cell-denormal"])

@@ -7,12 +7,15 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import struct
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zarr
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -21,6 +24,7 @@ from pdcov.bus.grid_state import GridState, decode_snapshot, encode_snapshot
 from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles
 from pdcov.config.load import mission_from_dict
+from pdcov.core.grid_layer import Layer
 from pdcov.core.pose import CameraPose
 from pdcov.ground.watcher import Watcher
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume, write_checkpoint
@@ -36,7 +40,7 @@ from tests.support.link_feed import MISSION
 
 @pytest.fixture(scope="module")
 def grid_and_checkpoint(tmp_path_factory):
-    """A mission grid that saw a few frames and its checkpoint's bytes."""
+    """A mission grid that saw a few frames and its checkpoint folder."""
     d = tmp_path_factory.mktemp("ckpt")
     mission = mission_from_dict(MISSION, "m.yaml", d)
     grid = mission.new_mission_grid()
@@ -45,85 +49,126 @@ def grid_and_checkpoint(tmp_path_factory):
         grid.update(CameraPose(R_down, np.array([5.0 + 3 * k, 15.0, 12.0]), 2.0 * k))
     write_checkpoint(d / CHECKPOINT_NAME, grid, {"mission_hash": "h", "t0_s": 0.0,
                                                  "last_frame_t_s": 10.0})
-    return mission, grid, (d / CHECKPOINT_NAME).read_bytes()
+    return mission, grid, d / CHECKPOINT_NAME
 
 
-def _npz_with(data: bytes, name: str, value) -> bytes:
-    """The checkpoint with one array replaced (a well-formed zip with a bad value)."""
-    src = zipfile.ZipFile(io.BytesIO(data))
-    out = io.BytesIO()
-    with zipfile.ZipFile(out, "w") as dst:
-        for info in src.infolist():
-            if info.filename == f"{name}.npy":
-                buf = io.BytesIO()
-                np.save(buf, value)
-                dst.writestr(info.filename, buf.getvalue())
-            else:
-                dst.writestr(info, src.read(info))
-    return out.getvalue()
-
-
-def check_resume(tmp_path: Path, mission, grid, data: bytes) -> None:
-    """Resume from ``data``: either the very grid that was saved, or a fresh start with the
-    file set aside (kept, renamed) and nothing of it loaded."""
+def check_resume(tmp_path: Path, mission, grid, folder: Path,
+                 damage: Callable[[Path], None]) -> None:
+    """Resume from a copy of the checkpoint ``folder`` with ``damage`` done to it: either
+    the very grid that was saved, or a fresh start with the folder set aside (kept,
+    renamed) and nothing of it loaded."""
     state = tmp_path / "state"
-    state.mkdir(exist_ok=True)
-    for f in state.iterdir():
-        f.unlink()
-    (state / CHECKPOINT_NAME).write_bytes(data)
+    if state.exists():
+        shutil.rmtree(state)
+    state.mkdir()
+    shutil.copytree(folder, state / CHECKPOINT_NAME)
+    damage(state / CHECKPOINT_NAME)
     fresh = mission.new_mission_grid()
     r = only_pdcov_errors(resume, state, "h", fresh)
     assert r is not None, "resume must not raise: a bad checkpoint is set aside"
     if r.grid is None:
-        assert r.set_aside is not None and r.set_aside.read_bytes() == data
+        assert r.set_aside is not None and r.set_aside.is_dir()
         assert not (state / CHECKPOINT_NAME).exists()
-        assert not fresh.n_obs.any() and not fresh.log_miss_d.any()
+        assert fresh.tile_keys() == [] and fresh.frames == 0
         return
-    for name in ("log_miss_d", "log_miss_fa", "n_obs"):
-        np.testing.assert_array_equal(getattr(r.grid, name), getattr(grid, name))
+    for layer in (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS, Layer.LIMITING):
+        np.testing.assert_array_equal(r.grid.read(layer), grid.read(layer))
+
+
+def _files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.rglob("*") if p.is_file())
 
 
 def test_a_good_checkpoint_resumes(tmp_path, grid_and_checkpoint):
-    mission, grid, data = grid_and_checkpoint
-    check_resume(tmp_path, mission, grid, data)
+    mission, grid, folder = grid_and_checkpoint
+    check_resume(tmp_path, mission, grid, folder, lambda f: None)
 
 
 @SETTINGS
 @given(data=st.data())
 def test_damaged_checkpoints_are_set_aside(tmp_path, grid_and_checkpoint, data):
-    mission, grid, good = grid_and_checkpoint
-    check_resume(tmp_path, mission, grid, data.draw(mutated_bytes(good)))
+    mission, grid, folder = grid_and_checkpoint
+    names = [p.relative_to(folder) for p in _files(folder)]
+    name = data.draw(st.sampled_from(names))
+
+    def damage(f: Path) -> None:
+        (f / name).write_bytes(data.draw(mutated_bytes((f / name).read_bytes())))
+
+    check_resume(tmp_path, mission, grid, folder, damage)
 
 
-@pytest.mark.parametrize(("name", "value"), [
-    ("log_miss_d", "nan"), ("log_miss_d", "positive"), ("log_miss_d", "shape"),
-    ("log_miss_fa", "inf"), ("n_obs", "negative"), ("n_obs", "float"), ("mask", "shape"),
-    ("x0_m", "nan"), ("cell_size_m", "zero"), ("frames", "negative"), ("version", "other"),
-    ("pdcov_checkpoint.json", "garbage")])
-def test_checkpoints_with_bad_values_are_set_aside(tmp_path, grid_and_checkpoint, name,
-                                                   value):
-    mission, grid, good = grid_and_checkpoint
-    if name == "pdcov_checkpoint.json":
-        src = zipfile.ZipFile(io.BytesIO(good))
-        out = io.BytesIO()
-        with zipfile.ZipFile(out, "w") as dst:
-            for info in src.infolist():
-                dst.writestr(info, b"{not json" if info.filename == name else src.read(info))
-        bad = out.getvalue()
-    else:
-        with np.load(io.BytesIO(good)) as z:
-            a = z[name].copy()
-        a = {"nan": lambda: np.where(a == a.flat[0], np.nan, a).astype(a.dtype),
-             "positive": lambda: a + 1.0, "inf": lambda: np.full_like(a, np.inf),
-             "shape": lambda: a[:-1], "negative": lambda: a - 100,
-             "float": lambda: a.astype(float) + 0.5, "zero": lambda: a * 0,
-             "other": lambda: a + 7}[value]()
-        bad = _npz_with(good, name, a)
+def _set_cell(layer: str, value) -> Callable[[Path], None]:
+    def damage(f: Path) -> None:
+        arr = zarr.open_group(str(f / "a" / "grid.zarr"), mode="a")[layer]
+        rows, cols = np.nonzero(np.asarray(arr[...]) != arr.fill_value)
+        arr[int(rows[0]), int(cols[0])] = value
+    return damage
+
+
+def _set_attr(key: str, value) -> Callable[[Path], None]:
+    def damage(f: Path) -> None:
+        zarr.open_group(str(f / "a" / "grid.zarr"), mode="a").attrs[key] = value
+    return damage
+
+
+def _write(name: str, text: bytes) -> Callable[[Path], None]:
+    def damage(f: Path) -> None:
+        (f / name).write_bytes(text)
+    return damage
+
+
+def _cut(name: str) -> Callable[[Path], None]:
+    def damage(f: Path) -> None:
+        path = f / name
+        path.write_bytes(path.read_bytes()[:len(path.read_bytes()) // 2])
+    return damage
+
+
+BAD_CHECKPOINTS = {
+    "log_miss_d NaN": _set_cell("log_miss_d", np.nan),
+    "log_miss_d positive": _set_cell("log_miss_d", 0.5),
+    "log_miss_fa inf": _set_cell("log_miss_fa", np.inf),
+    "n_obs negative": _set_cell("n_obs", -3),
+    "limiting code 9": _set_cell("limiting", 9),
+    "x0_m not a number": _set_attr("x0_m", "west"),
+    "cell_size_m zero": _set_attr("cell_size_m", 0.0),
+    "frames negative": _set_attr("frames", -1),
+    "store version": _set_attr("pdcov_grid", 7),
+    "free space garbage": _set_attr("free_space_wkb", "0102ff"),
+    "looks rule": _set_attr("looks", "correlated"),
+    "tile size": _set_attr("tile_cells", 64),
+    "meta.json garbage": _write("a/meta.json", b"{not json"),
+    "meta.json gone": lambda f: (f / "a" / "meta.json").unlink(),
+    "current names nothing": _write("current", b"c"),
+    "current gone": lambda f: (f / "current").unlink(),
+    "a chunk garbled": _write("a/grid.zarr/log_miss_d/c/0/0", b"\xff" * 64),
+    "a chunk cut": _cut("a/grid.zarr/log_miss_d/c/0/0"),
+    "array metadata garbage": _write("a/grid.zarr/n_obs/zarr.json", b"{"),
+    "an array gone": lambda f: shutil.rmtree(f / "a" / "grid.zarr" / "n_obs"),
+}
+
+
+@pytest.mark.parametrize("damage", list(BAD_CHECKPOINTS))
+def test_checkpoints_with_bad_values_are_set_aside(tmp_path, grid_and_checkpoint, damage):
+    mission, grid, folder = grid_and_checkpoint
+    assert (folder / "current").read_text() == "a"
     state = tmp_path / "state"
     state.mkdir()
-    (state / CHECKPOINT_NAME).write_bytes(bad)
-    r = resume(state, "h", mission.new_mission_grid())
-    assert r.grid is None and r.set_aside is not None, r.message
+    shutil.copytree(folder, state / CHECKPOINT_NAME)
+    BAD_CHECKPOINTS[damage](state / CHECKPOINT_NAME)
+    r = only_pdcov_errors(resume, state, "h", mission.new_mission_grid())
+    assert r is not None and r.grid is None and r.set_aside is not None, r and r.message
+    assert "set aside" in r.message and "it cannot be read" in r.message
+
+
+def test_an_earlier_pdcovs_checkpoint_file_is_set_aside_not_lost(tmp_path, grid_and_checkpoint):
+    mission, grid, _ = grid_and_checkpoint
+    old = tmp_path / "checkpoint.npz"
+    grid.save_npz(old)
+    data = old.read_bytes()
+    r = resume(tmp_path, "h", mission.new_mission_grid())
+    assert r.grid is None and r.set_aside is not None and r.set_aside.read_bytes() == data
+    assert "written by an earlier pdcov" in r.message and not old.exists()
 
 
 # --- Zenoh payloads into the watcher ---------------------------------------------------------
@@ -266,15 +311,6 @@ DAMAGED_MEMBERS = {
 
 
 @pytest.mark.parametrize("damage", [*DAMAGED_MEMBERS, "deflate (zlib.error)"])
-def test_found_damaged_checkpoints_are_set_aside(tmp_path, grid_and_checkpoint, damage):
-    mission, grid, good = grid_and_checkpoint
-    bad = (_garbled_deflate(good, "log_miss_d.npy") if damage.startswith("deflate")
-           else _with_member(good, "log_miss_d.npy", _npy_with_header(DAMAGED_MEMBERS[damage])))
-    check_resume(tmp_path, mission, grid, bad)
-    assert (tmp_path / "state" / CHECKPOINT_NAME).exists() is False
-
-
-@pytest.mark.parametrize("damage", [*DAMAGED_MEMBERS, "deflate (zlib.error)"])
 def test_found_damaged_snapshots_are_counted(payloads, damage):
     good = payloads["snapshot"]
     bad = (_garbled_deflate(good, "log_miss_d.npy") if damage.startswith("deflate")
@@ -290,7 +326,7 @@ def test_found_damaged_snapshots_are_counted(payloads, damage):
 def test_a_checkpoint_time_no_float_holds_is_set_aside(tmp_path, grid_and_checkpoint):
     """JSON reads integers exactly: 10**400 made math.isfinite raise OverflowError."""
     mission, grid, _ = grid_and_checkpoint
-    path = tmp_path / CHECKPOINT_NAME
+    path = tmp_path / "written" / CHECKPOINT_NAME
     write_checkpoint(path, grid, {"mission_hash": "h", "t0_s": 10**400, "last_frame_t_s": 1.0})
-    check_resume(tmp_path, mission, grid, path.read_bytes())
+    check_resume(tmp_path, mission, grid, path, lambda f: None)
     assert not (tmp_path / "state" / CHECKPOINT_NAME).exists()

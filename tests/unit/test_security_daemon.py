@@ -48,7 +48,7 @@ def test_a_checkpoint_resumes_under_its_vehicle_id_only(tmp_path, caplog) -> Non
     info = other.core.checkpoint.describe()
     assert not info["resumed"] and info["set_aside"] is not None
     aside = Path(info["set_aside"])
-    assert aside.is_file() and not (state / CHECKPOINT_NAME).exists()
+    assert aside.is_dir() and not (state / CHECKPOINT_NAME).exists()
     line = caplog.records[-1].getMessage()
     assert "set aside" in line and "vehicle 'uav1'" in line, line
     # The file set aside is uav1's, whole: renamed back it resumes under uav1.

@@ -134,6 +134,6 @@ def test_tiles_stay_within_the_byte_budget_and_statustext_fires_once():
     assert changed_tiles == {(r, c) for r in range(4) for c in (0, 1)}  # all: 32 x 64 cells
     assert len(texts) == len(set(texts)) >= 1
     assert live.poll(now + 20).checkpoint  # frames since the last checkpoint
-    live.checkpointed()
+    live.checkpointed(live.grid.frames)
     assert not live.poll(now + 40).checkpoint
     assert math.isfinite(live.share_at_target())

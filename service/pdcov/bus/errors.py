@@ -9,7 +9,7 @@ from enum import Enum
 from pdcov.errors import PdcovError
 
 
-class Refusal(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class Refusal(str, Enum):
     """Why a payload was refused (docs/protocol.md "Validation and bounds")."""
 
     TOO_LARGE = "too large"

@@ -13,7 +13,7 @@ import enum
 __all__ = ["Fault", "FaultFamily"]
 
 
-class Fault(str, enum.Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class Fault(str, enum.Enum):
     """One key of the status's ``faults`` (docs/protocol.md "Fault keys")."""
 
     # The link and its samples.

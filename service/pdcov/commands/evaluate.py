@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
-from collections.abc import Mapping, Sequence
+from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,13 +24,12 @@ from pdcov.commands.args import (
 )
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.core.blur import describe_blur
-from pdcov.errors import ConfigError, InputFileError, PdcovError
+from pdcov.errors import PdcovError
 
 if TYPE_CHECKING:
-    from pdcov.config.mission import Mission
+    from pdcov.commands.input_run import InputRun
+    from pdcov.core.geodesy import Origin
     from pdcov.core.grid import CoverageGrid
-    from pdcov.core.pose import CameraPose
-    from pdcov.telemetry.logs import FlightLog
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,7 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--poses", type=Path,
                      help="pose CSV: t_s,x_m,y_m,z_m,qw,qx,qy,qz (camera centre ENU m, "
                           "R_enu_cam quaternion)")
-    src.add_argument("--log", type=Path, help="flight log: .tlog, DataFlash .bin, PX4 .ulg")
+    src.add_argument("--log", type=Path, action="append",
+                     help="flight log: .tlog, DataFlash .bin, PX4 .ulg; or a folder: every "
+                          "such log in it, by name. Repeat it for several flights (the "
+                          "sorties of a search): their grids merge into one map")
     p.add_argument("--out", required=True, type=output_dir, help="output folder")
     p.add_argument("--plan", type=Path, help="planned mission (.plan or WPL) to draw")
     p.add_argument("--prior", type=Path,
@@ -55,6 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="P_D threshold outlined in the heat map and GeoJSON (default: the "
                         "largest configured threshold)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    spread = p.add_mutually_exclusive_group()
+    spread.add_argument("--jobs", type=positive_int,
+                        help="several logs: evaluate this many at once, each in its own "
+                             "process (default: the number of cores; 1: one after the "
+                             "other in this process)")
+    spread.add_argument("--dask", metavar="ADDRESS",
+                        help="several logs: evaluate them on the Dask cluster whose scheduler "
+                             "is at ADDRESS (e.g. tcp://10.0.0.5:8786; the logs and the "
+                             "config at the same paths there; pip install 'pdcov[cluster]')")
     p.set_defaults(func=run_evaluate)
 
     c = sub.add_parser("compare", help="overlay several runs (paper Fig. 8)",
@@ -85,243 +98,158 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
-    from pdcov.core.combine_cameras import combine_cameras
-    from pdcov.core.mount import GimbalMount
-    from pdcov.flight.frame_decision import framing_of
-    from pdcov.flight.log_frames import poses_of_log
+    from pdcov.commands.input_run import InputJob, InputKind, run_input
     from pdcov.report.exports import VehicleDetections
-    from pdcov.report.output_extent import check_prior_fits
-    from pdcov.report.outputs import (
-        evaluate_poses,
-        finite_track,
-        metrics_document,
-        read_prior,
-        summary_text,
-        write_outputs,
-    )
-    from pdcov.telemetry.frame_policy import below_min_height
-    from pdcov.telemetry.logs import read_flight_log
-    from pdcov.telemetry.pose_csv import read_pose_csv, write_pose_csv
-    from pdcov.telemetry.terrain_check import terrain_check_for
+    from pdcov.report.outputs import metrics_document, summary_text, write_outputs
 
     mission = load_mission_warned(args.config, "evaluate")
     frame_source = mission.cameras_frame_source(
         args.frame_source or mission.chosen_frame_source,
         "--frame-source" if args.frame_source else
         "log.frame_source" if mission.frame_source_set else "service.frame_source")
-    terrain_check = None
-    progress = not args.no_progress
-    lines = [f"pdcov evaluate: {args.config}"]
-    log_warnings: tuple[str, ...] = ()
-    flight_log: FlightLog | None = None
-    # The first camera's frames are the run's (its track, boxes and summary lines); every
-    # camera's grid is evaluated, and several combined (Mission.several_cameras).
-    first = mission.first_camera
     if args.poses is not None:
         if args.export_poses:
             raise PdcovError("--export-poses needs --log (a pose CSV already is one)")
-        zoom = mission.only_camera(
-            args.poses, f"the mission lists {len(mission.cameras)} cameras; a pose CSV holds "
-            "one camera's poses: give the flight log (--log)").zoom
-        if zoom is not None:
-            raise PdcovError(f"{args.poses}: camera.zoom {zoom.lens.quantity} follows "
-                             "the camera's zoom reports, which a pose CSV does not hold: give "
-                             "the flight log (--log), or set camera.zoom none")
-        log_poses = None
-        poses: Sequence[CameraPose] = read_pose_csv(args.poses)
-        origin = mission.origin()
-        track = np.array([p.r_cam_enu for p in poses]) if poses else None
-        lines.append(f"poses: {args.poses} ({len(poses)} frames)")
-        if mission.ground_alt_msl_m is None:
-            lines.append("origin.ground_alt_msl_m not set: ENU heights in the CSV are taken "
-                         "as heights above the ground")
+        if args.jobs is not None or args.dask is not None:
+            raise PdcovError("--jobs and --dask share out several flight logs (--log); a "
+                             "pose CSV is one input")
+        paths, kind = [args.poses], InputKind.POSES
     else:
-        terrain_check = terrain_check_for(mission)
-        mount = first.mount
-        flight_log = read_flight_log(  # once, for every camera
-            args.log, system_id=mission.system_id,
-            gimbal_instance=mount.instance if isinstance(mount, GimbalMount) else 1)
-        log_poses = poses_of_log(
-            flight_log, framing_of(first, mission, frame_source),
-            origin_lat_deg=mission.origin_lat_deg, origin_lon_deg=mission.origin_lon_deg,
-            ground_alt_msl_m=mission.ground_alt_msl_m, progress=progress,
-            ground_alt_how=mission.ground_alt_how, terrain_check=terrain_check)
-        poses, origin, track = log_poses.poses, log_poses.origin, log_poses.track_enu
-        lines += list(log_poses.summary_lines)  # its warnings among them
-        log_warnings = log_poses.warnings
-        if terrain_check is not None:  # the daemon's terrain_check, over the same samples
-            refusal = terrain_check.home_refusal()
-            if refusal is not None:  # the daemon counts no frame over this DEM either
-                raise ConfigError(f"{args.log}: {refusal}")
-            lines.append(terrain_check.summary_line())
-            if terrain_check.mismatches:
-                log_warnings += (terrain_check.summary_line(),)
-    lines.append(f"looks: {mission.looks.summary}")
-    _check_near_origin(poses, args.poses or args.log, mission.source)
-    n_read = len(poses)
-    top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
-    # The daemon's filter: the log's frames marked by frame_selection, a CSV's poses by
-    # frame_policy.below_min_height.
-    high = (~log_poses.low if log_poses is not None else
-            ~np.array([below_min_height(p.r_cam_enu[2], mission.min_height_m)
-                       for p in poses], bool))
-    low = int((~high).sum())
-    cameras = log_poses.cameras if log_poses is not None else ()
-    accuracies = log_poses.accuracies if log_poses is not None else ()
-    if low:
-        poses = [p for p, h in zip(poses, high, strict=True) if h]
-        cameras = tuple(c for c, h in zip(cameras, high, strict=False) if h)
-        accuracies = tuple(a for a, h in zip(accuracies, high, strict=False) if h)
-        lines.append(f"{low} frames with the camera below coverage.min_height_m = "
-                     f"{mission.min_height_m:g} m not evaluated (on the ground or taking off)")
-    if not poses:
-        print("\n".join(lines))
-        raise InputFileError(f"{args.poses or args.log}: no camera frame to evaluate: "
-                             + _why_no_frame(n_read, top_m, mission.min_height_m))
-    plan_enu = None
-    if args.plan is not None:
-        from pdcov.planning.plan_files import read_plan
-        # Only drawn: a file without a speed command still gives its waypoints.
-        plan_enu = read_plan(args.plan, origin, default_speed_mps=1.0).xy_enu_m
-    grid = mission.new_mission_grid()
-    per_camera = mission.camera_grids(grid)
-    if args.prior is not None:
-        check_prior_fits(grid.geometry)
-    prior = (read_prior(args.prior, grid.geometry, grid.mask, origin)
-             if args.prior is not None else None)
-    if prior is not None:
-        lines.extend(prior.notes)
-    own = per_camera[first.name]
-    evaluate_poses(own, poses, progress=progress, total=len(poses), cameras=cameras)
-    lines.append(describe_blur(own.blur_effect, own.exposure_s, own.frames_blurred,
-                               own.frames))
-    if flight_log is not None:
-        _other_cameras(flight_log, mission, per_camera, frame_source, lines)
-    # Each camera's looks in the same cells, by the one rule the daemon applies too.
-    combine_cameras(grid, list(per_camera.values()))
-    detections = None
-    if log_poses is not None and log_poses.frame_boxes:
-        from pdcov.ids import candidate_uid_prefix
-        from pdcov.report.detections import flight_detections, log_epoch
-        detections = flight_detections(
-            mission, grid, origin, poses, log_poses.frame_boxes, cameras, accuracies,
-            uid_prefix=candidate_uid_prefix(mission.vehicle_id, log_epoch(args.log)),
-            poa=None if prior is None else prior.poa)
-        lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
-                     f"recorded, in {len(detections['candidates'])} candidates")
-    warnings = _unseen_domain_warnings(grid, mission, poses)
-    for w in (*log_warnings, *warnings):  # the mission's were shown when it was loaded
+        from pdcov.commands.many_logs import log_paths
+        paths, kind = log_paths(args.log), InputKind.LOG
+        if len(paths) > 1 and args.export_poses:
+            raise PdcovError(f"--export-poses writes the camera poses of one log; "
+                             f"{len(paths)} given")
+    progress = not args.no_progress
+    lines = [f"pdcov evaluate: {args.config}", f"looks: {mission.looks.summary}"]
+    jobs = [InputJob(p, kind, frame_source, args.prior, args.export_poses,
+                     progress and len(paths) == 1) for p in paths]
+    if len(jobs) == 1 and args.dask is None:
+        run = run_input(jobs[0], mission)
+        grids, runs = run.loaded, [run]
+        lines += run.lines
+    else:
+        from pdcov.commands.many_logs import evaluate_logs
+        workers = min(args.jobs or os.cpu_count() or 1, len(jobs))
+        merged = evaluate_logs(mission, jobs, workers=workers, dask_address=args.dask,
+                               progress=progress)
+        grids, runs = merged.grids, list(merged.runs)
+        lines += _logs_lines(runs, f"on the Dask cluster at {args.dask}" if args.dask
+                             else "in this process" if workers == 1
+                             else f"in {workers} worker processes")
+    grid, first = grids.grid, runs[0]
+    if len(runs) > 1:  # the merged grid's frames and their blur
+        lines.append(describe_blur(grid.blur_effect, grid.exposure_s, grid.frames_blurred,
+                                   grid.frames))
+    named = (lambda r, w: w) if len(runs) == 1 else (lambda r, w: f"{r.path.name}: {w}")
+    input_warnings = [named(r, w) for r in runs for w in r.input_warnings]
+    warnings = [named(r, w) for r in runs for w in r.warnings]
+    for w in (*input_warnings, *warnings):  # the mission's were shown when it was loaded
         print(f"pdcov evaluate: WARNING: {w}", file=sys.stderr)
     warnings = [*mission.warnings, *warnings]
-    # The per-frame poses are done with: free them before writing the outputs (the peak).
-    del poses
-    source = (args.poses or args.log).name
+    source = (paths[0].name if len(paths) == 1
+              else f"{len(paths)} logs ({paths[0].name} to {paths[-1].name})")
     extra: dict[str, Any] = {}
-    if log_warnings or warnings:
-        extra["warnings"] = [*log_warnings, *warnings]
-    if terrain_check is not None:
-        extra["terrain_check"] = terrain_check.as_dict()
-    if log_poses is not None:  # the bad telemetry counted, as the daemon's status faults
-        extra["telemetry_faults"] = dict(log_poses.faults)
-        extra["frames_skipped"] = dict(log_poses.frames_skipped)
+    if input_warnings or warnings:
+        extra["warnings"] = [*input_warnings, *warnings]
+    if kind is InputKind.LOG:
+        extra.update(_logs_metrics(runs))
     if mission.several_cameras:  # each camera's outputs beside the combined grid's
         extra["cameras"] = {name: metrics_document(g.metrics(mission.thresholds))
-                            for name, g in per_camera.items()}
+                            for name, g in grids.cameras.items()}
+    track = _joined_tracks([r.track_enu for r in runs])
+    detections = _detections(runs, grid)
+    plan_enu = _plan_enu(args.plan, first.origin)
+    prior = None if first.prior is None else first.prior.poa
     with replacing_dir(args.out) as replaced:
-        run = write_outputs(args.out, mission, grid, origin,
-                            title=f"{mission.vehicle_id}: {source}",
-                            track_enu=finite_track(track), plan_enu=plan_enu,
-                            outline_threshold=args.outline_threshold,
-                            prior=None if prior is None else prior.poa,
-                            extra_metrics=extra or None,
-                            exports=() if detections is None
-                            else [VehicleDetections.from_doc(detections)])
+        run_out = write_outputs(args.out, mission, grid, first.origin,
+                                title=f"{mission.vehicle_id}: {source}", track_enu=track,
+                                plan_enu=plan_enu,
+                                outline_threshold=args.outline_threshold, prior=prior,
+                                extra_metrics=extra or None,
+                                exports=() if detections is None
+                                else [VehicleDetections.from_doc(detections)])
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)
-        if mission.several_cameras:  # each camera's outputs beside the combined grid's
-            for name, g in per_camera.items():
-                write_outputs(args.out / "cameras" / name, mission, g, origin,
-                              title=f"{mission.vehicle_id} {name}: {source}",
-                              track_enu=finite_track(track), plan_enu=plan_enu,
-                              outline_threshold=args.outline_threshold)
+        for name, g in grids.cameras.items():  # each camera's outputs (several cameras)
+            write_outputs(args.out / "cameras" / name, mission, g, first.origin,
+                          title=f"{mission.vehicle_id} {name}: {source}", track_enu=track,
+                          plan_enu=plan_enu,
+                          outline_threshold=args.outline_threshold)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
-    if log_poses is not None and args.export_poses:
-        write_pose_csv(args.export_poses, log_poses)
+    if args.export_poses:
         lines.append(f"camera poses written to {args.export_poses}")
-    print(summary_text(run, lines + [f"WARNING: {w}" for w in warnings]))
+    print(summary_text(run_out, lines + [f"WARNING: {w}" for w in warnings]))
     return 0
 
 
-def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, CoverageGrid],
-                   frame_source: str | None, lines: list[str]) -> None:
-    """Evaluate into ``grids`` (by name) the mission's cameras after the first, each from
-    the frames of the ``log`` read once (its own gimbal device's reports) at its own rate,
-    with its own mount, zoom and detector (the mission's frame rules)."""
-    from pdcov.core.mount import GimbalMount
-    from pdcov.flight.frame_decision import framing_of
-    from pdcov.flight.log_frames import poses_of_log
-    from pdcov.report.outputs import evaluate_poses
-    from pdcov.telemetry.logs import for_gimbal
+def _logs_lines(runs: Sequence[InputRun], how: str) -> list[str]:
+    """The summary of several logs merged: each log's lines under its name, then the
+    totals of their telemetry faults and skipped frames."""
+    from pdcov.flight.log_frames import describe_faults
 
-    for cam in mission.cameras:
-        if cam is mission.first_camera:
-            continue
-        lp = poses_of_log(
-            for_gimbal(log, cam.mount.instance) if isinstance(cam.mount, GimbalMount) else log,
-            framing_of(cam, mission, frame_source), origin_lat_deg=mission.origin_lat_deg,
-            origin_lon_deg=mission.origin_lon_deg, ground_alt_msl_m=mission.ground_alt_msl_m,
-            ground_alt_how=mission.ground_alt_how)
-        grid = grids[cam.name]
-        evaluate_poses(grid, [p for p, low in zip(lp.poses, lp.low, strict=True) if not low],
-                       cameras=[c for c, low in zip(lp.cameras, lp.low, strict=False)
-                                if not low])
-        lines.append(f"camera {cam.name}: {grid.frames} frames "
-                     f"({next((x for x in lp.summary_lines if x.startswith('frames:')), '')})")
+    lines = []
+    for k, run in enumerate(runs, 1):
+        lines.append(f"log {k} of {len(runs)}: {run.path}")
+        lines += [f"  {x}" for x in run.lines]
+    totals = _logs_metrics(runs)
+    skipped = totals["frames_skipped"]
+    lines += [f"logs: {len(runs)} merged in log order ({how})",
+              f"all logs: {describe_faults(totals['telemetry_faults'])}",
+              f"all logs: frames skipped: {sum(skipped.values())}"
+              + "".join(f", {why} {n}" for why, n in skipped.items())]
+    return lines
 
 
-def _why_no_frame(n_read: int, top_m: float, min_height_m: float) -> str:
-    """Why no frame is left to evaluate, in words."""
-    if n_read == 0:
-        return "the input gave no camera pose (see the frames line above for what was skipped)"
-    return (f"all {n_read} frames below coverage.min_height_m = {min_height_m:g} m (the "
-            f"highest camera was {top_m:.2f} m above the ground; check "
-            "origin.ground_alt_msl_m, or lower coverage.min_height_m)")
+def _logs_metrics(runs: Sequence[InputRun]) -> dict[str, Any]:
+    """metrics.json's telemetry_faults, frames_skipped (every log's counts added), its
+    terrain_check (one log's only) and ``logs``: each log's own."""
+    faults: Counter[str] = Counter()
+    skipped: Counter[str] = Counter()
+    logs = []
+    for r in runs:
+        faults.update(r.telemetry_faults or {})
+        skipped.update(r.frames_skipped or {})
+        logs.append({"log": str(r.path), "frames": r.frames,
+                     "telemetry_faults": r.telemetry_faults,
+                     "frames_skipped": r.frames_skipped,
+                     "warnings": list(r.input_warnings + r.warnings),
+                     **({} if r.terrain_check is None
+                        else {"terrain_check": r.terrain_check})})
+    doc: dict[str, Any] = {}
+    if len(runs) == 1 and runs[0].terrain_check is not None:
+        doc["terrain_check"] = runs[0].terrain_check
+    return {**doc, "telemetry_faults": dict(faults), "frames_skipped": dict(skipped),
+            "logs": logs}
 
 
-def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
-                            poses: Sequence[CameraPose]) -> list[str]:
-    """A warning when no frame saw a free cell of the domain, with the horizontal distance
-    from the camera track to the domain (the usual cause: a wrong origin)."""
-    if grid.metrics(()).cells_observed:  # tile by tile: a county's grid is never read whole
-        return []
-    import shapely
-
-    track = shapely.MultiPoint([p.r_cam_enu[:2] for p in poses])
-    dist_m = float(shapely.distance(mission.domain.free_space, track))
-    if dist_m > 0:
-        where_ = (f"the camera came no closer than {dist_m:,.0f} m (horizontally) to the "
-                  f"domain; check origin.lat_deg / origin.lon_deg in {mission.source} and "
-                  "the input's positions")
-    else:
-        where_ = ("the camera passed over the domain but saw none of it: check the camera "
-                  "attitude (mount), the heights, and coverage.max_range_m "
-                  f"({grid.max_range_m:.0f} m)")
-    return [f"no frame observed any of the {grid.n_free} free cells of the domain: "
-            f"{where_}"]
+def _joined_tracks(tracks: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """The flown tracks (each (M, 3) ENU m, finite) one after the other; None without any."""
+    present = [t for t in tracks if t is not None]
+    if len(present) <= 1:
+        return present[0] if present else None
+    return np.concatenate(present)
 
 
-def _check_near_origin(poses, source: Path, config: str | None) -> None:
-    """A flight tens of km from the origin is a wrong origin, not a survey: say so."""
-    if not poses:
-        return
-    xy = np.array([p.r_cam_enu[:2] for p in poses])
-    dist_km = float(np.median(np.hypot(xy[:, 0], xy[:, 1]))) / 1000
-    if dist_km > 50:
-        raise InputFileError(
-            f"{source}: the camera is {dist_km:,.0f} km from the mission origin; "
-            f"check origin.lat_deg / origin.lon_deg in {config}")
+def _detections(runs: Sequence[InputRun], grid: CoverageGrid) -> dict[str, Any] | None:
+    """The detections document of the run: one log's as it is, several logs' merged
+    (report/detections.merged_detections) with ``grid``'s P_D and P_FA; None without any."""
+    docs = [r.detections for r in runs]
+    if len(runs) == 1 or not any(docs):
+        return docs[0]
+    from pdcov.report.detections import merged_detections
+    return merged_detections([d for d in docs if d], grid)
+
+
+def _plan_enu(plan: Path | None, origin: Origin) -> np.ndarray | None:
+    """The planned mission's waypoints (ENU m, about ``origin``) to draw; None without."""
+    if plan is None:
+        return None
+    from pdcov.planning.plan_files import read_plan
+    # Only drawn: a file without a speed command still gives its waypoints.
+    return read_plan(plan, origin, default_speed_mps=1.0).xy_enu_m
 
 
 def run_compare(args: argparse.Namespace) -> int:

@@ -38,7 +38,7 @@ _M_PER_DEG_LAT = 111_320.0  # enough to turn a margin in metres into degrees
 _WGS84 = "EPSG:4326"
 
 
-class VerticalDatum(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class VerticalDatum(str, Enum):
     """What a DEM's heights are measured from: mean sea level or the WGS84 ellipsoid."""
 
     MSL = "msl"

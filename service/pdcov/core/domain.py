@@ -22,12 +22,9 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.errors import DomainError, where
 from pdcov.yaml_file import read_text
 
-# Bytes a coverage grid needs per cell when every cell is touched (its tiles: core/tiles.py)
-# and it is written whole: float32 log-miss sums (2), int32 looks, bool mask, float64
-# revisit clock, float64 P_D / P_FA and cell-centre coordinates at output. A grid holds only
-# the tiles its frames touch and a large one writes only its touched extent
-# (report/output_extent.py): 2**32 cells (about 65 km x 65 km of 1 m cells) are allowed.
-GRID_BYTES_PER_CELL = 52
+# The most cells a grid may have: about 65 x 65 km of 1 m cells. The grid holds in memory
+# only the tiles frames touch (core/tiles.py), so the bound is on what a mistyped cell size
+# asks for, not on the memory of a domain.
 MAX_GRID_CELLS = 2**32
 
 
@@ -55,20 +52,16 @@ class GridGeometry:
                               f"{self.n_cols}")
         n_cells = self.n_rows * self.n_cols
         if n_cells > MAX_GRID_CELLS:
-            # Refused here, before any array is allocated: a mistyped cell size otherwise
-            # fails with MemoryError (or swaps) after minutes.
+            # Refused here, before anything is built: a mistyped cell size (mm for m).
             # In floats, factor by factor: a cell size of 1e-274 m gives counts no float
             # quotient of the product holds (OverflowError).
             side_m = (self.cell_size_m * math.sqrt(self.n_rows / MAX_GRID_CELLS)
                       * math.sqrt(self.n_cols))
-            gib = float(self.n_rows) * GRID_BYTES_PER_CELL / 2**30 * float(self.n_cols)
             raise DomainError(
                 f"cell_size_m = {self.cell_size_m:g} m gives {_count(self.n_rows)} x "
-                f"{_count(self.n_cols)} = {_count(n_cells)} cells, "
-                + (f"about {gib:,.1f} GiB of memory" if math.isfinite(gib) else
-                   "more memory than any machine has")
-                + f"; at most {MAX_GRID_CELLS:,} cells are allowed: use cells of at "
-                f"least {side_m:.3g} m")
+                f"{_count(self.n_cols)} = {_count(n_cells)} cells; at most "
+                f"{MAX_GRID_CELLS:,} cells are allowed: use cells of at least "
+                f"{side_m:.3g} m")
 
     @property
     def shape(self) -> tuple[int, int]:

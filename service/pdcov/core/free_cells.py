@@ -43,6 +43,11 @@ class FreeCells:
         self._n_free: int | None = None
         self._constants: dict[tuple[tuple[int, int], bool], np.ndarray] = {}
 
+    @property
+    def free_space(self) -> Polygon | MultiPolygon | None:
+        """The free space the cells were found in (ENU metres); None for a mask array."""
+        return self._free_space
+
     def tile(self, key: TileKey) -> np.ndarray:
         """Tile ``key``'s free cells (bool, read-only), kept once computed."""
         found = self._tiles.get(key)

@@ -132,14 +132,14 @@ def read_snapshot(path: str | Path, data: bytes | None = None) -> Snapshot:
     if version not in READABLE_SNAPSHOT_VERSIONS:
         raise InputFileError(f"{path}: grid snapshot version {version}, expected "
                              f"{' or '.join(map(str, READABLE_SNAPSHOT_VERSIONS))}")
-    _check_snapshot_values(path, arrays)
+    check_snapshot_values(path, arrays)
     mask = arrays["mask"].astype(bool)
     geometry = GridGeometry(float(arrays["x0_m"]), float(arrays["y0_m"]),
                             float(arrays["cell_size_m"]), *mask.shape)
     return Snapshot(path, version, geometry, mask, arrays)
 
 
-def _check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
+def check_snapshot_values(path: Path, data: dict[str, np.ndarray]) -> None:
     """Refuse (InputFileError) a snapshot whose arrays could not have been written by
     ``write_snapshot``: shapes other than the mask's, non-numeric arrays, NaN or positive log-miss
     sums, counts outside 0..2^31-1, a non-finite geometry, a negative frame count, a NaN

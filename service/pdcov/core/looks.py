@@ -45,7 +45,7 @@ __all__ = ["QUADRATURE", "CorrelatedLooks", "LooksConfig", "LooksRule", "Quadrat
 Window = tuple[int, int, int, int]  # r0, r1, c0, c1: rows r0:r1, columns c0:c1
 
 
-class LooksRule(str, enum.Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class LooksRule(str, enum.Enum):
     """``coverage.looks``: how one person's looks combine (module docstring)."""
 
     INDEPENDENT = "independent"

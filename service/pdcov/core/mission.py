@@ -58,7 +58,7 @@ def mission_item_int_params56(frame: int, x: int, y: int) -> tuple[float, float]
     return x * 1e-7, y * 1e-7
 
 
-class AltitudeFrame(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class AltitudeFrame(str, Enum):
     """How a plan's altitudes are written (``planning.terrain_frame``), named for the
     MAV_FRAME of its waypoints; prints as its text."""
 

@@ -25,7 +25,8 @@ from pdcov.core.pose import CameraPose
 from pdcov.detection.candidates import DetectionTracker
 from pdcov.errors import InputFileError
 
-__all__ = ["DETECTIONS_FILE", "flight_detections", "log_epoch", "write_detections"]
+__all__ = ["DETECTIONS_FILE", "flight_detections", "log_epoch", "merged_detections",
+           "write_detections"]
 
 DETECTIONS_FILE = "detections.json"
 
@@ -55,6 +56,33 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                                     accuracy=accuracies[i] if accuracies else None, grid=own)
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id, tracker.uid_of)
+
+
+def merged_detections(docs: Sequence[Mapping[str, Any]], grid: CoverageGrid
+                      ) -> dict[str, Any]:
+    """The detections documents of several logs of one vehicle (``flight_detections``, in
+    log order) as one: every detection and candidate, each log's candidate ids shifted past
+    the previous logs' (ids stay unique; the uids, with each log's epoch, are kept), and
+    each candidate's P_D and P_FA those of ``grid`` (the merged one) at the cell of its
+    position (x_m, y_m; 0 outside the grid), as ``DetectionTracker.candidates`` gives them."""
+    geo = grid.geometry
+    detections: list[dict[str, Any]] = []
+    candidates: list[dict[str, Any]] = []
+    offset = 0
+    for doc in docs:
+        ids = [c["id"] for c in doc["candidates"]] + [d["candidate"] for d in
+                                                       doc["detections"]]
+        detections += [{**d, "candidate": d["candidate"] + offset} for d in doc["detections"]]
+        for c in doc["candidates"]:
+            row, col = (int(v) for v in geo.cell_of(c["x_m"], c["y_m"]))
+            inside = 0 <= row < geo.n_rows and 0 <= col < geo.n_cols
+            pd, pfa = ((float(-np.expm1(float(grid.log_miss_d[row, col]))),
+                        float(-np.expm1(float(grid.log_miss_fa[row, col])))) if inside
+                       else (0.0, 0.0))
+            candidates.append({**c, "id": c["id"] + offset, "pd": min(max(pd, 0.0), 1.0),
+                               "pfa": min(max(pfa, 0.0), 1.0)})
+        offset += max(ids, default=-1) + 1
+    return {**docs[0], "detections": detections, "candidates": candidates}
 
 
 def log_epoch(path: Path) -> str:

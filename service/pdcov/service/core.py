@@ -110,6 +110,8 @@ class ServiceCore:
             uid_prefix=candidate_uid_prefix(m.vehicle_id, epoch or new_epoch()))
         self._journal_seq = 0  # the last journal line decided
         self._journal_bytes = 0  # in the journal file now
+        # The grid's frames and the last journal line of the checkpoint being written.
+        self._checkpoint_taken = (0, 0)
         self._journal_error: str | None = None
         if resumed is not None:
             self._resume(resumed)
@@ -460,8 +462,11 @@ class ServiceCore:
     # --- checkpoints ----------------------------------------------------------------------
 
     def checkpoint_meta(self, unix_s: float) -> CheckpointMeta:
-        """The metadata of a checkpoint of the grid as it is now."""
+        """The metadata of a checkpoint of the grid as it is now, the shell copying the
+        grid now (its frames and journal lines are those ``checkpoint_written`` counts as
+        written)."""
         live = self.coverage
+        self._checkpoint_taken = (live.grid.frames, self._journal_seq)
         offset, boot = self.protocol.clock_state()
         known = math.isfinite(boot)
         return CheckpointMeta(
@@ -486,8 +491,10 @@ class ServiceCore:
         if state.error is not None:
             self._out.logs.append((logging.WARNING,
                                    f"checkpoint written again after: {state.error}"))
-        live.checkpointed()
-        if self._journal_bytes:  # every line is in this checkpoint
+        frames, journal_seq = self._checkpoint_taken
+        live.checkpointed(frames)
+        # Lines decided while it was written are not in it: the journal is kept for them.
+        if self._journal_bytes and self._journal_seq == journal_seq:
             self._out.journal_reset, self._journal_bytes = True, 0
         state.last_t_s, state.error = meta.last_frame_t_s, None
-        state.written_unix_s, state.frames = meta.written_unix_s, live.grid.frames
+        state.written_unix_s, state.frames = meta.written_unix_s, frames

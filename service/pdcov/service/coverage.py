@@ -419,9 +419,9 @@ class LiveCoverage:
         return min(self._next_status_s, self._next_tiles_s, self._next_checkpoint_s,
                    self._next_value_s)
 
-    def checkpointed(self) -> None:
-        """The shell wrote a checkpoint of the current grid."""
-        self._frames_at_checkpoint = self.grid.frames
+    def checkpointed(self, frames: int) -> None:
+        """The shell wrote a checkpoint of the grid as it was at ``frames`` frames."""
+        self._frames_at_checkpoint = frames
 
     def footprint_lonlat(self) -> np.ndarray | None:
         """The last frame's footprint ring (M, 2) as lon/lat degrees, or None."""

@@ -13,7 +13,8 @@ Threads: everything runs on the event loop's thread. MAVLink is read with
 ``loop.add_reader``; Zenoh calls its callbacks on its own threads, which hand the payload
 (frames) or the query to the loop with ``loop.call_soon_threadsafe`` and return at once.
 
-Files in service.state_dir: checkpoint.npz, the candidates journal (candidate_store.py),
+Files in service.state_dir: checkpoint/ (checkpoint.py), the candidates journal
+(candidate_store.py),
 ``epoch``, the re-tasking nonces (state_files.py), recordings/.
 """
 

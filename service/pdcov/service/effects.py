@@ -3,8 +3,10 @@ every link, the recording written, tiles, detections and status published, the c
 journal appended (before the detections message it protects), checkpoints and re-tasking
 nonces written, re-tasking queries answered, lines logged; each outcome the core must know
 reported back. On the loop's thread, with no event loop of its own: the journal's append
-and fsync (one short line at most once every DETECTIONS_PERIOD_S) and a checkpoint's
-encoding (milliseconds for a mission-sized grid) are done where the put must wait for them.
+and fsync (one short line at most once every DETECTIONS_PERIOD_S) is done where the put must
+wait for it. A checkpoint's changed tiles are copied on the loop's thread and written by a
+thread of its own (service/checkpoint.py); its outcome is reported when ``act`` or ``do``
+next finds it done, a checkpoint decided meanwhile started then.
 """
 
 from __future__ import annotations
@@ -12,13 +14,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 from pdcov.bus.status import StatusEncoder
 from pdcov.errors import PdcovError
 from pdcov.service.actions import Actions
 from pdcov.service.bus_endpoints import BusEndpoints
-from pdcov.service.checkpoint import write_checkpoint
+from pdcov.service.checkpoint import CheckpointJob, CheckpointWriter
 from pdcov.service.checkpoint_meta import CheckpointMeta
 from pdcov.service.core import ServiceCore
 from pdcov.service.link_setup import LinkReport
@@ -44,6 +47,10 @@ class Effects:
         self.bus = bus
         self.files = files
         self.checkpoint_path = checkpoint_path
+        self._checkpoints = CheckpointWriter(checkpoint_path)
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="checkpoint")
+        self._writing: tuple[CheckpointJob, Future[None]] | None = None
+        self._checkpoint_due = False  # decided while one was written: started after it
         self.notifier = notifier
         self._clock = clock
         self.links: list[MavlinkLink] = []
@@ -56,6 +63,7 @@ class Effects:
 
     def do(self, a: Actions) -> None:
         """Do what the core decided, in its order (core.Actions)."""
+        self._check_writing()
         for msg in a.send:
             for link in self.links:
                 link.send(msg)
@@ -74,7 +82,7 @@ class Effects:
                 self.recorder.flush()
             self._publish_status()
         if a.checkpoint is not None:
-            self._write_checkpoint(a.checkpoint)
+            self._start_checkpoint(a.checkpoint)
         if a.journal_reset:
             self.files.reset_journal()
         if a.nonces is not None:  # before the replies: a replay after a crash is refused
@@ -102,21 +110,47 @@ class Effects:
         self.act()  # the status adds only log lines
 
     def checkpoint(self) -> None:
-        """Write a checkpoint of the grid now."""
-        self._write_checkpoint(self.core.checkpoint_meta(time.time()))
+        """Write a checkpoint of the grid now, waiting for it (at the stop)."""
+        self.wait_checkpoint()
+        self._start_checkpoint(self.core.checkpoint_meta(time.time()))
+        self.wait_checkpoint()
 
-    def _write_checkpoint(self, meta: CheckpointMeta) -> None:
-        error = None
+    def wait_checkpoint(self) -> None:
+        """Wait for the checkpoint being written, if any, and report it."""
+        if self._writing is not None:
+            self._writing[1].exception()  # waits; the outcome is read by _check_writing
+            self._check_writing()
+
+    def _start_checkpoint(self, meta: CheckpointMeta) -> None:
+        """The grid's changed tiles copied with ``meta`` (of the grid now), written by the
+        checkpoint thread; after the one being written when there is one."""
+        if self._writing is not None:
+            self._checkpoint_due = True
+            return
         live = self.core.coverage
-        try:
-            write_checkpoint(self.checkpoint_path, live.grid, meta, live.checkpoint_cameras,
-                             self.core.candidates_checkpoint())
-        except (OSError, PdcovError) as exc:  # atomic_write: OutputError (disk full, ...)
-            error = str(exc)
-        self.core.checkpoint_written(meta, error)
+        job = self._checkpoints.prepare(live.grid, meta, live.checkpoint_cameras,
+                                        self.core.candidates_checkpoint())
+        self._writing = (job, self._writer.submit(job.write))
+
+    def _check_writing(self) -> None:
+        """Report the checkpoint written or failed, and start the one decided meanwhile."""
+        if self._writing is None or not self._writing[1].done():
+            return
+        (job, done), self._writing = self._writing, None
+        exc = done.exception()
+        if exc is not None and not isinstance(exc, (OSError, PdcovError, ValueError)):
+            raise exc  # a bug, not the disk: the daemon stops as on any other
+        if exc is None:
+            self._checkpoints.written(job)
+        assert job.meta is not None  # the core's metadata (a mapping only from tests)
+        self.core.checkpoint_written(job.meta, None if exc is None else str(exc))
+        if self._checkpoint_due:
+            self._checkpoint_due = False
+            self._start_checkpoint(self.core.checkpoint_meta(time.time()))
         self.act()  # the outcome adds only log lines
 
     def close(self) -> None:
-        """At the stop: the recording closed."""
+        """At the stop: the checkpoint thread ended, the recording closed."""
+        self._writer.shutdown(wait=True)
         if self.recorder is not None:
             self.recorder.close()

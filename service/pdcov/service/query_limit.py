@@ -25,7 +25,7 @@ from enum import Enum
 from pdcov.errors import ConfigError
 
 
-class QueryRefusal(str, Enum):  # StrEnum from 3.11; pdcov runs on 3.10
+class QueryRefusal(str, Enum):
     """Why a query is not answered."""
 
     REQUESTER_RATE = "requester rate"

@@ -50,8 +50,8 @@ from pdcov.telemetry.samples import (
 
 
 class TextEnum(str, Enum):
-    """A flag that is also its text (``enum.StrEnum`` from Python 3.11 on, which 3.10
-    lacks): compares equal to the string, prints and encodes to JSON as it."""
+    """A flag that is also its text: compares equal to the string, prints and encodes to
+    JSON as it."""
 
     def __str__(self) -> str:
         return str(self.value)
