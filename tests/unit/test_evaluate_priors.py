@@ -36,7 +36,7 @@ def test_calibration_file_and_relative_detector_path(tmp_path):
 
 def test_prior_from_geojson_segments_and_geotiff(tmp_path):
     from pdcov.core.geodesy import enu_to_geodetic
-    from pdcov.report.gis import write_geotiff
+    from pdcov.report.gis import array_band, write_geotiff
     from pdcov.report.outputs import read_prior
 
     mission = load_mission(write_config(tmp_path, mission_doc()))
@@ -56,7 +56,8 @@ def test_prior_from_geojson_segments_and_geotiff(tmp_path):
     assert poa.sum() == pytest.approx(0.9)
     assert poa[5, 5] == pytest.approx(0.6 / 100) and poa[35, 35] == pytest.approx(0.3 / 100)
     assert poa[20, 5] == 0
-    write_geotiff(tmp_path / "prior.tif", {"poa": poa}, g, ORIGIN, np.ones_like(mask))
+    write_geotiff(tmp_path / "prior.tif", {"poa": array_band(poa)}, g, ORIGIN,
+                  array_band(np.ones_like(mask)))
     np.testing.assert_allclose(read_prior(tmp_path / "prior.tif", g, mask, ORIGIN).poa, poa,
                                rtol=1e-6)
     doc["features"][0]["properties"] = {}

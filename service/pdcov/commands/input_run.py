@@ -21,7 +21,6 @@ import numpy as np
 
 from pdcov.core.blur import describe_blur
 from pdcov.core.combine_cameras import combine_cameras
-from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_store import (
     StoreUpdate,
     read_store_like,
@@ -33,6 +32,7 @@ from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.log_frames import poses_of_log
+from pdcov.report.output_extent import check_prior_fits
 from pdcov.report.outputs import evaluate_poses, finite_track, read_prior
 from pdcov.telemetry.frame_policy import below_min_height
 from pdcov.telemetry.logs import FlightLog, for_gimbal, read_flight_log
@@ -218,6 +218,8 @@ def run_input(job: InputJob, mission: Mission) -> InputRun:
                              + _why_no_frame(n_read, top_m, mission.min_height_m))
     grid = mission.new_mission_grid()
     per_camera = mission.camera_grids(grid)
+    if job.prior is not None:
+        check_prior_fits(grid.geometry)
     prior = (read_prior(job.prior, grid.geometry, grid.mask, frames.origin)
              if job.prior is not None else None)
     if prior is not None:
@@ -356,8 +358,7 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
                             poses: Sequence[CameraPose]) -> list[str]:
     """A warning when no frame saw a free cell of the domain, with the horizontal distance
     from the camera track to the domain (the usual cause: a wrong origin)."""
-    if any((grid.read(Layer.N_OBS, w) > 0)[grid.read(Layer.MASK, w)].any()
-           for w in map(grid.layout.window_of, grid.tile_keys())):
+    if grid.metrics(()).cells_observed:  # tile by tile: a county's grid is never read whole
         return []
     import shapely
 

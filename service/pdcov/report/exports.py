@@ -250,10 +250,11 @@ def _refly_areas(gaps: list[shapely.Polygon], gap_cells: np.ndarray, g: GridGeom
     parts = [p for p in getattr(grown, "geoms", [grown]) if isinstance(p, shapely.Polygon)]
     xs, ys = g.centres_enu()
     rows, cols = np.nonzero(gap_cells)
-    centres = shapely.points(xs[cols], ys[rows])
+    x_m, y_m = xs[cols], ys[rows]  # coordinates, not points: 16 B a gap cell
     out = []
     for p in parts:
-        n = int(shapely.contains(p, centres).sum())
+        shapely.prepare(p)
+        n = int(np.count_nonzero(shapely.contains_xy(p, x_m, y_m)))
         if n >= MIN_REFLY_CELLS:
             out.append((p, float(p.area), n))
     return sorted(out, key=lambda a: -a[1])[:MAX_REFLY_AREAS]

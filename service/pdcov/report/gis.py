@@ -1,5 +1,6 @@
-"""GIS exports: the P_D grid as a GeoTIFF and the threshold outline as GeoJSON (rasterio);
-cell outlines in ENU and their WGS84 coordinates for the other exports (report/exports.py).
+"""GIS exports: the P_D grid as a GeoTIFF (tiled, compressed, written block by block) and
+the threshold outline as GeoJSON (rasterio); cell outlines in ENU and their WGS84
+coordinates for the other exports (report/exports.py).
 
 The grid lives in the local ENU plane about the mission origin. The GeoTIFF's CRS is a
 transverse Mercator projection centred on that origin (scale 1, no false easting or
@@ -10,6 +11,7 @@ GeoJSON is WGS84 longitude/latitude as RFC 7946 requires.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +20,7 @@ import numpy as np
 from pdcov.atomic import atomic_path, write_text_atomic
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.tiles import Window
 
 
 def local_crs_wkt(origin: Origin) -> str:
@@ -33,20 +36,47 @@ def _transform(geometry: GridGeometry) -> Any:
     return from_origin(x0, y1, geometry.cell_size_m, geometry.cell_size_m)
 
 
-def write_geotiff(path: str | Path, bands: dict[str, np.ndarray], geometry: GridGeometry,
-                  origin: Origin, mask: np.ndarray) -> None:
-    """Float32 GeoTIFF with one band per entry of ``bands`` (rows grow north, as in the grid;
-    written north-up), NaN outside the free cells. Atomic: temp file then rename."""
-    import rasterio
+GEOTIFF_BLOCK = 256
+"""GeoTIFF tile side (pixels): the file is tiled, deflate-compressed and written a block
+at a time."""
+_GDAL_CACHE_MB = 64  # GDAL's block cache while writing (its default is 5 % of the RAM)
 
-    with atomic_path(path) as tmp, rasterio.open(
+BandReader = Callable[[Window], np.ndarray]
+"""A band's cells of a window (r0, r1, c0, c1 of the raster's grid; rows growing north)."""
+
+
+def array_band(values: np.ndarray) -> BandReader:
+    """A band read from an array of the whole raster."""
+    return lambda w: values[w[0]:w[1], w[2]:w[3]]
+
+
+def write_geotiff(path: str | Path, bands: Mapping[str, BandReader], geometry: GridGeometry,
+                  origin: Origin, mask: BandReader) -> None:
+    """Float32 GeoTIFF with one band per entry of ``bands`` over the cells of ``geometry``
+    (rows grow north, as in the grid; written north-up), NaN outside the free cells
+    (``mask``). Tiled (GEOTIFF_BLOCK), deflate-compressed, written block by block: only one
+    block of each band is in memory at once. Atomic: temp file then rename."""
+    import rasterio
+    from rasterio.windows import Window as RasterWindow
+
+    b = GEOTIFF_BLOCK
+    with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), atomic_path(path) as tmp, rasterio.open(
             tmp, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
             count=len(bands), dtype="float32", crs=local_crs_wkt(origin),
-            transform=_transform(geometry), nodata=np.nan, compress="deflate") as dst:
-        for i, (name, band) in enumerate(bands.items(), start=1):
-            data = np.where(mask, band, np.nan).astype(np.float32)
-            dst.write(np.flipud(data), i)
+            transform=_transform(geometry), nodata=np.nan, compress="deflate", tiled=True,
+            blockxsize=b, blockysize=b) as dst:
+        for i, name in enumerate(bands, start=1):
             dst.set_band_description(i, name)
+        for top in range(0, geometry.n_rows, b):  # file rows from the north edge
+            r1 = geometry.n_rows - top
+            r0 = max(0, r1 - b)
+            for c0 in range(0, geometry.n_cols, b):
+                c1 = min(c0 + b, geometry.n_cols)
+                w = (r0, r1, c0, c1)
+                free = mask(w)
+                block = np.stack([np.where(free, read(w), np.nan).astype(np.float32)
+                                  for read in bands.values()])
+                dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
 
 
 def read_geotiff_band(path: str | Path, geometry: GridGeometry) -> np.ndarray:

@@ -15,7 +15,7 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import shapely
@@ -26,13 +26,24 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.grid import CoverageGrid, Metrics
-from pdcov.core.limiting import LimitingFactor
+from pdcov.core.grid_layer import Layer
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
 from pdcov.report.exports import Coverage, VehicleDetections, write_exports
+from pdcov.report.grid_file import GRID_NPZ, write_grid_file
+from pdcov.report.output_extent import (
+    CROP_ABOVE_CELLS,
+    check_prior_fits,
+    drawn_raster,
+    grid_proportion_curve,
+    output_extent,
+)
+
+if TYPE_CHECKING:
+    from pdcov.report.gis import BandReader
 
 METRICS_VERSION = 1
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
@@ -208,30 +219,47 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
-    pd, pfa, mask, g = grid.pd, grid.pfa, grid.mask, grid.geometry
-    outcome = search_outcome(prior, pd, mask) if prior is not None else None
+    extent = output_extent(grid)
+    if prior is not None:
+        check_prior_fits(grid.geometry)
+    outcome = search_outcome(prior, grid.pd, grid.mask) if prior is not None else None
     doc = metrics_document(metrics, outcome)
     doc["motion_blur"] = {"effect": grid.blur_effect.name.lower(),
                           "exposure_s": grid.exposure_s, "frames_blurred": grid.frames_blurred}
     if limiting_unknown is not None:
         doc["limiting_cells"] = None
         doc["limiting_unknown"] = limiting_unknown
+    doc["extent"] = extent.document(origin)
     doc.update(extra_metrics or {})
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
-    files = ["metrics.json", "grid.npz"]
+    files = ["metrics.json"]
     not_written = []
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
-    grid.save_npz(out / "grid.npz", with_limiting=limiting_unknown is None)
+    grid_file = write_grid_file(out, grid, with_limiting=limiting_unknown is None)
+    files += [grid_file.name] if grid_file.name else []
+    not_written += [grid_file.not_written] if grid_file.not_written else []
+    drawn = drawn_raster(grid, extent, hidden=limiting_unknown is None)
+    g = drawn.geometry
     gis_missing = GIS.message()
     outline: list[list[list[list[float]]]] = []
     if gis_missing is None:
-        from pdcov.report.gis import threshold_outline, write_geotiff, write_outline_geojson
+        from pdcov.report.gis import (
+            array_band,
+            threshold_outline,
+            write_geotiff,
+            write_outline_geojson,
+        )
 
-        outline = threshold_outline(pd, mask, g, threshold)
-        bands = {"pd": pd, "pfa": pfa, "n_obs": grid.n_obs}
-        if limiting_unknown is None:
-            bands["limiting"] = grid.limiting
-        write_geotiff(out / "pd.tif", bands, g, origin, mask)
+        outline = threshold_outline(drawn.pd, drawn.mask, g, threshold)
+        r0, _, c0, _ = extent.window
+
+        def band(layer: Layer) -> BandReader:  # window cells -> grid cells
+            return lambda w: grid.read(layer, (r0 + w[0], r0 + w[1], c0 + w[2], c0 + w[3]))
+
+        layers = [Layer.PD, Layer.PFA, Layer.N_OBS] + (
+            [Layer.LIMITING] if limiting_unknown is None else [])
+        write_geotiff(out / "pd.tif", {lay.value: band(lay) for lay in layers},
+                      extent.geometry, origin, band(Layer.MASK))
         write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
         files += ["pd.tif", "outline.geojson"]
     if outcome is not None:
@@ -239,14 +267,16 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
             np.save(f, outcome.posterior)
         files.append("posterior.npy")
         if gis_missing is None:
-            write_geotiff(out / "posterior.tif", {"posterior_poa": outcome.posterior}, g,
-                          origin, np.ones_like(mask))
+            write_geotiff(out / "posterior.tif",
+                          {"posterior_poa": array_band(outcome.posterior)}, grid.geometry,
+                          origin, array_band(np.ones(grid.geometry.shape, bool)))
             files.append("posterior.tif")
     if gis_missing is not None:
         gis_files = ("pd.tif", "outline.geojson") + (("posterior.tif",) if outcome else ())
         not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
     if exports is not None:
-        coverage = Coverage(pd, mask, g, origin, tuple(mission.thresholds), threshold)
+        coverage = Coverage(drawn.pd, drawn.mask, g, origin, tuple(mission.thresholds),
+                            threshold)
         exported = write_exports(out, coverage, exports, title=title)
         files += exported.files
         not_written += exported.not_written
@@ -256,16 +286,12 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         if plots_missing is None:
             from pdcov.report.plots import heatmap_figure, thresholds_figure
 
-            terrain = grid.terrain
-            heatmap_figure(out / "heatmap.png", pd, mask, g, mission.domain, title=title,
-                           outline_enu=outline, threshold=threshold, track_enu=track_enu,
-                           plan_enu=plan_enu,
-                           terrain_z_m=None if terrain is None
-                           else terrain.centre_z_m(0, g.n_rows, 0, g.n_cols),
-                           hidden=None if limiting_unknown is not None
-                           else grid.limiting == LimitingFactor.HIDDEN)
-            thresholds_figure(out / "thresholds.png", pd, mask, mission.thresholds,
-                              title=title)
+            heatmap_figure(out / "heatmap.png", drawn.pd, drawn.mask, g, mission.domain,
+                           title=title, outline_enu=outline, threshold=threshold,
+                           track_enu=track_enu, plan_enu=plan_enu,
+                           terrain_z_m=drawn.terrain_z_m, hidden=drawn.hidden)
+            thresholds_figure(out / "thresholds.png", grid_proportion_curve(grid),
+                              metrics.proportion_at_or_above, title=title)
             files += figure_files
         else:
             not_written.append(f"{', '.join(figure_files)}: {plots_missing}")
@@ -297,7 +323,10 @@ def read_run(run_dir: str | Path) -> tuple[dict[str, Any], np.ndarray, np.ndarra
     run = Path(run_dir)
     try:
         doc = json.loads((run / "metrics.json").read_text())
-        grid = read_npz(run / "grid.npz", ValueError)
+        if not (run / GRID_NPZ).exists() and (doc.get("extent") or {}).get("cropped"):
+            raise InputFileError(f"{run}: a run over more than {CROP_ABOVE_CELLS:,} cells has "
+                                 f"no {GRID_NPZ} to compare (docs/outputs.md \"Extent\")")
+        grid = read_npz(run / GRID_NPZ, ValueError)
         pd, mask = grid["pd"], grid["mask"].astype(bool)
     except (OSError, ValueError, KeyError) as exc:
         raise InputFileError(f"{run}: not a pdcov run folder ({exc})") from None

@@ -117,15 +117,16 @@ def proportions_at_or_above(pd: np.ndarray, mask: np.ndarray,
     return [float((values >= t).mean()) if len(values) else 0.0 for t in thresholds]
 
 
-def thresholds_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
-                      thresholds: Sequence[float], *, title: str) -> None:
-    """Proportion of free cells at or above each P_D threshold, over thresholds 0..1."""
+def thresholds_figure(path: str | Path, curve: tuple[np.ndarray, np.ndarray],
+                      shares: dict[float, float], *, title: str) -> None:
+    """Proportion of free cells at or above each P_D threshold: ``curve`` (thresholds
+    0..1 and the proportions, report/output_extent.py) and the configured thresholds'
+    shares marked (``Metrics.proportion_at_or_above``)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    t, p = proportion_curve(pd, mask)
+    t, p = curve
     ax.plot(t, p, color="navy", lw=2)
-    for th, share in zip(thresholds, proportions_at_or_above(pd, mask, thresholds),
-                         strict=True):
+    for th, share in shares.items():
         ax.plot([th], [share], "o", color="crimson")
         ax.annotate(f"{share:.3f} at {th:g}", (th, share), textcoords="offset points",
                     xytext=(6, 6), fontsize=9)
