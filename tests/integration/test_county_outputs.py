@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zarr
 
 from pdcov.cli import main
 from tests.support.evaluate_inputs import (
@@ -74,8 +75,20 @@ def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
                  "thresholds.png", "pdcov.kmz"):
         assert (county / name).is_file() and (small / name).is_file(), name
     assert (small / "grid.npz").is_file() and not (county / "grid.npz").exists()
-    assert "grid.npz not written" in county_out
     assert main(["compare", str(county), "--out", str(tmp_path / "c.png")]) == 2
+
+    # grid.zarr: the county's grid store holds the small run's grid on its cells, and
+    # only the tiles the flight touched.
+    store = zarr.open_group(str(county / "grid.zarr"), mode="r")
+    with np.load(small / "grid.npz") as z:
+        r0 = round((float(z["y0_m"]) - store.attrs["y0_m"]) / store.attrs["cell_size_m"])
+        c0 = round((float(z["x0_m"]) - store.attrs["x0_m"]) / store.attrs["cell_size_m"])
+        for key in ("log_miss_d", "log_miss_fa", "n_obs", "limiting"):
+            np.testing.assert_array_equal(
+                store[key][r0:r0 + SMALL_M, c0:c0 + SMALL_M], z[key], err_msg=key)
+    assert 0 < int(np.asarray(store["tiles"][...]).sum()) <= 4
+    chunk_files = list((county / "grid.zarr").rglob("c/*/*"))
+    assert 0 < len(chunk_files) <= 4 * 4
 
     # pd.tif: the county's holds the small run's values on the same georeferenced cells.
     a, ta = read_bands(small / "pd.tif")
