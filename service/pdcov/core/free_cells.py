@@ -1,8 +1,8 @@
 """Which cells of a grid are free (searchable), tile by tile.
 
 A cell is free when its centre lies in the domain's free space (``core/domain.py``). Over a
-county the mask is not built whole: a tile whose area lies inside the free space is all
-free, one that misses it all blocked, and only the tiles the boundary or an obstacle
+county the mask is not built whole: a tile whose area the free space covers is all free,
+one that misses it all blocked, and only the tiles the boundary or an obstacle
 crosses test their cell centres (the same test as a whole mask, so the same cells). A grid
 made from a mask array (a snapshot, a test) reads its tiles from that array.
 
@@ -105,7 +105,9 @@ class FreeCells:
         r0, r1, c0, c1 = self.layout.window_of(key)
         area = shapely.box(g.x0_m + cs * c0, g.y0_m + cs * r0, g.x0_m + cs * c1,
                            g.y0_m + cs * r1)
-        if shapely.contains_properly(free, area):
+        # Covered (touching the boundary allowed): the boundary cannot cross the tile's
+        # interior, where the centres lie, so every centre is inside.
+        if shapely.covers(free, area):
             return self._constant(self.layout.shape_of(key), True)
         if shapely.disjoint(free, area):
             return self._constant(self.layout.shape_of(key), False)
