@@ -4,6 +4,7 @@ changed tiles suffice, a county-sized grid stores what was seen, damaged stores 
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -15,7 +16,13 @@ from pdcov.core.domain import Domain
 from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer
-from pdcov.core.grid_store import read_store, write_store
+from pdcov.core.grid_store import (
+    frozen_update,
+    read_store,
+    store_update,
+    write_store,
+    write_update,
+)
 from pdcov.core.looks import LooksConfig, LooksRule
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -148,3 +155,31 @@ def test_damaged_stores_are_refused_naming_the_store(tmp_path):
     root.attrs["pdcov_grid"] = 99
     with pytest.raises(InputFileError, match="not a pdcov grid store of version 1"):
         read_store(path, CAMERA, DETECTOR)
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+@pytest.mark.parametrize("kw", [{"min_revisit_s": 0.5},
+                                {"looks": LooksConfig(LooksRule.CORRELATED)}])
+def test_a_frozen_update_written_while_the_grid_goes_on_is_the_grid_when_frozen(
+        tmp_path, kw, threaded):
+    # The daemon's checkpoint: taken on the loop (nothing copied), written by a thread
+    # while frames keep coming; the store holds the grid as it was when taken. Without a
+    # thread every tile is written by the grid first (copied then), with one in any order.
+    grid = grid_of(**kw)
+    fly(grid, 30, 7)
+    then = store_update(grid)  # copied at once: the reference
+    frozen = frozen_update(grid)
+    writer = threading.Thread(target=write_update, args=(tmp_path / "g.zarr", frozen))
+    if threaded:
+        writer.start()
+    fly(grid, 30, 7, t0_s=20.0)  # the same tiles written again, meanwhile
+    if not threaded:
+        writer.start()
+    writer.join()
+    frozen.release()
+    write_update(tmp_path / "ref.zarr", then)
+    assert_same(read_store(tmp_path / "g.zarr", CAMERA, DETECTOR, **kw),
+                read_store(tmp_path / "ref.zarr", CAMERA, DETECTOR, **kw))
+    assert grid.frames == 60  # the grid went on: 30 frames after the freeze
+    with pytest.raises(RuntimeError, match="frozen for another reader"):
+        frozen_update(grid), frozen_update(grid)

@@ -22,7 +22,7 @@ side by side: a checkpoint keeps two stores and names the complete one
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +41,7 @@ from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_snapshot import check_snapshot_values
 from pdcov.core.looks import LooksConfig, LooksRule, ViewpointLooks
 from pdcov.core.terrain import TerrainSurface
-from pdcov.core.tiles import TileKey, TileLayout
+from pdcov.core.tiles import FrozenTiles, TiledLayer, TileKey, TileLayout
 from pdcov.errors import InputFileError
 from pdcov.npz_file import DAMAGED
 
@@ -72,34 +72,62 @@ def _array_name(grid_looks: LooksRule, layer: Layer) -> str:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class StoreUpdate:
-    """What ``write_update`` writes into a store, copied from a grid at one moment
-    (``store_update``), so that the grid may go on while it is written (a checkpoint off
-    the daemon's loop): ``tiles`` per stored layer, tile key -> a copy of its array;
+    """What ``write_update`` writes into a store, of a grid at one moment, so that the grid
+    may go on while it is written: ``tiles`` per stored layer, tile key -> its array as it
+    was (copied at once, ``store_update``, or when first needed, ``frozen_update``);
     ``layers``: each stored layer's (dtype, fill, depth); ``attrs``: the group's
-    attributes; ``mask``: the free cells of a grid made from a mask array, else None."""
+    attributes; ``mask``: the free cells of a grid made from a mask array, else None;
+    ``frozen``: the copy-on-write tiles of a ``frozen_update`` (``release`` when
+    written)."""
 
     geometry: GridGeometry
     tile_cells: int
     looks: LooksRule
     layers: dict[Layer, tuple[np.dtype, float | bool, tuple[int, ...]]]
     keys: list[TileKey]
-    tiles: dict[Layer, dict[TileKey, np.ndarray]]
+    tiles: Mapping[Layer, Mapping[TileKey, np.ndarray]]
     attrs: dict[str, Any]
     mask: np.ndarray | None
+    frozen: FrozenTiles | None = None
+
+    def release(self) -> None:
+        """Written (or given up): the grid's tiles are no longer owed to it."""
+        if self.frozen is not None:
+            self.frozen.release()
 
 
 def store_update(grid: CoverageGrid, keys: Iterable[TileKey] | None = None) -> StoreUpdate:
     """The tiles ``keys`` (None: every tile the grid holds) of every stored layer of
-    ``grid`` and its attributes, copied now: the cost follows the tiles, not the grid."""
+    ``grid`` and its attributes, copied now (to send to another process): the cost
+    follows the tiles, not the grid."""
     todo = grid.tile_keys() if keys is None else sorted(set(keys))
     layers = {layer: grid.layer(layer) for layer in _STORED if grid.keeps(layer)}
     tiles = {layer: {k: t.copy() for k in todo if (t := tiled.get(k)) is not None}
              for layer, tiled in layers.items()}
+    return _update(grid, layers, todo, tiles, None)
+
+
+def frozen_update(grid: CoverageGrid, keys: Iterable[TileKey] | None = None
+                  ) -> StoreUpdate:
+    """``store_update`` copying nothing now: a tile is copied when the grid next writes
+    it or when the update is written, whichever comes first (tiles.FrozenTiles), so that
+    taking a checkpoint costs the loop nothing whatever the tiles. One at a time per grid;
+    ``release`` it when written."""
+    todo = grid.tile_keys() if keys is None else sorted(set(keys))
+    layers = {layer: grid.layer(layer) for layer in _STORED if grid.keeps(layer)}
+    frozen = FrozenTiles(layers, todo)
+    return _update(grid, layers, todo, {layer: frozen.of(layer) for layer in layers},
+                   frozen)
+
+
+def _update(grid: CoverageGrid, layers: Mapping[Layer, TiledLayer], keys: list[TileKey],
+            tiles: Mapping[Layer, Mapping[TileKey, np.ndarray]],
+            frozen: FrozenTiles | None) -> StoreUpdate:
     return StoreUpdate(
         grid.geometry, grid.layout.size, grid.looks.rule,
-        {layer: (t.dtype, t.fill, t.depth) for layer, t in layers.items()}, todo, tiles,
+        {layer: (t.dtype, t.fill, t.depth) for layer, t in layers.items()}, keys, tiles,
         _attributes(grid, grid.geometry),
-        grid.free.dense() if grid.free.free_space is None else None)
+        grid.free.dense() if grid.free.free_space is None else None, frozen)
 
 
 def write_store(path: str | Path, grid: CoverageGrid,

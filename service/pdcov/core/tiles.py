@@ -15,8 +15,10 @@ Pure numeric core: no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -117,6 +119,7 @@ class TiledLayer:
         self.clock = TileClock() if clock is None else clock
         self._dense: np.ndarray | None = None  # ``dense``'s copy, and the version it holds
         self._dense_version = 0
+        self.frozen: FrozenTiles | None = None  # tiles a reader on another thread is owed
 
     @property
     def nbytes(self) -> int:
@@ -134,6 +137,8 @@ class TiledLayer:
         if t is None:
             t = np.full((*self.layout.shape_of(key), *self.depth), self.fill, self.dtype)
             self.tiles[key] = t
+        elif self.frozen is not None:
+            self.frozen.before_write(self, key, t)
         self._versions[key] = self.clock.tick()
         return t
 
@@ -185,3 +190,79 @@ class TiledLayer:
         view = self._dense.view()
         view.flags.writeable = False
         return view
+
+
+class FrozenTiles:
+    """Tiles ``keys`` of ``layers`` as they are now, for a reader on another thread (a
+    checkpoint's writer) while the grid goes on: nothing is copied now; a tile is copied
+    when the grid first writes it after this moment (``TiledLayer.tile``), or when the
+    reader takes it (``of``), whichever comes first, under one lock. ``release`` when
+    read (on the grid's thread)."""
+
+    def __init__(self, layers: Mapping[Any, TiledLayer], keys: list[TileKey]) -> None:
+        self._lock = threading.Lock()
+        self._layers = dict(layers)
+        self._owed = {(name, k) for name, lay in self._layers.items() for k in keys
+                      if k in lay.tiles}
+        self._saved: dict[tuple[object, TileKey], np.ndarray] = {}
+        self._name_of = {id(lay): name for name, lay in self._layers.items()}
+        for lay in self._layers.values():
+            if lay.frozen is not None:
+                raise RuntimeError("a layer's tiles are frozen for another reader")
+            lay.frozen = self
+
+    def before_write(self, layer: TiledLayer, key: TileKey, tile: np.ndarray) -> None:
+        """``layer``'s tile ``key`` (``tile``) is about to be written: keep it as it was."""
+        at = (self._name_of[id(layer)], key)
+        with self._lock:
+            if at in self._owed:
+                self._owed.discard(at)
+                self._saved[at] = tile.copy()
+
+    def of(self, name: object) -> Mapping[TileKey, np.ndarray]:
+        """Layer ``name``'s tiles as they were frozen (each taken once)."""
+        return _FrozenLayer(self, name)
+
+    def take(self, name: object, key: TileKey) -> np.ndarray | None:
+        """Tile ``key`` of layer ``name`` as it was frozen (None: it had none)."""
+        at = (name, key)
+        with self._lock:
+            saved = self._saved.pop(at, None)
+            if saved is not None:
+                return saved
+            if at not in self._owed:
+                return None
+            self._owed.discard(at)
+            return self._layers[name].tiles[key].copy()
+
+    def has(self, name: object, key: TileKey) -> bool:
+        with self._lock:
+            return (name, key) in self._owed or (name, key) in self._saved
+
+    def release(self) -> None:
+        """The reader is done: the layers write freely again."""
+        for lay in self._layers.values():
+            if lay.frozen is self:
+                lay.frozen = None
+
+
+class _FrozenLayer(Mapping[TileKey, np.ndarray]):
+    """One layer's frozen tiles as a mapping (``FrozenTiles.of``)."""
+
+    def __init__(self, frozen: FrozenTiles, name: object) -> None:
+        self._frozen, self._name = frozen, name
+
+    def __getitem__(self, key: TileKey) -> np.ndarray:
+        tile = self._frozen.take(self._name, key)
+        if tile is None:
+            raise KeyError(key)
+        return tile
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, tuple) and self._frozen.has(self._name, key)
+
+    def __iter__(self) -> Iterator[TileKey]:
+        raise TypeError("frozen tiles are taken by key")
+
+    def __len__(self) -> int:
+        raise TypeError("frozen tiles are taken by key")

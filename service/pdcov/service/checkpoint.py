@@ -10,8 +10,9 @@ tiles sequence number and counters: checkpoint_meta.py) and ``candidates.json``
 name, holding only the tiles changed since that slot was last written (the whole grid the
 first time a slot is written in a run), then ``current`` is renamed over to name it: a
 kill -9 or a power loss at any moment leaves the previous checkpoint or the new one, never
-a mixture. The tiles are copied on the daemon's loop (``CheckpointWriter.prepare``: the
-changed tiles only) and written by ``CheckpointJob.write`` off it.
+a mixture. Taking a checkpoint copies nothing on the daemon's loop
+(``CheckpointWriter.prepare``): a changed tile is copied when the loop next writes it or when
+``CheckpointJob.write``, off the loop, takes it (core/tiles.FrozenTiles).
 
 A checkpoint.npz of an earlier pdcov (one zip file) is set aside, not resumed.
 """
@@ -29,7 +30,7 @@ from typing import Any
 
 from pdcov.atomic import atomic_write
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.grid_store import StoreUpdate, read_store_like, store_update, write_update
+from pdcov.core.grid_store import StoreUpdate, frozen_update, read_store_like, write_update
 from pdcov.errors import InputFileError, PdcovError
 from pdcov.service.checkpoint_meta import META_VERSION, CheckpointMeta
 
@@ -103,6 +104,12 @@ class CheckpointJob:
         with atomic_write(self.path / CURRENT, "w") as fh:
             fh.write(self.slot)
 
+    def release(self) -> None:
+        """Written or failed: the grids' tiles are no longer owed to it (on the grids'
+        thread)."""
+        for update in self.stores.values():
+            update.release()
+
 
 class CheckpointWriter:
     """Checkpoints into the folder ``path``, each slot holding the tiles changed since it
@@ -123,8 +130,8 @@ class CheckpointWriter:
         slot = self._next_slot()
         written = self._written.get(slot)
         grids = {GRID_STORE: grid, **{camera_store(n): g for n, g in (cameras or {}).items()}}
-        stores = {place: store_update(g, None if written is None
-                                      else g.tile_keys(since=written.get(place, 0)))
+        stores = {place: frozen_update(g, None if written is None
+                                       else g.tile_keys(since=written.get(place, 0)))
                   for place, g in grids.items()}
         doc = meta.to_json() if isinstance(meta, CheckpointMeta) else {
             "version": META_VERSION, **meta}
@@ -153,7 +160,10 @@ def write_checkpoint(path: Path, grid: CoverageGrid,
     prepare and write; tools and tests)."""
     writer = CheckpointWriter(path)
     job = writer.prepare(grid, meta, cameras, candidates)
-    job.write()
+    try:
+        job.write()
+    finally:
+        job.release()
 
 
 def current_slot(path: Path) -> Path:

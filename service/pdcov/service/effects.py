@@ -4,9 +4,10 @@ journal appended (before the detections message it protects), checkpoints and re
 nonces written, re-tasking queries answered, lines logged; each outcome the core must know
 reported back. On the loop's thread, with no event loop of its own: the journal's append
 and fsync (one short line at most once every DETECTIONS_PERIOD_S) is done where the put must
-wait for it. A checkpoint's changed tiles are copied on the loop's thread and written by a
-thread of its own (service/checkpoint.py); its outcome is reported when ``act`` or ``do``
-next finds it done, a checkpoint decided meanwhile started then.
+wait for it. A checkpoint is taken on the loop's thread (nothing copied: its tiles are
+frozen, copy on write) and written by a thread of its own (service/checkpoint.py); its
+outcome is reported when ``act`` or ``do`` next finds it done, a checkpoint decided
+meanwhile started then.
 """
 
 from __future__ import annotations
@@ -137,6 +138,7 @@ class Effects:
         if self._writing is None or not self._writing[1].done():
             return
         (job, done), self._writing = self._writing, None
+        job.release()
         exc = done.exception()
         if exc is not None and not isinstance(exc, (OSError, PdcovError, ValueError)):
             raise exc  # a bug, not the disk: the daemon stops as on any other
