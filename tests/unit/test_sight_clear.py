@@ -11,6 +11,7 @@ from pdcov.core import grid_view
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
+from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid_camera import GridCamera
 from pdcov.core.grid_view import GridView
 from pdcov.core.occlusion import hidden_by_terrain, sight_clear
@@ -125,7 +126,7 @@ def _pose(xyz, pitch_deg, yaw_deg):
 def test_observe_area_with_the_shortcut_equals_testing_every_cell(terrain, monkeypatch):
     """Bit for bit: the observed cells, their areas and their limiting factors, with clear
     cells skipped, and with every cell tested (no cell clear)."""
-    view = GridView(GEOMETRY, DOMAIN.free_mask(GEOMETRY), terrain)
+    view = GridView(GEOMETRY, FreeCells(GEOMETRY, mask=DOMAIN.free_mask(GEOMETRY)), terrain)
     frame = GridCamera.build(WIDE, DETECTOR, GEOMETRY.cell_size_m, 80.0)
     poses = [_pose((0.0, 0.5, 12.0), -25.0, 90.0), _pose((-20.0, 5.0, 40.0), -90.0, 0.0),
              _pose((10.0, -10.0, 30.0), -50.0, 200.0), _pose((5.0, 5.0, 70.0), -70.0, 45.0)]
