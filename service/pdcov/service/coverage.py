@@ -112,7 +112,7 @@ class LiveCoverage:
         m = cfg.mission
         self.cfg = cfg
         self.grid = grid
-        self.grid_hash = grid_hash(grid.geometry, grid.mask)  # they never change
+        self.grid_hash = grid_hash(grid.geometry, grid.free)  # they never change
         self.frame_source = FrameSource(cfg.frame_source)
         self.max_gap_s = m.max_gap_s
         self.counters = Counters()
