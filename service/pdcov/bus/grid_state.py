@@ -139,6 +139,10 @@ class GridState:
                                 else ""))
         return a[r0:r1, c0:c1].copy()
 
+    def written_windows(self) -> list[Window]:
+        """The whole grid (``CellSource``: the arrays are whole, any cell may hold a value)."""
+        return [(0, self.geometry.n_rows, 0, self.geometry.n_cols)]
+
     @property
     def pd(self) -> np.ndarray:
         """Cumulative P_D per cell (float64), computed as CoverageGrid.pd does."""

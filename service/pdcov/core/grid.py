@@ -203,6 +203,11 @@ class CoverageGrid:
             keys.update(lay.changed_since(since))
         return sorted(keys)
 
+    def written_windows(self) -> list[Window]:
+        """The cells (r0, r1, c0, c1) of every tile written, row by row: outside them every
+        layer holds its fill (``CellSource``)."""
+        return [self.layout.window_of(key) for key in self.tile_keys()]
+
     @property
     def n_free(self) -> int:
         """Free cells in the whole grid."""
