@@ -353,7 +353,7 @@ class LiveCoverage:
         (the combination, with several cameras), their tiles and status metrics marked; the
         first camera's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
         window = cam.grid.touched
-        # limiting: the whole grid's, even with no window
+        # no window: nothing changed but the frame counts
         combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
         if window is not None:
             self.tile_sender.touch(window)

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pdcov.bus.tile_blocks import TileBlock, tile_blocks, tiles_in
 from pdcov.core.grid_layer import CellSource, Layer
 from pdcov.core.tiles import TileKey
-from pdcov.service.tile_blocks import TileBlock, tile_blocks, tiles_in
 
 
 @dataclass(frozen=True, slots=True)

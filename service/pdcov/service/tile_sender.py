@@ -2,19 +2,20 @@
 
 A tile is ``tile_size`` x ``tile_size`` cells, named (tile row, tile column). Frames mark
 the tiles they touched; when tiles are due, the touched ones are compared with the values
-last sent (a block at a time, ``tile_blocks``), and the changed tiles are encoded oldest change first within the bandwidth
-budget: a token bucket of one second at ``max_bytes_per_s`` (bytes/s), the encoded size
-learnt from what was sent. Times are the daemon's monotonic clock (s).
+last sent (a block at a time, ``bus.tile_blocks``), and the changed tiles are encoded
+oldest change first within the bandwidth budget: a token bucket of one second at
+``max_bytes_per_s`` (bytes/s), the encoded size learnt from what was sent. Times are the
+daemon's monotonic clock (s).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pdcov.bus.tiles import encode_tiles, tile_bounds, tile_wire_bytes
+from pdcov.bus.tile_blocks import TileBlock, tile_blocks, tiles_in
+from pdcov.bus.tiles import encode_tiles, tile_wire_bytes
 from pdcov.core.grid_layer import CellSource, Layer
 from pdcov.core.tiles import TileKey
-from pdcov.service.tile_blocks import TileBlock, tile_blocks, tiles_in
 
 __all__ = ["TileSender"]
 
@@ -82,15 +83,14 @@ class TileSender:
         self.seq += 1
         self._allowance -= len(payload)
         self._ratio = max(0.01, len(payload) / (n * tile_wire_bytes(ts)))
-        for key in ids:
-            del self._dirty_since[key]
-            win = self._window(key)
-            self._sent[key] = (grid.read(Layer.N_OBS, win), grid.read(Layer.LIMITING, win))
+        for block in tile_blocks(ids, ts, grid.geometry):
+            n_obs = grid.read(Layer.N_OBS, block.window)
+            limiting = grid.read(Layer.LIMITING, block.window)
+            for key in block.keys:
+                del self._dirty_since[key]
+                cells = block.cells(key)
+                self._sent[key] = (n_obs[cells].copy(), limiting[cells].copy())
         return payload
-
-    def _window(self, key: TileKey) -> tuple[int, int, int, int]:
-        g = self.grid.geometry
-        return tile_bounds(*key, self.tile_size, g.n_rows, g.n_cols)
 
     def _changed(self, block: TileBlock) -> list[TileKey]:
         """The tiles of ``block`` whose counts or limiting factors differ from what was

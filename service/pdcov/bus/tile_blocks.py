@@ -1,10 +1,11 @@
 """The bus's tiles (``tile_size`` cells a side, named (tile row, tile column)) read from a
 grid a block at a time: ``TileBlock``.
 
-The daemon's tiles and status compare and summarise the tiles frames touched. Reading each
-such tile by itself copies the grid's cells tile by tile; a block gathers the touched bus
-tiles that fall in one of the grid's own tiles (``core.tiles.TILE_CELLS`` a side), so each
-layer is read once per block and the per-tile figures are reductions of that one array.
+The daemon's tiles and status compare, encode and summarise the tiles frames touched.
+Reading each such tile by itself copies the grid's cells tile by tile; a block gathers the
+bus tiles that fall in one of the grid's own tiles (``core.tiles.TILE_CELLS`` a side), so
+each layer is read once per block and the per-tile figures are slices or reductions of that
+one array.
 
 Pure numeric code: no I/O.
 """
