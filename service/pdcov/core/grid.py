@@ -204,8 +204,7 @@ class CoverageGrid:
         return sorted(keys)
 
     def written_windows(self) -> list[Window]:
-        """The cells (r0, r1, c0, c1) of every tile written, row by row: outside them every
-        layer holds its fill (``CellSource``)."""
+        """Each written tile's cells, row by row (``CellSource``)."""
         return [self.layout.window_of(key) for key in self.tile_keys()]
 
     @property
