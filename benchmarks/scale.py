@@ -8,7 +8,8 @@ message through the daemon's decisions, with its tiles and status) over square d
 200 m, 2 km, 10 km and 30 km at 1 m cells, all centred on the flight, the same ENU origin.
 Each domain runs in a fresh process (``--child``), which reports:
 
-* peak RSS: ``resource.getrusage`` ru_maxrss of that process (imports included);
+* peak RSS: that process's VmHWM (imports included; not ``getrusage``'s ru_maxrss, which
+  Linux carries across fork and exec from the benchmark's own process);
 * CPU ms/frame (the frames' work) and CPU ms per second of flight of the periodic work
   (tiles and status), and the start's CPU seconds (the grid, hashes, the daemon's core);
 * the grid's tile bytes (what the tiles allocated hold) and tiles;
@@ -27,7 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import resource
+import os
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,7 @@ import numpy as np
 from pdcov.core.grid_layer import Layer
 from tests.support.scenarios import scenarios
 
+from .daemon import memory_bytes
 from .live_path import Recording, live_pass, write_config
 from .offline import write_tlog
 from .report import Row, machine, markdown
@@ -81,8 +83,8 @@ def child(config: Path, tlog: Path, inner_m: int, out: Path) -> None:
                                                                 inner)]
     np.savez(out.with_suffix(".npz"), **{lay.value: grid.read(lay, inner) for lay in LAYERS})
     out.write_text(json.dumps({
-        "cells": g.n_rows * g.n_cols, "rss_mb": resource.getrusage(
-            resource.RUSAGE_SELF).ru_maxrss / 1024, "frames": run.frames,
+        "cells": g.n_rows * g.n_cols,
+        "rss_mb": memory_bytes(os.getpid())["VmHWM"] / 2**20, "frames": run.frames,
         "ms_per_frame": run.ms_per_frame, "periodic_ms_per_s": run.periodic_ms_per_s,
         "start_cpu_s": start_cpu_s, "tile_bytes": grid.nbytes,
         "tiles": len(grid.tile_keys()), "tiles_outside": len(outside)}))
@@ -116,7 +118,7 @@ def rows_for(runs: dict[int, dict[str, Any]], flight: str) -> list[Row]:
         same = all(np.array_equal(small["inner"][n], r["inner"][n]) for n in small["inner"])
         label = f"{side / 1000:g} x {side / 1000:g} km ({r['cells']:,} cells)"
         rows += [
-            Row(label, "peak RSS", f"{r['rss_mb']:,.0f} MB"),
+            Row(label, "peak RSS", f"{r['rss_mb']:,.0f} MiB"),
             Row(label, "CPU ms/frame; tiles and status CPU ms per s of flight; start CPU s",
                 f"{r['ms_per_frame']:.2f}; {r['periodic_ms_per_s']:.1f}; "
                 f"{r['start_cpu_s']:.1f}"),
