@@ -39,7 +39,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.faults import Fault, FaultFamily
 from pdcov.bus.frames import decode_frames
-from pdcov.bus.grid_state import MAX_CELLS
 from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
@@ -372,17 +371,12 @@ class ServiceCore:
 
     def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
         """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
-        ``now_s``: None, or why not (over its rate or all replies' bytes/s: query_limit;
-        counted in faults.snapshot_queries_refused; a grid larger than a ground station
-        takes, bus.grid_state.MAX_CELLS: never, its whole grid not encoded on the loop).
+        ``now_s``: None, or why not (a grid too large, ``snapshot_refusal``; over its rate or
+        all replies' bytes/s: query_limit, counted in faults.snapshot_queries_refused).
         ``snapshot_sent`` then takes the reply's size."""
-        g = self.coverage.grid.geometry
-        if g.n_rows * g.n_cols > MAX_CELLS:
-            return (f"the grid's {g.n_rows * g.n_cols:,} cells are more than a snapshot "
-                    f"carries ({MAX_CELLS:,})")
-        limiter = self.snapshot_limiter
-        refusal = limiter.admit(requester, now_s)
-        return None if refusal is None else limiter.limits.reason(refusal)
+        limiter, too_large = self.snapshot_limiter, self.coverage.snapshot_refusal()
+        refusal = None if too_large else limiter.admit(requester, now_s)
+        return too_large or (None if refusal is None else limiter.limits.reason(refusal))
 
     def snapshot_sent(self, n_bytes: int) -> None:
         self.snapshot_limiter.sent(n_bytes)
