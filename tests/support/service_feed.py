@@ -15,10 +15,14 @@ from pdcov.telemetry.samples import AttitudeSample, PositionSample
 ORIGIN = Origin(47.0, 8.0, 400.0)
 
 
-def serve_cfg(**service) -> ServeConfig:
+SQUARE_ENU_M = ((16, 0), (48, 0), (48, 64), (16, 64))
+
+
+def serve_cfg(polygon_enu_m=SQUARE_ENU_M, **service) -> ServeConfig:
+    """The config of a 5 Hz nadir camera over ``polygon_enu_m`` (ENU m; 1 m cells)."""
     doc = {"origin": {"lat_deg": ORIGIN.lat_deg, "lon_deg": ORIGIN.lon_deg,
                       "ground_alt_msl_m": ORIGIN.ground_alt_msl_m},
-           "domain": {"polygon_enu_m": [[16, 0], [48, 0], [48, 64], [16, 64]]},
+           "domain": {"polygon_enu_m": [list(p) for p in polygon_enu_m]},
            "camera": {"width_px": 640, "height_px": 480,
                       "K": [[480.0, 0, 319.5], [0, 480.0, 239.5], [0, 0, 1]],
                       "frame_rate_hz": 5},

@@ -34,6 +34,20 @@ def core_of(tmp: Path, *, gimbal: bool = False, **service) -> ServiceCore:
     return ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h")
 
 
+def test_a_grid_larger_than_a_snapshot_carries_is_never_encoded_whole(tmp_path):
+    side = 4100  # 16.8 M cells of 1 m: more than bus.grid_state.MAX_CELLS (16 M)
+    doc = dict(MISSION, mount=FIXED, domain={
+        "polygon_enu_m": [[0, 0], [side, 0], [side, side], [0, side]], "cell_size_m": 1.0})
+    doc["service"] = {"state_dir": str(tmp_path / "state")}
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
+    cfg = load_serve_config(tmp_path / "m.yaml")
+    core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h")
+    assert core.admit_snapshot("a", 0.0) == ("the grid's 16,810,000 cells are more than a "
+                                             "snapshot carries (16,000,000)")
+    (tmp_path / "small").mkdir()
+    assert core_of(tmp_path / "small").admit_snapshot("a", 0.0) is None
+
+
 def parsed(data: bytes) -> list:
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True

@@ -87,6 +87,21 @@ def test_incremental_metrics_equal_the_whole_grid_after_random_updates_and_a_res
     assert resumed.summary() == live.summary() == whole(back, 16).summary()
 
 
+def test_tiles_never_written_count_at_thresholds_up_to_zero_only():
+    # Only the tiles frames touched are read: the free cells of the others (P_D 0) count at
+    # a threshold of 0 (every free cell) and at no positive one.
+    rng = np.random.default_rng(11)
+    g = grid()
+    for k in range(5):
+        g.update(random_pose(rng, 0.1 * k))
+    thresholds = (-0.5, 0.0, 1e-9, *THRESHOLDS)
+    s = TileMetrics(g, 8, thresholds).summary()
+    pd, free = g.pd, g.mask
+    assert s.at_or_above == {t: int(np.count_nonzero(free & (pd >= t))) for t in thresholds}
+    assert s.at_or_above[0.0] == s.cells_free == int(free.sum()) > s.at_or_above[1e-9] > 0
+    assert s.cells_observed == int(np.count_nonzero(free & (g.n_obs > 0))) > 0
+
+
 class WholeGridTiles(TileSender):
     """The daemon's tiles as they were chosen before touched windows: every tile period,
     the whole grid's observation counts compared with those last sent."""

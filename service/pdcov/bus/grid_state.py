@@ -26,6 +26,7 @@ import numpy as np
 
 from pdcov.bus.errors import Refusal, Refuser
 from pdcov.core.domain import GridGeometry
+from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer, Window
 from pdcov.core.grid_snapshot import READABLE_SNAPSHOT_VERSIONS
@@ -61,13 +62,20 @@ GRID_HASH = re.compile(r"[0-9a-f]{16}")
 _NPZ_ARRAYS = ("mask", "log_miss_d", "log_miss_fa", "n_obs", "x0_m", "y0_m", "cell_size_m")
 
 
-def grid_hash(geometry: GridGeometry, mask: np.ndarray) -> str:
+def grid_hash(geometry: GridGeometry, free: np.ndarray | FreeCells) -> str:
     """16 hex digits identifying a grid: SHA-256 of the geometry (little-endian float64 x0_m,
-    y0_m, cell_size_m, uint32 n_rows, n_cols) and the free mask (np.packbits, row-major)."""
-    head = struct.pack("<dddII", geometry.x0_m, geometry.y0_m, geometry.cell_size_m,
-                       geometry.n_rows, geometry.n_cols)
-    packed = np.packbits(np.asarray(mask, dtype=bool).ravel()).tobytes()
-    return hashlib.sha256(head + packed).hexdigest()[:16]
+    y0_m, cell_size_m, uint32 n_rows, n_cols) and the free mask (np.packbits, row-major),
+    hashed band by band of rows (``FreeCells.packed_rows``): a county's grid is hashed
+    without its whole mask. ``free``: a bool mask of the grid's shape, or its FreeCells."""
+    if not isinstance(free, FreeCells):
+        free = FreeCells(geometry, mask=free)
+    elif free.geometry != geometry:
+        raise ValueError("grid_hash: the free cells are of another grid geometry")
+    h = hashlib.sha256(struct.pack("<dddII", geometry.x0_m, geometry.y0_m,
+                                   geometry.cell_size_m, geometry.n_rows, geometry.n_cols))
+    for packed in free.packed_rows():
+        h.update(packed.tobytes())
+    return h.hexdigest()[:16]
 
 
 @dataclass(slots=True)
@@ -130,6 +138,10 @@ class GridState:
                              + (" (limiting factors unknown)" if layer is Layer.LIMITING
                                 else ""))
         return a[r0:r1, c0:c1].copy()
+
+    def written_windows(self) -> list[Window]:
+        """The whole grid (``CellSource``: the arrays are whole, any cell may hold a value)."""
+        return [(0, self.geometry.n_rows, 0, self.geometry.n_cols)]
 
     @property
     def pd(self) -> np.ndarray:

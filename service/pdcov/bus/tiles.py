@@ -31,6 +31,7 @@ import numpy as np
 from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
 from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
 from pdcov.bus.grid_state import grid_hash as hash_of_grid
+from pdcov.bus.tile_blocks import tile_blocks
 from pdcov.core.grid_layer import CellSource, Layer
 
 MAGIC = b"PDTL"
@@ -110,18 +111,23 @@ def encode_tiles(source: CellSource, tiles: Iterable[tuple[int, int]], *, seq: i
         raise ValueError(f"tile_size {tile_size}: expected 1..{MAX_TILE_SIZE}")
     if len(ids) > 0xFFFF:
         raise ValueError(f"{len(ids)} tiles in one message; at most 65535")
-    parts = []
     for tr, tc in ids:
         r0, r1, c0, c1 = tile_bounds(tr, tc, tile_size, g.n_rows, g.n_cols)
         if r0 >= r1 or c0 >= c1:
             raise ValueError(f"tile ({tr}, {tc}) lies outside the grid")
-        win = (r0, r1, c0, c1)
-        parts += [_TILE_ID.pack(tr, tc),
-                  source.read(Layer.LOG_MISS_D, win).astype("<f4").tobytes(),
-                  source.read(Layer.LOG_MISS_FA, win).astype("<f4").tobytes(),
-                  source.read(Layer.N_OBS, win).astype("<u4").tobytes(),
-                  np.rint(source.read(Layer.PD, win) * 65535.0).astype("<u2").tobytes(),
-                  source.read(Layer.LIMITING, win).astype("u1").tobytes()]
+    encoded: dict[tuple[int, int], list[bytes]] = {}
+    for block in tile_blocks(ids, tile_size, g):  # each layer read once per block
+        win = block.window
+        log_miss_d = source.read(Layer.LOG_MISS_D, win)
+        pd = 0.0 - np.expm1(log_miss_d.astype(np.float64))  # Layer.PD's values
+        layers = (log_miss_d.astype("<f4"), source.read(Layer.LOG_MISS_FA, win).astype("<f4"),
+                  source.read(Layer.N_OBS, win).astype("<u4"),
+                  np.rint(pd * 65535.0).astype("<u2"),
+                  source.read(Layer.LIMITING, win).astype("u1"))
+        for key in block.keys:
+            cells = block.cells(key)
+            encoded[key] = [_TILE_ID.pack(*key), *(a[cells].tobytes() for a in layers)]
+    parts = [b for key in ids for b in encoded[key]]
     header = _HEADER.pack(MAGIC, TILES_VERSION, 0, seq, bytes.fromhex(
         grid_hash or hash_of_grid(g, source.read(Layer.MASK))),
                           float(t_s), min(source.frames, 0xFFFFFFFF), tile_size, len(ids),

@@ -76,7 +76,7 @@ def run_serve(args: argparse.Namespace) -> int:
                               f"{cfg.link.signing_key_file}")
         print(f"pdcov serve --check: {args.config} ok: vehicle {cfg.mission.vehicle_id}, "
               f"grid {grid.geometry.n_rows} x {grid.geometry.n_cols} cells "
-              f"({int(grid.mask.sum())} free), "
+              f"({grid.n_free} free), "
               + ", ".join(f"camera {c.name} {c.camera.width_px}x{c.camera.height_px} at "
                           f"{c.frame_rate_hz:g} Hz" for c in cfg.mission.cameras)
               + ", frames by "

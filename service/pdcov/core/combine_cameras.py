@@ -24,8 +24,8 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
     with all their frames; cameras of different models are independent of each other, their
     log-misses add, P_D = 1 - prod over models of P_miss. With independent looks every
     camera's log-miss adds. P_FA and the observation counts add; the limiting factor is the
-    best (over the whole grid, whatever the window); the frame counts are the sums
-    (``min_revisit_s`` applies per camera, in its own grid). One camera's grid that is
+    best (a frame's window: its ``touched``, which holds its far cells); the frame counts
+    are the sums (``min_revisit_s`` applies per camera, in its own grid). One camera's grid that is
     ``into`` itself (config.Mission.camera_grids) is already the combination: left as is,
     its looks state with it."""
     if len(grids) == 1 and grids[0] is into:
@@ -42,14 +42,16 @@ def combine_cameras(into: CoverageGrid, grids: Sequence[CoverageGrid],
     for layer, dtype in ((Layer.LOG_MISS_FA, np.float32), (Layer.N_OBS, np.int32)):
         into.layer(layer).write(w, np.asarray(np.sum([grid.read(layer, w) for grid in grids],
                                                      axis=0, dtype=dtype)))
-    # The whole grid's: a frame whose picture reaches past its range marks cells TOO_FAR
-    # outside its window (``GridView.mark_too_far``): every tile any camera touched.
+    # A frame whose picture reaches past its range marks cells TOO_FAR outside its window
+    # (``GridView.mark_too_far``): ``CoverageGrid.touched`` holds them, so the best of the
+    # window's tiles is the best of the grid's (only tiles some camera holds are written).
     limiting = into.layer(Layer.LIMITING)
-    for key in sorted({k for grid in grids for k in grid.layer(Layer.LIMITING).tiles}):
-        tile = limiting.tile(key)
-        np.maximum.reduce([tile, *(t for grid in grids
-                                   if (t := grid.layer(Layer.LIMITING).get(key)) is not None)],
-                          out=tile)
+    layers = [grid.layer(Layer.LIMITING) for grid in grids]
+    for p in into.layout.parts(w):
+        found = [t[p.in_tile] for lay in layers if (t := lay.get(p.key)) is not None]
+        if found:
+            cells = limiting.tile(p.key)[p.in_tile]
+            np.maximum.reduce([cells, *found], out=cells)
     if into.keeps(Layer.LAST_OBS_S):
         clocks = [grid.read(Layer.LAST_OBS_S, w) for grid in grids
                   if grid.keeps(Layer.LAST_OBS_S)]

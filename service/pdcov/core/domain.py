@@ -131,14 +131,17 @@ class Domain:
         shapely.prepare(free)
         return shapely.contains_xy(free, X, Y)
 
-    def has_free_cell(self, geometry: GridGeometry, rows_per_chunk: int = 256) -> bool:
-        """True if some cell centre lies in the free space; scans the rows in chunks and
-        stops at the first free cell, so it costs little on any usable domain."""
+    def has_free_cell(self, geometry: GridGeometry, cells_per_chunk: int = 2**16) -> bool:
+        """True if some cell centre lies in the free space; scans the rows in chunks of
+        about ``cells_per_chunk`` cells and stops at the first free cell, so it costs little
+        on any usable domain (a chunk of 256 rows of a county's 30,000 columns would take
+        120 MB of centres)."""
         xs, ys = geometry.centres_enu()
         free = self.free_space
         if free.is_empty:
             return False
         shapely.prepare(free)
+        rows_per_chunk = max(1, cells_per_chunk // geometry.n_cols)
         for r0 in range(0, geometry.n_rows, rows_per_chunk):
             X, Y = np.meshgrid(xs, ys[r0:r0 + rows_per_chunk])
             if shapely.contains_xy(free, X, Y).any():

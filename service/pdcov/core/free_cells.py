@@ -11,6 +11,8 @@ Pure numeric core: no I/O.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
@@ -74,6 +76,23 @@ class FreeCells:
             self._mask = self.window((0, self.layout.n_rows, 0, self.layout.n_cols))
             self._mask.flags.writeable = False
         return self._mask
+
+    def packed_rows(self) -> Iterator[np.ndarray]:
+        """The whole mask, row-major, as ``np.packbits`` (uint8) of bands of ``layout.size``
+        rows, one band built at a time (tiles not kept): their concatenation is
+        ``np.packbits`` of the whole mask, as a band's cells are a multiple of 8."""
+        n_rows, n_cols, s = self.layout.n_rows, self.layout.n_cols, self.layout.size
+        for r0 in range(0, n_rows, s):
+            window = (r0, min(r0 + s, n_rows), 0, n_cols)
+            if self._mask is not None:
+                band = self._mask[r0:window[1]]
+            else:
+                band = np.empty((window[1] - r0, n_cols), dtype=bool)
+                for p in self.layout.parts(window):
+                    found = self._tiles.get(p.key)
+                    band[p.in_window] = (self._tile_of_space(p.key) if found is None
+                                         else found)[p.in_tile]
+            yield np.packbits(band)
 
     @property
     def n_free(self) -> int:

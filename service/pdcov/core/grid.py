@@ -203,6 +203,10 @@ class CoverageGrid:
             keys.update(lay.changed_since(since))
         return sorted(keys)
 
+    def written_windows(self) -> list[Window]:
+        """Each written tile's cells, row by row (``CellSource``)."""
+        return [self.layout.window_of(key) for key in self.tile_keys()]
+
     @property
     def n_free(self) -> int:
         """Free cells in the whole grid."""

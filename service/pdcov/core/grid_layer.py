@@ -47,3 +47,8 @@ class CellSource(Protocol):
     def read(self, layer: Layer, window: Window | None = None) -> np.ndarray:
         """The cells of ``window`` (r0, r1, c0, c1; None: all) of ``layer``: a new array."""
         ...
+
+    def written_windows(self) -> list[Window]:
+        """Windows outside which every layer holds its fill (no look, never in view, P_D
+        0): a coverage grid's written tiles; a ground station's whole grid."""
+        ...

@@ -146,7 +146,7 @@ async def _main(opts: WatchOptions) -> int:
     config_hash = None
     if opts.mission is not None:
         grid = opts.mission.new_mission_grid()
-        config_hash = grid_hash(grid.geometry, grid.mask)
+        config_hash = grid_hash(grid.geometry, grid.free)
     exports = ExportRecorder(opts.record / "exports", period_s=opts.exports_period_s) \
         if opts.record else None
     watcher = Watcher(opts.vehicle, thresholds=(

@@ -264,7 +264,7 @@ class Recording:
         grid = replace(mission, looks=LooksConfig()).new_mission_grid() if mission is not None \
             else None
         if mission is not None and grid is not None \
-                and grid_hash(grid.geometry, grid.mask) == merged.hash:
+                and grid_hash(grid.geometry, grid.free) == merged.hash:
             from pdcov.report.outputs import summary_text, write_outputs
 
             everything = (0, grid.geometry.n_rows, 0, grid.geometry.n_cols)

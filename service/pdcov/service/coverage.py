@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.bus.faults import Fault
-from pdcov.bus.grid_state import grid_hash
+from pdcov.bus.grid_state import MAX_CELLS, grid_hash
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
@@ -112,7 +112,7 @@ class LiveCoverage:
         m = cfg.mission
         self.cfg = cfg
         self.grid = grid
-        self.grid_hash = grid_hash(grid.geometry, grid.mask)  # they never change
+        self.grid_hash = grid_hash(grid.geometry, grid.free)  # they never change
         self.frame_source = FrameSource(cfg.frame_source)
         self.max_gap_s = m.max_gap_s
         self.counters = Counters()
@@ -353,7 +353,7 @@ class LiveCoverage:
         (the combination, with several cameras), their tiles and status metrics marked; the
         first camera's boxes geolocated (with the GNSS ``accuracy`` in force at the frame)."""
         window = cam.grid.touched
-        # limiting: the whole grid's, even with no window
+        # no window: nothing changed but the frame counts
         combine_cameras(self.grid, self.camera_grids, window or (0, 0, 0, 0))
         if window is not None:
             self.tile_sender.touch(window)
@@ -367,6 +367,15 @@ class LiveCoverage:
         return sum(cam.schedule.frames_pending for cam in self.cameras)
 
     # --- output ---------------------------------------------------------------------------
+
+    def snapshot_refusal(self) -> str | None:
+        """Why the grid is never sent whole: more cells than a snapshot carries (no
+        watcher takes it: bus.grid_state.MAX_CELLS; its encoding would stall the loop);
+        None when it may be."""
+        g = self.grid.geometry
+        n = g.n_rows * g.n_cols
+        return (f"the grid's {n:,} cells are more than a snapshot carries ({MAX_CELLS:,})"
+                if n > MAX_CELLS else None)
 
     def share_at_target(self) -> float:
         return self.metrics.summary().proportion_at_or_above(self.target_pd)

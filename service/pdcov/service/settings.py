@@ -244,7 +244,8 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     if mission.several_cameras:  # one camera: hashed as before cameras lists existed
         doc["cameras"] = [_camera_doc(c) for c in mission.cameras]
     h = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
-    h.update(np.packbits(grid.mask).tobytes())
+    for packed in grid.free.packed_rows():  # band by band: np.packbits of the whole mask
+        h.update(packed.tobytes())
     if mission.looks != LooksConfig():  # independent looks: hashed as before looks existed
         rho = [None if c.detector.looks is None else c.detector.looks.correlation
                for c in mission.cameras]

@@ -1,25 +1,31 @@
 """The status metrics of a grid kept per tile, so that the daemon's periodic cost follows the
 cells the frames touch, not the size of the grid.
 
-Each tile (the bus tiles' cut, ``tile_size`` cells a side) holds its counts of free cells at
-or above each threshold, its observed free cells, and its float64 sums of P_D over free cells
-and of P_FA over observed free cells; a tile is recomputed only after ``mark`` says cells in
-it may have changed (``CoverageGrid.touched``). Everything is stale at first (a resumed grid).
-The counts, so the proportions at a threshold and the cells observed, equal a whole-grid
-count exactly (``CoverageGrid.metrics``); the float sums add the tiles' sums in a fixed order
-(row-major), so they depend only on the grid's values, not on the order of the updates, and
-differ from a whole-grid ``sum`` only by rounding (about 1e-16 relative).
+Each tile (the bus tiles' cut, ``tile_size`` cells a side) that may hold a look keeps its
+counts of free cells at or above each positive threshold, its observed free cells, and its
+float64 sums of P_D over free cells and of P_FA over observed free cells; a tile is
+recomputed only after ``mark`` says cells in it may have changed (``CoverageGrid.touched``),
+the touched tiles a block at a time (``tile_blocks``). At first the tiles the grid holds are
+stale (``CellSource.written_windows``: a resumed grid's); a tile never written has P_D 0
+and no look, so its free cells count only at thresholds <= 0, where every free cell of the
+grid counts (``n_free``). The counts, so the proportions at a threshold and the cells
+observed, equal a whole-grid count exactly (``CoverageGrid.metrics``); the float sums are
+the tiles' sums added exactly rounded (``math.fsum``), so they depend only on the grid's
+values, not on the order of the updates, and differ from a whole-grid ``sum`` only by
+rounding (about 1e-16 relative).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.bus.tiles import tile_bounds, tile_grid_shape
+from pdcov.bus.tile_blocks import TileBlock, tile_blocks, tiles_in
 from pdcov.core.grid_layer import CellSource, Layer
+from pdcov.core.tiles import TileKey
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,41 +58,70 @@ class TileMetrics:
         self.source = source
         self.tile_size = tile_size
         self.thresholds = tuple(sorted({float(t) for t in thresholds}))
-        shape = tile_grid_shape(tile_size, *source.geometry.shape)
-        self._at_or_above = np.zeros((len(self.thresholds), *shape), np.int64)
-        self._observed = np.zeros(shape, np.int64)
-        self._sum_pd = np.zeros(shape, np.float64)
-        self._sum_pfa = np.zeros(shape, np.float64)
-        self._stale = np.ones(shape, bool)
+        self._positive = tuple(t for t in self.thresholds if t > 0)  # others: every free cell
+        # Per tile holding a look, its slot in the arrays below (grown as tiles are seen).
+        self._slot: dict[TileKey, int] = {}
+        self._at_or_above = np.zeros((0, len(self._positive)), np.int64)
+        self._observed = np.zeros(0, np.int64)
+        self._sum_pd = np.zeros(0, np.float64)
+        self._sum_pfa = np.zeros(0, np.float64)
+        self._stale: set[TileKey] = set()
         self.cells_free = source.n_free  # the mask never changes
+        for window in source.written_windows():
+            self.mark(window)
 
     def mark(self, window: tuple[int, int, int, int]) -> None:
         """Cells rows r0:r1, columns c0:c1 may have changed."""
-        r0, r1, c0, c1 = window
-        ts = self.tile_size
-        self._stale[r0 // ts:(r1 - 1) // ts + 1, c0 // ts:(c1 - 1) // ts + 1] = True
+        self._stale.update(tiles_in(window, self.tile_size))
 
     def summary(self) -> GridSummary:
         """The metrics now, recomputing the stale tiles first."""
-        for tr, tc in zip(*np.nonzero(self._stale), strict=True):
-            self._refresh(int(tr), int(tc))
-        self._stale[:] = False
+        for block in tile_blocks(self._stale, self.tile_size, self.source.geometry):
+            self._refresh(block)
+        self._stale.clear()
+        n = len(self._slot)
+        counts = iter(self._at_or_above[:n].sum(axis=0).tolist())
         return GridSummary(
-            cells_free=self.cells_free, cells_observed=int(self._observed.sum()),
-            at_or_above={t: int(n) for t, n in zip(self.thresholds,
-                                                   self._at_or_above.sum(axis=(1, 2)),
-                                                   strict=True)},
-            sum_pd=float(self._sum_pd.sum()), expected_false_alarms=float(self._sum_pfa.sum()))
+            cells_free=self.cells_free, cells_observed=int(self._observed[:n].sum()),
+            at_or_above={t: next(counts) if t > 0 else self.cells_free
+                         for t in self.thresholds},
+            sum_pd=math.fsum(self._sum_pd[:n]),
+            expected_false_alarms=math.fsum(self._sum_pfa[:n]))
 
-    def _refresh(self, tr: int, tc: int) -> None:
-        ts, s = self.tile_size, self.source
-        g = s.geometry
-        win = tile_bounds(tr, tc, ts, g.n_rows, g.n_cols)
+    def _refresh(self, block: TileBlock) -> None:
+        """Recompute the tiles of ``block``, its layers read once."""
+        s, win = self.source, block.window
         free = s.read(Layer.MASK, win)
-        pd = s.read(Layer.PD, win)[free]
-        for i, t in enumerate(self.thresholds):
-            self._at_or_above[i, tr, tc] = np.count_nonzero(pd >= t)
+        pd = np.where(free, s.read(Layer.PD, win), 0.0)
         observed = free & (s.read(Layer.N_OBS, win) > 0)
-        self._observed[tr, tc] = np.count_nonzero(observed)
-        self._sum_pd[tr, tc] = pd.sum()
-        self._sum_pfa[tr, tc] = s.read(Layer.PFA, win)[observed].sum()
+        figures = [block.per_tile(free & (pd >= t)) for t in self._positive]
+        n_observed = block.per_tile(observed)
+        sum_pd = block.per_tile(pd)
+        sum_pfa = block.per_tile(np.where(observed, s.read(Layer.PFA, win), 0.0))
+        at = tuple(np.array([block.at(k) for k in block.keys]).T)
+        slots = np.array([self._slot_of(k) for k in block.keys])
+        for i, per_tile in enumerate(figures):
+            self._at_or_above[slots, i] = per_tile[at]
+        self._observed[slots] = n_observed[at]
+        self._sum_pd[slots] = sum_pd[at]
+        self._sum_pfa[slots] = sum_pfa[at]
+
+    def _slot_of(self, key: TileKey) -> int:
+        """Tile ``key``'s slot in the per-tile arrays, a new one (zeros) at first."""
+        slot = self._slot.get(key)
+        if slot is None:
+            slot = self._slot[key] = len(self._slot)
+            if slot == len(self._observed):  # full: double the room
+                room = max(64, 2 * slot)
+                self._at_or_above = _grown(self._at_or_above, room)
+                self._observed = _grown(self._observed, room)
+                self._sum_pd = _grown(self._sum_pd, room)
+                self._sum_pfa = _grown(self._sum_pfa, room)
+        return slot
+
+
+def _grown(a: np.ndarray, rows: int) -> np.ndarray:
+    """``a`` with ``rows`` rows, the new ones zero."""
+    out = np.zeros((rows, *a.shape[1:]), a.dtype)
+    out[:len(a)] = a
+    return out
