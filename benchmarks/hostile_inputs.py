@@ -31,7 +31,7 @@ from pdcov.ground.basemap import TileRefused, open_basemap, read_tile
 from pdcov.ids import valid_vehicle_id
 from pdcov.service.core import ServiceCore
 from pdcov.service.link_setup import LinkReport
-from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
+from pdcov.service.memory_budget import memory_check, memory_limit_bytes
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.tlog import mavlink
 from tests.support.link_feed import FIXED, MISSION, Hover, pack
@@ -181,14 +181,14 @@ def config_cases() -> Iterator[Case]:
         path.write_text(yaml.safe_dump(doc))
         m = load_serve_config(path).mission
     unit = (600 << 20, "systemd/pdcov.service's MemoryMax=600M")
-    why = memory_refusal(m, 8_000_000, unit)
+    why = memory_check(m, 8_000_000, 8_000_000, unit).refusal
     yield ("camera.frame_rate_hz 1e6 in the config", "passed serve --check, then "
            "MemoryError", rate[:70], rate.startswith("refused"))
     yield ("serve --check of 1000 frames/s over 8 M cells, the shipped unit's 600 MB",
            "passed", (why or "passed")[:90] + "...", why is not None)
     here = memory_limit_bytes()
     yield ("the same on this machine", "-", f"limit {here[0] / 2**20:,.0f} MiB ({here[1]}): "
-           + ("refused" if memory_refusal(m, 8_000_000, here) else "fits")
+           + ("refused" if memory_check(m, 8_000_000, 8_000_000, here).refusal else "fits")
            if here else "no limit readable", True)
     long_id = "u" * 65
     yield ("a 65-character vehicle id", "any length", "refused" if not valid_vehicle_id(

@@ -7,7 +7,12 @@ import pytest
 
 from pdcov.config.load import mission_from_dict
 from pdcov.errors import ConfigError
-from pdcov.service.memory_budget import estimate_bytes, memory_limit_bytes, memory_refusal
+from pdcov.service.memory_budget import (
+    MemoryCheck,
+    estimate_bytes,
+    memory_check,
+    memory_limit_bytes,
+)
 from tests.support.evaluate_inputs import mission_doc
 
 
@@ -25,14 +30,28 @@ def test_a_frame_rate_beyond_the_bound_is_a_config_error():
 
 def test_a_mission_beyond_the_memory_it_may_use_is_refused_naming_the_figures():
     m = _mission(1000.0)  # 1000 frames/s: a 5 s batch of 5,000 frames, ~10 MiB
-    assert estimate_bytes(10**6, [5.0], 1.0) < estimate_bytes(10**6, [1000.0], 1.0)
+    assert estimate_bytes(10**6, 10**6, [5.0], 1.0) < estimate_bytes(10**6, 10**6, [1000.0],
+                                                                     1.0)
     limit = (200 << 20, "memory.max (the unit's MemoryMax)")
-    assert memory_refusal(m, 10_000, limit) is None
-    why = memory_refusal(m, 4_000_000, limit)  # 4 M cells x 64 B: 244 MiB of grid
+    assert memory_check(m, 10_000, 10_000, limit) == MemoryCheck(None, None)
+    # 4 M cells of 1 m: 1 km2 searched x 32 B and the snapshot's 64 B a domain cell.
+    why = memory_check(m, 4_000_000, 4_000_000, limit).refusal
     assert why is not None and why.startswith("the daemon would need about ")
-    assert "(4,000,000 cells per grid, 1000 frames/s), more than the 200 MiB of memory.max" \
-        in why
-    assert memory_refusal(m, 4_000_000, None) is None  # the limit unknown: not refused
+    assert ("to search 1 km2 (1,000,000 cells of the 4,000,000 per grid, 1000 frames/s), "
+            "more than the 200 MiB of memory.max") in why
+    assert memory_check(m, 4_000_000, 4_000_000, None) == MemoryCheck(None, None)
+
+
+def test_a_county_is_not_refused_but_told_how_much_of_it_the_memory_holds():
+    # 30 x 30 km at 1 m: no snapshot (over what a ground station accepts), the grid grows
+    # with the cells seen: 600 MiB hold about 14 km2 searched, not 900 km2.
+    m = _mission(5.0)
+    check = memory_check(m, 900_000_000, 900_000_000, (600 << 20, "memory.max"))
+    assert check.refusal is None and check.warning is not None
+    fits_km2 = ((600 << 20) - estimate_bytes(0, 900_000_000, [5.0], m.max_gap_s)) / 32 / 1e6
+    assert f"hold about {fits_km2:,.1f} km2 searched at 1 m cells, of the domain's 900.0 " \
+        "km2" in check.warning
+    assert 10 < fits_km2 < 20
 
 
 def test_the_limit_is_the_least_of_the_cgroup_and_available_memory(tmp_path):

@@ -59,16 +59,19 @@ def run_serve(args: argparse.Namespace) -> int:
 
         grid = cfg.mission.new_mission_grid()
         from pdcov.bus.grid_state import unseen_grid_warning
-        from pdcov.service.memory_budget import memory_limit_bytes, memory_refusal
+        from pdcov.service.memory_budget import memory_check, memory_limit_bytes
 
         unseen = unseen_grid_warning(grid.geometry)
         if unseen is not None:
             print(f"pdcov serve --check: WARNING: {unseen}", file=sys.stderr)
 
-        too_much = memory_refusal(cfg.mission, grid.geometry.n_rows * grid.geometry.n_cols,
-                                  memory_limit_bytes())
-        if too_much is not None:
-            raise ConfigError(f"{args.config}: {too_much}")
+        memory = memory_check(cfg.mission, grid.n_free,
+                              grid.geometry.n_rows * grid.geometry.n_cols,
+                              memory_limit_bytes())
+        if memory.refusal is not None:
+            raise ConfigError(f"{args.config}: {memory.refusal}")
+        if memory.warning is not None:
+            print(f"pdcov serve --check: WARNING: {memory.warning}", file=sys.stderr)
         zenoh_config(cfg.bus)
         if (cfg.link.signing_key_file and
                 cfg.link.signing_key_bytes(cfg.base_dir) is None):
