@@ -29,7 +29,20 @@ class CrashResult:
     period_s: float = 0.0
     failures: list[str] = field(default_factory=list)
     aimed: int = 0                                          # kills aimed at a write
-    tmp_sizes: list[int] = field(default_factory=list)     # left temporary files, bytes
+    tmp_sizes: list[int] = field(default_factory=list)     # an interrupted write's files, bytes
+
+
+def _files(folder: Path) -> list[Path]:
+    """The files under ``folder`` now (a daemon may be removing and writing them: what
+    vanishes while walked is left out)."""
+    return [Path(root) / name for root, _, names in os.walk(folder) for name in names]
+
+
+def _mtime_ns(path: Path) -> int:
+    try:
+        return path.stat().st_mtime_ns
+    except FileNotFoundError:
+        return -1
 
 
 def writing(state: Path) -> list[Path]:
@@ -37,8 +50,23 @@ def writing(state: Path) -> list[Path]:
     grid store (zarr's ``.partial``), its metadata or ``current`` (atomic_write's ``.tmp``)."""
     from pdcov.service.checkpoint import CHECKPOINT_NAME
 
-    return [p for p in (state / CHECKPOINT_NAME).rglob("*")
-            if p.name.endswith((".partial", ".tmp"))]
+    return [p for p in _files(state / CHECKPOINT_NAME) if p.name.endswith((".partial", ".tmp"))]
+
+
+def interrupted_write(state: Path) -> list[Path]:
+    """The files a checkpoint being written when the daemon died left in ``state``: its
+    temporary files, and what it wrote in the slot ``current`` does not name after
+    ``current`` was last renamed (the checkpoint never completed)."""
+    from pdcov.service.checkpoint import CHECKPOINT_NAME, CURRENT, SLOTS
+
+    folder = state / CHECKPOINT_NAME
+    current = folder / CURRENT
+    if not current.exists():
+        return writing(state)
+    other = SLOTS[0] if current.read_text().strip() != SLOTS[0] else SLOTS[1]
+    since = current.stat().st_mtime_ns
+    newer = [p for p in _files(folder / other) if _mtime_ns(p) > since]
+    return sorted(set(writing(state)) | set(newer))
 
 
 def kill_during_write(pid: int, state: Path, timeout_s: float) -> bool:
@@ -108,7 +136,7 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
                         os.killpg(daemon.pid, signal.SIGKILL)
                     daemon.wait(timeout=10)
                 # The state directory as the next start finds it (checked on a copy).
-                left = [p for p in writing(rig.state) if p.exists()]
+                left = [p for p in interrupted_write(rig.state) if p.exists()]
                 if left:
                     res.during_write += 1
                     res.tmp_sizes.extend(p.stat().st_size for p in left if p.exists())

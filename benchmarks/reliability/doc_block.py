@@ -118,11 +118,12 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
         "## Crash consistency (kill -9)",
         "",
         f"{crash_r.kills} `kill -9` mid-flight, checkpoints every {crash_r.period_s:g} s: "
-        f"{crash_r.aimed} aimed at a checkpoint write (killed the moment its temporary file "
-        f"appeared), the others at random moments. {crash_r.during_write} kills landed during "
-        f"a write: their temporary file was left, {zero_tmp} of them empty, {part_tmp} "
-        f"part-written or written but not yet renamed (sizes {tmp_span}); the next start "
-        f"removes it and resumes the previous checkpoint.",
+        f"{crash_r.aimed} aimed at a checkpoint write (killed the moment one of its "
+        f"temporary files appeared), the others at random moments. {crash_r.during_write} "
+        f"kills landed during a write: its files were left in the slot `current` did not "
+        f"name, {zero_tmp} of them empty, {part_tmp} part-written or written (sizes "
+        f"{tmp_span}); the next start resumes the previous checkpoint, and the next write "
+        f"clears that slot.",
         "",
         "| figure | value |",
         "|---|---|",
