@@ -84,8 +84,10 @@ class Recording:
 @dataclass(frozen=True)
 class PathRun:
     """One pass over a recording: CPU seconds, messages read, frames added, the grid; live
-    also the CPU seconds of the periodic work (ticks: tiles, status) within cpu_s and the
-    seconds of flight (autopilot clock) it spanned."""
+    also the CPU seconds of the periodic work (ticks: tiles, status) within cpu_s, the
+    seconds of flight (autopilot clock) it spanned, and the longest single call the daemon's
+    loop would make (a message's receive and process, or a tick: wall seconds), the longest
+    the loop would be held."""
 
     cpu_s: float
     messages: int
@@ -93,6 +95,7 @@ class PathRun:
     grid: CoverageGrid
     periodic_cpu_s: float = 0.0
     flight_s: float = 0.0
+    longest_call_s: float = 0.0
 
     @property
     def ms_per_frame(self) -> float:
@@ -165,6 +168,7 @@ class _Ticks:
     cpu_s: float = 0.0
     first_s: float | None = None
     last_s: float = 0.0
+    longest_s: float = 0.0  # the longest call (wall s)
 
 
 def live_pass(rec: Recording) -> PathRun:
@@ -188,16 +192,19 @@ def live_pass(rec: Recording) -> PathRun:
                     now_s = max(now_s, msg.time_boot_ms / 1000.0)  # autopilot's
                     if ticks.first_s is None:
                         ticks.first_s = next_tick_s = now_s
+            wall0 = time.perf_counter()
             core.receive_mavlink(msgs, now_s)
             core.process()  # Daemon._process
+            ticks.longest_s = max(ticks.longest_s, time.perf_counter() - wall0)
             while ticks.first_s is not None and now_s >= next_tick_s:  # Daemon._tick
                 next_tick_s += TICK_S
                 frames_before = live.grid.frames
-                cpu0 = time.process_time()
+                cpu0, wall0 = time.process_time(), time.perf_counter()
                 core.tick(now_s, 0.0)
                 if core.actions().status_due:
                     core.status(now_s, LinkReport())
                     core.actions()
+                ticks.longest_s = max(ticks.longest_s, time.perf_counter() - wall0)
                 # A tick that decided frames (a parameter read timed out: the frames that
                 # waited for it) counts as frame work, not as periodic work.
                 if live.grid.frames == frames_before:
@@ -207,7 +214,8 @@ def live_pass(rec: Recording) -> PathRun:
 
     run_ = timed(run)
     return dataclasses.replace(run_, periodic_cpu_s=ticks.cpu_s,
-                               flight_s=ticks.last_s - (ticks.first_s or 0.0))
+                               flight_s=ticks.last_s - (ticks.first_s or 0.0),
+                               longest_call_s=ticks.longest_s)
 
 
 def offline_pass(rec: Recording) -> PathRun:

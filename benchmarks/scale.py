@@ -38,7 +38,9 @@ from typing import Any
 
 import numpy as np
 
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer
+from pdcov.core.grid_store import frozen_update
 from tests.support.scenarios import scenarios
 
 from .daemon import memory_bytes
@@ -49,6 +51,7 @@ from .report import Row, machine, markdown
 SIDES_M = (200, 2_000, 10_000, 30_000)
 SMOKE_SIDES_M = (200, 2_000)
 RSS_RATIO = 1.5  # the target: RSS of the largest domain at most this times the smallest's
+LONGEST_CALL_MS = 50.0  # the target: no call holds the daemon's loop longer
 LAYERS = (Layer.N_OBS, Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.LIMITING)
 
 
@@ -87,7 +90,18 @@ def child(config: Path, tlog: Path, inner_m: int, out: Path) -> None:
         "rss_mb": memory_bytes(os.getpid())["VmHWM"] / 2**20, "frames": run.frames,
         "ms_per_frame": run.ms_per_frame, "periodic_ms_per_s": run.periodic_ms_per_s,
         "start_cpu_s": start_cpu_s, "tile_bytes": grid.nbytes,
+        "longest_call_ms": 1e3 * run.longest_call_s, "checkpoint_take_ms": _take_ms(grid),
         "tiles": len(grid.tile_keys()), "tiles_outside": len(outside)}))
+
+
+def _take_ms(grid: CoverageGrid) -> float:
+    """Wall ms the loop spends taking a checkpoint of all of ``grid`` (its tiles frozen,
+    service/checkpoint.py)."""
+    t0 = time.perf_counter()
+    update = frozen_update(grid)
+    taken = time.perf_counter() - t0
+    update.release()
+    return 1e3 * taken
 
 
 def _overlaps(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
@@ -124,6 +138,10 @@ def rows_for(runs: dict[int, dict[str, Any]], flight: str) -> list[Row]:
                 f"{r['start_cpu_s']:.1f}"),
             Row(label, "grid tile bytes (tiles)", f"{r['tile_bytes'] / 2**20:,.1f} MiB "
                 f"({r['tiles']})"),
+            Row(label, "longest call holding the loop (wall ms); taking a checkpoint of "
+                "every tile (wall ms)", f"{r['longest_call_ms']:.1f}; "
+                f"{r['checkpoint_take_ms']:.2f}", f"<= {LONGEST_CALL_MS:g}",
+                max(r["longest_call_ms"], r["checkpoint_take_ms"]) <= LONGEST_CALL_MS),
             Row(label, f"flown cells = the {small_side} m domain's, none seen outside",
                 "cell for cell" if same and not r["tiles_outside"] else
                 f"DIFFERENT ({r['tiles_outside']} tiles outside)", "equal",
