@@ -1,10 +1,12 @@
-"""The status metrics of a grid kept per tile, so that the daemon's periodic cost follows the
-cells the frames touch, not the size of the grid.
+"""The status metrics of a grid kept per tile, so that the periodic cost follows the cells
+written, not the size of the grid: the daemon's status (service/coverage.py) and the
+watcher's figures of each vehicle and of the fleet (ground/feed.py, ground/fleet_merge.py),
+one rule for both.
 
 Each tile (the bus tiles' cut, ``tile_size`` cells a side) holds its counts of free cells at
 or above each threshold, its observed free cells, and its float64 sums of P_D over free cells
 and of P_FA over observed free cells; a tile is recomputed only after ``mark`` says cells in
-it may have changed (``CoverageGrid.touched``). Everything is stale at first (a resumed grid).
+it may have changed (``CoverageGrid.touched``, the tiles a watcher applied). Everything is stale at first (a resumed grid).
 The counts, so the proportions at a threshold and the cells observed, equal a whole-grid
 count exactly (``CoverageGrid.metrics``); the float sums add the tiles' sums in a fixed order
 (row-major), so they depend only on the grid's values, not on the order of the updates, and
@@ -44,7 +46,7 @@ class GridSummary:
 
 
 class TileMetrics:
-    """Per-tile status metrics of ``source`` (the daemon's grid, read by window) for
+    """Per-tile status metrics of ``source`` (a grid read by window) for
     ``thresholds`` (P_D values)."""
 
     def __init__(self, source: CellSource, tile_size: int, thresholds: Iterable[float]
