@@ -6,7 +6,8 @@ one rule for both.
 Each tile (the bus tiles' cut, ``tile_size`` cells a side) holds its counts of free cells at
 or above each threshold, its observed free cells, and its float64 sums of P_D over free cells
 and of P_FA over observed free cells; a tile is recomputed only after ``mark`` says cells in
-it may have changed (``CoverageGrid.touched``, the tiles a watcher applied). Everything is stale at first (a resumed grid).
+it may have changed (``CoverageGrid.touched``, the tiles a watcher applied). Everything is
+stale at first (a resumed grid).
 The counts, so the proportions at a threshold and the cells observed, equal a whole-grid
 count exactly (``CoverageGrid.metrics``); the float sums add the tiles' sums in a fixed order
 (row-major), so they depend only on the grid's values, not on the order of the updates, and
