@@ -14,8 +14,9 @@ Figures: the watcher's CPU seconds per simulated second, and beside it, in the s
 the whole-grid work it replaces (merge_fleet, the figures over the whole merged grid and
 every vehicle's, the heat map from the whole grid, the mask hashed at every tiles message),
 timed on every ``old_every``-th report; the joining cost (every vehicle's first snapshot
-merged and figured); and whether the live merged map equals the offline merge of the
-vehicles' final grids (``CoverageGrid.merge`` in vehicle-id order, and merge_fleet).
+merged and figured) and that of one vehicle's snapshot taken again mid-flight; and whether
+the live merged map equals the offline merge of the vehicles' final grids
+(``CoverageGrid.merge`` in vehicle-id order, and merge_fleet).
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ class Figures:
     tiles: int
     tiles_bytes_per_s_per_vehicle: float
     join_cpu_s: float
+    resent_cpu_s: float  # one vehicle's snapshot taken again mid-flight, merged and figured
     apply_cpu_s: float  # decode + apply of every tiles message
     report_cpu_s: float  # every report, its figures and its heat map
     old_report_cpu_s: float  # one whole-grid report, mean
@@ -154,7 +156,7 @@ def run(setting: Setting, show_progress: bool = True) -> Figures:
     t0 = cpu_s()
     heat_map(w)
     join = cpu_s() - t0
-    apply_s = report_s = old_s = 0.0
+    apply_s = report_s = old_s = resent = 0.0
     messages = tiles = nbytes = reports = old_reports = 0
     steps = round(setting.duration_s / STEP_S)
     for step in progress(range(1, steps + 1), desc="watcher", unit="step",
@@ -175,6 +177,12 @@ def run(setting: Setting, show_progress: bool = True) -> Figures:
                 apply_s += cpu_s() - t
                 messages += 1
                 tiles += len(update.tiles)
+        if step == steps // 2:  # a vehicle's whole grid again (after a gap, say)
+            state = GridState.from_grid(flights[0].grid)
+            t = cpu_s()
+            w.on_snapshot(flights[0].vehicle_id, state, now)
+            heat_map(w)
+            resent = cpu_s() - t
         if step % REPORT_EVERY == 0:
             t = cpu_s()
             heat_map(w)
@@ -196,7 +204,7 @@ def run(setting: Setting, show_progress: bool = True) -> Figures:
     fresh, fresh_ids = merge_fleet(w.feeds.values(), w.grid_hash)
     return Figures(
         setting.vehicles, setting.side_m ** 2, steps * STEP_S, messages, tiles,
-        nbytes / (steps * STEP_S) / setting.vehicles, join, apply_s, report_s,
+        nbytes / (steps * STEP_S) / setting.vehicles, join, resent, apply_s, report_s,
         old_s / max(old_reports, 1), hash_s, reports,
         kept is not None and ids == tuple(f.vehicle_id for f in flights)
         and same_as_grid(kept, offline),
@@ -268,6 +276,8 @@ def rows(fig: Figures) -> list[Row]:
             f"{fig.old_hash_cpu_s * 1e3:.1f} ms a message)"),
         Row(scenario, "joining: every vehicle's grid merged and figured once",
             f"{fig.join_cpu_s:.2f} s CPU"),
+        Row(scenario, "a vehicle's snapshot taken again mid-flight, merged and figured",
+            f"{fig.resent_cpu_s:.2f} s CPU"),
         Row(scenario, "live map = offline merge (CoverageGrid.merge)",
             "same" if fig.equal_offline else "differs", "same", fig.equal_offline),
         Row(scenario, "live map = merge_fleet of the final grids",

@@ -75,11 +75,11 @@ class Daemon:
 def assert_same_state(a: GridState, b: GridState) -> None:
     for name in ("mask", "log_miss_d", "log_miss_fa", "n_obs"):
         x, y = getattr(a, name), getattr(b, name)
-        assert x.dtype == y.dtype and np.array_equal(x, y), name
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name  # bit for bit
     assert a.frames == b.frames
     assert (a.limiting is None) == (b.limiting is None)
     if a.limiting is not None:
-        assert np.array_equal(a.limiting, b.limiting)
+        assert a.limiting.tobytes() == b.limiting.tobytes()
 
 
 def assert_figures(w: Watcher, now_s: float) -> None:
@@ -126,12 +126,15 @@ def test_the_merge_kept_by_tile_is_the_whole_grid_merge(seed):
             for _ in range(int(rng.integers(0, 4))):
                 d.fly()
             w.on_snapshot(vid, d.snapshot(), now)
-        elif roll < 0.10:  # a snapshot taken again
+        elif roll < 0.10:  # a snapshot taken again, after tiles lost or not
             d = daemons[str(rng.choice(sorted(daemons)))]
+            if rng.random() < 0.5:
+                d.fly()  # lost
             w.on_snapshot(d.vid, d.snapshot(), now)
         elif roll < 0.13:  # a vehicle leaves: a gap in its tiles, its snapshot asked for
             d = daemons[str(rng.choice(sorted(daemons)))]
-            d.fly()
+            w.on_tiles(d.vid, d.fly(), now)
+            d.fly()  # lost
             w.on_tiles(d.vid, d.fly(), now)
         elif roll < 0.15:  # an older daemon: limiting factors unknown
             d = daemons[str(rng.choice(sorted(daemons)))]
@@ -161,3 +164,36 @@ def test_a_report_with_nothing_new_merges_nothing():
     assert_figures(w, 0.4)
     assert w.fleet.merged_whole == whole
     assert w.fleet.windows_merged == windows + len(update.tiles)
+
+
+def test_a_vehicle_joining_leaving_or_resent_merges_only_the_tiles_it_wrote():
+    rng = np.random.default_rng(3)
+    mask = masks(rng)[0]
+    w = Watcher(thresholds=THRESHOLDS)
+    daemons = [Daemon(f"uav{k}", mask, rng) for k in range(1, 4)]
+    for d in daemons[:2]:
+        w.on_snapshot(d.vid, d.snapshot(), 0.0)
+        w.on_tiles(d.vid, d.fly(), 0.0)
+    assert_figures(w, 0.1)
+    whole = w.fleet.merged_whole
+    late = daemons[2]
+    written = {(t.tile_row, t.tile_col) for t in late.fly().tiles}
+    w.on_snapshot(late.vid, late.snapshot(), 0.2)  # joins
+    merged = w.fleet.windows_merged
+    assert_figures(w, 0.3)
+    assert w.fleet.windows_merged - merged == len(written)
+    w.on_snapshot("uav1", daemons[0].snapshot(), 0.4)  # the same grid sent again: no change
+    merged = w.fleet.windows_merged
+    assert_figures(w, 0.5)
+    assert w.fleet.windows_merged == merged
+    w.on_tiles(late.vid, late.fly(), 0.6)
+    late.fly()  # lost
+    w.on_tiles(late.vid, late.fly(), 0.6)  # a gap: it leaves until its snapshot comes
+    assert w.feeds[late.vid].awaiting_since_s is not None
+    assert_figures(w, 0.7)
+    w.on_snapshot(late.vid, late.snapshot(), 0.8)  # and comes back
+    assert_figures(w, 0.9)
+    daemons[1].fly()  # lost, then the snapshot taken again holds it
+    w.on_snapshot("uav2", daemons[1].snapshot(), 1.0)
+    assert_figures(w, 1.1)
+    assert w.fleet.merged_whole == whole

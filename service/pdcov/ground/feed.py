@@ -73,9 +73,9 @@ class VehicleFeed:
     # after it holds the candidates the daemon had then.
     candidates_done_at: int | None = None
     candidates_dropped: int = 0  # candidates forgotten beyond max_candidates
-    unmerged: set[Window] | None = None
-    """The windows of ``state`` written since the fleet merge last read them (None: all of
-    it, a new state; ground/fleet_merge.py)."""
+    unmerged: set[Window] = field(default_factory=set)
+    """The windows written since the fleet merge last read them, of ``state`` or of the
+    state it replaced (ground/fleet_merge.py)."""
     metrics: TileMetrics | None = None  # ``state``'s, per tile (None: none built yet)
     _hashed: tuple[GridState, str] | None = None  # the state and its grid hash
 
@@ -91,16 +91,16 @@ class VehicleFeed:
         return self._hashed[1]
 
     def take_state(self, state: GridState | None) -> None:
-        """Hold ``state`` as the vehicle's grid: all of it unmerged, its metrics anew."""
-        self.state, self.unmerged, self.metrics = state, None, None
+        """Hold ``state`` as the vehicle's grid, its metrics anew (the fleet merge tells the
+        new grid by its identity)."""
+        self.state, self.metrics = state, None
 
     def mark_changed(self, windows: list[Window]) -> None:
         """Cells of ``state`` in ``windows`` (r0, r1, c0, c1) were written (tiles applied)."""
         for window in windows:
             if self.metrics is not None:
                 self.metrics.mark(window)
-            if self.unmerged is not None:
-                self.unmerged.add(window)
+            self.unmerged.add(window)
 
     def summary(self, thresholds: tuple[float, ...]) -> GridSummary | None:
         """The figures of ``state`` (None without one) at ``thresholds`` among others,
