@@ -73,11 +73,13 @@ class VehicleFeed:
     # after it holds the candidates the daemon had then.
     candidates_done_at: int | None = None
     candidates_dropped: int = 0  # candidates forgotten beyond max_candidates
-    unmerged: set[Window] = field(default_factory=set)
+    unmerged: set[Window] = field(default_factory=set, repr=False)
     """The windows written since the fleet merge last read them, of ``state`` or of the
     state it replaced (ground/fleet_merge.py)."""
-    metrics: TileMetrics | None = None  # ``state``'s, per tile (None: none built yet)
-    _hashed: tuple[GridState, str] | None = None  # the state and its grid hash
+    metrics: TileMetrics | None = field(default=None, repr=False)
+    """``state``'s figures, per tile (None: none built yet)."""
+    _hashed: tuple[GridState, str] | None = field(default=None, repr=False)
+    """The state and its grid hash."""
 
     @property
     def grid_hash(self) -> str | None:
@@ -93,7 +95,7 @@ class VehicleFeed:
     def take_state(self, state: GridState | None) -> None:
         """Hold ``state`` as the vehicle's grid, its metrics anew (the fleet merge tells the
         new grid by its identity)."""
-        self.state, self.metrics = state, None
+        self.state, self.metrics, self._hashed = state, None, None
 
     def mark_changed(self, windows: list[Window]) -> None:
         """Cells of ``state`` in ``windows`` (r0, r1, c0, c1) were written (tiles applied)."""
