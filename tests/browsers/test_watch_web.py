@@ -21,8 +21,9 @@ import pytest
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin
 from pdcov.ground.basemap import open_basemap
+from pdcov.ground.fleet_merge import block_max_pd
 from pdcov.ground.map_layers import rings_lat_lon
-from pdcov.ground.web import grid_payload
+from pdcov.ground.web import blocks_payload
 from pdcov.ground.web_auth import WebAccess, served_names
 from tests.support.chromium import console_errors, requested_urls, wait_for
 from tests.support.watch_fixtures import (
@@ -188,7 +189,7 @@ def constructed_state(basemap: dict) -> dict:
         "version": 7,
         "fleet": {"target": 0.8, "thresholds": [0.8], "proportion": {"0.8": 0.5},
                   "mean_pd": 0.5, "merged": ["uav1"], "cells_free": 2375},
-        "grid": grid_payload(pd, mask, GEOMETRY, ORIGIN, 0.8),
+        "grid": blocks_payload(block_max_pd(pd, mask, 1), 1, GEOMETRY, ORIGIN, 0.8),
         "domain": {"source": "--config", "grid_hash": "h", "boundary": boundary,
                    "obstacles": [obstacle], "boundary_lat_lon": boundary_ll,
                    "obstacles_lat_lon": [obstacle_ll]},

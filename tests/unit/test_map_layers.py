@@ -13,6 +13,7 @@ import pytest
 
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin
+from pdcov.ground.fleet_merge import block_max_pd
 from pdcov.ground.map_layers import (
     MAX_OUTLINE_SEGMENTS,
     OFF_GRID,
@@ -20,7 +21,7 @@ from pdcov.ground.map_layers import (
     outline_segments_xy,
     overlay_error_m,
 )
-from pdcov.ground.web import grid_payload
+from pdcov.ground.web import blocks_payload
 
 ZURICH = Origin(47.397742, 8.545594, 488.0)
 
@@ -92,10 +93,11 @@ def test_the_outline_of_an_l_shape_by_hand():
 def test_an_outline_too_detailed_is_not_sent_and_says_so():
     n = 300  # noise: edges in every direction, few to join
     pd = np.random.default_rng(1).random((n, n))
-    g = grid_payload(pd, np.ones((n, n), bool), GridGeometry(0, 0, 1.0, n, n), ZURICH, 0.8)
+    g = blocks_payload(block_max_pd(pd, np.ones((n, n), bool), 1), 1,
+                       GridGeometry(0, 0, 1.0, n, n), ZURICH, 0.8)
     assert g["outline_lat_lon"] is None
     assert f"more than {MAX_OUTLINE_SEGMENTS}" in g["outline_note"]
-    g = grid_payload(np.ones((4, 4)), np.ones((4, 4), bool), GridGeometry(0, 0, 1.0, 4, 4),
-                     ZURICH, 0.8)
+    g = blocks_payload(block_max_pd(np.ones((4, 4)), np.ones((4, 4), bool), 1), 1,
+                       GridGeometry(0, 0, 1.0, 4, 4), ZURICH, 0.8)
     assert len(g["outline_lat_lon"]) == 4 and g["outline_note"] is None
     assert (g["w"], g["h"]) == (4, 4)

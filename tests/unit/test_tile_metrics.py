@@ -1,5 +1,5 @@
 """The daemon's periodic work follows the cells frames touch: status metrics kept per tile
-(service.tile_metrics) equal their whole-grid computation, and the tiles the daemon sends
+(bus.tile_metrics) equal their whole-grid computation, and the tiles the daemon sends
 equal those a whole-grid comparison would send, after random updates and a resume."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pdcov.bus.grid_state import GridState
+from pdcov.bus.tile_metrics import TileMetrics
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape, tile_wire_bytes
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -18,7 +19,6 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage
-from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
 from tests.support.service_feed import feed, serve_cfg
 

@@ -212,15 +212,18 @@ def decode_tiles(payload: bytes, key: str = "tiles",
                       tuple(tiles))
 
 
-def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles") -> None:
+def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles", *,
+                state_hash: str | None = None) -> None:
     """Write the update's tiles into ``state``; checks first that it is meant for this grid
-    (hash and shape), so that a mismatched update changes nothing (BusPayloadError). A
+    (hash and shape), so that a mismatched update changes nothing (BusPayloadError).
+    ``state_hash``: the state's hash when the caller keeps it (it reads the whole mask). A
     version-1 update leaves the state's limiting unknown (None): the cells it rewrites may
     have changed their limiting factor."""
     g = state.geometry
-    if update.grid_hash != state.hash or (update.n_rows, update.n_cols) != g.shape:
+    mine = state_hash or state.hash
+    if update.grid_hash != mine or (update.n_rows, update.n_cols) != g.shape:
         raise BusPayloadError(f"{key}: tiles for grid {update.grid_hash} "
-                              f"({update.n_rows} x {update.n_cols}), this grid is {state.hash} "
+                              f"({update.n_rows} x {update.n_cols}), this grid is {mine} "
                               f"({g.n_rows} x {g.n_cols}); fetch the snapshot",
                               Refusal.OTHER_GRID)
     for t in update.tiles:

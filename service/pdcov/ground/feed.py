@@ -1,4 +1,5 @@
-"""What the watcher holds about one vehicle: its rebuilt grid, its last status, the tiles
+"""What the watcher holds about one vehicle: its rebuilt grid (with its hash, its per-tile
+metrics and the windows changed since the fleet's merge), its last status, the tiles
 awaiting a snapshot, the session that speaks for it (ground/claims.py), its track and
 mission, its detection candidates and recent detections, and the counts the reports show.
 Mutable, owned by the Watcher."""
@@ -12,11 +13,17 @@ from typing import Any
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.mission import MissionGeometry
 from pdcov.bus.sources import SessionId
+from pdcov.bus.tile_metrics import GridSummary, TileMetrics
 from pdcov.bus.tiles import TileUpdate
 from pdcov.core.geodesy import Origin
+from pdcov.core.grid_layer import Window
 from pdcov.ground.claims import SessionClaim
 
-__all__ = ["VehicleFeed"]
+__all__ = ["METRICS_TILE_SIZE", "VehicleFeed"]
+
+METRICS_TILE_SIZE = 32
+"""Cells a side of the tiles the watcher keeps its metrics in (the daemons' bus.tile_size
+by default: a tiles message marks whole tiles)."""
 
 
 @dataclass(slots=True)
@@ -66,6 +73,45 @@ class VehicleFeed:
     # after it holds the candidates the daemon had then.
     candidates_done_at: int | None = None
     candidates_dropped: int = 0  # candidates forgotten beyond max_candidates
+    unmerged: set[Window] = field(default_factory=set, repr=False)
+    """The windows written since the fleet merge last read them, of ``state`` or of the
+    state it replaced (ground/fleet_merge.py)."""
+    metrics: TileMetrics | None = field(default=None, repr=False)
+    """``state``'s figures, per tile (None: none built yet)."""
+    _hashed: tuple[GridState, str] | None = field(default=None, repr=False)
+    """The state and its grid hash."""
+
+    @property
+    def grid_hash(self) -> str | None:
+        """The hash of ``state`` (bus.grid_state.grid_hash; None without one), computed once
+        per state held: it reads the whole mask, which never changes."""
+        state = self.state
+        if state is None:
+            return None
+        if self._hashed is None or self._hashed[0] is not state:
+            self._hashed = (state, state.hash)
+        return self._hashed[1]
+
+    def take_state(self, state: GridState | None) -> None:
+        """Hold ``state`` as the vehicle's grid, its metrics anew (the fleet merge tells the
+        new grid by its identity)."""
+        self.state, self.metrics, self._hashed = state, None, None
+
+    def mark_changed(self, windows: list[Window]) -> None:
+        """Cells of ``state`` in ``windows`` (r0, r1, c0, c1) were written (tiles applied)."""
+        for window in windows:
+            if self.metrics is not None:
+                self.metrics.mark(window)
+            self.unmerged.add(window)
+
+    def summary(self, thresholds: tuple[float, ...]) -> GridSummary | None:
+        """The figures of ``state`` (None without one) at ``thresholds`` among others,
+        recomputing only the tiles written since the last call."""
+        state = self.state
+        if state is None:
+            return None
+        self.metrics = metrics_for(self.metrics, state, thresholds)
+        return self.metrics.summary()
 
     def origin(self) -> Origin | None:
         """The origin of the vehicle's grid, as its last status gave it (None: none yet)."""
@@ -75,3 +121,14 @@ class VehicleFeed:
                           float(o.get("ground_alt_msl_m") or 0.0))
         except (KeyError, TypeError, ValueError):
             return None
+
+
+def metrics_for(metrics: TileMetrics | None, state: GridState, thresholds: tuple[float, ...]
+                ) -> TileMetrics:
+    """``metrics`` when they are of ``state`` and keep ``thresholds``, else new metrics of
+    ``state`` (every tile to compute) for those and ``metrics``' thresholds."""
+    if metrics is not None and metrics.source is state and \
+            set(map(float, thresholds)) <= set(metrics.thresholds):
+        return metrics
+    kept = metrics.thresholds if metrics is not None else ()
+    return TileMetrics(state, METRICS_TILE_SIZE, (*kept, *thresholds))

@@ -13,10 +13,12 @@ import numpy as np
 
 from pdcov.bus.detections import LIKELY_P_PERSON
 from pdcov.bus.grid_state import GridState
+from pdcov.bus.tile_metrics import GridSummary
 from pdcov.ground.claims import short_session
 from pdcov.ground.feed import VehicleFeed
 
-__all__ = ["FleetReport", "VehicleReport", "merge_fleet", "union_thresholds", "vehicle_report"]
+__all__ = ["FleetReport", "VehicleReport", "fleet_group", "merge_fleet", "merge_states",
+           "union_thresholds", "vehicle_report"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,11 +117,10 @@ def vehicle_report(feed: VehicleFeed, now_s: float, default_thresholds: tuple[fl
     status_props = {float(k): float(v)
                     for k, v in (status.get("proportion_at_or_above") or {}).items()}
     ready = feed.state is not None and feed.awaiting_since_s is None
-    if ready and feed.state is not None:
-        s = feed.state
-        free = s.mask
-        props = s.proportions_at_or_above(thresholds)
-        mean_pd: float | None = float(s.pd[free].mean()) if free.any() else 0.0
+    summary = feed.summary(thresholds) if ready else None
+    if summary is not None:
+        props = {t: summary.proportion_at_or_above(t) for t in thresholds}
+        mean_pd: float | None = summary.mean_pd
     else:
         props = status_props
         mean_pd = status.get("mean_pd")
@@ -163,29 +164,28 @@ def union_thresholds(groups: Any) -> tuple[float, ...]:
     return tuple(sorted(out))
 
 
-def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
-                ) -> tuple[GridState | None, tuple[str, ...]]:
-    """The merged grid of the ready vehicles that share the fleet's grid, and their ids
-    (sorted): log-miss sums added as float32, as the daemons hold them; counts added in
-    int64, which cannot overflow; the limiting factor the maximum (as CoverageGrid.merge),
-    unknown (None) when a vehicle's is. The fleet's grid is ``grid_hash`` (the ground station's)
-    when a vehicle flies it, else the one most vehicles fly (ties: the vehicle heard
-    first)."""
+def fleet_group(feeds: Iterable[VehicleFeed], grid_hash: str | None) -> list[VehicleFeed]:
+    """The ready vehicles that share the fleet's grid, by id: ``grid_hash`` (the ground
+    station's) when a vehicle flies it, else the one most vehicles fly (ties: the vehicle
+    heard first)."""
     ready = [f for f in feeds
              if f.state is not None and f.awaiting_since_s is None]
     if not ready:
-        return None, ()
-    hashes = Counter(f.state.hash for f in ready if f.state is not None)
+        return []
+    hashes = Counter(f.grid_hash for f in ready)
     if grid_hash in hashes:
         top = grid_hash
     else:
-        first = {f.state.hash: f.first_heard_s for f in
-                 sorted(ready, key=lambda f: f.first_heard_s, reverse=True)
-                 if f.state is not None}
+        first = {f.grid_hash: f.first_heard_s for f in
+                 sorted(ready, key=lambda f: f.first_heard_s, reverse=True)}
         top = max(hashes, key=lambda h: (hashes[h], -first[h]))
-    group = sorted((f for f in ready if f.state is not None and f.state.hash == top),
-                   key=lambda f: f.vehicle_id)
-    states = [f.state for f in group if f.state is not None]
+    return sorted((f for f in ready if f.grid_hash == top), key=lambda f: f.vehicle_id)
+
+
+def merge_states(states: list[GridState]) -> GridState:
+    """Grids of one geometry and mask added in the order given: log-miss sums as float32,
+    as the daemons hold them; counts in int64, which cannot overflow; the limiting factor
+    the maximum (as CoverageGrid.merge), unknown (None) when a grid's is."""
     base = states[0]
     merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
                        base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
@@ -197,7 +197,19 @@ def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
         merged.log_miss_fa += s.log_miss_fa
         merged.n_obs += s.n_obs
         merged.frames += s.frames
-    return merged, tuple(f.vehicle_id for f in group)
+    return merged
+
+
+def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None
+                ) -> tuple[GridState | None, tuple[str, ...]]:
+    """The merged grid of the fleet's vehicles (``fleet_group``), their grids added in id
+    order (``merge_states``), and their ids; the whole grid each time (the watcher keeps
+    it tile by tile: ground/fleet_merge.py)."""
+    group = fleet_group(feeds, grid_hash)
+    if not group:
+        return None, ()
+    return (merge_states([f.state for f in group if f.state is not None]),
+            tuple(f.vehicle_id for f in group))
 
 
 STATUS_PD_TOLERANCE = 1e-6
@@ -205,17 +217,17 @@ STATUS_PD_TOLERANCE = 1e-6
 float64: about 1e-16 apart; the status carries full float64 digits)."""
 
 
-def status_agrees(state: GridState, doc: dict[str, Any]) -> bool:
-    """Whether a status's figures are those of the rebuilt grid (same frames, every changed
-    tile sent): each share at a threshold within half a cell, mean P_D within
-    STATUS_PD_TOLERANCE."""
-    free = int(state.mask.sum())
+def status_agrees(grid: GridSummary, doc: dict[str, Any]) -> bool:
+    """Whether a status's figures are those of the rebuilt grid's (``grid``: its figures at
+    the status's thresholds at least; same frames, every changed tile sent): each share at a
+    threshold within half a cell, mean P_D within STATUS_PD_TOLERANCE."""
+    free = grid.cells_free
     if doc["cells_free"] != free:
         return False
     if not free:
         return True
     shares = doc["proportion_at_or_above"]
-    mine = state.proportions_at_or_above(float(name) for name in shares)
-    if any(abs(mine[float(name)] - share) > 0.5 / free for name, share in shares.items()):
+    if any(abs(grid.proportion_at_or_above(float(name)) - share) > 0.5 / free
+           for name, share in shares.items()):
         return False
-    return abs(float(state.pd[state.mask].mean()) - doc["mean_pd"]) <= STATUS_PD_TOLERANCE
+    return abs(grid.mean_pd - doc["mean_pd"]) <= STATUS_PD_TOLERANCE

@@ -25,7 +25,7 @@ from typing import Any
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.sources import SessionId
-from pdcov.bus.tiles import TileUpdate, apply_tiles
+from pdcov.bus.tiles import TileUpdate, apply_tiles, tile_bounds
 from pdcov.ground.feed import VehicleFeed
 from pdcov.ground.fleet_report import status_agrees
 from pdcov.ground.queries import QuerySnapshot
@@ -58,7 +58,7 @@ def sync_status(feed: VehicleFeed, previous: dict[str, Any] | None, doc: dict[st
     snapshot query when the daemon runs another grid or restarted, or when the status
     disagrees with the grid holding the same frames; the trailing gap's clock otherwise."""
     state = feed.state
-    if state is not None and doc["grid"]["hash"] != state.hash:
+    if state is not None and doc["grid"]["hash"] != feed.grid_hash:
         return requery(feed, now_s)  # the daemon now runs another mission
     if previous is not None and doc["uptime_s"] < previous["uptime_s"]:
         return requery(feed, now_s)  # the daemon restarted
@@ -70,7 +70,8 @@ def sync_status(feed: VehicleFeed, previous: dict[str, Any] | None, doc: dict[st
         frames = doc["frames"]
         n = frames.get("grid", frames.get("used"))
         if isinstance(n, int) and n == state.frames and doc.get("tiles_behind") == 0:
-            if not status_agrees(state, doc):
+            summary = feed.summary(tuple(map(float, doc["proportion_at_or_above"])))
+            if summary is None or not status_agrees(summary, doc):
                 feed.status_disagreements += 1
                 feed.status_agrees = False
                 return requery(feed, now_s)
@@ -92,7 +93,7 @@ def sync_status(feed: VehicleFeed, previous: dict[str, Any] | None, doc: dict[st
 
 def take_snapshot(feed: VehicleFeed, state: GridState) -> None:
     """Hold the snapshot reply ``state`` as the vehicle's grid, its tiles followed anew."""
-    feed.state = state
+    feed.take_state(state)
     feed.snapshots += 1
     feed.awaiting_since_s = None
     feed.behind_since_s = None
@@ -135,7 +136,8 @@ def apply_in_order(feed: VehicleFeed, update: TileUpdate, now_s: float, *,
             feed.pending.append((update, feed.claim.session))
             return actions
     try:
-        apply_tiles(state, update, key=f"pdcov/{feed.vehicle_id}/tiles")
+        apply_tiles(state, update, key=f"pdcov/{feed.vehicle_id}/tiles",
+                    state_hash=feed.grid_hash)
     except BusPayloadError:
         feed.bad_payloads += 1  # another grid: the daemon restarted with a new mission
         if after_snapshot:
@@ -143,6 +145,8 @@ def apply_in_order(feed: VehicleFeed, update: TileUpdate, now_s: float, *,
         actions = requery(feed, now_s)
         feed.pending.append((update, feed.claim.session))
         return actions
+    feed.mark_changed([tile_bounds(t.tile_row, t.tile_col, update.tile_size,
+                                   *state.geometry.shape) for t in update.tiles])
     feed.last_seq = update.seq
     status = feed.status
     if status is not None and status["tiles_seq"] <= update.seq:

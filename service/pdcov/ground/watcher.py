@@ -52,7 +52,8 @@ from pdcov.ground.findings import (
     settle_provisional,
     take_findings,
 )
-from pdcov.ground.fleet_report import FleetReport, merge_fleet, union_thresholds, vehicle_report
+from pdcov.ground.fleet_merge import FleetMerge, PdBlocks
+from pdcov.ground.fleet_report import FleetReport, union_thresholds, vehicle_report
 from pdcov.ground.grid_sync import (
     apply_in_order,
     ensure_grid,
@@ -124,6 +125,8 @@ class Watcher:
         self.refused: Counter[str] = Counter()
         """Payloads refused before reaching a vehicle, by reason."""
         self.roster, self.unknown = roster or Roster(), Counter[str]()  # ids not on it
+        self.fleet = FleetMerge()
+        """The fleet's merged grid as of the last report (ground/fleet_merge.py)."""
 
     # -- inputs -------------------------------------------------------------------------
 
@@ -184,7 +187,7 @@ class Watcher:
             return [] if feed is None else self.on_snapshot_failed(vehicle_id, now_s)
         self._touch(feed, "snapshot", now_s)
         if not feed.claim.on_answers({s for s, _ in replies}, now_s):
-            feed.state = None
+            feed.take_state(None)
             feed.pending = []
             feed.awaiting_since_s = now_s
             return []
@@ -347,33 +350,42 @@ class Watcher:
     # -- outputs ------------------------------------------------------------------------
 
     def fleet_state(self) -> tuple[GridState | None, tuple[str, ...]]:
-        """The merged grid of the ready vehicles that share the fleet's grid (log-miss sums
-        added as float32, as the daemons hold them; counts added in int64, which cannot
-        overflow; limiting factors by the maximum), and their ids (sorted). The fleet's
-        grid is the ground station's (grid_hash) when a vehicle flies it, else the one most
-        vehicles fly (ties: the vehicle heard first)."""
-        return merge_fleet(self.feeds.values(), self.grid_hash)
+        """A copy of the merged grid of the ready vehicles that share the fleet's grid
+        (log-miss sums added as float32, as the daemons hold them; counts added in int64,
+        which cannot overflow; limiting factors by the maximum), and their ids (sorted). The
+        fleet's grid is the ground station's (grid_hash) when a vehicle flies it, else the
+        one most vehicles fly (ties: the vehicle heard first). The copy reads the whole
+        grid: the report and the map read the merge kept (``fleet``) instead."""
+        self.fleet.update(self.feeds.values(), self.grid_hash)
+        merged = self.fleet.state
+        return (None if merged is None else merged.copy()), self.fleet.ids
+
+    def fleet_blocks(self) -> PdBlocks | None:
+        """The merged grid's map blocks (ground/fleet_merge.py), brought up to date."""
+        self.fleet.update(self.feeds.values(), self.grid_hash)
+        return self.fleet.blocks()
 
     def report(self, now_s: float) -> FleetReport:
         """Every vehicle's figures and the fleet's, as of ``now_s``."""
         vehicles = tuple(vehicle_report(f, now_s, self.thresholds)
                          for f in sorted(self.feeds.values(), key=lambda f: f.vehicle_id))
         thresholds = union_thresholds([self.thresholds, *(v.thresholds for v in vehicles)])
-        merged, ids = self.fleet_state()
+        self.fleet.update(self.feeds.values(), self.grid_hash)
+        summary = self.fleet.summary(thresholds)
         props: dict[float, float] = {}
         mean_pd = None
         cells_free = 0
-        if merged is not None:
-            props = merged.proportions_at_or_above(thresholds)
-            cells_free = int(merged.mask.sum())
-            mean_pd = float(merged.pd[merged.mask].mean()) if cells_free else 0.0
+        if summary is not None:
+            props = {t: summary.proportion_at_or_above(t) for t in thresholds}
+            cells_free = summary.cells_free
+            mean_pd = summary.mean_pd
         target = max(self.thresholds or thresholds) if thresholds else None
         quiet = None
         if (self.quiet_hint and not self.feeds and self.connected_s is not None
                 and now_s - self.connected_s >= self.quiet_after_s):
             quiet = (f"no vehicle heard {now_s - self.connected_s:.0f} s after connecting; "
                      f"{self.quiet_hint}")
-        return FleetReport(vehicles, ids, thresholds, target, props, mean_pd, cells_free,
+        return FleetReport(vehicles, self.fleet.ids, thresholds, target, props, mean_pd, cells_free,
                            dict(self.refused),
                            tuple(w for w in (self.bus_warning, quiet) if w),
                            {vid: f"{NOT_ON_ROSTER} ({n} samples refused, not merged)"

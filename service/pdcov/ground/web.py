@@ -8,8 +8,9 @@ aiohttp earns its place: HTTP/1.1 parsing, streaming responses and clean shutdow
 job, and a hand-written server on a ground-station laptop would be one more thing to get
 wrong. The state holds what the page draws, in WGS84 latitude/longitude as Leaflet
 (vendored in ground/web/vendor/leaflet) wants it: the fleet's P_D grid (quantised, down-sampled
-to at most MAX_SIDE cells a side by taking each block's maximum, resampled onto web Mercator:
-ground/map_layers.py) with the outline of its cells at the target P_D, the domain and
+to at most fleet_merge.MAX_SIDE cells a side by taking each block's maximum, kept up to date
+block by block as the fleet's tiles merge: ground/fleet_merge.py; resampled onto web
+Mercator: ground/map_layers.py) with the outline of its cells at the target P_D, the domain and
 obstacles of the grid shown (``domain_layer``: from the mission config when it describes that
 grid, else from the vehicles' mission replies), the plans given with ``--plan``, each
 vehicle's track and current footprint, and the figures of the terminal view; per vehicle
@@ -32,7 +33,6 @@ import asyncio
 import base64
 import json
 import logging
-import math
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,7 +68,6 @@ if TYPE_CHECKING:  # the desk is handed in (ground/app.py)
     from pdcov.ground.app import ReflyDesk
 
 log = logging.getLogger("pdcov.watch")
-MAX_SIDE = 400
 LEAFLET = "vendor/leaflet/"
 ASSETS = {"/": ("index.html", "text/html"), "/app.js": ("app.js", "text/javascript"),
           "/style.css": ("style.css", "text/css"),
@@ -102,20 +101,16 @@ def _ring_xy(ring: Any) -> list[list[float]]:
     return [[round(float(x), 2), round(float(y), 2)] for x, y in list(ring)]
 
 
-def grid_payload(pd: np.ndarray, mask: np.ndarray, geometry: Any, origin: Origin,
-                 target: float | None) -> dict[str, Any]:
-    """The heat map: P_D quantised to 0..PD_LEVELS per (block of) cells, NOT_FREE outside
-    free space, resampled onto web Mercator (map_layers.mercator_raster: rows from the
-    north, OFF_GRID outside the grid, ``bounds_lat_lon`` [[south, west], [north, east]]);
-    ``stride`` cells per shown cell. ``outline_lat_lon``: segments [[lat, lon], [lat, lon]]
-    around the shown cells at or above ``target`` (None with ``outline_note`` when there is
-    no target or more than MAX_OUTLINE_SEGMENTS)."""
-    n_rows, n_cols = mask.shape
-    stride = max(1, math.ceil(max(n_rows, n_cols) / MAX_SIDE))
-    h, w = math.ceil(n_rows / stride), math.ceil(n_cols / stride)
-    padded = np.full((h * stride, w * stride), -1.0)
-    padded[:n_rows, :n_cols] = np.where(mask, np.clip(pd, 0.0, 1.0), -1.0)
-    blocks = padded.reshape(h, stride, w, stride).max(axis=(1, 3))
+def blocks_payload(blocks: np.ndarray, stride: int, geometry: Any, origin: Origin,
+                   target: float | None) -> dict[str, Any]:
+    """The heat map: P_D quantised to 0..PD_LEVELS per block of ``stride`` x ``stride`` cells
+    (``blocks``: each block's maximum, -1 where none is free: fleet_merge.block_max_pd),
+    NOT_FREE outside free space, resampled onto web Mercator (map_layers.mercator_raster:
+    rows from the north, OFF_GRID outside the grid, ``bounds_lat_lon`` [[south, west],
+    [north, east]]); ``stride`` cells per shown cell. ``outline_lat_lon``: segments
+    [[lat, lon], [lat, lon]] around the shown cells at or above ``target`` (None with
+    ``outline_note`` when there is no target or more than MAX_OUTLINE_SEGMENTS). Its cost
+    follows the blocks (at most fleet_merge.MAX_SIDE a side), not the grid."""
     q = np.where(blocks < 0, NOT_FREE, np.rint(np.maximum(blocks, 0) * PD_LEVELS)) \
         .astype(np.uint8)
     cell_m = geometry.cell_size_m * stride
@@ -215,7 +210,7 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
     """Everything the page draws, as JSON-ready values; positions [lat_deg, lon_deg].
     config_grid_hash: the grid hash of ``mission``'s grid (see domain_layer); refly: the
     re-fly proposed, refly_outcome: the line of the last one sent."""
-    merged, _ = watcher.fleet_state()
+    blocks = watcher.fleet_blocks()
     vehicles = []
     origin = None
     for k, v in enumerate(report.vehicles):
@@ -236,14 +231,14 @@ def map_state(watcher: Watcher, report: FleetReport, mission: Mission | None,
                                   for t, p in v.status_proportion_at_or_above.items()},
             "mean_pd": v.mean_pd, "track_lat_lon": _lat_lon(feed.track_lat_lon_alt),
             "footprint_lat_lon": footprint, "candidates": candidates_layer(feed)})
-    domain, note = domain_layer(watcher, None if merged is None else merged.hash, mission,
-                                config_grid_hash)
+    domain, note = domain_layer(watcher, watcher.fleet.grid_hash, mission, config_grid_hash)
     if origin is None and domain is not None:
         origin = (mission.origin() if domain["source"] == "--config" and mission is not None
                   else _mission_origin(watcher, domain["grid_hash"]))
     grid = None
-    if merged is not None and origin is not None:
-        grid = grid_payload(merged.pd, merged.mask, merged.geometry, origin, report.target)
+    if blocks is not None and origin is not None:
+        grid = blocks_payload(blocks.values(), blocks.stride, blocks.source.geometry, origin,
+                              report.target)
     return {
         "version": version,
         "fleet": {"target": report.target, "thresholds": list(report.thresholds),

@@ -46,6 +46,7 @@ import numpy as np
 
 from pdcov.bus.faults import Fault
 from pdcov.bus.grid_state import MAX_CELLS, grid_hash
+from pdcov.bus.tile_metrics import TileMetrics
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
 from pdcov.core.grid import CoverageGrid
@@ -57,7 +58,6 @@ from pdcov.flight.ground_altitude import GroundAltitude
 from pdcov.service import status
 from pdcov.service.checkpoint_meta import CameraResume, finite_or_none
 from pdcov.service.detections import LiveDetections
-from pdcov.service.tile_metrics import TileMetrics
 from pdcov.service.tile_sender import TileSender
 from pdcov.telemetry import samples as smp
 from pdcov.telemetry.frame_policy import FrameLattice, FrameSource

@@ -1,11 +1,13 @@
-"""The status metrics of a grid kept per tile, so that the daemon's periodic cost follows the
-cells the frames touch, not the size of the grid.
+"""The status metrics of a grid kept per tile, so that the periodic cost follows the cells
+written, not the size of the grid: the daemon's status (service/coverage.py) and the
+watcher's figures of each vehicle and of the fleet (ground/feed.py, ground/fleet_merge.py),
+one rule for both.
 
 Each tile (the bus tiles' cut, ``tile_size`` cells a side) that may hold a look keeps its
 counts of free cells at or above each positive threshold, its observed free cells, and its
 float64 sums of P_D over free cells and of P_FA over observed free cells; a tile is
-recomputed only after ``mark`` says cells in it may have changed (``CoverageGrid.touched``),
-the touched tiles a block at a time (``tile_blocks``). At first the tiles the grid holds are
+recomputed only after ``mark`` says cells in it may have changed (``CoverageGrid.touched``,
+the tiles a watcher applied), the touched tiles a block at a time (``tile_blocks``). At first the tiles the grid holds are
 stale (``CellSource.written_windows``: a resumed grid's); a tile never written has P_D 0
 and no look, so its free cells count only at thresholds <= 0, where every free cell of the
 grid counts (``n_free``). The counts, so the proportions at a threshold and the cells
@@ -50,7 +52,7 @@ class GridSummary:
 
 
 class TileMetrics:
-    """Per-tile status metrics of ``source`` (the daemon's grid, read by window) for
+    """Per-tile status metrics of ``source`` (a grid read by window) for
     ``thresholds`` (P_D values)."""
 
     def __init__(self, source: CellSource, tile_size: int, thresholds: Iterable[float]
