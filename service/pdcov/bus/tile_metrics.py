@@ -7,8 +7,9 @@ Each tile (the bus tiles' cut, ``tile_size`` cells a side) that may hold a look 
 counts of free cells at or above each positive threshold, its observed free cells, and its
 float64 sums of P_D over free cells and of P_FA over observed free cells; a tile is
 recomputed only after ``mark`` says cells in it may have changed (``CoverageGrid.touched``,
-the tiles a watcher applied), the touched tiles a block at a time (``tile_blocks``). At first the tiles the grid holds are
-stale (``CellSource.written_windows``: a resumed grid's); a tile never written has P_D 0
+the tiles a watcher applied), the touched tiles a block at a time (``tile_blocks``). At
+first the tiles the grid holds are stale (``CellSource.written_windows``: a resumed grid's,
+a ground station's copy whole); a tile never written has P_D 0
 and no look, so its free cells count only at thresholds <= 0, where every free cell of the
 grid counts (``n_free``). The counts, so the proportions at a threshold and the cells
 observed, equal a whole-grid count exactly (``CoverageGrid.metrics``); the float sums are
