@@ -39,7 +39,7 @@ def test_documented_metrics_keys_are_the_written_ones(tmp_path):
     assert set(doc["plan"]) == plan
     assert doc["plan"]["spacing_m"] > 0
     # The prior's keys, from the same document builder the runs use.
-    from pdcov.core.grid import Metrics
+    from pdcov.core.grid_metrics import Metrics
     m = Metrics(frames=1, cells_free=4, cells_observed=4, proportion_at_or_above={0.5: 1.0},
                 mean_pd=0.5, expected_false_alarms=0.0)
     with_prior = metrics_document(m, search_outcome(np.full((2, 2), 0.25), np.full((2, 2), 0.5),

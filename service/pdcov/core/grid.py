@@ -90,7 +90,7 @@ class CoverageGrid:
     """Cumulative detection and false-alarm probabilities over a grid of cells.
 
     geometry: the cells (ENU). free: the free cells (only those are updated): a bool
-    (n_rows, n_cols) mask, or ``FreeCells`` (``Domain.free_cells``, tile by tile).
+    (n_rows, n_cols) mask, or ``FreeCells`` (tile by tile from the domain's free space).
     max_range_m: slant range beyond which cells are not observed; None chooses
     ``default_max_range_m``. terrain: the ground under the cells (ENU, core/terrain.py;
     None: the plane z = 0).

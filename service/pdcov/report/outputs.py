@@ -25,8 +25,9 @@ from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
-from pdcov.core.grid import CoverageGrid, Metrics
+from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer
+from pdcov.core.grid_metrics import Metrics
 from pdcov.core.pose import CameraPose
 from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
