@@ -42,7 +42,6 @@ __all__ = ["QUADRATURE", "CorrelatedLooks", "LooksConfig", "LooksRule", "Quadrat
            "LooksModel", "log_miss_of_nodes", "looks_model", "pd_of_node_log_miss",
            "same_looks_tables"]
 
-Window = tuple[int, int, int, int]  # r0, r1, c0, c1: rows r0:r1, columns c0:c1
 
 
 class LooksRule(str, enum.Enum):
@@ -333,12 +332,6 @@ class ViewpointLooks:
                              r_cam_enu[2] - z)
         best[rows, cols, v] = np.maximum(best[rows, cols, v], rank[rows, cols])
         return counted
-
-    def log_miss_nodes(self, best: np.ndarray) -> np.ndarray:
-        """Per cell of ``best`` (rows, cols, V), log P_miss at every quadrature node (the
-        viewpoint rule does not depend on the latent): (rows, cols, J) float64."""
-        flat = self.log_miss_of(best.reshape(-1, best.shape[-1])).reshape(best.shape[:2])
-        return np.repeat(flat[..., None], len(QUADRATURE.q), axis=2)
 
     def log_miss_of(self, best: np.ndarray) -> np.ndarray:
         """log P_miss (float64, (k,)) of cells with these best ranks ((k, V), one row a

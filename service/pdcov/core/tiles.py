@@ -6,7 +6,7 @@ Tile (i, j) holds cells rows ``i * size .. (i + 1) * size``, columns ``j * size 
 (the last row and column of tiles clipped at the grid's edge). Windows are
 (r0, r1, c0, c1): rows r0:r1, columns c0:c1 of the grid.
 
-Every write gives the tile a new version (``TiledLayer.version_of``, from the grid's
+Every write gives the tile a new version (``TiledLayer.changed_since``, from the grid's
 ``TileClock``): a reader that keeps the version it saw (the bus, a checkpoint, a dense copy)
 reads again only the tiles changed since.
 
@@ -141,10 +141,6 @@ class TiledLayer:
             self.frozen.before_write(self, key, t)
         self._versions[key] = self.clock.tick()
         return t
-
-    def version_of(self, key: TileKey) -> int:
-        """The clock's value when tile ``key`` was last written (0: never)."""
-        return self._versions.get(key, 0)
 
     def changed_since(self, version: int) -> list[TileKey]:
         """The tiles written after the clock was at ``version``."""
