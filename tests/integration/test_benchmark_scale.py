@@ -19,8 +19,10 @@ def test_scale_benchmark_smoke_measures_every_domain(tmp_path):
     for d in domains.values():
         assert d["rss_mb"] > 0 and d["frames"] > 0 and d["tile_bytes"] > 0
         assert d["tiles_outside"] == 0
+        assert d["longest_call_ms"] > 0 and d["checkpoint_take_ms"] > 0
     assert domains["2000"]["cells"] == 100 * domains["200"]["cells"]
-    # The rows with a target: each domain's flown cells equal, then the memory ratio.
+    # The rows with a target: per domain the longest call (a timing: not asserted) and its
+    # flown cells equal, then the memory ratio; the exit status says whether all passed.
     oks = [ok for ok in figures["rows_ok"] if ok is not None]
-    assert oks[:-1] == [True, True], done.stdout
-    assert done.returncode == (0 if oks[-1] else 1), done.stderr[-3000:]
+    assert len(oks) == 5 and oks[1] is oks[3] is True, done.stdout
+    assert done.returncode == (0 if all(oks) else 1), done.stderr[-3000:]
