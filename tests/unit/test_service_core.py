@@ -12,17 +12,20 @@ import pytest
 import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from pdcov.bus.frames import encode_frames
+from pdcov.bus.frames import encode_frames, encode_frames_v2
+from pdcov.core.detections import Box, FrameBoxes
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import InputFileError
 from pdcov.service.checkpoint import read_checkpoint_meta, write_checkpoint
 from pdcov.service.checkpoint_meta import CheckpointMeta
 from pdcov.service.core import EARLY_FRAMES, LinkReport, ServiceCore, link_requests, link_state
+from pdcov.service.detections import DETECTIONS_PERIOD_S
 from pdcov.service.settings import load_serve_config
 from pdcov.telemetry.frame_policy import FrameLattice
 from pdcov.telemetry.gimbal import mount_params_complete, resolve_interpretation
 from pdcov.telemetry.link_protocol import LinkState
 from pdcov.telemetry.recorded_frames import MARK, recorded_mark
+from tests.support.detections_driver import Driver
 from tests.support.link_feed import FIXED, MISSION, Hover, pack
 
 
@@ -108,16 +111,47 @@ def test_checkpoint_errors_are_logged_once_and_the_recovery_once(tmp_path):
     meta = core.checkpoint_meta(1_700_000_000.0)
     assert meta.mission_hash == "h" and meta.last_frame_t_s is None and meta.clock_boot_s is None
     for _ in range(3):
-        core.checkpoint_written(meta, "No space left on device")
+        core.checkpoint_written(meta, "No space left on device", core.checkpoint_contents())
     logs = core.actions().logs
     assert [lv for lv, _t in logs] == [logging.ERROR]
     assert core.coverage.counters.faults["checkpoint_errors"] == 3
     assert core.checkpoint.describe()["error"] == "No space left on device"
-    core.checkpoint_written(meta, None)
+    core.checkpoint_written(meta, None, core.checkpoint_contents())
     (level, text), = core.actions().logs
     assert level == logging.WARNING and "written again" in text
     info = core.checkpoint.describe()
     assert info["error"] is None and info["written_unix_s"] == 1_700_000_000.0
+
+
+def test_a_journal_line_after_a_checkpoint_was_copied_is_kept_when_it_is_written(tmp_path):
+    """A checkpoint copied at journal line 1 and written after line 2 was decided (a second
+    checkpoint decided meanwhile) must not empty the journal: line 2 is in neither file
+    otherwise. The journal is emptied when the checkpoint holding line 2 is written."""
+    doc = dict(MISSION, mount=FIXED, vehicle_id="uav7")
+    doc["service"] = {"state_dir": str(tmp_path / "state"), "frame_source": "zenoh",
+                      "reorder_s": 0.0}
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
+    d = Driver(tmp_path / "m.yaml", tmp_path / "rec")
+    d.link(b"".join(pack(m, seq=i) for i, m in enumerate(Hover(seconds=4.0).messages())))
+    person = Box("person", 0.9, 310.0, 200.0, 18.0, 40.0)
+
+    def publish(t0_s: float) -> None:
+        d.frames(encode_frames_v2([FrameBoxes(t0_s + 0.2 * k, (person,)) for k in range(3)]))
+        d.core.process()
+        d.tick(DETECTIONS_PERIOD_S)
+
+    publish(2.0)
+    first = d.core.checkpoint_contents()
+    meta = d.core.checkpoint_meta(1_700_000_000.0)
+    publish(3.0)
+    second = d.core.checkpoint_contents()
+    assert first.journal_seq == 1 and second.journal_seq == 2
+    assert first.frames < second.frames
+    d.core.checkpoint_written(meta, None, first)
+    assert not d.core.actions().journal_reset
+    assert d.core.checkpoint.frames == first.frames
+    d.core.checkpoint_written(meta, None, second)
+    assert d.core.actions().journal_reset
 
 
 def test_checkpoint_meta_round_trips_and_refuses_what_pdcov_does_not_write(tmp_path):

@@ -120,6 +120,15 @@ class CheckpointMeta:
                        for name, x in doc["cameras"].items()})
 
 
+@dataclass(frozen=True, slots=True)
+class CheckpointContents:
+    """What one checkpoint copied: the grid's frames and the last journal line decided then
+    (a line after it is not in the checkpoint, so the journal keeps it)."""
+
+    frames: int
+    journal_seq: int
+
+
 @dataclass(slots=True)
 class CheckpointState:
     """The checkpoint as the status reports it (docs/protocol.md ``checkpoint``), and the

@@ -46,7 +46,12 @@ from pdcov.ids import candidate_uid_prefix, new_epoch
 from pdcov.service import candidate_store
 from pdcov.service.actions import Actions
 from pdcov.service.candidate_store import MAX_JOURNAL_BYTES, Restored
-from pdcov.service.checkpoint_meta import CheckpointMeta, CheckpointState, finite_or_none
+from pdcov.service.checkpoint_meta import (
+    CheckpointContents,
+    CheckpointMeta,
+    CheckpointState,
+    finite_or_none,
+)
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.detections import MAX_HELD_BOXES
 from pdcov.service.frame_admission import (
@@ -110,8 +115,6 @@ class ServiceCore:
             uid_prefix=candidate_uid_prefix(m.vehicle_id, epoch or new_epoch()))
         self._journal_seq = 0  # the last journal line decided
         self._journal_bytes = 0  # in the journal file now
-        # The grid's frames and the last journal line of the checkpoint being written.
-        self._checkpoint_taken = (0, 0)
         self._journal_error: str | None = None
         if resumed is not None:
             self._resume(resumed)
@@ -463,10 +466,8 @@ class ServiceCore:
 
     def checkpoint_meta(self, unix_s: float) -> CheckpointMeta:
         """The metadata of a checkpoint of the grid as it is now, the shell copying the
-        grid now (its frames and journal lines are those ``checkpoint_written`` counts as
-        written)."""
+        grid now."""
         live = self.coverage
-        self._checkpoint_taken = (live.grid.frames, self._journal_seq)
         offset, boot = self.protocol.clock_state()
         known = math.isfinite(boot)
         return CheckpointMeta(
@@ -476,8 +477,15 @@ class ServiceCore:
             tiles_seq=live.tiles_seq - 1, frames_used=live.counters.used,
             written_unix_s=unix_s, cameras=live.camera_resume())
 
-    def checkpoint_written(self, meta: CheckpointMeta, error: str | None) -> None:
-        """The shell wrote the checkpoint ``meta`` of the current grid, or failed with
+    def checkpoint_contents(self) -> CheckpointContents:
+        """What a checkpoint copied now holds: the shell keeps it with the write and hands
+        it back to ``checkpoint_written`` (another may be decided meanwhile)."""
+        return CheckpointContents(frames=self.coverage.grid.frames,
+                                  journal_seq=self._journal_seq)
+
+    def checkpoint_written(self, meta: CheckpointMeta, error: str | None,
+                           contents: CheckpointContents) -> None:
+        """The shell wrote the checkpoint ``meta`` holding ``contents``, or failed with
         ``error`` (computing and publishing go on; the next one is retried in a period)."""
         state, live = self.checkpoint, self.coverage
         if error is not None:
@@ -491,10 +499,10 @@ class ServiceCore:
         if state.error is not None:
             self._out.logs.append((logging.WARNING,
                                    f"checkpoint written again after: {state.error}"))
-        frames, journal_seq = self._checkpoint_taken
+        frames = contents.frames
         live.checkpointed(frames)
         # Lines decided while it was written are not in it: the journal is kept for them.
-        if self._journal_bytes and self._journal_seq == journal_seq:
+        if self._journal_bytes and self._journal_seq == contents.journal_seq:
             self._out.journal_reset, self._journal_bytes = True, 0
         state.last_t_s, state.error = meta.last_frame_t_s, None
         state.written_unix_s, state.frames = meta.written_unix_s, frames

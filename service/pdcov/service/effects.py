@@ -23,7 +23,7 @@ from pdcov.errors import PdcovError
 from pdcov.service.actions import Actions
 from pdcov.service.bus_endpoints import BusEndpoints
 from pdcov.service.checkpoint import CheckpointJob, CheckpointWriter
-from pdcov.service.checkpoint_meta import CheckpointMeta
+from pdcov.service.checkpoint_meta import CheckpointContents, CheckpointMeta
 from pdcov.service.core import ServiceCore
 from pdcov.service.link_setup import LinkReport
 from pdcov.service.mavlink_link import MavlinkLink
@@ -50,7 +50,7 @@ class Effects:
         self.checkpoint_path = checkpoint_path
         self._checkpoints = CheckpointWriter(checkpoint_path)
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="checkpoint")
-        self._writing: tuple[CheckpointJob, Future[None]] | None = None
+        self._writing: tuple[CheckpointJob, Future[None], CheckpointContents] | None = None
         self._checkpoint_due = False  # decided while one was written: started after it
         self.notifier = notifier
         self._clock = clock
@@ -131,13 +131,13 @@ class Effects:
         live = self.core.coverage
         job = self._checkpoints.prepare(live.grid, meta, live.checkpoint_cameras,
                                         self.core.candidates_checkpoint())
-        self._writing = (job, self._writer.submit(job.write))
+        self._writing = (job, self._writer.submit(job.write), self.core.checkpoint_contents())
 
     def _check_writing(self) -> None:
         """Report the checkpoint written or failed, and start the one decided meanwhile."""
         if self._writing is None or not self._writing[1].done():
             return
-        (job, done), self._writing = self._writing, None
+        (job, done, contents), self._writing = self._writing, None
         job.release()
         exc = done.exception()
         if exc is not None and not isinstance(exc, (OSError, PdcovError, ValueError)):
@@ -145,7 +145,7 @@ class Effects:
         if exc is None:
             self._checkpoints.written(job)
         assert job.meta is not None  # the core's metadata (a mapping only from tests)
-        self.core.checkpoint_written(job.meta, None if exc is None else str(exc))
+        self.core.checkpoint_written(job.meta, None if exc is None else str(exc), contents)
         if self._checkpoint_due:
             self._checkpoint_due = False
             self._start_checkpoint(self.core.checkpoint_meta(time.time()))
