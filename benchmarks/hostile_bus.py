@@ -31,6 +31,7 @@ from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles, tile_grid_shape
 from pdcov.core.domain import GridGeometry
+from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
@@ -73,10 +74,10 @@ def forged_tiles_case() -> Finding:
         pub.step()
         w.on_tiles("uav1", decode_tiles(pub.tiles()), 0.1 * k, DAEMON)
     g = pub.grid
-    state = GridState(g.geometry, g.mask.copy(), np.full(g.geometry.shape, -20.0, np.float32),
-                      np.zeros(g.geometry.shape, np.float32),
-                      np.ones(g.geometry.shape, np.int32), g.frames + 1,
-                      np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
+    state = GridState.from_arrays(
+        g.geometry, g.mask, np.full(g.geometry.shape, -20.0, np.float32),
+        np.zeros(g.geometry.shape, np.float32), np.ones(g.geometry.shape, np.int32),
+        g.frames + 1, np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
     rows, cols = tile_grid_shape(pub.tile_size, *g.geometry.shape)
     forged = encode_tiles(state, [(r, c) for r in range(rows) for c in range(cols)],
                           seq=pub.seq + 1, t_s=pub.t_s, tile_size=pub.tile_size)
@@ -96,7 +97,8 @@ def big_grid_watcher(n: int) -> tuple[Watcher, dict]:
     geo = GridGeometry(0.0, 0.0, 1.0, n, n)
     mask = np.ones((n, n), bool)
     state = GridState.empty(geo, mask)
-    state.log_miss_d[:] = np.linspace(0, -3, n * n, dtype=np.float32).reshape(n, n)
+    state.write(Layer.LOG_MISS_D, (0, n, 0, n),
+                np.linspace(0, -3, n * n, dtype=np.float32).reshape(n, n))
     w = Watcher(thresholds=(0.5, 0.7, 0.8))
     w.on_snapshot("uav1", state, 0.0, DAEMON)
     pub = TinyPublisher("uav1")

@@ -36,6 +36,14 @@ from pdcov import cli
 for _blas_threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_blas_threads, "1")
 
+# matplotlib builds its font cache at its first import on a machine, running fontconfig's
+# fc-list when installed (Debian's chromium brings it): built here, once per process, before
+# any test, so that a figure drawn by an in-memory test does not start that process.
+try:
+    import matplotlib.font_manager  # noqa: F401
+except ImportError:  # without the plots extra: no figure is drawn
+    pass
+
 # The support modules that hold fixtures of more than one tier: watch_fixtures: router,
 # processes, daemons (real Zenoh on loopback); chromium: browser; cli_inputs: poses;
 # link_params_autopilot: autopilot (a parameter server); output_runs: umask; pytester: for

@@ -101,10 +101,11 @@ class TinyPublisher:
 def forged_tiles(pub: TinyPublisher, seq: int, frames: int | None = None) -> bytes:
     """Every tile of ``pub``'s grid at P_D ~ 1: ground nobody searched shown as searched."""
     g = pub.grid
-    state = GridState(g.geometry, g.mask.copy(), np.full(g.geometry.shape, -20.0, np.float32),
-                      np.zeros(g.geometry.shape, np.float32), np.ones(g.geometry.shape, np.int32),
-                      g.frames + 1 if frames is None else frames,
-                      np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
+    state = GridState.from_arrays(
+        g.geometry, g.mask, np.full(g.geometry.shape, -20.0, np.float32),
+        np.zeros(g.geometry.shape, np.float32), np.ones(g.geometry.shape, np.int32),
+        g.frames + 1 if frames is None else frames,
+        np.full(g.geometry.shape, LimitingFactor.SEEN, np.uint8))
     rows, cols = tile_grid_shape(pub.tile_size, *g.geometry.shape)
     return encode_tiles(state, [(r, c) for r in range(rows) for c in range(cols)], seq=seq,
                         t_s=pub.t_s, tile_size=pub.tile_size)

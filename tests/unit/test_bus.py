@@ -36,6 +36,7 @@ from pdcov.bus.tiles import apply_tiles, decode_tiles, encode_tiles
 from pdcov.config.load import load_mission
 from pdcov.core.detections import FrameBoxes
 from pdcov.core.domain import GridGeometry
+from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import R_from_euler_zyx
@@ -59,13 +60,11 @@ def grid():
 def random_state(rng, shape=(70, 45)) -> GridState:
     geometry = GridGeometry(-3.0, 7.5, 0.5, *shape)
     mask = rng.random(shape) > 0.1
-    state = GridState.empty(geometry, mask)
-    state.log_miss_d[:] = -rng.exponential(1.0, shape).astype(np.float32) * mask
-    state.log_miss_fa[:] = -rng.exponential(0.1, shape).astype(np.float32) * mask
-    state.n_obs[:] = rng.integers(0, 50, shape) * mask
-    state.limiting[:] = rng.integers(0, len(LimitingFactor), shape) * mask
-    state.frames = 1234
-    return state
+    return GridState.from_arrays(
+        geometry, mask, -rng.exponential(1.0, shape).astype(np.float32) * mask,
+        -rng.exponential(0.1, shape).astype(np.float32) * mask,
+        rng.integers(0, 50, shape) * mask, 1234,
+        rng.integers(0, len(LimitingFactor), shape) * mask)
 
 
 def test_keys():
@@ -152,12 +151,11 @@ def test_hostile_tiles_are_refused():
         "short": good[:20],
         "bomb": good[:48] + zlib.compress(b"\x00" * (40 << 20)),
     }
-    nan = GridState(src.geometry, src.mask, src.log_miss_d.copy(), src.log_miss_fa,
-                    src.n_obs, limiting=src.limiting)
-    nan.log_miss_d[0, 0] = np.nan
+    nan = src.copy()
+    nan.write(Layer.LOG_MISS_D, (0, 1, 0, 1), np.nan)
     cases["nan"] = encode_tiles(nan, [(0, 0)], seq=0, t_s=0.0, tile_size=32)
-    pos = GridState(src.geometry, src.mask, np.abs(src.log_miss_d) + 1, src.log_miss_fa,
-                    src.n_obs, limiting=src.limiting)
+    pos = GridState.from_arrays(src.geometry, src.mask, np.abs(src.log_miss_d) + 1,
+                                src.log_miss_fa, src.n_obs, limiting=src.limiting)
     cases["positive"] = encode_tiles(pos, [(0, 0)], seq=0, t_s=0.0, tile_size=32)
     for name, payload in cases.items():
         with pytest.raises(BusPayloadError, match="tiles"):

@@ -195,7 +195,7 @@ def test_the_fleet_report_says_when_a_vehicle_sent_no_limiting(tmp_path, mission
 def test_a_limiting_code_outside_the_factors_is_refused_and_counted(mission, code):
     grid = every_code_grid(mission)
     state = GridState.from_grid(grid)
-    state.limiting[3, 5] = code
+    state.write(Layer.LIMITING, (3, 4, 5, 6), code)
     payload = encode_tiles(state, [(0, 0)], seq=0, t_s=1.0, tile_size=TILE)
     with pytest.raises(BusPayloadError, match="uav1/tiles.*limiting: codes must lie in 0..5") \
             as err:

@@ -31,11 +31,17 @@ def masks(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Daemon:
-    """A vehicle's grid as its daemon holds it, and the tiles it publishes."""
+    """A vehicle's grid as its daemon holds it (whole arrays), and the tiles it publishes."""
 
     def __init__(self, vid: str, mask: np.ndarray, rng: np.random.Generator) -> None:
-        self.vid, self.rng = vid, rng
-        self.grid = GridState.empty(GEOMETRY, mask)
+        self.vid, self.rng, self.mask = vid, rng, mask
+        shape = GEOMETRY.shape
+        self.log_miss_d = np.zeros(shape, np.float32)
+        self.log_miss_fa = np.zeros(shape, np.float32)
+        self.n_obs = np.zeros(shape, np.int32)
+        self.limiting: np.ndarray | None = np.zeros(shape, np.uint8)
+        self.frames = 0
+        self.hash = GridState.empty(GEOMETRY, mask).hash
         self.seq = 0
 
     def fly(self, version: int = 2) -> TileUpdate:
@@ -43,33 +49,33 @@ class Daemon:
         n_tr, n_tc = tile_grid_shape(TILE, *GEOMETRY.shape)
         picked = {(int(self.rng.integers(n_tr)), int(self.rng.integers(n_tc)))
                   for _ in range(int(self.rng.integers(1, 4)))}
-        g, tiles = self.grid, []
+        tiles = []
         for tr, tc in sorted(picked):
             r0, r1, c0, c1 = tile_bounds(tr, tc, TILE, *GEOMETRY.shape)
             cells = np.s_[r0:r1, c0:c1]
             shape = (r1 - r0, c1 - c0)
-            g.log_miss_d[cells] -= self.rng.random(shape).astype(np.float32) * 0.7
-            g.log_miss_fa[cells] -= self.rng.random(shape).astype(np.float32) * 0.01
-            g.n_obs[cells] += 1
-            if g.limiting is not None:
-                g.limiting[cells] = self.rng.integers(0, 4, shape, dtype=np.uint8)
-            tiles.append(Tile(tr, tc, g.log_miss_d[cells].copy(), g.log_miss_fa[cells].copy(),
-                              g.n_obs[cells].astype(np.int64), np.zeros(shape, np.uint16),
-                              None if version < 2 or g.limiting is None
-                              else g.limiting[cells].copy()))
+            self.log_miss_d[cells] -= self.rng.random(shape).astype(np.float32) * 0.7
+            self.log_miss_fa[cells] -= self.rng.random(shape).astype(np.float32) * 0.01
+            self.n_obs[cells] += 1
+            if self.limiting is not None:
+                self.limiting[cells] = self.rng.integers(0, 4, shape, dtype=np.uint8)
+            tiles.append(Tile(tr, tc, self.log_miss_d[cells].copy(),
+                              self.log_miss_fa[cells].copy(),
+                              self.n_obs[cells].astype(np.int64), np.zeros(shape, np.uint16),
+                              None if version < 2 or self.limiting is None
+                              else self.limiting[cells].copy()))
         if version < 2:
-            g.limiting = None
-        g.frames += 1
+            self.limiting = None
+        self.frames += 1
         self.seq += 1
-        return TileUpdate(version, self.seq, g.hash, float(self.seq), g.frames, TILE,
+        return TileUpdate(version, self.seq, self.hash, float(self.seq), self.frames, TILE,
                           *GEOMETRY.shape, tuple(tiles))
 
     def snapshot(self) -> GridState:
-        state = self.grid.copy()
-        if state.limiting is None:
-            state.limiting = np.zeros(GEOMETRY.shape, np.uint8)
-            self.grid.limiting = state.limiting.copy()
-        return state
+        if self.limiting is None:
+            self.limiting = np.zeros(GEOMETRY.shape, np.uint8)
+        return GridState.from_arrays(GEOMETRY, self.mask, self.log_miss_d, self.log_miss_fa,
+                                     self.n_obs, self.frames, self.limiting)
 
 
 def assert_same_state(a: GridState, b: GridState) -> None:
@@ -181,7 +187,10 @@ def test_a_vehicle_joining_leaving_or_resent_merges_only_the_tiles_it_wrote():
     w.on_snapshot(late.vid, late.snapshot(), 0.2)  # joins
     merged = w.fleet.windows_merged
     assert_figures(w, 0.3)
-    assert w.fleet.windows_merged - merged == len(written)
+    layout = w.feeds[late.vid].state.free.layout  # merged by the tiles the grids store
+    stored = {k for tr, tc in written
+              for k in layout.keys(tile_bounds(tr, tc, TILE, *GEOMETRY.shape))}
+    assert w.fleet.windows_merged - merged == len(stored)
     w.on_snapshot("uav1", daemons[0].snapshot(), 0.4)  # the same grid sent again: no change
     merged = w.fleet.windows_merged
     assert_figures(w, 0.5)

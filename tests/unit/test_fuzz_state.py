@@ -264,7 +264,7 @@ def test_tiles_of_another_grid_or_a_wrong_shape_change_nothing(payloads):
     w = watcher_with_grid(state)
     before = grid_values(w)
     other = GridState.empty(state.geometry, ~state.mask)  # another hash, same shape
-    other.log_miss_d[:] = -1.0
+    other.write(Layer.LOG_MISS_D, (0, state.geometry.n_rows, 0, state.geometry.n_cols), -1.0)
     deliver(w, "tiles", encode_tiles(other, [(0, 0)], seq=1, t_s=1.0, tile_size=8))
     for a, b in zip(before, grid_values(w), strict=True):
         np.testing.assert_array_equal(a, b)

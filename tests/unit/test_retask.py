@@ -234,7 +234,8 @@ def test_proposal_is_pdcov_reflys_plan_from_where_the_vehicle_is(tmp_path) -> No
     assert state["id"] == p.id and state["gaps"] and all(r[0] == r[-1] for r in state["gaps"])
     lat, lon = state["waypoints"][0]
     assert abs(lat - mission.origin_lat_deg) < 0.01 and abs(lon - mission.origin_lon_deg) < 0.01
-    assert GridState(grid.geometry, grid.mask, L, L, np.zeros_like(L, np.int64), 1).hash \
+    assert GridState.from_arrays(grid.geometry, grid.mask, L, L, np.zeros_like(L, np.int64),
+                                 1).hash \
         == grid_hash(grid.geometry, grid.mask)
 
 

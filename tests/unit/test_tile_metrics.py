@@ -16,6 +16,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.grid_layer import Layer
 from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.service.coverage import LiveCoverage
@@ -191,7 +192,7 @@ def test_tiles_encode_the_same_bytes_without_the_whole_grid():
     for k in range(40):
         g.update(random_pose(rng, 0.1 * k))
     state = GridState.from_grid(g)
-    state.log_miss_d[5, 7] = -np.inf  # P_D = 1
+    state.write(Layer.LOG_MISS_D, (5, 6, 7, 8), -np.inf)  # P_D = 1
     n_tr, n_tc = tile_grid_shape(16, *g.geometry.shape)
     ids = [(r, c) for r in range(n_tr) for c in range(n_tc)]
     payload = encode_tiles(state, ids, seq=3, t_s=1.5, tile_size=16, grid_hash=state.hash)

@@ -12,6 +12,7 @@ from pdcov.bus.errors import BusPayloadError, Refusal
 from pdcov.bus.grid_state import GridState, decode_snapshot, grid_hash
 from pdcov.bus.status import decode_status
 from pdcov.bus.tiles import decode_tiles, encode_tiles
+from pdcov.core.grid_layer import Layer
 from pdcov.ground.watcher import QuerySnapshot, Watcher
 from tests.support.watch_fixtures import TinyPublisher, forged_tiles
 
@@ -212,7 +213,7 @@ def test_merged_counts_cannot_overflow():
     pubs = [TinyPublisher("uav1"), TinyPublisher("uav2")]
     for p in pubs:
         state = decode_snapshot(p.snapshot())
-        state.n_obs[:] = 2**31 - 1
+        state.write(Layer.N_OBS, (0, state.geometry.n_rows, 0, state.geometry.n_cols), 2**31 - 1)
         w.on_snapshot(p.vehicle_id, state, 0.0, DAEMON + p.vehicle_id)
     merged, ids = w.fleet_state()
     assert ids == ("uav1", "uav2") and int(merged.n_obs.min()) == 2**32 - 2

@@ -20,7 +20,6 @@ import re
 import struct
 import zipfile
 from collections.abc import Iterable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,6 +30,7 @@ from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer, Window
 from pdcov.core.grid_snapshot import READABLE_SNAPSHOT_VERSIONS
 from pdcov.core.limiting import LimitingFactor
+from pdcov.core.tiles import TileClock, TiledLayer, TileKey
 from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 
@@ -78,70 +78,154 @@ def grid_hash(geometry: GridGeometry, free: np.ndarray | FreeCells) -> str:
     return h.hexdigest()[:16]
 
 
-@dataclass(slots=True)
 class GridState:
-    """A coverage grid's arrays: mask bool, log_miss_d / log_miss_fa float32 (<= 0), n_obs
-    int32, limiting uint8 (LimitingFactor codes), all (n_rows, n_cols); frames counted by
-    the daemon. limiting None: unknown (a pdcov before tiles version 2 does not send it)."""
+    """A coverage grid as a subscriber holds it: its ``geometry``, free cells (``free``,
+    ``core.free_cells.FreeCells``), the log-miss sums of detection and false alarm (float32,
+    <= 0, ``P = 1 - exp(L)``), observation counts (int32; int64 in a fleet's merge), the
+    limiting factor per cell (uint8 LimitingFactor codes; ``limiting_known`` False: unknown,
+    from a pdcov before tiles version 2) and the daemon's frame count. The layers are kept in
+    tiles allocated when first written (``core.tiles``), as the daemon's grid keeps them:
+    memory follows the cells seen, not the domain. Read by window (``read``, the
+    ``CellSource`` protocol) or, up to ``tiles.MAX_DENSE_CELLS`` cells, whole through the
+    read-only properties ``mask``, ``log_miss_d``, ``log_miss_fa``, ``n_obs``, ``limiting``
+    and ``pd``; written by window (``write``)."""
 
-    geometry: GridGeometry
-    mask: np.ndarray
-    log_miss_d: np.ndarray
-    log_miss_fa: np.ndarray
-    n_obs: np.ndarray
-    frames: int = 0
-    limiting: np.ndarray | None = None
+    def __init__(self, geometry: GridGeometry, free: np.ndarray | FreeCells, *,
+                 frames: int = 0, limiting_known: bool = True,
+                 n_obs_dtype: type = np.int32) -> None:
+        if not isinstance(free, FreeCells):
+            free = FreeCells(geometry, mask=free)
+        elif free.geometry != geometry:
+            raise ValueError("GridState: the free cells are of another grid geometry")
+        self.geometry = geometry
+        self.free = free
+        self.frames = frames
+        self.limiting_known = limiting_known
+        layout, clock = free.layout, TileClock()
+        self._layers: dict[Layer, TiledLayer] = {
+            Layer.LOG_MISS_D: TiledLayer(layout, np.float32, 0.0, clock=clock),
+            Layer.LOG_MISS_FA: TiledLayer(layout, np.float32, 0.0, clock=clock),
+            Layer.N_OBS: TiledLayer(layout, n_obs_dtype, 0, clock=clock),
+            Layer.LIMITING: TiledLayer(layout, np.uint8, LimitingFactor.NEVER_IN_VIEW,
+                                       clock=clock)}
 
     @classmethod
-    def empty(cls, geometry: GridGeometry, mask: np.ndarray) -> GridState:
-        shape = geometry.shape
-        return cls(geometry, np.asarray(mask, bool).copy(), np.zeros(shape, np.float32),
-                   np.zeros(shape, np.float32), np.zeros(shape, np.int32),
-                   limiting=np.zeros(shape, np.uint8))
+    def empty(cls, geometry: GridGeometry, free: np.ndarray | FreeCells) -> GridState:
+        """No look yet: every layer its fill."""
+        return cls(geometry, free)
+
+    @classmethod
+    def from_arrays(cls, geometry: GridGeometry, mask: np.ndarray, log_miss_d: np.ndarray,
+                    log_miss_fa: np.ndarray, n_obs: np.ndarray, frames: int = 0,
+                    limiting: np.ndarray | None = None) -> GridState:
+        """A state holding these whole arrays (copied; tiles of fill values not allocated;
+        ``limiting`` None: unknown)."""
+        state = cls(geometry, np.array(mask, dtype=bool), frames=frames,
+                    limiting_known=limiting is not None)
+        whole = (0, geometry.n_rows, 0, geometry.n_cols)
+        for layer, values in ((Layer.LOG_MISS_D, log_miss_d), (Layer.LOG_MISS_FA, log_miss_fa),
+                              (Layer.N_OBS, n_obs), (Layer.LIMITING, limiting)):
+            if values is not None:
+                state.write(layer, whole, values)
+        return state
 
     @classmethod
     def from_grid(cls, grid: CoverageGrid) -> GridState:
-        """A copy of a CoverageGrid's arrays."""
-        return cls(grid.geometry, grid.mask.copy(), grid.log_miss_d.copy(),
-                   grid.log_miss_fa.copy(), grid.n_obs.copy(), grid.frames,
-                   grid.limiting.copy())
+        """A copy of a CoverageGrid's stored layers (its free cells shared: they never
+        change)."""
+        state = cls(grid.geometry, grid.free, frames=grid.frames)
+        for layer, mine in state._layers.items():
+            for key, tile in grid.layer(layer).tiles.items():
+                mine.tile(key)[...] = tile
+        return state
 
     def copy(self) -> GridState:
-        """A copy of the arrays (the geometry is immutable)."""
-        return GridState(self.geometry, self.mask.copy(), self.log_miss_d.copy(),
-                         self.log_miss_fa.copy(), self.n_obs.copy(), self.frames,
-                         None if self.limiting is None else self.limiting.copy())
+        """A copy of the layers (the geometry and free cells are immutable)."""
+        out = GridState(self.geometry, self.free, frames=self.frames,
+                        limiting_known=self.limiting_known,
+                        n_obs_dtype=self._layers[Layer.N_OBS].dtype.type)
+        for layer, mine in self._layers.items():
+            for key, tile in mine.tiles.items():
+                out._layers[layer].tile(key)[...] = tile
+        return out
 
     @property
     def hash(self) -> str:
-        return grid_hash(self.geometry, self.mask)
+        return grid_hash(self.geometry, self.free)
 
     @property
     def n_free(self) -> int:
-        return int(np.count_nonzero(self.mask))
+        return self.free.n_free
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the tiles written."""
+        return sum(lay.nbytes for lay in self._layers.values())
+
+    def tiles(self, layer: Layer) -> dict[TileKey, np.ndarray]:
+        """The tiles of a stored layer written so far, by key (read them, do not write)."""
+        return self._layers[layer].tiles
+
+    def tile_keys(self) -> list[TileKey]:
+        """The tiles written in any layer, row by row."""
+        keys: set[TileKey] = set()
+        for lay in self._layers.values():
+            keys.update(lay.tiles)
+        return sorted(keys)
+
+    def written_windows(self) -> list[Window]:
+        """Each written tile's cells, row by row (``CellSource``)."""
+        return [self.free.layout.window_of(k) for k in self.tile_keys()]
 
     def read(self, layer: Layer, window: Window | None = None) -> np.ndarray:
         """The cells of ``window`` (None: all) of ``layer`` (``core.grid_layer.CellSource``):
         a new array. ValueError for the limiting factors when unknown, or a layer a
         subscriber does not hold."""
-        r0, r1, c0, c1 = window or (0, self.geometry.n_rows, 0, self.geometry.n_cols)
-        if layer is Layer.PD:
-            return 0.0 - np.expm1(self.log_miss_d[r0:r1, c0:c1].astype(np.float64))
-        if layer is Layer.PFA:
-            return 0.0 - np.expm1(self.log_miss_fa[r0:r1, c0:c1].astype(np.float64))
-        arrays = {Layer.MASK: self.mask, Layer.LOG_MISS_D: self.log_miss_d,
-                  Layer.LOG_MISS_FA: self.log_miss_fa, Layer.N_OBS: self.n_obs,
-                  Layer.LIMITING: self.limiting}
-        a = arrays.get(layer)
-        if a is None:
-            raise ValueError(f"a ground station's grid holds no {layer.value}"
-                             + (" (limiting factors unknown)" if layer is Layer.LIMITING
-                                else ""))
-        return a[r0:r1, c0:c1].copy()
+        w = window or (0, self.geometry.n_rows, 0, self.geometry.n_cols)
+        if layer is Layer.PD or layer is Layer.PFA:
+            source = Layer.LOG_MISS_D if layer is Layer.PD else Layer.LOG_MISS_FA
+            return 0.0 - np.expm1(self._layers[source].read(w).astype(np.float64))
+        if layer is Layer.MASK:
+            return np.array(self.free.window(w))
+        if layer is Layer.LIMITING and not self.limiting_known:
+            raise ValueError("a ground station's grid holds no limiting (limiting factors "
+                             "unknown)")
+        found = self._layers.get(layer)
+        if found is None:
+            raise ValueError(f"a ground station's grid holds no {layer.value}")
+        return found.read(w)
 
-    def written_windows(self) -> list[Window]:
-        """The whole grid (``CellSource``: the arrays are whole, any cell may hold a value)."""
-        return [(0, self.geometry.n_rows, 0, self.geometry.n_cols)]
+    def write(self, layer: Layer, window: Window, values: np.ndarray | float) -> None:
+        """Set the cells of ``window`` of a stored layer to ``values``."""
+        self._layers[layer].write(window, values)
+
+    def forget_limiting(self) -> None:
+        """The limiting factors became unknown (cells rewritten by a version-1 tiles
+        message may have changed theirs)."""
+        self.limiting_known = False
+
+    # The whole grid's layers as read-only arrays, up to tiles.MAX_DENSE_CELLS cells.
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.free.dense()
+
+    @property
+    def log_miss_d(self) -> np.ndarray:
+        return self._layers[Layer.LOG_MISS_D].dense()
+
+    @property
+    def log_miss_fa(self) -> np.ndarray:
+        return self._layers[Layer.LOG_MISS_FA].dense()
+
+    @property
+    def n_obs(self) -> np.ndarray:
+        return self._layers[Layer.N_OBS].dense()
+
+    @property
+    def limiting(self) -> np.ndarray | None:
+        """The limiting factors, None when unknown."""
+        return self._layers[Layer.LIMITING].dense() if self.limiting_known else None
 
     @property
     def pd(self) -> np.ndarray:
@@ -153,12 +237,17 @@ class GridState:
         return self.proportions_at_or_above((threshold,))[float(threshold)]
 
     def proportions_at_or_above(self, thresholds: Iterable[float]) -> dict[float, float]:
-        """{threshold: share of free cells whose P_D is at least it}, P_D computed once for
-        all (per threshold it costs one comparison of the free cells, not an expm1 of the
-        whole grid)."""
-        pd = self.pd[self.mask]
-        n = pd.size
-        return {float(t): float((pd >= t).sum() / n) if n else 0.0 for t in thresholds}
+        """{threshold: share of free cells whose P_D is at least it}, read tile by tile: a
+        tile never written has P_D 0, which only thresholds <= 0 count."""
+        wanted = [float(t) for t in thresholds]
+        n = self.n_free
+        counts = dict.fromkeys(wanted, 0)
+        for window in self.written_windows():
+            pd = self.read(Layer.PD, window)[self.free.window(window)]
+            for t in wanted:
+                if t > 0:
+                    counts[t] += int(np.count_nonzero(pd >= t))
+        return {t: (counts[t] if t > 0 else n) / n if n else 0.0 for t in wanted}
 
 
 def encode_snapshot(grid: CoverageGrid) -> bytes:
@@ -210,14 +299,11 @@ def decode_snapshot(payload: bytes, key: str = "snapshot",
     except DomainError as exc:
         raise bad(str(exc)) from None
     limiting = arrays.get("limiting")
-    state = GridState(geometry, mask.copy(), arrays["log_miss_d"].astype(np.float32),
-                      arrays["log_miss_fa"].astype(np.float32),
-                      arrays["n_obs"].astype(np.int64), int(frames), limiting)
-    check_values(state.log_miss_d, state.log_miss_fa, state.n_obs, bad, limiting)
-    state.n_obs = state.n_obs.astype(np.int32)
-    if limiting is not None:
-        state.limiting = limiting.astype(np.uint8)
-    return state
+    check_values(arrays["log_miss_d"], arrays["log_miss_fa"], arrays["n_obs"], bad, limiting)
+    return GridState.from_arrays(geometry, mask, arrays["log_miss_d"].astype(np.float32),
+                                 arrays["log_miss_fa"].astype(np.float32),
+                                 arrays["n_obs"].astype(np.int32), int(frames),
+                                 None if limiting is None else limiting.astype(np.uint8))
 
 
 def _read_arrays(data: bytes, max_cells: int, bad: Refuser) -> dict[str, np.ndarray]:

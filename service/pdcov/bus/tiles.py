@@ -227,12 +227,12 @@ def apply_tiles(state: GridState, update: TileUpdate, key: str = "tiles", *,
                               f"({g.n_rows} x {g.n_cols}); fetch the snapshot",
                               Refusal.OTHER_GRID)
     for t in update.tiles:
-        r0, r1, c0, c1 = tile_bounds(t.tile_row, t.tile_col, update.tile_size, *g.shape)
-        state.log_miss_d[r0:r1, c0:c1] = t.log_miss_d
-        state.log_miss_fa[r0:r1, c0:c1] = t.log_miss_fa
-        state.n_obs[r0:r1, c0:c1] = t.n_obs
-        if state.limiting is not None and t.limiting is not None:
-            state.limiting[r0:r1, c0:c1] = t.limiting
+        window = tile_bounds(t.tile_row, t.tile_col, update.tile_size, *g.shape)
+        state.write(Layer.LOG_MISS_D, window, t.log_miss_d)
+        state.write(Layer.LOG_MISS_FA, window, t.log_miss_fa)
+        state.write(Layer.N_OBS, window, t.n_obs)
+        if state.limiting_known and t.limiting is not None:
+            state.write(Layer.LIMITING, window, t.limiting)
     if update.version < 2:
-        state.limiting = None
+        state.forget_limiting()
     state.frames = update.frames

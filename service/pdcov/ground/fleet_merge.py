@@ -26,8 +26,9 @@ import numpy as np
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.tile_metrics import GridSummary, TileMetrics
 from pdcov.core.grid_layer import CellSource, Layer, Window
-from pdcov.ground.feed import METRICS_TILE_SIZE, VehicleFeed, metrics_for
-from pdcov.ground.fleet_report import fleet_group, merge_states
+from pdcov.core.tiles import TileKey
+from pdcov.ground.feed import VehicleFeed, metrics_for
+from pdcov.ground.fleet_report import fleet_group, merge_states, merge_window
 
 __all__ = ["FleetMerge", "PdBlocks"]
 
@@ -44,10 +45,16 @@ class PdBlocks:
     def __init__(self, source: CellSource, max_side: int = MAX_SIDE) -> None:
         self.source = source
         n_rows, n_cols = source.geometry.shape
-        self.stride = max(1, math.ceil(max(n_rows, n_cols) / max_side))
-        self._values = np.full((math.ceil(n_rows / self.stride),
-                                math.ceil(n_cols / self.stride)), -1.0)
-        self._stale: set[Window] = {(0, n_rows, 0, n_cols)}
+        self.stride = s = max(1, math.ceil(max(n_rows, n_cols) / max_side))
+        # P_D 0 where a block holds a free cell, -1 elsewhere; then the written windows'.
+        # The mask is read a band of blocks at a time (a county's is never read whole).
+        self._values = np.empty((math.ceil(n_rows / s), math.ceil(n_cols / s)))
+        band = max(1, (1 << 24) // (n_cols * s))  # block rows per read: about 16 M cells
+        for b0 in range(0, len(self._values), band):
+            r0, r1 = b0 * s, min((b0 + band) * s, n_rows)
+            free = source.read(Layer.MASK, (r0, r1, 0, n_cols))
+            self._values[b0:b0 + band] = block_max_pd(np.zeros(free.shape), free, s)
+        self._stale: set[Window] = set(source.written_windows())
 
     def mark(self, window: Window) -> None:
         """Cells rows r0:r1, columns c0:c1 may have changed."""
@@ -79,39 +86,35 @@ def block_max_pd(pd: np.ndarray, mask: np.ndarray, stride: int) -> np.ndarray:
     return padded.reshape(h, stride, w, stride).max(axis=(1, 3))
 
 
-def _layers(state: GridState) -> list[np.ndarray]:
-    """The state's stored layers, the float32 ones as their bits (-0.0 is not +0.0)."""
-    out = [state.log_miss_d.view(np.uint32), state.log_miss_fa.view(np.uint32), state.n_obs]
-    return out if state.limiting is None else [*out, state.limiting]
+def _layers(state: GridState) -> list[dict[TileKey, np.ndarray]]:
+    """The state's stored layers' tiles (the limiting factors' when known)."""
+    layers = [Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS]
+    return [state.tiles(lay) for lay in
+            (layers + [Layer.LIMITING] if state.limiting_known else layers)]
 
 
-def written(state: GridState) -> np.ndarray:
-    """The cells where any layer of ``state`` is not all zero bits."""
-    cells = np.zeros(state.geometry.shape, bool)
-    for a in _layers(state):
-        cells |= a != 0
-    return cells
+def written(state: GridState) -> set[Window]:
+    """The windows of the tiles ``state`` wrote (elsewhere every layer is zero)."""
+    return set(state.written_windows())
 
 
-def differs(a: GridState, b: GridState) -> np.ndarray:
-    """The cells where any layer of ``a`` and ``b`` (of one grid) differs in its bits."""
-    cells = np.zeros(a.geometry.shape, bool)
+def differs(a: GridState, b: GridState) -> set[Window]:
+    """The windows of the tiles where any layer of ``a`` and ``b`` (of one grid) differs in
+    its bits (-0.0 is not +0.0); a tile one of them never wrote reads as zeros."""
+    layout = a.free.layout
+    out: set[Window] = set()
     for x, y in zip(_layers(a), _layers(b), strict=True):
-        cells |= x != y
-    return cells
-
-
-def tile_windows(cells: np.ndarray, tile_size: int = METRICS_TILE_SIZE) -> set[Window]:
-    """The windows (r0, r1, c0, c1) of the tiles of ``tile_size`` cells a side (the last
-    ones clipped to the grid) holding a true cell of ``cells``."""
-    n_rows, n_cols = cells.shape
-    ts = tile_size
-    h, w = -(-n_rows // ts), -(-n_cols // ts)
-    padded = np.zeros((h * ts, w * ts), bool)
-    padded[:n_rows, :n_cols] = cells
-    hit = padded.reshape(h, ts, w, ts).any(axis=(1, 3))
-    return {(int(tr) * ts, min((int(tr) + 1) * ts, n_rows), int(tc) * ts,
-             min((int(tc) + 1) * ts, n_cols)) for tr, tc in zip(*np.nonzero(hit), strict=True)}
+        for key in x.keys() | y.keys():
+            if key in out:
+                continue
+            tx, ty = x.get(key), y.get(key)
+            if tx is None or ty is None:
+                same = not np.any((tx if ty is None else ty) != 0)
+            else:
+                same = tx.tobytes() == ty.tobytes()
+            if not same:
+                out.add(layout.window_of(key))
+    return out
 
 
 class FleetMerge:
@@ -158,7 +161,7 @@ class FleetMerge:
         merge, a new grid of a vehicle the tiles where it differs from the one merged."""
         merged = self.state
         if merged is None or not members or top != self.grid_hash or (
-                merged.limiting is None) != any(s.limiting is None for s in members.values()):
+                merged.limiting_known != all(s.limiting_known for s in members.values())):
             return None
         by_id = {f.vehicle_id: f for f in feeds}
         windows: set[Window] = set()
@@ -168,29 +171,20 @@ class FleetMerge:
                 return None
             windows |= feed.unmerged
             if old is None and new is not None:
-                windows |= tile_windows(written(new))
+                windows |= written(new)
             elif new is None and old is not None:
-                windows |= tile_windows(written(old))
+                windows |= written(old)
             elif old is not new and old is not None and new is not None:
-                if (old.limiting is None) != (new.limiting is None):
+                if old.limiting_known != new.limiting_known:
                     return None
-                windows |= tile_windows(differs(old, new))
+                windows |= differs(old, new)
         return windows
 
     def _merge_windows(self, merged: GridState, states: list[GridState],
                        windows: set[Window]) -> None:
         merged.frames = sum(s.frames for s in states)
         for window in windows:
-            r0, r1, c0, c1 = window
-            cells = np.s_[r0:r1, c0:c1]
-            for name in ("log_miss_d", "log_miss_fa", "n_obs"):
-                out = getattr(merged, name)
-                out[cells] = getattr(states[0], name)[cells]
-                for s in states[1:]:
-                    out[cells] += getattr(s, name)[cells]
-            if merged.limiting is not None:
-                merged.limiting[cells] = np.maximum.reduce(
-                    [s.limiting[cells] for s in states if s.limiting is not None])
+            merge_window(merged, states, window)
             if self._metrics is not None:
                 self._metrics.mark(window)
             if self._blocks is not None:

@@ -14,11 +14,12 @@ import numpy as np
 from pdcov.bus.detections import LIKELY_P_PERSON
 from pdcov.bus.grid_state import GridState
 from pdcov.bus.tile_metrics import GridSummary
+from pdcov.core.grid_layer import Layer, Window
 from pdcov.ground.claims import short_session
 from pdcov.ground.feed import VehicleFeed
 
 __all__ = ["FleetReport", "VehicleReport", "fleet_group", "merge_fleet", "merge_states",
-           "union_thresholds", "vehicle_report"]
+           "merge_window", "union_thresholds", "vehicle_report"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,21 +184,32 @@ def fleet_group(feeds: Iterable[VehicleFeed], grid_hash: str | None) -> list[Veh
 
 
 def merge_states(states: list[GridState]) -> GridState:
-    """Grids of one geometry and mask added in the order given: log-miss sums as float32,
-    as the daemons hold them; counts in int64, which cannot overflow; the limiting factor
-    the maximum (as CoverageGrid.merge), unknown (None) when a grid's is."""
+    """Grids of one geometry and mask added in the order given (``merge_window`` over every
+    tile any of them wrote)."""
     base = states[0]
-    merged = GridState(base.geometry, base.mask.copy(), base.log_miss_d.copy(),
-                       base.log_miss_fa.copy(), base.n_obs.astype(np.int64), base.frames)
-    limits = [s.limiting for s in states]
-    merged.limiting = (None if any(a is None for a in limits)
-                       else np.maximum.reduce([a for a in limits if a is not None]))
-    for s in states[1:]:
-        merged.log_miss_d += s.log_miss_d
-        merged.log_miss_fa += s.log_miss_fa
-        merged.n_obs += s.n_obs
-        merged.frames += s.frames
+    merged = GridState(base.geometry, base.free, frames=sum(s.frames for s in states),
+                       limiting_known=all(s.limiting_known for s in states),
+                       n_obs_dtype=np.int64)
+    keys = sorted({k for s in states for k in s.tile_keys()})
+    for key in keys:
+        merge_window(merged, states, base.free.layout.window_of(key))
     return merged
+
+
+def merge_window(merged: GridState, states: list[GridState], window: Window) -> None:
+    """Write into ``merged`` the cells of ``window`` of ``states`` added in the order given:
+    log-miss sums as float32, as the daemons hold them; counts in int64, which cannot
+    overflow; the limiting factor the maximum (as CoverageGrid.merge), when known."""
+    for layer in (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS):
+        out = states[0].read(layer, window)
+        if layer is Layer.N_OBS:
+            out = out.astype(np.int64)
+        for s in states[1:]:
+            out += s.read(layer, window)
+        merged.write(layer, window, out)
+    if merged.limiting_known:
+        merged.write(Layer.LIMITING, window,
+                     np.maximum.reduce([s.read(Layer.LIMITING, window) for s in states]))
 
 
 def merge_fleet(feeds: Iterable[VehicleFeed], grid_hash: str | None

@@ -4,8 +4,7 @@
 (``receive_mavlink``), a detector's frames payloads (``receive_frames``), the end of a loop
 pass (``process``), the timer (``tick``) and the outcome of what the shell did
 (``checkpoint_written``, ``journal_written``, ``put_failed``, ``snapshot_sent``) and
-snapshot queries
-(``admit_snapshot``). It never reads a clock, a socket or a file:
+snapshot queries (``admit_snapshot``). It never reads a clock, a socket or a file:
 ``now_s`` is the shell's one monotonic clock (s), and the only wall-clock time it sees is a
 value the shell passes for the checkpoint's ``written_unix_s``. What to do comes out of
 ``actions()`` (messages to send on every link, bytes to record, tiles to publish, whether a
@@ -43,7 +42,7 @@ from pdcov.bus.keys import VehicleKeys
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
 from pdcov.ids import candidate_uid_prefix, new_epoch
-from pdcov.service import candidate_store
+from pdcov.service import candidate_store, frame_admission
 from pdcov.service.actions import Actions
 from pdcov.service.candidate_store import MAX_JOURNAL_BYTES, Restored
 from pdcov.service.checkpoint_meta import (
@@ -54,20 +53,12 @@ from pdcov.service.checkpoint_meta import (
 )
 from pdcov.service.coverage import LiveCoverage
 from pdcov.service.detections import MAX_HELD_BOXES
-from pdcov.service.frame_admission import (
-    FrameRefusal,
-    known_classes,
-    refusal_of_time,
-    split_by_class,
-)
 from pdcov.service.link_setup import LinkReport, link_requests, link_state
 from pdcov.service.query_limit import QueryLimiter
 from pdcov.service.retask import Retasker, RetaskPolicy
 from pdcov.service.retask_auth import NonceBook, RetaskAuthority
 from pdcov.telemetry.frame_policy import FrameSource
-from pdcov.telemetry.link_protocol import (
-    LinkProtocol,
-)
+from pdcov.telemetry.link_protocol import LinkProtocol
 from pdcov.telemetry.recorded_frames import MAX_BOOT_MS, FrameEncoder, boot_ms, boot_s
 from pdcov.telemetry.samples import CaptureSample
 
@@ -123,7 +114,7 @@ class ServiceCore:
         # Detector frames (boot ms, boxes) before a HEARTBEAT.
         self._early_frames: deque[tuple[int, tuple[Box, ...]]] = deque()
         self._early_boxes = 0  # boxes in _early_frames (at most MAX_HELD_BOXES)
-        self._classes = known_classes(m.first_camera.detector)  # the detector frames'
+        self._classes = frame_admission.known_classes(m.first_camera.detector)
         self._status_seq = 0
         self._next_drops_warning_s = -math.inf
         self._kernel_drops = 0
@@ -190,9 +181,9 @@ class ServiceCore:
             return
         ms = []
         for f in frames:
-            boxes, unknown = split_by_class(f.boxes, self._classes)
+            boxes, unknown = frame_admission.split_by_class(f.boxes, self._classes)
             if unknown:
-                faults[FrameRefusal.UNKNOWN_CLASS.value] += unknown
+                faults[frame_admission.FrameRefusal.UNKNOWN_CLASS.value] += unknown
             ms.append((boot_ms(f.t_boot_s), boxes))
         if any(v > MAX_BOOT_MS for v, _b in ms):
             faults[Fault.FRAMES_OUT_OF_RANGE] += sum(v > MAX_BOOT_MS for v, _b in ms)
@@ -225,7 +216,7 @@ class ServiceCore:
         faults, history_s = live.counters.faults, live.first.history_s
         for v, boxes in frames:
             t = proto.autopilot_boot_s(boot_s(v))
-            refusal = refusal_of_time(t, proto.clock_now_s, history_s)
+            refusal = frame_admission.refusal_of_time(t, proto.clock_now_s, history_s)
             if refusal is not None:  # frame_admission: outside the clock's window
                 faults[refusal.value] += 1
                 faults[Fault.BOXES_OF_FRAMES_NOT_TAKEN] += len(boxes)
