@@ -7,31 +7,26 @@ from __future__ import annotations
 import tracemalloc
 
 import numpy as np
+import pytest
+import shapely
 
+from pdcov.bus.errors import BusPayloadError
+from pdcov.bus.status import decode_status, encode_status
+from pdcov.bus.tiled_snapshot import decode_grid_snapshot, encode_grid_snapshot
+from pdcov.bus.tiles import decode_tiles
 from pdcov.core.grid_layer import Layer
-from pdcov.service.coverage import LiveCoverage
-from tests.support.service_feed import SQUARE_ENU_M, feed, serve_cfg
+from pdcov.ground.watcher import Watcher
+from tests.support.service_feed import (
+    COUNTY,
+    SIDE_M,
+    SQUARE_ENU_M,
+    X0_M,
+    Y0_M,
+    feed,
+    flown,
+)
 
-SIDE_M = 30_000
-X0_M, Y0_M = -14_968, -14_968  # the county's corner: the square's cells at a whole offset
-COUNTY = ((X0_M, Y0_M), (X0_M + SIDE_M, Y0_M), (X0_M + SIDE_M, Y0_M + SIDE_M),
-          (X0_M, Y0_M + SIDE_M))
 LAYERS = (Layer.N_OBS, Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.LIMITING)
-
-
-def flown(polygon_enu_m) -> tuple[LiveCoverage, list[bytes], dict]:
-    """A 4 s flight over ``polygon_enu_m``, polled every 0.25 s: the live coverage, the
-    tiles messages and the last status's fields."""
-    cfg = serve_cfg(polygon_enu_m)
-    live = LiveCoverage(cfg, cfg.mission.new_mission_grid(), 0.0)
-    tiles = []
-    for k in range(16):
-        feed(live, 0.25 * k, 0.25 * (k + 1))
-        live.process()
-        due = live.poll(0.25 * (k + 1))
-        if due.tiles is not None:
-            tiles.append(due.tiles)
-    return live, tiles, live.status_fields(uptime_s=4.0, seq=0, link={}, checkpoint={})
 
 
 def test_a_county_flight_costs_what_a_small_one_does():
@@ -54,3 +49,68 @@ def test_a_county_flight_costs_what_a_small_one_does():
         np.testing.assert_array_equal(g.read(layer, window), small.grid.read(layer))
     observed = sum(int(np.count_nonzero(g.read(Layer.N_OBS, w))) for w in g.written_windows())
     assert status["cells_observed"] == observed > small_status["cells_observed"] > 0
+
+
+def test_a_late_watcher_holds_the_county_grid_from_its_tiled_snapshot():
+    """The county's snapshot is tiled (its free space and the tiles flown), a watcher
+    joining late rebuilds the daemon's grid from it cell for cell in the memory of the
+    tiles, follows the daemon's next tiles, and its figures are the daemon's status's."""
+    live, _tiles, _ = flown(COUNTY)
+    payload = encode_grid_snapshot(live.grid, live.tile_size, live.grid_hash)
+    assert payload[:4] == b"PDSS" and len(payload) < 1e6
+    tracemalloc.start()
+    try:
+        state = decode_grid_snapshot(payload, "pdcov/uav1/snapshot")
+        peak_b = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak_b < 40e6 and state.nbytes < 4e6
+    assert state.hash == live.grid_hash and state.frames == live.grid.frames
+    assert state.n_free == SIDE_M * SIDE_M
+    assert state.written_windows() == live.grid.written_windows()
+    for window in live.grid.written_windows():
+        for layer in LAYERS:
+            np.testing.assert_array_equal(state.read(layer, window),
+                                          live.grid.read(layer, window))
+    w = Watcher(thresholds=(0.5, 0.8))
+    w.on_snapshot("uav1", state, 0.0)
+    feed(live, 4.0, 6.0)  # the flight goes on: its tiles follow the snapshot
+    live.process()
+    due = live.poll(6.0)
+    assert due.tiles is not None
+    w.on_tiles("uav1", decode_tiles(due.tiles), 1.0)
+    doc = decode_status(encode_status(live.status_fields(uptime_s=6.0, seq=1, link={},
+                                                         checkpoint={})))
+    w.on_status("uav1", doc, 1.0)
+    held = w.feeds["uav1"].state
+    assert held is not None and held.frames == live.grid.frames
+    for window in live.grid.written_windows():
+        np.testing.assert_array_equal(held.read(Layer.LOG_MISS_D, window),
+                                      live.grid.read(Layer.LOG_MISS_D, window))
+    assert w.feeds["uav1"].status_agrees is True
+    report = w.report(1.0).vehicles[0]
+    assert report.proportion_at_or_above[0.5] == doc["proportion_at_or_above"]["0.5"] > 0
+
+
+def test_a_tiled_snapshot_that_lies_is_refused_naming_why():
+    """Bounded before it is parsed: a free space that does not give the grid hash, bytes
+    after the last part, a part cut short, a declared free space longer than the payload,
+    a grid beyond MAX_GRID_CELLS."""
+    live, _tiles, _ = flown(COUNTY)
+    good = encode_grid_snapshot(live.grid, live.tile_size, live.grid_hash)
+    header = bytearray(good[:64])
+    too_large = bytearray(header)
+    n_wkb = int.from_bytes(good[52:56], "little")  # the header's fields: tiled_snapshot.py
+    other = shapely.to_wkb(shapely.box(X0_M, Y0_M, X0_M + SIDE_M - 1, Y0_M + SIDE_M))
+    lied = bytes(header[:52]) + len(other).to_bytes(4, "little") + good[56:64] + other \
+        + good[64 + n_wkb:]
+    too_large[44:48] = (2**20).to_bytes(4, "little")  # n_cols: 30,000 x 2**20 cells
+    cases = {"the free space does not give the grid hash": lied,
+             "bytes after the last part": good + b"\x00",
+             "the payload ends": good[:-10],
+             "more than 4194304 or than the payload holds":
+                 good[:52] + (len(good)).to_bytes(4, "little") + good[56:],
+             "more than 4294967296 cells": bytes(too_large) + good[64:]}
+    for why, payload in cases.items():
+        with pytest.raises(BusPayloadError, match=why):
+            decode_grid_snapshot(payload, "pdcov/uav1/snapshot")

@@ -9,6 +9,7 @@ from pdcov.bus.session import BusConfig
 from pdcov.config.load import mission_from_dict
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.service.coverage import LiveCoverage
 from pdcov.service.settings import LinkConfig, ServeConfig, ServiceConfig
 from pdcov.telemetry.samples import AttitudeSample, PositionSample
 
@@ -43,3 +44,25 @@ def feed(live, t0, t1, *, rate=10.0, skip=()):
         lat, lon, alt = enu_to_geodetic(np.array([32.0, 2.0 * t, 10.0]), ORIGIN)
         live.add_sample(AttitudeSample(t, tuple(q)))
         live.add_sample(PositionSample(t, float(lat), float(lon), float(alt)))
+
+
+# A county: 30 x 30 km at 1 m (9 x 10^8 cells), the square's cells at a whole offset.
+SIDE_M = 30_000
+X0_M, Y0_M = -14_968, -14_968  # the county's corner: the square's cells at a whole offset
+COUNTY = ((X0_M, Y0_M), (X0_M + SIDE_M, Y0_M), (X0_M + SIDE_M, Y0_M + SIDE_M),
+          (X0_M, Y0_M + SIDE_M))
+
+
+def flown(polygon_enu_m) -> tuple[LiveCoverage, list[bytes], dict]:
+    """A 4 s flight over ``polygon_enu_m``, polled every 0.25 s: the live coverage, the
+    tiles messages and the last status's fields."""
+    cfg = serve_cfg(polygon_enu_m)
+    live = LiveCoverage(cfg, cfg.mission.new_mission_grid(), 0.0)
+    tiles = []
+    for k in range(16):
+        feed(live, 0.25 * k, 0.25 * (k + 1))
+        live.process()
+        due = live.poll(0.25 * (k + 1))
+        if due.tiles is not None:
+            tiles.append(due.tiles)
+    return live, tiles, live.status_fields(uptime_s=4.0, seq=0, link={}, checkpoint={})

@@ -143,9 +143,9 @@ def test_status_bounds():
     assert f"more than {MAX_THRESHOLDS}" in str(err) and err.reason is Refusal.OVER_BOUND
     err = refused(json.dumps({**doc, "pad": "x" * MAX_STATUS_BYTES}).encode())
     assert err.reason is Refusal.TOO_LARGE
-    grid = {**doc["grid"], "n_rows": 5000, "n_cols": 5000}
+    grid = {**doc["grid"], "n_rows": 70_000, "n_cols": 70_000}  # 4.9e9 cells > 2**32
     err = refused(json.dumps({**doc, "grid": grid}).encode())
-    assert "MAX_CELLS" in str(err) and err.reason is Refusal.OVER_BOUND
+    assert "MAX_GRID_CELLS" in str(err) and err.reason is Refusal.OVER_BOUND
 
 
 def test_the_vehicle_id_must_be_the_keys():
@@ -201,8 +201,9 @@ def tiles_payload(**header) -> bytes:
 
 def test_tiles_bounds_and_finite_time():
     decode_tiles(tiles_payload(), "pdcov/uav1/tiles")
-    err = refused(tiles_payload(n_rows=5000, n_cols=5000), decode_tiles, "pdcov/uav1/tiles")
-    assert "MAX_CELLS" in str(err) and err.reason is Refusal.OVER_BOUND
+    err = refused(tiles_payload(n_rows=70_000, n_cols=70_000), decode_tiles,
+                  "pdcov/uav1/tiles")
+    assert "MAX_GRID_CELLS" in str(err) and err.reason is Refusal.OVER_BOUND
     for t in (math.nan, math.inf):
         err = refused(tiles_payload(t_s=t), decode_tiles, "pdcov/uav1/tiles")
         assert "t_s" in str(err) and err.reason is Refusal.NON_FINITE
@@ -211,9 +212,9 @@ def test_tiles_bounds_and_finite_time():
 
 
 def test_a_tiles_bomb_declaring_a_huge_grid_inflates_nothing():
-    """A few bytes declaring a 25 M-cell grid: refused from the header, zlib never runs."""
+    """A few bytes declaring a 4.9e9-cell grid: refused from the header, zlib never runs."""
     header = struct.pack("<4sHHQ8sdIHHII", b"PDTL", 1, 0, 1, bytes(8), 0.0, 1, 1024, 24,
-                         5000, 5000)
+                         70_000, 70_000)
     body = zlib.compress(bytes(24 * (4 + 14 * 1024 * 1024)))  # ~340 MB inflated
     tracemalloc.start()
     try:

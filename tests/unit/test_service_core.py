@@ -13,6 +13,7 @@ import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from pdcov.bus.frames import encode_frames, encode_frames_v2
+from pdcov.bus.tiled_snapshot import decode_grid_snapshot, encode_grid_snapshot
 from pdcov.core.detections import Box, FrameBoxes
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import InputFileError
@@ -37,18 +38,25 @@ def core_of(tmp: Path, *, gimbal: bool = False, **service) -> ServiceCore:
     return ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h")
 
 
-def test_a_grid_larger_than_a_snapshot_carries_is_never_encoded_whole(tmp_path):
-    side = 4100  # 16.8 M cells of 1 m: more than bus.grid_state.MAX_CELLS (16 M)
+def test_a_grid_larger_than_a_grid_npz_carries_is_answered_tiled(tmp_path):
+    """16.8 M cells, more than a grid.npz snapshot carries (MAX_CELLS, 16 M): the snapshot
+    query is answered with the tiled snapshot, which a watcher decodes to the same grid."""
+    side = 4100
     doc = dict(MISSION, mount=FIXED, domain={
         "polygon_enu_m": [[0, 0], [side, 0], [side, side], [0, side]], "cell_size_m": 1.0})
     doc["service"] = {"state_dir": str(tmp_path / "state")}
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
     cfg = load_serve_config(tmp_path / "m.yaml")
     core = ServiceCore(cfg, cfg.mission.new_mission_grid(), 0.0, mission_hash="h")
-    assert core.admit_snapshot("a", 0.0) == ("the grid's 16,810,000 cells are more than a "
-                                             "snapshot carries (16,000,000)")
+    assert core.admit_snapshot("a", 0.0) is None
+    live = core.coverage
+    payload = encode_grid_snapshot(live.grid, live.tile_size, live.grid_hash)
+    assert payload[:4] == b"PDSS" and len(payload) < 1000  # no tile written yet
+    state = decode_grid_snapshot(payload)
+    assert state.hash == live.grid_hash and state.n_free == side * side
     (tmp_path / "small").mkdir()
-    assert core_of(tmp_path / "small").admit_snapshot("a", 0.0) is None
+    small = core_of(tmp_path / "small").coverage
+    assert encode_grid_snapshot(small.grid, small.tile_size, small.grid_hash)[:2] == b"PK"
 
 
 def parsed(data: bytes) -> list:

@@ -35,22 +35,9 @@ from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 
 MAX_CELLS = 16_000_000
-"""Largest grid a decoder accepts (a 4 km square at 1 m; missions hold about 1 M cells): a
-bound on memory (a watcher holds about 13 bytes a cell per vehicle), not a limit of the
-format. Checked against the declared shape before anything is allocated or inflated."""
-
-
-def unseen_grid_warning(geometry: GridGeometry) -> str | None:
-    """What the pilot and operator must know of a grid larger than MAX_CELLS: the ground
-    station refuses its snapshot and tiles, so the vehicle's coverage is never shown (None
-    when it fits)."""
-    n = geometry.n_rows * geometry.n_cols
-    if n <= MAX_CELLS:
-        return None
-    return (f"the grid is {geometry.n_rows:,} x {geometry.n_cols:,} = {n:,} cells, more than "
-            f"the {MAX_CELLS:,} a ground station (pdcov watch) accepts: its coverage will be "
-            "computed and checkpointed but not shown; grow domain.cell_size_m or split the "
-            "domain")
+"""Largest grid a grid.npz snapshot carries (a 4 km square at 1 m): its arrays are whole, so
+this bounds what decoding one allocates (checked against the declared shape before anything
+is allocated or inflated). A larger grid's snapshot is tiled (bus/tiled_snapshot.py)."""
 
 
 MAX_SNAPSHOT_BYTES = 128 << 20

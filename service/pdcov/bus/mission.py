@@ -26,10 +26,10 @@ from shapely.geometry import Polygon
 from shapely.validation import explain_validity
 
 from pdcov.bus.errors import Refusal, Refuser
-from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
+from pdcov.bus.grid_state import GRID_HASH, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, is_number, json_object
 from pdcov.config.mission import MAX_THRESHOLDS
-from pdcov.core.domain import Domain, GridGeometry
+from pdcov.core.domain import MAX_GRID_CELLS, Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import PdcovError
 
@@ -105,7 +105,7 @@ def decode_mission(payload: bytes, key: str = "mission",
                    vehicle_id: str | None = None) -> MissionGeometry:
     """Validate a mission payload: size, UTF-8 JSON, schema and version, the vehicle id
     (``vehicle_id`` when given: the one in the key), a 16-digit grid hash, an origin in
-    range, a grid of at most MAX_CELLS, closed rings of finite positions forming valid
+    range, a grid of at most MAX_GRID_CELLS, closed rings of finite positions forming valid
     polygons of non-zero area, the boundary inside the grid, WGS84 rings agreeing with the
     ENU ones within WGS84_TOLERANCE_M, thresholds and target in (0, 1]. Raises
     BusPayloadError naming ``key`` and the field; nothing is returned from bad data."""
@@ -204,8 +204,8 @@ def _grid(g: dict[str, Any], bad: Refuser) -> GridGeometry:
     if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
                for n in (n_rows, n_cols)):
         raise bad("grid: n_rows and n_cols: expected positive integers")
-    if n_rows * n_cols > MAX_CELLS:
-        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_CELLS {MAX_CELLS}",
+    if n_rows * n_cols > MAX_GRID_CELLS:
+        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_GRID_CELLS {MAX_GRID_CELLS}",
                   Refusal.OVER_BOUND)
     try:
         return GridGeometry(float(x0), float(y0), float(c), n_rows, n_cols)

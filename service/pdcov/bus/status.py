@@ -27,11 +27,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from pdcov.bus.errors import Refusal, Refuser
-from pdcov.bus.grid_state import GRID_HASH, MAX_CELLS, MAX_ENU_M
+from pdcov.bus.grid_state import GRID_HASH, MAX_ENU_M
 from pdcov.bus.json_doc import Fields, check_schema, finite_or_null, is_number, json_object
 from pdcov.bus.tiles import MAX_TILE_SIZE
 from pdcov.config.mission import MAX_THRESHOLDS
 from pdcov.core.detections import UID_RULE, valid_uid
+from pdcov.core.domain import MAX_GRID_CELLS
 from pdcov.telemetry.samples import MAX_GNSS_ACCURACY_M
 
 STATUS_SCHEMA = "pdcov.status"
@@ -284,10 +285,10 @@ def _check_grid(g: Fields, bad: Refuser) -> int:
         g.number(name, -MAX_ENU_M, MAX_ENU_M)
     if not g.number("cell_size_m") > 0:
         raise bad("grid.cell_size_m: expected a positive number of metres")
-    n_rows = g.integer("n_rows", 1, MAX_CELLS)
-    n_cols = g.integer("n_cols", 1, MAX_CELLS)
-    if n_rows * n_cols > MAX_CELLS:
-        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_CELLS {MAX_CELLS}",
+    n_rows = g.integer("n_rows", 1, MAX_GRID_CELLS)
+    n_cols = g.integer("n_cols", 1, MAX_GRID_CELLS)
+    if n_rows * n_cols > MAX_GRID_CELLS:
+        raise bad(f"grid: {n_rows} x {n_cols} cells: at most MAX_GRID_CELLS {MAX_GRID_CELLS}",
                   Refusal.OVER_BOUND)
     g.integer("tile_size", 1, MAX_TILE_SIZE)
     origin = g.obj("origin")

@@ -29,9 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from pdcov.bus.errors import BusPayloadError, Refusal, Refuser
-from pdcov.bus.grid_state import MAX_CELLS, GridState, check_values
+from pdcov.bus.grid_state import GridState, check_values
 from pdcov.bus.grid_state import grid_hash as hash_of_grid
 from pdcov.bus.tile_blocks import tile_blocks
+from pdcov.core.domain import MAX_GRID_CELLS
 from pdcov.core.grid_layer import CellSource, Layer
 
 MAGIC = b"PDTL"
@@ -138,7 +139,7 @@ def encode_tiles(source: CellSource, tiles: Iterable[tuple[int, int]], *, seq: i
 def decode_tiles(payload: bytes, key: str = "tiles",
                  max_body_bytes: int = MAX_BODY_BYTES) -> TileUpdate:
     """Validate and decode a tiles message: at most MAX_TILES_BYTES, magic, version, a t_s
-    not NaN nor +inf, header sizes, a grid of at most MAX_CELLS (checked before inflating),
+    not NaN nor +inf, header sizes, a grid of at most MAX_GRID_CELLS (checked before inflating),
     tile indices inside the grid and not repeated, the exact body length (the inflated size
     is capped before inflating: no zlib bomb), log-miss sums <= 0 and not NaN, counts and
     (version 2) limiting codes in range. Version 1 decodes with limiting None. Raises
@@ -163,9 +164,9 @@ def decode_tiles(payload: bytes, key: str = "tiles",
     if not 1 <= tile_size <= MAX_TILE_SIZE or n_rows < 1 or n_cols < 1:
         raise bad(f"tile_size {tile_size}, grid {n_rows} x {n_cols}: expected tile_size "
                   f"1..{MAX_TILE_SIZE} and at least one row and column")
-    if n_rows * n_cols > MAX_CELLS:
-        raise bad(f"grid {n_rows} x {n_cols}: more than MAX_CELLS {MAX_CELLS} cells",
-                  Refusal.OVER_BOUND)
+    if n_rows * n_cols > MAX_GRID_CELLS:
+        raise bad(f"grid {n_rows} x {n_cols}: more than MAX_GRID_CELLS {MAX_GRID_CELLS} "
+                  "cells", Refusal.OVER_BOUND)
     n_tr, n_tc = tile_grid_shape(tile_size, n_rows, n_cols)
     if n_tiles > n_tr * n_tc:
         raise bad(f"{n_tiles} tiles, the grid has {n_tr * n_tc}", Refusal.OVER_BOUND)

@@ -58,12 +58,7 @@ def run_serve(args: argparse.Namespace) -> int:
             print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
 
         grid = cfg.mission.new_mission_grid()
-        from pdcov.bus.grid_state import unseen_grid_warning
         from pdcov.service.memory_budget import memory_check, memory_limit_bytes
-
-        unseen = unseen_grid_warning(grid.geometry)
-        if unseen is not None:
-            print(f"pdcov serve --check: WARNING: {unseen}", file=sys.stderr)
 
         memory = memory_check(cfg.mission, grid.n_free,
                               grid.geometry.n_rows * grid.geometry.n_cols,

@@ -21,13 +21,13 @@ from typing import Any
 from pdcov.bus.detections import decode_detections
 from pdcov.bus.errors import BusPayloadError
 from pdcov.bus.footprint import decode_footprint
-from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.keys import VehicleKeys, parse_key
 from pdcov.bus.mission import decode_mission
 from pdcov.bus.retask import RetaskReply, decode_retask_reply
 from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.sources import SessionId, reply_session, source_info, source_session
 from pdcov.bus.status import decode_status
+from pdcov.bus.tiled_snapshot import decode_grid_snapshot
 from pdcov.bus.tiles import decode_tiles
 from pdcov.ground.queries import QueryCandidates, QueryMission, QuerySnapshot
 from pdcov.ground.watcher import Watcher
@@ -245,7 +245,7 @@ class WatchShell:
                 return decode_mission(payload, key, vehicle_id)
             if kind == "candidates":
                 return decode_detections(payload, key, vehicle_id)
-            return (decode_snapshot if kind == "snapshot" else decode_footprint)(payload, key)
+            return (decode_grid_snapshot if kind == "snapshot" else decode_footprint)(payload, key)
 
         decoded = []
         for source, payload in replies:

@@ -19,9 +19,9 @@ from functools import partial
 from typing import Any
 
 from pdcov.bus.footprint import encode_footprint
-from pdcov.bus.grid_state import encode_snapshot
 from pdcov.bus.mission import encode_mission
 from pdcov.bus.sources import SourcedPublisher, source_session
+from pdcov.bus.tiled_snapshot import encode_grid_snapshot
 from pdcov.service.core import ServiceCore
 from pdcov.service.settings import ServeConfig
 from pdcov.telemetry.frame_policy import FrameSource
@@ -152,9 +152,11 @@ class BusEndpoints:
 
     def _snapshot_bytes(self) -> bytes:
         """The grid's snapshot, encoded again only once the grid took another frame."""
-        grid = self.core.coverage.grid
+        live = self.core.coverage
+        grid = live.grid
         if self._snapshot is None or self._snapshot[0] != grid.frames:
-            self._snapshot = (grid.frames, encode_snapshot(grid))
+            self._snapshot = (grid.frames, encode_grid_snapshot(grid, live.tile_size,
+                                                                live.grid_hash))
         return self._snapshot[1]
 
     def _footprint_bytes(self) -> bytes:

@@ -367,12 +367,12 @@ class ServiceCore:
 
     def admit_snapshot(self, requester: str | None, now_s: float) -> str | None:
         """Whether a snapshot query of ``requester`` (its Zenoh session) is answered at
-        ``now_s``: None, or why not (a grid too large, ``snapshot_refusal``; over its rate or
-        all replies' bytes/s: query_limit, counted in faults.snapshot_queries_refused).
-        ``snapshot_sent`` then takes the reply's size."""
-        limiter, too_large = self.snapshot_limiter, self.coverage.snapshot_refusal()
-        refusal = None if too_large else limiter.admit(requester, now_s)
-        return too_large or (None if refusal is None else limiter.limits.reason(refusal))
+        ``now_s``: None, or why not (over its rate or all replies' bytes/s: query_limit,
+        counted in faults.snapshot_queries_refused). ``snapshot_sent`` then takes the reply's
+        size."""
+        limiter = self.snapshot_limiter
+        refusal = limiter.admit(requester, now_s)
+        return None if refusal is None else limiter.limits.reason(refusal)
 
     def snapshot_sent(self, n_bytes: int) -> None:
         self.snapshot_limiter.sent(n_bytes)

@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pdcov.bus.faults import Fault
-from pdcov.bus.grid_state import MAX_CELLS, grid_hash
+from pdcov.bus.grid_state import grid_hash
 from pdcov.bus.tile_metrics import TileMetrics
 from pdcov.core.combine_cameras import combine_cameras
 from pdcov.core.geodesy import Origin
@@ -367,15 +367,6 @@ class LiveCoverage:
         return sum(cam.schedule.frames_pending for cam in self.cameras)
 
     # --- output ---------------------------------------------------------------------------
-
-    def snapshot_refusal(self) -> str | None:
-        """Why the grid is never sent whole: more cells than a snapshot carries (no
-        watcher takes it: bus.grid_state.MAX_CELLS; its encoding would stall the loop);
-        None when it may be."""
-        g = self.grid.geometry
-        n = g.n_rows * g.n_cols
-        return (f"the grid's {n:,} cells are more than a snapshot carries ({MAX_CELLS:,})"
-                if n > MAX_CELLS else None)
 
     def share_at_target(self) -> float:
         return self.metrics.summary().proportion_at_or_above(self.target_pd)

@@ -8,9 +8,10 @@ The grid holds only the cells frames have seen (tiles, core/tiles.py), so the es
 numpy, OpenCV and Zenoh; one batch of frames evaluated at once (flight/camera_frames.py:
 frames spanning a quarter of the tracker's history, max(20 s, 8 x max_gap_s),
 BYTES_PER_BATCHED_FRAME each); each camera's grid at BYTES_PER_SEEN_CELL per cell seen (its
-layers, and the copies a checkpoint being written may hold); and, for a grid a ground
-station accepts (at most bus.grid_state.MAX_CELLS), the snapshot encoded for it,
-BYTES_PER_SNAPSHOT_CELL per cell of the domain. A mission is refused when not even
+layers, and the copies a checkpoint being written may hold); and the snapshot a ground
+station is sent: a grid.npz up to bus.grid_state.MAX_CELLS cells,
+BYTES_PER_SNAPSHOT_CELL per cell of the domain, tiled above (bus/tiled_snapshot.py),
+BYTES_PER_TILED_SNAPSHOT_CELL per cell seen. A mission is refused when not even
 SEARCH_MIN_M2 of its free cells searched would fit; it is warned of when its whole domain
 searched would not, with the area that fits. The limit is the least of the cgroup's
 memory.max (the systemd unit's MemoryMax) and the machine's MemAvailable, read by
@@ -31,12 +32,13 @@ if TYPE_CHECKING:
     from pdcov.config.mission import Mission
 
 __all__ = ["BASE_BYTES", "BYTES_PER_BATCHED_FRAME", "BYTES_PER_SEEN_CELL",
-           "BYTES_PER_SNAPSHOT_CELL", "MemoryCheck", "estimate_bytes", "memory_check",
-           "memory_limit_bytes"]
+           "BYTES_PER_SNAPSHOT_CELL", "BYTES_PER_TILED_SNAPSHOT_CELL", "MemoryCheck",
+           "estimate_bytes", "memory_check", "memory_limit_bytes"]
 
 BASE_BYTES = 150 << 20
 BYTES_PER_SEEN_CELL = 32
 BYTES_PER_SNAPSHOT_CELL = 64
+BYTES_PER_TILED_SNAPSHOT_CELL = 32  # the tiles' 15 wire bytes a cell, joined, and compressed
 BYTES_PER_BATCHED_FRAME = 2048
 SEARCH_MIN_M2 = 1e6
 
@@ -48,7 +50,8 @@ def estimate_bytes(seen_cells: int, domain_cells: int, frame_rates_hz: Sequence[
     batch_s = BATCH_OF_HISTORY * tracker_history_s(max_gap_s)
     batch = sum(rate * batch_s for rate in frame_rates_hz)
     cameras = len(frame_rates_hz) + (len(frame_rates_hz) > 1)  # and the combined grid
-    snapshot = domain_cells * BYTES_PER_SNAPSHOT_CELL if domain_cells <= MAX_CELLS else 0
+    snapshot = (domain_cells * BYTES_PER_SNAPSHOT_CELL if domain_cells <= MAX_CELLS
+                else seen_cells * BYTES_PER_TILED_SNAPSHOT_CELL)
     return int(BASE_BYTES + seen_cells * BYTES_PER_SEEN_CELL * cameras + snapshot
                + batch * BYTES_PER_BATCHED_FRAME)
 

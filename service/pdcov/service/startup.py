@@ -10,7 +10,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pdcov.bus.grid_state import unseen_grid_warning
 from pdcov.errors import ConfigError
 from pdcov.service.checkpoint import CHECKPOINT_NAME, resume
 from pdcov.service.checkpoint_meta import CheckpointState
@@ -30,9 +29,6 @@ def start_core(cfg: ServeConfig, files: StateFiles, clock: Callable[[], float]) 
     m = cfg.mission
     state_dir = files.state_dir
     grid = m.new_mission_grid()
-    unseen = unseen_grid_warning(grid.geometry)
-    if unseen is not None:
-        log.warning("%s", unseen)
     mhash = mission_hash(m, grid)
     cameras = {c.name: m.new_grid(c) for c in m.cameras} if m.several_cameras else None
     r = resume(state_dir, mhash, grid, cameras)
