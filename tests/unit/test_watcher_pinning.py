@@ -246,3 +246,19 @@ def test_fake_vehicles_on_another_grid_do_not_swing_the_fleet_map():
     w2.on_snapshot("uav9", decode_snapshot(real.snapshot()), 0.0, DAEMON)
     w2.on_snapshot("aaa0", fake, 1.0, ROGUE)
     assert w2.fleet_state()[1] == ("uav9",)
+
+
+def test_the_grids_nearing_the_memory_limit_are_warned_of():
+    """No cap per vehicle but memory: past half of what the ground station may use, the
+    report says how much the grids take, of what, and what to do."""
+    pub = TinyPublisher("uav1")
+    pub.step(5)
+    state = decode_snapshot(pub.snapshot())
+    w = Watcher(memory_limit=(5 * state.nbytes, "MemAvailable in /proc/meminfo"))
+    w.on_snapshot("uav1", state, 0.0, DAEMON)
+    assert not any("grids take" in line for line in w.report(1.0).warnings)
+    assert w.grid_bytes() == state.nbytes + w.fleet.state.nbytes  # the vehicle's, the merge
+    w.memory_limit = (3 * state.nbytes, "MemAvailable in /proc/meminfo")
+    line, = (line for line in w.report(1.0).warnings if "grids take" in line)
+    assert "of the" in line and "MemAvailable in /proc/meminfo" in line
+    assert "--vehicle" in line

@@ -114,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
     from pdcov.planning.refly import ReflySettings
+    from pdcov.service.memory_budget import memory_limit_bytes
 
     if args.refly is not None and not valid_vehicle_id(args.refly):
         raise ConfigError(f"--refly {args.refly!r}: expected a vehicle id ({VEHICLE_ID_RULE})")
@@ -143,4 +144,5 @@ def run(args: argparse.Namespace) -> int:
         basemap=basemap, plans=plans,
         record=args.record, once=args.once, wait_s=args.wait_s, cot=args.cot,
         plain=args.plain or not stdout_is_terminal(), refly=args.refly,
-        refly_settings=settings, yes=args.yes, operator_key=operator_key))
+        refly_settings=settings, yes=args.yes, operator_key=operator_key,
+        memory_limit=memory_limit_bytes()))

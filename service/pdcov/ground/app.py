@@ -84,6 +84,7 @@ class WatchOptions:
     refly_settings: ReflySettings | None = None
     yes: bool = False
     operator_key: OperatorKey | None = None
+    memory_limit: tuple[int, str] | None = None  # bytes this process may hold, and whence
 
     def __post_init__(self) -> None:
         if (self.web is None) != (self.web_access is None):
@@ -155,7 +156,8 @@ async def _main(opts: WatchOptions) -> int:
         quiet_hint=quiet_hint(opts.bus),
         quiet_after_s=min(QUIET_AFTER_S, opts.wait_s) if opts.once else QUIET_AFTER_S,
         roster=roster_of(opts.mission.raw, opts.mission.source) if opts.mission else Roster(),
-        detection_log=exports.detection_log if exports else None)
+        detection_log=exports.detection_log if exports else None,
+        memory_limit=opts.memory_limit)
     if opts.once or not opts.plain:  # else the "following ..." line below names it
         print(f"pdcov watch: zenoh session {describe_session(opts.bus)}", file=sys.stderr,
               flush=True)

@@ -70,6 +70,9 @@ __all__ = ["MAX_VEHICLES", "Watcher"]
 MAX_VEHICLES = 64
 """Vehicles a watcher follows at most; ids beyond it are refused and counted (a rogue on an
 open bus could otherwise invent vehicles without end)."""
+MEMORY_WARNING_SHARE = 0.5
+"""The grids held may take this share of the memory the ground station may use before the
+report warns (``Watcher.memory_limit``)."""
 
 
 class Watcher:
@@ -103,8 +106,10 @@ class Watcher:
                  bus_warning: str | None = None, quiet_hint: str | None = None,
                  quiet_after_s: float = 10.0, max_candidates: int = MAX_CANDIDATES_KEPT,
                  max_detections: int = MAX_DETECTIONS_KEPT, roster: Roster | None = None,
-                 detection_log: DetectionLog | None = None) -> None:
+                 detection_log: DetectionLog | None = None,
+                 memory_limit: tuple[int, str] | None = None) -> None:
         self.vehicle = vehicle
+        self.memory_limit = memory_limit
         self.thresholds = tuple(thresholds)
         self.grid_hash = grid_hash
         self.snapshot_timeout_s = snapshot_timeout_s
@@ -387,10 +392,30 @@ class Watcher:
                      f"{self.quiet_hint}")
         return FleetReport(vehicles, self.fleet.ids, thresholds, target, props, mean_pd, cells_free,
                            dict(self.refused),
-                           tuple(w for w in (self.bus_warning, quiet) if w),
+                           tuple(w for w in (self.bus_warning, quiet, self._memory_warning())
+                                 if w),
                            {vid: f"{NOT_ON_ROSTER} ({n} samples refused, not merged)"
                             for vid, n in sorted(self.unknown.items())},
                            tuple(n for n in (self.roster.notice,) if n))
+
+    def grid_bytes(self) -> int:
+        """Bytes the grids held take: every vehicle's tiles and the fleet's merge."""
+        states = [f.state for f in self.feeds.values()] + [self.fleet.state]
+        return sum(s.nbytes for s in states if s is not None)
+
+    def _memory_warning(self) -> str | None:
+        """What the operator must know before the grids outgrow this machine: there is no
+        cap per vehicle but memory (``memory_limit``: what it may hold, and whence)."""
+        if self.memory_limit is None:
+            return None
+        limit, whence = self.memory_limit
+        held = self.grid_bytes()
+        if held <= MEMORY_WARNING_SHARE * limit:
+            return None
+        return (f"the vehicles' grids take {held / 1e6:,.0f} MB, more than "
+                f"{MEMORY_WARNING_SHARE:.0%} of the {limit / 1e6:,.0f} MB this ground station "
+                f"may use ({whence}): as the search grows it may run out of memory; follow "
+                "fewer vehicles (--vehicle) or a coarser grid")
 
     # -- internals ----------------------------------------------------------------------
 
