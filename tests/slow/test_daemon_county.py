@@ -4,6 +4,7 @@ square, and its flown cells equal the small square's grid."""
 
 from __future__ import annotations
 
+import json
 import tracemalloc
 
 import numpy as np
@@ -15,6 +16,9 @@ from pdcov.bus.status import decode_status, encode_status
 from pdcov.bus.tiled_snapshot import decode_grid_snapshot, encode_grid_snapshot
 from pdcov.bus.tiles import decode_tiles
 from pdcov.core.grid_layer import Layer
+from pdcov.core.grid_store import read_store_like
+from pdcov.ground.record import Recording
+from pdcov.ground.record_exports import coverage_of
 from pdcov.ground.watcher import Watcher
 from tests.support.service_feed import (
     COUNTY,
@@ -114,3 +118,39 @@ def test_a_tiled_snapshot_that_lies_is_refused_naming_why():
     for why, payload in cases.items():
         with pytest.raises(BusPayloadError, match=why):
             decode_grid_snapshot(payload, "pdcov/uav1/snapshot")
+
+
+def test_a_county_recording_writes_the_tiles_flown(tmp_path):
+    """`pdcov watch --record` of a county: each vehicle's grid and the fleet's written as
+    their grid stores (the tiles flown, equal to the daemon's), the fleet's figures over
+    the whole domain; with the mission config the report's outputs cropped to the extent
+    flown."""
+    live, _tiles, fields = flown(COUNTY)
+    vid = fields["vehicle_id"]
+    w = Watcher(thresholds=(0.5, 0.8))
+    w.on_snapshot(vid, decode_grid_snapshot(
+        encode_grid_snapshot(live.grid, live.tile_size, live.grid_hash)), 0.0)
+    rec = Recording(tmp_path / "plain")
+    lines = rec.finish(w, None)
+    assert "wrote grid.zarr and metrics.json" in lines[-1], lines
+    for folder in (vid, "fleet"):
+        back = read_store_like(tmp_path / "plain" / folder / "grid.zarr", live.grid)
+        assert back.tile_keys() == live.grid.tile_keys()
+        for window in live.grid.written_windows():
+            for layer in LAYERS:
+                np.testing.assert_array_equal(back.read(layer, window),
+                                              live.grid.read(layer, window))
+    doc = json.loads((tmp_path / "plain" / "fleet" / "metrics.json").read_text())
+    assert sum(doc["limiting_cells"].values()) == SIDE_M * SIDE_M
+    assert doc["limiting_cells"] == live.grid.limiting_counts()
+    assert doc["proportion_at_or_above"]["0.5"] == live.grid.metrics(
+        [0.5]).proportion_at_or_above[0.5] > 0
+    w.on_status(vid, decode_status(encode_status(fields)), 0.5)
+    coverage = coverage_of(w)  # the exports written while recording: the extent flown
+    assert coverage is not None and coverage.mask.size < 2e6
+    assert coverage.pd.max() == max(live.grid.read(Layer.PD, window).max()
+                                    for window in live.grid.written_windows())
+    report = Recording(tmp_path / "report").finish(w, live.cfg.mission)
+    metrics = json.loads((tmp_path / "report" / "fleet" / "metrics.json").read_text())
+    assert metrics["cells_free"] == SIDE_M * SIDE_M and metrics["extent"]["cropped"], report
+    assert (tmp_path / "report" / "fleet" / "grid.zarr").is_dir()

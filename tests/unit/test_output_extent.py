@@ -133,7 +133,7 @@ def test_terrain_and_hidden_cells_are_drawn_by_block(monkeypatch):
         grid.update(pose(yaw_deg=90.0, xyz=(-15.0, y, 16.0), cam_pitch_deg=-50.0))
     hidden = grid.limiting == LimitingFactor.HIDDEN
     assert hidden.any()
-    drawn = drawn_raster(grid, extent_of(grid), hidden=True)
+    drawn = drawn_raster(grid, extent_of(grid), hidden=True, terrain=grid.terrain)
     assert drawn.pd.shape == (20, 20) and drawn.terrain_z_m is not None
     z = grid.terrain.centre_z_m(0, 60, 0, 60)
     np.testing.assert_allclose(drawn.terrain_z_m, z.reshape(20, 3, 20, 3).mean(axis=(1, 3)))

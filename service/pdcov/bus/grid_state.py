@@ -28,9 +28,11 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer, Window
+from pdcov.core.grid_metrics import limiting_counts
 from pdcov.core.grid_snapshot import READABLE_SNAPSHOT_VERSIONS
+from pdcov.core.grid_store import StoreUpdate, layers_update
 from pdcov.core.limiting import LimitingFactor
-from pdcov.core.tiles import TileClock, TiledLayer, TileKey
+from pdcov.core.tiles import TileClock, TiledLayer, TileKey, TileLayout
 from pdcov.errors import DomainError
 from pdcov.npz_file import DAMAGED
 
@@ -141,6 +143,11 @@ class GridState:
         return grid_hash(self.geometry, self.free)
 
     @property
+    def layout(self) -> TileLayout:
+        """How the layers are cut into tiles (the free cells')."""
+        return self.free.layout
+
+    @property
     def n_free(self) -> int:
         return self.free.n_free
 
@@ -162,7 +169,7 @@ class GridState:
 
     def written_windows(self) -> list[Window]:
         """Each written tile's cells, row by row (``CellSource``)."""
-        return [self.free.layout.window_of(k) for k in self.tile_keys()]
+        return [self.layout.window_of(k) for k in self.tile_keys()]
 
     def read(self, layer: Layer, window: Window | None = None) -> np.ndarray:
         """The cells of ``window`` (None: all) of ``layer`` (``core.grid_layer.CellSource``):
@@ -185,6 +192,20 @@ class GridState:
     def write(self, layer: Layer, window: Window, values: np.ndarray | float) -> None:
         """Set the cells of ``window`` of a stored layer to ``values``."""
         self._layers[layer].write(window, values)
+
+    def limiting_counts(self) -> dict[str, int]:
+        """Free cells per LimitingFactor, by lower-case name (``grid_metrics``'s rule, tile
+        by tile). ValueError when unknown."""
+        if not self.limiting_known:
+            raise ValueError("the grid's limiting factors are unknown")
+        return limiting_counts(self._layers[Layer.LIMITING].tiles, self.free)
+
+    def store_update(self) -> StoreUpdate:
+        """Every tile written, as a grid store takes them (core/grid_store.py; the limiting
+        factors only when known)."""
+        return layers_update(self.free, {
+            layer: tiled for layer, tiled in self._layers.items()
+            if layer is not Layer.LIMITING or self.limiting_known}, self.frames)
 
     def forget_limiting(self) -> None:
         """The limiting factors became unknown (cells rewritten by a version-1 tiles

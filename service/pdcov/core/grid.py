@@ -317,7 +317,7 @@ class CoverageGrid:
 
     def limiting_counts(self) -> dict[str, int]:
         """Free cells per LimitingFactor, by lower-case name, in code order."""
-        return limiting_counts(self)
+        return limiting_counts(self.layer(Layer.LIMITING).tiles, self.free)
 
     # -- the camera of a frame --------------------------------------------------------------
 

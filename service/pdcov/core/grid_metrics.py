@@ -4,6 +4,7 @@ were never in view)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -11,8 +12,10 @@ import numpy as np
 
 from pdcov.core.grid_layer import Layer
 from pdcov.core.limiting import LimitingFactor
+from pdcov.core.tiles import TileKey
 
 if TYPE_CHECKING:
+    from pdcov.core.free_cells import FreeCells
     from pdcov.core.grid import CoverageGrid
 
 
@@ -58,16 +61,16 @@ def grid_metrics(grid: CoverageGrid, thresholds: tuple[float, ...] | list[float]
                                 for t in thresholds},
         mean_pd=sum_pd / n_free if n_free else 0.0,
         expected_false_alarms=false_alarms,
-        limiting_cells=limiting_counts(grid),
+        limiting_cells=limiting_counts(grid.layer(Layer.LIMITING).tiles, grid.free),
     )
 
 
-def limiting_counts(grid: CoverageGrid) -> dict[str, int]:
-    """Free cells per LimitingFactor, by lower-case name, in code order (free cells of
-    no tile: NEVER_IN_VIEW)."""
+def limiting_counts(tiles: Mapping[TileKey, np.ndarray], free: FreeCells) -> dict[str, int]:
+    """Free cells per LimitingFactor, by lower-case name, in code order, of a grid's
+    limiting ``tiles`` (those written) and its ``free`` cells (free cells of no tile:
+    NEVER_IN_VIEW)."""
     counts = np.zeros(len(LimitingFactor), dtype=np.int64)
-    limiting = grid.layer(Layer.LIMITING)
-    for key, tile in limiting.tiles.items():
-        counts += np.bincount(tile[grid.free.tile(key)], minlength=len(LimitingFactor))
-    counts[LimitingFactor.NEVER_IN_VIEW] += grid.free.n_free - int(counts.sum())
+    for key, tile in tiles.items():
+        counts += np.bincount(tile[free.tile(key)], minlength=len(LimitingFactor))
+    counts[LimitingFactor.NEVER_IN_VIEW] += free.n_free - int(counts.sum())
     return {f.name.lower(): int(counts[f]) for f in LimitingFactor}

@@ -123,11 +123,38 @@ def frozen_update(grid: CoverageGrid, keys: Iterable[TileKey] | None = None
 def _update(grid: CoverageGrid, layers: Mapping[Layer, TiledLayer], keys: list[TileKey],
             tiles: Mapping[Layer, Mapping[TileKey, np.ndarray]],
             frozen: FrozenTiles | None) -> StoreUpdate:
+    latest = grid.latest_frame_t_s
+    return _of_layers(grid.free, grid.looks.rule, layers, keys, tiles, frozen, {
+        "frames": grid.frames, "frames_blurred": grid.frames_blurred,
+        "latest_frame_t_s": latest if math.isfinite(latest) else None})
+
+
+def layers_update(free: FreeCells, layers: Mapping[Layer, TiledLayer], frames: int
+                  ) -> StoreUpdate:
+    """Every tile of ``layers`` (a grid of independent looks without a revisit clock, on
+    ``free``'s cells: a ground station's copy of a daemon's grid) and ``frames``, copied
+    now, as ``store_update`` gives a coverage grid's."""
+    keys = sorted({k for t in layers.values() for k in t.tiles})
+    tiles = {layer: {k: t.copy() for k, t in tiled.tiles.items()}
+             for layer, tiled in layers.items()}
+    return _of_layers(free, LooksRule.INDEPENDENT, layers, keys, tiles, None, {
+        "frames": frames, "frames_blurred": 0, "latest_frame_t_s": None})
+
+
+def _of_layers(free: FreeCells, looks: LooksRule, layers: Mapping[Layer, TiledLayer],
+               keys: list[TileKey], tiles: Mapping[Layer, Mapping[TileKey, np.ndarray]],
+               frozen: FrozenTiles | None, counts: dict[str, Any]) -> StoreUpdate:
+    g = free.geometry
+    free_space = free.free_space
+    attrs = {"pdcov_grid": STORE_VERSION, "x0_m": g.x0_m, "y0_m": g.y0_m,
+             "cell_size_m": g.cell_size_m, "n_rows": g.n_rows, "n_cols": g.n_cols,
+             "tile_cells": free.layout.size, **counts, "looks": str(looks),
+             "free_space_wkb": (None if free_space is None
+                                else shapely.to_wkb(free_space, hex=True))}
     return StoreUpdate(
-        grid.geometry, grid.layout.size, grid.looks.rule,
+        g, free.layout.size, looks,
         {layer: (t.dtype, t.fill, t.depth) for layer, t in layers.items()}, keys, tiles,
-        _attributes(grid, grid.geometry),
-        grid.free.dense() if grid.free.free_space is None else None, frozen)
+        attrs, free.dense() if free_space is None else None, frozen)
 
 
 def write_store(path: str | Path, grid: CoverageGrid,
@@ -198,18 +225,6 @@ def _create(root: zarr.Group, update: StoreUpdate) -> None:
         mask = root.create_array(name="mask", shape=g.shape, chunks=chunks, dtype="bool",
                                  fill_value=False, compressors=_COMPRESSORS)
         mask[...] = update.mask
-
-
-def _attributes(grid: CoverageGrid, g: GridGeometry) -> dict[str, Any]:
-    free_space = grid.free.free_space
-    return {"pdcov_grid": STORE_VERSION, "x0_m": g.x0_m, "y0_m": g.y0_m,
-            "cell_size_m": g.cell_size_m, "n_rows": g.n_rows, "n_cols": g.n_cols,
-            "tile_cells": grid.layout.size, "frames": grid.frames,
-            "frames_blurred": grid.frames_blurred, "looks": str(grid.looks.rule),
-            "latest_frame_t_s": (grid.latest_frame_t_s if math.isfinite(grid.latest_frame_t_s)
-                                 else None),
-            "free_space_wkb": (None if free_space is None
-                               else shapely.to_wkb(free_space, hex=True))}
 
 
 def _check_same_grid(path: Path, attrs: dict[str, Any], update: StoreUpdate) -> None:

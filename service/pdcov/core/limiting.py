@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import enum
 
-import numpy as np
-
 
 class LimitingFactor(enum.IntEnum):
     """What limited a cell's P_D: the best that any frame did for it (the largest code over
@@ -17,11 +15,3 @@ class LimitingFactor(enum.IntEnum):
     TOO_SMALL = 3  # seen, but always smaller than the detector model's smallest size bin
     TOO_LARGE = 4  # seen, but only larger than its largest bin
     SEEN = 5  # seen at a size the detector model covers
-
-
-def limiting_counts(limiting: np.ndarray, mask: np.ndarray) -> dict[str, int]:
-    """Cells of ``mask`` per LimitingFactor code of ``limiting``, by lower-case name, in
-    code order."""
-    counts = np.bincount(limiting[mask], minlength=len(LimitingFactor))
-    return {f.name.lower(): int(counts[f]) for f in LimitingFactor}
-

@@ -13,9 +13,10 @@ Layout (docs/ground-station.md):
     DIR/<vehicle_id>/pins-detections.jsonl every detection taken, a JSON line each
                                     (ground/record_exports.py DetectionLog)
     DIR/exports/                    while running and at the end: ground/record_exports.py
-    DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt
-    DIR/fleet/                      at the end: the merged grid.npz and, with the mission
-                                    config, the report (metrics.json, heatmap.png, ...)
+    DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt (grid.zarr,
+                                    the grid store of its tiles, above 64 Mi cells)
+    DIR/fleet/                      at the end: the merged grid (the same way) and, with
+                                    the mission config, the report (metrics.json, ...)
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ from pdcov.bus.grid_state import GridState, grid_hash
 from pdcov.config.mission import Mission
 from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_snapshot import SNAPSHOT_VERSION
-from pdcov.core.limiting import limiting_counts
+from pdcov.core.grid_store import write_update
 from pdcov.core.looks import LooksConfig
+from pdcov.core.tiles import MAX_DENSE_CELLS
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 
@@ -62,6 +64,18 @@ def _json_line(t: float, kind: str, payload: bytes) -> bytes:
     except (ValueError, RecursionError):
         line = json.dumps({"recv_unix_s": t, kind: text})
     return (line + "\n").encode()
+
+
+def write_state_grid(folder: Path, state: GridState) -> str:
+    """Write ``state`` into ``folder`` as grid.npz (``write_state_npz``) or, above
+    MAX_DENSE_CELLS cells, as grid.zarr (its tiles, core/grid_store.py); returns the name
+    written."""
+    g = state.geometry
+    if g.n_rows * g.n_cols <= MAX_DENSE_CELLS:
+        write_state_npz(folder / "grid.npz", state)
+        return "grid.npz"
+    write_update(folder / "grid.zarr", state.store_update())
+    return "grid.zarr"
 
 
 def write_state_npz(path: Path, state: GridState) -> None:
@@ -253,7 +267,7 @@ class Recording:
         for vid, feed in sorted(watcher.feeds.items()):
             if feed.state is not None:
                 (self.out / vid).mkdir(exist_ok=True)
-                write_state_npz(self.out / vid / "grid.npz", feed.state)
+                write_state_grid(self.out / vid, feed.state)
         merged, ids = watcher.fleet_state()
         if merged is None:
             return [f"record: {self.out}: no grid was received"]
@@ -267,32 +281,33 @@ class Recording:
                 and grid_hash(grid.geometry, grid.free) == merged.hash:
             from pdcov.report.outputs import summary_text, write_outputs
 
-            everything = (0, grid.geometry.n_rows, 0, grid.geometry.n_cols)
-            for layer in (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS, Layer.LIMITING):
-                if layer is not Layer.LIMITING or merged.limiting is not None:
-                    grid.layer(layer).write(everything, merged.read(layer))
+            for window in merged.written_windows():  # tile by tile: a county's too
+                for layer in (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS,
+                              Layer.LIMITING):
+                    if layer is not Layer.LIMITING or merged.limiting_known:
+                        grid.layer(layer).write(window, merged.read(layer, window))
             grid.frames = merged.frames
             track = _track_enu(watcher, ids, mission) if len(ids) == 1 else None
             run = write_outputs(fleet, mission, grid, mission.origin(),
                                 title=f"pdcov watch: {', '.join(ids)}", track_enu=track,
                                 extra_metrics={"vehicles": list(ids)},
-                                limiting_unknown=None if merged.limiting is not None
+                                limiting_unknown=None if merged.limiting_known
                                 else LIMITING_NOT_SENT)
             lines.append(summary_text(run))
         else:
-            write_state_npz(fleet / "grid.npz", merged)
+            name = write_state_grid(fleet, merged)
             doc = {"vehicles": list(ids), "frames": merged.frames,
                    "proportion_at_or_above": {
-                       str(t): merged.proportion_at_or_above(t)
-                       for t in watcher.report(0.0).thresholds},
-                   "limiting_cells": None if merged.limiting is None
-                   else limiting_counts(merged.limiting, merged.mask)}
-            if merged.limiting is None:
+                       str(t): share for t, share in merged.proportions_at_or_above(
+                           watcher.report(0.0).thresholds).items()},
+                   "limiting_cells": merged.limiting_counts() if merged.limiting_known
+                   else None}
+            if not merged.limiting_known:
                 doc["limiting_unknown"] = LIMITING_NOT_SENT
             write_text_atomic(fleet / "metrics.json", json.dumps(doc, indent=2) + "\n")
             why = ("no --config" if mission is None
                    else "the mission config's grid is not the vehicles' grid")
-            lines.append(f"wrote grid.npz and metrics.json in {fleet} (figures need the "
+            lines.append(f"wrote {name} and metrics.json in {fleet} (figures need the "
                          f"mission config: {why})")
         return lines
 

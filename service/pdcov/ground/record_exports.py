@@ -25,6 +25,7 @@ from typing import Any
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.report.exports import Coverage, Exported, VehicleDetections, write_exports
+from pdcov.report.output_extent import drawn_raster, output_extent
 
 log = logging.getLogger("pdcov.watch")
 DETECTION_LOG = "pins-detections.jsonl"
@@ -86,7 +87,9 @@ def coverage_of(watcher: Watcher) -> Coverage | None:
     thresholds = watcher.report(0.0).thresholds
     if origin is None or not thresholds:
         return None
-    return Coverage(merged.pd, merged.mask, merged.geometry, origin, thresholds,
+    extent = output_extent(merged)  # a county's: the extent flown, drawn in blocks
+    drawn = drawn_raster(merged, extent, hidden=False)
+    return Coverage(drawn.pd, drawn.mask, drawn.geometry, origin, thresholds,
                     max(watcher.thresholds or thresholds))
 
 

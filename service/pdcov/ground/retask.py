@@ -22,6 +22,7 @@ from pdcov.bus.retask import RetaskReply, encode_signed_retask, plan_hash
 from pdcov.config.mission import Mission
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.core.mission import MissionItem
+from pdcov.core.tiles import MAX_DENSE_CELLS
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
 from pdcov.planning.mission_bounds import RetaskLimits, check_mission_bounds
@@ -158,6 +159,11 @@ def refly_inputs(watcher: Watcher, mission: Mission, config_grid_hash: str,
     if vehicle_id not in members:
         raise ReflyError(f"re-fly: vehicle {vehicle_id!r} has no grid of {merged.hash} in "
                          f"the merged grid ({', '.join(members)})")
+    g = merged.geometry
+    if g.n_rows * g.n_cols > MAX_DENSE_CELLS:
+        raise ReflyError(f"re-fly: the grid's {g.n_rows * g.n_cols:,} cells are more than "
+                         f"a re-fly plans over ({MAX_DENSE_CELLS:,}): plan it with pdcov "
+                         "refly on a mission of the area to search again")
     origin = _vehicle_origin(watcher, vehicle_id, mission)
     return ReflyInputs(vehicle_id, merged.log_miss_d.copy(), origin,
                        _start_enu_m(watcher, vehicle_id, origin))

@@ -19,16 +19,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.core.grid import CoverageGrid
-from pdcov.core.grid_layer import Layer
+from pdcov.core.grid_layer import CellSource, Layer
 from pdcov.core.limiting import LimitingFactor
-from pdcov.core.tiles import MAX_DENSE_CELLS, TILE_CELLS, Window
+from pdcov.core.terrain import TerrainSurface
+from pdcov.core.tiles import MAX_DENSE_CELLS, TILE_CELLS, TileKey, TileLayout, Window
 from pdcov.errors import PdcovError
 
 CROP_ABOVE_CELLS = MAX_DENSE_CELLS
@@ -40,6 +41,18 @@ DRAW_MAX_SIDE = 4096
 """Drawn cells a side at most (figures, outline.geojson, exports): 16 Mi cells, about
 150 MB of P_D and mask; a larger window is drawn in blocks of cells."""
 _STRIP_BLOCKS = 16  # block rows read at once when drawing in blocks
+
+
+class TiledSource(CellSource, Protocol):
+    """A grid read by window whose written tiles are known: the coverage grid, or a
+    ground station's copy of it (``bus.grid_state.GridState``)."""
+
+    @property
+    def layout(self) -> TileLayout: ...
+
+    def tile_keys(self) -> list[TileKey]:
+        """The tiles written, row by row."""
+        ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,7 +97,7 @@ def window_geometry(geometry: GridGeometry, window: Window) -> GridGeometry:
     return GridGeometry(geometry.x0_m + c * c0, geometry.y0_m + c * r0, c, r1 - r0, c1 - c0)
 
 
-def output_extent(grid: CoverageGrid) -> OutputExtent:
+def output_extent(grid: TiledSource) -> OutputExtent:
     """The extent of ``grid``'s outputs (module docstring); a large grid no frame touched
     gets its south-west tile."""
     g = grid.geometry
@@ -96,7 +109,7 @@ def output_extent(grid: CoverageGrid) -> OutputExtent:
     return OutputExtent(window, window_geometry(g, window), cropped, stride)
 
 
-def _touched_window(grid: CoverageGrid) -> Window:
+def _touched_window(grid: TiledSource) -> Window:
     """The written tiles' bounding window, grown by CROP_MARGIN_CELLS, clipped."""
     layout, m = grid.layout, CROP_MARGIN_CELLS
     windows = [layout.window_of(k) for k in grid.tile_keys()] or [layout.window_of((0, 0))]
@@ -121,12 +134,13 @@ class DrawnRaster:
     terrain_z_m: np.ndarray | None = None
 
 
-def drawn_raster(grid: CoverageGrid, extent: OutputExtent, *, hidden: bool) -> DrawnRaster:
-    """``extent`` drawn from ``grid`` (module docstring): every cell at stride 1, else
-    blocks of cells read a strip of blocks at a time (each block: its free cells'
-    smallest P_D, free if any cell is, hidden if any free cell is, its mean height)."""
+def drawn_raster(grid: CellSource, extent: OutputExtent, *, hidden: bool,
+                 terrain: TerrainSurface | None = None) -> DrawnRaster:
+    """``extent`` drawn from ``grid`` (module docstring) over ``terrain`` (the grid's; None:
+    none): every cell at stride 1, else blocks of cells read a strip of blocks at a time
+    (each block: its free cells' smallest P_D, free if any cell is, hidden if any free cell
+    is, its mean height)."""
     w, s = extent.window, extent.stride
-    terrain = grid.terrain
     if s == 1:
         mask = grid.read(Layer.MASK, w)
         return DrawnRaster(

@@ -239,7 +239,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     grid_file = write_grid_file(out, grid, with_limiting=limiting_unknown is None)
     files += [grid_file.name] if grid_file.name else []
     not_written += [grid_file.not_written] if grid_file.not_written else []
-    drawn = drawn_raster(grid, extent, hidden=limiting_unknown is None)
+    drawn = drawn_raster(grid, extent, hidden=limiting_unknown is None, terrain=grid.terrain)
     g = drawn.geometry
     gis_missing = GIS.message()
     outline: list[list[list[list[float]]]] = []
