@@ -3,7 +3,8 @@
 For grids that do not fit one file or memory, and for checkpoints that write only the tiles
 changed since the last (``write_store(..., keys=...)``). Each stored layer is an array of
 the grid's shape in chunks of the grid's tiles (``tiles.TILE_CELLS``), compressed with
-Blosc/zstd: log_miss_d, log_miss_fa (float32, <= 0), n_obs (int32), limiting (uint8), with
+Blosc/zstd and checksummed (CRC32C: a damaged chunk is refused, never read as other
+values): log_miss_d, log_miss_fa (float32, <= 0), n_obs (int32), limiting (uint8), with
 ``min_revisit_s`` last_obs_s (s, float64), and with correlated or viewpoint looks
 looks_counts or looks_best ((rows, cols, K)). A chunk never written reads as its fill value
 (0, or -inf for the clock): a tile no frame touched. ``tiles`` (uint8, one cell per tile)
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 import shapely
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec
 
 from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
@@ -50,7 +51,8 @@ STORE_VERSION = 1
 # memory), and a chunk's codecs' (Blosc and zstd raise RuntimeError, a negative size
 # SystemError).
 _DAMAGED_STORE = (*DAMAGED, RuntimeError, SystemError)
-_COMPRESSORS = (BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle"),)
+# Blosc alone may decode a damaged chunk into other valid values: the CRC32C refuses it.
+_COMPRESSORS = (BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle"), Crc32cCodec())
 _STORED = (Layer.LOG_MISS_D, Layer.LOG_MISS_FA, Layer.N_OBS, Layer.LIMITING,
            Layer.LAST_OBS_S, Layer.LOOKS)
 _TILES = "tiles"
