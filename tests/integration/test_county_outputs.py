@@ -94,6 +94,10 @@ def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
     a, ta = read_bands(small / "pd.tif")
     b, tb = read_bands(county / "pd.tif")
     assert b["pd"].shape == (512, 512)  # the touched tile grown by one, clipped at 0
+    with rasterio.open(county / "pd.tif") as src:  # a Cloud-Optimised GeoTIFF
+        assert src.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
+        assert src.block_shapes[0] == (256, 256) and src.overviews(1)
+        assert src.profile["compress"] == "deflate"
     rows, cols = np.mgrid[0:SMALL_M, 0:SMALL_M]
     x, y = rasterio.transform.xy(ta, rows, cols)  # the small raster's cell centres (m)
     rb, cb = rasterio.transform.rowcol(tb, x, y)

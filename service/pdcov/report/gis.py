@@ -11,6 +11,7 @@ GeoJSON is WGS84 longitude/latitude as RFC 7946 requires.
 from __future__ import annotations
 
 import json
+import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -52,31 +53,39 @@ def array_band(values: np.ndarray) -> BandReader:
 
 def write_geotiff(path: str | Path, bands: Mapping[str, BandReader], geometry: GridGeometry,
                   origin: Origin, mask: BandReader) -> None:
-    """Float32 GeoTIFF with one band per entry of ``bands`` over the cells of ``geometry``
-    (rows grow north, as in the grid; written north-up), NaN outside the free cells
-    (``mask``). Tiled (GEOTIFF_BLOCK), deflate-compressed, written block by block: only one
-    block of each band is in memory at once. Atomic: temp file then rename."""
+    """Float32 Cloud-Optimised GeoTIFF with one band per entry of ``bands`` over the cells
+    of ``geometry`` (rows grow north, as in the grid; written north-up), NaN outside the
+    free cells (``mask``): tiled (GEOTIFF_BLOCK), deflate-compressed, with overviews, so a
+    viewer reads a county's at any zoom a few tiles at a time. Written block by block into
+    a tiled GeoTIFF (only one block of each band in memory at once), then laid out as a COG
+    by GDAL's COG driver. Atomic: temp files then rename."""
     import rasterio
+    from rasterio.shutil import copy as gdal_copy
     from rasterio.windows import Window as RasterWindow
 
     b = GEOTIFF_BLOCK
-    with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), atomic_path(path) as tmp, rasterio.open(
-            tmp, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
-            count=len(bands), dtype="float32", crs=local_crs_wkt(origin),
-            transform=_transform(geometry), nodata=np.nan, compress="deflate", tiled=True,
-            blockxsize=b, blockysize=b) as dst:
-        for i, name in enumerate(bands, start=1):
-            dst.set_band_description(i, name)
-        for top in range(0, geometry.n_rows, b):  # file rows from the north edge
-            r1 = geometry.n_rows - top
-            r0 = max(0, r1 - b)
-            for c0 in range(0, geometry.n_cols, b):
-                c1 = min(c0 + b, geometry.n_cols)
-                w = (r0, r1, c0, c1)
-                free = mask(w)
-                block = np.stack([np.where(free, read(w), np.nan).astype(np.float32)
-                                  for read in bands.values()])
-                dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
+    with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), atomic_path(path) as cog, \
+            tempfile.TemporaryDirectory(prefix=".gtiff.", dir=Path(path).parent) as work:
+        tiled = Path(work) / "blocks.tif"
+        with rasterio.open(
+                tiled, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
+                count=len(bands), dtype="float32", crs=local_crs_wkt(origin),
+                transform=_transform(geometry), nodata=np.nan, compress="deflate",
+                tiled=True, blockxsize=b, blockysize=b) as dst:
+            for i, name in enumerate(bands, start=1):
+                dst.set_band_description(i, name)
+            for top in range(0, geometry.n_rows, b):  # file rows from the north edge
+                r1 = geometry.n_rows - top
+                r0 = max(0, r1 - b)
+                for c0 in range(0, geometry.n_cols, b):
+                    c1 = min(c0 + b, geometry.n_cols)
+                    w = (r0, r1, c0, c1)
+                    free = mask(w)
+                    block = np.stack([np.where(free, read(w), np.nan).astype(np.float32)
+                                      for read in bands.values()])
+                    dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
+        gdal_copy(tiled, cog, driver="COG", compress="DEFLATE", blocksize=b,
+                  overview_resampling="nearest")
 
 
 def read_geotiff_band(path: str | Path, geometry: GridGeometry) -> np.ndarray:
