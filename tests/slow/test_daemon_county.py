@@ -110,6 +110,7 @@ def test_a_tiled_snapshot_that_lies_is_refused_naming_why():
         + good[64 + n_wkb:]
     too_large[44:48] = (2**20).to_bytes(4, "little")  # n_cols: 30,000 x 2**20 cells
     cases = {"the free space does not give the grid hash": lied,
+             "free space: not WKB": good[:64] + bytes(n_wkb) + good[64 + n_wkb:],
              "bytes after the last part": good + b"\x00",
              "the payload ends": good[:-10],
              "more than 4194304 or than the payload holds":

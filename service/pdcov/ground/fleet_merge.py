@@ -108,10 +108,11 @@ def differs(a: GridState, b: GridState) -> set[Window]:
             if key in out:
                 continue
             tx, ty = x.get(key), y.get(key)
-            if tx is None or ty is None:
-                same = not np.any((tx if ty is None else ty) != 0)
-            else:
-                same = tx.tobytes() == ty.tobytes()
+            if tx is None:
+                tx = np.zeros_like(ty)  # a tile never written: zero bits
+            if ty is None:
+                ty = np.zeros_like(tx)
+            same = tx.tobytes() == ty.tobytes()
             if not same:
                 out.add(layout.window_of(key))
     return out
