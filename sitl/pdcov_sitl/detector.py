@@ -11,7 +11,12 @@ At each camera frame, given the true camera pose:
   the terrain, or the flat ground) are projected with ``CameraModel.project`` and the size
   is the square root of the area of that quadrilateral inside the picture, scaled to
   detector-input pixels (``DetectorModel.image_to_input_scale``), as the detector model
-  bins sizes. The person is detected with P_D(size); with a model whose ``looks`` section
+  bins sizes. Under what stands on the ground (the mission's ``terrain.surface``) the
+  line of sight from the person's ground point to the camera has a transmittance
+  (``core.ground_cover.transmittance``, the grid's rule for each of a cell's rays): 0
+  behind or under something solid (not in view), else exp(-k L) through tree cover, and
+  P_D is multiplied by it. The person is detected with P_D(size); with a model whose
+  ``looks`` section
   gives the per-bin correlation, each person draws one latent quantile q ~ U(0, 1) and is
   detected with their own detectability ``core.looks.detectability_quantile`` (the Beta
   quantile of the bin's mean and correlation at q, the rule ``coverage.looks: correlated``
@@ -51,6 +56,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.cell_area import clipped_quad_area
 from pdcov.core.detections import Box
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.ground_cover import transmittance
 from pdcov.core.looks import detectability_quantile
 from pdcov.core.occlusion import hidden_by_terrain
 from pdcov.core.pose import CameraPose
@@ -109,6 +115,8 @@ class SimulatedDetector:
         self.camera: CameraModel = grid.camera
         self.detector = grid.detector
         self.terrain = None if grid.terrain is None or grid.terrain.is_level_zero \
+            else grid.terrain
+        self.covered = None if grid.terrain is None or grid.terrain.cover is None \
             else grid.terrain
         self.targets = targets
         self.options = options
@@ -172,9 +180,25 @@ class SimulatedDetector:
         rho = self._rho[self.detector.bin_index(size_px)]
         return detectability_quantile(p_d, rho, self.person_q)
 
+    def person_transmittance(self, pose: CameraPose, in_view: np.ndarray) -> np.ndarray:
+        """Per person, the transmittance of their line of sight to the camera through what
+        stands on the ground (module docstring): 1 without it, 0 where not ``in_view``."""
+        out = in_view.astype(np.float64)
+        terrain = self.covered
+        k = np.flatnonzero(in_view)
+        if terrain is None or not len(k):
+            return out
+        assert terrain.cover is not None and terrain.cover_tops is not None
+        r = self.targets.r_enu_m[k]
+        out[k] = transmittance(terrain.cover, terrain.cover_tops, terrain.max_slope,
+                               pose.r_cam_enu, r[:, 0], r[:, 1], r[:, 2])
+        return out
+
     def _people(self, pose: CameraPose, t_s: float) -> list[SimulatedDetection]:
         in_view, size = self.person_sizes_px(pose)
-        p_d = self.person_p_detect(size)
+        through = self.person_transmittance(pose, in_view)
+        in_view &= through > 0
+        p_d = self.person_p_detect(size) * through
         if self.interval_s is None:
             found = in_view & (self.rng.random(len(size)) < p_d)
         else:

@@ -99,7 +99,8 @@ def test_two_vehicles_merge_by_the_maximum_as_coverage_grids_do(mission):
 
 
 def every_code_grid(mission) -> CoverageGrid:
-    """The demo grid flown a little, then every cell given a random limiting code (0..5)."""
+    """The demo grid flown a little, then every cell given a random limiting code (any
+    LimitingFactor)."""
     grid = mission.new_mission_grid()
     for pose in fly(grid, 6, -60.0, 0.0):
         grid.update(pose)
@@ -197,8 +198,8 @@ def test_a_limiting_code_outside_the_factors_is_refused_and_counted(mission, cod
     state = GridState.from_grid(grid)
     state.write(Layer.LIMITING, (3, 4, 5, 6), code)
     payload = encode_tiles(state, [(0, 0)], seq=0, t_s=1.0, tile_size=TILE)
-    with pytest.raises(BusPayloadError, match="uav1/tiles.*limiting: codes must lie in 0..5") \
-            as err:
+    with pytest.raises(BusPayloadError, match=f"uav1/tiles.*limiting: codes must lie in "
+                       f"0..{len(LimitingFactor) - 1}") as err:
         decode_tiles(payload, "pdcov/uav1/tiles")
     assert err.value.reason is Refusal.BAD_FIELD
     w = Watcher()
@@ -207,7 +208,7 @@ def test_a_limiting_code_outside_the_factors_is_refused_and_counted(mission, cod
     assert w.refused["payloads: bad field"] == 1 and w.feeds["uav1"].bad_payloads == 1
     assert not w.feeds["uav1"].state.limiting.any()  # nothing applied
     grid.layer(Layer.LIMITING).write((3, 4, 5, 6), code)
-    with pytest.raises(BusPayloadError, match="snapshot.*limiting: codes must lie in 0..5"):
+    with pytest.raises(BusPayloadError, match="snapshot.*limiting: codes must lie in 0..7"):
         decode_snapshot(encode_snapshot(grid))
 
 

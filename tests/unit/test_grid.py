@@ -287,7 +287,7 @@ def test_last_look_holds_the_frame_s_per_look_evidence_at_nadir():
     counted, in_view, index, log_fa = look.look_at(rows, cols)
     assert counted.tolist() == [True, True, False] and in_view.tolist() == [True, True, False]
     assert index[0] == 3 and index[2] == 0
-    assert look.log_miss_d(index)[0] == pytest.approx(math.log(0.4), rel=1e-6)
+    assert look.log_miss_d(rows, cols, index)[0] == pytest.approx(math.log(0.4), rel=1e-6)
     assert log_fa[0] == pytest.approx(-80e-6 * 2500, rel=1e-6) and log_fa[2] == 0.0
     assert grid.n_obs[40, 40] == 1 and grid.log_miss_d[40, 40] == pytest.approx(math.log(0.4))
     # 0.2 s later: in view, but not a look on the revisit clock; its size bin is kept.

@@ -136,8 +136,8 @@ def test_observe_area_with_the_shortcut_equals_testing_every_cell(terrain, monke
         got.append((window, view.observe_area(frame, p, window)))
     monkeypatch.setattr(grid_view, "sight_clear",
                         lambda t, r, w, z: np.zeros(z.shape, dtype=bool))
-    for p, (window, (observed, area, reach)) in zip(poses, got, strict=True):
-        o2, a2, r2 = view.observe_area(frame, p, window)
+    for p, (window, (observed, area, reach, _)) in zip(poses, got, strict=True):
+        o2, a2, r2, _ = view.observe_area(frame, p, window)
         assert observed.sum() > 50
         np.testing.assert_array_equal(observed, o2)
         np.testing.assert_array_equal(area[observed], a2[o2])

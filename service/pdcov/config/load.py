@@ -18,12 +18,19 @@ from pdcov.config.log import LogSection
 from pdcov.config.mission import DEFAULT_THRESHOLDS, MAX_THRESHOLDS, Mission
 from pdcov.config.origin import OriginSection
 from pdcov.config.search import SearchSection
-from pdcov.config.terrain import DEFAULT_TERRAIN_MARGIN_M, TerrainSection, dem_ground_alt, open_dem
+from pdcov.config.terrain import (
+    DEFAULT_TERRAIN_MARGIN_M,
+    TerrainSection,
+    cover_terrain,
+    dem_ground_alt,
+    open_dem,
+    searched_domain,
+)
 from pdcov.config.values import mapping
 from pdcov.core import dem as dem_rules
 from pdcov.core.dem import height_mismatch, terrain_surface
 from pdcov.core.geodesy import Origin
-from pdcov.core.looks import LooksConfig
+from pdcov.core.looks import LooksConfig, LooksRule
 from pdcov.errors import ConfigError, PdcovError, where
 from pdcov.ids import VEHICLE_ID_RULE, valid_vehicle_id
 from pdcov.schema import Section, check_keys
@@ -63,6 +70,12 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     domain = load_domain(dom, src, base, origin_value)
     ter = (TerrainSection.from_mapping(mapping(doc, "terrain", src), src)
            if doc.get("terrain") is not None else None)
+    cov = CoverageSection.from_mapping(mapping(doc, "coverage", src, required=False), src)
+    if ter is not None and ter.surface is not None and cov.looks is not LooksRule.INDEPENDENT:
+        raise ConfigError(f"{where(src, 'terrain.surface')}: what stands on the ground is "
+                          f"taken into account with independent looks only (for now); "
+                          f"coverage.looks is {cov.looks}: use coverage.looks: independent, "
+                          "or leave terrain.surface out")
     dem = None
     ground_alt, ground_how, warnings = origin.ground_alt_msl_m, "configured", []
     if ter is not None:
@@ -86,12 +99,18 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             "narrower than a cell (domain.cell_size_m)")
 
     terrain = None
-    if dem is not None:
+    if dem is not None and ter is not None:
         g = domain.grid_geometry(cell)
+        free = domain.free_mask(g)
         try:
-            terrain = terrain_surface(dem, g, origin_value, domain.free_mask(g))
+            terrain = terrain_surface(dem, g, origin_value, free)
         except PdcovError as exc:
             raise ConfigError(f"{where(src, 'terrain.dem')}: {exc}") from None
+        if ter.surface is not None:
+            terrain, notes = cover_terrain(ter, src, base, terrain, dem, origin_value, free)
+            warnings += notes
+            assert terrain.cover is not None
+            domain = searched_domain(ter, src, domain, terrain.cover, free)
     cameras = ([mission_camera(e, f"cameras[{i}].", str(e.get("name", f"camera{i + 1}")),
                                src, base) for i, e in enumerate(listed)]
                if listed else [mission_camera(doc, "", "camera", src, base)])
@@ -107,7 +126,6 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
                           f"most {MAX_THRESHOLDS} (every watcher refuses a status with more; "
                           "docs/protocol.md \"Validation and bounds\")")
 
-    cov = CoverageSection.from_mapping(mapping(doc, "coverage", src, required=False), src)
     det = DetectionsSection.from_mapping(mapping(doc, "detections", src, required=False), src)
     search = SearchSection.from_mapping(mapping(doc, "search", src, required=False), src)
     log_doc = mapping(doc, "log", src, required=False)

@@ -18,6 +18,7 @@ from pdcov.core.free_cells import FreeCells
 from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import Geolocation
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.ground_cover import GroundCover
 from pdcov.core.looks import LooksConfig
 from pdcov.core.mount import GimbalMount
 from pdcov.core.pose import FixedMount
@@ -65,11 +66,13 @@ class Mission:
     system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
-    z = 0). geolocation, gate_sigmas: the ``detections`` section (how boxes are located and
-    grouped). prior_people_per_km2: ``search.prior_people_per_km2``. cameras: every camera,
-    at least one, in config order (the single ``camera``, ``mount`` and ``detector``
-    sections are one camera named 'camera'; a ``cameras`` list its entries); their looks go
-    into the same cells (``several_cameras``).
+    z = 0), carrying what stands on the ground with terrain.surface (``cover``); the cells
+    under solid cover are then obstacles of ``domain`` (not free) unless
+    terrain.search_under_roofs. geolocation, gate_sigmas: the ``detections`` section (how
+    boxes are located and grouped). prior_people_per_km2: ``search.prior_people_per_km2``.
+    cameras: every camera, at least one, in config order (the single ``camera``, ``mount``
+    and ``detector`` sections are one camera named 'camera'; a ``cameras`` list its
+    entries); their looks go into the same cells (``several_cameras``).
     """
 
     vehicle_id: str
@@ -100,6 +103,11 @@ class Mission:
     warnings: tuple[str, ...] = ()
     source: str | None = None
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def cover(self) -> GroundCover | None:
+        """What stands on the ground under the grid (terrain.surface; None without one)."""
+        return None if self.terrain is None else self.terrain.cover
 
     @property
     def chosen_frame_source(self) -> str | None:

@@ -27,11 +27,15 @@ from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS
 
-__all__ = ["MAX_HEIGHT_MSL_M", "MIN_HEIGHT_MSL_M", "Dem", "VerticalDatum", "height_mismatch",
-           "terrain_surface"]
+__all__ = ["MAX_HEIGHT_MSL_M", "MAX_WINDOW_PIXELS", "MIN_HEIGHT_MSL_M", "Dem", "VerticalDatum",
+           "check_window_size", "height_mismatch", "lonlat_bounds", "lonlat_to_pixel",
+           "missing_heights_message", "open_raster", "raster_window", "terrain_surface"]
 
 MIN_HEIGHT_MSL_M = -500.0  # below the Dead Sea shore (-430 m): not a ground height
 MAX_HEIGHT_MSL_M = 9000.0  # above Everest (8849 m)
+MAX_WINDOW_PIXELS = 2**28
+"""The most pixels a surface or land-cover raster's window over the domain may hold (268 M:
+2 GiB of float64 heights); a larger one is refused (``check_window_size``)."""
 _FEET = frozenset({"ft", "foot", "feet", "us survey foot", "us_survey_foot", "ftus", "us-ft",
                    "foot_us", "international foot"})
 _M_PER_DEG_LAT = 111_320.0  # enough to turn a margin in metres into degrees
@@ -69,14 +73,14 @@ class Dem:
     def open(cls, path: str | Path, *, vertical_datum: VerticalDatum | str = VerticalDatum.MSL,
              geoid_height_m: float | None = None,
              area_lonlat_deg: tuple[float, float, float, float] | None = None,
-             margin_m: float = 200.0) -> Dem:
+             margin_m: float = 200.0, max_pixels: int | None = None) -> Dem:
         """Read a DEM raster. area_lonlat_deg: (west, south, east, north) to read, widened by
         margin_m and the pixels bilinear interpolation needs (None: the whole raster).
         vertical_datum 'ellipsoid' needs geoid_height_m, N (m): H_msl = h_ellipsoid - N.
-        Raises InputFileError naming the file: not a raster, no CRS, heights in feet, or
-        heights outside MIN_HEIGHT_MSL_M..MAX_HEIGHT_MSL_M."""
+        max_pixels: the most pixels the window may hold (None: no bound).
+        Raises InputFileError naming the file: not a raster, no CRS, heights in feet, a
+        window beyond max_pixels, or heights outside MIN_HEIGHT_MSL_M..MAX_HEIGHT_MSL_M."""
         GIS.require("a DEM (terrain.dem) needs")
-        import rasterio
         from rasterio.errors import RasterioError
         from rasterio.windows import Window
 
@@ -85,16 +89,7 @@ class Dem:
         if (datum == VerticalDatum.ELLIPSOID) != (geoid_height_m is not None):
             raise InputFileError(f"{path}: geoid_height_m is needed with the ellipsoid datum "
                                  "and only with it")
-        try:
-            src = rasterio.open(path)
-        except RasterioError as exc:
-            raise InputFileError(f"{path}: not a raster rasterio can read (GeoTIFF, Cloud-"
-                                 f"Optimized GeoTIFF, SRTM .hgt): {exc}") from None
-        with src:
-            if src.crs is None:
-                raise InputFileError(f"{path}: the raster has no CRS, so its pixels cannot be "
-                                     "placed; set it, e.g. gdal_edit.py -a_srs EPSG:32632 "
-                                     f"{path.name}")
+        with open_raster(path) as src:
             units = (src.units[0] or "").strip().lower()
             if units in _FEET:
                 raise InputFileError(
@@ -102,8 +97,10 @@ class Dem:
                     "metres: convert, e.g. gdal_calc.py -A IN.tif --calc='A*0.3048' "
                     "--outfile=OUT_m.tif (US survey feet: A*1200/3937), and use that file")
             full = Window(0, 0, src.width, src.height)
-            window = full if area_lonlat_deg is None else _window(src, area_lonlat_deg,
-                                                                  margin_m)
+            window = full if area_lonlat_deg is None else raster_window(src, area_lonlat_deg,
+                                                                        margin_m)
+            if max_pixels is not None:
+                check_window_size(path, window, area_lonlat_deg, max_pixels)
             if window.width and window.height:
                 try:
                     raw = src.read(1, window=window, masked=True, out_dtype="float64")
@@ -113,7 +110,7 @@ class Dem:
             else:  # the area is off the raster: nothing to read
                 h = np.zeros((0, 0))
             transform = src.window_transform(window)
-            bounds = _lonlat_bounds(src)
+            bounds = lonlat_bounds(src)
             crs_wkt = src.crs.to_wkt()
             # Where the window was cut out of the raster, heights end half a pixel inside it
             # (the last centre with a neighbour read); at the raster's own edges, at the edge.
@@ -163,27 +160,36 @@ class Dem:
     def _pixel(self, lat_deg: np.ndarray | float, lon_deg: np.ndarray | float
                ) -> tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates (col, row) of the window at geodetic points."""
-        lat = np.asarray(lat_deg, dtype=np.float64)
-        lon = np.broadcast_to(np.asarray(lon_deg, dtype=np.float64), lat.shape)
-        from rasterio.crs import CRS
-        from rasterio.warp import transform
-
-        crs = CRS.from_wkt(self.crs_wkt)
-        if crs == CRS.from_string(_WGS84):
-            x, y = lon, lat
-        else:
-            xs, ys = transform(_WGS84, crs, lon.ravel(), lat.ravel())
-            x, y = np.reshape(xs, lat.shape), np.reshape(ys, lat.shape)
-        return _apply(~self.transform, x, y)
+        return lonlat_to_pixel(self.transform, self.crs_wkt, lat_deg, lon_deg)
 
     def _inside(self, col: np.ndarray, row: np.ndarray) -> np.ndarray:
         c0, c1, r0, r1 = self.inside_px
         return (col >= c0) & (col <= c1) & (row >= r0) & (row <= r1)
 
 
-def _window(src: Any, area: tuple[float, float, float, float], margin_m: float) -> Any:
-    """The pixels of ``src`` under a lon/lat box widened by margin_m, plus two pixels on each
-    side for interpolation, cut to the raster (possibly empty)."""
+def open_raster(path: Path) -> Any:
+    """The rasterio dataset of ``path`` (to be closed: ``with open_raster(p) as src``);
+    InputFileError naming the file when rasterio cannot read it or it has no CRS."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    try:
+        src = rasterio.open(path)
+    except RasterioError as exc:
+        raise InputFileError(f"{path}: not a raster rasterio can read (GeoTIFF, Cloud-"
+                             f"Optimized GeoTIFF, SRTM .hgt): {exc}") from None
+    if src.crs is None:
+        src.close()
+        raise InputFileError(f"{path}: the raster has no CRS, so its pixels cannot be "
+                             "placed; set it, e.g. gdal_edit.py -a_srs EPSG:32632 "
+                             f"{path.name}")
+    return src
+
+
+def raster_window(src: Any, area: tuple[float, float, float, float], margin_m: float) -> Any:
+    """The pixels of ``src`` under a lon/lat box (west, south, east, north; degrees) widened
+    by margin_m, plus two pixels on each side for interpolation, cut to the raster (a
+    rasterio Window, possibly empty)."""
     from rasterio.warp import transform_bounds
     from rasterio.windows import Window
 
@@ -201,12 +207,47 @@ def _window(src: Any, area: tuple[float, float, float, float], margin_m: float) 
     return Window(c0, r0, c1 - c0, r1 - r0)
 
 
+def check_window_size(path: Path, window: Any,
+                      area: tuple[float, float, float, float] | None, max_pixels: int) -> None:
+    """InputFileError naming the file when ``window`` holds more than ``max_pixels`` pixels,
+    with the gdal_translate command that cuts the raster to ``area`` (lon/lat degrees)."""
+    n = int(window.width) * int(window.height)
+    if n <= max_pixels:
+        return
+    cut = ("" if area is None else
+           f" -projwin {area[0]:.6f} {area[3]:.6f} {area[2]:.6f} {area[1]:.6f} -projwin_srs "
+           "EPSG:4326")
+    raise InputFileError(f"{path}: the window over the domain is {int(window.width):,} x "
+                         f"{int(window.height):,} pixels, more than {max_pixels:,}: cut the "
+                         f"raster to the domain first (gdal_translate{cut} {path.name} "
+                         "cut.tif) or use a coarser one")
+
+
+def lonlat_to_pixel(transform: Any, crs_wkt: str, lat_deg: np.ndarray | float,
+                    lon_deg: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (col, row; float, pixel (r, c) spans c..c+1, r..r+1) at geodetic
+    points (WGS84 degrees) of a raster of affine ``transform`` in CRS ``crs_wkt``."""
+    lat = np.asarray(lat_deg, dtype=np.float64)
+    lon = np.broadcast_to(np.asarray(lon_deg, dtype=np.float64), lat.shape)
+    from rasterio.crs import CRS
+    from rasterio.warp import transform as warp
+
+    crs = CRS.from_wkt(crs_wkt)
+    if crs == CRS.from_string(_WGS84):
+        x, y = lon, lat
+    else:
+        xs, ys = warp(_WGS84, crs, lon.ravel(), lat.ravel())
+        x, y = np.reshape(xs, lat.shape), np.reshape(ys, lat.shape)
+    return _apply(~transform, x, y)
+
+
 def _apply(affine: Any, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """An affine map of points, element-wise (``affine * (x, y)`` on arrays)."""
     return affine.a * x + affine.b * y + affine.c, affine.d * x + affine.e * y + affine.f
 
 
-def _lonlat_bounds(src: Any) -> tuple[float, float, float, float]:
+def lonlat_bounds(src: Any) -> tuple[float, float, float, float]:
+    """(west, south, east, north) of a rasterio dataset's whole extent, WGS84 degrees."""
     from rasterio.warp import transform_bounds
 
     w, s, e, n = transform_bounds(src.crs, _WGS84, *src.bounds, densify_pts=21)
@@ -234,8 +275,9 @@ def terrain_surface(dem: Dem, geometry: GridGeometry, origin: Origin,
     # A free cell needs its four corners.
     cell_ok = has[:-1, :-1] & has[1:, 1:] & has[:-1, 1:] & has[1:, :-1]
     if (free & ~cell_ok).any():
-        raise InputFileError(_missing_message(dem, g, origin, free, cell_ok,
-                                              dem.covers(lat, lon)))
+        covered = dem.covers(lat, lon)
+        cell_in = covered[:-1, :-1] & covered[1:, 1:] & covered[:-1, 1:] & covered[1:, :-1]
+        raise InputFileError(missing_heights_message(dem, g, origin, free, cell_ok, cell_in))
     if not has.all():
         from scipy.ndimage import distance_transform_edt
 
@@ -288,9 +330,14 @@ def _compass(dx: float, dy: float) -> str:
     return names[round(math.degrees(math.atan2(dy, dx)) / 45.0) % 8]
 
 
-def _missing_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.ndarray,
-                     cell_ok: np.ndarray, covered: np.ndarray) -> str:
-    """What is missing under the free cells, in one line."""
+def missing_heights_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.ndarray,
+                            cell_ok: np.ndarray, cell_in: np.ndarray, *, what: str = "DEM",
+                            key: str = "terrain.dem",
+                            hole: str = "have a corner without a height") -> str:
+    """What ``dem`` (a DEM, or a DSM: ``what``, the config ``key`` naming it) misses under
+    the free cells, in one line. cell_ok: the cells that have their heights; cell_in: those
+    within the raster's window (bool, the grid's shape each); hole: how a cell within it
+    lacks its heights."""
     import shapely
     from shapely.ops import nearest_points
 
@@ -298,7 +345,6 @@ def _missing_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.ndarray
     n_free = int(free.sum())
     xc, yc = g.centres_enu()
     cx, cy = np.meshgrid(xc, yc)
-    cell_in = covered[:-1, :-1] & covered[1:, 1:] & covered[:-1, 1:] & covered[1:, :-1]
     outside = free & ~cell_in
     x1, y1 = g.x0_m + g.cell_size_m * g.n_cols, g.y0_m + g.cell_size_m * g.n_rows
     grid_box = shapely.box(g.x0_m, g.y0_m, x1, y1)
@@ -311,23 +357,23 @@ def _missing_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.ndarray
         a, b = nearest_points(grid_box, dem_box)
         where_ = (f"{dist_m / 1000:,.1f} km to the {_compass(b.x - a.x, b.y - a.y)} of it"
                   if dist_m > 0 else "beside it, without reaching its cells")
-        return (f"{dem.path}: the DEM does not cover the domain at all: it spans lat "
-                f"{s:.4f}..{n:.4f}, lon {w:.4f}..{e:.4f} deg, {where_}; check terrain.dem "
+        return (f"{dem.path}: the {what} does not cover the domain at all: it spans lat "
+                f"{s:.4f}..{n:.4f}, lon {w:.4f}..{e:.4f} deg, {where_}; check {key} "
                 "and origin.lat_deg / origin.lon_deg")
     if outside.any():
         k = int(outside.sum())
         dx, dy = cx[outside].mean() - cx[free].mean(), cy[outside].mean() - cy[free].mean()
         side = (_compass(float(dx), float(dy)) if math.hypot(dx, dy) > 0.05 * math.hypot(
             x1 - g.x0_m, y1 - g.y0_m) else "every")
-        return (f"{dem.path}: the DEM covers only {100 * (n_free - k) / n_free:.1f} % of the "
+        return (f"{dem.path}: the {what} covers only {100 * (n_free - k) / n_free:.1f} % of the "
                 f"domain: {100 * k / n_free:.1f} % ({_area(k * cell_m2)}) is outside it, on "
                 f"its {side} side (ENU x {cx[outside].min():.0f}..{cx[outside].max():.0f} m, "
-                f"y {cy[outside].min():.0f}..{cy[outside].max():.0f} m); use a DEM that "
+                f"y {cy[outside].min():.0f}..{cy[outside].max():.0f} m); use a {what} that "
                 "covers the whole domain")
     holes = free & ~cell_ok
     k = int(holes.sum())
     return (f"{dem.path}: nodata under the domain: {k} of its {n_free} free cells "
-            f"({100 * k / n_free:.2g} %, {_area(k * cell_m2)}) have a corner without a height, "
+            f"({100 * k / n_free:.2g} %, {_area(k * cell_m2)}) {hole}, "
             f"at ENU x {cx[holes].min():.0f}..{cx[holes].max():.0f} m, "
             f"y {cy[holes].min():.0f}..{cy[holes].max():.0f} m; fill the holes "
-            "(gdal_fillnodata.py) or use another DEM")
+            f"(gdal_fillnodata.py) or use another {what}")

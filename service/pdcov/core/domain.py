@@ -131,6 +131,13 @@ class Domain:
         shapely.prepare(free)
         return shapely.contains_xy(free, X, Y)
 
+    def without_cells(self, geometry: GridGeometry, mask: np.ndarray) -> Domain:
+        """This domain with the squares of ``geometry``'s cells where ``mask`` is True as
+        obstacles too (``cell_polygons``): those cells are not free; no other cell changes
+        (its centre lies half a cell from them)."""
+        extra = cell_polygons(geometry, mask)
+        return Domain(self.boundary, self.obstacles + extra) if extra else self
+
     def has_free_cell(self, geometry: GridGeometry, cells_per_chunk: int = 2**16) -> bool:
         """True if some cell centre lies in the free space; scans the rows in chunks of
         about ``cells_per_chunk`` cells and stops at the first free cell, so it costs little
@@ -201,6 +208,66 @@ class Domain:
         obstacles = [ring_enu(h.coords) for h in outer.interiors]
         obstacles += [ring_enu(p.exterior.coords) for p in polys[1:]]
         return cls.from_enu(ring_enu(outer.exterior.coords), obstacles, str(path))
+
+
+def cell_polygons(geometry: GridGeometry, mask: np.ndarray) -> tuple[Polygon, ...]:
+    """The squares of the cells where ``mask`` (bool, the grid's shape) is True, merged
+    into polygons without holes (ENU m): cells sharing edges make one polygon, cut along
+    row lines where it encloses other cells (an obstacle is its outer ring: ``from_enu``
+    and the mission payload keep no holes). Together they cover exactly those squares."""
+    g = geometry
+    m = np.asarray(mask, dtype=bool)
+    if m.shape != g.shape:
+        raise ValueError(f"mask shape {m.shape} != grid shape {g.shape}")
+    if not m.any():
+        return ()
+    cs = g.cell_size_m
+    # Each row's runs of cells, one box each: [start, end) columns.
+    step = np.diff(np.pad(m, ((0, 0), (1, 1))).astype(np.int8), axis=1)
+    rows, c_start = np.nonzero(step == 1)
+    _, c_end = np.nonzero(step == -1)
+    boxes = shapely.box(g.x0_m + cs * c_start, g.y0_m + cs * rows, g.x0_m + cs * c_end,
+                        g.y0_m + cs * (rows + 1))
+    out: list[Polygon] = []
+    for poly in _polygons_in(shapely.union_all(boxes)):
+        for piece in _without_holes(poly):
+            # Simplified by 0 m: only the vertices amid straight edges go.
+            ring = Polygon(shapely.simplify(piece, 0.0).exterior.coords)
+            if ring.is_valid and not piece.interiors:
+                out.append(ring)
+            else:  # an outline touching itself: its rows' runs, each a rectangle
+                out.extend(_row_runs(piece, g))
+    return tuple(out)
+
+
+def _polygons_in(geom: Any) -> list[Polygon]:
+    """The polygons of area of a shapely geometry (lines and points of a cut dropped)."""
+    if isinstance(geom, Polygon):
+        return [geom] if geom.area > 0 else []
+    return [p for part in getattr(geom, "geoms", ()) for p in _polygons_in(part)]
+
+
+def _without_holes(poly: Polygon) -> list[Polygon]:
+    """``poly`` cut into pieces without holes along the horizontal lines through its holes'
+    lowest and highest points: each hole then reaches a cut and opens into the outline."""
+    if not poly.interiors:
+        return [poly]
+    x0, y0, x1, y1 = poly.bounds
+    cuts = sorted({y for h in poly.interiors for y in (h.bounds[1], h.bounds[3])
+                   if y0 < y < y1})
+    edges = [y0, *cuts, y1]
+    return [p for a, b in zip(edges[:-1], edges[1:], strict=True)
+            for p in _polygons_in(poly.intersection(shapely.box(x0, a, x1, b)))]
+
+
+def _row_runs(poly: Polygon, g: GridGeometry) -> list[Polygon]:
+    """``poly`` (cells of ``g``) cut along every row line: rectangles, one per run."""
+    x0, y0, x1, y1 = poly.bounds
+    cs = g.cell_size_m
+    r0, r1 = round((y0 - g.y0_m) / cs), round((y1 - g.y0_m) / cs)
+    return [Polygon(p.exterior.coords) for r in range(r0, r1)
+            for p in _polygons_in(poly.intersection(
+                shapely.box(x0, g.y0_m + cs * r, x1, g.y0_m + cs * (r + 1))))]
 
 
 def _points(ring: Any, key: str, source: str | None) -> np.ndarray:

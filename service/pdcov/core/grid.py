@@ -54,6 +54,7 @@ from pdcov.core.grid_merge import merge_grids
 from pdcov.core.grid_metrics import Metrics, grid_metrics, limiting_counts
 from pdcov.core.grid_snapshot import read_snapshot, save_snapshot, write_snapshot
 from pdcov.core.grid_view import GridView, window_union
+from pdcov.core.ground_cover import through_cover
 from pdcov.core.last_look import LastLook
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.looks import (
@@ -92,8 +93,8 @@ class CoverageGrid:
     geometry: the cells (ENU). free: the free cells (only those are updated): a bool
     (n_rows, n_cols) mask, or ``FreeCells`` (tile by tile from the domain's free space).
     max_range_m: slant range beyond which cells are not observed; None chooses
-    ``default_max_range_m``. terrain: the ground under the cells (ENU, core/terrain.py;
-    None: the plane z = 0).
+    ``default_max_range_m``. terrain: the ground under the cells and what stands on it
+    (ENU, core/terrain.py; None: the plane z = 0).
     min_revisit_s: count at most one
     observation per cell per this many seconds (None: every frame counts, as in the paper).
     exposure_s: the camera's exposure time (s); with it, a detector model with blur bins
@@ -127,9 +128,7 @@ class CoverageGrid:
         self.geometry = geometry
         self.layout = layout
         self.free = free
-        # The kernel's terrain: None on the plane z = 0, which takes the flat-earth path.
-        self._view = GridView(geometry, free,
-                              None if terrain is None or terrain.is_level_zero else terrain)
+        self._view = GridView.over(geometry, free, terrain)
         if max_range_m is not None and not max_range_m > 0:
             raise ValueError(f"max_range_m must be positive, got {max_range_m}")
         self._max_range_given = max_range_m
@@ -144,6 +143,8 @@ class CoverageGrid:
         self.frames_blurred = 0  # frames whose P_D took their blur into account
         self.looks = LooksConfig() if looks is None else looks
         self._looks = looks_model(self.looks, detector)
+        if self._looks is not None and self._view.cover is not None:
+            raise ValueError("terrain.cover scales P_D per look: only with independent looks")
         clock = self.clock = TileClock()
         self._layers: dict[Layer, TiledLayer] = {
             Layer.LOG_MISS_D: TiledLayer(layout, np.float32, 0.0, clock=clock),
@@ -387,12 +388,12 @@ class CoverageGrid:
         self.touched = window_union(window, far)
         if window is None:
             return 0
-        observed, area_px2, reach = view.observe_area(frame, pose, window)
+        observed, area_px2, reach, transmit = view.observe_area(frame, pose, window)
         # Bin by area against squared edges: sqrt(area) * scale >= edge <=> area >= edge'^2.
         edges = frame.area_edges_px2[area_px2.dtype == np.float32]
         with np.errstate(invalid="ignore"):
             idx = np.searchsorted(edges, area_px2, side="right")
-        seen = np.where(observed, frame.seen_code.take(idx * observed), reach)
+        seen = view.limiting(frame, window, observed, idx, reach)
         parts = list(self.layout.parts(window))
         in_view, size_idx = observed, idx
         if revisit is not None:
@@ -412,10 +413,10 @@ class CoverageGrid:
             assert self.exposure_s is not None  # blur_effect is APPLIED
             idx += frame.blur_rows(pose, self.geometry, self._view.relief, window, observed,
                                    self.exposure_s) * (frame.detector.n_bins + 2)
-        tab_d, tab_fa = frame.log_miss_tables
-        self.last_look = LastLook(t, window, in_view, observed, size_idx, idx, area_px2,
-                                  frame.log_miss_tables)
-        add_d = tab_d.take(idx) if self._looks is None else None
+        tab_d, tab_fa = tables = frame.log_miss_tables
+        self.last_look = LastLook(t, window, in_view, observed, size_idx, idx, area_px2, tables,
+                                  transmit)
+        add_d = None if self._looks else through_cover(tab_d.take(idx), transmit, observed)
         add_fa = np.multiply(  # log(1 - P_FA) = -rate A (in view)
             tab_fa.take(idx), area_px2, out=np.zeros(idx.shape, np.float32), where=observed)
         for p in parts:
@@ -458,9 +459,8 @@ class CoverageGrid:
         """Cells of ``window`` (r0, r1, c0, c1) observed by ``pose``, and their apparent size.
 
         Returns a bool mask (r1 - r0, c1 - c0) and, for the True cells in row-major order, the
-        square root of the area in image pixels of each cell's image inside the picture.
-        """
-        observed, area_px2, _ = self._view.observe_area(self._base, pose, window)
+        square root of the area in image pixels of each cell's image inside the picture."""
+        observed, area_px2, _, _ = self._view.observe_area(self._base, pose, window)
         return observed, np.sqrt(area_px2[observed].astype(np.float64))
 
     # -- combine and persist ----------------------------------------------------------------

@@ -10,6 +10,11 @@ surface, its image is that of its 3-D patch, and it is observed only when it fac
 camera and the terrain does not rise above the line of sight to its centre
 (``core/occlusion.py``). Without it the ground is the plane z = 0 of the paper.
 
+With something standing on the ground (``cover``: a ``TerrainSurface`` whose ``cover`` is
+set, core/ground_cover.py) each observed cell also has a transmittance, the mean over rays
+from points spread over it of what the trees let through (0 behind or under a roof); a cell
+none of whose rays gets through is not observed: HIDDEN, or BUILDING under a roof.
+
 Every function takes the frame's camera (``GridCamera``) explicitly: a grid evaluates frames
 of several cameras (``CoverageGrid.update_with``) with one ``GridView``.
 """
@@ -26,6 +31,7 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.footprint import BorderRaysEnu
 from pdcov.core.free_cells import FreeCells
 from pdcov.core.grid_camera import GridCamera
+from pdcov.core.ground_cover import CoverKind, cell_transmittance
 from pdcov.core.limiting import LimitingFactor
 from pdcov.core.occlusion import hidden_by_terrain, sight_clear
 from pdcov.core.pose import CameraPose
@@ -48,23 +54,35 @@ def window_union(a: tuple[int, int, int, int] | None, b: tuple[int, int, int, in
 @dataclass(frozen=True, slots=True, eq=False)
 class GridView:
     """The view geometry of a grid's cells: ``geometry`` (ENU), ``free`` (the free cells:
-    only those are in view) and ``relief`` (the ground under the
-    cells; None: the plane z = 0, the flat-earth path). Windows are (r0, r1, c0, c1) of
-    grid rows and columns."""
+    only those are in view), ``relief`` (the ground under the cells; None: the plane
+    z = 0, the flat-earth path) and ``cover`` (the terrain when something stands on it,
+    else None). Windows are (r0, r1, c0, c1) of grid rows and columns."""
 
     geometry: GridGeometry
     free: FreeCells
     relief: TerrainSurface | None
+    cover: TerrainSurface | None = None
+
+    @classmethod
+    def over(cls, geometry: GridGeometry, free: FreeCells, terrain: TerrainSurface | None
+             ) -> GridView:
+        """The view over ``terrain`` (None: the plane z = 0): the flat-earth path where its
+        ground is level at 0, its cover where something stands on it."""
+        return cls(geometry, free, None if terrain is None or terrain.is_level_zero else terrain,
+                   None if terrain is None or terrain.cover is None else terrain)
 
     def observe_area(self, frame: GridCamera, pose: CameraPose,
                      window: tuple[int, int, int, int]
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """The observed mask of ``window``, the image area (px^2) inside the picture of
-        every cell of it (meaningful only where observed; float32 or float64), and the
-        LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN)."""
+        every cell of it (meaningful only where observed; float32 or float64), the
+        LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN,
+        BUILDING) and, with a ``cover``, the transmittance of every cell (float32, 1 where
+        not observed; None without one)."""
         H, in_view, in_range, z_c = self._centres(frame, pose, window)
         if not in_view.any():
-            return in_view, np.zeros(in_view.shape), np.zeros(in_view.shape, np.uint8)
+            return (in_view, np.zeros(in_view.shape), np.zeros(in_view.shape, np.uint8),
+                    None)
         r0, r1, c0, c1 = window
         n_rows, n_cols = in_view.shape
         g, cam, relief = self.geometry, frame.camera, self.relief
@@ -93,8 +111,11 @@ class GridView:
                                                    z_c[rows[front], cols[front]])
                 observed[rows[blocked], cols[blocked]] = False
                 reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
+        transmit = None
+        if self.cover is not None and observed.any():
+            transmit = self._transmittance(pose, window, observed, reach)
         if not observed.any():
-            return observed, np.zeros(observed.shape), reach
+            return observed, np.zeros(observed.shape), reach, transmit
         with np.errstate(invalid="ignore", over="ignore"):
             # Corners, projected all at once: a cell wholly in the picture takes the area of
             # its corners' quadrilateral.
@@ -136,7 +157,48 @@ class GridView:
             if not ok.all():
                 edge_area[~ok] = self._partial_area(cam, pose, rows[~ok] + r0, cols[~ok] + c0)
             area[rows, cols] = edge_area
-        return observed, area, reach
+        return observed, area, reach, transmit
+
+    def limiting(self, frame: GridCamera, window: tuple[int, int, int, int],
+                 observed: np.ndarray, size_index: np.ndarray, reach: np.ndarray
+                 ) -> np.ndarray:
+        """The LimitingFactor (uint8) a frame gives the cells of ``window``: by size bin
+        (``size_index``) where ``observed``, CANOPY for those seen at a covered size under
+        trees; ``reach`` (``observe_area``'s) elsewhere."""
+        seen = np.where(observed, frame.seen_code.take(size_index * observed), reach)
+        if self.cover is not None and self.cover.cover is not None:
+            r0, r1, c0, c1 = window
+            under = self.cover.cover.kind[r0:r1, c0:c1] == CoverKind.FOLIAGE
+            seen[under & (seen == LimitingFactor.SEEN)] = LimitingFactor.CANOPY
+        return seen
+
+    def _transmittance(self, pose: CameraPose, window: tuple[int, int, int, int],
+                       observed: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """The transmittance (float32, the window's shape; 1 where not observed) of the
+        ``observed`` cells of ``window`` through the cover; cells it blocks wholly are
+        taken out of ``observed`` and marked in ``reach`` (BUILDING under a roof, else
+        HIDDEN)."""
+        terrain = self.cover
+        assert terrain is not None and terrain.cover is not None
+        tops = terrain.cover_tops
+        assert tops is not None
+        r0, r1, c0, c1 = window
+        rows, cols = np.nonzero(observed)
+        z_c = (np.zeros(len(rows)) if self.relief is None
+               else self.relief.centre_z_m(r0, r1, c0, c1)[rows, cols])
+        t = cell_transmittance(terrain.cover, tops, terrain.max_slope,
+                               None if self.relief is None else self.relief.height_m,
+                               pose.r_cam_enu, rows + r0, cols + c0, z_c)
+        out = np.ones(observed.shape, dtype=np.float32)
+        out[rows, cols] = t
+        blocked = t == 0
+        if blocked.any():
+            br, bc = rows[blocked], cols[blocked]
+            observed[br, bc] = False
+            reach[br, bc] = np.where(terrain.cover.roof[br + r0, bc + c0],
+                                     np.uint8(LimitingFactor.BUILDING),
+                                     np.uint8(LimitingFactor.HIDDEN))
+        return out
 
     def mark_too_far(self, frame: GridCamera, pose: CameraPose,
                      window: tuple[int, int, int, int] | None, limiting: TiledLayer

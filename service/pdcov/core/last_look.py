@@ -18,7 +18,9 @@ class LastLook:
     counted with; 0 where not counted) and ``area_px2`` (the cell's image area inside the
     picture, image px^2, meaningful where in view); ``tables``: the per-look tables the
     frame used, (log(1 - P_D), log(1 - P_FA) per image px^2 = -rate size_scale^2), indexed
-    by the table index. The arrays are the update's own (no copy): read, never write."""
+    by the table index; ``transmittance`` (float32, the window's shape; None: 1 everywhere)
+    the share of the cell's P_D what stands on the ground let through (core/ground_cover.py).
+    The arrays are the update's own (no copy): read, never write."""
 
     t_s: float
     window: tuple[int, int, int, int]
@@ -28,6 +30,7 @@ class LastLook:
     bin_index: np.ndarray
     area_px2: np.ndarray
     tables: tuple[np.ndarray, np.ndarray]
+    transmittance: np.ndarray | None = None
 
     def _local(self, rows: np.ndarray, cols: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -53,6 +56,13 @@ class LastLook:
                           * self.area_px2[lr, lc], 0.0)
         return counted, in_view, index, log_fa
 
-    def log_miss_d(self, index: np.ndarray) -> np.ndarray:
-        """log(1 - P_D) (float64, <= 0) of a look at table ``index`` (``look_at``)."""
-        return self.tables[0].take(index).astype(np.float64)
+    def log_miss_d(self, rows: np.ndarray, cols: np.ndarray, index: np.ndarray
+                   ) -> np.ndarray:
+        """log(1 - P_D) (float64, <= 0) of the looks at grid cells (rows, cols) at table
+        ``index`` (``look_at``), P_D scaled by the cells' transmittance."""
+        log_miss = self.tables[0].take(index).astype(np.float64)
+        if self.transmittance is None:
+            return log_miss
+        lr, lc, inside = self._local(rows, cols)
+        t = np.where(inside, self.transmittance[lr, lc], 1.0).astype(np.float64)
+        return np.log1p(np.expm1(log_miss) * t)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pdcov.core.domain import GridGeometry
+from pdcov.core.ground_cover import CoverTops, GroundCover
 
 __all__ = ["BLOCK", "TerrainSurface"]
 
@@ -30,11 +31,14 @@ class TerrainSurface:
     z_corner_m: float64 (n_rows + 1, n_cols + 1); [i, j] is the corner at
     x = x0_m + j cell_size_m, y = y0_m + i cell_size_m (row 0 south, as the grid's rows).
     source: where the heights came from (a DEM path), for messages.
+    cover: what stands on the ground (core/ground_cover.py; None: nothing, open ground).
     """
 
     geometry: GridGeometry
     z_corner_m: np.ndarray
     source: str = ""
+    cover: GroundCover | None = None
+    _cover_tops: CoverTops | None = field(init=False, repr=False, compare=False)
     _block_min: np.ndarray = field(init=False, repr=False, compare=False)
     _block_max: np.ndarray = field(init=False, repr=False, compare=False)
     _block_slope: np.ndarray = field(init=False, repr=False, compare=False)
@@ -70,6 +74,12 @@ class TerrainSurface:
         slope = np.hypot(np.maximum(g_x[:-1], g_x[1:]), np.maximum(g_y[:, :-1], g_y[:, 1:]))
         object.__setattr__(self, "_block_slope",
                            slope.reshape(nb_r, BLOCK, nb_c, BLOCK).max(axis=(1, 3)))
+        tops = None
+        if self.cover is not None:
+            if self.cover.geometry != g:
+                raise ValueError("cover is for another grid geometry")
+            tops = self.cover.tops(self.centre_z_m(0, g.n_rows, 0, g.n_cols))
+        object.__setattr__(self, "_cover_tops", tops)
 
     @classmethod
     def flat(cls, geometry: GridGeometry, z_m: float = 0.0) -> TerrainSurface:
@@ -79,8 +89,20 @@ class TerrainSurface:
 
     @property
     def is_level_zero(self) -> bool:
-        """True when every height is 0: the flat ground the paper assumes."""
+        """True when every ground height is 0: the flat ground the paper assumes (what
+        stands on it, ``cover``, aside)."""
         return not self.z_corner_m.any()
+
+    @property
+    def cover_tops(self) -> CoverTops | None:
+        """The tops of what stands on the cells (``GroundCover.tops``), None without a
+        cover."""
+        return self._cover_tops
+
+    @property
+    def max_slope(self) -> float:
+        """The steepest slope (m/m, any direction) of the whole surface."""
+        return float(self._block_slope.max())
 
     @property
     def z_range_m(self) -> tuple[float, float]:

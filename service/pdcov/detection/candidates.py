@@ -272,7 +272,7 @@ class DetectionTracker:
         if looks.look is not None:
             _, _, at, log_fa = looks.look.look_at(np.array([row]), np.array([col]))
             index = int(at[0])
-            log_miss_d = float(looks.look.log_miss_d(at)[0])
+            log_miss_d = float(looks.look.log_miss_d(np.array([row]), np.array([col]), at)[0])
             lam = -float(log_fa[0]) * math.pi * gate_m**2 / geo.cell_size_m**2
         if looks.nodes is not None:
             g.log_lr_nodes = grid.log_miss_nodes(cell)[0, 0].copy()
@@ -291,9 +291,10 @@ class DetectionTracker:
         last = looks.look
         if last is not None and len(ids):
             geo = looks.grid.geometry
-            counted, _, index, log_fa = last.look_at(*geo.cell_of(pos[:, 0], pos[:, 1]))
+            rows, cols = geo.cell_of(pos[:, 0], pos[:, 1])
+            counted, _, index, log_fa = last.look_at(rows, cols)
             at = np.flatnonzero(counted)
-            log_miss_d = last.log_miss_d(index[at])
+            log_miss_d = last.log_miss_d(rows[at], cols[at], index[at])
             lam_per_m2 = -log_fa[at] * (math.pi / geo.cell_size_m**2)
             for k, cid in enumerate(ids[at].tolist()):
                 g = self._groups.get(cid)  # None: evicted for a box of this frame

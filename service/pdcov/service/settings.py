@@ -223,11 +223,11 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
     """What a checkpoint must match to be resumed: SHA-256 (16 hex digits) of the vehicle
     id (another vehicle's frames resumed here would count twice in the fleet), the origin,
     the grid (geometry, free mask, max range, revisit interval, and the terrain's corner
-    heights when it has them), the camera (size, intrinsics, distortion) and the detector
-    model (bins, P_D, P_FA, input size), and the looks rule when not independent (rule,
-    viewpoint bins, the model's correlation; each camera's with several), and with several
-    cameras every camera (``_camera_doc``). The first camera's are hashed as the one camera
-    was before cameras lists existed."""
+    heights when it has them, and what stands on it: heights, kinds, k), the camera (size,
+    intrinsics, distortion) and the detector model (bins, P_D, P_FA, input size), and the
+    looks rule when not independent (rule, viewpoint bins, the model's correlation; each
+    camera's with several), and with several cameras every camera (``_camera_doc``). The
+    first camera's are hashed as the one camera was before cameras lists existed."""
     first, g = mission.first_camera, grid.geometry
     cam, det = first.camera, first.detector
     doc = {"vehicle_id": mission.vehicle_id,
@@ -253,6 +253,10 @@ def mission_hash(mission: Mission, grid: CoverageGrid) -> str:
                        rho if mission.several_cameras else rho[0])).encode())
     if grid.terrain is not None:  # none: the flat ground, hashed as before terrain existed
         h.update(grid.terrain.z_corner_m.tobytes())
+        cover = grid.terrain.cover
+        if cover is not None:  # none: open ground, hashed as before ground cover existed
+            h.update(cover.height_m.tobytes() + cover.kind.tobytes()
+                     + repr(cover.extinction_per_m).encode())
     return h.hexdigest()[:16]
 
 
