@@ -167,7 +167,9 @@ def test_heights_and_kinds_per_cell_with_the_worldcover_classes(tmp_path):
     assert mission.terrain.cover is cover
     want_h = (cells(10.0, *HOUSE) + cells(15.0, *TREES) + cells(6.0, SHED)
               + cells(12.0, UNCLASSED))  # the hedge, 1.5 m, is below 2 m: open
-    np.testing.assert_allclose(cover.height_m, want_h, atol=1e-3)
+    # The DSM's pixel (2 m) a centre falls in, over a sloping plane: within its slope's
+    # rise over a pixel's half-diagonal.
+    np.testing.assert_allclose(cover.height_m, want_h, atol=0.05)
     assert cover.height_m.dtype == np.float32
     want_kind = (cells(SOLID, *HOUSE) + cells(FOLIAGE, *TREES)
                  + cells(SOLID, SHED)        # grassland (30) raised: not listed, solid
@@ -203,7 +205,7 @@ def test_custom_classes_replace_the_default(tmp_path):
 def test_a_lower_min_object_height_raises_the_hedge(tmp_path):
     cover = load(tmp_path, doc(tmp_path, with_landcover=False, min_object_height_m=1.0)).cover
     assert cover is not None
-    assert cover.height_m[HEDGE] == pytest.approx(1.5, abs=1e-3)
+    assert cover.height_m[HEDGE] == pytest.approx(1.5, abs=0.05)
     assert cover.kind[HEDGE] == SOLID
 
 
@@ -215,7 +217,7 @@ def test_the_dem_datum_applies_to_the_dsm(tmp_path):
     mission = load(tmp_path, d)
     assert mission.ground_alt_msl_m == pytest.approx(H0)
     assert mission.cover is not None
-    np.testing.assert_allclose(mission.cover.height_m[6, 6], 10.0, atol=1e-3)
+    np.testing.assert_allclose(mission.cover.height_m[6, 6], 10.0, atol=0.05)
 
 
 def test_a_dsm_below_the_dem_is_warned_of(tmp_path):
@@ -236,7 +238,7 @@ def test_a_dem_hole_between_the_corners_takes_the_terrain_at_the_centre(tmp_path
     mission = load(tmp_path, d)
     assert mission.cover is not None and mission.dem is not None
     assert math.isnan(mission.dem.height_msl_m(*_latlon(15.0, 15.0)))
-    np.testing.assert_allclose(mission.cover.height_m[6, 6], 10.0, atol=1e-3)
+    np.testing.assert_allclose(mission.cover.height_m[6, 6], 10.0, atol=0.05)
 
 
 def _latlon(x: float, y: float) -> tuple[float, float]:

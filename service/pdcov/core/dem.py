@@ -153,6 +153,21 @@ class Dem:
                    + (h[i1, j] * (1 - fu) + h[i1, j1] * fu) * fv)
         return out
 
+    def nearest_msl_m(self, lat_deg: np.ndarray | float, lon_deg: np.ndarray | float
+                      ) -> np.ndarray:
+        """Heights (m MSL) of the pixels the geodetic points (WGS84 degrees) fall in, not
+        interpolated (a roof's edge stays an edge); NaN outside the DEM, outside the window
+        read, or on nodata."""
+        col, row = self._pixel(lat_deg, lon_deg)
+        h = self.heights_msl_m
+        out = np.full(col.shape, np.nan)
+        ok = self._inside(col, row)
+        if ok.any():
+            n_rows, n_cols = h.shape
+            out[ok] = h[np.clip(np.floor(row[ok]).astype(np.intp), 0, n_rows - 1),
+                        np.clip(np.floor(col[ok]).astype(np.intp), 0, n_cols - 1)]
+        return out
+
     def covers(self, lat_deg: np.ndarray | float, lon_deg: np.ndarray | float) -> np.ndarray:
         """Whether the points lie within the DEM's window read (nodata or not)."""
         return self._inside(*self._pixel(lat_deg, lon_deg))

@@ -3,8 +3,10 @@
 land-cover raster saying what each raised surface is.
 
 Per cell, at its centre's latitude and longitude (``enu_to_geodetic`` of (x, y, 0), as
-``terrain_surface`` does for corners): the height above the ground h = DSM - DEM (m, both
-bilinear, ``Dem.height_msl_m``); h below ``min_object_height_m`` (or negative) is open
+``terrain_surface`` does for corners): the height above the ground h = DSM - DEM (m: the
+DSM's pixel the centre falls in, ``Dem.nearest_msl_m``, so that an edge of a roof or of a
+stand of trees stays an edge rather than a ramp of walls; the DEM bilinear,
+``Dem.height_msl_m``); h below ``min_object_height_m`` (or negative) is open
 ground, h = 0. A raised cell's kind is its land-cover class's (``landcover.cover_kinds``:
 the pixel its centre falls in), SOLID for a class not listed, no class (nodata, outside the
 raster) or no land-cover raster. Every free cell needs a DSM height (else InputFileError,
@@ -75,7 +77,7 @@ def cover_surface(terrain: TerrainSurface, dem: Dem, dsm: Dem, origin: Origin,
     xx, yy = np.meshgrid(*g.centres_enu())
     geo = enu_to_geodetic(np.stack([xx, yy, np.zeros_like(xx)], axis=-1), origin)
     lat, lon = geo[..., 0], geo[..., 1]
-    top = dsm.height_msl_m(lat, lon)
+    top = dsm.nearest_msl_m(lat, lon)
     has = np.isfinite(top)
     if (free & ~has).any():
         raise InputFileError(missing_heights_message(
