@@ -26,6 +26,8 @@ from tests.support.scenarios import Scenario, scenarios, spaced, strided
 from tests.support.terrain_site import TerrainSite
 
 from .blur import blur_rows
+from .canopy import cost_rows as canopy_cost_rows
+from .canopy import r4_rows
 from .measure import floor_pass_s, peak_update_memory_bytes, time_frames, time_updates
 from .offline import evaluate_run, optimise_run
 from .report import Row, machine, markdown, write_readme_block
@@ -44,12 +46,13 @@ class Sizes:
     memory_frames: int
     r3_frames: int          # S5: R3 and pdcov on frames from the middle of the flight
     valley_frames: int      # S5 valley: frames of its flight (strided), all at full size
+    canopy_frames: int      # canopy: survey frames timed with and without the cover
     planner_altitudes_m: tuple[float, ...]
     planner_speeds_mps: tuple[float, ...]
 
 
-FULL = Sizes(3000, 20, 3, 200, 6, 10**6, (8.0, 10.0, 12.0), (3.0, 5.0))
-SMOKE = Sizes(200, 6, 4, 20, 4, 6, (10.0,), (5.0,))
+FULL = Sizes(3000, 20, 3, 200, 6, 10**6, 400, (8.0, 10.0, 12.0), (3.0, 5.0))
+SMOKE = Sizes(200, 6, 4, 20, 4, 6, 12, (10.0,), (5.0,))
 
 
 def compare_reference(sc: Scenario, frames: list, which: str, rays: np.ndarray,
@@ -190,9 +193,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
     parser.add_argument("--smoke", action="store_true",
                         help="tiny sizes, every step once (CI; timings meaningless)")
-    parser.add_argument("--scenarios", nargs="+", default=["S1", "S2", "S3", "S4", "S5"],
-                        choices=["S1", "S2", "S3", "S4", "S5"],
-                        help="S5: the terrain scenario and the valley flight (issue 21)")
+    parser.add_argument("--scenarios", nargs="+",
+                        default=["S1", "S2", "S3", "S4", "S5", "canopy"],
+                        choices=["S1", "S2", "S3", "S4", "S5", "canopy"],
+                        help="S5: the terrain scenario and the valley flight (issue 21); "
+                             "canopy: trees and buildings over hills (issue 38)")
     parser.add_argument("--no-offline", action="store_true",
                         help="skip pdcov evaluate (S1) and pdcov optimise (S2)")
     parser.add_argument("--sitl", action="store_true",
@@ -206,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.scenarios:
         if name == "S5":
             rows += terrain_rows(found, sizes)
+            continue
+        if name == "canopy":
+            rows += canopy_cost_rows(sizes.canopy_frames)
+            rows += r4_rows() if not args.smoke else []
             continue
         sc = found[name]
         print(f"{name}: {sc.describe()}", file=sys.stderr)

@@ -21,6 +21,7 @@ from pdcov.core.camera import CameraModel
 from pdcov.core.detector import DetectorModel
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.core.ground_cover import CoverKind, GroundCover
 from pdcov.core.mission import (
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
@@ -243,6 +244,26 @@ def test_warning_for_a_hill_under_a_constant_altitude_plan_only():
     assert clearance_intrusions(followed, hill, 10.0) == []
     # Without the hill the constant altitude clears it too.
     assert clearance_intrusions(over, surface(lambda x, y: 0.0 * x), 10.0) == []
+
+
+def test_trees_and_roofs_rise_into_a_path_as_terrain_does():
+    """With what stands on the ground (terrain.surface), the clearance is kept above its
+    top: a 25 m block of flats under a path 20 m above flat ground is warned of."""
+    flat = surface(lambda x, y: 0.0 * x)
+    g = flat.geometry
+    h = np.zeros(g.shape)
+    kind = np.zeros(g.shape, np.uint8)
+    x, _ = g.centres_enu()
+    block = (x > 55) & (x < 65)
+    h[:, block], kind[:, block] = 25.0, CoverKind.SOLID
+    covered = TerrainSurface(g, flat.z_corner_m, "test", cover=GroundCover(g, h, kind))
+    over = Plan((Waypoint(0, 50, 20, 5), Waypoint(120, 50, 20, 5)))
+    assert clearance_intrusions(over, flat, 10.0) == []
+    found = {i.stretch: i for i in clearance_intrusions(over, covered, 10.0)}
+    assert sorted(found) == ["leg from waypoint 1 to 2", "return to launch"]
+    i = found["leg from waypoint 1 to 2"]
+    assert 55 <= i.x_enu_m < 65 and i.terrain_z_enu_m == pytest.approx(25.0)
+    assert "the path is 5.0 m below the terrain" in i.message()
 
 
 def test_takeoff_climbs_to_the_first_waypoint_at_least_its_height_above_ground():

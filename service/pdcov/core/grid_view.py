@@ -182,13 +182,11 @@ class GridView:
         assert terrain is not None and terrain.cover is not None
         tops = terrain.cover_tops
         assert tops is not None
-        r0, r1, c0, c1 = window
+        r0, _, c0, _ = window
         rows, cols = np.nonzero(observed)
-        z_c = (np.zeros(len(rows)) if self.relief is None
-               else self.relief.centre_z_m(r0, r1, c0, c1)[rows, cols])
         t = cell_transmittance(terrain.cover, tops, terrain.max_slope,
                                None if self.relief is None else self.relief.height_m,
-                               pose.r_cam_enu, rows + r0, cols + c0, z_c)
+                               pose.r_cam_enu, rows + r0, cols + c0)
         out = np.ones(observed.shape, dtype=np.float32)
         out[rows, cols] = t
         blocked = t == 0

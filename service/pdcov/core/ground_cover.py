@@ -44,10 +44,12 @@ DEFAULT_MIN_OBJECT_HEIGHT_M = 2.0
 """Surfaces lower than this above the ground (m) count as open ground: DSM noise, low
 vegetation, cars."""
 
-RAYS_PER_SIDE = 3
+RAYS_PER_SIDE = 2
 """Rays per cell side: a cell's transmittance is the mean over 3 x 3 ground points."""
 
 _MIN_LOG_T = -12.0  # a ray attenuated below exp(-12) is not stepped further
+EDGE = 4
+"""``GroundCover.code``'s flag of a cell beside one of another kind (above every kind)."""
 
 
 class CoverKind(enum.IntEnum):
@@ -63,8 +65,8 @@ class GroundCover:
     """What stands on ``geometry``'s cells: ``height_m`` (float32 (n_rows, n_cols), m above
     the cell centre's ground height, >= 0) and ``kind`` (uint8 CoverKind); a cell of height
     0 is OPEN whatever its kind says, and an OPEN cell has height 0. ``extinction_per_m``:
-    Beer-Lambert's k (1/m) for foliage. source: where it came from, for messages. ``edge``
-    (bool, derived): the cells beside one of another kind."""
+    Beer-Lambert's k (1/m) for foliage. source: where it came from, for messages. ``code``
+    (uint8, derived): the kind, plus EDGE where the cell is beside one of another kind."""
 
     geometry: GridGeometry
     height_m: np.ndarray
@@ -72,7 +74,7 @@ class GroundCover:
     extinction_per_m: float = DEFAULT_EXTINCTION_PER_M
     source: str = ""
     _clear_m: np.ndarray = field(init=False, repr=False)
-    edge: np.ndarray = field(init=False, repr=False)
+    code: np.ndarray = field(init=False, repr=False)
     _height_max_m: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -111,8 +113,9 @@ class GroundCover:
         from scipy.ndimage import maximum_filter, minimum_filter
 
         edge = maximum_filter(kind, size=3) != minimum_filter(kind, size=3)
-        edge.setflags(write=False)
-        object.__setattr__(self, "edge", edge)
+        code = kind | (edge.astype(np.uint8) * np.uint8(EDGE))
+        code.setflags(write=False)
+        object.__setattr__(self, "code", code)
 
     @property
     def height_max_m(self) -> float:
@@ -134,7 +137,7 @@ class GroundCover:
         """The cells' tops over ground whose cell centres are at ``centre_z_m`` (ENU z, m,
         (n_rows, n_cols))."""
         top = np.where(self.height_m > 0, centre_z_m + self.height_m, -np.inf)
-        return CoverTops.of(top, self.kind)
+        return CoverTops.of(top)
 
 
 NEAR_CELLS = (3, 12, 48)
@@ -144,31 +147,27 @@ NEAR_CELLS = (3, 12, 48)
 
 @dataclass(frozen=True, slots=True, eq=False)
 class CoverTops:
-    """The tops of the cells (ENU z, m; -inf where open), of tree cover (``leaf_z_m``) and
-    of solid cover (``solid_z_m``), each -inf elsewhere; the highest top within each of
-    NEAR_CELLS cells of every cell (float32, rounded up); the highest of all (-inf: none)."""
+    """The tops of the cells (ENU z, m; -inf where open), the highest top within each of
+    NEAR_CELLS cells of every cell (float32, rounded up), and the highest of all (-inf:
+    none)."""
 
-    leaf_z_m: np.ndarray
-    solid_z_m: np.ndarray
+    top_z_m: np.ndarray
     near_top_z_m: tuple[np.ndarray, ...]
     top_max_z_m: float
 
     @classmethod
-    def of(cls, top_z_m: np.ndarray, kind: np.ndarray) -> CoverTops:
+    def of(cls, top_z_m: np.ndarray) -> CoverTops:
         from scipy.ndimage import maximum_filter
 
-        top = np.asarray(top_z_m, dtype=np.float64)
-        leaf = np.where(kind == CoverKind.FOLIAGE, top, -np.inf)
-        solid = np.where(kind == CoverKind.SOLID, top, -np.inf)
+        top = np.array(top_z_m, dtype=np.float64)
+        top.setflags(write=False)
         near = []
         for n in NEAR_CELLS:
             z = maximum_filter(top, size=2 * n + 1, mode="nearest").astype(np.float32)
             z = np.nextafter(z, np.float32(np.inf))  # never below the float64 tops
             z.setflags(write=False)
             near.append(z)
-        for a in (leaf, solid):
-            a.setflags(write=False)
-        return cls(leaf, solid, tuple(near), float(top.max()))
+        return cls(top, tuple(near), float(top.max()))
 
 
 def transmittance(cover: GroundCover, tops: CoverTops, slope_max: float,
@@ -186,7 +185,7 @@ def _trace(cover: GroundCover, tops: CoverTops, slope_max: float, r_cam_enu: np.
            x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
     """``transmittance``'s log (-inf: blocked), and whether each ray passed a cell beside
-    one of another kind (``GroundCover.edge``) while it may have been below a top."""
+    one of another kind (``GroundCover.code``'s EDGE) while it may have been below a top."""
     x_m, y_m = np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64)
     z_m = np.asarray(z_m, dtype=np.float64)
     log_t = np.zeros(x_m.shape)
@@ -243,8 +242,9 @@ class _Rays:
     end: np.ndarray
 
 
-_CHUNK_LINES = 8
-"""Grid lines of each direction a step of the march crosses at most."""
+_CHUNK_LINES = (4, 8)
+"""Grid lines of each direction a step of the march crosses at most: its first step (most
+rays leave the trees within a few cells), then every other."""
 
 
 def _march(cover: GroundCover, tops: CoverTops, rays: _Rays
@@ -260,11 +260,13 @@ def _march(cover: GroundCover, tops: CoverTops, rays: _Rays
     met_edge = np.zeros(n, dtype=bool)
     s = np.zeros(n)  # how far each ray has been followed (m)
     live = np.arange(n)
+    lines = _CHUNK_LINES[0]
     while len(live):
         s_l = s[live]
         u = rays.u[live] + s_l * rays.du[live] / cs
         v = rays.v[live] + s_l * rays.dv[live] / cs
-        at = np.floor(v).astype(np.intp) * g.n_cols + np.floor(u).astype(np.intp)
+        col, row = np.floor(u), np.floor(v)
+        at = row.astype(np.intp) * g.n_cols + col.astype(np.intp)
         z = rays.z[live] + rays.tan_e[live] * s_l
         jump = np.zeros(len(live))
         for n_cells, near in zip(NEAR_CELLS, tops.near_top_z_m, strict=True):
@@ -273,52 +275,61 @@ def _march(cover: GroundCover, tops: CoverTops, rays: _Rays
         march = np.flatnonzero(jump == 0)
         if len(march):
             k = live[march]
-            add, blocked, edge, reached = _chunk(cover, tops, u[march], v[march], z[march],
-                                                 rays.du[k], rays.dv[k], rays.tan_e[k],
-                                                 rays.end[k] - s_l[march])
+            add, blocked, edge, reached = _chunk(
+                cover, tops, at[march], u[march] - col[march], v[march] - row[march],
+                z[march], rays.du[k], rays.dv[k], rays.tan_e[k], rays.end[k] - s_l[march],
+                lines)
             log_t[k] = np.where(blocked, -np.inf, log_t[k] + add)
             met_edge[k] |= edge
             ahead[march] += reached
         s[live] = ahead
         live = live[(ahead < rays.end[live]) & (log_t[live] > _MIN_LOG_T)]
+        lines = _CHUNK_LINES[1]
     return log_t, met_edge
 
 
-def _chunk(cover: GroundCover, tops: CoverTops, u: np.ndarray, v: np.ndarray,
-           z: np.ndarray, du: np.ndarray, dv: np.ndarray, tan_e: np.ndarray,
-           limit_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One step of ``_march`` for rays now at (u, v) (cell units) and height z (ENU, m),
-    inside the grid up to ``limit_m`` (m): over at most ``_CHUNK_LINES`` lines of each
-    direction and ``limit_m``, the log transmittance added, whether a solid blocked the
-    ray, whether it passed a cell of ``GroundCover.edge``, and how far it went (m)."""
+def _chunk(cover: GroundCover, tops: CoverTops, at: np.ndarray, fu: np.ndarray,
+           fv: np.ndarray, z: np.ndarray, du: np.ndarray, dv: np.ndarray, tan_e: np.ndarray,
+           limit_m: np.ndarray, lines: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One step of ``_march`` for rays now in the cells of flat index ``at``, at (fu, fv)
+    in them (cell units, [0, 1)) and height z (ENU, m), inside the grid up to ``limit_m``
+    (m): over at most ``lines`` lines of each direction and ``limit_m``, the log
+    transmittance added, whether a solid blocked the ray, whether it passed a cell of
+    ``GroundCover.code``'s EDGE, and how far it went (m). The segments in float32, relative to
+    the cells the rays are in."""
     g = cover.geometry
     cs = g.cell_size_m
-    w = _CHUNK_LINES
-    m = np.arange(w)
-    bounds = np.zeros((len(u), 2 * w + 1))
+    m = np.arange(lines, dtype=np.float32)
+    bounds = np.zeros((len(at), 2 * lines + 1), dtype=np.float32)
     reached = limit_m.copy()
     with np.errstate(divide="ignore", invalid="ignore"):
-        for col0, p, d in ((1, u, du), (1 + w, v, dv)):
-            first = np.where(d > 0, (np.floor(p) + 1 - p) / d,
-                             np.where(d < 0, (p - np.floor(p)) / -d, np.inf)) * cs
+        for col0, p, d in ((1, fu, du), (1 + lines, fv, dv)):
+            first = np.where(d > 0, (1 - p) / d, np.where(d < 0, p / -d, np.inf)) * cs
             spacing = np.where(d != 0, cs / np.abs(d), 0.0)  # with first = inf: all inf
-            bounds[:, col0:col0 + w] = first[:, None] + m * spacing[:, None]
+            last = first + (lines - 1) * spacing
+            bounds[:, col0:col0 + lines] = (first[:, None] + m * spacing[:, None])
             # Beyond its last line of this direction the step cannot tell the cells.
-            np.minimum(reached, bounds[:, col0 + w - 1], out=reached)
+            np.minimum(reached, last, out=reached)
         # Per horizontal metre of height above z: 1 / tan_e (a ray not rising: flat).
-        per_m = np.where(tan_e > 0, 1.0 / tan_e, 1e12)[:, None]
+        per_m = np.where(tan_e > 0, 1.0 / tan_e, 1e12).astype(np.float32)[:, None]
     bounds.sort(axis=1)
-    np.minimum(bounds, reached[:, None], out=bounds)
+    np.minimum(bounds, reached.astype(np.float32)[:, None], out=bounds)
     s0, s1 = bounds[:, :-1], bounds[:, 1:]
     mid = s0 + s1  # twice the midpoint: its cell, the segment's
-    at = (np.floor(v[:, None] + mid * (0.5 * dv / cs)[:, None]).astype(np.intp) * g.n_cols
-          + np.floor(u[:, None] + mid * (0.5 * du / cs)[:, None]).astype(np.intp))
-    z = z[:, None]
-    leaf = np.minimum(s1, (tops.leaf_z_m.ravel().take(at) - z) * per_m) - s0
-    solid = np.minimum(s1, (tops.solid_z_m.ravel().take(at) - z) * per_m) - s0
-    blocked = np.any(solid > 0, axis=1)
-    edge = np.asarray(cover.edge.ravel().take(at).any(axis=1))
-    length = np.clip(leaf, 0.0, None, out=leaf).sum(axis=1) * np.sqrt(1.0 + tan_e**2)
+    k_u, k_v = (0.5 * du / cs).astype(np.float32), (0.5 * dv / cs).astype(np.float32)
+    step = (np.floor(fv.astype(np.float32)[:, None] + mid * k_v[:, None]).astype(np.intp)
+            * g.n_cols + np.floor(fu.astype(np.float32)[:, None] + mid * k_u[:, None]
+                                  ).astype(np.intp))
+    cell = at[:, None] + step
+    inside = np.minimum(s1, (tops.top_z_m.ravel().take(cell) - z[:, None]) * per_m) - s0
+    code = cover.code.ravel().take(cell)
+    solid = (code & np.uint8(3)) == CoverKind.SOLID
+    np.clip(inside, 0.0, None, out=inside)
+    blocked = np.any(solid & (inside > 0), axis=1)
+    edge = np.any(code >= EDGE, axis=1)
+    inside[solid] = 0.0
+    length = inside.sum(axis=1) * np.sqrt(1.0 + tan_e**2)
     return -cover.extinction_per_m * length, blocked, edge, reached
 
 
@@ -335,27 +346,30 @@ def through_cover(log_miss: np.ndarray, transmittance: np.ndarray | None,
 
 def cell_transmittance(cover: GroundCover, tops: CoverTops, slope_max: float,
                        height_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
-                       r_cam_enu: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                       centre_z_m: np.ndarray) -> np.ndarray:
-    """Per cell (rows, cols), its centre at height ``centre_z_m`` (ENU, m), the mean
-    transmittance (``transmittance``) of the lines of sight from ``RAYS_PER_SIDE``^2
-    points spread evenly over it to the camera at ``r_cam_enu``; height_at(x, y): the
-    ground's ENU z (m) at points (None: 0). A cell whose centre's ray passes no cell beside
-    one of another kind takes that ray's alone: the others, within a cell of it, meet the
-    same kinds of cover."""
+                       r_cam_enu: np.ndarray, rows: np.ndarray, cols: np.ndarray
+                       ) -> np.ndarray:
+    """Per cell (rows, cols) the mean transmittance (``transmittance``) of the lines of
+    sight from ``RAYS_PER_SIDE``^2 points spread evenly over it to the camera at
+    ``r_cam_enu``; height_at(x, y): the ground's ENU z (m) at points (None: 0). The first
+    point's ray goes first: a cell where it passes no cell beside one of another kind takes
+    it alone (the others, within a cell of it, meet the same kinds of cover)."""
     g = cover.geometry
     cs = g.cell_size_m
-    log_t, met_edge = _trace(cover, tops, slope_max, r_cam_enu, g.x0_m + cs * (cols + 0.5),
-                             g.y0_m + cs * (rows + 0.5), centre_z_m)
+    n = RAYS_PER_SIDE
+    f = (np.arange(n) + 0.5) / n
+    x = g.x0_m + cs * (cols[:, None, None] + f[None, None, :])
+    y = g.y0_m + cs * (rows[:, None, None] + f[None, :, None])
+    x, y = (a.reshape(len(rows), n * n) for a in np.broadcast_arrays(x, y))
+
+    def ground(x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
+        return np.zeros_like(x_m) if height_at is None else height_at(x_m, y_m)
+
+    x0, y0 = x[:, 0], y[:, 0]
+    log_t, met_edge = _trace(cover, tops, slope_max, r_cam_enu, x0, y0, ground(x0, y0))
     out = np.exp(log_t)
     k = np.flatnonzero(met_edge)
     if len(k):
-        n = RAYS_PER_SIDE
-        f = (np.arange(n) + 0.5) / n
-        x = g.x0_m + cs * (cols[k, None, None] + f[None, None, :])
-        y = g.y0_m + cs * (rows[k, None, None] + f[None, :, None])
-        x, y = (a.ravel() for a in np.broadcast_arrays(x, y))
-        z = np.zeros_like(x) if height_at is None else height_at(x, y)
-        t = transmittance(cover, tops, slope_max, r_cam_enu, x, y, z)
-        out[k] = t.reshape(len(k), n * n).mean(axis=1)
+        xk, yk = x[k, 1:].ravel(), y[k, 1:].ravel()
+        rest = transmittance(cover, tops, slope_max, r_cam_enu, xk, yk, ground(xk, yk))
+        out[k] = (out[k] + rest.reshape(len(k), n * n - 1).sum(axis=1)) / (n * n)
     return out

@@ -136,6 +136,19 @@ class TerrainSurface:
         z = self.z_corner_m[r0:r1 + 1, c0:c1 + 1]
         return 0.25 * ((z[:-1, :-1] + z[1:, 1:]) + (z[:-1, 1:] + z[1:, :-1]))
 
+    def surface_z_m(self, x_m: np.ndarray | float, y_m: np.ndarray | float) -> np.ndarray:
+        """Height (m, ENU z) of the top of what stands on the ground at ENU points (the
+        cover's top of their cell), or of the ground (``height_m``) where nothing does."""
+        z = self.height_m(x_m, y_m)
+        tops = self._cover_tops
+        if tops is None:
+            return z
+        g = self.geometry
+        row, col = g.cell_of(np.asarray(x_m, dtype=np.float64), np.asarray(y_m, np.float64))
+        row = np.clip(row, 0, g.n_rows - 1)
+        col = np.clip(col, 0, g.n_cols - 1)
+        return np.maximum(z, tops.top_z_m[row, col])
+
     def height_m(self, x_m: np.ndarray | float, y_m: np.ndarray | float) -> np.ndarray:
         """Bilinear height (m) at ENU points; points outside the grid take the height of the
         nearest point on its edge."""

@@ -160,8 +160,8 @@ class Intrusion:
     """Where the terrain plus the clearance rises into a path: the stretch ("take-off to
     waypoint 1", "leg from waypoint 3 to 4", "return to launch"; waypoints numbered as the
     mission file's, from 1), the distance along it (m), the point (ENU m), the terrain's
-    and the path's heights there (m, ENU z) and the clearance (m). The worst point of each
-    stretch."""
+    (the top of what stands on it: trees, roofs) and the path's heights there (m, ENU z)
+    and the clearance (m). The worst point of each stretch."""
 
     stretch: str
     along_m: float
@@ -182,7 +182,8 @@ class Intrusion:
 
 def clearance_intrusions(plan: Plan, terrain: TerrainSurface,
                          clearance_m: float) -> list[Intrusion]:
-    """The stretches of the flight where terrain + ``clearance_m`` rises above the path:
+    """The stretches of the flight where terrain (the top of what stands on it, with a
+    cover: ``TerrainSurface.surface_z_m``) + ``clearance_m`` rises above the path:
     the climb from the take-off (straight above home, at ``takeoff_alt_m``) to the first
     waypoint, every leg (straight between waypoints, as flown), and the return to launch
     at the last waypoint's height (ArduCopter climbs to RTL_ALT first when that is higher,
@@ -199,7 +200,7 @@ def clearance_intrusions(plan: Plan, terrain: TerrainSurface,
         length = float(np.linalg.norm(q[:2] - p[:2]))
         f = np.linspace(0.0, 1.0, max(2, math.ceil(length / step) + 1))
         pts = p + f[:, None] * (q - p)
-        ground = terrain.height_m(pts[:, 0], pts[:, 1])
+        ground = terrain.surface_z_m(pts[:, 0], pts[:, 1])
         margin = pts[:, 2] - ground - clearance_m
         k = int(np.argmin(margin))
         if margin[k] >= 0:

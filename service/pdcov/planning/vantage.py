@@ -354,7 +354,8 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
 
 _WHY = {LimitingFactor.NEVER_IN_VIEW: "in no candidate's view",
         LimitingFactor.TOO_FAR: "too far (beyond the range limit) from every candidate",
-        LimitingFactor.HIDDEN: "hidden by the terrain from every candidate",
+        LimitingFactor.HIDDEN: "hidden by the terrain or a building from every candidate",
+        LimitingFactor.BUILDING: "under a roof",
         LimitingFactor.TOO_SMALL: "too small in the picture at every height",
         LimitingFactor.TOO_LARGE: "too large in the picture at every height"}
 _SOME_HEADINGS = ("in view of candidates only at some headings (a hover's heading is its "
@@ -371,7 +372,7 @@ def unreachable_message(sc: Scenario, reachable: np.ndarray, limiting: np.ndarra
     sees whatever its heading), with the first such cell's position."""
     bad = ~reachable
     why = [(n, _WHY[f]) for f in _WHY if (n := int((bad & (limiting == f)).sum()))]
-    seen = bad & (limiting == LimitingFactor.SEEN)
+    seen = bad & np.isin(limiting, (LimitingFactor.SEEN, LimitingFactor.CANOPY))
     why += [(n, text) for n, text in ((int((seen & ~seen_all_headings).sum()), _SOME_HEADINGS),
                                       (int((seen & seen_all_headings).sum()), _TOO_FEW_LOOKS))
             if n]
