@@ -98,7 +98,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             f"{domain.boundary.area:.3g} m^2); the obstacles cover the polygon, or it is "
             "narrower than a cell (domain.cell_size_m)")
 
-    terrain = None
+    terrain, searched = None, domain
     if dem is not None and ter is not None:
         g = domain.grid_geometry(cell)
         free = domain.free_mask(g)
@@ -110,7 +110,7 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
             terrain, notes = cover_terrain(ter, src, base, terrain, dem, origin_value, free)
             warnings += notes
             assert terrain.cover is not None
-            domain = searched_domain(ter, src, domain, terrain.cover, free)
+            searched = searched_domain(ter, src, domain, terrain.cover, free)
     cameras = ([mission_camera(e, f"cameras[{i}].", str(e.get("name", f"camera{i + 1}")),
                                src, base) for i, e in enumerate(listed)]
                if listed else [mission_camera(doc, "", "camera", src, base)])
@@ -142,14 +142,15 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
         check_camera_ids(cameras, src)
     return Mission(
         vehicle_id=vehicle_id, origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
-        ground_alt_msl_m=ground_alt, domain=domain, cell_size_m=cell, cameras=tuple(cameras),
+        ground_alt_msl_m=ground_alt, domain=searched, cell_size_m=cell, cameras=tuple(cameras),
         thresholds=tuple(float(t) for t in thresholds),
         max_range_m=cov.max_range_m, min_revisit_s=cov.min_revisit_s,
         min_height_m=cov.min_height_m, looks=looks,
         frame_source=log.frame_source, frame_source_set="frame_source" in log_doc,
         max_gap_s=log.max_gap_s, system_id=log.system_id,
         estimator_status=log.estimator_status, ground_alt_how=ground_how, terrain=terrain,
-        dem=dem, terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
+        dem=dem, configured_domain=None if searched is domain else domain,
+        terrain_check_margin_m=ter.check_margin_m if ter else DEFAULT_TERRAIN_MARGIN_M,
         terrain_max_home_offset_m=(ter.max_home_offset_m if ter
                                    else dem_rules.DEFAULT_MAX_HOME_OFFSET_M),
         geolocation=det.geolocation(), gate_sigmas=det.gate_sigmas,

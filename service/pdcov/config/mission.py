@@ -66,9 +66,12 @@ class Mission:
     system_id: the autopilot to follow (None = from its HEARTBEAT). estimator_status: skip
     frames whose position the autopilot's estimator calls bad (telemetry/estimator.py);
     false ignores it. terrain: ground heights under the grid (ENU; None: the flat ground
-    z = 0), carrying what stands on the ground with terrain.surface (``cover``); the cells
-    under solid cover are then obstacles of ``domain`` (not free) unless
-    terrain.search_under_roofs. geolocation, gate_sigmas: the ``detections`` section (how
+    z = 0), carrying what stands on the ground with terrain.surface (``cover``).
+    domain: the searched domain, whose free cells every grid, hash, checkpoint, payload and
+    prediction's score has: with terrain.surface the cells under solid cover are obstacles
+    of it too unless terrain.search_under_roofs. configured_domain: the domain as the
+    config gives it when ``domain`` differs (None: ``domain``); planners fly over
+    ``flight_domain``. geolocation, gate_sigmas: the ``detections`` section (how
     boxes are located and grouped). prior_people_per_km2: ``search.prior_people_per_km2``.
     cameras: every camera, at least one, in config order (the single ``camera``, ``mount``
     and ``detector`` sections are one camera named 'camera'; a ``cameras`` list its
@@ -95,6 +98,7 @@ class Mission:
     ground_alt_how: str = "configured"
     terrain: TerrainSurface | None = field(default=None, compare=False, repr=False)
     dem: Dem | None = field(default=None, compare=False, repr=False)
+    configured_domain: Domain | None = field(default=None, repr=False)
     terrain_check_margin_m: float = DEFAULT_TERRAIN_MARGIN_M
     terrain_max_home_offset_m: float = dem_rules.DEFAULT_MAX_HOME_OFFSET_M
     geolocation: Geolocation = Geolocation()
@@ -108,6 +112,16 @@ class Mission:
     def cover(self) -> GroundCover | None:
         """What stands on the ground under the grid (terrain.surface; None without one)."""
         return None if self.terrain is None else self.terrain.cover
+
+    @property
+    def flight_domain(self) -> Domain:
+        """Where the planners fly (ENU m; lines, transits, vantage points and their
+        clearance, datums): the domain as configured, its boundary and the config's own
+        obstacles. ``domain``, the searched one, may also have the cells under roofs as
+        obstacles (terrain.surface): a drone flies over them at altitude, the clearance
+        above their tops being checked (planning/terrain_follow.py
+        ``clearance_intrusions``). Without them, ``domain`` itself (the same object)."""
+        return self.domain if self.configured_domain is None else self.configured_domain
 
     @property
     def chosen_frame_source(self) -> str | None:

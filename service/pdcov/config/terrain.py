@@ -232,7 +232,8 @@ def searched_domain(ter: TerrainSection, src: str | None, domain: Domain, cover:
     """The domain whose free cells are searched: without the free cells under solid cover
     (roofs: no one there is ever seen) unless terrain.search_under_roofs. They become
     obstacles (``Domain.without_cells``), so every grid, checkpoint, snapshot, mission
-    payload and map has them as not free. ConfigError when no free cell is left."""
+    payload and map has them as not free; the planners still fly over them (``domain``,
+    kept as ``Mission.flight_domain``). ConfigError when no free cell is left."""
     free = np.asarray(free, dtype=bool)
     roofs = cover.roof & free
     if ter.search_under_roofs or not roofs.any():

@@ -47,7 +47,10 @@ PATTERNS: tuple[PatternName, ...] = get_args(PatternName)
 
 @dataclass(frozen=True, slots=True)
 class Scenario:
-    """What a prediction needs from the mission: free space and its grid, camera, detector,
+    """What a prediction needs from the mission: free_space, where plans fly (ENU m: their
+    lines, transits, datums, vantage points and clearances; ``Mission.flight_domain``'s,
+    over roofs too), its grid (geometry) and mask, the free cells a plan is scored on (bool,
+    the grid's shape: the searched domain's, without roofs), camera, detector,
     mount, frame rate (Hz), the grid's range limit (m; None = the grid's default) and the
     vehicle's kinematic limits; gimbal_pitch_rad is the pitch a gimbal is assumed to hold;
     terrain: the ground under the grid (ENU; None: the plane z = 0) and how plans follow it;

@@ -23,7 +23,9 @@ from pdcov.planning.trajectory import Kinematics
 
 def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Scenario:
     """The prediction inputs of a mission, with its ``planning`` section applied and then
-    ``overrides`` (planning keys given on the command line)."""
+    ``overrides`` (planning keys given on the command line). Plans fly over the mission's
+    ``flight_domain`` (the domain as configured: over roofs too) and are scored on the
+    searched ``domain``'s free cells (the grids' free mask: without the roofs)."""
     doc = mission.raw.get("planning")
     if overrides and (doc is None or isinstance(doc, dict)):  # else from_mapping refuses it
         doc = {**(doc or {}), **overrides}
@@ -45,9 +47,10 @@ def scenario_of(mission: Mission, overrides: dict[str, Any] | None = None) -> Sc
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where(mission.source, 'planning')}: {exc}") from None
     pitch = math.radians(cfg.gimbal_pitch_deg)
-    g = mission.domain.grid_geometry(mission.cell_size_m)
+    searched = mission.domain
+    g = searched.grid_geometry(mission.cell_size_m)  # the flight domain's too: one boundary
     cam = mission.first_camera  # the planner flies one camera
-    return Scenario(mission.domain.free_space, g, mission.domain.free_mask(g), cam.camera,
+    return Scenario(mission.flight_domain.free_space, g, searched.free_mask(g), cam.camera,
                     cam.detector, cam.mount, cam.frame_rate_hz,
                     mission.max_range_m, mission.min_revisit_s, kin, pitch, mission.terrain,
                     following, cam.exposure_s, mission.looks, cam.zoom)
