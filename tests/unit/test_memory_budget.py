@@ -3,9 +3,14 @@ config bounds camera.frame_rate_hz."""
 
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
 import pytest
 
 from pdcov.config.load import mission_from_dict
+from pdcov.core.ground_cover import GroundCover
+from pdcov.core.terrain import TerrainSurface
 from pdcov.errors import ConfigError
 from pdcov.service.memory_budget import (
     MemoryCheck,
@@ -40,6 +45,23 @@ def test_a_mission_beyond_the_memory_it_may_use_is_refused_naming_the_figures():
     assert ("to search 1 km2 (1,000,000 cells of the 4,000,000 per grid, 1000 frames/s), "
             "more than the 200 MiB of memory.max") in why
     assert memory_check(m, 4_000_000, 4_000_000, None) == MemoryCheck(None, None)
+
+
+def test_the_terrain_and_what_stands_on_it_count_as_loaded():
+    m = _mission(5.0)
+    g = m.domain.grid_geometry(m.cell_size_m)
+    cover = GroundCover(g, np.full(g.shape, 15.0), np.full(g.shape, 1, np.uint8))
+    covered = dataclasses.replace(m, terrain=TerrainSurface(
+        g, np.zeros((g.n_rows + 1, g.n_cols + 1)), "test", cover=cover))
+    held = covered.terrain.nbytes
+    # Corners (8 B), block ranges, the cover's height, kind, code and clearance (10 B) and
+    # its tops (8 B and 3 x 4 B): about 38 B a cell.
+    assert held >= 38 * g.n_rows * g.n_cols
+    cells = g.n_rows * g.n_cols
+    need = estimate_bytes(cells, cells, [5.0], m.max_gap_s)
+    assert memory_check(m, cells, cells, (need, "memory.max")) == MemoryCheck(None, None)
+    assert memory_check(covered, cells, cells, (need + held, "memory.max")).refusal is None
+    assert memory_check(covered, cells, cells, (need + held - 1, "memory.max")).refusal
 
 
 def test_a_county_is_not_refused_but_told_how_much_of_it_the_memory_holds():

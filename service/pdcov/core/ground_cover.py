@@ -123,6 +123,11 @@ class GroundCover:
         return self._height_max_m
 
     @property
+    def nbytes(self) -> int:
+        """Bytes its arrays hold."""
+        return sum(a.nbytes for a in (self.height_m, self.kind, self.code, self._clear_m))
+
+    @property
     def roof(self) -> np.ndarray:
         """Cells under something solid (bool (n_rows, n_cols)): a person there is never
         seen."""
@@ -154,6 +159,11 @@ class CoverTops:
     top_z_m: np.ndarray
     near_top_z_m: tuple[np.ndarray, ...]
     top_max_z_m: float
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes its arrays hold."""
+        return self.top_z_m.nbytes + sum(a.nbytes for a in self.near_top_z_m)
 
     @classmethod
     def of(cls, top_z_m: np.ndarray) -> CoverTops:

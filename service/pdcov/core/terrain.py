@@ -94,6 +94,14 @@ class TerrainSurface:
         return not self.z_corner_m.any()
 
     @property
+    def nbytes(self) -> int:
+        """Bytes its arrays hold, its cover's included."""
+        held = self.z_corner_m.nbytes + self._block_min.nbytes * 3
+        if self.cover is not None and self._cover_tops is not None:
+            held += self.cover.nbytes + self._cover_tops.nbytes
+        return held
+
+    @property
     def cover_tops(self) -> CoverTops | None:
         """The tops of what stands on the cells (``GroundCover.tops``), None without a
         cover."""

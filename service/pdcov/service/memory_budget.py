@@ -13,7 +13,9 @@ station is sent: a grid.npz up to bus.grid_state.MAX_CELLS cells,
 BYTES_PER_SNAPSHOT_CELL per cell of the domain, tiled above (bus/tiled_snapshot.py),
 BYTES_PER_TILED_SNAPSHOT_CELL per cell seen. A mission is refused when not even
 SEARCH_MIN_M2 of its free cells searched would fit; it is warned of when its whole domain
-searched would not, with the area that fits. The limit is the least of the cgroup's
+searched would not, with the area that fits. The mission's terrain and what stands on it
+are held whole (tens of bytes a cell of the grid: ``TerrainSurface.nbytes``) and counted as
+loaded. The limit is the least of the cgroup's
 memory.max (the systemd unit's MemoryMax) and the machine's MemAvailable, read by
 ``memory_limit_bytes``.
 """
@@ -74,8 +76,10 @@ def memory_check(mission: Mission, free_cells: int, domain_cells: int,
     rates = [c.frame_rate_hz for c in mission.cameras]
     cell_m2 = mission.cell_size_m**2
 
+    terrain = 0 if mission.terrain is None else mission.terrain.nbytes
+
     def need(seen: int) -> int:
-        return estimate_bytes(seen, domain_cells, rates, mission.max_gap_s)
+        return estimate_bytes(seen, domain_cells, rates, mission.max_gap_s) + terrain
 
     least = min(free_cells, int(SEARCH_MIN_M2 / cell_m2))
     if need(least) > limit[0]:
