@@ -186,3 +186,18 @@ def test_nothing_standing_on_the_ground_leaves_the_grid_as_it_was():
 def test_viewpoint_looks_are_refused_with_cover():
     with pytest.raises(ValueError, match="only with independent looks"):
         covered_grid(looks=LooksConfig(LooksRule.VIEWPOINT))
+
+
+def test_an_oblique_view_under_the_canopys_edge_sees_more_than_straight_down():
+    # 2 m inside the forest's east edge (x = 150): straight down through 20 m of trees;
+    # from 40 m east of the edge at 20 m up, the ray leaves the trees through their side
+    # after 2 m, 1 m up: about 2.2 m of foliage. The planners score candidate views with
+    # this rule (they update grids over mission.terrain), so such views win where they help.
+    terrain = scene()
+    point = [[148.0, 100.5]]
+    down = t_of(terrain, [148.0, 100.5, 60.0], point)[0]
+    side = t_of(terrain, [190.0, 100.5, 20.0], point)[0]
+    tan_e = 20.0 / 42.0
+    assert down == pytest.approx(math.exp(-K * 20.0), rel=1e-6)
+    assert side == pytest.approx(math.exp(-K * 2.0 * math.hypot(1, tan_e)), rel=1e-6)
+    assert side > 3 * down
