@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import re
 import socket
 import xml.etree.ElementTree as ET
 from datetime import datetime, timedelta
@@ -16,7 +17,13 @@ import pytest
 
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import ConfigError
-from pdcov.ground.cot import AIRCRAFT_TYPE, CANDIDATE_TYPE, CotSchedule, sensor_from_footprint
+from pdcov.ground.cot import (
+    AIRCRAFT_TYPE,
+    CANDIDATE_TYPE,
+    CotSchedule,
+    sensor_from_footprint,
+    track_between,
+)
 from pdcov.ground.cot_feed import CotFeed, parse_cot_url
 from pdcov.ground.feed import VehicleFeed
 from tests.support.exports_fixtures import candidate
@@ -116,6 +123,45 @@ def test_schedule_sends_new_poses_and_changed_candidates_at_bounded_rates():
     assert when(e.get("stale")) - when(e.get("time")) == timedelta(seconds=300)
     assert float(e.find("point").get("ce")) == pytest.approx(2.146 * 0.5, abs=0.05)
     assert len(sched.due([f], 16.0, 1_700_000_016.0)) == 20  # the repeats, still bounded
+
+
+def pose_at(x_m: float, y_m: float, t_s: float | None, heading_deg: float = 90.0) -> dict:
+    """A status pose at ENU (x_m, y_m) about AIR, at autopilot time ``t_s``."""
+    lat, lon, _ = enu_to_geodetic(np.array([x_m, y_m, 0.0]), AIR)
+    return {"lat_deg": round(float(lat), 7), "lon_deg": round(float(lon), 7),
+            "alt_msl_m": 620.0, "heading_deg": heading_deg, "t_s": t_s}
+
+
+def test_the_track_is_the_velocity_between_two_status_positions():
+    t = track_between(pose_at(0, 0, 10.0), pose_at(3.0, 4.0, 11.0))  # 5 m in 1 s, to ENE
+    assert t.speed_mps == pytest.approx(5.0, abs=0.02)
+    assert t.course_deg == pytest.approx(math.degrees(math.atan2(3.0, 4.0)), abs=0.2)
+    west = track_between(pose_at(0, 0, 10.0), pose_at(-8.0, 0.0, 12.0))
+    assert (west.speed_mps, west.course_deg) == pytest.approx((4.0, 270.0), abs=0.2)
+    hover = track_between(pose_at(0, 0, 10.0), pose_at(0.1, 0.0, 11.0, heading_deg=200.0))
+    assert hover.speed_mps < 0.5 and hover.course_deg == 200.0  # its nose, not its drift
+    assert track_between(pose_at(0, 0, 10.0), pose_at(5, 0, 16.0)) is None  # a status lost
+    assert track_between(pose_at(0, 0, 10.0), pose_at(5, 0, 10.0)) is None
+    assert track_between(pose_at(0, 0, None), pose_at(5, 0, 11.0)) is None
+
+
+def test_the_aircraft_carries_speed_and_course_and_a_pin_none():
+    sched = CotSchedule(aircraft_period_s=1.0)
+    f = feed_with(candidates=[candidate(3, 15.0, 2.0)])
+    f.status["pose"] = pose_at(0.0, 0.0, 20.0)
+    first = {parse(e).get("type"): parse(e) for e in sched.due([f], 0.0, 1.7e9)}
+    assert first[AIRCRAFT_TYPE].find("detail/track") is None  # one position: no velocity
+    f.status["pose"] = pose_at(0.0, 6.0, 21.5)  # 6 m north in 1.5 s
+    (air,) = [parse(e) for e in sched.due([f], 1.0, 1.7e9 + 1.0)]
+    track = air.find("detail/track")
+    assert float(track.get("speed")) == pytest.approx(4.0, abs=0.02)  # m/s
+    assert float(track.get("course")) == pytest.approx(0.0, abs=0.2)  # deg true: north
+    pt = air.find("point")
+    assert all(re.fullmatch(r"-?\d+\.\d{7}", pt.get(k)) for k in ("lat", "lon"))
+    assert first[CANDIDATE_TYPE].find("detail/track") is None  # a pin stands still
+    f.status["pose"] = pose_at(0.0, 6.0, 29.0)  # after 7.5 s: the velocity is unknown
+    (late,) = [parse(e) for e in sched.due([f], 2.0, 1.7e9 + 2.0)]
+    assert late.find("detail/track") is None
 
 
 def test_cot_url_is_checked():

@@ -40,9 +40,10 @@ def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_miss
     assert evaluate(tmp_path / "run") == 0
     out = capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "run").glob("[!.]*")) == [
-        "caltopo.geojson", "detections.geojson", "grid.npz", "metrics.json", "pdcov.kml"]
-    assert ("wrote metrics.json, grid.npz, detections.geojson, caltopo.geojson, pdcov.kml "
-            "in") in out
+        "caltopo.geojson", "detections.geojson", "grid.npz", "metrics.json", "pdcov.kml",
+        "pin_candidate.png", "pin_detection.png"]
+    assert ("wrote metrics.json, grid.npz, detections.geojson, caltopo.geojson, "
+            "pin_candidate.png, pin_detection.png, pdcov.kml in") in out
     assert ("not written: caltopo.geojson, pdcov.kml without outlines: P_D outlines, gaps "
             "and re-fly areas need rasterio: pip install 'pdcov[gis]'") in out
     assert ("not written: pd_overlay.png, pdcov.kmz: the P_D overlay needs matplotlib: "

@@ -11,13 +11,15 @@ import pytest
 from pdcov.core.geodesy import Origin
 from pdcov.core.mission import (
     MAV_CMD_DO_CHANGE_SPEED,
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
+    GimbalCommand,
 )
 from pdcov.errors import InputFileError
 from pdcov.planning.plan import Plan, Waypoint
-from pdcov.planning.plan_files import read_mission, read_plan, write_plan
+from pdcov.planning.plan_files import read_mission, read_plan, wpl_text, write_plan
 from pdcov.planning.plan_items import mission_items
 
 ORIGIN = Origin(39.35, -76.33, 12.5)
@@ -143,3 +145,34 @@ def test_speed_changes_only_where_the_speed_changes():
     assert speeds == [5.0, 3.5]
     takeoff = items[0]
     assert takeoff.z_m == 10.0 and np.isnan(takeoff.param4)
+
+
+def test_wpl_keeps_unset_parameters_unset(tmp_path, monkeypatch):
+    """The take-off's yaw and the gimbal's rates are unset (NaN): written "NaN", as Mission
+    Planner writes and reads it, not 0.0 (yaw north, rates zero), and read back as NaN by
+    pymavlink's loader (MAVProxy's) and by pdcov's, every other value as written."""
+    from pymavlink import mavutil, mavwp
+
+    # mavwp builds MAVLink 2 items when MAVLINK20 is set, whichever dialect mavutil loaded
+    # first (other test modules set it at import): ask the loaded dialect instead.
+    monkeypatch.setattr(mavutil, "mavlink20", lambda: "mission_type" in
+                        mavutil.mavlink.MAVLink_mission_item_message.fieldnames)
+    takeoff, *rest = mission_items(PLAN, ORIGIN)
+    items = (takeoff, GimbalCommand.MANAGER.item(-90.0), *rest)
+    path = tmp_path / "m.waypoints"
+    path.write_text(wpl_text(items, ORIGIN))
+    rows = [ln.split("\t") for ln in path.read_text().splitlines()[1:]]
+    assert rows[1][3] == str(MAV_CMD_NAV_TAKEOFF) and rows[1][7] == "NaN"
+    assert rows[2][3] == str(MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW)
+    assert rows[2][4:8] == ["-90.0", "0.0", "NaN", "NaN"]
+    loader = mavwp.MAVWPLoader()
+    assert loader.load(str(path)) == len(items) + 1  # and home
+    ours = read_mission(path).items
+    assert len(ours) == len(items)
+    for k, it in enumerate(items):
+        want = [it.param1, it.param2, it.param3, it.param4]
+        w = loader.wp(k + 1)
+        np.testing.assert_array_equal([w.param1, w.param2, w.param3, w.param4], want)
+        got = ours[k]
+        np.testing.assert_array_equal([got.param1, got.param2, got.param3, got.param4], want)
+        assert (w.command, got.command) == (it.command, it.command)

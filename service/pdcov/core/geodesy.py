@@ -14,6 +14,21 @@ import pymap3d
 
 from pdcov.errors import ConfigError
 
+DEG_DECIMALS = 7
+"""Decimal places of a latitude or longitude in what pdcov exports (GeoJSON, CalTopo, KML,
+CoT): 1e-7 deg is 1.1 cm of latitude (less of longitude), MAVLink's own resolution (degE7)
+and far below a GNSS fix's error."""
+
+
+def deg_rounded(v: float) -> float:
+    """A latitude or longitude (deg) rounded to DEG_DECIMALS places (JSON)."""
+    return round(float(v), DEG_DECIMALS)
+
+
+def deg_text(v: float) -> str:
+    """A latitude or longitude (deg) as text with DEG_DECIMALS places (KML, CoT)."""
+    return f"{float(v):.{DEG_DECIMALS}f}"
+
 
 @dataclass(frozen=True, slots=True)
 class Origin:

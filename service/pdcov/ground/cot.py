@@ -5,17 +5,20 @@
 Per vehicle (docs/ground-station.md "Cursor-on-Target"):
 
 * the aircraft, uid ``pdcov-<vehicle>``, type AIRCRAFT_TYPE, at its status position, with
-  a ``<sensor>`` detail (the CoT sensor schema ATAK draws as a field-of-view wedge:
-  ``azimuth`` degrees true, ``elevation`` degrees (-90 straight down), ``fov`` and ``vfov``
-  horizontal and vertical degrees, ``range`` metres) measured on the camera's current ground
-  footprint, so that a gimbal's pointing is shown as it is; sent when the position is new,
-  at most every ``aircraft_period_s``, stale after ``aircraft_stale_s`` (a silent vehicle
-  fades on the map instead of standing still);
+  a ``<track>`` detail (``speed`` m/s over the ground and ``course`` degrees true: the
+  vehicle's velocity between its last two status positions, ``track_between``; none
+  without two such positions) and a ``<sensor>`` detail (the CoT sensor schema ATAK draws
+  as a field-of-view wedge: ``azimuth`` degrees true, ``elevation`` degrees (-90 straight
+  down), ``fov`` and ``vfov`` horizontal and vertical degrees, ``range`` metres) measured
+  on the camera's current ground footprint, so that a gimbal's pointing is shown as it is;
+  sent when the position is new, at most every ``aircraft_period_s``, stale after
+  ``aircraft_stale_s`` (a silent vehicle fades on the map instead of standing still);
 * each candidate, uid its pin's ``uid`` (docs/protocol.md "detections": durable across
   the daemon's restarts, so a pin keeps its TAK marker), type CANDIDATE_TYPE (unknown
   ground object: nobody has looked at it yet), ``ce`` its 90 % circular error, its
   p_person, looks and hits in the remarks; sent when it changed and again every
-  ``candidate_period_s``, stale after ``candidate_stale_s``.
+  ``candidate_period_s``, stale after ``candidate_stale_s``; no ``<track>``: a pin stands
+  still.
 
 Heights: CoT's ``hae`` is above the WGS84 ellipsoid and the status gives MSL (pdcov has no
 geoid model), so every point says its height is unknown (9999999, CoT's own value) and
@@ -36,11 +39,11 @@ from typing import Any
 import numpy as np
 import shapely
 
-from pdcov.core.geodesy import Origin, geodetic_to_enu
+from pdcov.core.geodesy import Origin, deg_text, geodetic_to_enu
 from pdcov.ground.feed import VehicleFeed
 
-__all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CotSchedule", "Sensor", "aircraft_event",
-           "candidate_event", "sensor_from_footprint"]
+__all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CotSchedule", "Sensor", "Track",
+           "aircraft_event", "candidate_event", "sensor_from_footprint", "track_between"]
 
 AIRCRAFT_TYPE = "a-f-A-M-F-Q"
 """MIL-STD-2525 friendly air, unmanned aerial vehicle: the UAV symbol TAK clients draw."""
@@ -53,6 +56,12 @@ CE90_PER_SIGMA = 2.146
 NADIR_SHARE = 0.05
 """A footprint centre nearer the point below the aircraft than this share of its height is
 taken as straight down: the sensor azimuth is then the vehicle's heading."""
+TRACK_MAX_GAP_S = 5.0
+"""Two status positions further apart in time (s) give no velocity: a status lost, a
+vehicle that stopped talking."""
+HOVER_SPEED_MPS = 0.5
+"""Below this ground speed (m/s) the course is the vehicle's heading: a hover's drift points
+nowhere in particular."""
 
 
 def cot_time(unix_s: float) -> str:
@@ -107,12 +116,39 @@ def sensor_from_footprint(lat_deg: float, lon_deg: float, height_m: float,
                   range_m=float(np.linalg.norm(los)))
 
 
+@dataclass(frozen=True, slots=True)
+class Track:
+    """The CoT ``<track>`` detail: ``speed_mps`` over the ground (horizontal), ``course_deg``
+    the direction of motion, degrees clockwise from true north in [0, 360)."""
+
+    speed_mps: float
+    course_deg: float
+
+
+def track_between(before: dict[str, Any], after: dict[str, Any]) -> Track | None:
+    """The vehicle's mean velocity between two status poses {lat_deg, lon_deg, t_s (the
+    autopilot's clock, s), heading_deg}: the distance over the ground (WGS84, in the plane
+    east and north of ``before``) over the time between them. The course is the heading
+    of ``after`` below HOVER_SPEED_MPS (the direction of motion when it has none). None
+    without both times, or when they are not 0 < dt <= TRACK_MAX_GAP_S apart."""
+    t0, t1 = before.get("t_s"), after.get("t_s")
+    if t0 is None or t1 is None or not 0.0 < float(t1) - float(t0) <= TRACK_MAX_GAP_S:
+        return None
+    e, n = geodetic_to_enu(float(after["lat_deg"]), float(after["lon_deg"]), 0.0,
+                           Origin(float(before["lat_deg"]), float(before["lon_deg"])))[:2]
+    speed = float(math.hypot(e, n)) / (float(t1) - float(t0))
+    heading = after.get("heading_deg")
+    course = math.degrees(math.atan2(e, n)) if speed >= HOVER_SPEED_MPS or heading is None \
+        else float(heading)
+    return Track(speed, course % 360.0)
+
+
 def _event(uid: str, cot_type: str, how: str, lat_deg: float, lon_deg: float, ce: str,
            now_unix_s: float, stale_s: float) -> tuple[ET.Element, ET.Element]:
     event = ET.Element("event", version="2.0", uid=uid, type=cot_type, how=how,
                        time=cot_time(now_unix_s), start=cot_time(now_unix_s),
                        stale=cot_time(now_unix_s + stale_s))
-    ET.SubElement(event, "point", lat=f"{lat_deg:.7f}", lon=f"{lon_deg:.7f}", hae=UNKNOWN,
+    ET.SubElement(event, "point", lat=deg_text(lat_deg), lon=deg_text(lon_deg), hae=UNKNOWN,
                   ce=ce, le=UNKNOWN)
     return event, ET.SubElement(event, "detail")
 
@@ -121,22 +157,29 @@ def _f(v: float) -> str:
     return f"{v:.1f}"
 
 
+def _bearing(deg: float) -> str:
+    """Degrees clockwise from true north, to 0.1 in [0, 360): 359.97 is "0.0"."""
+    return _f(round(deg, 1) % 360.0)
+
+
 def aircraft_uid(vehicle_id: str) -> str:
     return f"pdcov-{vehicle_id}"
 
 
 def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
-                   now_unix_s: float, stale_s: float) -> bytes:
+                   now_unix_s: float, stale_s: float, track: Track | None = None) -> bytes:
     """The aircraft's event from a status ``pose`` {lat_deg, lon_deg, alt_msl_m,
-    heading_deg}: its position (how "m-g": GPS), call sign, course, and the sensor."""
+    heading_deg}: its position (how "m-g": GPS), call sign, track (speed and course, both
+    or none: TAK's track schema requires both) and the sensor."""
     event, detail = _event(aircraft_uid(vehicle_id), AIRCRAFT_TYPE, "m-g",
                            float(pose["lat_deg"]), float(pose["lon_deg"]), UNKNOWN,
                            now_unix_s, stale_s)
     ET.SubElement(detail, "contact", callsign=f"pdcov {vehicle_id}")
-    if pose.get("heading_deg") is not None:
-        ET.SubElement(detail, "track", course=_f(float(pose["heading_deg"]) % 360.0))
+    if track is not None:
+        ET.SubElement(detail, "track", course=_bearing(track.course_deg),
+                      speed=f"{track.speed_mps:.2f}")
     if sensor is not None:
-        ET.SubElement(detail, "sensor", azimuth=_f(sensor.azimuth_deg),
+        ET.SubElement(detail, "sensor", azimuth=_bearing(sensor.azimuth_deg),
                       elevation=_f(sensor.elevation_deg), fov=_f(sensor.fov_deg),
                       vfov=_f(sensor.vfov_deg), range=_f(sensor.range_m),
                       model="pdcov camera footprint", type="r-e")
@@ -178,6 +221,8 @@ class CotSchedule:
     _last_s: float | None = None
     _sent_at: dict[tuple[str, ...], tuple[float, Any]] = field(default_factory=dict)
     """(kind, vehicle[, candidate uid]) -> (when sent, what it said)."""
+    _tracks: dict[str, tuple[dict[str, Any], Track | None]] = field(default_factory=dict)
+    """vehicle -> (the last status pose seen, the track from the one before to it)."""
 
     def due(self, feeds: Iterable[VehicleFeed], now_s: float, now_unix_s: float
             ) -> list[bytes]:
@@ -193,12 +238,13 @@ class CotSchedule:
             pose = (feed.status or {}).get("pose")
             if isinstance(pose, dict):
                 at = (pose.get("t_s"), pose.get("lat_deg"), pose.get("lon_deg"))
+                track = self._track(vid, pose)
                 last = self._sent_at.get(("a", vid))
                 if last is None or (last[1] != at
                                     and now_s - last[0] >= self.aircraft_period_s):
                     ranked.append((0, ("a", vid), at, partial(
                         aircraft_event, vid, pose, _sensor(feed, pose), now_unix_s,
-                        self.aircraft_stale_s)))
+                        self.aircraft_stale_s, track)))
             for uid, c in feed.candidates.items():
                 said = (c["hits"], c["looks"], c["p_person"], c["lat_deg"], c["lon_deg"],
                         c["sigma_m"])
@@ -217,6 +263,18 @@ class CotSchedule:
             out.append(build())
         self.sent += len(out)
         return out
+
+    def _track(self, vehicle_id: str, pose: dict[str, Any]) -> Track | None:
+        """The vehicle's track at ``pose``: from the pose seen before it (every status pose
+        is seen: statuses come once a second, ``due`` runs more often)."""
+        seen = self._tracks.get(vehicle_id)
+        at = (pose.get("t_s"), pose.get("lat_deg"), pose.get("lon_deg"))
+        if seen is not None and (seen[0].get("t_s"), seen[0].get("lat_deg"),
+                                 seen[0].get("lon_deg")) == at:
+            return seen[1]
+        track = None if seen is None else track_between(seen[0], pose)
+        self._tracks[vehicle_id] = (dict(pose), track)
+        return track
 
 
 def _sensor(feed: VehicleFeed, pose: dict[str, Any]) -> Sensor | None:

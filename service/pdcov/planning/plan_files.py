@@ -121,14 +121,21 @@ def mission_from_qgc_document(doc: Any, source: str) -> MissionFile:
 # -- QGC WPL 110 ---------------------------------------------------------------------------
 
 WPL_HEADER = "QGC WPL 110"
+WPL_NAN = "NaN"
+"""An unset parameter (NaN: the autopilot keeps its own value) in a WPL file, as Mission
+Planner writes it and reads it back (.NET's float.Parse takes exactly "NaN"), and as
+pymavlink (MAVProxy) and ``mission_from_wpl_text`` read it (Python's float takes any case).
+0.0 would mean yaw north or a gimbal rate of zero. QGC's WPL import reads only "nan" (Qt's
+toDouble) and takes "NaN" as 0.0: for QGC use the .plan, whose null it reads as NaN."""
 
 
 def wpl_text(items: tuple[MissionItem, ...], origin: Origin) -> str:
     """QGC WPL 110: a header, then home as item 0, then one tab-separated line per item:
-    seq current frame command p1 p2 p3 p4 lat lon alt autocontinue."""
+    seq current frame command p1 p2 p3 p4 lat lon alt autocontinue; an unset parameter is
+    WPL_NAN."""
     lines = [WPL_HEADER]
     for seq, it in enumerate((home_item(origin), *items)):
-        params = [0.0 if math.isnan(v) else v
+        params = [WPL_NAN if math.isnan(v) else repr(float(v))
                   for v in (it.param1, it.param2, it.param3, it.param4)]
         fields = [seq, int(seq == 0), it.frame, it.command, *params,
                   f"{it.lat_deg:.8f}", f"{it.lon_deg:.8f}", f"{it.z_m:.6f}",

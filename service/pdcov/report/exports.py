@@ -8,9 +8,9 @@ and ``pdcov watch --record DIR`` (in DIR/exports/), from the same builders
 * ``caltopo.geojson``: the same map for CalTopo / SARTopo's GeoJSON import: P_D outlines and
   gaps as ``Shape`` polygons with stroke and fill, candidates as ``Marker`` points, re-fly
   areas as ``Assignment`` polygons (the properties CalTopo itself writes in its exports);
-* ``pdcov.kml`` with ``pd_overlay.png`` beside it, and ``pdcov.kmz`` (the same ``doc.kml``
-  and PNG zipped): a P_D ground overlay and the same features, for Google Earth and ATAK
-  (report/kml.py).
+* ``pdcov.kml`` with ``pd_overlay.png`` and the pins' icon PNGs beside it, and ``pdcov.kmz``
+  (the same ``doc.kml`` and PNGs zipped): a P_D ground overlay and the same features, for
+  Google Earth and ATAK (report/kml.py; no file refers to the internet).
 
 The builders are pure: the coverage (``Coverage``) and each vehicle's detections
 (``VehicleDetections``, the ``pdcov.detections`` document as decoded from the bus or read
@@ -32,7 +32,7 @@ import shapely
 
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.core.domain import GridGeometry
-from pdcov.core.geodesy import Origin
+from pdcov.core.geodesy import Origin, deg_rounded
 from pdcov.extras import GIS, PLOTS
 
 __all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
@@ -49,7 +49,8 @@ MIN_REFLY_CELLS = 4
 a shape)."""
 
 Polygon = list[list[list[float]]]
-"""One polygon: rings (exterior first, then holes) of [lon, lat] degrees."""
+"""One polygon: rings of [lon, lat] degrees, the exterior first and counter-clockwise, then
+the holes, clockwise (RFC 7946; report/gis.polygons_lon_lat)."""
 
 # One palette for every export (GeoJSON '#rrggbb'; report/kml.py converts it).
 OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44ad")
@@ -281,7 +282,7 @@ def write_detections_geojson(path: Path, all_pins: Iterable[Pin]) -> int:
 
 
 def _point(p: Pin) -> dict[str, Any]:
-    return {"type": "Point", "coordinates": [round(p.lon_deg, 9), round(p.lat_deg, 9)]}
+    return {"type": "Point", "coordinates": [deg_rounded(p.lon_deg), deg_rounded(p.lat_deg)]}
 
 
 def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: str
@@ -355,7 +356,7 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
     """Write the exports into ``out_dir`` (which must exist), each atomically; without a
     coverage (no grid yet) the files hold the detections only. Raises OutputError (naming
     the file) when one cannot be written; the files already written stay."""
-    from pdcov.report.kml import kml_document, kmz_bytes, overlay_png
+    from pdcov.report.kml import icon_pngs, kml_document, kmz_bytes, overlay_png
 
     out = Path(out_dir)
     all_pins = pins(findings, coverage)
@@ -380,13 +381,18 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
             files.append("pd_overlay.png")
         else:
             not_written.append(f"pd_overlay.png, pdcov.kmz: {plots_missing}")
+    icons = icon_pngs()
+    for name, png in icons.items():  # before the KML that refers to them
+        with atomic_write(out / name, "wb") as f:
+            f.write(png)
+        files.append(name)
     doc = kml_document(layers, all_pins, overlay, title)
     with atomic_write(out / "pdcov.kml", "wb") as f:
         f.write(doc)
     files.append("pdcov.kml")
     if overlay is not None:
         with atomic_write(out / "pdcov.kmz", "wb") as f:
-            f.write(kmz_bytes(doc, overlay))
+            f.write(kmz_bytes(doc, overlay, icons))
         files.append("pdcov.kmz")
     return Exported(tuple(files), tuple(not_written))
 

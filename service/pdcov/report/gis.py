@@ -17,10 +17,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
+from shapely.geometry.polygon import orient
 
 from pdcov.atomic import atomic_path, write_text_atomic
 from pdcov.core.domain import GridGeometry
-from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic
 from pdcov.core.tiles import Window
 
 
@@ -128,15 +130,19 @@ def cells_outline(cells: np.ndarray, geometry: GridGeometry) -> list[list[list[l
 def polygons_lon_lat(polygons_enu: list[list[list[list[float]]]], origin: Origin
                      ) -> list[list[list[list[float]]]]:
     """ENU polygons (lists of rings of [x, y] m, on the origin's ground) as WGS84
-    [lon, lat] degrees, the order GeoJSON (RFC 7946) and KML use, to 1e-9 degrees."""
+    [lon, lat] degrees, the order GeoJSON (RFC 7946) and KML use, rounded to
+    ``geodesy.DEG_DECIMALS``, wound as RFC 7946 section 3.1.6 wants: the exterior
+    counter-clockwise, the holes clockwise (seen from above, east right, north up)."""
     out = []
     for poly in polygons_enu:
         rings = []
         for ring in poly:
             enu = np.array(ring, dtype=float).reshape(-1, 2)
             lla = enu_to_geodetic(np.c_[enu, np.zeros(len(enu))], origin)
-            rings.append([[round(float(lon), 9), round(float(lat), 9)] for lat, lon, _ in lla])
-        out.append(rings)
+            rings.append([[deg_rounded(lon), deg_rounded(lat)] for lat, lon, _ in lla])
+        wound = orient(shapely.Polygon(rings[0], rings[1:]), sign=1.0)
+        out.append([[list(xy) for xy in wound.exterior.coords],
+                    *([list(xy) for xy in r.coords] for r in wound.interiors)])
     return out
 
 

@@ -5,8 +5,10 @@ ground overlay.
 The overlay is the free cells' P_D in the heat map's colours (viridis, as heatmap.png),
 transparent elsewhere, placed by a ``LatLonBox`` (north, south, east, west in WGS84 degrees,
 no rotation): the grid's ENU axes point east and north at the origin, and over a search
-area of a few km the meridians converge by far less than a cell. A KMZ is a zip holding
-``doc.kml`` first (Google Earth reads the first .kml) and the overlay PNG it names.
+area of a few km the meridians converge by far less than a cell. The placemarks' icons are
+PNGs of their own (ICONS) written beside the KML. A KMZ is a zip holding ``doc.kml`` first
+(Google Earth reads the first .kml), then the overlay and icon PNGs it names: every href is
+a relative file name, so no reader fetches anything from the internet.
 """
 
 from __future__ import annotations
@@ -15,12 +17,12 @@ import io
 import math
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pdcov.core.geodesy import enu_to_geodetic
+from pdcov.core.geodesy import deg_text, enu_to_geodetic
 from pdcov.report.exports import (
     CANDIDATE_COLOR,
     DETECTION_COLOR,
@@ -38,6 +40,11 @@ OVERLAY_NAME = "pd_overlay.png"
 MAX_OVERLAY_SIDE = 4096
 """Overlay pixels a side at most: a larger grid is shown by the maximum of cell blocks."""
 OVERLAY_ALPHA = 170
+ICONS = {"candidate": ("pin_candidate.png", CANDIDATE_COLOR),
+         "detection": ("pin_detection.png", DETECTION_COLOR)}
+"""The placemarks' icons by pin kind: (file name, '#rrggbb' colour)."""
+ICON_PX = 32
+"""Icon side, pixels."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +89,24 @@ def overlay_png(coverage: Coverage) -> Overlay:
                    float(corners[:, 1].max()), float(corners[:, 1].min()))
 
 
+def icon_pngs() -> dict[str, bytes]:
+    """The ICONS as PNG bytes by file name: a disc of the pin's colour with a white rim,
+    ICON_PX a side, transparent around it (drawn 4 times larger, then reduced: smooth
+    edges)."""
+    from PIL import Image, ImageDraw
+
+    out = {}
+    big = 4 * ICON_PX
+    for name, color in ICONS.values():
+        img = Image.new("RGBA", (big, big), (0, 0, 0, 0))
+        ImageDraw.Draw(img).ellipse((4, 4, big - 5, big - 5), fill=color, outline="white",
+                                    width=12)
+        buf = io.BytesIO()
+        img.resize((ICON_PX, ICON_PX), Image.Resampling.LANCZOS).save(buf, format="PNG")
+        out[name] = buf.getvalue()
+    return out
+
+
 def _sub(parent: ET.Element, tag: str, text: str | None = None) -> ET.Element:
     e = ET.SubElement(parent, tag)
     if text is not None:
@@ -90,14 +115,13 @@ def _sub(parent: ET.Element, tag: str, text: str | None = None) -> ET.Element:
 
 
 def _style(doc: ET.Element, sid: str, color: str, *, fill_alpha: int | None = None,
-           icon: bool = False) -> None:
+           icon: str | None = None) -> None:
     s = _sub(doc, "Style")
     s.set("id", sid)
-    if icon:
+    if icon is not None:  # the PNG has the colour: no IconStyle color to tint it
         i = _sub(s, "IconStyle")
-        _sub(i, "color", kml_color(color))
-        _sub(_sub(i, "Icon"), "href",
-             "http://maps.google.com/mapfiles/kml/shapes/placemark_circle.png")
+        _sub(_sub(i, "Icon"), "href", icon)
+        ET.SubElement(i, "hotSpot", x="0.5", y="0.5", xunits="fraction", yunits="fraction")
         return
     line = _sub(s, "LineStyle")
     _sub(line, "color", kml_color(color))
@@ -108,7 +132,7 @@ def _style(doc: ET.Element, sid: str, color: str, *, fill_alpha: int | None = No
 
 
 def _coords(ring: list[list[float]]) -> str:
-    return " ".join(f"{lon:.9f},{lat:.9f}" for lon, lat in ring)
+    return " ".join(f"{deg_text(lon)},{deg_text(lat)}" for lon, lat in ring)
 
 
 def _polygon_placemark(folder: ET.Element, name: str, style: str, poly: Polygon,
@@ -135,8 +159,8 @@ def kml_document(layers: MapLayers | None, all_pins: Sequence[Pin], overlay: Ove
         _style(doc, f"outline-{k}", OUTLINE_COLORS[k % len(OUTLINE_COLORS)], fill_alpha=0)
     _style(doc, "gap", GAP_COLOR, fill_alpha=80)
     _style(doc, "refly", REFLY_COLOR, fill_alpha=40)
-    _style(doc, "candidate", CANDIDATE_COLOR, icon=True)
-    _style(doc, "detection", DETECTION_COLOR, icon=True)
+    for kind, (icon, color) in ICONS.items():
+        _style(doc, kind, color, icon=icon)
     if overlay is not None:
         folder = _sub(doc, "Folder")
         _sub(folder, "name", "P_D overlay")
@@ -145,7 +169,7 @@ def kml_document(layers: MapLayers | None, all_pins: Sequence[Pin], overlay: Ove
         _sub(_sub(go, "Icon"), "href", OVERLAY_NAME)
         box = _sub(go, "LatLonBox")
         for tag in ("north", "south", "east", "west"):
-            _sub(box, tag, f"{getattr(overlay, f'{tag}_deg'):.9f}")
+            _sub(box, tag, deg_text(getattr(overlay, f"{tag}_deg")))
         _sub(box, "rotation", "0")
     if layers is not None:
         for k, (t, polys) in enumerate(layers.outlines):
@@ -179,14 +203,18 @@ def kml_document(layers: MapLayers | None, all_pins: Sequence[Pin], overlay: Ove
                 d = _sub(data, "Data")
                 d.set("name", name)
                 _sub(d, "value", "" if value is None else str(value))
-            _sub(_sub(pm, "Point"), "coordinates", f"{p.lon_deg:.9f},{p.lat_deg:.9f}")
+            _sub(_sub(pm, "Point"), "coordinates",
+                 f"{deg_text(p.lon_deg)},{deg_text(p.lat_deg)}")
     return ET.tostring(kml, encoding="utf-8", xml_declaration=True)
 
 
-def kmz_bytes(doc_kml: bytes, overlay: Overlay) -> bytes:
-    """The KMZ: ``doc.kml`` first, then the overlay PNG it refers to."""
+def kmz_bytes(doc_kml: bytes, overlay: Overlay, icons: Mapping[str, bytes]) -> bytes:
+    """The KMZ: ``doc.kml`` first, then the overlay and the icon PNGs (``icon_pngs``) it
+    refers to."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
         z.writestr("doc.kml", doc_kml)
         z.writestr(OVERLAY_NAME, overlay.png)
+        for name, png in icons.items():
+            z.writestr(name, png)
     return buf.getvalue()
