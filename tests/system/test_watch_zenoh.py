@@ -11,9 +11,11 @@ import time
 import numpy as np
 import pytest
 
+from pdcov.ground.app import QUIET_AFTER_S
 from tests.support.watch_fixtures import (
     TinyPublisher,
     ZenohTinyDaemon,
+    free_port,
     load,
     start_watcher,
     stop_watcher,
@@ -95,6 +97,29 @@ def test_once_prints_one_report(router, daemons):
     share = d.pub.grid.metrics([0.8]).proportion_at_or_above[0.8]
     assert f"coverage {100 * share:.1f}% of free cells at P_D >= 0.8" in lines[0]
     assert any(line.startswith("|uav7 ") for line in lines)
+
+
+def test_with_no_daemon_the_watcher_says_so_once_and_keeps_waiting(router, processes):
+    w = start_watcher(processes, router)
+    time.sleep(QUIET_AFTER_S + 2.5)
+    assert w.poll() is None  # still waiting
+    said = [line for line in stop_watcher(w).splitlines() if "no vehicle heard" in line]
+    assert len(said) == 1, said
+    assert (f"no vehicle heard {QUIET_AFTER_S:g} s after connecting; this session: client, "
+            f"connect [{router}]") in said[0]
+    assert "is a daemon running" in said[0] and "(still waiting for pdcov/*/)" in said[0]
+
+
+def test_a_router_nobody_runs_is_one_line_saying_what_to_do():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = subprocess.run([sys.executable, "-m", "pdcov.cli", "watch", "--plain",
+                          "--zenoh-connect", endpoint], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2 and out.stdout == "" and out.stderr.count("\n") == 1, out.stderr
+    assert "pdcov watch: error: bus: cannot open the Zenoh session" in out.stderr
+    assert f"nothing answers at {endpoint} (refused or unreachable): check that the " \
+           "router (zenohd)" in out.stderr
+    assert ".rs" not in out.stderr and "Unable to connect" not in out.stderr
 
 
 def test_watch_refuses_bad_arguments(tmp_path):

@@ -85,7 +85,7 @@ def test_upload_unknown_connection_scheme(tmp_path: Path, capsys) -> None:
                                  "tcp:127.0.0.1:99999", "udpout:127.0.0.1:port"])
 def test_upload_connection_without_a_usable_port(tmp_path: Path, capsys, url: str) -> None:
     err = usage_error(["upload", str(tmp_path / "m.plan"), "--connect", url], capsys)
-    assert "HOST:PORT with a port in 1..65535" in err and repr(url) in err
+    assert ":HOST:PORT with a port in " in err and repr(url) in err
 
 
 def test_huge_grid_is_refused_with_the_figure(tmp_path: Path, capsys) -> None:

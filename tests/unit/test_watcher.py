@@ -146,7 +146,7 @@ def test_one_vehicle_only_and_ages():
     assert w2.poll(2.2) == []
 
 
-def test_no_vehicle_after_connecting_says_why_then_not_once_one_is_heard():
+def test_no_vehicle_after_connecting_says_why_once_then_not_once_one_is_heard():
     from pdcov.ground.watcher import Watcher
 
     w = Watcher(quiet_hint="this session: client", quiet_after_s=10.0)
@@ -154,6 +154,8 @@ def test_no_vehicle_after_connecting_says_why_then_not_once_one_is_heard():
     w.on_connected(100.0)
     assert not w.report(109.9).station
     assert w.report(110.0).station == (
-        "no vehicle heard 10 s after connecting; this session: client",)
+        "no vehicle heard 10 s after connecting; this session: client (still waiting for "
+        "pdcov/*/)",)
+    assert w.report(300.0).station == w.report(110.0).station  # one line: --plain says it once
     w.on_alive("uav1", True, 111.0)
     assert not w.report(120.0).station

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import Enum
@@ -63,15 +64,46 @@ class BusConfig:
                               f"{self.tiles_max_bytes_per_s!r}")
         for name in ("connect", "listen"):
             for e in getattr(self, name):
-                if not isinstance(e, str) or "/" not in e:
-                    raise ConfigError(f"bus.{name}: endpoint {e!r}: expected "
-                                      "PROTOCOL/ADDRESS such as tcp/192.168.1.10:7447")
+                check_endpoint(e, f"bus.{name}", listen=name == "listen")
 
     def with_endpoints(self, connect: tuple[str, ...] | None,
                        listen: tuple[str, ...] | None) -> BusConfig:
-        """The config with command-line endpoints in place of the configured ones."""
+        """The config with command-line endpoints (checked, and named by their options)
+        in place of the configured ones."""
+        for option, given in (("--zenoh-connect", connect), ("--zenoh-listen", listen)):
+            for e in given or ():
+                check_endpoint(e, option, listen=option == "--zenoh-listen")
         return replace(self, connect=self.connect if connect is None else tuple(connect),
                        listen=self.listen if listen is None else tuple(listen))
+
+
+IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+"""Zenoh's link protocols addressed HOST:PORT."""
+OTHER_PROTOCOLS = ("unixsock-stream", "unixsock-seqpacket", "unixpipe", "serial", "vsock")
+
+
+def check_endpoint(endpoint: object, what: str, *, listen: bool) -> None:
+    """ConfigError naming ``what`` (option or config key) when ``endpoint`` is not
+    PROTOCOL/ADDRESS of a Zenoh link protocol, with HOST:PORT for the IP ones (port 0 to
+    listen on a free one; an IPv6 host in brackets); checked before Zenoh sees it."""
+    example = "tcp/192.168.1.10:7447"
+    if not isinstance(endpoint, str):
+        raise ConfigError(f"{what}: expected an endpoint such as {example}, got {endpoint!r}")
+    proto, _, rest = endpoint.partition("/")
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    if proto in OTHER_PROTOCOLS and address:
+        return
+    if proto not in IP_PROTOCOLS:
+        raise ConfigError(f"{what}: endpoint {endpoint!r}: expected PROTOCOL/ADDRESS such as "
+                          f"{example}, the protocol one of {', '.join(IP_PROTOCOLS)} (or "
+                          f"{', '.join(OTHER_PROTOCOLS)})")
+    host, _, port = address.rpartition(":")
+    lowest = 0 if listen else 1
+    bracketed = host.startswith("[") and host.endswith("]")
+    if (not host or (":" in host and not bracketed) or any(c.isspace() for c in host)
+            or not port.isdigit() or not lowest <= int(port) <= 65535):
+        raise ConfigError(f"{what}: endpoint {endpoint!r}: expected {proto}/HOST:PORT with a "
+                          f"port in {lowest}..65535 (IPv6: {proto}/[::1]:7447)")
 
 
 def bus_config_from_dict(doc: Any, source: str | None = None) -> BusConfig:
@@ -198,8 +230,12 @@ def zenoh_config(bus: BusConfig, connect_timeout_s: float | None = None):  # -> 
     ConfigError."""
     import zenoh
 
+    doing = "the defaults"
     try:
+        if bus.config_file:
+            doing = f"the config file {bus.config_file} (--zenoh-config, bus.config_file)"
         conf = zenoh.Config.from_file(bus.config_file) if bus.config_file else zenoh.Config()
+        doing = "the endpoints, mode and scouting"
         if bus.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(bus.connect)))
         if bus.listen or conf.get_json("listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
@@ -217,9 +253,12 @@ def zenoh_config(bus: BusConfig, connect_timeout_s: float | None = None):  # -> 
         if not bus.multicast_scouting:
             conf.insert_json5("scouting/multicast/enabled", "false")
         for path, value in bus.zenoh.items():
+            doing = f"bus.zenoh {path}: {json.dumps(value)}"
             conf.insert_json5(str(path), json.dumps(value))
     except Exception as exc:  # noqa: BLE001 - zenoh raises its own ZError for any bad value
-        raise ConfigError(f"bus: Zenoh refuses the session config: {exc}") from None
+        raise ConfigError(f"bus: Zenoh refuses the session config, at {doing}: "
+                          f"{zenoh_text(exc)} (the keys and values Zenoh takes: its "
+                          "DEFAULT_CONFIG.json5)") from None
     return conf
 
 
@@ -233,9 +272,42 @@ def open_session(bus: BusConfig, connect_timeout_s: float | None = None):  # -> 
     conf = zenoh_config(bus, connect_timeout_s)
     try:
         return zenoh.open(conf)
-    except Exception as exc:  # noqa: BLE001
-        raise ConfigError(f"bus: cannot open the Zenoh session ({describe_session(bus)}): "
-                          f"{exc}") from None
+    except Exception as exc:  # noqa: BLE001 - zenoh raises its own ZError
+        raise ConfigError(open_refusal(bus, zenoh_text(exc))) from None
+
+
+def zenoh_text(exc: BaseException) -> str:
+    """A Zenoh error's text without the Rust source locations and debug wrappers it
+    carries (``Str("unknown key")``, ``Json5Err(Message { msg: "..." ...})``,
+    ``Error("...", line: 1, ...)``)."""
+    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", str(exc)).strip()
+    inner = re.search(r'(?:^Str\(|msg: |Error\()"((?:[^"\\]|\\.)*)"', text)
+    if inner is None:
+        return text
+    try:
+        return str(json.loads(f'"{inner.group(1)}"'))
+    except ValueError:  # an escape JSON does not share with Rust's Debug
+        return inner.group(1)
+
+
+def open_refusal(bus: BusConfig, reason: str) -> str:
+    """One line for a session that did not open (``reason``: zenoh_text of Zenoh's error):
+    what failed, on which endpoints, and what to do."""
+    connect = _endpoints(zenoh_config(bus), "connect")
+    opening = f"bus: cannot open the Zenoh session ({describe_session(bus)})"
+    if "Unable to connect" in reason and connect:
+        how = "no answer in time" if "Timeout" in reason else "refused or unreachable"
+        tls = ("; with tls/ or quic/, the certificates (--zenoh-config)"
+               if any(e.startswith(("tls/", "quic/")) for e in connect) else "")
+        return (f"{opening}: nothing answers at {', '.join(connect)} ({how}): check that "
+                f"the router (zenohd) or the daemon listening there runs, the address, the "
+                f"port and the firewall{tls}; or give another --zenoh-connect")
+    failed = re.search(r"listener bound to (\S+?):? \[.*?: ([^\[\]]+?)(?: \(os error \d+\))?\]",
+                       reason)
+    if failed is not None:
+        return (f"{opening}: cannot listen on {failed.group(1)}: {failed.group(2)}: give "
+                "an address of this machine and a port nothing else holds (--zenoh-listen)")
+    return f"{opening}: {reason}"
 
 
 class BusSecurity(Enum):

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from pdcov.atomic import check_output_dir, check_output_file
 from pdcov.errors import OutputError
+from pdcov.telemetry.link_url import TOOL_SCHEMES, link_url_problem
 
 
 def _number(text: str, kind: type = float) -> float:
@@ -86,24 +87,9 @@ output_dir.__doc__ = "An output folder that can be created or replaced (atomic.p
 output_file = _path_type(check_output_file)
 output_file.__doc__ = "An output file whose folder exists and is writable."
 
-# pymavlink's connection strings (mavutil.mavlink_connection); anything else it would take
-# for a serial port name and fail on with a traceback.
-MAVLINK_SCHEMES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:", "mcast:")
-
-
 def mavlink_url(text: str) -> str:
-    """A MAVLink connection: scheme:host:port for the schemes above, or a serial device."""
-    if text.startswith(MAVLINK_SCHEMES):
-        if text.startswith("mcast:"):
-            return text
-        scheme, _, address = text.partition(":")
-        host, _, port = address.rpartition(":")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise argparse.ArgumentTypeError(f"expected {scheme}:HOST:PORT with a port in "
-                                             f"1..65535, got {text!r}")
-        return text
-    if text.startswith(("/dev/", "COM")) or Path(text.split(",")[0]).is_char_device():
-        return text
-    raise argparse.ArgumentTypeError(
-        f"unknown connection {text!r}: expected one of {', '.join(MAVLINK_SCHEMES)} followed "
-        "by HOST:PORT, or a serial device such as /dev/ttyUSB0 or /dev/ttyUSB0,57600")
+    """A MAVLink connection of the ground tools (telemetry/link_url.py TOOL_SCHEMES)."""
+    problem = link_url_problem(text, TOOL_SCHEMES)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return text

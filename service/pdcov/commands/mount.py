@@ -9,6 +9,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+from pdcov.commands.args import mavlink_url
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.core.mount import GimbalMount
 from pdcov.errors import ConfigError, where
@@ -43,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "PARAM_REQUEST_READ, and say which reading of the gimbal's attitude "
                     "reports the config's mount puts in force, and why.")
     p.add_argument("--config", required=True, type=Path, help="mission config YAML")
-    p.add_argument("--connect", required=True, metavar="URL",
+    p.add_argument("--connect", required=True, metavar="URL", type=mavlink_url,
                    help="MAVLink link as pymavlink opens it: udpin:127.0.0.1:14550, "
                         "udpout:HOST:PORT, tcp:HOST:PORT or a serial device")
     p.add_argument("--timeout-s", type=_positive_s, default=5.0,

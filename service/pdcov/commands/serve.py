@@ -7,6 +7,10 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pdcov.service.settings import ServeConfig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,6 +45,8 @@ def run_serve(args: argparse.Namespace) -> int:
                             zenoh_connect=args.zenoh_connect, zenoh_listen=args.zenoh_listen,
                             state_dir=args.state_dir)
     state = Path(cfg.service.state_dir)
+    if args.check:
+        return _check(args, cfg, state)
     try:
         state.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=state):
@@ -48,39 +54,9 @@ def run_serve(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"service.state_dir {state}: not a writable folder "
                           f"({exc.strerror or exc})") from None
-    if not cfg.link.connect and not args.check:
+    if not cfg.link.connect:
         raise ConfigError(f"{args.config}: no MAVLink link: set link.connect or give "
                           "--connect URL")
-    if args.check:
-        from pdcov.bus.session import zenoh_config
-
-        for w in cfg.mission.warnings:
-            print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
-
-        grid = cfg.mission.new_mission_grid()
-        from pdcov.service.memory_budget import memory_check, memory_limit_bytes
-
-        memory = memory_check(cfg.mission, grid.n_free,
-                              grid.geometry.n_rows * grid.geometry.n_cols,
-                              memory_limit_bytes())
-        if memory.refusal is not None:
-            raise ConfigError(f"{args.config}: {memory.refusal}")
-        if memory.warning is not None:
-            print(f"pdcov serve --check: WARNING: {memory.warning}", file=sys.stderr)
-        zenoh_config(cfg.bus)
-        if (cfg.link.signing_key_file and
-                cfg.link.signing_key_bytes(cfg.base_dir) is None):
-            raise ConfigError(f"link.signing_key_file: cannot read 64 hex digits from "
-                              f"{cfg.link.signing_key_file}")
-        print(f"pdcov serve --check: {args.config} ok: vehicle {cfg.mission.vehicle_id}, "
-              f"grid {grid.geometry.n_rows} x {grid.geometry.n_cols} cells "
-              f"({grid.n_free} free), "
-              + ", ".join(f"camera {c.name} {c.camera.width_px}x{c.camera.height_px} at "
-                          f"{c.frame_rate_hz:g} Hz" for c in cfg.mission.cameras)
-              + ", frames by "
-              f"{cfg.frame_source}, links {list(cfg.link.connect) or 'none'}, zenoh "
-              f"{cfg.bus.mode}, state dir {state}")
-        return 0
     import asyncio
 
     from pdcov.service.daemon import Daemon
@@ -92,3 +68,41 @@ def run_serve(args: argparse.Namespace) -> int:
     faulthandler.register(signal.SIGUSR1)  # `kill -USR1 PID`: every thread's stack to the log
     os.environ.setdefault("MAVLINK20", "1")
     return asyncio.run(Daemon(cfg).run())
+
+
+def _check(args: argparse.Namespace, cfg: ServeConfig, state: Path) -> int:
+    """``--check``: validate everything the daemon would use, creating and changing nothing
+    on disk; 0 and one line, or a ConfigError."""
+    from pdcov.bus.session import zenoh_config
+    from pdcov.errors import ConfigError
+    from pdcov.service.memory_budget import memory_check, memory_limit_bytes
+    from pdcov.service.state_files import check_state_dir
+
+    warnings = list(cfg.mission.warnings)
+    state_warning = check_state_dir(state)
+    if state_warning is not None:
+        warnings.append(state_warning)
+    for w in warnings:
+        print(f"pdcov serve --check: WARNING: {w}", file=sys.stderr)
+    grid = cfg.mission.new_mission_grid()
+    memory = memory_check(cfg.mission, grid.n_free,
+                          grid.geometry.n_rows * grid.geometry.n_cols,
+                          memory_limit_bytes())
+    if memory.refusal is not None:
+        raise ConfigError(f"{args.config}: {memory.refusal}")
+    if memory.warning is not None:
+        print(f"pdcov serve --check: WARNING: {memory.warning}", file=sys.stderr)
+    zenoh_config(cfg.bus)
+    if (cfg.link.signing_key_file and
+            cfg.link.signing_key_bytes(cfg.base_dir) is None):
+        raise ConfigError(f"link.signing_key_file: cannot read 64 hex digits from "
+                          f"{cfg.link.signing_key_file}")
+    print(f"pdcov serve --check: {args.config} ok: vehicle {cfg.mission.vehicle_id}, "
+          f"grid {grid.geometry.n_rows} x {grid.geometry.n_cols} cells "
+          f"({grid.n_free} free), "
+          + ", ".join(f"camera {c.name} {c.camera.width_px}x{c.camera.height_px} at "
+                      f"{c.frame_rate_hz:g} Hz" for c in cfg.mission.cameras)
+          + ", frames by "
+          f"{cfg.frame_source}, links {list(cfg.link.connect) or 'none'}, zenoh "
+          f"{cfg.bus.mode}, state dir {state}")
+    return 0

@@ -6,8 +6,10 @@ until the re-fly is sent or declined)."""
 from __future__ import annotations
 
 import asyncio
+import errno
 import secrets
 import signal
+import socket
 import sys
 import time
 from collections.abc import Callable
@@ -48,8 +50,9 @@ from pdcov.ground.web_auth import NO_OPERATOR, WebAccess
 from pdcov.planning.refly import ReflySettings
 from pdcov.planning.scenario import scenario_of
 
-QUIET_AFTER_S = 10.0
-"""A session connected this long without hearing a vehicle says why that may be."""
+QUIET_AFTER_S = 5.0
+"""A session connected this long without hearing a vehicle says why that may be (a
+daemon's liveliness token and status reach a watcher within about a second)."""
 
 if TYPE_CHECKING:
     from pdcov.ground.web import PlanLayer
@@ -193,7 +196,10 @@ async def _main(opts: WatchOptions) -> int:
                                        desk.current if desk else None,
                                        desk.outcome if desk else None),
                      lambda: shell.version, opts.web_access, opts.basemap, desk=desk)
-        await web.start()
+        try:
+            await web.start()
+        except OSError as exc:
+            raise ConfigError(web_bind_refusal(opts.web, exc)) from None
         # Printed once, and only here: the token is the key to the map.
         print(f"pdcov watch: web map at {web.url}", flush=True)
         print("pdcov watch: " + ("operators: the same address with ?token= the operator "
@@ -344,6 +350,25 @@ def parse_web_address(text: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise ConfigError(f"--web {text!r}: expected HOST:PORT such as 127.0.0.1:8080")
     return host.strip("[]"), int(port)
+
+
+def web_bind_refusal(address: tuple[str, int], exc: OSError) -> str:
+    """Why the web map cannot listen at ``address`` (its bind's error) and what to do."""
+    host, port = address
+    shown = f"--web {f'[{host}]' if ':' in host else host}:{port}"
+    if exc.errno == errno.EADDRINUSE:
+        return (f"{shown}: the address is in use (another pdcov watch, or the program "
+                f"`ss -ltnp 'sport = :{port}'` names, holds it): give another port, or "
+                f"{host}:0 for a free one")
+    if exc.errno == errno.EACCES:
+        return (f"{shown}: this user may not listen on port {port} (below 1024 needs "
+                "privileges): give a port from 1024 up, e.g. 8080")
+    if exc.errno == errno.EADDRNOTAVAIL or isinstance(exc, socket.gaierror):
+        what = "is not a name this machine resolves" if isinstance(exc, socket.gaierror) \
+            else "is not an address of this machine"
+        return (f"{shown}: {host} {what}: give one of its addresses, 127.0.0.1 (this "
+                "machine only) or 0.0.0.0 (every interface)")
+    return f"{shown}: cannot listen there ({exc.strerror or exc})"
 
 
 def stdout_is_terminal() -> bool:

@@ -63,11 +63,13 @@ def candidate_lines(report: FleetReport) -> list[str]:
             for v in report.vehicles if v.candidates]
 
 
+MAX_ID_SHOWN = 16
+"""Characters of a vehicle id on one line of the table."""
+
+
 def render(report: FleetReport) -> Any:
     """A rich renderable of the whole report."""
-    from rich import box
     from rich.console import Group
-    from rich.table import Table
     from rich.text import Text
 
     parts: list[Any] = [Text(headline(report), style="bold")]
@@ -79,27 +81,66 @@ def render(report: FleetReport) -> Any:
             f">={th:g} {percent(p)}" for th, p in report.proportion_at_or_above.items())
             + (f"  mean P_D {report.mean_pd:.3f}" if report.mean_pd is not None else "")
             + f"  free cells {report.cells_free}"))
-    table = Table(box=box.ASCII, show_edge=True, pad_edge=False, expand=False)
-    table.add_column("vehicle", no_wrap=True, max_width=12)
-    for th in report.thresholds:
-        table.add_column(f">={th:g}", justify="right", style="bold" if th == t else "")
-    for name in ("mean P_D", "frames", "skip", "cand", "link", "age"):
-        table.add_column(name, justify="right" if name != "link" else "left", no_wrap=True)
-    for v in report.vehicles:
-        table.add_row(
-            v.vehicle_id + ("" if v.grid_ready else "*"),
-            *(percent(v.proportion_at_or_above.get(th)) for th in report.thresholds),
-            "-" if v.mean_pd is None else f"{v.mean_pd:.3f}",
-            "-" if v.frames_used is None else str(v.frames_used),
-            "-" if v.frames_skipped is None else str(v.frames_skipped),
-            str(v.candidates), _link(v), _age(v.age_s))
-    parts.append(table)
+    parts.append(VehicleTable(report))
     if any(not v.grid_ready for v in report.vehicles):
         parts.append(Text("* grid not yet received: figures from its status"))
     parts += [Text(line) for line in candidate_lines(report)]
     parts += [Text(line, style="dim") for line in report.notes]
     parts += [Text(f"! {line}", style="bold yellow") for line in report.warnings]
     return Group(*parts)
+
+
+class VehicleTable:
+    """One row per vehicle, as wide as the console allows and never cut: a column per
+    threshold while they fit, else the target's and the highest others that do (those left
+    out named under it). Columns are split by '|' with no padding: at 80 columns the
+    target and two other thresholds fit beside an id of MAX_ID_SHOWN characters (a longer
+    one folds onto a second line)."""
+
+    def __init__(self, report: FleetReport) -> None:
+        self.report = report
+
+    def __rich_console__(self, console: Any, options: Any) -> Any:
+        from rich.text import Text
+
+        r = self.report
+        shown = list(r.thresholds)
+        table = self._table(shown)
+        natural = options.update_width(1 << 16)  # measured at the width it wants, not cut
+        while console.measure(table, options=natural).maximum > options.max_width:
+            others = [th for th in shown if th != r.target]
+            if not others:
+                break
+            shown.remove(min(others))
+            table = self._table(shown)
+        yield table
+        left_out = [th for th in r.thresholds if th not in shown]
+        if left_out:
+            yield Text("per vehicle, not shown (the terminal is too narrow): "
+                       + ", ".join(f">={th:g}" for th in left_out), style="dim")
+
+    def _table(self, thresholds: list[float]) -> Any:
+        from rich import box
+        from rich.table import Table
+
+        r = self.report
+        table = Table(box=box.ASCII, padding=(0, 0), expand=False)
+        table.add_column("vehicle", max_width=MAX_ID_SHOWN, overflow="fold")
+        for th in thresholds:
+            table.add_column(f">={th:g}", justify="right", no_wrap=True,
+                             style="bold" if th == r.target else "")
+        for name in ("mean", "frames", "skip", "cand", "link", "age"):
+            table.add_column(name, justify="left" if name == "link" else "right",
+                             no_wrap=True)
+        for v in r.vehicles:
+            table.add_row(
+                v.vehicle_id + ("" if v.grid_ready else "*"),
+                *(percent(v.proportion_at_or_above.get(th)) for th in thresholds),
+                "-" if v.mean_pd is None else f"{v.mean_pd:.3f}",
+                "-" if v.frames_used is None else str(v.frames_used),
+                "-" if v.frames_skipped is None else str(v.frames_skipped),
+                str(v.candidates), _link(v), _age(v.age_s))
+        return table
 
 
 def plain_lines(report: FleetReport) -> list[str]:

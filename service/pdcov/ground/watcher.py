@@ -388,8 +388,9 @@ class Watcher:
         quiet = None
         if (self.quiet_hint and not self.feeds and self.connected_s is not None
                 and now_s - self.connected_s >= self.quiet_after_s):
-            quiet = (f"no vehicle heard {now_s - self.connected_s:.0f} s after connecting; "
-                     f"{self.quiet_hint}")
+            # Its text never changes: --plain prints it once, and the watcher keeps waiting.
+            quiet = (f"no vehicle heard {self.quiet_after_s:g} s after connecting; "
+                     f"{self.quiet_hint} (still waiting for pdcov/{self.vehicle or '*'}/)")
         return FleetReport(vehicles, self.fleet.ids, thresholds, target, props, mean_pd, cells_free,
                            dict(self.refused),
                            tuple(w for w in (self.bus_warning, quiet, self._memory_warning())

@@ -343,7 +343,12 @@ class WebMap:
         self._runner = web.AppRunner(app, handle_signals=False, shutdown_timeout=1.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
-        await site.start()
+        try:
+            await site.start()
+        except OSError:  # the address taken or not this machine's: app.web_bind_refusal
+            await self._runner.cleanup()
+            self._runner = None
+            raise
         sockets = getattr(site._server, "sockets", None) or []  # the bound port when 0
         if sockets:
             self.port = sockets[0].getsockname()[1]

@@ -2,8 +2,9 @@
 (blocking: the shell runs ``open_connection`` in an executor), a UDP server link's reply
 peers and the peer writer its encoder writes to, and the datagrams the kernel dropped.
 
-URLs as pymavlink and MAVProxy write them: ``udpin:0.0.0.0:14550``, ``udpout:HOST:PORT``,
-``tcp:HOST:PORT``, ``/dev/ttyAMA0,921600``, and ``serial:/dev/ttyAMA0:921600``.
+URLs as pymavlink and MAVProxy write them (telemetry/link_url.py, checked with the config):
+``udpin:0.0.0.0:14550``, ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, ``/dev/ttyAMA0,921600``,
+and ``serial:/dev/ttyAMA0:921600``.
 
 A UDP server link (``udpin:``, ``udp:``) answers only the autopilot: pymavlink would keep
 every sender's address and write every message to all of them (23,000 one-datagram senders
@@ -24,8 +25,9 @@ os.environ.setdefault("MAVLINK20", "1")  # before pymavlink is imported: speak M
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-__all__ = ["Address", "PeerWriter", "ReplyPeers", "mavlink", "open_connection",
-           "pymavlink_url", "udp_drops"]
+from pdcov.telemetry.link_url import pymavlink_device
+
+__all__ = ["Address", "PeerWriter", "ReplyPeers", "mavlink", "open_connection", "udp_drops"]
 
 UDP_RCVBUF_BYTES = 4 << 20
 MAX_REPLY_PEERS = 4
@@ -72,30 +74,17 @@ class PeerWriter:
                 self._sock.sendto(buf, address)
 
 
-def pymavlink_url(url: str) -> tuple[str, int | None]:
-    """(device or URL for mavutil, baud or None): ``serial:/dev/x:921600`` and
-    ``/dev/x,921600`` name a serial device and its baud rate."""
-    if url.startswith("serial:"):
-        dev, _, baud = url[len("serial:"):].rpartition(":")
-        if dev and baud.isdigit():
-            return dev, int(baud)
-        return url[len("serial:"):], None
-    if "," in url and url.split(":", 1)[0] not in ("udpin", "udpout", "tcp", "tcpin", "udp"):
-        dev, _, baud = url.rpartition(",")
-        if baud.isdigit():
-            return dev, int(baud)
-    return url, None
-
-
 def open_connection(url: str, system_id: int, component_id: int,
                     signing_key: bytes | None) -> Any:
     """A pymavlink connection speaking MAVLink 2 (ardupilotmega dialect, which reads
-    MAVLink 1 too), as (system_id, component_id); blocking (run it in an executor)."""
-    device, baud = pymavlink_url(url)
+    MAVLink 1 too), as (system_id, component_id); blocking (run it in an executor). One
+    attempt (retries=0): the shell retries with its own backoff and log line, where
+    pymavlink's retries print "Connection refused sleeping" to stdout."""
+    device, baud = pymavlink_device(url)
     kwargs = {"baud": baud} if baud else {}
     conn = mavutil.mavlink_connection(device, source_system=system_id,
                                       source_component=component_id, autoreconnect=False,
-                                      **kwargs)
+                                      retries=0, **kwargs)
     if device.startswith("udp"):
         # A burst (a log replayed fast, a link catching up) must not overflow the socket
         # while the loop is busy with a frame: ask for a large receive buffer.

@@ -28,6 +28,7 @@ from pdcov.flight.ground_altitude import DEFAULT_HOME_WAIT_S
 from pdcov.ids import valid_system_id
 from pdcov.planning.mission_bounds import RetaskLimits
 from pdcov.schema import Section
+from pdcov.telemetry.link_url import check_link_url
 
 FRAME_SOURCES = ("rate", "capture", "zenoh")
 
@@ -35,17 +36,17 @@ FRAME_SOURCES = ("rate", "capture", "zenoh")
 @dataclass(frozen=True, slots=True)
 class LinkConfig:
     """The MAVLink link. connect: pymavlink URLs (serial:/dev/ttyAMA0:921600,
-    /dev/ttyAMA0,921600, udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT), all used at
-    once. system_id: the autopilot to follow (None: the first autopilot HEARTBEAT; the
-    daemon sends as this system, component 191). attitude_hz / position_hz / gimbal_hz /
-    estimator_hz: message rates asked with MAV_CMD_SET_MESSAGE_INTERVAL (estimator_hz:
-    EKF_STATUS_REPORT from ArduPilot, ESTIMATOR_STATUS from others; not asked when the
-    mission's log.estimator_status is false). timeout_s: silence after which
-    the link counts as lost (and a TCP or serial link is reopened). reconnect_max_s: the
-    longest wait between reopening attempts (backoff doubles from 0.5 s). signing_key: 32
-    bytes as 64 hex digits, or signing_key_file: a file holding them (MAVLink 2 signing).
-    param_timeout_s: wait for the mount parameters before resolving the gimbal reading
-    without the missing ones."""
+    /dev/ttyAMA0,921600, udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT; checked by
+    telemetry/link_url.py), all used at once. system_id: the autopilot to follow (None: the
+    first autopilot HEARTBEAT; the daemon sends as this system, component 191). attitude_hz /
+    position_hz / gimbal_hz / estimator_hz: message rates asked with
+    MAV_CMD_SET_MESSAGE_INTERVAL (estimator_hz: EKF_STATUS_REPORT from ArduPilot,
+    ESTIMATOR_STATUS from others; not asked when the mission's log.estimator_status is false).
+    timeout_s: silence after which the link counts as lost (and a TCP or serial link is
+    reopened). reconnect_max_s: the longest wait between reopening attempts (backoff doubles
+    from 0.5 s). signing_key: 32 bytes as 64 hex digits, or signing_key_file: a file holding
+    them (MAVLink 2 signing). param_timeout_s: wait for the mount parameters before resolving
+    the gimbal reading without the missing ones."""
 
     connect: tuple[str, ...] = ()
     system_id: int | None = None
@@ -60,8 +61,10 @@ class LinkConfig:
     param_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
-        if not all(isinstance(u, str) and u for u in self.connect):
+        if not isinstance(self.connect, tuple):
             raise ConfigError(f"link.connect: expected a list of URLs, got {self.connect!r}")
+        for url in self.connect:
+            check_link_url(url, "link.connect")
         if self.system_id is not None and not valid_system_id(self.system_id):
             raise ConfigError(f"link.system_id: expected 1..255, got {self.system_id!r}")
         for name in ("attitude_hz", "position_hz", "gimbal_hz", "estimator_hz", "timeout_s",
@@ -276,7 +279,8 @@ def replace_endpoints(cfg: ServeConfig, *, connect: list[str] | None,
                       zenoh_connect: list[str] | None, zenoh_listen: list[str] | None,
                       state_dir: str | None) -> ServeConfig:
     """The config with command-line overrides (each replaces the configured list)."""
-    link = cfg.link if not connect else dataclasses.replace(cfg.link, connect=tuple(connect))
+    link = cfg.link if not connect else dataclasses.replace(
+        cfg.link, connect=tuple(check_link_url(u, "--connect") for u in connect))
     bus = cfg.bus.with_endpoints(tuple(zenoh_connect) if zenoh_connect else None,
                                  tuple(zenoh_listen) if zenoh_listen else None)
     service = (cfg.service if state_dir is None

@@ -17,7 +17,7 @@ from pdcov.ids import EPOCH_RULE, new_epoch, valid_epoch
 from pdcov.service.candidate_store import JOURNAL_NAME, MAX_JOURNAL_BYTES
 from pdcov.service.retask_auth import NonceBook
 
-__all__ = ["EPOCH_NAME", "NONCES_NAME", "StateFiles"]
+__all__ = ["EPOCH_NAME", "NONCES_NAME", "StateFiles", "check_state_dir"]
 
 log = logging.getLogger("pdcov.serve")
 NONCES_NAME = "retask_nonces.json"
@@ -25,6 +25,33 @@ NONCES_NAME = "retask_nonces.json"
 EPOCH_NAME = "epoch"
 """The state dir's epoch token (ids.EPOCH_RULE) in every candidate uid: made once, when
 missing, and read back at every start."""
+
+
+def check_state_dir(state_dir: Path) -> str | None:
+    """``pdcov serve --check``'s look at the state dir, creating and changing nothing: None
+    when it is a folder this user may write in, a warning when it does not exist yet, a
+    ConfigError when it is no folder or not writable."""
+    where = f"service.state_dir {state_dir}"
+    try:
+        exists = state_dir.exists()
+        parent = next(p for p in state_dir.absolute().parents if p.exists())
+    except OSError as exc:  # a folder on the way this user may not look into
+        raise ConfigError(f"{where}: cannot look at it ({exc.strerror or exc})") from None
+    if exists:
+        if not state_dir.is_dir():
+            raise ConfigError(f"{where}: not a folder")
+        if not os.access(state_dir, os.W_OK | os.X_OK):
+            raise ConfigError(f"{where}: not writable by this user (its owner, its mode or "
+                              "a read-only file system): chown it to the daemon's user, or "
+                              "give another --state-dir")
+        return None
+    if not parent.is_dir():
+        raise ConfigError(f"{where}: cannot be made: {parent} is not a folder")
+    if os.access(parent, os.W_OK | os.X_OK):
+        return f"{where} does not exist: the daemon makes it at start (--check makes nothing)"
+    return (f"{where} does not exist, and this user may not make it in {parent}: the "
+            "daemon starts only once it is made (systemd's StateDirectory= does, as in "
+            "the shipped unit; or sudo install -d -o USER)")
 
 
 class StateFiles:

@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from pdcov.core.mission import MissionItem
 from pdcov.errors import PdcovError, TelemetryError
 from pdcov.telemetry.link_params import wait_autopilot_heartbeat
+from pdcov.telemetry.link_url import pymavlink_device
 from pdcov.telemetry.mission_upload import MissionUpload, UploadResult, with_home
 
 
@@ -33,11 +34,13 @@ class UploadError(PdcovError):
 def mavlink2_connection(url: str, source_system: int, source_component: int
                         ) -> mavutil.mavfile:
     """A pymavlink connection that speaks MAVLink 2 (common dialect), whatever dialect
-    pymavlink's global default is; URLs as mavutil takes them (udpin:, udpout:, tcp:,
-    serial device)."""
+    pymavlink's global default is; URLs of telemetry/link_url.py. One attempt: pymavlink's
+    retries would print "Connection refused sleeping" to stdout; UploadError says why."""
+    device, baud = pymavlink_device(url)
     try:
-        conn = mavutil.mavlink_connection(url, source_system=source_system,
-                                          source_component=source_component)
+        conn = mavutil.mavlink_connection(device, source_system=source_system,
+                                          source_component=source_component, retries=0,
+                                          **({"baud": baud} if baud else {}))
     except OSError as exc:
         raise UploadError(f"cannot open {url}: {exc}") from None
     conn.mav = mavlink2.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
