@@ -2,8 +2,8 @@
 the one message that says which to install when a part is missing.
 
 A base install (``pip install pdcov``) runs the onboard daemon and ``pdcov evaluate``'s
-numbers (metrics.json, grid.npz); figures, GeoTIFF / GeoJSON files, the ground station and
-the simulator each need their extra."""
+numbers (metrics.json, grid.npz); figures, GeoTIFF / GeoJSON files, the GPX export and the
+pins' grid references, the ground station and the simulator each need their extra."""
 
 from __future__ import annotations
 
@@ -51,8 +51,10 @@ def _installed(module: str) -> bool:
 
 PLOTS = Extra("plots", ("matplotlib",), "figures need")
 GIS = Extra("gis", ("rasterio",), "GeoTIFF and GeoJSON outputs need")
+GPX = Extra("gis", ("gpxpy",), "the GPX export needs")
+GRID_REFERENCES = Extra("gis", ("mgrs",), "MGRS and UTM references need")
 GROUND = Extra("ground", ("rich", "aiohttp"), "pdcov watch needs")
-COT = Extra("ground", ("pytak",), "pdcov watch --cot needs")
+COT = Extra("ground", ("pytak", "mgrs"), "pdcov watch --cot needs")
 ROUTING = Extra("routing", ("ortools",), "pdcov plan --pattern vantage needs")
 CLUSTER = Extra("cluster", ("distributed",), "pdcov evaluate --dask needs")
 SITL = Extra("sitl", ("jsbsim",), "the simulator needs")

@@ -1,6 +1,7 @@
 """The exports read by GDAL (ogrinfo / ogr2ogr from Debian's gdal-bin, which .ci/run
 installs): its GeoJSON driver for detections.geojson and caltopo.geojson, its LIBKML driver
-for pdcov.kml and pdcov.kmz, each giving back the features and the [lon, lat] written."""
+for pdcov.kml and pdcov.kmz, its GPX driver for pdcov.gpx, each giving back the features,
+the [lon, lat] written and the pins' MGRS and UTM references."""
 
 from __future__ import annotations
 
@@ -9,10 +10,18 @@ import re
 import shutil
 import subprocess
 
+import numpy as np
 import pytest
 
-from pdcov.report.exports import VehicleDetections, write_exports
-from tests.support.exports_fixtures import coverage, detections_doc
+from pdcov.core.geodesy import enu_to_geodetic, grid_references
+from pdcov.report.exports import TrackSegment, VehicleDetections, VehicleTrack, write_exports
+from tests.support.exports_fixtures import ORIGIN, coverage, detections_doc
+
+FLIGHTS = [np.c_[np.linspace(-20.0, 20.0, 9), np.zeros(9), np.full(9, 30.0)],
+           np.c_[np.zeros(5), np.linspace(-10.0, 10.0, 5), np.full(5, 40.0)]]
+"""Two flights of vehicle alpha, ENU m about ORIGIN: the first at known times, one a
+second from T0, the second not."""
+T0 = 1_767_225_600.25  # 2026-01-01T00:00:00.25Z
 
 pytestmark = pytest.mark.skipif(shutil.which("ogr2ogr") is None,
                                 reason="needs GDAL's ogrinfo and ogr2ogr (apt-get install "
@@ -23,7 +32,9 @@ pytestmark = pytest.mark.skipif(shutil.which("ogr2ogr") is None,
 def out(tmp_path_factory):
     out = tmp_path_factory.mktemp("exports")
     write_exports(out, coverage(), [VehicleDetections.from_doc(detections_doc())],
-                  title="gdal")
+                  title="gdal", tracks=[VehicleTrack("alpha", (
+                      TrackSegment(enu_to_geodetic(FLIGHTS[0], ORIGIN), T0 + np.arange(9)),
+                      *VehicleTrack.from_enu("alpha", FLIGHTS[1:], ORIGIN).segments))])
     return out
 
 
@@ -50,6 +61,9 @@ def test_gdal_reads_the_geojson_exports(out):
     src = detections_doc()["candidates"][0]
     assert back["features"][0]["geometry"]["coordinates"] == pytest.approx(
         [src["lon_deg"], src["lat_deg"]], abs=0.5e-7)
+    assert [(f["properties"]["mgrs"], f["properties"]["utm"]) for f in back["features"]] \
+        == [grid_references(p["lat_deg"], p["lon_deg"])
+            for p in detections_doc()["candidates"] + detections_doc()["detections"]]
     figures = [{k: f["properties"][k] for k in ("uid", "p_person", "looks", "hits")}
                for f in back["features"]]
     assert figures[1] == figures[4] == {"uid": "alpha.3fa2c1.4", "p_person": 0.0412,
@@ -82,5 +96,31 @@ def test_gdal_libkml_reads_the_kml_and_kmz(out, name):
     assert "p_person: 0.9731" in pin["description"]
     assert (pin["uid"], float(pin["p_person"]), int(pin["looks"]), int(pin["hits"])) == (
         "alpha.3fa2c1.3", 0.9731, 14, 9)
+    assert (pin["mgrs"], pin["utm"]) == grid_references(src[0]["lat_deg"], src[0]["lon_deg"])
     gaps = as_geojson(str(out / name), "gaps (P_D < 0.8)")["features"]
     assert len(gaps) == 2 and all(f["geometry"]["type"] == "Polygon" for f in gaps)
+
+
+def test_gdal_gpx_reads_the_tracks_and_waypoints(out):
+    info = ogrinfo(str(out / "pdcov.gpx"))
+    assert "using driver `GPX' successful" in info
+    layers = re.findall(r"^\d+: (\S+)", info, flags=re.M)
+    assert layers == ["waypoints", "routes", "tracks", "route_points", "track_points"]
+    wpts = as_geojson(str(out / "pdcov.gpx"), "waypoints")["features"]
+    src = detections_doc()["candidates"]
+    assert [(f["properties"]["name"], f["properties"]["ele"], f["geometry"]["coordinates"])
+            for f in wpts] == [(c["uid"], pytest.approx(c["alt_msl_m"]), pytest.approx(
+                [c["lon_deg"], c["lat_deg"]], abs=0.5e-7)) for c in src]
+    assert "detected 9 of 14 looks; sigma 0.5 m; MGRS 32T" in wpts[0]["properties"]["desc"]
+    (trk,) = as_geojson(str(out / "pdcov.gpx"), "tracks")["features"]
+    assert trk["properties"]["name"] == "alpha"
+    assert trk["geometry"]["type"] == "MultiLineString"  # a line per flight
+    pts = as_geojson(str(out / "pdcov.gpx"), "track_points")["features"]
+    assert [p["properties"]["track_seg_id"] for p in pts] == [0] * 9 + [1] * 5
+    lla = np.concatenate([enu_to_geodetic(f, ORIGIN) for f in FLIGHTS])
+    assert [p["geometry"]["coordinates"] for p in pts] == [
+        pytest.approx([lon, lat], abs=0.5e-7) for lat, lon, _ in lla]
+    assert [p["properties"]["ele"] for p in pts] == pytest.approx(lla[:, 2], abs=0.005)
+    times = [p["properties"].get("time") for p in pts]
+    assert times[:2] == ["2026-01-01T00:00:00.250Z", "2026-01-01T00:00:01.250Z"]
+    assert times[9:] == [None] * 5  # no real time known

@@ -22,6 +22,16 @@ CORRELATED = {"version": 4, "input_size_px": None, "bin_edges_px": [4, 16, 40, 1
               "looks": {"correlation": [0.4, 0.3, 0.3, 0.5]}}
 
 
+def gpx_tracks(run_dir: Path) -> list:
+    import gpxpy
+
+    return gpxpy.parse((run_dir / "pdcov.gpx").read_text()).tracks
+
+
+def points(segment) -> list[tuple[float, float, float]]:
+    return [(p.latitude, p.longitude, p.elevation) for p in segment.points]
+
+
 def evaluate(config: Path, out: Path, *logs: Path, more: tuple[str, ...] = ()) -> int:
     return run("evaluate", "--config", str(config), *(a for p in logs for a in ("--log", str(p))),
                "--out", str(out), "--no-progress", *more)
@@ -51,6 +61,10 @@ def test_logs_merge_as_one_by_one(tmp_path, capsys, n, jobs):
     assert metrics["frames_skipped"] == {}
     # Each sortie saw cells the others did not: the merged map covers more than any one.
     assert metrics["cells_observed"] > max(m["cells_observed"] for m in each)
+    # pdcov.gpx: the vehicle's track, a segment per log, each as that log's alone.
+    (track,) = gpx_tracks(tmp_path / "merged")
+    assert [points(s) for s in track.segments] == [
+        points(gpx_tracks(tmp_path / f"alone_{k}")[0].segments[0]) for k in range(n)]
 
 
 def test_one_log_keeps_its_metrics_and_lists_itself(tmp_path):

@@ -98,6 +98,21 @@ class TinyPublisher:
         return r * c
 
 
+PINNED_SESSION = "a1" * 16
+"""The daemon's session a ``pinned`` watcher follows."""
+
+
+def pinned(watcher: Watcher | None = None) -> tuple[Watcher, TinyPublisher]:
+    """A watcher following vehicle uav1, pinned to PINNED_SESSION by its snapshot reply."""
+    w = watcher or Watcher()
+    pub = TinyPublisher("uav1")
+    pub.step(4)
+    actions = w.on_status("uav1", decode_status(pub.status()), 0.0, PINNED_SESSION)
+    assert actions == [QuerySnapshot("uav1")]
+    w.on_snapshot_replies("uav1", [(PINNED_SESSION, decode_snapshot(pub.snapshot()))], 0.1)
+    return w, pub
+
+
 def forged_tiles(pub: TinyPublisher, seq: int, frames: int | None = None) -> bytes:
     """Every tile of ``pub``'s grid at P_D ~ 1: ground nobody searched shown as searched."""
     g = pub.grid

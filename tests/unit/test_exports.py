@@ -53,7 +53,7 @@ def test_every_file_is_written_and_named(run):
     out, _, result = run
     assert result.files == ("detections.geojson", "caltopo.geojson", "pd_overlay.png",
                             "pin_candidate.png", "pin_detection.png", "pdcov.kml",
-                            "pdcov.kmz")
+                            "pdcov.kmz", "pdcov.gpx")
     assert result.not_written == ()
     assert all((out / f).is_file() for f in result.files)
 
@@ -199,7 +199,7 @@ def test_without_a_grid_only_the_detections_are_exported(tmp_path):
     result = write_exports(tmp_path, None, [VehicleDetections.from_doc(detections_doc())],
                            title="no grid yet")
     assert result.files == ("detections.geojson", "caltopo.geojson", "pin_candidate.png",
-                            "pin_detection.png", "pdcov.kml")
+                            "pin_detection.png", "pdcov.kml", "pdcov.gpx")
     classes = {f["properties"]["class"]
                for f in strict_json(tmp_path / "caltopo.geojson")["features"]}
     assert classes == {"Marker"}
@@ -208,15 +208,23 @@ def test_without_a_grid_only_the_detections_are_exported(tmp_path):
 def test_missing_extras_are_named_and_the_rest_written(tmp_path, monkeypatch):
     import sys
 
-    monkeypatch.setitem(sys.modules, "matplotlib", None)
-    monkeypatch.setitem(sys.modules, "rasterio", None)
-    result = write_exports(tmp_path, coverage(), [], title="base install")
+    for module in ("matplotlib", "rasterio", "gpxpy", "mgrs"):
+        monkeypatch.setitem(sys.modules, module, None)
+    result = write_exports(tmp_path, coverage(), [VehicleDetections.from_doc(detections_doc())],
+                           title="base install")
     assert result.files == ("detections.geojson", "caltopo.geojson", "pin_candidate.png",
                             "pin_detection.png", "pdcov.kml")
     assert any("rasterio" in line and "pip install 'pdcov[gis]'" in line
                for line in result.not_written)
     assert any(line.startswith("pd_overlay.png, pdcov.kmz") and "matplotlib" in line
                for line in result.not_written)
+    assert "pdcov.gpx: the GPX export needs gpxpy: pip install 'pdcov[gis]'" in \
+        result.not_written
+    assert ("the pins' mgrs and utm properties (null): MGRS and UTM references need mgrs: "
+            "pip install 'pdcov[gis]'") in result.not_written
+    feats = strict_json(tmp_path / "detections.geojson")["features"]
+    assert len(feats) == 5 and all(
+        f["properties"]["mgrs"] is None and f["properties"]["utm"] is None for f in feats)
 
 
 def test_a_file_that_cannot_be_written_is_one_error_naming_it(tmp_path):

@@ -16,7 +16,19 @@ import numpy as np
 import pytest
 
 from pdcov.cli import main
-from pdcov.extras import CLUSTER, DEMO, GIS, GROUND, PLOTS, ROUTING, SITL, Extra
+from pdcov.extras import (
+    CLUSTER,
+    COT,
+    DEMO,
+    GIS,
+    GPX,
+    GRID_REFERENCES,
+    GROUND,
+    PLOTS,
+    ROUTING,
+    SITL,
+    Extra,
+)
 
 tomllib = pytest.importorskip("tomllib")  # Python 3.11
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,7 +48,7 @@ def evaluate(out: Path, *more: str) -> int:
 
 def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_missing(
         tmp_path, monkeypatch, capsys):
-    without(monkeypatch, "matplotlib", "rasterio")
+    without(monkeypatch, "matplotlib", "rasterio", "gpxpy", "mgrs")
     assert evaluate(tmp_path / "run") == 0
     out = capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "run").glob("[!.]*")) == [
@@ -52,6 +64,9 @@ def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_miss
             "pip install 'pdcov[plots]'") in out
     assert ("not written: pd.tif, outline.geojson: GeoTIFF and GeoJSON outputs need "
             "rasterio: pip install 'pdcov[gis]'") in out
+    assert "not written: pdcov.gpx: the GPX export needs gpxpy: pip install 'pdcov[gis]'" \
+        in out
+    assert "mgrs" not in out  # no pin, so no reference missing
 
 
 def test_the_grid_does_not_depend_on_the_extras(tmp_path, monkeypatch, capsys):
@@ -118,11 +133,14 @@ def test_pyproject_extras_install_what_extras_py_names():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     extras = project["optional-dependencies"]
     base = {re.match(r"[A-Za-z0-9_.-]+", r).group(0).lower() for r in project["dependencies"]}
-    for extra in (PLOTS, GIS, GROUND, SITL, DEMO, ROUTING, CLUSTER):
+    for extra in (PLOTS, GIS, GPX, GRID_REFERENCES, GROUND, COT, SITL, DEMO, ROUTING, CLUSTER):
         installs = _requirements(extras, extra.name)
         assert set(extra.modules) <= installs, extra.name  # module and distribution alike
         assert not set(extra.modules) & base, extra.name  # the companion computer's install
     assert set(DEMO.modules) <= _requirements(extras, "test")
+    # .ci/run installs .[test]: the exports' readers in the tests need these
+    assert set(GPX.modules + GRID_REFERENCES.modules + COT.modules) <= _requirements(
+        extras, "test")
     assert set(ROUTING.modules) <= _requirements(extras, "test")
     assert set(CLUSTER.modules) <= _requirements(extras, "test")
 

@@ -15,32 +15,21 @@ from pdcov.bus.grid_state import decode_snapshot
 from pdcov.bus.status import decode_status
 from pdcov.errors import OutputError
 from pdcov.ground import record_exports
-from pdcov.ground.queries import QueryCandidates, QuerySnapshot
+from pdcov.ground.queries import QueryCandidates
 from pdcov.ground.record_exports import ExportRecorder
 from pdcov.ground.terminal import plain_lines
 from pdcov.ground.watcher import Watcher
 from pdcov.ground.web import map_state
 from tests.support.exports_fixtures import candidate, detection, uid
-from tests.support.watch_fixtures import TinyPublisher
+from tests.support.watch_fixtures import PINNED_SESSION, TinyPublisher, pinned
 
-DAEMON = "a1" * 16
+DAEMON = PINNED_SESSION
 ROGUE = "e7" * 16
 
 
 def doc(vehicle: str, detections=(), candidates=()) -> dict:
     return {"schema": "pdcov.detections", "version": 2, "vehicle": vehicle,
             "detections": list(detections), "candidates": list(candidates)}
-
-
-def pinned(watcher: Watcher | None = None) -> tuple[Watcher, TinyPublisher]:
-    """A watcher following vehicle uav1, pinned to DAEMON by its snapshot reply."""
-    w = watcher or Watcher()
-    pub = TinyPublisher("uav1")
-    pub.step(4)
-    actions = w.on_status("uav1", decode_status(pub.status()), 0.0, DAEMON)
-    assert actions == [QuerySnapshot("uav1")]
-    w.on_snapshot_replies("uav1", [(DAEMON, decode_snapshot(pub.snapshot()))], 0.1)
-    return w, pub
 
 
 def test_candidates_are_asked_after_each_snapshot_and_update_what_is_held():

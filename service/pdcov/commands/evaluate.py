@@ -99,7 +99,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.commands.input_run import InputJob, InputKind, run_input
-    from pdcov.report.exports import VehicleDetections
+    from pdcov.report.exports import VehicleDetections, VehicleTrack
     from pdcov.report.outputs import metrics_document, summary_text, write_outputs
 
     mission = load_mission_warned(args.config, "evaluate")
@@ -169,7 +169,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                 outline_threshold=args.outline_threshold, prior=prior,
                                 extra_metrics=extra or None,
                                 exports=() if detections is None
-                                else [VehicleDetections.from_doc(detections)])
+                                else [VehicleDetections.from_doc(detections)],
+                                tracks=[VehicleTrack.from_enu(  # a segment per log
+                                    mission.vehicle_id, (r.track_enu for r in runs),
+                                    first.origin, heights_msl=kind is InputKind.LOG
+                                    or mission.ground_alt_msl_m is not None)])
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)

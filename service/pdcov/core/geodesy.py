@@ -1,4 +1,5 @@
-"""Geodetic <-> local ENU about the mission origin (pymap3d, WGS84).
+"""Geodetic <-> local ENU about the mission origin (pymap3d, WGS84); how exports write a
+latitude or longitude, and a point's MGRS and UTM grid references.
 
 Altitudes are metres above mean sea level at both ends; the ENU z of a point is then its
 height above the origin's ground altitude (flat earth, as in the paper).
@@ -7,6 +8,7 @@ height above the origin's ground altitude (flat earth, as in the paper).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +30,37 @@ def deg_rounded(v: float) -> float:
 def deg_text(v: float) -> str:
     """A latitude or longitude (deg) as text with DEG_DECIMALS places (KML, CoT)."""
     return f"{float(v):.{DEG_DECIMALS}f}"
+
+
+_MGRS = re.compile(r"(\d{0,2}[A-Z])([A-Z]{2})(\d{5})(\d{5})")
+"""An MGRS reference to 1 m as mgrs writes it: grid zone (UTM zone and latitude band, or a
+UPS letter alone), 100 km square, easting, northing."""
+
+
+def grid_references(lat_deg: float, lon_deg: float) -> tuple[str, str | None]:
+    """The MGRS and UTM references of a WGS84 point, to the metre: ("32T LR 66145 51998",
+    "32T 366145 5151998"), the UTM zone and latitude band then easting and northing in m.
+    Both name the 1 m square holding the point (truncated, as grid references are read),
+    in the zone MGRS gives it (Norway's and Svalbard's exceptions included). The UTM is None
+    beyond UTM's latitudes (84 N, 80 S), where MGRS is polar stereographic (UPS). Computed
+    by the mgrs package (NGA's GEOTRANS; the gis and ground extras): ImportError without
+    it. ValueError for a point that is not a latitude and longitude."""
+    import mgrs
+
+    converter = mgrs.MGRS()
+    try:
+        code = converter.toMGRS(float(lat_deg), float(lon_deg), MGRSPrecision=5)
+    except mgrs.core.MGRSError as exc:
+        raise ValueError(f"no MGRS reference for ({lat_deg}, {lon_deg}): {exc}") from None
+    parts = _MGRS.fullmatch(code)
+    if parts is None:
+        raise ValueError(f"mgrs wrote {code!r} for ({lat_deg}, {lon_deg})")
+    zone = parts.group(1)
+    if not zone[0].isdigit():  # a polar zone letter: UPS, no UTM
+        return " ".join(parts.groups()), None
+    # The 1 m square's centre (mgrs >= 1.6) or its corner: its floor is the corner.
+    _, _, east_m, north_m = converter.MGRSToUTM(code)
+    return " ".join(parts.groups()), f"{zone} {math.floor(east_m)} {math.floor(north_m)}"
 
 
 @dataclass(frozen=True, slots=True)

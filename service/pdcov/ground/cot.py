@@ -16,7 +16,8 @@ Per vehicle (docs/ground-station.md "Cursor-on-Target"):
 * each candidate, uid its pin's ``uid`` (docs/protocol.md "detections": durable across
   the daemon's restarts, so a pin keeps its TAK marker), type CANDIDATE_TYPE (unknown
   ground object: nobody has looked at it yet), ``ce`` its 90 % circular error, its
-  p_person, looks and hits in the remarks; sent when it changed and again every
+  p_person, looks and hits, MGRS and UTM references in the remarks (core/geodesy.py
+  ``grid_references``; the ground extra has mgrs); sent when it changed and again every
   ``candidate_period_s``, stale after ``candidate_stale_s``; no ``<track>``: a pin stands
   still.
 
@@ -39,7 +40,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from pdcov.core.geodesy import Origin, deg_text, geodetic_to_enu
+from pdcov.core.geodesy import Origin, deg_text, geodetic_to_enu, grid_references
 from pdcov.ground.feed import VehicleFeed
 
 __all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CotSchedule", "Sensor", "Track",
@@ -192,7 +193,8 @@ def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
 def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale_s: float
                     ) -> bytes:
     """A candidate's event (a detections payload's candidate entry): uid the pin's, how
-    "m-f" (computed from the pose and the pixels), ce its 90 % circle."""
+    "m-f" (computed from the pose and the pixels), ce its 90 % circle (needs mgrs: the
+    COT extra)."""
     event, detail = _event(c["uid"], CANDIDATE_TYPE, "m-f",
                            float(c["lat_deg"]), float(c["lon_deg"]),
                            _f(CE90_PER_SIGMA * float(c["sigma_m"])), now_unix_s, stale_s)
@@ -200,10 +202,12 @@ def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale
     ET.SubElement(detail, "link", uid=aircraft_uid(vehicle_id), type=AIRCRAFT_TYPE,
                   relation="p-p")
     alt = c.get("alt_msl_m")
+    mgrs, utm = grid_references(float(c["lat_deg"]), float(c["lon_deg"]))
     ET.SubElement(detail, "remarks").text = (
         f"{c['class']} pin {c['uid']}: p_person {c['p_person']:.4f}, detected {c['hits']} "
         f"of {c['looks']} looks; cell P_D {c['pd']:.2f}, P_FA {c['pfa']:.3f}; best "
-        f"confidence {c['confidence']:.2f}" + ("" if alt is None else f"; {alt:.1f} m MSL"))
+        f"confidence {c['confidence']:.2f}" + ("" if alt is None else f"; {alt:.1f} m MSL")
+        + f"; MGRS {mgrs}" + ("" if utm is None else f"; UTM {utm}"))
     return ET.tostring(event)
 
 

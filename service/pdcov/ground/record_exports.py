@@ -8,7 +8,9 @@ the gap limit; the detections are every vehicle's candidates (most probable firs
 detections (ground/watcher.py): detections.geojson holds every detection the watcher took,
 streamed back from the ``DetectionLog`` (DIR/<vehicle_id>/DETECTION_LOG, a JSON line each,
 so memory stays bounded however long the search), the KML the latest in memory
-(Watcher.max_detections per vehicle). Each file is replaced atomically, so a failed write
+(Watcher.max_detections per vehicle); pdcov.gpx has every vehicle's track as the watcher
+holds it (its status positions, ground/watcher.py), without times: the watcher keeps no
+real time of a position. Each file is replaced atomically, so a failed write
 (a full disk, a folder made read-only) leaves the previous complete file in place: it is
 logged once per episode, shown to the operator and tried again at the next period.
 """
@@ -22,9 +24,18 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
-from pdcov.report.exports import Coverage, Exported, VehicleDetections, write_exports
+from pdcov.report.exports import (
+    Coverage,
+    Exported,
+    TrackSegment,
+    VehicleDetections,
+    VehicleTrack,
+    write_exports,
+)
 from pdcov.report.output_extent import drawn_raster, output_extent
 
 log = logging.getLogger("pdcov.watch")
@@ -104,6 +115,14 @@ def findings_of(watcher: Watcher, detection_log: DetectionLog | None = None
         for vid, f in sorted(watcher.feeds.items())]
 
 
+def tracks_of(watcher: Watcher) -> list[VehicleTrack]:
+    """Every vehicle's track (the watcher's status positions: lat, lon, alt m MSL), one
+    segment each, without times."""
+    return [VehicleTrack(vid, (TrackSegment(
+        np.asarray(f.track_lat_lon_alt, dtype=float).reshape(-1, 3)),))
+        for vid, f in sorted(watcher.feeds.items()) if f.track_lat_lon_alt]
+
+
 class ExportRecorder:
     """Writes the exports into ``out`` (created on the first write). Never raises to its
     caller: see the module docstring. ``written``: how many times every file was written;
@@ -150,7 +169,8 @@ class ExportRecorder:
             self.out.mkdir(parents=True, exist_ok=True)
             self.last = write_exports(self.out, coverage_of(watcher),
                                       findings_of(watcher, self.detection_log),
-                                      title=f"pdcov watch: {names}")
+                                      title=f"pdcov watch: {names}",
+                                      tracks=tracks_of(watcher))
         except (PdcovError, OSError) as exc:  # OutputError names the file
             self.write_errors += 1
             if self.last_error is None:

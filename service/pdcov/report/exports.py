@@ -10,13 +10,17 @@ and ``pdcov watch --record DIR`` (in DIR/exports/), from the same builders
   areas as ``Assignment`` polygons (the properties CalTopo itself writes in its exports);
 * ``pdcov.kml`` with ``pd_overlay.png`` and the pins' icon PNGs beside it, and ``pdcov.kmz``
   (the same ``doc.kml`` and PNGs zipped): a P_D ground overlay and the same features, for
-  Google Earth and ATAK (report/kml.py; no file refers to the internet).
+  Google Earth and ATAK (report/kml.py; no file refers to the internet);
+* ``pdcov.gpx``: GPX 1.1, a track per vehicle (``VehicleTrack``) and a waypoint per
+  candidate, for GPS units and mapping apps (report/gpx.py).
 
-The builders are pure: the coverage (``Coverage``) and each vehicle's detections
-(``VehicleDetections``, the ``pdcov.detections`` document as decoded from the bus or read
-from detections.json) in, documents out. ``write_exports`` writes them atomically and says
-which it could not write for lack of an extra: the outlines and gaps need ``gis``
-(rasterio), the overlay and the KMZ ``plots`` (matplotlib).
+Every pin carries its MGRS and UTM references (core/geodesy.grid_references). The builders
+are pure: the coverage (``Coverage``), each vehicle's detections (``VehicleDetections``, the
+``pdcov.detections`` document as decoded from the bus or read from detections.json) and
+flown track in, documents out. ``write_exports`` writes them atomically and says which it
+could not write for lack of an extra: the outlines and gaps need ``gis`` (rasterio), as do
+the GPX (gpxpy) and the grid references (mgrs), the overlay and the KMZ ``plots``
+(matplotlib).
 """
 
 from __future__ import annotations
@@ -32,12 +36,12 @@ import shapely
 
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.core.domain import GridGeometry
-from pdcov.core.geodesy import Origin, deg_rounded
-from pdcov.extras import GIS, PLOTS
+from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic, grid_references
+from pdcov.extras import GIS, GPX, GRID_REFERENCES, PLOTS
 
 __all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
-           "VehicleDetections", "caltopo_geojson", "every_pin", "map_layers", "pins",
-           "write_detections_geojson", "write_exports"]
+           "TrackSegment", "VehicleDetections", "VehicleTrack", "caltopo_geojson",
+           "every_pin", "map_layers", "pins", "write_detections_geojson", "write_exports"]
 
 MAX_GAP_SHAPES = 500
 """Gap polygons exported at most (the largest; the FeatureCollection says how many there
@@ -57,7 +61,7 @@ OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44a
 """P_D outlines from the lowest threshold to the highest (the target), cycling."""
 GAP_COLOR = "#e74c3c"
 REFLY_COLOR = "#8e44ad"
-PIN_FIGURES = ("uid", "p_person", "looks", "hits")
+PIN_FIGURES = ("uid", "p_person", "looks", "hits", "mgrs", "utm")
 """What every export says of a pin (docs/protocol.md "detections")."""
 CANDIDATE_COLOR = "#ff0000"
 DETECTION_COLOR = "#ffa500"
@@ -86,6 +90,39 @@ class VehicleDetections:
         detections.json)."""
         return cls(str(doc["vehicle"]), tuple(doc.get("detections") or ()),
                    tuple(doc.get("candidates") or ()))
+
+
+@dataclass(frozen=True, slots=True)
+class TrackSegment:
+    """One flight's positions: ``lat_lon_alt`` (N, 3) WGS84 degrees and m MSL, in time
+    order; ``t_unix_s`` (N,) their UTC times (s since 1970; NaN where unknown), None when
+    no real time is known (the autopilot's boot clock is none)."""
+
+    lat_lon_alt: np.ndarray
+    t_unix_s: np.ndarray | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleTrack:
+    """One vehicle's flown positions: a segment per flight."""
+
+    vehicle: str
+    segments: tuple[TrackSegment, ...]
+
+    @classmethod
+    def from_enu(cls, vehicle: str, flights_enu: Iterable[np.ndarray | None], origin: Origin,
+                 *, heights_msl: bool = True) -> VehicleTrack:
+        """From each flight's positions (M, 3) ENU m about ``origin`` (None: no position),
+        without times; ``heights_msl`` False: the origin's ground altitude is unknown (a
+        pose CSV's heights above the ground), so the altitudes are too (NaN)."""
+        segments = []
+        for t in flights_enu:
+            if t is not None and len(t):
+                lla = enu_to_geodetic(t, origin)
+                if not heights_msl:
+                    lla[:, 2] = np.nan
+                segments.append(TrackSegment(lla))
+        return cls(vehicle, tuple(segments))
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,53 +194,77 @@ def _shown(v: Any) -> str:
     return "-" if v is None else str(v)
 
 
+References = Callable[[float, float], dict[str, str | None]]
+"""A pin's ``mgrs`` and ``utm`` properties from its (lat_deg, lon_deg)."""
+
+
+def _with_references(lat_deg: float, lon_deg: float) -> dict[str, str | None]:
+    mgrs, utm = grid_references(lat_deg, lon_deg)
+    return {"mgrs": mgrs, "utm": utm}
+
+
+def _without_references(lat_deg: float, lon_deg: float) -> dict[str, str | None]:
+    return {"mgrs": None, "utm": None}
+
+
+def _pin_references() -> References:
+    """The pins' grid references, both None without the mgrs module (looked for once per
+    call, not once per pin; ``write_exports`` names the extra)."""
+    return _without_references if GRID_REFERENCES.missing() else _with_references
+
+
 def pins(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
          ) -> list[Pin]:
     """The candidates, then the (in-memory) detections, of every vehicle (in the order
     given). ``pd`` is the P_D of the cell under the point in ``coverage`` when given, else
     the candidate's (the cell's P_D as the daemon sent it); a detection's p_person, looks
     and hits are its candidate's (by uid)."""
-    out = [candidate_pin(f.vehicle, c, coverage) for f in findings for c in f.candidates]
+    refs = _pin_references()
+    out = [candidate_pin(f.vehicle, c, coverage, refs) for f in findings for c in f.candidates]
     for f in findings:
         by_uid = {c["uid"]: c for c in f.candidates}
-        out += (detection_pin(f.vehicle, d, by_uid, coverage) for d in f.detections)
+        out += (detection_pin(f.vehicle, d, by_uid, coverage, refs) for d in f.detections)
     return out
 
 
-def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None) -> Pin:
+def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None,
+                  refs: References) -> Pin:
     """A candidate entry's pin (``pins``)."""
-    return Pin("candidate", float(c["lon_deg"]), float(c["lat_deg"]), {
+    lat, lon = float(c["lat_deg"]), float(c["lon_deg"])
+    return Pin("candidate", lon, lat, {
         "kind": "candidate", "vehicle": vehicle, "uid": c["uid"], "candidate": c["id"],
         "p_person": c["p_person"], "looks": c["looks"], "hits": c["hits"],
         "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
         "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
         "confidence": c["confidence"], "pd": _cell_pd(coverage, c, c["pd"]), "pfa": c["pfa"],
-        "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m")})
+        "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m"), **refs(lat, lon)})
 
 
 def detection_pin(vehicle: str, d: Mapping[str, Any], by_uid: Mapping[str, Mapping[str, Any]],
-                  coverage: Coverage | None) -> Pin:
+                  coverage: Coverage | None, refs: References) -> Pin:
     """A detection entry's pin (``pins``); ``by_uid`` the vehicle's candidates."""
     cand = by_uid.get(d["uid"], {})
-    return Pin("detection", float(d["lon_deg"]), float(d["lat_deg"]), {
+    lat, lon = float(d["lat_deg"]), float(d["lon_deg"])
+    return Pin("detection", lon, lat, {
         "kind": "detection", "vehicle": vehicle, "uid": d["uid"], "candidate": d["candidate"],
         "p_person": cand.get("p_person"), "looks": cand.get("looks"),
         "hits": cand.get("hits"), "t_boot_s": d["t_boot_s"], "class": d["class"],
         "confidence": d["confidence"], "pd": _cell_pd(coverage, d, cand.get("pd")),
-        "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m")})
+        "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m"), **refs(lat, lon)})
 
 
 def every_pin(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
               ) -> Iterator[Pin]:
     """As ``pins``, but with every detection (``VehicleDetections.all_detections``), one at
     a time: detections.geojson's."""
+    refs = _pin_references()
     for f in findings:
         for c in f.candidates:
-            yield candidate_pin(f.vehicle, c, coverage)
+            yield candidate_pin(f.vehicle, c, coverage, refs)
     for f in findings:
         by_uid = {c["uid"]: c for c in f.candidates}
         for d in f.all_detections():
-            yield detection_pin(f.vehicle, d, by_uid, coverage)
+            yield detection_pin(f.vehicle, d, by_uid, coverage, refs)
 
 
 def _cell_pd(coverage: Coverage | None, point: Mapping[str, Any], sent: Any) -> Any:
@@ -352,15 +413,20 @@ class Exported:
 
 
 def write_exports(out_dir: str | Path, coverage: Coverage | None,
-                  findings: Sequence[VehicleDetections], *, title: str) -> Exported:
+                  findings: Sequence[VehicleDetections], *, title: str,
+                  tracks: Sequence[VehicleTrack] = ()) -> Exported:
     """Write the exports into ``out_dir`` (which must exist), each atomically; without a
-    coverage (no grid yet) the files hold the detections only. Raises OutputError (naming
-    the file) when one cannot be written; the files already written stay."""
+    coverage (no grid yet) the files hold the detections only, and ``pdcov.gpx`` the
+    ``tracks`` given. Raises OutputError (naming the file) when one cannot be written; the
+    files already written stay."""
     from pdcov.report.kml import icon_pngs, kml_document, kmz_bytes, overlay_png
 
     out = Path(out_dir)
     all_pins = pins(findings, coverage)
     files, not_written = [], []
+    refs_missing = GRID_REFERENCES.message()
+    if refs_missing is not None and all_pins:
+        not_written.append(f"the pins' mgrs and utm properties (null): {refs_missing}")
     write_detections_geojson(out / "detections.geojson", every_pin(findings, coverage))
     layers = None
     if coverage is not None:
@@ -394,6 +460,15 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
         with atomic_write(out / "pdcov.kmz", "wb") as f:
             f.write(kmz_bytes(doc, overlay, icons))
         files.append("pdcov.kmz")
+    gpx_missing = GPX.message()
+    if gpx_missing is None:
+        from pdcov.report.gpx import gpx_document
+
+        with atomic_write(out / "pdcov.gpx", "wb") as f:
+            f.write(gpx_document(tracks, all_pins, title))
+        files.append("pdcov.gpx")
+    else:
+        not_written.append(f"pdcov.gpx: {gpx_missing}")
     return Exported(tuple(files), tuple(not_written))
 
 

@@ -33,7 +33,7 @@ from pdcov.core.search_theory import SearchOutcome, search_outcome
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
-from pdcov.report.exports import Coverage, VehicleDetections, write_exports
+from pdcov.report.exports import Coverage, VehicleDetections, VehicleTrack, write_exports
 from pdcov.report.grid_file import GRID_NPZ, write_grid_file
 from pdcov.report.output_extent import (
     CROP_ABOVE_CELLS,
@@ -210,12 +210,14 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   prior: np.ndarray | None = None, extra_metrics: dict[str, Any] | None = None,
                   figures: bool = True,
                   exports: Sequence[VehicleDetections] | None = None,
+                  tracks: Sequence[VehicleTrack] = (),
                   limiting_unknown: str | None = None) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
     not installed are named in ``not_written`` instead. ``exports``: the detections to
     export with the coverage (report/exports.py; gaps below the outline threshold), None
-    for no exports. ``limiting_unknown``: why the grid's limiting factors are unknown (None:
-    they are known); metrics.json's limiting_cells is then null, with this reason under
+    for no exports; ``tracks``: the flown tracks the exports carry (pdcov.gpx).
+    ``limiting_unknown``: why the grid's limiting factors are unknown (None: they are
+    known); metrics.json's limiting_cells is then null, with this reason under
     limiting_unknown, and grid.npz and pd.tif hold no limiting factor."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -278,7 +280,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     if exports is not None:
         coverage = Coverage(drawn.pd, drawn.mask, g, origin, tuple(mission.thresholds),
                             threshold)
-        exported = write_exports(out, coverage, exports, title=title)
+        exported = write_exports(out, coverage, exports, title=title, tracks=tracks)
         files += exported.files
         not_written += exported.not_written
     if figures:
