@@ -11,6 +11,7 @@ GeoJSON is WGS84 longitude/latitude as RFC 7946 requires.
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -25,11 +26,21 @@ from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic
 from pdcov.core.tiles import Window
 
+_WGS84_A_M, _WGS84_E2 = 6378137.0, 6.69437999014e-3
+
 
 def local_crs_wkt(origin: Origin) -> str:
-    """PROJ string of the transverse Mercator plane centred on ``origin``."""
-    return (f"+proj=tmerc +lat_0={origin.lat_deg:.9f} +lon_0={origin.lon_deg:.9f} +k=1 "
-            "+x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs")
+    """PROJ string of the transverse Mercator plane centred on ``origin`` that matches its ENU
+    plane: the ENU plane lies at the origin's height h (``ground_alt_msl_m``, the height
+    its geodetic conversions use), where a metre spans R / (R + h) of a metre on the
+    ellipsoid (R the Gaussian radius there), so the scale factor is (R + h) / R; with 1,
+    an origin 2,500 m up would drift 0.78 m per axis at 2 km."""
+    lat = math.radians(origin.lat_deg)
+    w = 1.0 - _WGS84_E2 * math.sin(lat) ** 2
+    r_m = _WGS84_A_M * math.sqrt(1.0 - _WGS84_E2) / w  # sqrt(M N)
+    k = (r_m + origin.ground_alt_msl_m) / r_m
+    return (f"+proj=tmerc +lat_0={origin.lat_deg:.9f} +lon_0={origin.lon_deg:.9f} "
+            f"+k={k:.12f} +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs")
 
 
 def _transform(geometry: GridGeometry) -> Any:
