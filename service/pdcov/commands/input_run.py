@@ -21,6 +21,7 @@ import numpy as np
 
 from pdcov.core.blur import describe_blur
 from pdcov.core.combine_cameras import combine_cameras
+from pdcov.core.geodesy import Origin, distance_from_origin_m
 from pdcov.core.grid_store import (
     StoreUpdate,
     read_store_like,
@@ -196,7 +197,7 @@ def run_input(job: InputJob, mission: Mission) -> InputRun:
               else _csv_frames(job, mission))
     lines = list(frames.lines)
     poses = frames.poses
-    _check_near_origin(poses, job.path, mission.source)
+    _check_near_origin(poses, job.path, mission.source, mission.origin())
     n_read = len(poses)
     top_m = max((float(p.r_cam_enu[2]) for p in poses), default=math.nan)
     # The daemon's filter: the log's frames marked by frame_selection, a CSV's poses by
@@ -376,12 +377,17 @@ def _unseen_domain_warnings(grid: CoverageGrid, mission: Mission,
             f"{where_}"]
 
 
-def _check_near_origin(poses: Sequence[CameraPose], source: Path, config: str | None) -> None:
-    """A flight tens of km from the origin is a wrong origin, not a survey: say so."""
+def _check_near_origin(poses: Sequence[CameraPose], source: Path, config: str | None,
+                       origin: Origin) -> None:
+    """A flight tens of km from the origin is a wrong origin, not a survey: say so, with
+    its distance over the ground (the ENU plane's horizontal distance is not that far
+    away)."""
     if not poses:
         return
-    xy = np.array([p.r_cam_enu[:2] for p in poses])
-    dist_km = float(np.median(np.hypot(xy[:, 0], xy[:, 1]))) / 1000
+    r_enu = np.array([p.r_cam_enu for p in poses])
+    if float(np.median(np.linalg.norm(r_enu, axis=1))) <= 50e3:  # straight-line, below it
+        return
+    dist_km = float(np.median(distance_from_origin_m(r_enu, origin))) / 1000
     if dist_km > 50:
         raise InputFileError(
             f"{source}: the camera is {dist_km:,.0f} km from the mission origin; "

@@ -92,6 +92,21 @@ def geodetic_to_enu(lat_deg: np.ndarray | float, lon_deg: np.ndarray | float,
     return np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1)
 
 
+MEAN_EARTH_RADIUS_M = 6_371_008.8  # IUGG mean radius R1
+
+
+def distance_from_origin_m(r_enu: np.ndarray, origin: Origin) -> np.ndarray:
+    """The distance over the ground (m; great circle on the mean-radius sphere, within
+    0.5 % of the ellipsoid's geodesic) from ``origin`` to the points below ENU points
+    (..., 3): right at any distance, where the ENU plane's horizontal distance is not (a
+    point across the globe lies far below the plane)."""
+    geo = np.radians(enu_to_geodetic(r_enu, origin)[..., :2])
+    lat0, lon0 = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
+    a = (np.sin((geo[..., 0] - lat0) / 2) ** 2
+         + math.cos(lat0) * np.cos(geo[..., 0]) * np.sin((geo[..., 1] - lon0) / 2) ** 2)
+    return 2 * MEAN_EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(a, 0.0, 1.0)))
+
+
 def enu_to_geodetic(r_enu: np.ndarray, origin: Origin) -> np.ndarray:
     """(lat_deg, lon_deg, alt_msl_m) (..., 3) of ENU points about ``origin``."""
     r = np.asarray(r_enu, dtype=float)
