@@ -256,6 +256,15 @@ def test_dem_kilometres_away(tmp_path):
     assert re.search(r"does not cover the domain at all: .* 4\.3 km to the north of it", msg)
 
 
+def test_dem_kilometres_away_without_a_ground_altitude_is_said_first(tmp_path):
+    # No origin.ground_alt_msl_m: the DEM's height at the origin is wanted first, but a DEM
+    # missing the whole domain is a wrong DEM, not a missing altitude (issue 39).
+    path = flat_around(tmp_path / "dem.tif", lat_deg=LAT0 + 0.05)  # 5.6 km north
+    msg = refusal(tmp_path, terrain_doc(path))
+    assert re.search(r"does not cover the domain at all: .* 4\.3 km to the north of it", msg)
+    assert "ground_alt_msl_m" not in msg
+
+
 def test_nodata_holes_under_the_domain(tmp_path):
     path = flat_around(tmp_path / "dem.tif", px_deg=0.0002)
     with rasterio.open(path, "r+") as ds:

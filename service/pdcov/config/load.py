@@ -81,7 +81,9 @@ def mission_from_dict(doc: Any, source: str | None = None, base_dir: Path | None
     if ter is not None:
         dem = open_dem(ter, src, base, domain.grid_geometry(cell), origin_value)
         if ground_alt is None:
-            ground_alt, ground_how = dem_ground_alt(dem, origin, src), "the DEM at the origin"
+            ground_alt = dem_ground_alt(dem, origin, src, domain.grid_geometry(cell),
+                                        origin_value)
+            ground_how = "the DEM at the origin"
             origin_value = Origin(origin.lat_deg, origin.lon_deg, ground_alt)
             domain = load_domain(dom, src, base, origin_value)  # geodetic polygons at that ground
         elif err := dem_rules.home_offset_error(dem, origin.lat_deg, origin.lon_deg, ground_alt,

@@ -248,10 +248,15 @@ def searched_domain(ter: TerrainSection, src: str | None, domain: Domain, cover:
     return domain.without_cells(cover.geometry, roofs)
 
 
-def dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None) -> float:
-    """The DEM's height (m MSL) at the origin, for an origin.ground_alt_msl_m not given."""
+def dem_ground_alt(dem: Dem, origin: OriginSection, src: str | None, g: GridGeometry,
+                   origin_value: Origin) -> float:
+    """The DEM's height (m MSL) at the origin, for an origin.ground_alt_msl_m not given.
+    When it has none there, a DEM that misses the grid ``g`` (about ``origin_value``)
+    altogether is said first: a wrong DEM, not a missing altitude."""
     h = float(dem.height_msl_m(origin.lat_deg, origin.lon_deg))
     if not math.isfinite(h):
+        if elsewhere := dem_rules.elsewhere_message(dem, g, origin_value):
+            raise ConfigError(f"{where(src, 'terrain.dem')}: {elsewhere}")
         raise ConfigError(f"{where(src, 'terrain.dem')}: {dem.path}: no height at the origin "
                           f"({origin.lat_deg:.6f}, {origin.lon_deg:.6f}): it is outside the "
                           "DEM or on nodata; set origin.ground_alt_msl_m")

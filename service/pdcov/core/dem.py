@@ -345,6 +345,31 @@ def _compass(dx: float, dy: float) -> str:
     return names[round(math.degrees(math.atan2(dy, dx)) / 45.0) % 8]
 
 
+def elsewhere_message(dem: Dem, g: GridGeometry, origin: Origin, *, what: str = "DEM",
+                      key: str = "terrain.dem", overlapping: bool = False) -> str | None:
+    """One line when ``dem``'s raster does not cover ``g``'s cells at all: where it lies
+    (how far, in which direction); None when its extent overlaps the grid's, unless
+    ``overlapping`` (its cells are known to be missed all the same)."""
+    import shapely
+    from shapely.ops import nearest_points
+
+    x1, y1 = g.x0_m + g.cell_size_m * g.n_cols, g.y0_m + g.cell_size_m * g.n_rows
+    grid_box = shapely.box(g.x0_m, g.y0_m, x1, y1)
+    w, s, e, n = dem.bounds_lonlat_deg
+    ring = np.array([[s, w], [s, e], [n, e], [n, w]])
+    r = geodetic_to_enu(ring[:, 0], ring[:, 1], origin.ground_alt_msl_m, origin)
+    dem_box = shapely.Polygon(r[:, :2])
+    dist_m = float(shapely.distance(grid_box, dem_box))
+    if dist_m == 0 and not overlapping:
+        return None
+    a, b = nearest_points(grid_box, dem_box)
+    where_ = (f"{dist_m / 1000:,.1f} km to the {_compass(b.x - a.x, b.y - a.y)} of it"
+              if dist_m > 0 else "beside it, without reaching its cells")
+    return (f"{dem.path}: the {what} does not cover the domain at all: it spans lat "
+            f"{s:.4f}..{n:.4f}, lon {w:.4f}..{e:.4f} deg, {where_}; check {key} "
+            "and origin.lat_deg / origin.lon_deg")
+
+
 def missing_heights_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.ndarray,
                             cell_ok: np.ndarray, cell_in: np.ndarray, *, what: str = "DEM",
                             key: str = "terrain.dem",
@@ -353,28 +378,16 @@ def missing_heights_message(dem: Dem, g: GridGeometry, origin: Origin, free: np.
     the free cells, in one line. cell_ok: the cells that have their heights; cell_in: those
     within the raster's window (bool, the grid's shape each); hole: how a cell within it
     lacks its heights."""
-    import shapely
-    from shapely.ops import nearest_points
-
     cell_m2 = g.cell_size_m ** 2
     n_free = int(free.sum())
     xc, yc = g.centres_enu()
     cx, cy = np.meshgrid(xc, yc)
     outside = free & ~cell_in
     x1, y1 = g.x0_m + g.cell_size_m * g.n_cols, g.y0_m + g.cell_size_m * g.n_rows
-    grid_box = shapely.box(g.x0_m, g.y0_m, x1, y1)
     if outside.all() or not cell_in.any():
-        w, s, e, n = dem.bounds_lonlat_deg
-        ring = np.array([[s, w], [s, e], [n, e], [n, w]])
-        r = geodetic_to_enu(ring[:, 0], ring[:, 1], origin.ground_alt_msl_m, origin)
-        dem_box = shapely.Polygon(r[:, :2])
-        dist_m = float(shapely.distance(grid_box, dem_box))
-        a, b = nearest_points(grid_box, dem_box)
-        where_ = (f"{dist_m / 1000:,.1f} km to the {_compass(b.x - a.x, b.y - a.y)} of it"
-                  if dist_m > 0 else "beside it, without reaching its cells")
-        return (f"{dem.path}: the {what} does not cover the domain at all: it spans lat "
-                f"{s:.4f}..{n:.4f}, lon {w:.4f}..{e:.4f} deg, {where_}; check {key} "
-                "and origin.lat_deg / origin.lon_deg")
+        found = elsewhere_message(dem, g, origin, what=what, key=key, overlapping=True)
+        assert found is not None
+        return found
     if outside.any():
         k = int(outside.sum())
         dx, dy = cx[outside].mean() - cx[free].mean(), cy[outside].mean() - cy[free].mean()
