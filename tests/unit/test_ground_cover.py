@@ -201,3 +201,12 @@ def test_an_oblique_view_under_the_canopys_edge_sees_more_than_straight_down():
     assert down == pytest.approx(math.exp(-K * 20.0), rel=1e-6)
     assert side == pytest.approx(math.exp(-K * 2.0 * math.hypot(1, tan_e)), rel=1e-6)
     assert side > 3 * down
+
+
+def test_a_ray_down_to_a_camera_below_the_point_is_followed_through_the_trees():
+    # A camera 8 m below the person's ground and 20 m west: the line of sight descends,
+    # below the forest's 20 m tops all the way to its edge (x = 50), never above them.
+    terrain = scene()
+    t = t_of(terrain, [40.0, 100.5, -8.0], [[60.0, 100.5]])
+    # Horizontal path through the trees: from x = 60 to 50, 10 m, 3-D 10 x sqrt(1 + 0.4^2).
+    assert t[0] == pytest.approx(math.exp(-K * 10.0 * math.hypot(1, 8.0 / 20.0)), rel=1e-6)

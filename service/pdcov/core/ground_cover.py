@@ -9,14 +9,18 @@ A person standing at a ground point is seen through a transmittance: the line of
 the ground point to the camera loses exp(-k L), L (m) its length inside foliage prisms below
 their tops, k the extinction coefficient (1/m); one that passes below a solid prism's top
 is no look (transmittance 0); a ground point under a roof is never seen. ``transmittance``
-computes it ray by ray, stepping from the ground point towards the camera through the cells
-the ray's ground track crosses (Amanatides & Woo's grid traversal), the length inside each
-prism found exactly; a cell's transmittance is the mean over ``RAYS_PER_SIDE``^2 rays from
-points spread evenly over it (``cell_transmittance``).
+follows the rays through the cells their ground tracks cross, all at once, a few grid
+lines at a time (a ray's crossings of the column lines and of the row lines are two
+arithmetic sequences: merged, they give its segments, one per cell, and each segment's
+length below its cell's top is exact). A cell's transmittance is the mean over
+``RAYS_PER_SIDE``^2 rays from points spread evenly over it, or its first ray's alone where
+that ray passes no cell beside one of another kind (``cell_transmittance``).
 
-Rays only step while they may still be below some prism's top: from the highest top, and
-from the highest object and the steepest terrain, a bound on how far that is; points farther
-than that from every raised cell (a distance transform, computed once) are not stepped.
+Rays are followed only while they may still be below some top: to the camera, and no
+farther than where they rise above the highest top, or (rising faster than the steepest
+terrain) above the highest object; a ray above the highest top within 3, 12 or 48 cells of
+where it is jumps 2, 11 or 47 cells ahead; a point farther from every raised cell than its
+ray may be followed (a distance transform, computed once) is not followed at all.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 
 from pdcov.core.domain import GridGeometry
 
-__all__ = ["DEFAULT_EXTINCTION_PER_M", "DEFAULT_MIN_OBJECT_HEIGHT_M", "NEAR_CELLS",
+__all__ = ["DEFAULT_EXTINCTION_PER_M", "DEFAULT_MIN_OBJECT_HEIGHT_M", "EDGE", "NEAR_CELLS",
            "RAYS_PER_SIDE", "CoverKind", "CoverTops", "GroundCover", "cell_transmittance",
            "through_cover", "transmittance"]
 
@@ -45,7 +49,8 @@ DEFAULT_MIN_OBJECT_HEIGHT_M = 2.0
 vegetation, cars."""
 
 RAYS_PER_SIDE = 2
-"""Rays per cell side: a cell's transmittance is the mean over 3 x 3 ground points."""
+"""Rays per cell side: a cell's transmittance is the mean over 2 x 2 ground points (3 x 3
+brought R4's agreement from 98.8 to 99.0 % of cells at 1.6 times the cost)."""
 
 _MIN_LOG_T = -12.0  # a ray attenuated below exp(-12) is not stepped further
 EDGE = 4
@@ -261,8 +266,9 @@ def _march(cover: GroundCover, tops: CoverTops, rays: _Rays
            ) -> tuple[np.ndarray, np.ndarray]:
     """``_trace`` of ``rays``, all followed at once, a few cells at a time: a ray's
     crossings of the column and of the row lines are arithmetic sequences, so the segments
-    between them (one per cell) are found without a loop per cell. A ray above the highest
-    top within n cells of its cell (``CoverTops.near_top_z_m``) jumps n - 1 cells ahead."""
+    between them (one per cell) are found without a loop per cell. A rising ray above the
+    highest top within n cells of its cell (``CoverTops.near_top_z_m``) jumps n - 1 cells
+    ahead."""
     g = cover.geometry
     cs = g.cell_size_m
     n = len(rays.z)
@@ -279,8 +285,9 @@ def _march(cover: GroundCover, tops: CoverTops, rays: _Rays
         at = row.astype(np.intp) * g.n_cols + col.astype(np.intp)
         z = rays.z[live] + rays.tan_e[live] * s_l
         jump = np.zeros(len(live))
+        rising = rays.tan_e[live] > 0  # a ray not rising may come down to any top
         for n_cells, near in zip(NEAR_CELLS, tops.near_top_z_m, strict=True):
-            jump[z > near.ravel().take(at)] = (n_cells - 1) * cs
+            jump[rising & (z > near.ravel().take(at))] = (n_cells - 1) * cs
         ahead = s_l + jump
         march = np.flatnonzero(jump == 0)
         if len(march):
