@@ -58,9 +58,15 @@ def evaluate_square(tmp_path: Path, side_m: int, poses_csv: Path) -> tuple[Path,
     return out, proc.stdout, int(found.group(1))
 
 
-def read_bands(path: Path) -> tuple[dict[str, np.ndarray], object]:
-    with rasterio.open(path) as src:
-        return dict(zip(src.descriptions, src.read(), strict=True)), src.transform
+def read_bands(run: Path, *names: str) -> tuple[dict[str, np.ndarray], object]:
+    """The bands of the GeoTIFFs ``names`` in ``run`` by description, and their transform."""
+    bands, transforms = {}, set()
+    for name in names:
+        with rasterio.open(run / name) as src:
+            bands.update(zip(src.descriptions, src.read(), strict=True))
+            transforms.add(src.transform)
+    assert len(transforms) == 1
+    return bands, transforms.pop()
 
 
 def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
@@ -91,13 +97,15 @@ def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
     assert 0 < len(chunk_files) <= 4 * 4
 
     # pd.tif: the county's holds the small run's values on the same georeferenced cells.
-    a, ta = read_bands(small / "pd.tif")
-    b, tb = read_bands(county / "pd.tif")
+    a, ta = read_bands(small, "pd.tif", "looks.tif", "limiting.tif")
+    b, tb = read_bands(county, "pd.tif", "looks.tif", "limiting.tif")
     assert b["pd"].shape == (512, 512)  # the touched tile grown by one, clipped at 0
     with rasterio.open(county / "pd.tif") as src:  # a Cloud-Optimised GeoTIFF
         assert src.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
         assert src.block_shapes[0] == (256, 256) and src.overviews(1)
         assert src.profile["compress"] == "deflate"
+    with rasterio.open(county / "pd_rgba_3857.tif") as src:  # as large as the overlay
+        assert src.crs.to_epsg() == 3857 and max(src.shape) <= 2 * 512
     rows, cols = np.mgrid[0:SMALL_M, 0:SMALL_M]
     x, y = rasterio.transform.xy(ta, rows, cols)  # the small raster's cell centres (m)
     rb, cb = rasterio.transform.rowcol(tb, x, y)

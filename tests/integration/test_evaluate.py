@@ -109,16 +109,17 @@ def test_outputs_are_readable_and_follow_the_input(tmp_path):
         assert images[0].shape != images[1].shape or np.any(images[0] != images[1])
     grid = load_grid(tmp_path / "a")
     with rasterio.open(tmp_path / "a" / "pd.tif") as tif:
-        assert tif.count == 4 and tif.crs is not None
-        assert tif.descriptions == ("pd", "pfa", "n_obs", "limiting")
+        assert tif.count == 2 and tif.crs is not None
+        assert tif.descriptions == ("pd", "pfa")
         band = tif.read(1)
         # North-up raster: the grid's row 0 (south) is the raster's last row.
         np.testing.assert_allclose(band[::-1][grid["mask"]], grid["pd"][grid["mask"]],
                                    atol=1e-6)
-        np.testing.assert_array_equal(tif.read(4)[::-1][grid["mask"]],
-                                      grid["limiting"][grid["mask"]])
         x, y = tif.xy(tif.height - 1, 0)  # centre of the south-west cell
         assert (x, y) == pytest.approx((0.5, 0.5))
+    with rasterio.open(tmp_path / "a" / "limiting.tif") as tif:  # uint8 (looks.tif: int32)
+        np.testing.assert_array_equal(tif.read(1)[::-1][grid["mask"]],
+                                      grid["limiting"][grid["mask"]])
     outline = json.loads((tmp_path / "a" / "outline.geojson").read_text())
     geom = outline["features"][0]["geometry"]
     assert geom["type"] == "MultiPolygon" and geom["coordinates"]

@@ -17,15 +17,10 @@ import pytest
 
 from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.errors import ConfigError
-from pdcov.ground.cot import (
-    AIRCRAFT_TYPE,
-    CANDIDATE_TYPE,
-    CotSchedule,
-    sensor_from_footprint,
-    track_between,
-)
+from pdcov.ground.cot import CotSchedule, sensor_from_footprint, track_between
 from pdcov.ground.cot_feed import CotFeed, parse_cot_url
 from pdcov.ground.feed import VehicleFeed
+from pdcov.report.cot_events import AIRCRAFT_TYPE, CANDIDATE_TYPE
 from tests.support.exports_fixtures import candidate
 
 AIR = Origin(46.5, 7.25, 0.0)

@@ -53,7 +53,7 @@ def test_every_file_is_written_and_named(run):
     out, _, result = run
     assert result.files == ("detections.geojson", "caltopo.geojson", "pd_overlay.png",
                             "pin_candidate.png", "pin_detection.png", "pdcov.kml",
-                            "pdcov.kmz", "pdcov.gpx")
+                            "pdcov.kmz", "pdcov_atak.zip", "pdcov.gpx")
     assert result.not_written == ()
     assert all((out / f).is_file() for f in result.files)
 

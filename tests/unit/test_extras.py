@@ -58,12 +58,13 @@ def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_miss
             "pin_candidate.png, pin_detection.png, pdcov.kml in") in out
     assert ("not written: caltopo.geojson, pdcov.kml without outlines: P_D outlines, gaps "
             "and re-fly areas need rasterio: pip install 'pdcov[gis]'") in out
-    assert ("not written: pd_overlay.png, pdcov.kmz: the P_D overlay needs matplotlib: "
-            "pip install 'pdcov[plots]'") in out
+    assert ("not written: pd_overlay.png, pdcov.kmz, pdcov_atak.zip: the P_D overlay needs "
+            "matplotlib: pip install 'pdcov[plots]'") in out
     assert ("not written: heatmap.png, thresholds.png: figures need matplotlib: "
             "pip install 'pdcov[plots]'") in out
-    assert ("not written: pd.tif, outline.geojson: GeoTIFF and GeoJSON outputs need "
-            "rasterio: pip install 'pdcov[gis]'") in out
+    assert ("not written: pd.tif, looks.tif, limiting.tif, outline.geojson, "
+            "pd_rgba_3857.tif: GeoTIFF and GeoJSON outputs need rasterio: "
+            "pip install 'pdcov[gis]'") in out
     assert "not written: pdcov.gpx: the GPX export needs gpxpy: pip install 'pdcov[gis]'" \
         in out
     assert "mgrs" not in out  # no pin, so no reference missing
@@ -165,3 +166,13 @@ def test_the_simulator_without_jsbsim_exits_2_naming_the_sitl_extra(tmp_path, mo
                       "--out", str(tmp_path / "sim")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith("the simulator needs jsbsim: pip install 'pdcov[sitl]'"), err
+
+
+def test_without_plots_the_rgba_geotiff_is_named_and_the_grid_geotiffs_written(
+        tmp_path, monkeypatch, capsys):
+    without(monkeypatch, "matplotlib")
+    assert evaluate(tmp_path / "run") == 0
+    assert ("not written: pd_rgba_3857.tif: the RGBA GeoTIFF needs matplotlib: "
+            "pip install 'pdcov[plots]'") in capsys.readouterr().out
+    assert {"pd.tif", "looks.tif", "limiting.tif"} <= {p.name for p in (tmp_path / "run").iterdir()}
+    assert not (tmp_path / "run" / "pd_rgba_3857.tif").exists()

@@ -18,7 +18,7 @@ from rasterio.warp import transform
 from scipy.integrate import quad
 
 from pdcov.core.geodesy import Origin, geodetic_to_enu, grid_references
-from pdcov.ground.cot import candidate_event
+from pdcov.report.cot_events import candidate_event
 from pdcov.report.exports import VehicleDetections, write_exports
 from tests.support.exports_fixtures import candidate, coverage, detections_doc
 

@@ -183,7 +183,8 @@ def test_recording_exports_at_a_bounded_rate(tmp_path):
     assert not rec.poll(w, version=2, now_s=20.0)  # nothing new
     assert rec.written == 2
     files = {p.name for p in (tmp_path / "exports").iterdir()}
-    assert {"detections.geojson", "caltopo.geojson", "pdcov.kml", "pdcov.kmz"} <= files
+    assert {"detections.geojson", "caltopo.geojson", "pdcov.kml", "pdcov.kmz",
+            "pdcov_atak.zip"} <= files
 
 
 def test_a_failing_export_is_logged_once_keeps_the_last_files_and_is_retried(

@@ -13,18 +13,13 @@ Per vehicle (docs/ground-station.md "Cursor-on-Target"):
   on the camera's current ground footprint, so that a gimbal's pointing is shown as it is;
   sent when the position is new, at most every ``aircraft_period_s``, stale after
   ``aircraft_stale_s`` (a silent vehicle fades on the map instead of standing still);
-* each candidate, uid its pin's ``uid`` (docs/protocol.md "detections": durable across
-  the daemon's restarts, so a pin keeps its TAK marker), type CANDIDATE_TYPE (unknown
-  ground object: nobody has looked at it yet), ``ce`` its 90 % circular error, its
-  p_person, looks and hits, MGRS and UTM references in the remarks (core/geodesy.py
-  ``grid_references``; the ground extra has mgrs); sent when it changed and again every
-  ``candidate_period_s``, stale after ``candidate_stale_s``; no ``<track>``: a pin stands
-  still.
+* each candidate (report/cot_events.py ``candidate_event``: the pin's event, shared with
+  the ATAK data package) sent when it changed and again every ``candidate_period_s``,
+  stale after ``candidate_stale_s``; no ``<track>``: a pin stands still.
 
-Heights: CoT's ``hae`` is above the WGS84 ellipsoid and the status gives MSL (pdcov has no
-geoid model), so every point says its height is unknown (9999999, CoT's own value) and
-the MSL altitude is in the remarks. At most ``max_events_per_s`` events go out (a token
-bucket): aircraft first, then changed candidates, then the repeats.
+Heights: unknown to CoT, MSL in the remarks (report/cot_events.py). At most
+``max_events_per_s`` events go out (a token bucket): aircraft first, then changed
+candidates, then the repeats.
 """
 
 from __future__ import annotations
@@ -33,27 +28,26 @@ import math
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from functools import partial
 from typing import Any
 
 import numpy as np
 import shapely
 
-from pdcov.core.geodesy import Origin, deg_text, geodetic_to_enu, grid_references
+from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.ground.feed import VehicleFeed
+from pdcov.report.cot_events import (
+    AIRCRAFT_TYPE,
+    UNKNOWN,
+    aircraft_uid,
+    candidate_event,
+    event_element,
+    tenths,
+)
 
-__all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CotSchedule", "Sensor", "Track",
-           "aircraft_event", "candidate_event", "sensor_from_footprint", "track_between"]
+__all__ = ["CotSchedule", "Sensor", "Track", "aircraft_event", "sensor_from_footprint",
+           "track_between"]
 
-AIRCRAFT_TYPE = "a-f-A-M-F-Q"
-"""MIL-STD-2525 friendly air, unmanned aerial vehicle: the UAV symbol TAK clients draw."""
-CANDIDATE_TYPE = "a-u-G"
-"""Unknown ground object."""
-UNKNOWN = "9999999.0"
-"""CoT's value for an unknown ce, le or hae."""
-CE90_PER_SIGMA = 2.146
-"""90 % circular error of a circular normal distribution, in units of its 1-sigma."""
 NADIR_SHARE = 0.05
 """A footprint centre nearer the point below the aircraft than this share of its height is
 taken as straight down: the sensor azimuth is then the vehicle's heading."""
@@ -63,12 +57,6 @@ vehicle that stopped talking."""
 HOVER_SPEED_MPS = 0.5
 """Below this ground speed (m/s) the course is the vehicle's heading: a hover's drift points
 nowhere in particular."""
-
-
-def cot_time(unix_s: float) -> str:
-    """A CoT time: UTC, ISO 8601 to the millisecond, 'Z'."""
-    t = datetime.fromtimestamp(unix_s, tz=timezone.utc)
-    return t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,27 +132,9 @@ def track_between(before: dict[str, Any], after: dict[str, Any]) -> Track | None
     return Track(speed, course % 360.0)
 
 
-def _event(uid: str, cot_type: str, how: str, lat_deg: float, lon_deg: float, ce: str,
-           now_unix_s: float, stale_s: float) -> tuple[ET.Element, ET.Element]:
-    event = ET.Element("event", version="2.0", uid=uid, type=cot_type, how=how,
-                       time=cot_time(now_unix_s), start=cot_time(now_unix_s),
-                       stale=cot_time(now_unix_s + stale_s))
-    ET.SubElement(event, "point", lat=deg_text(lat_deg), lon=deg_text(lon_deg), hae=UNKNOWN,
-                  ce=ce, le=UNKNOWN)
-    return event, ET.SubElement(event, "detail")
-
-
-def _f(v: float) -> str:
-    return f"{v:.1f}"
-
-
 def _bearing(deg: float) -> str:
     """Degrees clockwise from true north, to 0.1 in [0, 360): 359.97 is "0.0"."""
-    return _f(round(deg, 1) % 360.0)
-
-
-def aircraft_uid(vehicle_id: str) -> str:
-    return f"pdcov-{vehicle_id}"
+    return tenths(round(deg, 1) % 360.0)
 
 
 def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
@@ -172,42 +142,21 @@ def aircraft_event(vehicle_id: str, pose: dict[str, Any], sensor: Sensor | None,
     """The aircraft's event from a status ``pose`` {lat_deg, lon_deg, alt_msl_m,
     heading_deg}: its position (how "m-g": GPS), call sign, track (speed and course, both
     or none: TAK's track schema requires both) and the sensor."""
-    event, detail = _event(aircraft_uid(vehicle_id), AIRCRAFT_TYPE, "m-g",
-                           float(pose["lat_deg"]), float(pose["lon_deg"]), UNKNOWN,
-                           now_unix_s, stale_s)
+    event, detail = event_element(aircraft_uid(vehicle_id), AIRCRAFT_TYPE, "m-g",
+                                  float(pose["lat_deg"]), float(pose["lon_deg"]), UNKNOWN,
+                                  now_unix_s, stale_s)
     ET.SubElement(detail, "contact", callsign=f"pdcov {vehicle_id}")
     if track is not None:
         ET.SubElement(detail, "track", course=_bearing(track.course_deg),
                       speed=f"{track.speed_mps:.2f}")
     if sensor is not None:
         ET.SubElement(detail, "sensor", azimuth=_bearing(sensor.azimuth_deg),
-                      elevation=_f(sensor.elevation_deg), fov=_f(sensor.fov_deg),
-                      vfov=_f(sensor.vfov_deg), range=_f(sensor.range_m),
+                      elevation=tenths(sensor.elevation_deg), fov=tenths(sensor.fov_deg),
+                      vfov=tenths(sensor.vfov_deg), range=tenths(sensor.range_m),
                       model="pdcov camera footprint", type="r-e")
     alt = pose.get("alt_msl_m")
     remarks = "pdcov coverage aircraft" + ("" if alt is None else f", {alt:.1f} m MSL")
     ET.SubElement(detail, "remarks").text = remarks
-    return ET.tostring(event)
-
-
-def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale_s: float
-                    ) -> bytes:
-    """A candidate's event (a detections payload's candidate entry): uid the pin's, how
-    "m-f" (computed from the pose and the pixels), ce its 90 % circle (needs mgrs: the
-    COT extra)."""
-    event, detail = _event(c["uid"], CANDIDATE_TYPE, "m-f",
-                           float(c["lat_deg"]), float(c["lon_deg"]),
-                           _f(CE90_PER_SIGMA * float(c["sigma_m"])), now_unix_s, stale_s)
-    ET.SubElement(detail, "contact", callsign=f"{c['class']} {c['p_person']:.2f} {c['uid']}")
-    ET.SubElement(detail, "link", uid=aircraft_uid(vehicle_id), type=AIRCRAFT_TYPE,
-                  relation="p-p")
-    alt = c.get("alt_msl_m")
-    mgrs, utm = grid_references(float(c["lat_deg"]), float(c["lon_deg"]))
-    ET.SubElement(detail, "remarks").text = (
-        f"{c['class']} pin {c['uid']}: p_person {c['p_person']:.4f}, detected {c['hits']} "
-        f"of {c['looks']} looks; cell P_D {c['pd']:.2f}, P_FA {c['pfa']:.3f}; best "
-        f"confidence {c['confidence']:.2f}" + ("" if alt is None else f"; {alt:.1f} m MSL")
-        + f"; MGRS {mgrs}" + ("" if utm is None else f"; UTM {utm}"))
     return ET.tostring(event)
 
 

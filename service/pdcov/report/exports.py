@@ -11,6 +11,8 @@ and ``pdcov watch --record DIR`` (in DIR/exports/), from the same builders
 * ``pdcov.kml`` with ``pd_overlay.png`` and the pins' icon PNGs beside it, and ``pdcov.kmz``
   (the same ``doc.kml`` and PNGs zipped): a P_D ground overlay and the same features, for
   Google Earth and ATAK (report/kml.py; no file refers to the internet);
+* ``pdcov_atak.zip``: a TAK data package of the KMZ and a CoT marker per candidate
+  (report/atak_package.py);
 * ``pdcov.gpx``: GPX 1.1, a track per vehicle (``VehicleTrack``) and a waypoint per
   candidate, for GPS units and mapping apps (report/gpx.py).
 
@@ -19,8 +21,8 @@ are pure: the coverage (``Coverage``), each vehicle's detections (``VehicleDetec
 ``pdcov.detections`` document as decoded from the bus or read from detections.json) and
 flown track in, documents out. ``write_exports`` writes them atomically and says which it
 could not write for lack of an extra: the outlines and gaps need ``gis`` (rasterio), as do
-the GPX (gpxpy) and the grid references (mgrs), the overlay and the KMZ ``plots``
-(matplotlib).
+the GPX (gpxpy) and the grid references (mgrs, and so the data package's markers), the
+overlay, the KMZ and the data package ``plots`` (matplotlib).
 """
 
 from __future__ import annotations
@@ -446,7 +448,7 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
                 f.write(overlay.png)
             files.append("pd_overlay.png")
         else:
-            not_written.append(f"pd_overlay.png, pdcov.kmz: {plots_missing}")
+            not_written.append(f"pd_overlay.png, pdcov.kmz, pdcov_atak.zip: {plots_missing}")
     icons = icon_pngs()
     for name, png in icons.items():  # before the KML that refers to them
         with atomic_write(out / name, "wb") as f:
@@ -457,9 +459,16 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
         f.write(doc)
     files.append("pdcov.kml")
     if overlay is not None:
+        kmz = kmz_bytes(doc, overlay, icons)
         with atomic_write(out / "pdcov.kmz", "wb") as f:
-            f.write(kmz_bytes(doc, overlay, icons))
+            f.write(kmz)
         files.append("pdcov.kmz")
+        if refs_missing is None or all(p.kind != "candidate" for p in all_pins):
+            from pdcov.report.atak_package import write_atak_package
+
+            files.append(write_atak_package(out, kmz, all_pins, title))
+        else:
+            not_written.append(f"pdcov_atak.zip (its markers' remarks): {refs_missing}")
     gpx_missing = GPX.message()
     if gpx_missing is None:
         from pdcov.report.gpx import gpx_document

@@ -1,11 +1,13 @@
-"""GIS exports: the P_D grid as a GeoTIFF (tiled, compressed, written block by block) and
-the threshold outline as GeoJSON (rasterio); cell outlines in ENU and their WGS84
-coordinates for the other exports (report/exports.py).
+"""GIS exports: the grid's bands as Cloud-Optimised GeoTIFFs (tiled, compressed, written
+block by block: pd.tif, looks.tif, limiting.tif), the P_D overlay as an RGBA COG in Web
+Mercator (pd_rgba_3857.tif) and the threshold outline as GeoJSON (rasterio); cell outlines
+in ENU and their WGS84 coordinates for the other exports (report/exports.py).
 
-The grid lives in the local ENU plane about the mission origin. The GeoTIFF's CRS is a
-transverse Mercator projection centred on that origin (scale 1, no false easting or
-northing), which equals the ENU tangent plane to well under a millimetre over a few km; the
-GeoJSON is WGS84 longitude/latitude as RFC 7946 requires.
+The grid lives in the local ENU plane about the mission origin. The GeoTIFFs' CRS is a
+transverse Mercator projection centred on that origin at the ENU plane's scale
+(``local_crs_wkt``; no false easting or northing), which equals the ENU tangent plane to
+well under a millimetre over a few km; the GeoJSON is WGS84 longitude/latitude as RFC 7946
+requires.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ from __future__ import annotations
 import json
 import math
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +27,7 @@ from shapely.geometry.polygon import orient
 from pdcov.atomic import atomic_path, write_text_atomic
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic
+from pdcov.core.limiting import LimitingFactor
 from pdcov.core.tiles import Window
 
 _WGS84_A_M, _WGS84_E2 = 6378137.0, 6.69437999014e-3
@@ -58,47 +62,115 @@ _GDAL_CACHE_MB = 64  # GDAL's block cache while writing (its default is 5 % of t
 BandReader = Callable[[Window], np.ndarray]
 """A band's cells of a window (r0, r1, c0, c1 of the raster's grid; rows growing north)."""
 
+BAND_INFO = {
+    "pd": ("cumulative probability of detection P_D of the cell", "probability 0-1"),
+    "pfa": ("cumulative probability of at least one false alarm in the cell",
+            "probability 0-1"),
+    "n_obs": ("looks: frames that observed the cell", "count"),
+    "limiting": ("limiting factor: what limited the cell's P_D (LIMITING_CODES)", "code"),
+    "posterior_poa": ("probability of area after the search", "probability"),
+}
+"""What a band named so holds, and its units: written as the band's LONG_NAME and UNITS
+metadata and its GDAL unit type (the band's description is its name)."""
+LIMITING_NODATA = 255
+"""limiting.tif's value outside the free cells."""
+LOOKS_NODATA = -1
+"""looks.tif's value outside the free cells."""
+
+
+def limiting_codes() -> str:
+    """The limiting factor codes as a metadata value: "0=never_in_view, 1=too_far, ..."."""
+    return ", ".join(f"{f.value}={f.name.lower()}" for f in LimitingFactor)
+
 
 def array_band(values: np.ndarray) -> BandReader:
     """A band read from an array of the whole raster."""
     return lambda w: values[w[0]:w[1], w[2]:w[3]]
 
 
-def write_geotiff(path: str | Path, bands: Mapping[str, BandReader], geometry: GridGeometry,
-                  origin: Origin, mask: BandReader) -> None:
-    """Float32 Cloud-Optimised GeoTIFF with one band per entry of ``bands`` over the cells
-    of ``geometry`` (rows grow north, as in the grid; written north-up), NaN outside the
-    free cells (``mask``): tiled (GEOTIFF_BLOCK), deflate-compressed, with overviews, so a
-    viewer reads a county's at any zoom a few tiles at a time. Written block by block into
-    a tiled GeoTIFF (only one block of each band in memory at once), then laid out as a COG
-    by GDAL's COG driver. Atomic: temp files then rename."""
+@contextmanager
+def _cog(path: str | Path) -> Iterator[Path]:
+    """A path to write a tiled GeoTIFF to, laid out as a Cloud-Optimised GeoTIFF at
+    ``path`` by GDAL's COG driver (deflate, GEOTIFF_BLOCK tiles, nearest overviews) when
+    the block ends. Atomic: temp files then rename."""
     import rasterio
     from rasterio.shutil import copy as gdal_copy
-    from rasterio.windows import Window as RasterWindow
 
-    b = GEOTIFF_BLOCK
     with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), atomic_path(path) as cog, \
             tempfile.TemporaryDirectory(prefix=".gtiff.", dir=Path(path).parent) as work:
         tiled = Path(work) / "blocks.tif"
-        with rasterio.open(
-                tiled, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
-                count=len(bands), dtype="float32", crs=local_crs_wkt(origin),
-                transform=_transform(geometry), nodata=np.nan, compress="deflate",
-                tiled=True, blockxsize=b, blockysize=b) as dst:
-            for i, name in enumerate(bands, start=1):
-                dst.set_band_description(i, name)
-            for top in range(0, geometry.n_rows, b):  # file rows from the north edge
-                r1 = geometry.n_rows - top
-                r0 = max(0, r1 - b)
-                for c0 in range(0, geometry.n_cols, b):
-                    c1 = min(c0 + b, geometry.n_cols)
-                    w = (r0, r1, c0, c1)
-                    free = mask(w)
-                    block = np.stack([np.where(free, read(w), np.nan).astype(np.float32)
-                                      for read in bands.values()])
-                    dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
-        gdal_copy(tiled, cog, driver="COG", compress="DEFLATE", blocksize=b,
+        yield tiled
+        gdal_copy(tiled, cog, driver="COG", compress="DEFLATE", blocksize=GEOTIFF_BLOCK,
                   overview_resampling="nearest")
+
+
+def write_geotiff(path: str | Path, bands: Mapping[str, BandReader], geometry: GridGeometry,
+                  origin: Origin, mask: BandReader, *, dtype: str = "float32",
+                  nodata: float = math.nan, tags: Mapping[str, str] | None = None) -> None:
+    """Cloud-Optimised GeoTIFF of ``dtype`` with one band per entry of ``bands`` over the
+    cells of ``geometry`` (rows grow north, as in the grid; written north-up), ``nodata``
+    outside the free cells (``mask``): tiled (GEOTIFF_BLOCK), deflate-compressed, with
+    overviews, so a viewer reads a county's at any zoom a few tiles at a time. Each band's
+    description is its name, with BAND_INFO's LONG_NAME and UNITS; ``tags``: the file's
+    metadata. Written block by block into a tiled GeoTIFF (only one block of each band in
+    memory at once), then laid out as a COG by GDAL's COG driver. Atomic."""
+    import rasterio
+    from rasterio.windows import Window as RasterWindow
+
+    b = GEOTIFF_BLOCK
+    with _cog(path) as tiled, rasterio.open(
+            tiled, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
+            count=len(bands), dtype=dtype, crs=local_crs_wkt(origin),
+            transform=_transform(geometry), nodata=nodata, compress="deflate",
+            tiled=True, blockxsize=b, blockysize=b) as dst:
+        dst.update_tags(**(tags or {}))
+        for i, name in enumerate(bands, start=1):
+            dst.set_band_description(i, name)
+            if name in BAND_INFO:
+                long_name, units = BAND_INFO[name]
+                dst.update_tags(i, LONG_NAME=long_name, UNITS=units)
+                dst.set_band_unit(i, units)
+        for top in range(0, geometry.n_rows, b):  # file rows from the north edge
+            r1 = geometry.n_rows - top
+            r0 = max(0, r1 - b)
+            for c0 in range(0, geometry.n_cols, b):
+                c1 = min(c0 + b, geometry.n_cols)
+                w = (r0, r1, c0, c1)
+                free = mask(w)
+                block = np.stack([np.where(free, read(w), nodata).astype(dtype)
+                                  for read in bands.values()])
+                dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
+
+
+def write_rgba_3857(path: str | Path, rgba: np.ndarray, geometry: GridGeometry,
+                    origin: Origin, tags: Mapping[str, str] | None = None) -> None:
+    """An RGBA image (uint8 rows x cols x 4, north up; one pixel a cell of ``geometry``,
+    e.g. report/colours.pd_rgba's) as a Cloud-Optimised GeoTIFF in Web Mercator
+    (EPSG:3857), for tools that take images: warped from the local plane by nearest
+    neighbour (colours kept exactly) at about the same number of pixels, alpha 0 beyond
+    the image. The whole image is held in memory: bound it as the overlay is
+    (colours.pd_rgba's ``max_side``). Atomic."""
+    import rasterio
+    from rasterio.enums import ColorInterp, Resampling
+    from rasterio.warp import calculate_default_transform, reproject
+
+    src_crs, n_rows, n_cols = local_crs_wkt(origin), rgba.shape[0], rgba.shape[1]
+    x0, x1, y0, y1 = geometry.extent_enu
+    dst_transform, width, height = calculate_default_transform(
+        src_crs, "EPSG:3857", n_cols, n_rows, left=x0, bottom=y0, right=x1, top=y1)
+    out = np.zeros((4, height, width), np.uint8)  # transparent beyond the image
+    reproject(np.moveaxis(rgba, -1, 0), out, src_transform=_transform(geometry),
+              src_crs=src_crs, dst_transform=dst_transform, dst_crs="EPSG:3857",
+              resampling=Resampling.nearest)
+    b = GEOTIFF_BLOCK
+    with _cog(path) as tiled, rasterio.open(
+            tiled, "w", driver="GTiff", width=width, height=height, count=4, dtype="uint8",
+            crs="EPSG:3857", transform=dst_transform, photometric="RGB", alpha="YES",
+            compress="deflate", tiled=True, blockxsize=b, blockysize=b) as dst:
+        dst.colorinterp = (ColorInterp.red, ColorInterp.green, ColorInterp.blue,
+                           ColorInterp.alpha)
+        dst.update_tags(**(tags or {}))
+        dst.write(out)
 
 
 def read_geotiff_band(path: str | Path, geometry: GridGeometry) -> np.ndarray:

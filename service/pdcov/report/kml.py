@@ -2,7 +2,7 @@
 xml.etree: a few Styles, a Folder per layer, Placemarks with ExtendedData, and the P_D
 ground overlay.
 
-The overlay is the free cells' P_D in the heat map's colours (viridis, as heatmap.png),
+The overlay is the free cells' P_D in the heat map's colours (report/colours.py),
 transparent elsewhere, placed by a ``LatLonBox`` (north, south, east, west in WGS84 degrees,
 no rotation): the grid's ENU axes point east and north at the origin, and over a search
 area of a few km the meridians converge by far less than a cell. The placemarks' icons are
@@ -14,7 +14,6 @@ a relative file name, so no reader fetches anything from the internet.
 from __future__ import annotations
 
 import io
-import math
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pdcov.core.geodesy import deg_text, enu_to_geodetic
+from pdcov.report.colours import pd_rgba
 from pdcov.report.exports import (
     CANDIDATE_COLOR,
     DETECTION_COLOR,
@@ -39,7 +39,6 @@ KML_NS = "http://www.opengis.net/kml/2.2"
 OVERLAY_NAME = "pd_overlay.png"
 MAX_OVERLAY_SIDE = 4096
 """Overlay pixels a side at most: a larger grid is shown by the maximum of cell blocks."""
-OVERLAY_ALPHA = 170
 ICONS = {"candidate": ("pin_candidate.png", CANDIDATE_COLOR),
          "detection": ("pin_detection.png", DETECTION_COLOR)}
 """The placemarks' icons by pin kind: (file name, '#rrggbb' colour)."""
@@ -65,19 +64,12 @@ def kml_color(rgb: str, alpha: int = 255) -> str:
 
 
 def overlay_png(coverage: Coverage) -> Overlay:
-    """The P_D overlay of ``coverage`` (needs the plots extra: matplotlib's viridis)."""
-    import matplotlib
+    """The P_D overlay of ``coverage`` (report/colours.pd_rgba; needs the plots extra:
+    matplotlib's colour maps)."""
     from PIL import Image
 
-    pd = np.where(coverage.mask, np.clip(coverage.pd, 0.0, 1.0), -1.0)
-    n_rows, n_cols = pd.shape
-    stride = max(1, math.ceil(max(n_rows, n_cols) / MAX_OVERLAY_SIDE))
-    h, w = math.ceil(n_rows / stride), math.ceil(n_cols / stride)
-    padded = np.full((h * stride, w * stride), -1.0)
-    padded[:n_rows, :n_cols] = pd
-    blocks = np.flipud(padded.reshape(h, stride, w, stride).max(axis=(1, 3)))  # north up
-    rgba = matplotlib.colormaps["viridis"](np.clip(blocks, 0.0, 1.0), bytes=True)
-    rgba[..., 3] = np.where(blocks >= 0, OVERLAY_ALPHA, 0)
+    rgba, stride = pd_rgba(coverage.pd, coverage.mask, MAX_OVERLAY_SIDE)
+    h, w = rgba.shape[:2]
     buf = io.BytesIO()
     Image.fromarray(rgba, "RGBA").save(buf, format="PNG")
     g = coverage.geometry

@@ -1,7 +1,8 @@
 """Offline evaluation: camera poses through the coverage grid, and the run's outputs.
 
 Outputs in a run folder (docs/outputs.md): metrics.json, grid.npz, heatmap.png,
-thresholds.png, pd.tif (GeoTIFF: P_D, P_FA, looks, limiting factor), outline.geojson, with
+thresholds.png, pd.tif (GeoTIFF: P_D, P_FA), looks.tif, limiting.tif, pd_rgba_3857.tif
+(the P_D overlay in Web Mercator), outline.geojson, with
 a prior posterior.npy / posterior.tif, and for ``pdcov evaluate`` the exports for search
 teams' tools (report/exports.py: detections.geojson, caltopo.geojson, pdcov.kml, ...).
 Every file is written atomically. The figures need the plots extra, the GeoTIFF and GeoJSON
@@ -12,7 +13,7 @@ files the gis extra: without one, the rest is written and the run says what was 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import shapely
 
+from pdcov import __version__
 from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.config.mission import Mission
 from pdcov.core.camera import CameraModel
@@ -47,6 +49,10 @@ if TYPE_CHECKING:
     from pdcov.report.gis import BandReader
 
 METRICS_VERSION = 1
+GRID_GEOTIFFS = ("pd.tif", "looks.tif", "limiting.tif")
+"""The grid's GeoTIFFs (docs/outputs.md): P_D and P_FA (float32), looks (int32), limiting
+factor (uint8; not written when the limiting factors are unknown)."""
+RGBA_TIF = "pd_rgba_3857.tif"
 _PRIOR_SUM_TOL = 1e-4  # float32 GeoTIFF priors normalised to 1 sum to 1 only to ~1e-6
 
 
@@ -218,7 +224,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     for no exports; ``tracks``: the flown tracks the exports carry (pdcov.gpx).
     ``limiting_unknown``: why the grid's limiting factors are unknown (None: they are
     known); metrics.json's limiting_cells is then null, with this reason under
-    limiting_unknown, and grid.npz and pd.tif hold no limiting factor."""
+    limiting_unknown, and grid.npz holds no limiting factor nor is limiting.tif written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -251,6 +257,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
             threshold_outline,
             write_geotiff,
             write_outline_geojson,
+            write_rgba_3857,
         )
 
         outline = threshold_outline(drawn.pd, drawn.mask, g, threshold)
@@ -259,12 +266,24 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         def band(layer: Layer) -> BandReader:  # window cells -> grid cells
             return lambda w: grid.read(layer, (r0 + w[0], r0 + w[1], c0 + w[2], c0 + w[3]))
 
-        layers = [Layer.PD, Layer.PFA, Layer.N_OBS] + (
-            [Layer.LIMITING] if limiting_unknown is None else [])
-        write_geotiff(out / "pd.tif", {lay.value: band(lay) for lay in layers},
-                      extent.geometry, origin, band(Layer.MASK))
+        tags = {"PDCOV_VERSION": __version__, "TITLE": title,
+                "VEHICLE": mission.vehicle_id, "FRAMES": str(grid.frames)}
+        files += _write_grid_geotiffs(out, band, extent.geometry, origin, tags,
+                                      with_limiting=limiting_unknown is None)
         write_outline_geojson(out / "outline.geojson", outline, origin, threshold)
-        files += ["pd.tif", "outline.geojson"]
+        files.append("outline.geojson")
+        plots_missing = PLOTS.message("the RGBA GeoTIFF needs")
+        if plots_missing is None:
+            from pdcov.report.colours import pd_rgba
+            from pdcov.report.kml import MAX_OVERLAY_SIDE
+
+            rgba, stride = pd_rgba(drawn.pd, drawn.mask, MAX_OVERLAY_SIDE)
+            write_rgba_3857(out / RGBA_TIF, rgba, GridGeometry(
+                g.x0_m, g.y0_m, g.cell_size_m * stride, rgba.shape[0], rgba.shape[1]),
+                origin, tags)
+            files.append(RGBA_TIF)
+        else:
+            not_written.append(f"{RGBA_TIF}: {plots_missing}")
     if outcome is not None:
         with atomic_write(out / "posterior.npy", "wb") as f:
             np.save(f, outcome.posterior)
@@ -275,7 +294,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                           origin, array_band(np.ones(grid.geometry.shape, bool)))
             files.append("posterior.tif")
     if gis_missing is not None:
-        gis_files = ("pd.tif", "outline.geojson") + (("posterior.tif",) if outcome else ())
+        gis_files = (*GRID_GEOTIFFS, "outline.geojson", RGBA_TIF) + (
+            ("posterior.tif",) if outcome else ())
         not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
     if exports is not None:
         coverage = Coverage(drawn.pd, drawn.mask, g, origin, tuple(mission.thresholds),
@@ -300,6 +320,27 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
             not_written.append(f"{', '.join(figure_files)}: {plots_missing}")
     return RunOutputs(out, tuple(files), metrics, outcome, tuple(not_written),
                       limiting_unknown)
+
+
+def _write_grid_geotiffs(out: Path, band: Callable[[Layer], BandReader],
+                         geometry: GridGeometry, origin: Origin, tags: dict[str, str], *,
+                         with_limiting: bool) -> list[str]:
+    """GRID_GEOTIFFS over ``geometry`` from ``band`` (a layer's cells by window of it), each
+    with ``tags``; the names written."""
+    from pdcov.report.gis import LIMITING_NODATA, LOOKS_NODATA, limiting_codes, write_geotiff
+
+    pd_tif, looks_tif, limiting_tif = GRID_GEOTIFFS
+    free = band(Layer.MASK)
+    write_geotiff(out / pd_tif, {"pd": band(Layer.PD), "pfa": band(Layer.PFA)}, geometry,
+                  origin, free, tags=tags)
+    write_geotiff(out / looks_tif, {"n_obs": band(Layer.N_OBS)}, geometry, origin, free,
+                  dtype="int32", nodata=LOOKS_NODATA, tags=tags)
+    if not with_limiting:
+        return [pd_tif, looks_tif]
+    write_geotiff(out / limiting_tif, {"limiting": band(Layer.LIMITING)}, geometry, origin,
+                  free, dtype="uint8", nodata=LIMITING_NODATA,
+                  tags={**tags, "LIMITING_CODES": limiting_codes()})
+    return [pd_tif, looks_tif, limiting_tif]
 
 
 def summary_text(run: RunOutputs, lines: Sequence[str] = ()) -> str:

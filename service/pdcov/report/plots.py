@@ -13,6 +13,7 @@ import numpy as np
 from pdcov.atomic import atomic_path
 from pdcov.core.domain import Domain, GridGeometry
 from pdcov.extras import PLOTS
+from pdcov.report.colours import PD_COLORMAP
 
 
 def _pyplot() -> Any:
@@ -67,7 +68,7 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
         alpha = 0.75
     # float32 with NaN (drawn transparent) costs a fraction of a masked float64 array.
     shown = np.where(mask, pd, np.nan).astype(np.float32)
-    im = ax.imshow(shown, origin="lower", extent=extent, cmap="viridis", vmin=0,
+    im = ax.imshow(shown, origin="lower", extent=extent, cmap=PD_COLORMAP, vmin=0,
                    vmax=1, interpolation="nearest", alpha=alpha)
     fig.colorbar(im, ax=ax, label="cumulative probability of detection $P_D$", shrink=0.85)
     _draw_domain(ax, domain)
