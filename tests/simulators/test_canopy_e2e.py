@@ -21,11 +21,10 @@ rasterio = pytest.importorskip("rasterio")
 from rasterio.transform import from_origin  # noqa: E402
 from scipy.ndimage import binary_dilation, binary_erosion  # noqa: E402
 
-from pdcov.core.geodesy import enu_to_geodetic  # noqa: E402
+from pdcov.core.geodesy import enu_to_geodetic, geodetic_to_enu  # noqa: E402
 from pdcov.core.limiting import LimitingFactor  # noqa: E402
 from tests.support import terrain_scene as scene  # noqa: E402
-from tests.support.checkpoint_files import read_checkpoint  # noqa: E402
-from tests.support.serve_harness import fly_udp, offline, same  # noqa: E402
+from tests.support.serve_harness import fly_udp, live_equals_offline, offline  # noqa: E402
 from tests.support.valley import write_enu_geotiff  # noqa: E402
 
 TREES_ENU_M = (2.0, 22.0, 22.0, 38.0)  # x_min, x_max, y_min, y_max: 9 m trees
@@ -60,8 +59,6 @@ def write_landcover(path: Path) -> Path:
     lon = lo[1] + step * (np.arange(n_cols) + 0.5)
     lat = hi[0] - step * (np.arange(n_rows) + 0.5)
     LON, LAT = np.meshgrid(lon, lat)
-    from pdcov.core.geodesy import geodetic_to_enu
-
     enu = geodetic_to_enu(LAT, LON, np.full(LAT.shape, o.ground_alt_msl_m), o)
     x, y = enu[..., 0], enu[..., 1]
     codes = np.where(inside(x, y, TREES_ENU_M), 10,
@@ -94,14 +91,7 @@ def flight(tmp_path_factory) -> dict:
 
 
 def test_live_equals_offline_under_trees_and_roofs(flight):
-    st, ref, tmp = flight["st"], flight["sim"], flight["cfg"].parent
-    assert st["frames"]["grid"] == int(ref["frames"]) > 100, \
-        (tmp / "serve.log").read_text()[-3000:]
-    same(flight["snap"], ref, "snapshot vs pdcov evaluate of the simulator's tlog")
-    same(flight["grid"], ref, "tiles vs pdcov evaluate of the simulator's tlog")
-    z = read_checkpoint(tmp / "st" / "checkpoint")
-    same(flight["snap"], z, "checkpoint")
-    np.testing.assert_array_equal(z["limiting"], ref["limiting"])
+    live_equals_offline(flight)
 
 
 def test_trees_limit_the_cells_under_them_and_roofs_hide_everything(flight):

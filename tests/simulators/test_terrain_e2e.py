@@ -30,9 +30,8 @@ from pdcov.core.limiting import LimitingFactor
 from pdcov.planning.plan_files import read_plan
 from pdcov_sitl.cli import main as sitl_main
 from tests.support import terrain_scene as scene
-from tests.support.checkpoint_files import read_checkpoint
 from tests.support.evaluate_inputs import survey_poses_csv
-from tests.support.serve_harness import fly_udp, offline, same
+from tests.support.serve_harness import fly_udp, live_equals_offline, offline
 
 LOOKING_EAST = {"type": "fixed", "roll_deg": 0, "pitch_deg": -60, "yaw_deg": 0}
 """A camera 30 deg off nadir, forward: on the eastward legs it looks at the ridge."""
@@ -78,15 +77,7 @@ def flights(tmp_path_factory, dems) -> dict[str, Future]:
 
 @pytest.mark.parametrize("dem", ["true", "shifted"])
 def test_live_equals_offline_over_terrain(flights, dem):
-    f = flights[dem].result(timeout=600)
-    st, ref, tmp = f["st"], f["sim"], f["cfg"].parent
-    assert st["frames"]["grid"] == int(ref["frames"]) > 100, \
-        (tmp / "serve.log").read_text()[-3000:]
-    same(f["snap"], ref, "snapshot vs pdcov evaluate of the simulator's tlog")
-    same(f["grid"], ref, "tiles vs pdcov evaluate of the simulator's tlog")
-    z = read_checkpoint(tmp / "st" / "checkpoint")
-    same(f["snap"], z, "checkpoint")
-    np.testing.assert_array_equal(z["limiting"], ref["limiting"])
+    live_equals_offline(flights[dem].result(timeout=600))
 
 
 def test_the_ridge_hides_ground_from_the_camera(flights):

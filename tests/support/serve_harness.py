@@ -24,6 +24,7 @@ from pdcov.bus.session import BusConfig, open_session
 from pdcov.bus.status import decode_status, merge_status
 from pdcov.bus.tiles import apply_tiles, decode_tiles
 from pdcov.cli import main as pdcov_main
+from tests.support.checkpoint_files import read_checkpoint
 from tests.support.harness import ROOT, free_port, router, serve_args, stop
 from tests.support.harness import child as process
 
@@ -191,6 +192,20 @@ def offline(cfg, tlog, out, *more: str) -> dict:
 def same(state, ref, what) -> None:
     for key in ("log_miss_d", "log_miss_fa", "n_obs"):
         np.testing.assert_array_equal(getattr(state, key), ref[key], err_msg=f"{what}: {key}")
+
+
+def live_equals_offline(out: dict) -> None:
+    """``fly_udp``'s outcome with "sim" (``offline`` of the simulator's tlog): more than 100
+    frames, the same frames live and offline, and the daemon's snapshot, tiles and
+    checkpoint (limiting factors included) equal to evaluate's grid cell for cell."""
+    st, ref, tmp = out["st"], out["sim"], out["cfg"].parent
+    assert st["frames"]["grid"] == int(ref["frames"]) > 100, \
+        (tmp / "serve.log").read_text()[-3000:]
+    same(out["snap"], ref, "snapshot vs pdcov evaluate of the simulator's tlog")
+    same(out["grid"], ref, "tiles vs pdcov evaluate of the simulator's tlog")
+    z = read_checkpoint(tmp / "st" / "checkpoint")
+    same(out["snap"], z, "checkpoint")
+    np.testing.assert_array_equal(z["limiting"], ref["limiting"])
 
 
 def recording(tmp: Path) -> Path:
