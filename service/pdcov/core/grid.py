@@ -143,7 +143,7 @@ class CoverageGrid:
         self.frames_blurred = 0  # frames whose P_D took their blur into account
         self.looks = LooksConfig() if looks is None else looks
         self._looks = looks_model(self.looks, detector)
-        if self._looks is not None and self._view.cover is not None:
+        if self._looks is not None and self._view.covered is not None:
             raise ValueError("terrain.cover scales P_D per look: only with independent looks")
         clock = self.clock = TileClock()
         self._layers: dict[Layer, TiledLayer] = {

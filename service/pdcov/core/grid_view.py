@@ -10,7 +10,7 @@ surface, its image is that of its 3-D patch, and it is observed only when it fac
 camera and the terrain does not rise above the line of sight to its centre
 (``core/occlusion.py``). Without it the ground is the plane z = 0 of the paper.
 
-With something standing on the ground (``cover``: a ``TerrainSurface`` whose ``cover`` is
+With something standing on the ground (``covered``: a ``TerrainSurface`` whose ``cover`` is
 set, core/ground_cover.py) each observed cell also has a transmittance, the mean over rays
 from points spread over it of what the trees let through (0 behind or under a roof); a cell
 none of whose rays gets through is not observed: HIDDEN, or BUILDING under a roof.
@@ -55,13 +55,13 @@ def window_union(a: tuple[int, int, int, int] | None, b: tuple[int, int, int, in
 class GridView:
     """The view geometry of a grid's cells: ``geometry`` (ENU), ``free`` (the free cells:
     only those are in view), ``relief`` (the ground under the cells; None: the plane
-    z = 0, the flat-earth path) and ``cover`` (the terrain when something stands on it,
+    z = 0, the flat-earth path) and ``covered`` (the terrain when something stands on it,
     else None). Windows are (r0, r1, c0, c1) of grid rows and columns."""
 
     geometry: GridGeometry
     free: FreeCells
     relief: TerrainSurface | None
-    cover: TerrainSurface | None = None
+    covered: TerrainSurface | None = None
 
     @classmethod
     def over(cls, geometry: GridGeometry, free: FreeCells, terrain: TerrainSurface | None
@@ -77,7 +77,7 @@ class GridView:
         """The observed mask of ``window``, the image area (px^2) inside the picture of
         every cell of it (meaningful only where observed; float32 or float64), the
         LimitingFactor of the cells not observed (uint8; NEVER_IN_VIEW, TOO_FAR, HIDDEN,
-        BUILDING) and, with a ``cover``, the transmittance of every cell (float32, 1 where
+        BUILDING) and, with ``covered``, the transmittance of every cell (float32, 1 where
         not observed; None without one)."""
         H, in_view, in_range, z_c = self._centres(frame, pose, window)
         if not in_view.any():
@@ -112,7 +112,7 @@ class GridView:
                 observed[rows[blocked], cols[blocked]] = False
                 reach[rows[blocked], cols[blocked]] = LimitingFactor.HIDDEN
         transmit = None
-        if self.cover is not None and observed.any():
+        if self.covered is not None and observed.any():
             transmit = self._transmittance(pose, window, observed, reach)
         if not observed.any():
             return observed, np.zeros(observed.shape), reach, transmit
@@ -166,9 +166,9 @@ class GridView:
         (``size_index``) where ``observed``, CANOPY for those seen at a covered size under
         trees; ``reach`` (``observe_area``'s) elsewhere."""
         seen = np.where(observed, frame.seen_code.take(size_index * observed), reach)
-        if self.cover is not None and self.cover.cover is not None:
+        if self.covered is not None and self.covered.cover is not None:
             r0, r1, c0, c1 = window
-            under = self.cover.cover.kind[r0:r1, c0:c1] == CoverKind.FOLIAGE
+            under = self.covered.cover.kind[r0:r1, c0:c1] == CoverKind.FOLIAGE
             seen[under & (seen == LimitingFactor.SEEN)] = LimitingFactor.CANOPY
         return seen
 
@@ -178,7 +178,7 @@ class GridView:
         ``observed`` cells of ``window`` through the cover; cells it blocks wholly are
         taken out of ``observed`` and marked in ``reach`` (BUILDING under a roof, else
         HIDDEN)."""
-        terrain = self.cover
+        terrain = self.covered
         assert terrain is not None and terrain.cover is not None
         tops = terrain.cover_tops
         assert tops is not None
