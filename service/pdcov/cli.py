@@ -24,6 +24,7 @@ COMMANDS = {
     "plan": "pdcov.commands.plan",
     "optimise": "pdcov.commands.optimise",
     "refly": "pdcov.commands.refly",
+    "report": "pdcov.commands.report",
     "upload": "pdcov.commands.upload",
     "mount-check": "pdcov.commands.mount",
     "serve": "pdcov.commands.serve",

@@ -53,9 +53,9 @@ def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_miss
     out = capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "run").glob("[!.]*")) == [
         "caltopo.geojson", "detections.geojson", "grid.npz", "metrics.json", "pdcov.kml",
-        "pin_candidate.png", "pin_detection.png"]
+        "pin_candidate.png", "pin_detection.png", "report.html"]
     assert ("wrote metrics.json, grid.npz, detections.geojson, caltopo.geojson, "
-            "pin_candidate.png, pin_detection.png, pdcov.kml in") in out
+            "pin_candidate.png, pin_detection.png, pdcov.kml, report.html in") in out
     assert ("not written: caltopo.geojson, pdcov.kml without outlines: P_D outlines, gaps "
             "and re-fly areas need rasterio: pip install 'pdcov[gis]'") in out
     assert ("not written: pd_overlay.png, pdcov.kmz, pdcov_atak.zip: the P_D overlay needs "

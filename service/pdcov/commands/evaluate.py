@@ -8,6 +8,7 @@ import os
 import sys
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -99,6 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_evaluate(args: argparse.Namespace) -> int:
     from pdcov.commands.input_run import InputJob, InputKind, run_input
+    from pdcov.core.sweep_width import FlightSample
     from pdcov.report.exports import VehicleDetections, VehicleTrack
     from pdcov.report.outputs import metrics_document, summary_text, write_outputs
 
@@ -173,7 +175,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                 tracks=[VehicleTrack.from_enu(  # a segment per log
                                     mission.vehicle_id, (r.track_enu for r in runs),
                                     first.origin, heights_msl=kind is InputKind.LOG
-                                    or mission.ground_alt_msl_m is not None)])
+                                    or mission.ground_alt_msl_m is not None)],
+                                flight=FlightSample.joined(
+                                    [r.flight for r in runs if r.flight is not None]))
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)
@@ -182,6 +186,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
                           title=f"{mission.vehicle_id} {name}: {source}", track_enu=track,
                           plan_enu=plan_enu,
                           outline_threshold=args.outline_threshold)
+        from pdcov.report.handover import REPORT_HTML, write_report
+        write_report(args.out, args.out)  # last: it lists the files written
+        run_out = replace(run_out, files=(*run_out.files, REPORT_HTML))
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if args.export_poses:

@@ -30,6 +30,7 @@ from pdcov.core.grid_store import (
     write_store,
 )
 from pdcov.core.mount import GimbalMount
+from pdcov.core.sweep_width import FlightSample
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.log_frames import poses_of_log
@@ -143,7 +144,8 @@ class InputRun:
     detections: the detections document (report/detections.py), None without boxes.
     terrain_check: its metrics object (None without a DEM); telemetry_faults /
     frames_skipped: the daemon's keys counted (None for a CSV). prior: the --prior read
-    about this origin. frames: the frames the mission grid took."""
+    about this origin. frames: the frames the mission grid took. flight: their heights,
+    speeds and track (metrics.json's sweep_width)."""
 
     path: Path
     origin: Origin
@@ -158,6 +160,7 @@ class InputRun:
     telemetry_faults: dict[str, int] | None
     frames_skipped: dict[str, int] | None
     prior: Prior | None
+    flight: FlightSample | None = None
 
     def packed(self) -> InputRun:
         """This run with its grids as bytes (PackedGrids), to cross a process boundary."""
@@ -249,7 +252,8 @@ def run_input(job: InputJob, mission: Mission) -> InputRun:
     return InputRun(job.path, frames.origin, grid.frames, tuple(lines), frames.warnings,
                     tuple(warnings), finite_track(frames.track_enu),
                     InputGrids(grid, per_camera if mission.several_cameras else {}),
-                    detections, frames.terrain_check, frames.faults, frames.skipped, prior)
+                    detections, frames.terrain_check, frames.faults, frames.skipped, prior,
+                    FlightSample.of(poses, mission.terrain))
 
 
 @dataclass(frozen=True, slots=True, eq=False)

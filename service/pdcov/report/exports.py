@@ -375,7 +375,7 @@ def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: st
         for i, (poly, area, n) in enumerate(layers.refly, start=1):
             features.append({"type": "Feature", "geometry": _polygon(poly), "properties": {
                 "class": "Assignment", "letter": f"R{i}", "resourceType": "AIR",
-                "status": "DRAFT", "title": f"re-fly R{i}",
+                "status": "DRAFT", "title": f"re-fly R{i}", "area_m2": round(area),
                 "description": f"re-fly: {n} cells below P_D {layers.target_pd:g}, "
                                f"{area:.0f} m2",
                 "stroke": REFLY_COLOR, "stroke-opacity": 1, "stroke-width": 2,

@@ -30,8 +30,9 @@ from pdcov.core.geodesy import Origin, geodetic_to_enu
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.grid_layer import Layer
 from pdcov.core.grid_metrics import Metrics
-from pdcov.core.pose import CameraPose
+from pdcov.core.pose import CameraPose, FixedMount
 from pdcov.core.search_theory import SearchOutcome, search_outcome
+from pdcov.core.sweep_width import FlightSample, SearchEffort, lateral_range
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
@@ -92,6 +93,38 @@ def metrics_document(metrics: Metrics, outcome: SearchOutcome | None = None) -> 
         doc["probability_of_success"] = outcome.probability_of_success
         doc["prior_mass_in_grid"] = outcome.prior_mass
     return doc
+
+
+def sweep_width_document(mission: Mission, flight: FlightSample
+                         ) -> tuple[dict[str, Any] | None, str | None]:
+    """metrics.json's sweep_width (docs/outputs.md) and None, or None and why not: the
+    lateral range of the mission's first camera on its mount (a gimbal: pointing at nadir,
+    its nominal attitude for a survey), detector and frame rate at the flight's median height
+    above the ground and median search speed (FlightSample.search_speed_mps), with the track
+    flown over the domain's free area (core/sweep_width.py)."""
+    why = flight.unusable()
+    if why is not None:
+        return None, why
+    cam = mission.first_camera
+    mount = cam.mount if isinstance(cam.mount, FixedMount) else FixedMount(
+        lever_arm_frd_m=cam.mount.lever_arm_frd_m)
+    height, speed = float(np.median(flight.heights_agl_m)), flight.search_speed_mps
+    try:
+        curve = lateral_range(cam.camera, cam.detector, mount, altitude_m=height,
+                              speed_mps=speed, frame_rate_hz=cam.frame_rate_hz,
+                              cell_size_m=mission.cell_size_m,
+                              min_revisit_s=mission.min_revisit_s, looks=mission.looks,
+                              exposure_s=cam.exposure_s, max_range_m=mission.max_range_m)
+    except ValueError as exc:
+        return None, f"at {height:.1f} m and {speed:.2f} m/s {exc}"
+    effort = SearchEffort(curve.sweep_width_m, flight.track_length_m,
+                          float(mission.domain.free_space.area))
+    return {"altitude_agl_m": height, "speed_mps": speed,
+            "mount": "fixed" if isinstance(cam.mount, FixedMount) else "gimbal at nadir",
+            "sweep_width_m": effort.sweep_width_m, "track_length_m": effort.track_length_m,
+            "area_m2": effort.area_m2, "coverage_factor": effort.coverage_factor,
+            "pod_random_search": effort.pod_random_search,
+            "pod_parallel_sweeps": effort.pod_parallel_sweeps}, None
 
 
 @dataclass(frozen=True, slots=True)
@@ -217,14 +250,17 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   figures: bool = True,
                   exports: Sequence[VehicleDetections] | None = None,
                   tracks: Sequence[VehicleTrack] = (),
-                  limiting_unknown: str | None = None) -> RunOutputs:
+                  limiting_unknown: str | None = None,
+                  flight: FlightSample | None = None) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
     not installed are named in ``not_written`` instead. ``exports``: the detections to
     export with the coverage (report/exports.py; gaps below the outline threshold), None
     for no exports; ``tracks``: the flown tracks the exports carry (pdcov.gpx).
     ``limiting_unknown``: why the grid's limiting factors are unknown (None: they are
     known); metrics.json's limiting_cells is then null, with this reason under
-    limiting_unknown, and grid.npz holds no limiting factor nor is limiting.tif written."""
+    limiting_unknown, and grid.npz holds no limiting factor nor is limiting.tif written.
+    ``flight``: the frames' heights, speeds and track (core/sweep_width.py) for
+    metrics.json's sweep_width (``sweep_width_document``); None: no sweep_width."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -239,6 +275,10 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         doc["limiting_cells"] = None
         doc["limiting_unknown"] = limiting_unknown
     doc["extent"] = extent.document(origin)
+    if flight is not None:
+        doc["sweep_width"], reason = sweep_width_document(mission, flight)
+        if reason is not None:
+            doc["sweep_width_unknown"] = reason
     doc.update(extra_metrics or {})
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
     files = ["metrics.json"]
