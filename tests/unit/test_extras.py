@@ -60,8 +60,10 @@ def test_evaluate_without_plots_and_gis_writes_the_numbers_and_says_what_is_miss
             "and re-fly areas need rasterio: pip install 'pdcov[gis]'") in out
     assert ("not written: pd_overlay.png, pdcov.kmz, pdcov_atak.zip: the P_D overlay needs "
             "matplotlib: pip install 'pdcov[plots]'") in out
-    assert ("not written: heatmap.png, thresholds.png: figures need matplotlib: "
+    assert ("not written: heatmap.png, thresholds.png, map.png: figures need matplotlib: "
             "pip install 'pdcov[plots]'") in out
+    assert "not written: report.pdf: report.pdf needs matplotlib: pip install " \
+        "'pdcov[plots]'" in out
     assert ("not written: pd.tif, looks.tif, limiting.tif, outline.geojson, "
             "pd_rgba_3857.tif: GeoTIFF and GeoJSON outputs need rasterio: "
             "pip install 'pdcov[gis]'") in out

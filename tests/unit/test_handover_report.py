@@ -5,41 +5,26 @@ every string escaped, missing pieces named, oversized files refused."""
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import pytest
-from PIL import Image
 
 from pdcov.cli import main
 from pdcov.errors import InputFileError
-from pdcov.report import run_files
-from pdcov.report.exports import VehicleDetections, write_exports
+from pdcov.report import handover, run_files
 from pdcov.report.handover import REPORT_HTML, write_report
-from tests.support.exports_fixtures import candidate, coverage, detections_doc
+from tests.support.handover_run import METRICS, run_folder
 from tests.support.report_html import ReportPage, inline_png_size
 
-METRICS = {"version": 1, "frames": 101, "cells_free": 1584, "cells_observed": 727,
-           "proportion_at_or_above": {"0.5": 0.4539, "0.7": 0.447, "0.8": 0.44507},
-           "mean_pd": 0.45, "expected_false_alarms": 1.9,
-           "limiting_cells": {"never_in_view": 857, "seen": 727},
-           "warnings": ["<b>a warning</b>"]}
 
-
-def run_folder(tmp_path, metrics=METRICS, exports=True, heatmap=(120, 80)):
-    run = tmp_path / "run"
-    run.mkdir()
-    (run / "metrics.json").write_text(json.dumps(metrics))
-    if heatmap:
-        Image.new("RGB", heatmap, "white").save(run / "heatmap.png")
-    if exports:
-        doc = detections_doc()
-        doc["candidates"].append(candidate(7, 3.0, -2.0, p_person=0.5, vehicle="alpha"))
-        write_exports(run, coverage(), [VehicleDetections.from_doc(doc)],
-                      title="alpha: <flight & 1>")
-    return run
+def report_text(run, out) -> str:
+    """report.html's text, written by write_report."""
+    paths, _ = write_report(run, out)
+    return paths[0].read_text()
 
 
 def page(run, out=None) -> ReportPage:
-    return ReportPage(write_report(run, out or run).read_text())
+    return ReportPage(report_text(run, out or run))
 
 
 def test_page_is_self_contained_with_the_heat_map_inline(tmp_path):
@@ -53,17 +38,18 @@ def test_page_is_self_contained_with_the_heat_map_inline(tmp_path):
 
 def test_pins_by_p_person_with_their_grid_references(tmp_path):
     run = run_folder(tmp_path)
-    rows = page(run).table("uid")
+    rows = page(run).table("pin")
     feats = json.loads((run / "detections.geojson").read_text())["features"]
     cands = sorted((f for f in feats if f["properties"]["kind"] == "candidate"),
                    key=lambda f: -f["properties"]["p_person"])
     assert len(rows) == len(cands) == 3
     for row, f in zip(rows, cands, strict=True):
         p, (lon, lat) = f["properties"], f["geometry"]["coordinates"]
-        assert row == [p["uid"], f"{p['p_person']:.3f}",
+        assert row == [str(p["rank"]), p["uid"], f"{p['p_person']:.3f}",
                        f"detected {p['hits']} of {p['looks']} looks", f"{lat:.7f}",
                        f"{lon:.7f}", p["mgrs"], p["utm"]]
-    assert [float(r[1]) for r in rows] == sorted((float(r[1]) for r in rows), reverse=True)
+    assert [float(r[2]) for r in rows] == sorted((float(r[2]) for r in rows), reverse=True)
+    assert [r[0] for r in rows] == ["1", "2", "3"]
 
 
 def test_thresholds_limiting_and_gaps_are_the_files(tmp_path):
@@ -81,26 +67,26 @@ def test_thresholds_limiting_and_gaps_are_the_files(tmp_path):
 
 
 def test_strings_from_files_are_escaped(tmp_path):
-    text = write_report(run_folder(tmp_path), tmp_path / "out").read_text()
+    text = report_text(run_folder(tmp_path), tmp_path / "out")
     assert "<b>a warning</b>" not in text and "&lt;b&gt;a warning&lt;/b&gt;" in text
     assert "alpha: &lt;flight &amp; 1&gt;" in text and "<flight" not in text
 
 
 def test_an_absent_figure_is_not_shown_and_a_present_one_is(tmp_path):
-    assert "sweep width" not in write_report(run_folder(tmp_path), tmp_path).read_text()
+    assert "sweep width" not in report_text(run_folder(tmp_path), tmp_path)
     (tmp_path / "run").rename(tmp_path / "old")
-    text = write_report(run_folder(tmp_path, {**METRICS, "sweep_width_m": 12.34}),
-                        tmp_path).read_text()
+    text = report_text(run_folder(tmp_path, {**METRICS, "sweep_width_m": 12.34}),
+                        tmp_path)
     assert "effective sweep width</th><td>12.3 m" in text
     (tmp_path / "run").rename(tmp_path / "older")
     nested = {**METRICS, "sweep_width": {"sweep_width_m": 8.25, "note": "x"}}
-    assert "sweep width m</th><td>8.25" in write_report(run_folder(tmp_path, nested),
-                                                       tmp_path).read_text()
+    assert "sweep width m</th><td>8.25" in report_text(run_folder(tmp_path, nested),
+                                                       tmp_path)
 
 
 def test_missing_pieces_degrade_to_a_line(tmp_path):
     p = page(run_folder(tmp_path, exports=False, heatmap=None))
-    text = write_report(tmp_path / "run", tmp_path / "run").read_text()
+    text = report_text(tmp_path / "run", tmp_path / "run")
     assert p.images == [] and "heatmap.png is not in this run" in text
     assert "No detections.geojson" in text and "No caltopo.geojson" in text
 
@@ -123,3 +109,11 @@ def test_command_writes_the_report_and_refuses_a_folder_that_is_no_run(tmp_path,
 def test_a_fleets_vehicles_are_named(tmp_path):
     run = run_folder(tmp_path, {**METRICS, "vehicles": ["uav1", "uav2"]}, exports=False)
     assert ["vehicles", "uav1, uav2"] in page(run).tables[0]
+
+
+def test_without_the_plots_extra_there_is_no_pdf_and_it_is_said(tmp_path, monkeypatch):
+    monkeypatch.setattr(handover, "PLOTS", SimpleNamespace(message=lambda *a: "needs "
+                                                                              "pdcov[plots]"))
+    paths, missing = write_report(run_folder(tmp_path), tmp_path / "out")
+    assert [p.name for p in paths] == [REPORT_HTML] and missing == "needs pdcov[plots]"
+    assert not (tmp_path / "out" / "report.pdf").exists()

@@ -59,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--outline-threshold", type=probability,
                    help="P_D threshold outlined in the heat map and GeoJSON (default: the "
                         "largest configured threshold)")
+    p.add_argument("--basemap", type=Path, metavar="PATH",
+                   help="offline basemap under map.png: a folder of XYZ tiles "
+                        "({z}/{x}/{y}.png or .jpg) or an .mbtiles file (as watch --basemap)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     spread = p.add_mutually_exclusive_group()
     spread.add_argument("--jobs", type=positive_int,
@@ -122,6 +125,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
         if len(paths) > 1 and args.export_poses:
             raise PdcovError(f"--export-poses writes the camera poses of one log; "
                              f"{len(paths)} given")
+    basemap = None  # opened before the flights: a wrong path fails at once
+    if args.basemap is not None:
+        from pdcov.ground.basemap import map_tiles, open_basemap
+        basemap = map_tiles(open_basemap(args.basemap))
     progress = not args.no_progress
     lines = [f"pdcov evaluate: {args.config}", f"looks: {mission.looks.summary}"]
     jobs = [InputJob(p, kind, frame_source, args.prior, args.export_poses,
@@ -177,7 +184,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                     first.origin, heights_msl=kind is InputKind.LOG
                                     or mission.ground_alt_msl_m is not None)],
                                 flight=FlightSample.joined(
-                                    [r.flight for r in runs if r.flight is not None]))
+                                    [r.flight for r in runs if r.flight is not None]),
+                                basemap=basemap)
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)
@@ -186,9 +194,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
                           title=f"{mission.vehicle_id} {name}: {source}", track_enu=track,
                           plan_enu=plan_enu,
                           outline_threshold=args.outline_threshold)
-        from pdcov.report.handover import REPORT_HTML, write_report
-        write_report(args.out, args.out)  # last: it lists the files written
-        run_out = replace(run_out, files=(*run_out.files, REPORT_HTML))
+        from pdcov.report.handover import write_report
+        reports, pdf_missing = write_report(args.out, args.out)  # last: it lists the files
+        run_out = replace(run_out, files=(*run_out.files, *(p.name for p in reports)),
+                          not_written=run_out.not_written + (
+                              (f"report.pdf: {pdf_missing}",) if pdf_missing else ()))
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if args.export_poses:

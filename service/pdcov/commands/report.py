@@ -1,5 +1,5 @@
-"""``pdcov report RUN --out DIR``: the handover report of a run folder, DIR/report.html
-(report/handover.py, docs/outputs.md "Handover report")."""
+"""``pdcov report RUN --out DIR``: the handover report of a run folder, DIR/report.html and
+DIR/report.pdf (report/handover.py, docs/outputs.md "Handover report")."""
 
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    r = subparsers.add_parser("report", help="the handover report (one self-contained "
-                                             "report.html) of a run folder",
-                              description="Write report.html, the handover report of a "
-                                          "run folder (pdcov evaluate --out), into --out.")
+    r = subparsers.add_parser("report", help="the handover report (report.html, one "
+                                             "self-contained page, and report.pdf) of a run "
+                                             "folder",
+                              description="Write report.html and report.pdf, the handover "
+                                          "report of a run folder (pdcov evaluate --out), "
+                                          "into --out.")
     r.add_argument("run", type=Path, help="the run folder (pdcov evaluate --out)")
     r.add_argument("--out", required=True, type=Path,
-                   help="folder to write report.html in (created if needed; the run "
+                   help="folder to write the report in (created if needed; the run "
                         "folder itself is fine)")
     r.set_defaults(func=run_report)
 
@@ -22,5 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_report(args: argparse.Namespace) -> int:
     from pdcov.report.handover import write_report
 
-    print(f"wrote {write_report(args.run, args.out)}")
+    paths, pdf_missing = write_report(args.run, args.out)
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    if pdf_missing is not None:
+        print(f"not written: report.pdf: {pdf_missing}")
     return 0

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from pdcov.errors import ConfigError, PdcovError
+from pdcov.report.map_figure import BasemapTiles
 
 IMAGE_TYPES = {"png": "image/png", "jpg": "image/jpeg", "jpeg": "image/jpeg",
                "webp": "image/webp"}
@@ -225,3 +226,15 @@ def open_basemap(path: Path) -> Basemap:
         raise ConfigError(f"--basemap {path}: no such file or folder (expected a folder of "
                           "XYZ tiles {z}/{x}/{y}.png or an .mbtiles file)")
     return MBTiles(path)
+
+
+def map_tiles(basemap: Basemap) -> BasemapTiles:
+    """``basemap`` as the handover map reads it (report/map_figure.py): a tile too large
+    is no tile."""
+    def tile(z: int, x: int, y: int) -> bytes | None:
+        try:
+            found = basemap.tile(z, x, y, None)
+        except TileRefused:
+            return None
+        return None if found is None else found[0]
+    return BasemapTiles(tile, basemap.info.zooms, basemap.info.attribution)

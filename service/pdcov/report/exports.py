@@ -40,6 +40,7 @@ from pdcov.atomic import atomic_write, write_text_atomic
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic, grid_references
 from pdcov.extras import GIS, GPX, GRID_REFERENCES, PLOTS
+from pdcov.report.pin_rank import candidate_ranks
 
 __all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
            "TrackSegment", "VehicleDetections", "VehicleTrack", "caltopo_geojson",
@@ -63,7 +64,7 @@ OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44a
 """P_D outlines from the lowest threshold to the highest (the target), cycling."""
 GAP_COLOR = "#e74c3c"
 REFLY_COLOR = "#8e44ad"
-PIN_FIGURES = ("uid", "p_person", "looks", "hits", "mgrs", "utm")
+PIN_FIGURES = ("rank", "uid", "p_person", "looks", "hits", "mgrs", "utm")
 """What every export says of a pin (docs/protocol.md "detections")."""
 CANDIDATE_COLOR = "#ff0000"
 DETECTION_COLOR = "#ffa500"
@@ -221,20 +222,23 @@ def pins(findings: Sequence[VehicleDetections], coverage: Coverage | None = None
     given). ``pd`` is the P_D of the cell under the point in ``coverage`` when given, else
     the candidate's (the cell's P_D as the daemon sent it); a detection's p_person, looks
     and hits are its candidate's (by uid)."""
-    refs = _pin_references()
-    out = [candidate_pin(f.vehicle, c, coverage, refs) for f in findings for c in f.candidates]
+    refs, ranks = _pin_references(), candidate_ranks(findings)
+    out = [candidate_pin(f.vehicle, c, coverage, refs, ranks) for f in findings
+           for c in f.candidates]
     for f in findings:
         by_uid = {c["uid"]: c for c in f.candidates}
-        out += (detection_pin(f.vehicle, d, by_uid, coverage, refs) for d in f.detections)
+        out += (detection_pin(f.vehicle, d, by_uid, coverage, refs, ranks)
+                for d in f.detections)
     return out
 
 
 def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None,
-                  refs: References) -> Pin:
-    """A candidate entry's pin (``pins``)."""
+                  refs: References, ranks: Mapping[tuple[str, str], int]) -> Pin:
+    """A candidate entry's pin (``pins``); ``ranks``: report/pin_rank.py's."""
     lat, lon = float(c["lat_deg"]), float(c["lon_deg"])
     return Pin("candidate", lon, lat, {
-        "kind": "candidate", "vehicle": vehicle, "uid": c["uid"], "candidate": c["id"],
+        "kind": "candidate", "vehicle": vehicle, "uid": c["uid"],
+        "rank": ranks.get((vehicle, str(c["uid"]))), "candidate": c["id"],
         "p_person": c["p_person"], "looks": c["looks"], "hits": c["hits"],
         "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
         "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
@@ -243,12 +247,15 @@ def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None,
 
 
 def detection_pin(vehicle: str, d: Mapping[str, Any], by_uid: Mapping[str, Mapping[str, Any]],
-                  coverage: Coverage | None, refs: References) -> Pin:
-    """A detection entry's pin (``pins``); ``by_uid`` the vehicle's candidates."""
+                  coverage: Coverage | None, refs: References,
+                  ranks: Mapping[tuple[str, str], int]) -> Pin:
+    """A detection entry's pin (``pins``); ``by_uid`` the vehicle's candidates, ``ranks``
+    theirs (the detection takes its candidate's)."""
     cand = by_uid.get(d["uid"], {})
     lat, lon = float(d["lat_deg"]), float(d["lon_deg"])
     return Pin("detection", lon, lat, {
-        "kind": "detection", "vehicle": vehicle, "uid": d["uid"], "candidate": d["candidate"],
+        "kind": "detection", "vehicle": vehicle, "uid": d["uid"],
+        "rank": ranks.get((vehicle, str(d["uid"]))), "candidate": d["candidate"],
         "p_person": cand.get("p_person"), "looks": cand.get("looks"),
         "hits": cand.get("hits"), "t_boot_s": d["t_boot_s"], "class": d["class"],
         "confidence": d["confidence"], "pd": _cell_pd(coverage, d, cand.get("pd")),
@@ -259,14 +266,14 @@ def every_pin(findings: Sequence[VehicleDetections], coverage: Coverage | None =
               ) -> Iterator[Pin]:
     """As ``pins``, but with every detection (``VehicleDetections.all_detections``), one at
     a time: detections.geojson's."""
-    refs = _pin_references()
+    refs, ranks = _pin_references(), candidate_ranks(findings)
     for f in findings:
         for c in f.candidates:
-            yield candidate_pin(f.vehicle, c, coverage, refs)
+            yield candidate_pin(f.vehicle, c, coverage, refs, ranks)
     for f in findings:
         by_uid = {c["uid"]: c for c in f.candidates}
         for d in f.all_detections():
-            yield detection_pin(f.vehicle, d, by_uid, coverage, refs)
+            yield detection_pin(f.vehicle, d, by_uid, coverage, refs, ranks)
 
 
 def _cell_pd(coverage: Coverage | None, point: Mapping[str, Any], sent: Any) -> Any:
@@ -408,10 +415,12 @@ def _shape(poly: Polygon, title: str, description: str, color: str, fill_opacity
 
 @dataclass(frozen=True, slots=True)
 class Exported:
-    """What ``write_exports`` wrote (file names) and what not, one line each."""
+    """What ``write_exports`` wrote (file names) and what not, one line each, and the pins
+    it exported (``pins``: the candidates ranked, then the in-memory detections)."""
 
     files: tuple[str, ...]
     not_written: tuple[str, ...] = field(default=())
+    pins: tuple[Pin, ...] = field(default=())
 
 
 def write_exports(out_dir: str | Path, coverage: Coverage | None,
@@ -478,7 +487,7 @@ def write_exports(out_dir: str | Path, coverage: Coverage | None,
         files.append("pdcov.gpx")
     else:
         not_written.append(f"pdcov.gpx: {gpx_missing}")
-    return Exported(tuple(files), tuple(not_written))
+    return Exported(tuple(files), tuple(not_written), tuple(all_pins))
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:

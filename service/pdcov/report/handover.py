@@ -1,74 +1,69 @@
-"""The handover report, ``report.html`` (docs/outputs.md "Handover report"): one
-self-contained page for the search manager built from a run folder's files
-(report/run_files.py), never from the grid. No reference leaves the file: the figures are
-inline ``data:`` URIs, the style is inline, there is no script, and a Content-Security-Policy
-forbids any load but those. Every string from a file is escaped (``html.escape``)."""
+"""The handover report (docs/outputs.md "Handover report"): what the search manager reads at
+the end of a sortie, built from a run folder's files (report/run_files.py), never from the
+grid, as sections of text, tables and figures; report/handover_html.py writes it as
+``report.html`` (one self-contained page) and report/handover_pdf.py as ``report.pdf`` (the
+same content on A4 pages, the ``plots`` extra). ``write_report`` writes both."""
 
 from __future__ import annotations
 
-import base64
-import html
-import struct
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import replace
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from pdcov.atomic import write_text_atomic
 from pdcov.errors import OutputError
-from pdcov.report.run_files import PNG_SIGNATURE, RunFiles, read_run_files
+from pdcov.extras import PLOTS
+from pdcov.report.run_files import RunFiles, read_run_files
 
 REPORT_HTML = "report.html"
-_CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
-_STYLE = """
-body { font-family: sans-serif; margin: 1.5em auto; max-width: 60em; color: #222; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; }
-table { border-collapse: collapse; margin: 0.5em 0; }
-th, td { border: 1px solid #ccc; padding: 0.2em 0.6em; text-align: left; }
-td.n { text-align: right; font-variant-numeric: tabular-nums; }
-img { max-width: 100%; height: auto; }
-p.missing { color: #8a6d3b; font-style: italic; }
-"""
+REPORT_PDF = "report.pdf"
 _FIGURES = (("mean_pd", "mean P_D of the free cells", "{:.3f}"),
             ("expected_false_alarms", "expected false alarms", "{:.2f}"),
             ("probability_of_success", "probability of success (POS)", "{:.3f}"),
             ("prior_mass_in_grid", "prior mass in the grid", "{:.3f}"),
             ("sweep_width_m", "effective sweep width", "{:.1f} m"))
 """metrics.json's figures the report shows, each only when its key is there."""
+_NO_PLOTS = "the figures need the plots extra"
 
 
-def _e(value: Any) -> str:
-    return html.escape(str(value), quote=True)
+@dataclass(frozen=True, slots=True)
+class Table:
+    """Rows of cell texts under ``header``; columns ``numeric`` right-aligned."""
+
+    header: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    numeric: tuple[int, ...] = ()
 
 
-def _table(header: Sequence[str], rows: Iterable[Sequence[Any]], numeric: Sequence[int] = ()
-           ) -> str:
-    """A table of escaped cells; columns ``numeric`` right-aligned."""
-    head = "".join(f"<th>{_e(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(
-        f'<td class="n">{_e(c)}</td>' if i in numeric else f"<td>{_e(c)}</td>"
-        for i, c in enumerate(row)) + "</tr>\n" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>\n{body}</tbody></table>\n"
+@dataclass(frozen=True, slots=True)
+class Figure:
+    """A PNG figure of the run and what it shows."""
+
+    png: bytes
+    alt: str
 
 
-def _missing(text: str) -> str:
-    return f'<p class="missing">{_e(text)}</p>\n'
+@dataclass(frozen=True, slots=True)
+class Section:
+    """A heading and what follows it, in this order: ``text`` paragraphs, ``items`` (a
+    list), a ``table``, a ``figure``; ``missing``: why some piece is not there (a line)."""
+
+    heading: str
+    text: tuple[str, ...] = ()
+    items: tuple[str, ...] = ()
+    table: Table | None = None
+    figure: Figure | None = None
+    missing: str | None = None
 
 
-def png_size(data: bytes) -> tuple[int, int]:
-    """(width, height) of a PNG from its IHDR chunk."""
-    if not data.startswith(PNG_SIGNATURE) or len(data) < 24:
-        raise ValueError("not a PNG")
-    width, height = struct.unpack(">II", data[16:24])
-    return int(width), int(height)
+@dataclass(frozen=True, slots=True)
+class Handover:
+    """The report: its ``title``, the ``summary`` (label, value) rows and the sections."""
 
-
-def _image(data: bytes | None, name: str, alt: str, why_missing: str) -> str:
-    if data is None:
-        return _missing(f"{name} is not in this run ({why_missing}).")
-    w, h = png_size(data)
-    uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
-    return f'<p><img src="{uri}" width="{w}" height="{h}" alt="{_e(alt)}"></p>\n'
+    title: str
+    summary: tuple[tuple[str, str], ...]
+    sections: tuple[Section, ...]
 
 
 def _number(value: Any, fmt: str) -> str:
@@ -86,12 +81,14 @@ def _props(feature: Mapping[str, Any]) -> Mapping[str, Any]:
 
 
 def candidates(detections: Mapping[str, Any] | None) -> list[Mapping[str, Any]]:
-    """detections.geojson's candidates, by p_person descending (none known last)."""
+    """detections.geojson's candidates by their rank (report/pin_rank.py: p_person
+    descending); a run written before ranks, by p_person (none known last)."""
     feats = [f for f in _features(detections) if _props(f).get("kind") == "candidate"]
 
-    def key(f: Mapping[str, Any]) -> float:
-        p = _props(f).get("p_person")
-        return -float(p) if isinstance(p, (int, float)) else float("inf")
+    def key(f: Mapping[str, Any]) -> tuple[float, float]:
+        rank, p = _props(f).get("rank"), _props(f).get("p_person")
+        return (rank if isinstance(rank, int) else math.inf,
+                -float(p) if isinstance(p, (int, float)) else math.inf)
     return sorted(feats, key=key)
 
 
@@ -102,13 +99,17 @@ def _lon_lat(feature: Mapping[str, Any]) -> tuple[str, str]:
     return "-", "-"
 
 
-def _summary(run: RunFiles) -> str:
+def title_of(run: RunFiles) -> str:
+    """The run's title (its exports', else the folder's name)."""
+    return str(((run.caltopo or {}).get("pdcov") or {}).get("title") or run.name)
+
+
+def _summary(run: RunFiles) -> tuple[tuple[str, str], ...]:
     m = run.metrics
-    title = ((run.caltopo or {}).get("pdcov") or {}).get("title") or run.name
     fleet = m.get("vehicles")  # a watch --record fleet's metrics.json
     vehicles = sorted({str(_props(f)["vehicle"]) for f in _features(run.detections)
                        if "vehicle" in _props(f)})
-    rows: list[tuple[str, Any]] = [("run", title)]
+    rows: list[tuple[str, Any]] = [("run", title_of(run))]
     if isinstance(fleet, (list, Mapping)) and fleet:
         rows.append(("vehicles", ", ".join(str(v) for v in fleet)))
     if vehicles:
@@ -133,110 +134,135 @@ def _summary(run: RunFiles) -> str:
     if isinstance(sweep, Mapping):
         rows += [(str(k).replace("_", " "), _number(v, "{:.4g}")) for k, v in sweep.items()
                  if isinstance(v, (int, float)) and not isinstance(v, bool)]
-    warnings = m.get("warnings")
-    body = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>\n" for k, v in rows)
-    out = f"<h1>pdcov handover: {_e(title)}</h1>\n<table>\n{body}</table>\n"
-    if isinstance(warnings, list) and warnings:
-        out += "<h2>Warnings</h2>\n<ul>" + "".join(f"<li>{_e(w)}</li>" for w in warnings) \
-            + "</ul>\n"
-    return out
+    return tuple((str(k), str(v)) for k, v in rows)
 
 
-def _thresholds(m: Mapping[str, Any]) -> str:
-    shares = m.get("proportion_at_or_above")
-    out = "<h2>Coverage by threshold</h2>\n"
-    if not isinstance(shares, Mapping) or not shares:
-        return out + _missing("metrics.json gives no thresholds.")
-    return out + _table(("P_D at or above", "proportion of free cells", "share"),
-                        ((t, f"{p:.4f}", f"{p:.1%}") for t, p in shares.items()), (1, 2))
+def _figure(data: bytes | None, name: str, alt: str) -> tuple[Figure | None, str | None]:
+    if data is None:
+        return None, f"{name} is not in this run ({_NO_PLOTS})."
+    return Figure(data, alt), None
 
 
-def _limiting(m: Mapping[str, Any]) -> str:
-    out = "<h2>Limiting factor of the free cells</h2>\n"
-    cells = m.get("limiting_cells")
-    if not isinstance(cells, Mapping):
-        return out + _missing(str(m.get("limiting_unknown") or "not known for this run"))
-    return out + _table(("limiting factor", "free cells"),
-                        ((str(k).replace("_", " "), n) for k, n in cells.items()), (1,))
+def _map(run: RunFiles) -> Section:
+    fig, missing = _figure(run.map_png, "map.png",
+                           "P_D map with the tracks and the numbered pins")
+    return Section("Map", figure=fig, missing=missing)
 
 
-def _pins(run: RunFiles) -> str:
-    out = "<h2>Pins (candidates by p_person)</h2>\n"
+def _pins(run: RunFiles) -> Section:
+    heading = "Pins (numbered as on the map, by p_person)"
     if run.detections is None:
-        return out + _missing("No detections.geojson: this run exported no detections "
-                              "(a log without detector boxes, or a pose CSV).")
+        return Section(heading, missing="No detections.geojson: this run exported no "
+                                        "detections (a log without detector boxes, or a pose "
+                                        "CSV).")
     pins = candidates(run.detections)
     if not pins:
-        return out + _missing("No candidates in detections.geojson.")
+        return Section(heading, missing="No candidates in detections.geojson.")
     rows = []
     for f in pins:
         p = _props(f)
         lat, lon = _lon_lat(f)
-        rows.append((p.get("uid", "-"), _number(p.get("p_person", "-"), "{:.3f}"),
-                     f"detected {p.get('hits', '?')} of {p.get('looks', '?')} looks", lat, lon,
-                     p.get("mgrs") or "-", p.get("utm") or "-"))
-    return out + _table(("uid", "p_person", "looks", "lat", "lon", "MGRS", "UTM"), rows,
-                        (1, 3, 4))
+        rows.append(tuple(str(v) for v in (
+            p.get("rank", "-"), p.get("uid", "-"), _number(p.get("p_person", "-"), "{:.3f}"),
+            f"detected {p.get('hits', '?')} of {p.get('looks', '?')} looks", lat, lon,
+            p.get("mgrs") or "-", p.get("utm") or "-")))
+    return Section(heading, table=Table(("pin", "uid", "p_person", "looks", "lat", "lon",
+                                         "MGRS", "UTM"), tuple(rows), (0, 2, 4, 5)))
 
 
-def _gaps(caltopo: Mapping[str, Any] | None) -> str:
-    out = "<h2>Gaps and re-fly proposal</h2>\n"
+def _heat_map(run: RunFiles) -> Section:
+    fig, missing = _figure(run.heatmap_png, "heatmap.png", "P_D heat map")
+    return Section("Heat map", figure=fig, missing=missing)
+
+
+def _thresholds(run: RunFiles) -> Section:
+    heading = "Coverage by threshold"
+    shares = run.metrics.get("proportion_at_or_above")
+    fig, fig_missing = _figure(run.thresholds_png, "thresholds.png",
+                               "proportion at or above P_D")
+    if not isinstance(shares, Mapping) or not shares:
+        return Section(heading, figure=fig, missing="metrics.json gives no thresholds.")
+    return Section(heading, table=Table(
+        ("P_D at or above", "proportion of free cells", "share"),
+        tuple((str(t), f"{p:.4f}", f"{p:.1%}") for t, p in shares.items()), (1, 2)),
+        figure=fig, missing=fig_missing)
+
+
+def _limiting(m: Mapping[str, Any]) -> Section:
+    heading = "Limiting factor of the free cells"
+    cells = m.get("limiting_cells")
+    if not isinstance(cells, Mapping):
+        return Section(heading, missing=str(m.get("limiting_unknown")
+                                            or "not known for this run"))
+    return Section(heading, table=Table(("limiting factor", "free cells"), tuple(
+        (str(k).replace("_", " "), str(n)) for k, n in cells.items()), (1,)))
+
+
+def _gaps(caltopo: Mapping[str, Any] | None) -> Section:
+    heading = "Gaps and re-fly proposal"
     if caltopo is None:
-        return out + _missing("No caltopo.geojson: no gaps exported for this run.")
+        return Section(heading, missing="No caltopo.geojson: no gaps exported for this run.")
     meta = caltopo.get("pdcov") or {}
     if "gaps_total" not in meta:
-        return out + _missing("caltopo.geojson holds no gaps (the gis extra was not "
-                              "installed when the run was written).")
-    out += (f"<p>{_e(meta['gaps_total'])} gap(s) below the target P_D "
-            f"{_e(meta.get('target_pd', '?'))}; {_e(meta.get('gaps_exported', '?'))} "
-            "exported.</p>\n")
+        return Section(heading, missing="caltopo.geojson holds no gaps (the gis extra was "
+                                        "not installed when the run was written).")
+    text = (f"{meta['gaps_total']} gap(s) below the target P_D {meta.get('target_pd', '?')}; "
+            f"{meta.get('gaps_exported', '?')} exported.",)
     areas = [_props(f) for f in _features(caltopo) if _props(f).get("class") == "Assignment"]
     if not areas:
-        return out + _missing("No re-fly areas proposed.")
+        return Section(heading, text=text, missing="No re-fly areas proposed.")
     with_pod = any("pod" in a for a in areas)
-    rows = [(a.get("letter", "-"), _number(a["area_m2"], "{:.0f}") if "area_m2" in a else "-",
-             a.get("description", ""), *([_number(a.get("pod", "-"), "{:.2f}")]
-                                         if with_pod else [])) for a in areas]
+    rows = tuple((str(a.get("letter", "-")),
+                  _number(a["area_m2"], "{:.0f}") if "area_m2" in a else "-",
+                  str(a.get("description", "")),
+                  *([_number(a.get("pod", "-"), "{:.2f}")] if with_pod else []))
+                 for a in areas)
     header = ("letter", "area, m2", "description", *(("POD",) if with_pod else ()))
-    return out + _table(header, rows, (1, 3))
+    return Section(heading, text=text, table=Table(header, rows, (1, 3)))
 
 
-def _files(files: Sequence[tuple[str, int]]) -> str:
-    return "<h2>Handover package (the run's files)</h2>\n" + _table(
-        ("file", "bytes"), ((n, "" if s < 0 else f"{s:,}") for n, s in files), (1,))
+def _files(files: Sequence[tuple[str, int]]) -> Section:
+    return Section("Handover package (the run's files)", table=Table(
+        ("file", "bytes"), tuple((n, "" if s < 0 else f"{s:,}") for n, s in files), (1,)))
 
 
-def handover_html(run: RunFiles) -> str:
-    """The report's page for ``run``."""
-    parts = [_summary(run), "<h2>Heat map</h2>\n",
-             _image(run.heatmap_png, "heatmap.png", "P_D heat map",
-                    "the figures need the plots extra"),
-             _thresholds(run.metrics),
-             _image(run.thresholds_png, "thresholds.png", "proportion at or above P_D",
-                    "the figures need the plots extra"),
-             _limiting(run.metrics), _pins(run), _gaps(run.caltopo), _files(run.files)]
-    title = ((run.caltopo or {}).get("pdcov") or {}).get("title") or run.name
-    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n"
-            f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">\n'
-            f"<title>pdcov handover: {_e(title)}</title>\n<style>{_STYLE}</style>\n"
-            "</head><body>\n" + "".join(parts) + "</body></html>\n")
+def handover(run: RunFiles) -> Handover:
+    """The report of ``run``."""
+    warnings = run.metrics.get("warnings")
+    sections = [Section("Warnings", items=tuple(str(w) for w in warnings))] \
+        if isinstance(warnings, list) and warnings else []
+    sections += [_map(run), _pins(run), _heat_map(run), _thresholds(run),
+                 _limiting(run.metrics), _gaps(run.caltopo), _files(run.files)]
+    return Handover(title_of(run), _summary(run), tuple(sections))
 
 
-def write_report(run_dir: str | Path, out_dir: str | Path) -> Path:
-    """``out_dir``/report.html of the run folder ``run_dir`` (out_dir created if needed);
-    the path written. Raises InputFileError naming a file it cannot use, OutputError when
+def write_report(run_dir: str | Path, out_dir: str | Path) -> tuple[list[Path], str | None]:
+    """``out_dir``/report.html and, with the plots extra, report.pdf of the run folder
+    ``run_dir`` (out_dir created if needed): the paths written, and why report.pdf was not
+    (None when it was). Raises InputFileError naming a file it cannot use, OutputError when
     it cannot write."""
+    from pdcov.report.handover_html import handover_html
+
     run = read_run_files(run_dir)
     out = Path(out_dir)
-    path = out / REPORT_HTML
-    # The report is part of the package it lists (written into the run, or there already),
-    # listed without a size: the same page whichever was written first.
-    others = tuple(f for f in run.files if f[0] != REPORT_HTML)
+    pdf_missing = PLOTS.message(f"{REPORT_PDF} needs")
+    made = (REPORT_HTML,) if pdf_missing else (REPORT_HTML, REPORT_PDF)
+    # The reports are part of the package they list (written into the run, or there
+    # already), listed without a size: the same pages whichever was written first.
+    others = tuple(f for f in run.files if f[0] not in made)
     if len(others) < len(run.files) or out.resolve() == Path(run_dir).resolve():
-        run = replace(run, files=tuple(sorted((*others, (REPORT_HTML, -1)))))
+        run = replace(run, files=tuple(sorted((*others, *((name, -1) for name in made)))))
+    report = handover(run)
+    paths = [out / REPORT_HTML]
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(path, handover_html(run))
+        from pdcov.atomic import write_text_atomic
+
+        write_text_atomic(paths[0], handover_html(report))
+        if pdf_missing is None:
+            from pdcov.report.handover_pdf import write_handover_pdf
+
+            paths.append(write_handover_pdf(out / REPORT_PDF, report))
     except OSError as exc:
-        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    return path
+        raise OutputError(f"{out}: cannot write the report: {exc.strerror or exc}") from None
+    return paths, pdf_missing

@@ -36,7 +36,7 @@ from pdcov.core.sweep_width import FlightSample, SearchEffort, lateral_range
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
-from pdcov.report.exports import Coverage, VehicleDetections, VehicleTrack, write_exports
+from pdcov.report.exports import Coverage, Pin, VehicleDetections, VehicleTrack, write_exports
 from pdcov.report.grid_file import GRID_NPZ, write_grid_file
 from pdcov.report.output_extent import (
     CROP_ABOVE_CELLS,
@@ -48,6 +48,7 @@ from pdcov.report.output_extent import (
 
 if TYPE_CHECKING:
     from pdcov.report.gis import BandReader
+    from pdcov.report.map_figure import BasemapTiles
 
 METRICS_VERSION = 1
 GRID_GEOTIFFS = ("pd.tif", "looks.tif", "limiting.tif")
@@ -251,7 +252,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   exports: Sequence[VehicleDetections] | None = None,
                   tracks: Sequence[VehicleTrack] = (),
                   limiting_unknown: str | None = None,
-                  flight: FlightSample | None = None) -> RunOutputs:
+                  flight: FlightSample | None = None,
+                  basemap: BasemapTiles | None = None) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
     not installed are named in ``not_written`` instead. ``exports``: the detections to
     export with the coverage (report/exports.py; gaps below the outline threshold), None
@@ -260,7 +262,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     known); metrics.json's limiting_cells is then null, with this reason under
     limiting_unknown, and grid.npz holds no limiting factor nor is limiting.tif written.
     ``flight``: the frames' heights, speeds and track (core/sweep_width.py) for
-    metrics.json's sweep_width (``sweep_width_document``); None: no sweep_width."""
+    metrics.json's sweep_width (``sweep_width_document``); None: no sweep_width.
+    ``basemap``: the tiles map.png is drawn over (report/map_figure.py)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -337,16 +340,19 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         gis_files = (*GRID_GEOTIFFS, "outline.geojson", RGBA_TIF) + (
             ("posterior.tif",) if outcome else ())
         not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
+    exported_pins: tuple[Pin, ...] = ()
     if exports is not None:
         coverage = Coverage(drawn.pd, drawn.mask, g, origin, tuple(mission.thresholds),
                             threshold)
         exported = write_exports(out, coverage, exports, title=title, tracks=tracks)
         files += exported.files
         not_written += exported.not_written
+        exported_pins = exported.pins
     if figures:
-        figure_files = ["heatmap.png", "thresholds.png"]
+        figure_files = ["heatmap.png", "thresholds.png", "map.png"]
         plots_missing = PLOTS.message()
         if plots_missing is None:
+            from pdcov.report.map_figure import map_figure
             from pdcov.report.plots import heatmap_figure, thresholds_figure
 
             heatmap_figure(out / "heatmap.png", drawn.pd, drawn.mask, g, mission.domain,
@@ -355,6 +361,10 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                            terrain_z_m=drawn.terrain_z_m, hidden=drawn.hidden)
             thresholds_figure(out / "thresholds.png", grid_proportion_curve(grid),
                               metrics.proportion_at_or_above, title=title)
+            if not map_figure(out / "map.png", drawn.pd, drawn.mask, g, mission.domain,
+                              origin, title=title, outline_enu=outline, threshold=threshold,
+                              tracks=tracks, pins=exported_pins, basemap=basemap):
+                not_written.append("map.png's basemap: it has no tile over the map")
             files += figure_files
         else:
             not_written.append(f"{', '.join(figure_files)}: {plots_missing}")

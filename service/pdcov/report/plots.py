@@ -16,7 +16,8 @@ from pdcov.extras import PLOTS
 from pdcov.report.colours import PD_COLORMAP
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend (no display); ExtraMissing without the extra."""
     PLOTS.require()
     import matplotlib
 
@@ -26,13 +27,15 @@ def _pyplot() -> Any:
     return plt
 
 
-def _save(fig: Any, path: str | Path) -> None:
+def save_figure(fig: Any, path: str | Path) -> None:
+    """``fig`` as a PNG at ``path`` (atomically), then closed."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=130, bbox_inches="tight")
-    _pyplot().close(fig)
+    pyplot().close(fig)
 
 
-def _draw_domain(ax: Any, domain: Domain) -> None:
+def draw_domain(ax: Any, domain: Domain) -> None:
+    """The domain's boundary and its obstacles, in ENU metres."""
     x, y = domain.boundary.exterior.xy
     ax.plot(x, y, color="black", lw=1.5, label="search domain")
     for i, obstacle in enumerate(domain.obstacles):
@@ -54,7 +57,7 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     from matplotlib.colors import LightSource, ListedColormap
     from matplotlib.patches import Patch
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 6.5))
     x0, x1, y0, y1 = geometry.extent_enu
     extent = (x0, x1, y0, y1)
@@ -71,7 +74,7 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     im = ax.imshow(shown, origin="lower", extent=extent, cmap=PD_COLORMAP, vmin=0,
                    vmax=1, interpolation="nearest", alpha=alpha)
     fig.colorbar(im, ax=ax, label="cumulative probability of detection $P_D$", shrink=0.85)
-    _draw_domain(ax, domain)
+    draw_domain(ax, domain)
     legend_extra = []
     if hidden is not None and hidden.any():
         ax.imshow(np.where(hidden & mask, 1.0, np.nan).astype(np.float32), origin="lower",
@@ -98,7 +101,7 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
     ax.legend(handles=ax.get_legend_handles_labels()[0] + legend_extra,
               loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=5, fontsize=8,
               frameon=False)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def proportion_curve(pd: np.ndarray, mask: np.ndarray, n: int = 201
@@ -123,7 +126,7 @@ def thresholds_figure(path: str | Path, curve: tuple[np.ndarray, np.ndarray],
     """Proportion of free cells at or above each P_D threshold: ``curve`` (thresholds
     0..1 and the proportions, report/output_extent.py) and the configured thresholds'
     shares marked (``Metrics.proportion_at_or_above``)."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     t, p = curve
     ax.plot(t, p, color="navy", lw=2)
@@ -137,14 +140,14 @@ def thresholds_figure(path: str | Path, curve: tuple[np.ndarray, np.ndarray],
     ax.set_ylabel("proportion of free cells at or above")
     ax.grid(alpha=0.3)
     ax.set_title(title)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def compare_figure(path: str | Path, runs: Sequence[tuple[str, np.ndarray, np.ndarray]],
                    thresholds: Sequence[float]) -> None:
     """Fig. 8: per run (name, pd, mask) the proportion at each threshold as grouped bars,
     beside the full proportion curves."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_bar, ax_curve) = plt.subplots(1, 2, figsize=(12, 4.6))
     width = 0.8 / max(len(runs), 1)
     x = np.arange(len(thresholds))
@@ -165,14 +168,14 @@ def compare_figure(path: str | Path, runs: Sequence[tuple[str, np.ndarray, np.nd
     ax_curve.set_ylabel("proportion at or above")
     ax_curve.grid(alpha=0.3)
     ax_curve.set_title("proportion over thresholds")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def ray_count_figure(path: str | Path, counts: np.ndarray, geometry: GridGeometry,
                      footprint_xy: np.ndarray | None, camera_xy: Sequence[float] | np.ndarray, *,
                      title: str) -> None:
     """Fig. 5: rays from the camera's pixels meeting the ground, counted per cell."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 6))
     x0, x1, y0, y1 = geometry.extent_enu
     shown = np.ma.masked_where(counts == 0, counts)
@@ -188,4 +191,4 @@ def ray_count_figure(path: str | Path, counts: np.ndarray, geometry: GridGeometr
     ax.set_ylabel("north (m)")
     ax.set_title(title)
     ax.legend(loc="upper right", fontsize=8)
-    _save(fig, path)
+    save_figure(fig, path)

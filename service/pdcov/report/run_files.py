@@ -15,7 +15,7 @@ from pdcov.errors import InputFileError
 MAX_JSON_BYTES = 64 * 2**20
 """The largest metrics.json, detections.geojson or caltopo.geojson the report reads."""
 MAX_IMAGE_BYTES = 32 * 2**20
-"""The largest figure (heatmap.png, thresholds.png) the report puts inline."""
+"""The largest figure (map.png, heatmap.png, thresholds.png) the report puts inline."""
 MAX_LISTED_FILES = 500
 """The most files of a run folder the report lists."""
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -31,6 +31,7 @@ class RunFiles:
     caltopo: dict[str, Any] | None
     heatmap_png: bytes | None
     thresholds_png: bytes | None
+    map_png: bytes | None
     files: tuple[tuple[str, int], ...]  # (name, bytes) of its files; a folder "name/", -1
 
 
@@ -96,4 +97,4 @@ def read_run_files(run_dir: str | Path) -> RunFiles:
         raise InputFileError(f"{run}: no metrics.json: not a pdcov run folder")
     return RunFiles(run.resolve().name, metrics, _json(run / "detections.geojson"),
                     _json(run / "caltopo.geojson"), _png(run / "heatmap.png"),
-                    _png(run / "thresholds.png"), _listing(run))
+                    _png(run / "thresholds.png"), _png(run / "map.png"), _listing(run))
