@@ -1,7 +1,7 @@
 """`pdcov evaluate` on a county (issue 37): the same short flight over a 200 x 200 m domain
 and a 30 x 30 km one at 1 m (9 x 10^8 cells, the same south-west corner), each in a
 process of its own. The county's outputs cover the extent its frames touched: its pd.tif
-holds the small run's P_D on the same georeferenced cells, its metrics are the whole
+holds the small run's P_D on the same UTM pixels, its metrics are the whole
 domain's, and its peak resident memory stays within 1.5x of the small run's
 (docs/performance.md "County scale")."""
 
@@ -18,13 +18,16 @@ import pytest
 import zarr
 
 from pdcov.cli import main
+from pdcov.core.domain import GridGeometry
 from tests.support.evaluate_inputs import (
+    ORIGIN,
     expected_poses,
     known_flight,
     mission_doc,
     write_config,
     write_pose_csv,
 )
+from tests.support.utm_cells import pixel_cells
 
 rasterio = pytest.importorskip("rasterio")
 
@@ -99,19 +102,28 @@ def test_county_outputs_equal_the_small_domains_on_its_cells(tmp_path):
     # pd.tif: the county's holds the small run's values on the same georeferenced cells.
     a, ta = read_bands(small, "pd.tif", "looks.tif", "limiting.tif")
     b, tb = read_bands(county, "pd.tif", "looks.tif", "limiting.tif")
-    assert b["pd"].shape == (512, 512)  # the touched tile grown by one, clipped at 0
+    extent = json.loads((county / "metrics.json").read_text())["extent"]
+    assert [e[1] - e[0] for e in (extent["rows"], extent["cols"])] == [512, 512]  # the
+    # touched tile grown by one, clipped at 0
     with rasterio.open(county / "pd.tif") as src:  # a Cloud-Optimised GeoTIFF
         assert src.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
         assert src.block_shapes[0] == (256, 256) and src.overviews(1)
         assert src.profile["compress"] == "deflate"
     with rasterio.open(county / "pd_rgba_3857.tif") as src:  # as large as the overlay
         assert src.crs.to_epsg() == 3857 and max(src.shape) <= 2 * 512
-    rows, cols = np.mgrid[0:SMALL_M, 0:SMALL_M]
-    x, y = rasterio.transform.xy(ta, rows, cols)  # the small raster's cell centres (m)
+    # Both on the zone's 1 m lattice: a pixel of the small raster over its cells is the
+    # county's pixel at the same place (UTM m), holding the same cell's values.
+    rows, cols = np.mgrid[0:a["pd"].shape[0], 0:a["pd"].shape[1]]
+    x, y = rasterio.transform.xy(ta, rows, cols)  # the small raster's pixel centres (m)
     rb, cb = rasterio.transform.rowcol(tb, x, y)
     rb, cb = np.reshape(rb, rows.shape), np.reshape(cb, cols.shape)
+    with np.load(small / "grid.npz") as z, rasterio.open(small / "pd.tif") as src:
+        geometry = GridGeometry(float(z["x0_m"]), float(z["y0_m"]), float(z["cell_size_m"]),
+                                *z["mask"].shape)
+        over = pixel_cells(src, geometry, ORIGIN).clear.reshape(rows.shape)  # not on an edge
+    assert over.sum() > 0.95 * SMALL_M**2 and np.isfinite(a["pd"][over]).all()
     for band in ("pd", "pfa", "n_obs", "limiting"):
-        np.testing.assert_array_equal(b[band][rb, cb], a[band], err_msg=band)
+        np.testing.assert_array_equal(b[band][rb, cb][over], a[band][over], err_msg=band)
     assert np.nanmax(a["pd"]) > 0.5
 
     # metrics.json: the whole domain's; proportions scale by the free cells.

@@ -108,18 +108,18 @@ def test_outputs_are_readable_and_follow_the_input(tmp_path):
         assert images[0].shape[0] > 300 and images[0].shape[1] > 400
         assert images[0].shape != images[1].shape or np.any(images[0] != images[1])
     grid = load_grid(tmp_path / "a")
+    # In UTM zone 18N by nearest neighbour (test_grid_geotiffs.py: cell by cell): every
+    # value a free cell's, and nearly every free cell's value there.
     with rasterio.open(tmp_path / "a" / "pd.tif") as tif:
-        assert tif.count == 2 and tif.crs is not None
+        assert tif.count == 2 and tif.crs.to_epsg() == 32618
         assert tif.descriptions == ("pd", "pfa")
         band = tif.read(1)
-        # North-up raster: the grid's row 0 (south) is the raster's last row.
-        np.testing.assert_allclose(band[::-1][grid["mask"]], grid["pd"][grid["mask"]],
-                                   atol=1e-6)
-        x, y = tif.xy(tif.height - 1, 0)  # centre of the south-west cell
-        assert (x, y) == pytest.approx((0.5, 0.5))
+    free_pd = set(grid["pd"][grid["mask"]].astype(np.float32))
+    assert set(band[np.isfinite(band)]) <= free_pd
+    assert len(set(band[np.isfinite(band)])) > 0.95 * len(free_pd)
     with rasterio.open(tmp_path / "a" / "limiting.tif") as tif:  # uint8 (looks.tif: int32)
-        np.testing.assert_array_equal(tif.read(1)[::-1][grid["mask"]],
-                                      grid["limiting"][grid["mask"]])
+        codes = tif.read(1)
+    assert set(np.unique(codes)) == set(np.unique(grid["limiting"][grid["mask"]])) | {255}
     outline = json.loads((tmp_path / "a" / "outline.geojson").read_text())
     geom = outline["features"][0]["geometry"]
     assert geom["type"] == "MultiPolygon" and geom["coordinates"]

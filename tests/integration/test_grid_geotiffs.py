@@ -1,7 +1,9 @@
 """The grid's GeoTIFFs of a run (pd.tif, looks.tif, limiting.tif) and the P_D overlay in
 Web Mercator (pd_rgba_3857.tif), read back by rasterio and by GDAL's gdalinfo (Debian's
-gdal-bin, which .ci/run installs): types, nodata, band descriptions and metadata, the COG
-layout, the Web Mercator file's corners and its colours against pd_overlay.png."""
+gdal-bin, which .ci/run installs): the mission's UTM zone (EPSG:32618) with each pixel the
+value of the grid cell under its centre, types, nodata, band descriptions and metadata, the
+COG layout, the Web Mercator file's corners and its colours against pd_overlay.png
+(test_geotiff_utm.py: the positions at other sites)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ import pytest
 
 from pdcov import __version__
 from pdcov.cli import main
+from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import enu_to_geodetic
 from pdcov.core.limiting import LimitingFactor
 from pdcov.report.gis import local_crs_wkt
@@ -26,6 +29,7 @@ from tests.support.evaluate_inputs import (
     write_config,
     write_pose_csv,
 )
+from tests.support.utm_cells import pixel_cells
 
 rasterio = pytest.importorskip("rasterio")
 pytestmark = pytest.mark.skipif(shutil.which("gdalinfo") is None,
@@ -49,9 +53,11 @@ def gdalinfo(path: Path) -> dict:
                                      text=True, check=True, timeout=60).stdout)
 
 
-def grid(run: Path) -> dict[str, np.ndarray]:
+def grid(run: Path) -> tuple[dict[str, np.ndarray], GridGeometry]:
     with np.load(run / "grid.npz") as z:
-        return {k: z[k] for k in ("pd", "pfa", "n_obs", "limiting", "mask")}
+        return ({k: z[k] for k in ("pd", "pfa", "n_obs", "limiting", "mask")},
+                GridGeometry(float(z["x0_m"]), float(z["y0_m"]), float(z["cell_size_m"]),
+                             *z["mask"].shape))
 
 
 @pytest.mark.parametrize(("name", "bands", "gdal_type", "nodata"), [
@@ -60,25 +66,35 @@ def grid(run: Path) -> dict[str, np.ndarray]:
     ("limiting.tif", ("limiting",), "Byte", 255)])
 def test_grid_bands_in_their_types_with_nodata_outside_the_free_cells(
         run, name, bands, gdal_type, nodata):
-    g = grid(run)
+    g, geometry = grid(run)
     frames = json.loads((run / "metrics.json").read_text())["frames"]
     with rasterio.open(run / name) as src:
-        assert src.descriptions == bands and src.crs is not None
+        assert src.descriptions == bands and src.crs.to_epsg() == 32618  # ORIGIN: 76.33 W
+        assert src.res == (geometry.cell_size_m, geometry.cell_size_m)
+        cells = pixel_cells(src, geometry, ORIGIN)
         assert set(src.dtypes) == {gdal_type.lower().replace("byte", "uint8")}
         tags = src.tags()
         assert tags["PDCOV_VERSION"] == __version__ and tags["VEHICLE"] == "uav1"
         assert tags["FRAMES"] == str(frames) and tags["TITLE"] == "uav1: poses.csv"
+        assert float(tags["ENU_ORIGIN_LON_DEG"]) == ORIGIN.lon_deg
+        # Each pixel the value of the cell under its centre (away from cell edges), nodata
+        # beyond the grid and on cells not free.
+        free = g["mask"][cells.cell_row, cells.cell_col]
+        on_free, off = cells.clear & free, ~cells.inside | (cells.clear & ~free)
+        assert on_free.sum() > 0.9 * (cells.inside & free).sum()
         for i, band in enumerate(bands, start=1):
-            back = src.read(i)[::-1]  # north-up: the grid's row 0 is the raster's last
+            back = src.read(i).ravel()
             assert src.tags(i)["LONG_NAME"] and src.units[i - 1] == src.tags(i)["UNITS"]
-            np.testing.assert_array_equal(back[g["mask"]],
-                                          g[band][g["mask"]].astype(src.dtypes[0]))
+            np.testing.assert_array_equal(
+                back[on_free], g[band][cells.cell_row, cells.cell_col][on_free].astype(
+                    src.dtypes[0]))
             if nodata == "NaN":
-                assert np.isnan(src.nodata) and np.isnan(back[~g["mask"]]).all()
+                assert np.isnan(src.nodata) and np.isnan(back[off]).all()
             else:
-                assert src.nodata == nodata and (back[~g["mask"]] == nodata).all()
+                assert src.nodata == nodata and (back[off] == nodata).all()
     assert g["mask"].any() and not g["mask"].all()
     info = gdalinfo(run / name)
+    assert info["stac"]["proj:epsg"] == 32618
     assert info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"] == "COG"
     assert info["metadata"][""]["PDCOV_VERSION"] == __version__
     for band, b in zip(bands, info["bands"], strict=True):

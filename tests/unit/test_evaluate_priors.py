@@ -57,7 +57,7 @@ def test_prior_from_geojson_segments_and_geotiff(tmp_path):
     assert poa[5, 5] == pytest.approx(0.6 / 100) and poa[35, 35] == pytest.approx(0.3 / 100)
     assert poa[20, 5] == 0
     write_geotiff(tmp_path / "prior.tif", {"poa": array_band(poa)}, g, ORIGIN,
-                  array_band(np.ones_like(mask)))
+                  array_band(np.ones_like(mask)), exact_grid=True)  # as posterior.tif
     np.testing.assert_allclose(read_prior(tmp_path / "prior.tif", g, mask, ORIGIN).poa, poa,
                                rtol=1e-6)
     doc["features"][0]["properties"] = {}

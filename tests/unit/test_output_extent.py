@@ -105,14 +105,18 @@ def test_geotiff_is_written_block_by_block(tmp_path, shape):
         reads.append((w[1] - w[0]) * (w[3] - w[2]))
         return values[w[0]:w[1], w[2]:w[3]]
 
-    write_geotiff(tmp_path / "x.tif", {"v": band}, g, ORIGIN, array_band(free))
+    write_geotiff(tmp_path / "x.tif", {"v": band}, g, ORIGIN, array_band(free),
+                  exact_grid=True)
+    write_geotiff(tmp_path / "utm.tif", {"v": band}, g, ORIGIN, array_band(free))
     assert max(reads) <= 256 * 256
     with rasterio.open(tmp_path / "x.tif") as src:
-        assert src.profile["tiled"] and src.block_shapes == [(256, 256)]
-        assert src.profile["compress"] == "deflate"
         assert tuple(src.transform)[:6] == (2.0, 0.0, 10.0, 0.0, -2.0, -20.0 + 2.0 * shape[0])
         back = np.flipud(src.read(1))
     np.testing.assert_array_equal(back, np.where(free, values, np.nan).astype(np.float32))
+    for name in ("x.tif", "utm.tif"):
+        with rasterio.open(tmp_path / name) as src:
+            assert src.profile["tiled"] and src.block_shapes == [(256, 256)]
+            assert src.profile["compress"] == "deflate"
 
 
 def test_terrain_and_hidden_cells_are_drawn_by_block(monkeypatch):

@@ -3,11 +3,12 @@ block by block: pd.tif, looks.tif, limiting.tif), the P_D overlay as an RGBA COG
 Mercator (pd_rgba_3857.tif) and the threshold outline as GeoJSON (rasterio); cell outlines
 in ENU and their WGS84 coordinates for the other exports (report/exports.py).
 
-The grid lives in the local ENU plane about the mission origin. The GeoTIFFs' CRS is a
-transverse Mercator projection centred on that origin at the ENU plane's scale
-(``local_crs_wkt``; no false easting or northing), which equals the ENU tangent plane to
-well under a millimetre over a few km; the GeoJSON is WGS84 longitude/latitude as RFC 7946
-requires.
+The grid lives in the local ENU plane about the mission origin, which a transverse Mercator
+projection centred on that origin at the plane's scale (``local_crs_wkt``; no false
+easting or northing) matches to well under a millimetre over a few km. The grid's
+GeoTIFFs are warped from it into the mission's UTM zone (an EPSG CRS, which GIS tools
+take), the P_D overlay into Web Mercator; the GeoJSON is WGS84 longitude/latitude as RFC
+7946 requires.
 """
 
 from __future__ import annotations
@@ -45,6 +46,40 @@ def local_crs_wkt(origin: Origin) -> str:
     k = (r_m + origin.ground_alt_msl_m) / r_m
     return (f"+proj=tmerc +lat_0={origin.lat_deg:.9f} +lon_0={origin.lon_deg:.9f} "
             f"+k={k:.12f} +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs")
+
+
+def utm_epsg(origin: Origin) -> int:
+    """EPSG code of WGS 84 / UTM zone of ``origin``: 326zz north of the equator, 327zz
+    south, the zone by longitude with the grid's exceptions: 32 over south-west Norway
+    (56-64 N, 3-12 E) and 31, 33, 35, 37 over Svalbard (72-84 N, 0-42 E). Beyond 84 N or
+    80 S (polar stereographic's, UTM's edge) still the zone by longitude: the transverse
+    Mercator holds there too."""
+    lat, lon = origin.lat_deg, (origin.lon_deg + 180.0) % 360.0 - 180.0
+    zone = min(int((lon + 180.0) // 6.0) + 1, 60)
+    if 56.0 <= lat < 64.0 and 3.0 <= lon < 12.0:
+        zone = 32
+    elif 72.0 <= lat <= 84.0 and 0.0 <= lon < 42.0:
+        zone = 31 if lon < 9.0 else 33 if lon < 21.0 else 35 if lon < 33.0 else 37
+    return (32600 if lat >= 0.0 else 32700) + zone
+
+
+def _plane_tags(geometry: GridGeometry, origin: Origin) -> dict[str, str]:
+    """GeoTIFF metadata naming the grid's place: the ENU origin (WGS84 degrees, ground m
+    MSL), the plane's convention and PROJ string, the grid's south-west corner (ENU m)
+    and cell size (m)."""
+    return {"ENU_ORIGIN_LAT_DEG": repr(origin.lat_deg),
+            "ENU_ORIGIN_LON_DEG": repr(origin.lon_deg),
+            "ENU_ORIGIN_ALT_MSL_M": repr(origin.ground_alt_msl_m),
+            "ENU_PLANE": _ENU_PLANE, "ENU_PLANE_PROJ": local_crs_wkt(origin),
+            "GRID_SW_ENU_M": f"{geometry.x0_m!r} {geometry.y0_m!r}",
+            "GRID_CELL_SIZE_M": repr(geometry.cell_size_m)}
+
+
+_ENU_PLANE = ("pdcov's grid lies on the east-north-up plane tangent to the WGS84 ellipsoid "
+              "normal at ENU_ORIGIN, at its ground height (x east, y north, metres; the "
+              "plane is ENU_PLANE_PROJ); cells of GRID_CELL_SIZE_M from GRID_SW_ENU_M, "
+              "rows growing north; grid.npz holds them exactly")
+_WARP_TOLERANCE_PX = 1e-5  # GDAL's approximate transform error when warping (pixels)
 
 
 def _transform(geometry: GridGeometry) -> Any:
@@ -106,40 +141,80 @@ def _cog(path: str | Path) -> Iterator[Path]:
 
 def write_geotiff(path: str | Path, bands: Mapping[str, BandReader], geometry: GridGeometry,
                   origin: Origin, mask: BandReader, *, dtype: str = "float32",
-                  nodata: float = math.nan, tags: Mapping[str, str] | None = None) -> None:
+                  nodata: float = math.nan, tags: Mapping[str, str] | None = None,
+                  exact_grid: bool = False) -> None:
     """Cloud-Optimised GeoTIFF of ``dtype`` with one band per entry of ``bands`` over the
     cells of ``geometry`` (rows grow north, as in the grid; written north-up), ``nodata``
     outside the free cells (``mask``): tiled (GEOTIFF_BLOCK), deflate-compressed, with
     overviews, so a viewer reads a county's at any zoom a few tiles at a time. Each band's
-    description is its name, with BAND_INFO's LONG_NAME and UNITS; ``tags``: the file's
-    metadata. Written block by block into a tiled GeoTIFF (only one block of each band in
-    memory at once), then laid out as a COG by GDAL's COG driver. Atomic."""
+    description is its name, with BAND_INFO's LONG_NAME and UNITS; the file's metadata:
+    ``tags`` and where the grid lies (``_plane_tags``). In the mission's UTM zone
+    (``warp_to_utm``), or with ``exact_grid`` the grid's own cells in the local plane
+    (``local_crs_wkt``, as ``read_geotiff_band`` reads). Written block by block (only one
+    block of each band in memory at once), then laid out as a COG by GDAL's COG driver.
+    Atomic."""
     import rasterio
     from rasterio.windows import Window as RasterWindow
 
     b = GEOTIFF_BLOCK
-    with _cog(path) as tiled, rasterio.open(
-            tiled, "w", driver="GTiff", width=geometry.n_cols, height=geometry.n_rows,
-            count=len(bands), dtype=dtype, crs=local_crs_wkt(origin),
-            transform=_transform(geometry), nodata=nodata, compress="deflate",
-            tiled=True, blockxsize=b, blockysize=b) as dst:
-        dst.update_tags(**(tags or {}))
-        for i, name in enumerate(bands, start=1):
-            dst.set_band_description(i, name)
-            if name in BAND_INFO:
-                long_name, units = BAND_INFO[name]
-                dst.update_tags(i, LONG_NAME=long_name, UNITS=units)
-                dst.set_band_unit(i, units)
-        for top in range(0, geometry.n_rows, b):  # file rows from the north edge
-            r1 = geometry.n_rows - top
-            r0 = max(0, r1 - b)
-            for c0 in range(0, geometry.n_cols, b):
-                c1 = min(c0 + b, geometry.n_cols)
-                w = (r0, r1, c0, c1)
-                free = mask(w)
-                block = np.stack([np.where(free, read(w), nodata).astype(dtype)
-                                  for read in bands.values()])
-                dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
+    with _cog(path) as tiled:
+        local = tiled if exact_grid else tiled.with_name("local.tif")
+        with rasterio.open(local, "w", driver="GTiff", width=geometry.n_cols,
+                           height=geometry.n_rows, count=len(bands), dtype=dtype,
+                           crs=local_crs_wkt(origin), transform=_transform(geometry),
+                           nodata=nodata, compress="deflate", tiled=True, blockxsize=b,
+                           blockysize=b) as dst:
+            for top in range(0, geometry.n_rows, b):  # file rows from the north edge
+                r1 = geometry.n_rows - top
+                r0 = max(0, r1 - b)
+                for c0 in range(0, geometry.n_cols, b):
+                    c1 = min(c0 + b, geometry.n_cols)
+                    w = (r0, r1, c0, c1)
+                    free = mask(w)
+                    block = np.stack([np.where(free, read(w), nodata).astype(dtype)
+                                      for read in bands.values()])
+                    dst.write(block[:, ::-1], window=RasterWindow(c0, top, c1 - c0, r1 - r0))
+        if not exact_grid:
+            warp_to_utm(local, tiled, origin, geometry.cell_size_m)
+        with rasterio.open(tiled, "r+") as dst:
+            dst.update_tags(**(tags or {}), **_plane_tags(geometry, origin))
+            for i, name in enumerate(bands, start=1):
+                dst.set_band_description(i, name)
+                if name in BAND_INFO:
+                    long_name, units = BAND_INFO[name]
+                    dst.update_tags(i, LONG_NAME=long_name, UNITS=units)
+                    dst.set_band_unit(i, units)
+
+
+def warp_to_utm(local: Path, out: Path, origin: Origin, cell_size_m: float) -> None:
+    """``local`` (a GeoTIFF on the local plane) warped into a tiled GeoTIFF ``out`` in the
+    mission's UTM zone (``utm_epsg``), a block at a time: pixels of ``cell_size_m`` UTM
+    metres on the zone's lattice of that size (so runs of one mission line up) over the
+    cells' bounds, each the value of the cell under its centre (nearest neighbour, to within
+    _WARP_TOLERANCE_PX: no value that no cell had, integer codes exact), nodata beyond
+    the cells. The grid is turned by the meridian convergence against the zone's (up to a
+    few degrees) and scaled by under 0.1 %, so a few cells in a thousand show twice or not
+    at all: grid.npz holds them all."""
+    import rasterio
+    from rasterio.crs import CRS
+    from rasterio.enums import Resampling
+    from rasterio.transform import from_origin
+    from rasterio.vrt import WarpedVRT
+    from rasterio.warp import transform_bounds
+
+    crs, c = CRS.from_epsg(utm_epsg(origin)), cell_size_m
+    with rasterio.open(local) as src:
+        left, bottom, right, top = transform_bounds(src.crs, crs, *src.bounds)
+        i0, i1 = math.floor(left / c), math.ceil(right / c)
+        j0, j1 = math.floor(bottom / c), math.ceil(top / c)
+        transform, width, height = from_origin(i0 * c, j1 * c, c, c), i1 - i0, j1 - j0
+        profile = {**src.profile, "crs": crs, "transform": transform, "width": width,
+                   "height": height}
+        with WarpedVRT(src, crs=crs, transform=transform, width=width, height=height,
+                       resampling=Resampling.nearest, tolerance=_WARP_TOLERANCE_PX) as vrt, \
+                rasterio.open(out, "w", **profile) as dst:
+            for _, window in dst.block_windows(1):
+                dst.write(vrt.read(window=window), window=window)
 
 
 def write_rgba_3857(path: str | Path, rgba: np.ndarray, geometry: GridGeometry,

@@ -334,7 +334,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         if gis_missing is None:
             write_geotiff(out / "posterior.tif",
                           {"posterior_poa": array_band(outcome.posterior)}, grid.geometry,
-                          origin, array_band(np.ones(grid.geometry.shape, bool)))
+                          origin, array_band(np.ones(grid.geometry.shape, bool)),
+                          exact_grid=True)  # a prior for the next search (read_prior)
             files.append("posterior.tif")
     if gis_missing is not None:
         gis_files = (*GRID_GEOTIFFS, "outline.geojson", RGBA_TIF) + (
