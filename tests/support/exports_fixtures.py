@@ -9,7 +9,7 @@ import numpy as np
 
 from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic
-from pdcov.report.exports import Coverage
+from pdcov.report.search_areas import Coverage
 
 ORIGIN = Origin(46.5, 7.25, 600.0)
 

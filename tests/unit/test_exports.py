@@ -18,7 +18,8 @@ from PIL import Image
 
 from pdcov.core.geodesy import geodetic_to_enu
 from pdcov.errors import OutputError
-from pdcov.report.exports import VehicleDetections, map_layers, pins, write_exports
+from pdcov.report.exports import VehicleDetections, caltopo_geojson, pins, write_exports
+from pdcov.report.search_areas import map_layers
 from tests.support.exports_fixtures import ORIGIN, coverage, detections_doc
 
 KML = "{http://www.opengis.net/kml/2.2}"
@@ -130,9 +131,9 @@ def test_caltopo_shapes_markers_and_assignments(run):
 
 
 def test_gaps_are_bounded_largest_first(monkeypatch):
-    from pdcov.report import exports
+    from pdcov.report import search_areas
 
-    monkeypatch.setattr(exports, "MAX_GAP_SHAPES", 10)
+    monkeypatch.setattr(search_areas, "MAX_GAP_SHAPES", 10)
     cov = coverage()
     pd = np.ones_like(cov.pd)
     pd[::2, ::2] = 0.0  # hundreds of one-cell gaps ...
@@ -141,7 +142,25 @@ def test_gaps_are_bounded_largest_first(monkeypatch):
     layers = map_layers(cov)
     assert layers.gaps_total > 250 and len(layers.gaps) == 10
     assert enu_area(layers.gaps[0]).area > 50  # the big one first
-    assert all(n >= 4 for _, _, n in layers.refly)
+    assert all(a.gap_cells >= 4 for a in layers.refly)
+
+
+def test_each_refly_assignment_carries_the_pod_of_its_cells():
+    # P_D 0.9 everywhere but a 4 x 4 hole of 0.1 (rows 10-13, columns 20-23): its re-fly
+    # area is the hole grown by a cell, 6 x 6 cells, 20 of 0.9 round 16 of 0.1.
+    cov = coverage()
+    pd = np.full_like(cov.pd, 0.9)
+    pd[10:14, 20:24] = 0.1
+    cov = type(cov)(pd, np.ones_like(cov.mask), cov.geometry, cov.origin, (0.8,), 0.8)
+    layers = map_layers(cov)
+    [east] = layers.refly
+    assert east.gap_cells == 16 and east.area_m2 == pytest.approx(36.0)
+    assert east.pod == pytest.approx((20 * 0.9 + 16 * 0.1) / 36)  # 0.5444
+    doc = caltopo_geojson(layers, [], "t")
+    [feat] = [f for f in doc["features"] if f["properties"].get("class") == "Assignment"
+              and f["properties"]["area_m2"] == round(east.area_m2)]
+    assert feat["properties"]["pod"] == round(east.pod, 4)
+    assert f"POD so far {east.pod:.2f}" in feat["properties"]["description"]
 
 
 def test_kml_reads_as_kml_2_2_with_fastkml_and_lxml(run):

@@ -34,30 +34,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import shapely
 
 from pdcov.atomic import atomic_write, write_text_atomic
-from pdcov.core.domain import GridGeometry
 from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic, grid_references
 from pdcov.extras import GIS, GPX, GRID_REFERENCES, PLOTS
 from pdcov.report.pin_rank import candidate_ranks
+from pdcov.report.search_areas import Coverage, MapLayers, Polygon, map_layers
 
-__all__ = ["MAX_GAP_SHAPES", "MAX_REFLY_AREAS", "Coverage", "Exported", "MapLayers", "Pin",
-           "TrackSegment", "VehicleDetections", "VehicleTrack", "caltopo_geojson",
-           "every_pin", "map_layers", "pins", "write_detections_geojson", "write_exports"]
-
-MAX_GAP_SHAPES = 500
-"""Gap polygons exported at most (the largest; the FeatureCollection says how many there
-were): a scattered grid can have thousands of one-cell gaps, which no map tool draws well."""
-MAX_REFLY_AREAS = 50
-"""Re-fly areas (assignments) exported at most, the largest."""
-MIN_REFLY_CELLS = 4
-"""A re-fly area smaller than this many cells is not worth an assignment (its gap still is
-a shape)."""
-
-Polygon = list[list[list[float]]]
-"""One polygon: rings of [lon, lat] degrees, the exterior first and counter-clockwise, then
-the holes, clockwise (RFC 7946; report/gis.polygons_lon_lat)."""
+__all__ = ["Exported", "Pin", "TrackSegment", "VehicleDetections", "VehicleTrack",
+           "caltopo_geojson", "every_pin", "pins", "write_detections_geojson",
+           "write_exports"]
 
 # One palette for every export (GeoJSON '#rrggbb'; report/kml.py converts it).
 OUTLINE_COLORS = ("#f1c40f", "#e67e22", "#27ae60", "#1abc9c", "#2980b9", "#8e44ad")
@@ -126,43 +112,6 @@ class VehicleTrack:
                     lla[:, 2] = np.nan
                 segments.append(TrackSegment(lla))
         return cls(vehicle, tuple(segments))
-
-
-@dataclass(frozen=True, slots=True)
-class Coverage:
-    """The P_D grid to export: ``pd`` and ``mask`` (n_rows, n_cols; rows growing north),
-    its geometry (ENU m about ``origin``), the thresholds outlined and the target P_D below
-    which a free cell is a gap."""
-
-    pd: np.ndarray
-    mask: np.ndarray
-    geometry: GridGeometry
-    origin: Origin
-    thresholds: tuple[float, ...]
-    target_pd: float
-
-    def pd_at(self, x_m: float, y_m: float) -> float | None:
-        """P_D of the free cell holding ENU point (x_m, y_m), None outside the free cells."""
-        g = self.geometry
-        c = int(np.floor((x_m - g.x0_m) / g.cell_size_m))
-        r = int(np.floor((y_m - g.y0_m) / g.cell_size_m))
-        if not (0 <= r < g.n_rows and 0 <= c < g.n_cols) or not self.mask[r, c]:
-            return None
-        return float(self.pd[r, c])
-
-
-@dataclass(frozen=True, slots=True)
-class MapLayers:
-    """The coverage's shapes in WGS84: an outline per threshold (ascending), the gaps
-    (free cells below the target, largest first, at most MAX_GAP_SHAPES of ``gaps_total``)
-    and the re-fly areas (the gaps grown by a cell, merged and simplified)."""
-
-    outlines: tuple[tuple[float, tuple[Polygon, ...]], ...]
-    gaps: tuple[Polygon, ...]
-    gaps_total: int
-    refly: tuple[tuple[Polygon, float, int], ...]
-    """(polygon, area m², gap cells in it)"""
-    target_pd: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,54 +232,6 @@ def _cell_pd(coverage: Coverage | None, point: Mapping[str, Any], sent: Any) -> 
     return sent if pd is None else round(pd, 6)
 
 
-def map_layers(coverage: Coverage) -> MapLayers:
-    """The outlines, gaps and re-fly areas of ``coverage`` (needs the gis extra)."""
-    from pdcov.report.gis import cells_outline, polygons_lon_lat, threshold_outline
-
-    g, o = coverage.geometry, coverage.origin
-    outlines = tuple(
-        (t, tuple(polygons_lon_lat(threshold_outline(coverage.pd, coverage.mask, g, t), o)))
-        for t in sorted(coverage.thresholds))
-    gap_cells = coverage.mask & (coverage.pd < coverage.target_pd)
-    gap_enu = cells_outline(gap_cells, g)
-    gap_shapes = sorted((shapely.Polygon(p[0], p[1:]) for p in gap_enu), key=lambda s: -s.area)
-    kept = gap_shapes[:MAX_GAP_SHAPES]
-    gaps = tuple(polygons_lon_lat([_rings(s) for s in kept], o))
-    refly = _refly_areas(gap_shapes, gap_cells, g)
-    refly_ll = polygons_lon_lat([_rings(a) for a, _, _ in refly], o)
-    return MapLayers(outlines, gaps, len(gap_shapes),
-                     tuple((p, area, n) for p, (_, area, n) in zip(refly_ll, refly,
-                                                                   strict=True)),
-                     coverage.target_pd)
-
-
-def _rings(p: shapely.Polygon) -> list[list[list[float]]]:
-    return [[list(xy) for xy in p.exterior.coords],
-            *([list(xy) for xy in r.coords] for r in p.interiors)]
-
-
-def _refly_areas(gaps: list[shapely.Polygon], gap_cells: np.ndarray, g: GridGeometry
-                 ) -> list[tuple[shapely.Polygon, float, int]]:
-    """The gaps as areas to fly again: grown by a cell and simplified (as planning/refly.py
-    sweeps them, so that a staircase of cell edges and one-cell slivers between gaps make
-    one area), the largest MAX_REFLY_AREAS of at least MIN_REFLY_CELLS gap cells each."""
-    if not gaps:
-        return []
-    c = g.cell_size_m
-    grown = shapely.union_all(gaps).buffer(c, join_style="mitre").simplify(c)
-    parts = [p for p in getattr(grown, "geoms", [grown]) if isinstance(p, shapely.Polygon)]
-    xs, ys = g.centres_enu()
-    rows, cols = np.nonzero(gap_cells)
-    x_m, y_m = xs[cols], ys[rows]  # coordinates, not points: 16 B a gap cell
-    out = []
-    for p in parts:
-        shapely.prepare(p)
-        n = int(np.count_nonzero(shapely.contains_xy(p, x_m, y_m)))
-        if n >= MIN_REFLY_CELLS:
-            out.append((p, float(p.area), n))
-    return sorted(out, key=lambda a: -a[1])[:MAX_REFLY_AREAS]
-
-
 def _feature(p: Pin) -> dict[str, Any]:
     return {"type": "Feature", "geometry": _point(p), "properties": p.properties}
 
@@ -379,12 +280,15 @@ def caltopo_geojson(layers: MapLayers | None, all_pins: Sequence[Pin], title: st
             features.append(_shape(poly, f"gap {i} (P_D < {layers.target_pd:g})",
                                    f"free cells below the target P_D {layers.target_pd:g}",
                                    GAP_COLOR, 0.3))
-        for i, (poly, area, n) in enumerate(layers.refly, start=1):
-            features.append({"type": "Feature", "geometry": _polygon(poly), "properties": {
+        for i, a in enumerate(layers.refly, start=1):
+            features.append({"type": "Feature", "geometry": _polygon(a.polygon),
+                             "properties": {
                 "class": "Assignment", "letter": f"R{i}", "resourceType": "AIR",
-                "status": "DRAFT", "title": f"re-fly R{i}", "area_m2": round(area),
-                "description": f"re-fly: {n} cells below P_D {layers.target_pd:g}, "
-                               f"{area:.0f} m2",
+                "status": "DRAFT", "title": f"re-fly R{i}", "area_m2": round(a.area_m2),
+                "pod": round(a.pod, 4),
+                "description": f"re-fly: {a.gap_cells} cells below P_D "
+                               f"{layers.target_pd:g}, {a.area_m2:.0f} m2; POD so far "
+                               f"{a.pod:.2f}",
                 "stroke": REFLY_COLOR, "stroke-opacity": 1, "stroke-width": 2,
                 "fill": REFLY_COLOR, "fill-opacity": 0.1}})
     for p in all_pins:

@@ -29,11 +29,9 @@ from pdcov.report.exports import (
     GAP_COLOR,
     OUTLINE_COLORS,
     REFLY_COLOR,
-    Coverage,
-    MapLayers,
     Pin,
-    Polygon,
 )
+from pdcov.report.search_areas import Coverage, MapLayers, Polygon
 
 KML_NS = "http://www.opengis.net/kml/2.2"
 OVERLAY_NAME = "pd_overlay.png"
@@ -177,9 +175,10 @@ def kml_document(layers: MapLayers | None, all_pins: Sequence[Pin], overlay: Ove
                                f"free cells below the target P_D {layers.target_pd:g}")
         folder = _sub(doc, "Folder")
         _sub(folder, "name", "re-fly areas")
-        for i, (poly, area, n) in enumerate(layers.refly, start=1):
-            _polygon_placemark(folder, f"re-fly R{i}", "refly", poly,
-                               f"{n} cells below P_D {layers.target_pd:g}, {area:.0f} m2")
+        for i, a in enumerate(layers.refly, start=1):
+            _polygon_placemark(folder, f"re-fly R{i}", "refly", a.polygon,
+                               f"{a.gap_cells} cells below P_D {layers.target_pd:g}, "
+                               f"{a.area_m2:.0f} m2; POD so far {a.pod:.2f}")
     for kind in ("candidate", "detection"):
         folder = _sub(doc, "Folder")
         _sub(folder, "name", f"{kind}s")

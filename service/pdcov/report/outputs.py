@@ -36,7 +36,8 @@ from pdcov.core.sweep_width import FlightSample, SearchEffort, lateral_range
 from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
-from pdcov.report.exports import Coverage, Pin, VehicleDetections, VehicleTrack, write_exports
+from pdcov.report.exports import Pin, VehicleDetections, VehicleTrack, write_exports
+from pdcov.report.search_areas import Coverage
 from pdcov.report.grid_file import GRID_NPZ, write_grid_file
 from pdcov.report.output_extent import (
     CROP_ABOVE_CELLS,
