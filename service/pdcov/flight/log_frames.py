@@ -27,7 +27,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import euler_zyx_from_R_many
-from pdcov.core.utc_clock import UtcClock, utc_text
+from pdcov.core.utc_clock import UtcClock
 from pdcov.errors import ConfigError, TelemetryError
 from pdcov.flight.frame_decision import FrameCounts, Framing, decide_frames
 from pdcov.flight.frame_selection import SelectedFrames
@@ -128,7 +128,7 @@ def describe_utc(log: FlightLog, clock: UtcClock, t_s: float) -> str:
         return (f"UTC: none, the log carries no real-time clock ({source}: "
                 f"{len(log.utc)} messages, none set); time_utc is null in the outputs")
     return (f"UTC: from {source} ({len(log.utc) - clock.unset} of {len(log.utc)} set); "
-            f"the first frame at {utc_text(clock.unix_s(t_s)) or 'unknown (none in its boot)'}")
+            f"the first frame at {clock.text(t_s) or 'unknown (none in its boot)'}")
 
 
 def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, str]:
