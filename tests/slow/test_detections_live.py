@@ -98,13 +98,21 @@ def test_published_detections_and_candidates_are_evaluate_s(tmp_path: Path) -> N
             c["id"] for c in msg["candidates"]}
     assert set(by_id) == {x["candidate"] for x in live_detections}
 
+    _offline_is_live(tmp_path, cfg_path, live_detections, live_candidates)
+
+
+def _offline_is_live(tmp_path: Path, cfg_path: Path, detections: list[dict],
+                     candidates: list[dict]) -> tuple[dict, Path]:
+    """``pdcov evaluate`` of the daemon's recording: its detections.json is the live
+    detections and candidates (but the uids' epochs); (that document, the run folder)."""
     rec = next((tmp_path / "rec").glob("flight-*.tlog"))
     out = tmp_path / "offline"
     assert pdcov_main(["evaluate", "--config", str(cfg_path), "--log", str(rec), "--out",
                        str(out), "--no-progress"]) == 0
     offline = decode_detections((out / "detections.json").read_bytes(), vehicle_id="uav7")
-    assert without_epoch(offline["detections"]) == without_epoch(live_detections)
-    assert without_epoch(offline["candidates"]) == without_epoch(live_candidates)
+    assert without_epoch(offline["detections"]) == without_epoch(detections)
+    assert without_epoch(offline["candidates"]) == without_epoch(candidates)
+    return offline, out
 
 
 def test_boxes_of_classes_the_model_does_not_name_and_frames_off_the_clock_are_refused(
@@ -128,3 +136,48 @@ def test_boxes_of_classes_the_model_does_not_name_and_frames_off_the_clock_are_r
     assert faults["frames_refused_ahead_of_clock"] == 1, faults
     assert faults["frames_refused_too_old"] == 1, faults  # 5 s: 24 s behind, history 20 s
     assert faults["boxes_of_frames_not_taken"] == 2, faults
+
+
+def test_time_utc_live_is_evaluate_s_from_system_time(tmp_path: Path) -> None:
+    """SYSTEM_TIME gives every detection and candidate its UTC, live and offline alike: a
+    frame at t_boot_s 2.0 of a boot whose time_boot_ms 0 was 2026-12-06T21:40:00.000Z is
+    at 21:40:02.000Z."""
+    from datetime import datetime, timedelta, timezone
+
+    cfg_path = _config(tmp_path)
+    d = Driver(cfg_path, tmp_path / "rec")
+    boot = datetime(2026, 12, 6, 21, 40, tzinfo=timezone.utc)
+    hover = Hover(seconds=4.0, boot_unix_us=round(boot.timestamp() * 1e6))
+    d.link(b"".join(pack(m, seq=i) for i, m in enumerate(hover.messages())))
+    rng = np.random.default_rng(3)
+    frames = [FrameBoxes(1.2 + 0.2 * k, _boxes(k, rng)) for k in range(12)]
+    d.frames(encode_frames_v2(frames))
+    d.core.process()
+    for _ in range(5):
+        d.tick(DETECTIONS_PERIOD_S)
+    d.recorder.close()
+    live = [x for msg in d.published for x in msg["detections"]]
+    assert live
+    for x in live:
+        assert datetime.fromisoformat(x["time_utc"]) == boot + timedelta(
+            milliseconds=round(x["t_boot_s"] * 1000)), x
+    live_candidates = decode_detections(d.core.candidates_payload())["candidates"]
+    for c in live_candidates:
+        assert c["first_time_utc"] <= c["last_time_utc"]
+        assert datetime.fromisoformat(c["last_time_utc"]) == boot + timedelta(
+            milliseconds=round(c["last_t_boot_s"] * 1000)), c
+    offline, out = _offline_is_live(tmp_path, cfg_path, live, live_candidates)
+    features = json.loads((out / "detections.geojson").read_text())["features"]
+    assert {f["properties"]["time_utc"] for f in features
+            if f["properties"]["kind"] == "detection"} == {x["time_utc"] for x in live}
+    import gpxpy
+
+    with open(out / "pdcov.gpx", encoding="utf-8") as f:
+        gpx = gpxpy.parse(f)
+    points = [p for s in gpx.tracks[0].segments for p in s.points]
+    # The hover's positions, 10 a second from time_boot_ms 1000: 21:40:01.000Z on.
+    assert [p.time for p in points[:2]] == [boot + timedelta(seconds=1.0),
+                                            boot + timedelta(seconds=1.1)]
+    by_uid = {c["uid"]: c for c in offline["candidates"]}
+    for w in gpx.waypoints:
+        assert w.time == datetime.fromisoformat(by_uid[w.name]["last_time_utc"])

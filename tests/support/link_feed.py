@@ -99,11 +99,14 @@ def offline_of(cfg: ServeConfig, tlog: Path) -> tuple[LogPoses, CoverageGrid]:
 class Hover:
     """A vehicle hovering 12 m over the middle of the domain: which messages at which
     autopilot time (ms) from system 1, component 1 (the gimbal too, as ArduPilot sends).
-    gnss_acc_mm: (h_acc, v_acc) of a GPS_RAW_INT (3D fix) sent at 2 Hz (None: none)."""
+    gnss_acc_mm: (h_acc, v_acc) of a GPS_RAW_INT (3D fix) sent at 2 Hz (None: none).
+    boot_unix_us: the UTC (us since 1970) of time_boot_ms 0, in a SYSTEM_TIME a second
+    from 1 s on, the first with time_unix_usec 0 (not known yet); None: no SYSTEM_TIME."""
 
     seconds: float = 4.0
     rate_hz: float = 10.0
     gnss_acc_mm: tuple[int, int] | None = None
+    boot_unix_us: int | None = None
 
     def messages(self) -> list[mavlink.MAVLink_message]:
         mav = mavlink.MAVLink(None)  # encodes fields only; link_feed.pack sets the ids
@@ -116,6 +119,9 @@ class Hover:
             ms = 1000 + round(k * 1000 / self.rate_hz)
             if k % 10 == 0:
                 out.append(mav.heartbeat_encode(2, 3, 128 | 1, 4, 4))
+                if self.boot_unix_us is not None:
+                    out.append(mav.system_time_encode(
+                        k and self.boot_unix_us + ms * 1000, ms))
             out.append(mav.attitude_encode(ms, 0.01, -0.02, 0.3, 0, 0, 0))
             if self.gnss_acc_mm is not None and k % 5 == 0:
                 out.append(mav.gps_raw_int_encode(ms * 1000, 3, lat_e7, lon_e7,

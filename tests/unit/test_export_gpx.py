@@ -130,3 +130,26 @@ def test_the_watchers_recording_exports_each_vehicles_track(tmp_path):
     (trk,) = read(tmp_path / "exports" / "pdcov.gpx").tracks
     back = np.array([[p.latitude, p.longitude, p.elevation] for p in trk.segments[0].points])
     assert trk.name == "uav1" and back == pytest.approx(held, abs=0.5e-7)
+
+
+def test_waypoints_take_their_candidates_time_utc_and_cot_markers_too(tmp_path):
+    """A candidate last detected at 2026-12-06T21:42:01.250Z (its ``last_time_utc``): its
+    GPX waypoint's time, and its CoT event's time and start (gpxpy and ElementTree read
+    them back); a candidate without one has neither."""
+    import xml.etree.ElementTree as ET
+
+    from pdcov.report.cot_events import candidate_event
+
+    doc = detections_doc()
+    doc["candidates"][0]["last_time_utc"] = "2026-12-06T21:42:01.250Z"
+    doc["candidates"][0]["first_time_utc"] = "2026-12-06T21:41:58.000Z"
+    doc["candidates"][1]["last_time_utc"] = None
+    write_exports(tmp_path, None, [VehicleDetections.from_doc(doc)], title="t")
+    when = datetime(2026, 12, 6, 21, 42, 1, 250_000, timezone.utc)
+    assert [w.time for w in read(tmp_path / "pdcov.gpx").waypoints] == [when, None]
+    now_s = datetime(2026, 12, 6, 22, 0, tzinfo=timezone.utc).timestamp()
+    seen = ET.fromstring(candidate_event("alpha", doc["candidates"][0], now_s, 300.0))
+    assert (seen.get("time"), seen.get("start"), seen.get("stale")) == (
+        "2026-12-06T21:42:01.250Z", "2026-12-06T21:42:01.250Z", "2026-12-06T22:05:00.000Z")
+    unseen = ET.fromstring(candidate_event("alpha", doc["candidates"][1], now_s, 300.0))
+    assert unseen.get("time") == unseen.get("start") == "2026-12-06T22:00:00.000Z"

@@ -122,3 +122,20 @@ def test_a_log_whose_vehicle_never_armed_takes_the_latest_home_and_says_so(tmp_p
     # A configured ground altitude is taken at once, armed or not.
     assert ground_alt_of_log(log, GroundAltitude(488.0, DEFAULT_HOME_WAIT_S)) == (
         488.0, "configured")
+
+
+def test_gps_time_utc_usec_gives_the_utc_of_the_boot_clock(tmp_path):
+    # vehicle_gps_position.time_utc_usec (0 until the receiver knows the time) beside its
+    # timestamp: timestamp 1.6 s was 2026-12-06T21:40:00.000Z.
+    from pdcov.flight.log_frames import utc_clock_of
+
+    t0_us = 1_796_593_200_000_000
+    fields, rows = GPS_OLD
+    timed = ([*fields, ("uint64_t", "time_utc_usec")],
+             [(*r, 0 if i < 3 else t0_us + r[0] - 1_600_000) for i, r in enumerate(rows)])
+    log = read_flight_log(write_ulog(tmp_path / "t.ulg", {"vehicle_attitude": ATTITUDE,
+                                                          "vehicle_gps_position": timed}))
+    assert len(log.utc) == 25
+    clock = utc_clock_of(log)
+    assert clock.unset == 3
+    assert clock.text(2.1) == "2026-12-06T21:40:00.500Z"

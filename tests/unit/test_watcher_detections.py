@@ -169,7 +169,8 @@ def test_terminal_once_and_map_state_show_the_candidates():
     assert [c["id"] for c in vehicle["candidates"]] == [4, 3]  # the most probable first
     assert set(vehicle["candidates"][0]) == {
         "id", "uid", "class", "lat_deg", "lon_deg", "sigma_m", "p_person", "hits", "looks",
-        "pd", "pfa", "confidence", "first_t_boot_s", "last_t_boot_s"}
+        "pd", "pfa", "confidence", "first_t_boot_s", "last_t_boot_s", "first_time_utc",
+        "last_time_utc"}
     json.dumps(state, allow_nan=False)
 
 

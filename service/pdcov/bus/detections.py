@@ -3,12 +3,18 @@
 built in one place (``detections_document``) for the daemon and the offline evaluation.
 
     {"schema": "pdcov.detections", "version": 2, "vehicle": id,
-     "detections": [{"t_boot_s", "class", "confidence", "box_px": [l, t, w, h],
+     "detections": [{"t_boot_s", "time_utc", "class", "confidence", "box_px": [l, t, w, h],
                      "lat_deg", "lon_deg", "alt_msl_m", "x_m", "y_m", "sigma_m",
                      "candidate", "uid"}],
      "candidates": [{"id", "uid", "class", "lat_deg", "lon_deg", "alt_msl_m", "x_m", "y_m",
                      "sigma_m", "hits", "looks", "p_person", "pd", "pfa", "confidence",
-                     "first_t_boot_s", "last_t_boot_s"}]}
+                     "first_t_boot_s", "last_t_boot_s", "first_time_utc",
+                     "last_time_utc"}]}
+
+``time_utc``, ``first_time_utc``, ``last_time_utc``: the frames' UTC from the autopilot's
+real-time clock (core/utc_clock.py ``utc_text``: '2026-12-06T21:42:01.250Z'), null when it
+was unknown; optional, so a document without them (an older daemon's) is read as null, and
+an older watcher, which reads the fields it knows, ignores them.
 
 A published message holds the detections new since the last one and the current state of
 every candidate they touched; the candidates query answers every candidate (and no
@@ -40,6 +46,7 @@ from pdcov.core.detections import (
     valid_uid,
 )
 from pdcov.core.geodesy import Origin, enu_to_geodetic
+from pdcov.core.utc_clock import UTC_TEXT, utc_text
 
 __all__ = ["DETECTIONS_SCHEMA", "DETECTIONS_VERSION", "LIKELY_P_PERSON", "MAX_CANDIDATES",
            "MAX_DETECTIONS", "MAX_DETECTIONS_BYTES", "P_PERSON_DIGITS", "decode_detections",
@@ -86,7 +93,8 @@ def detections_document(detections: Sequence[Detection], candidates: Sequence[Ca
     return {
         "schema": DETECTIONS_SCHEMA, "version": DETECTIONS_VERSION, "vehicle": vehicle_id,
         "detections": [{
-            "t_boot_s": d.t_boot_s, "class": d.box.class_name, "confidence": d.box.confidence,
+            "t_boot_s": d.t_boot_s, "time_utc": utc_text(d.unix_s),
+            "class": d.box.class_name, "confidence": d.box.confidence,
             "box_px": list(d.box.box_px), **_geodetic(d.r_enu_m, origin),
             "sigma_m": round(d.sigma_m, 3), "candidate": d.candidate_id,
             "uid": uids[d.candidate_id]}
@@ -96,7 +104,8 @@ def detections_document(detections: Sequence[Detection], candidates: Sequence[Ca
             **_geodetic(c.r_enu_m, origin), "sigma_m": round(c.sigma_m, 3), "hits": c.hits,
             "looks": c.looks, "p_person": round(c.p_person, P_PERSON_DIGITS), "pd": c.pd,
             "pfa": c.pfa, "confidence": c.confidence, "first_t_boot_s": c.first_t_boot_s,
-            "last_t_boot_s": c.last_t_boot_s}
+            "last_t_boot_s": c.last_t_boot_s, "first_time_utc": utc_text(c.first_unix_s),
+            "last_time_utc": utc_text(c.last_unix_s)}
             for c in candidates]}
 
 
@@ -125,6 +134,7 @@ def decode_detections(payload: bytes, key: str = "detections",
     for i, item in enumerate(detections):
         d = Fields(item, bad, f"detections[{i}].")
         d.number("t_boot_s", 0.0, _MAX_BOOT_S)
+        _utc(d, "time_utc")
         _class(d)
         d.number("confidence", 0.0, 1.0)
         px = d.doc.get("box_px")
@@ -152,12 +162,19 @@ def decode_detections(payload: bytes, key: str = "detections",
             c.number(name, 0.0, 1.0)
         first = c.number("first_t_boot_s", 0.0, _MAX_BOOT_S)
         c.number("last_t_boot_s", first, _MAX_BOOT_S)  # [first, ...]: not before the first
+        _utc(c, "first_time_utc")
+        _utc(c, "last_time_utc")
     for i, item in enumerate(detections):  # a detection's uid is its candidate's
         want = uids.get(item["candidate"], item["uid"])
         if item["uid"] != want:
             raise bad(f"detections[{i}].uid {item['uid']!r}: its candidate "
                       f"{item['candidate']} is {want!r}")
     return doc
+
+
+def _utc(f: Fields, name: str) -> None:
+    if f.doc.get(name) is not None:
+        f.string(name, UTC_TEXT, 24)
 
 
 def _uid(f: Fields) -> str:

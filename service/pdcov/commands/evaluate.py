@@ -182,7 +182,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                 tracks=[VehicleTrack.from_enu(  # a segment per log
                                     mission.vehicle_id, (r.track_enu for r in runs),
                                     first.origin, heights_msl=kind is InputKind.LOG
-                                    or mission.ground_alt_msl_m is not None)],
+                                    or mission.ground_alt_msl_m is not None,
+                                    flights_unix_s=[r.track_unix_s for r in runs])],
                                 flight=FlightSample.joined(
                                     [r.flight for r in runs if r.flight is not None]),
                                 basemap=basemap)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,6 +31,7 @@ from pdcov.core.grid_store import (
 )
 from pdcov.core.mount import GimbalMount
 from pdcov.core.sweep_width import FlightSample
+from pdcov.core.utc_clock import UtcClock
 from pdcov.errors import ConfigError, InputFileError, PdcovError
 from pdcov.flight.frame_decision import framing_of
 from pdcov.flight.log_frames import poses_of_log
@@ -145,7 +146,8 @@ class InputRun:
     terrain_check: its metrics object (None without a DEM); telemetry_faults /
     frames_skipped: the daemon's keys counted (None for a CSV). prior: the --prior read
     about this origin. frames: the frames the mission grid took. flight: their heights,
-    speeds and track (metrics.json's sweep_width)."""
+    speeds and track (metrics.json's sweep_width). track_unix_s: the UTC of track_enu's
+    rows (s since 1970, NaN unknown), None without a real-time clock."""
 
     path: Path
     origin: Origin
@@ -161,6 +163,7 @@ class InputRun:
     frames_skipped: dict[str, int] | None
     prior: Prior | None
     flight: FlightSample | None = None
+    track_unix_s: np.ndarray | None = None
 
     def packed(self) -> InputRun:
         """This run with its grids as bytes (PackedGrids), to cross a process boundary."""
@@ -243,9 +246,15 @@ def run_input(job: InputJob, mission: Mission) -> InputRun:
         detections = flight_detections(
             mission, grid, frames.origin, poses, frames.frame_boxes, cameras, accuracies,
             uid_prefix=candidate_uid_prefix(mission.vehicle_id, log_epoch(job.path)),
-            poa=None if prior is None else prior.poa)
+            poa=None if prior is None else prior.poa, utc=frames.utc)
         lines.append(f"detections: {len(detections['detections'])} of the boxes pdcov serve "
                      f"recorded, in {len(detections['candidates'])} candidates")
+        untimed = sum(d["time_utc"] is None for d in detections["detections"])
+        if untimed:
+            frames = replace(frames, warnings=(*frames.warnings, (
+                f"{untimed} of {len(detections['detections'])} detections without "
+                "time_utc: the log had no real-time clock at their frames (see the UTC "
+                "line)")))
     warnings = _unseen_domain_warnings(grid, mission, poses)
     if frames.export is not None and job.export_poses is not None:
         write_pose_csv(job.export_poses, frames.export)
@@ -253,7 +262,15 @@ def run_input(job: InputJob, mission: Mission) -> InputRun:
                     tuple(warnings), finite_track(frames.track_enu),
                     InputGrids(grid, per_camera if mission.several_cameras else {}),
                     detections, frames.terrain_check, frames.faults, frames.skipped, prior,
-                    FlightSample.of(poses, mission.terrain))
+                    FlightSample.of(poses, mission.terrain), _track_unix_s(frames))
+
+
+def _track_unix_s(frames: _Frames) -> np.ndarray | None:
+    """The UTC (s, NaN unknown) of the finite rows of the track (``finite_track``'s), None
+    without a real-time clock."""
+    if frames.track_enu is None or frames.utc is None or not frames.utc.known:
+        return None
+    return frames.track_unix_s[np.all(np.isfinite(frames.track_enu), axis=1)]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -261,7 +278,8 @@ class _Frames:
     """An input's camera frames before the filter by height: poses, their cameras (zoom)
     and accuracies (GNSS), ``low`` (None for a CSV: filtered by height here), the origin,
     the track (ENU m), summary lines, warnings, and a log's read log, detector boxes,
-    export rows, terrain check, faults and skipped frames."""
+    export rows, terrain check, faults, skipped frames, real-time clock and the UTC of
+    its track's positions."""
 
     poses: Sequence[CameraPose]
     origin: Origin
@@ -277,6 +295,8 @@ class _Frames:
     terrain_check: dict[str, Any] | None = None
     faults: dict[str, int] | None = None
     skipped: dict[str, int] | None = None
+    utc: UtcClock | None = None
+    track_unix_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _csv_frames(job: InputJob, mission: Mission) -> _Frames:
@@ -326,7 +346,8 @@ def _log_frames(job: InputJob, mission: Mission) -> _Frames:
                    warnings, log_poses.low, log_poses.cameras, log_poses.accuracies,
                    flight_log, log_poses.frame_boxes, log_poses,
                    None if terrain_check is None else terrain_check.as_dict(),
-                   dict(log_poses.faults), dict(log_poses.frames_skipped))
+                   dict(log_poses.faults), dict(log_poses.frames_skipped), log_poses.utc,
+                   log_poses.track_unix_s)
 
 
 def _other_cameras(log: FlightLog, mission: Mission, grids: Mapping[str, CoverageGrid],

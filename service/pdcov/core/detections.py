@@ -124,14 +124,15 @@ def _check_sigma(sigma_m: float, what: str) -> None:
 class Detection:
     """One geolocated box: the frame's time ``t_boot_s``, the ``box``, its ground point
     ``r_enu_m`` (3,) (ENU m, read-only), ``sigma_m`` the 1-sigma horizontal uncertainty of
-    that point (m; core/geolocate.py says how it is computed) and the ``candidate_id`` it
-    was grouped into."""
+    that point (m; core/geolocate.py says how it is computed), the ``candidate_id`` it
+    was grouped into and the frame's UTC ``unix_s`` (s since 1970; NaN: unknown)."""
 
     t_boot_s: float
     box: Box
     r_enu_m: np.ndarray
     sigma_m: float
     candidate_id: int
+    unix_s: float = math.nan
 
     def __post_init__(self) -> None:
         if not (_finite(self.t_boot_s) and self.t_boot_s >= 0):
@@ -154,7 +155,8 @@ class Candidate:
     pd, pfa: the cell's cumulative P_D and P_FA. uid: unique across restarts and vehicles
     (UID_RULE). p_person: the probability that a person is within its gate. confidence:
     the best detection's. first_t_boot_s, last_t_boot_s: its first and last detection
-    (autopilot boot clock, s).
+    (autopilot boot clock, s); first_unix_s, last_unix_s: the same in UTC (s since 1970;
+    NaN: unknown).
     """
 
     candidate_id: int
@@ -170,6 +172,8 @@ class Candidate:
     last_t_boot_s: float
     uid: str
     p_person: float
+    first_unix_s: float = math.nan
+    last_unix_s: float = math.nan
 
     def __post_init__(self) -> None:
         if not valid_uid(self.uid):

@@ -42,7 +42,8 @@ class CountedLook:
 @dataclass(slots=True)
 class CandidateState:
     """One candidate: the inverse-variance weighted sums of its detections' ground points
-    (ENU m), its looks and hits, and the evidence of its looks and boxes (log LR)."""
+    (ENU m), its looks and hits, and the evidence of its looks and boxes (log LR); its
+    first and last detections' times (boot clock, and UTC s since 1970: NaN unknown)."""
 
     class_name: str
     sum_w: float
@@ -56,6 +57,8 @@ class CandidateState:
     log_lr: float  # evidence not per node: every look's without nodes, confidences' always
     log_lr_nodes: np.ndarray | None  # (J,) looks' log LR per quadrature node (correlated)
     look: CountedLook | None  # its last counted look
+    first_unix_s: float = math.nan
+    last_unix_s: float = math.nan
     r_enu_m: np.ndarray = field(init=False)  # sum_wr / sum_w: its position (ENU m)
 
     def __post_init__(self) -> None:
@@ -70,6 +73,17 @@ class CandidateState:
         self.sum_w += w
         self.sum_wr = self.sum_wr + w * r
         self.r_enu_m = self.sum_wr / self.sum_w
+
+    def detected_at(self, t_boot_s: float, unix_s: float) -> None:
+        """A detection of it at ``t_boot_s`` (boot clock, s), UTC ``unix_s`` (NaN:
+        unknown, which leaves the UTC times as they are)."""
+        self.first_t_boot_s = min(self.first_t_boot_s, t_boot_s)
+        self.last_t_boot_s = max(self.last_t_boot_s, t_boot_s)
+        if math.isfinite(unix_s):
+            self.first_unix_s = min(self.first_unix_s, unix_s) if math.isfinite(
+                self.first_unix_s) else unix_s
+            self.last_unix_s = max(self.last_unix_s, unix_s) if math.isfinite(
+                self.last_unix_s) else unix_s
 
     def log_odds_evidence(self) -> float:
         """The sum of its looks' and confidences' log LR."""
@@ -115,6 +129,7 @@ def _group_doc(cid: int, g: CandidateState) -> dict[str, Any]:
         "sum_wr": [float(v) for v in g.sum_wr], "hits": g.hits, "looks": g.looks,
         "confidence": float(g.confidence), "first_t_boot_s": float(g.first_t_boot_s),
         "last_t_boot_s": float(g.last_t_boot_s), "gate_m": float(g.gate_m),
+        "first_unix_s": _or_none(g.first_unix_s), "last_unix_s": _or_none(g.last_unix_s),
         "log_lr": float(g.log_lr),
         "log_lr_nodes": (None if g.log_lr_nodes is None
                          else [float(v) for v in g.log_lr_nodes]),
@@ -158,7 +173,8 @@ def candidates_of_docs(docs: list[Any], where: str) -> dict[int, CandidateState]
                  else _nums(d, "log_lr_nodes", at, N_NODES))
         out[cid] = CandidateState(name, sum_w, sum_wr, hits, looks, confidence, first, last,
                                   gate_m, _num(d, "log_lr", at), nodes,
-                                  _look_of(d.get("look"), at))
+                                  _look_of(d.get("look"), at), _unix(d, "first_unix_s", at),
+                                  _unix(d, "last_unix_s", at))
     return out
 
 
@@ -185,6 +201,16 @@ def next_id_of(v: Any, groups: Mapping[int, CandidateState]) -> int:
     if groups and v <= max(groups):
         raise ValueError(f"candidates next_id {v}: not above the candidate id {max(groups)}")
     return v
+
+
+def _or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def _unix(d: Mapping[str, Any], key: str, at: str) -> float:
+    """An optional UTC time (s): absent or null (a state saved before they were kept, or
+    unknown) is NaN."""
+    return math.nan if d.get(key) is None else _num(d, key, at)
 
 
 def _int(d: Mapping[str, Any], key: str, at: str) -> int:

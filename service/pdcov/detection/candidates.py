@@ -185,9 +185,10 @@ class DetectionTracker:
 
     def frame(self, pose: CameraPose, t_boot_s: float, boxes: Iterable[Box],
               camera: CameraModel | None = None, accuracy: PositionAccuracy | None = None,
-              grid: CoverageGrid | None = None) -> list[Detection]:
+              grid: CoverageGrid | None = None, unix_s: float = math.nan) -> list[Detection]:
         """The detections of one decided frame's ``boxes`` (its time ``t_boot_s``, autopilot
-        boot clock, s; ``pose`` the one the grid took; ``camera`` the frame's own, a zoomed
+        boot clock, s, and ``unix_s``, UTC s since 1970, NaN unknown: core/utc_clock.py;
+        ``pose`` the one the grid took; ``camera`` the frame's own, a zoomed
         lens, None: the tracker's; ``accuracy`` the position accuracy the autopilot
         reported, None: the configured sigmas), each grouped into a candidate; the boxes
         not geolocated are counted in ``skipped``. ``grid``: the grid that just took this
@@ -218,20 +219,20 @@ class DetectionTracker:
             box, g = boxes[k], self._groups[cid]
             g.add_point(points[k], float(sigmas[k]))
             g.confidence = max(g.confidence, box.confidence)
-            g.first_t_boot_s = min(g.first_t_boot_s, t_boot_s)
-            g.last_t_boot_s = max(g.last_t_boot_s, t_boot_s)
+            g.detected_at(t_boot_s, unix_s)
             hit_by[cid] = box
             found[k] = cid
             pos[int(np.searchsorted(ids, cid))] = g.r_enu_m[:2]  # ids ascending
         for k, cid in zip(located, assigned, strict=True):
             if cid is not None:
                 continue
-            new = self._start(boxes[k], points[k], float(sigmas[k]), t_boot_s, looks, scale)
+            new = self._start(boxes[k], points[k], float(sigmas[k]), t_boot_s, looks, scale,
+                              unix_s)
             if new is None:
                 self.skipped[Skip.TOO_MANY_CANDIDATES] += 1
             else:
                 found[k] = new
-        out = [Detection(t_boot_s, boxes[k], points[k], float(sigmas[k]), found[k])
+        out = [Detection(t_boot_s, boxes[k], points[k], float(sigmas[k]), found[k], unix_s)
                for k in located if k in found]
         if looks is None:
             for g in (self._groups[cid] for cid in hit_by if cid in self._groups):
@@ -242,7 +243,7 @@ class DetectionTracker:
         return out
 
     def _start(self, box: Box, r: np.ndarray, sigma_m: float, t_boot_s: float,
-               looks: _FrameLooks | None, scale: float) -> int | None:
+               looks: _FrameLooks | None, scale: float, unix_s: float) -> int | None:
         """A new candidate of one box (None: no room), with the looks of its cell so far:
         the cell's counted looks all misses (its cumulative log P_miss), then the box makes
         the last of them a hit (this frame's when counted, else the last before, taken to
@@ -252,7 +253,7 @@ class DetectionTracker:
         w = 1.0 / max(sigma_m, MIN_SIGMA_M) ** 2
         gate_m = max(self.gate_sigmas * math.sqrt(2.0) * sigma_m, GATE_FLOOR_M)
         g = CandidateState(box.class_name, w, w * r, 0, 0, box.confidence, t_boot_s, t_boot_s,
-                   gate_m, 0.0, None, None)
+                           gate_m, 0.0, None, None, unix_s, unix_s)
         cid, self._next_id = self._next_id, self._next_id + 1
         self._groups[cid] = g
         self._per_class[box.class_name] += 1
@@ -377,7 +378,8 @@ class DetectionTracker:
             out.append(Candidate(i, g.class_name, r, g.sigma_m, g.hits, g.looks,
                                  min(max(pd, 0.0), 1.0), min(max(pfa, 0.0), 1.0),
                                  g.confidence, g.first_t_boot_s, g.last_t_boot_s,
-                                 self.uid_of(i), p_person(log_odds)))
+                                 self.uid_of(i), p_person(log_odds), g.first_unix_s,
+                                 g.last_unix_s))
         return out
 
     # -- state ------------------------------------------------------------------------------

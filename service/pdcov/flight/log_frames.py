@@ -27,6 +27,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.pose import CameraPose
 from pdcov.core.rotations import euler_zyx_from_R_many
+from pdcov.core.utc_clock import UtcClock
 from pdcov.errors import ConfigError, TelemetryError
 from pdcov.flight.frame_decision import FrameCounts, Framing, decide_frames
 from pdcov.flight.frame_selection import SelectedFrames
@@ -69,7 +70,9 @@ class LogPoses:
     reading the log (FlightLog.faults: the daemon's fault keys). low: per used frame, the
     camera below min_height_m (frame_selection: added to no grid, as live).
     frames_skipped: the frames not used, by the daemon's reasons (its status's
-    frames.skipped: frame_decision.decide_frames, low frames among them).
+    frames.skipped: frame_decision.decide_frames, low frames among them). utc: the log's
+    real-time clock (``utc_clock_of``); track_unix_s (M,): the UTC of track_enu's
+    positions (s since 1970, NaN unknown).
     """
 
     poses: tuple[CameraPose, ...]
@@ -92,6 +95,8 @@ class LogPoses:
     faults: Mapping[str, int] = field(default_factory=dict)
     low: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     frames_skipped: Mapping[str, int] = field(default_factory=dict)
+    utc: UtcClock = field(default_factory=UtcClock)
+    track_unix_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def export_rows(self) -> Iterable[list[str]]:
         """Rows of the --export-poses CSV (after the header POSE_CSV_COLUMNS +
@@ -104,6 +109,26 @@ class LogPoses:
                     "" if self.gimbal_flags[i] < 0 else str(int(self.gimbal_flags[i])),
                     self.interpretation[i], "1" if self.trusted[i] else "0",
                     self.untrusted_reason[i]])
+
+
+def utc_clock_of(log: FlightLog) -> UtcClock:
+    """The log's real-time clock: a UtcClock fed its UTC samples in log order."""
+    clock = UtcClock()
+    for u in log.utc:
+        clock.add(u.t_s, u.boot_s, u.unix_s)
+    return clock
+
+
+def describe_utc(log: FlightLog, clock: UtcClock, t_s: float) -> str:
+    """The summary line of the log's real-time clock: where UTC came from and the UTC of
+    autopilot time ``t_s`` (its first frame), or that there is none."""
+    source = {"tlog": "SYSTEM_TIME", "dataflash": "GPS GWk/GMS",
+              "ulog": "vehicle_gps_position time_utc_usec"}.get(log.format, "")
+    if not clock.known:
+        return (f"UTC: none, the log carries no real-time clock ({source}: "
+                f"{len(log.utc)} messages, none set); time_utc is null in the outputs")
+    return (f"UTC: from {source} ({len(log.utc) - clock.unset} of {len(log.utc)} set); "
+            f"the first frame at {clock.text(t_s) or 'unknown (none in its boot)'}")
 
 
 def ground_alt_of_log(log: FlightLog, ground: GroundAltitude) -> tuple[float, str]:
@@ -325,6 +350,8 @@ def poses_of_log(log: FlightLog, framing: Framing, *, origin_lat_deg: float,
     else:
         lines.append("fixed mount: camera attitude from the vehicle attitude and the mount "
                      "angles")
+    utc = utc_clock_of(log)
+    lines.append(describe_utc(log, utc, float(poses[0].t_s) if poses else math.nan))
     return LogPoses(poses, origin, tracker.positions_enu, tuple(lines), sel.q_enu_cam_wxyz, rpy,
                     b.gimbal_q_wxyz[use], b.gimbal_flags[use],
                     tuple(str(s) for s in b.interpretation[use]), b.trusted[use].copy(),
@@ -333,7 +360,8 @@ def poses_of_log(log: FlightLog, framing: Framing, *, origin_lat_deg: float,
                     _frame_boxes(log) if frame_source == "capture" else {},
                     sel.cameras if zoom is not None else (), sel.accuracies,
                     {**log.faults, **{str(k): n for k, n in counts.faults.items() if n}},
-                    sel.low, dict(counts.skipped))
+                    sel.low, dict(counts.skipped), utc,
+                    utc.unix_s_many(tracker.positions_t_s))
 
 
 def describe_faults(faults: Mapping[str, int]) -> str:

@@ -134,7 +134,7 @@ def blocks_payload(blocks: np.ndarray, stride: int, geometry: Any, origin: Origi
 
 CANDIDATE_FIELDS = ("id", "uid", "class", "lat_deg", "lon_deg", "sigma_m", "p_person",
                     "hits", "looks", "pd", "pfa", "confidence", "first_t_boot_s",
-                    "last_t_boot_s")
+                    "last_t_boot_s", "first_time_utc", "last_time_utc")
 """What the map shows of each candidate (the names of the detections payload)."""
 
 

@@ -16,10 +16,10 @@ the MSL altitude is in the remarks.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from datetime import datetime, timezone
 from typing import Any
 
 from pdcov.core.geodesy import deg_text, grid_references
+from pdcov.core.utc_clock import utc_text
 
 __all__ = ["AIRCRAFT_TYPE", "CANDIDATE_TYPE", "CE90_PER_SIGMA", "UNKNOWN", "aircraft_uid",
            "candidate_event", "cot_time", "event_element", "tenths"]
@@ -35,18 +35,23 @@ CE90_PER_SIGMA = 2.146
 
 
 def cot_time(unix_s: float) -> str:
-    """A CoT time: UTC, ISO 8601 to the millisecond, 'Z'."""
-    t = datetime.fromtimestamp(unix_s, tz=timezone.utc)
-    return t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
+    """A CoT time: UTC, ISO 8601 to the millisecond, 'Z' (core/utc_clock.utc_text)."""
+    text = utc_text(unix_s)
+    if text is None:
+        raise ValueError(f"CoT time {unix_s!r}: expected a finite UTC time (s)")
+    return text
 
 
 def event_element(uid: str, cot_type: str, how: str, lat_deg: float, lon_deg: float,
-                  ce: str, now_unix_s: float, stale_s: float
+                  ce: str, now_unix_s: float, stale_s: float, observed_utc: str | None = None
                   ) -> tuple[ET.Element, ET.Element]:
     """An ``<event>`` made at ``now_unix_s``, stale ``stale_s`` later, with its ``<point>``
-    (hae and le unknown), and its empty ``<detail>``."""
+    (hae and le unknown), and its empty ``<detail>``. ``observed_utc``: when what it
+    describes was seen (ISO 8601 UTC, a detection's time_utc), its ``time`` and ``start``;
+    None: ``now_unix_s``."""
+    now = cot_time(now_unix_s)
     event = ET.Element("event", version="2.0", uid=uid, type=cot_type, how=how,
-                       time=cot_time(now_unix_s), start=cot_time(now_unix_s),
+                       time=observed_utc or now, start=observed_utc or now,
                        stale=cot_time(now_unix_s + stale_s))
     ET.SubElement(event, "point", lat=deg_text(lat_deg), lon=deg_text(lon_deg), hae=UNKNOWN,
                   ce=ce, le=UNKNOWN)
@@ -66,12 +71,13 @@ def candidate_event(vehicle_id: str, c: dict[str, Any], now_unix_s: float, stale
                     *, archive: bool = False) -> bytes:
     """A candidate's event (a detections payload's candidate entry): uid the pin's, how
     "m-f" (computed from the pose and the pixels), ce its 90 % circle (needs mgrs: the
-    COT extra). ``archive``: with TAK's ``<archive/>`` detail, which keeps the marker
-    across the client's restarts (a data package's markers)."""
+    COT extra), ``time`` and ``start`` its last detection's ``last_time_utc`` when known.
+    ``archive``: with TAK's ``<archive/>`` detail, which keeps the marker across the
+    client's restarts (a data package's markers)."""
     event, detail = event_element(c["uid"], CANDIDATE_TYPE, "m-f",
                                   float(c["lat_deg"]), float(c["lon_deg"]),
                                   tenths(CE90_PER_SIGMA * float(c["sigma_m"])), now_unix_s,
-                                  stale_s)
+                                  stale_s, c.get("last_time_utc"))
     ET.SubElement(detail, "contact", callsign=f"{c['class']} {c['p_person']:.2f} {c['uid']}")
     ET.SubElement(detail, "link", uid=aircraft_uid(vehicle_id), type=AIRCRAFT_TYPE,
                   relation="p-p")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from pdcov.core.utc_clock import UtcClock
 from pdcov.detection.candidates import DetectionTracker
 from pdcov.errors import InputFileError
 
@@ -36,7 +38,8 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
                       frame_boxes: Mapping[float, tuple[float, tuple[Box, ...]]],
                       cameras: Sequence[CameraModel | None] = (),
                       accuracies: Sequence[PositionAccuracy | None] = (), *,
-                      uid_prefix: str, poa: np.ndarray | None = None) -> dict[str, Any]:
+                      uid_prefix: str, poa: np.ndarray | None = None,
+                      utc: UtcClock | None = None) -> dict[str, Any]:
     """The detections document of a flight: every frame of ``poses`` (those the grid took,
     in time order, with ``cameras`` their zoomed cameras and ``accuracies`` the position
     accuracy the autopilot reported, if any) with boxes in ``frame_boxes``
@@ -44,7 +47,9 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
     P_D and P_FA at its cell. The tracker sees each frame's looks as the daemon's did: a
     fresh grid of the mission's first camera takes the frames one by one. ``uid_prefix``: the
     candidates' (ids.candidate_uid_prefix, with the log's epoch, ``log_epoch``); ``poa``: a
-    probability of area per cell for the candidates' prior."""
+    probability of area per cell for the candidates' prior; ``utc``: the log's real-time
+    clock, which stamps each frame's detections with the UTC of its pose's time (none: no
+    UTC)."""
     tracker = DetectionTracker.for_mission(mission, uid_prefix, poa)
     own = mission.new_grid(mission.first_camera)
     detections: list[Detection] = []
@@ -53,7 +58,8 @@ def flight_detections(mission: Mission, grid: CoverageGrid, origin: Origin,
         own.update_with(pose, camera)
         t_boot_s, boxes = frame_boxes.get(pose.t_s, (pose.t_s, ()))
         detections += tracker.frame(pose, t_boot_s, boxes, camera=camera,
-                                    accuracy=accuracies[i] if accuracies else None, grid=own)
+                                    accuracy=accuracies[i] if accuracies else None, grid=own,
+                                    unix_s=math.nan if utc is None else utc.unix_s(pose.t_s))
     return detections_document(detections, tracker.candidates(grid), origin,
                                mission.vehicle_id, tracker.uid_of)
 

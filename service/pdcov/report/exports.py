@@ -100,17 +100,20 @@ class VehicleTrack:
 
     @classmethod
     def from_enu(cls, vehicle: str, flights_enu: Iterable[np.ndarray | None], origin: Origin,
-                 *, heights_msl: bool = True) -> VehicleTrack:
+                 *, heights_msl: bool = True,
+                 flights_unix_s: Sequence[np.ndarray | None] = ()) -> VehicleTrack:
         """From each flight's positions (M, 3) ENU m about ``origin`` (None: no position),
-        without times; ``heights_msl`` False: the origin's ground altitude is unknown (a
+        with each flight's UTC times (M,) from ``flights_unix_s`` (s since 1970; none or
+        None: no times); ``heights_msl`` False: the origin's ground altitude is unknown (a
         pose CSV's heights above the ground), so the altitudes are too (NaN)."""
         segments = []
-        for t in flights_enu:
+        for i, t in enumerate(flights_enu):
             if t is not None and len(t):
                 lla = enu_to_geodetic(t, origin)
                 if not heights_msl:
                     lla[:, 2] = np.nan
-                segments.append(TrackSegment(lla))
+                segments.append(TrackSegment(
+                    lla, flights_unix_s[i] if i < len(flights_unix_s) else None))
         return cls(vehicle, tuple(segments))
 
 
@@ -190,7 +193,9 @@ def candidate_pin(vehicle: str, c: Mapping[str, Any], coverage: Coverage | None,
         "rank": ranks.get((vehicle, str(c["uid"]))), "candidate": c["id"],
         "p_person": c["p_person"], "looks": c["looks"], "hits": c["hits"],
         "t_boot_s": c["last_t_boot_s"], "first_t_boot_s": c["first_t_boot_s"],
-        "last_t_boot_s": c["last_t_boot_s"], "class": c["class"],
+        "last_t_boot_s": c["last_t_boot_s"], "time_utc": c.get("last_time_utc"),
+        "first_time_utc": c.get("first_time_utc"), "last_time_utc": c.get("last_time_utc"),
+        "class": c["class"],
         "confidence": c["confidence"], "pd": _cell_pd(coverage, c, c["pd"]), "pfa": c["pfa"],
         "sigma_m": c["sigma_m"], "alt_msl_m": c.get("alt_msl_m"), **refs(lat, lon)})
 
@@ -206,7 +211,8 @@ def detection_pin(vehicle: str, d: Mapping[str, Any], by_uid: Mapping[str, Mappi
         "kind": "detection", "vehicle": vehicle, "uid": d["uid"],
         "rank": ranks.get((vehicle, str(d["uid"]))), "candidate": d["candidate"],
         "p_person": cand.get("p_person"), "looks": cand.get("looks"),
-        "hits": cand.get("hits"), "t_boot_s": d["t_boot_s"], "class": d["class"],
+        "hits": cand.get("hits"), "t_boot_s": d["t_boot_s"],
+        "time_utc": d.get("time_utc"), "class": d["class"],
         "confidence": d["confidence"], "pd": _cell_pd(coverage, d, cand.get("pd")),
         "sigma_m": d["sigma_m"], "alt_msl_m": d.get("alt_msl_m"), **refs(lat, lon)})
 

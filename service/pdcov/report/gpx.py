@@ -5,10 +5,11 @@ and a waypoint (``wpt``) per candidate, named by its pin's uid.
 Latitudes and longitudes are WGS84 to DEG_DECIMALS places; elevations are metres above
 mean sea level (as GPS units show them), to the centimetre: a track point's the vehicle's
 (or, from a pose CSV, the camera's), a waypoint's the ground point's where known (none
-otherwise). A track point has a ``time`` (UTC, ISO 8601) only where a real time is known;
-the autopilot's boot clock is none. A track of more than MAX_TRACK_POINTS positions keeps
-every n-th (and each flight's last), so that a handheld unit takes it whole and the
-watcher's rewrites stay cheap.
+otherwise). A track point has a ``time`` (UTC, ISO 8601) only where a real time is known
+(the autopilot's real-time clock, core/utc_clock.py; its boot clock is none), a waypoint
+its candidate's last detection's (``time_utc``) when known. A track of more than
+MAX_TRACK_POINTS positions keeps every n-th (and each flight's last), so that a handheld
+unit takes it whole and the watcher's rewrites stay cheap.
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ def _time(t_unix_s: float | None) -> datetime | None:
     if t_unix_s is None or not math.isfinite(t_unix_s):
         return None
     return datetime.fromtimestamp(round(t_unix_s, 3), tz=timezone.utc)
+
+
+def _utc_time(text: str | None) -> datetime | None:
+    return None if text is None else datetime.fromisoformat(text)
 
 
 def _elevation(alt_msl_m: float | None) -> float | None:
@@ -100,5 +105,5 @@ def gpx_document(tracks: Sequence[VehicleTrack], all_pins: Sequence[Pin], title:
                 latitude=deg_rounded(p.lat_deg), longitude=deg_rounded(p.lon_deg),
                 elevation=_elevation(p.properties.get("alt_msl_m")),
                 name=str(p.properties["uid"]), description=waypoint_description(p),
-                type=str(p.properties["class"])))
+                type=str(p.properties["class"]), time=_utc_time(p.properties.get("time_utc"))))
     return doc.to_xml(version="1.1").encode("utf-8")

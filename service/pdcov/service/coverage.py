@@ -176,6 +176,9 @@ class LiveCoverage:
             if self.frame_source == FrameSource.CAPTURE:
                 self.add_frame_times([sample.t_s])
             return
+        if isinstance(sample, smp.UtcSample):
+            self.detections.utc.add(sample.t_s, sample.boot_s, sample.unix_s)
+            return
         if isinstance(sample, smp.PositionSample):
             self._ground.add_position(sample)
         if isinstance(sample, smp.EstimatorSample):

@@ -31,6 +31,7 @@ from pdcov.core.geodesy import Origin
 from pdcov.core.geolocate import PositionAccuracy
 from pdcov.core.grid import CoverageGrid
 from pdcov.core.pose import CameraPose
+from pdcov.core.utc_clock import UtcClock
 from pdcov.detection.candidates import DetectionTracker
 
 if TYPE_CHECKING:
@@ -68,6 +69,9 @@ class LiveDetections:
         self.latest: dict[int, Candidate] = {}
         """Each candidate as last published or answered (the status's pins summary)."""
         self._next_s = -math.inf
+        self.utc = UtcClock()
+        """The autopilot's real-time clock (its UTC samples), which stamps each frame's
+        detections as ``pdcov evaluate`` stamps them from the log."""
 
     def hold(self, t_s: float, t_boot_s: float, boxes: tuple[Box, ...]) -> None:
         """The boxes of a frame taken at ``t_s`` (the grid's frame time, s), which the
@@ -94,7 +98,8 @@ class LiveDetections:
         t_boot_s, boxes = held if held is not None else (pose.t_s, ())
         before = Counter(self.tracker.skipped)
         self._new += self.tracker.frame(pose, t_boot_s, boxes, camera=camera,
-                                        accuracy=accuracy, grid=grid)
+                                        accuracy=accuracy, grid=grid,
+                                        unix_s=self.utc.unix_s(pose.t_s))
         self.faults.update(self.tracker.skipped - before)
 
     def decided(self, last_frame_t_s: float) -> None:

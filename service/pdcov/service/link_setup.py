@@ -19,6 +19,7 @@ from pdcov.telemetry.link_protocol import (
     GLOBAL_POSITION_INT,
     GPS_RAW_INT,
     HOME_POSITION,
+    SYSTEM_TIME,
     ZOOM_MESSAGES,
     LinkState,
 )
@@ -26,13 +27,16 @@ from pdcov.telemetry.link_protocol import (
 if TYPE_CHECKING:  # a value handed in: the decisions never load a config
     from pdcov.service.settings import ServeConfig
 
-__all__ = ["GNSS_ACCURACY_HZ", "HOME_POSITION_HZ", "ZOOM_REPORT_HZ", "LinkReport",
-           "link_requests", "link_state"]
+__all__ = ["GNSS_ACCURACY_HZ", "HOME_POSITION_HZ", "SYSTEM_TIME_HZ", "ZOOM_REPORT_HZ",
+           "LinkReport", "link_requests", "link_state"]
 
 HOME_POSITION_HZ = 0.2
 GNSS_ACCURACY_HZ = 2.0
 """The rate GPS_RAW_INT (the GNSS accuracy the boxes are geolocated with, telemetry/
 gnss_accuracy.py) is asked for: a few reports within each GNSS_ACCURACY_HOLD_S."""
+SYSTEM_TIME_HZ = 1.0
+"""The rate SYSTEM_TIME (the autopilot's UTC beside its boot clock: the detections'
+time_utc, core/utc_clock.py) is asked for."""
 ZOOM_REPORT_HZ = 5.0
 """The rate the zoom report camera.zoom follows is asked for, of the autopilot (ArduPilot
 sends its cameras' messages when asked; a MAVLink camera component streams its own)."""
@@ -55,13 +59,14 @@ class LinkReport:
 def link_requests(cfg: ServeConfig) -> tuple[dict[int, float], tuple[str, ...],
                                              Callable[[Mapping[str, float]], bool] | None]:
     """(message intervals to ask for {message id: Hz}, mount parameters to read, when they
-    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, the zoom reports
-    the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their reports and the
-    one list of mount parameters of each gimbal device (gimbal.mount_params_to_read, as
-    mount-check)."""
+    are complete): the streams a frame needs, HOME_POSITION, GPS_RAW_INT, SYSTEM_TIME, the
+    zoom reports the cameras' camera.zoom follow (ZOOM_MESSAGES), and for gimbals their
+    reports and the one list of mount parameters of each gimbal device
+    (gimbal.mount_params_to_read, as mount-check)."""
     link, cams = cfg.link, cfg.mission.cameras
     intervals = {ATTITUDE: link.attitude_hz, GLOBAL_POSITION_INT: link.position_hz,
-                 HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ}
+                 HOME_POSITION: HOME_POSITION_HZ, GPS_RAW_INT: GNSS_ACCURACY_HZ,
+                 SYSTEM_TIME: SYSTEM_TIME_HZ}
     for cam in cams:
         if cam.zoom is not None:
             intervals[ZOOM_MESSAGES[cam.zoom.lens.quantity]] = ZOOM_REPORT_HZ

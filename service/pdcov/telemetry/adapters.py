@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from pdcov.core.rotations import quat_wxyz_from_euler_zyx
+from pdcov.core.utc_clock import gps_week_to_unix_s
 from pdcov.telemetry.samples import (
     AttitudeSample,
     CaptureSample,
@@ -31,6 +32,7 @@ from pdcov.telemetry.samples import (
     RangefinderSample,
     Sample,
     TerrainReportSample,
+    UtcSample,
     usable_quaternion,
 )
 
@@ -226,6 +228,13 @@ def _gps_raw_int(msg: Any, t_s: float) -> GnssAccuracySample:
                               int(getattr(msg, "v_acc", 0) or 0) * 1e-3)
 
 
+def _system_time(msg: Any, t_s: float) -> UtcSample:
+    # time_unix_usec: "Timestamp (UNIX epoch time)", 0 when unknown (common.xml SYSTEM_TIME;
+    # ArduPilot sends AP_RTC's, set from GPS time). core/utc_clock refuses other unset values.
+    us = int(msg.time_unix_usec)
+    return UtcSample(t_s, msg.time_boot_ms * 1e-3, us * 1e-6 if us > 0 else math.nan)
+
+
 _MAVLINK = {
     "ATTITUDE": _attitude,
     "ATTITUDE_QUATERNION": _attitude_quaternion,
@@ -244,6 +253,7 @@ _MAVLINK = {
     "CAMERA_SETTINGS": _camera_settings,
     "CAMERA_INFORMATION": _camera_information,
     "GPS_RAW_INT": _gps_raw_int,
+    "SYSTEM_TIME": _system_time,
 }
 MAVLINK_TYPES = tuple(_MAVLINK)
 
@@ -317,12 +327,19 @@ def _df_cam(msg: Any, t_s: float) -> CaptureSample:
                          msg.get_type())
 
 
-def _df_gps(msg: Any, t_s: float) -> PositionSample | None:
+def _df_gps(msg: Any, t_s: float) -> tuple[Sample, ...] | None:
     # GPS Status >= 3 is a 3D fix (AP_GPS::GPS_Status); Lat/Lng deg, Alt m MSL. Used only
-    # when a log has no POS (ArduCopter before 3.3), first receiver only.
-    if int(getattr(msg, "I", 0)) != 0 or msg.Status < 3:
+    # when a log has no POS (ArduCopter before 3.3), first receiver only. GWk, GMS: the
+    # fix's GPS week and ms of week (0 before the receiver knows them), UTC beside TimeUS.
+    if int(getattr(msg, "I", 0)) != 0:
         return None
-    return PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt))
+    week = int(getattr(msg, "GWk", 0) or 0)
+    boot_s = dataflash_boot_time_s(msg)
+    utc = (() if boot_s is None else (UtcSample(t_s, boot_s, gps_week_to_unix_s(
+        week, float(msg.GMS)) if week > 0 and msg.Status >= 3 else math.nan),))
+    if msg.Status < 3:
+        return utc
+    return (PositionSample(t_s, float(msg.Lat), float(msg.Lng), float(msg.Alt)), *utc)
 
 
 # nav_filter_status bits (AP_NavEKF/AP_Nav_Common.h), which XKF4/NKF4 log as SS

@@ -46,6 +46,7 @@ from pdcov.telemetry.samples import (
     PositionSample,
     RangefinderSample,
     TerrainReportSample,
+    UtcSample,
 )
 
 
@@ -85,12 +86,12 @@ class SkipReason(TextEnum):
 
 
 AUTOPILOT_ONLY = (AttitudeSample, PositionSample, ParamSample, EstimatorSample,
-                  TerrainReportSample, RangefinderSample, GnssAccuracySample)
+                  TerrainReportSample, RangefinderSample, GnssAccuracySample, UtcSample)
 """Samples taken from the autopilot component only, live and offline: the vehicle's
-attitude, position, parameters, estimator, terrain database, rangefinder and GNSS accuracy
-are the autopilot's own (a companion computer or an OSD of the same system may send ATTITUDE or
-GLOBAL_POSITION_INT too); gimbal, home and capture reports come from any component of the
-vehicle's system."""
+attitude, position, parameters, estimator, terrain database, rangefinder, GNSS accuracy
+and real-time clock are the autopilot's own (a companion computer or an OSD of the same
+system may send ATTITUDE or GLOBAL_POSITION_INT too); gimbal, home and capture reports
+come from any component of the vehicle's system."""
 
 UNTRUSTED_PREFIX = "gimbal untrusted: "
 """The live count of an untrusted frame skipped: this prefix and its reason."""

@@ -323,6 +323,12 @@ class PoseTracker:
         self._merge()
         return self._pos_enu.copy()
 
+    @property
+    def positions_t_s(self) -> np.ndarray:
+        """The buffered positions' times (M,), s (autopilot clock), as ``positions_enu``."""
+        self._merge()
+        return self._pos_t.copy()
+
     def coverage_s(self) -> tuple[float, float]:
         """(first, last) time at which every stream the mount needs has samples (NaN, NaN
         when one is empty)."""

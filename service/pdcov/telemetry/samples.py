@@ -178,6 +178,18 @@ class GnssAccuracySample:
     vertical_m: float
 
 
+@dataclass(frozen=True, slots=True)
+class UtcSample:
+    """The autopilot's real-time clock beside its boot clock (MAVLink SYSTEM_TIME, DataFlash
+    GPS GWk/GMS, ULog vehicle_gps_position time_utc_usec): at ``t_s`` (the autopilot clock)
+    the message carried boot time ``boot_s`` (s) and UTC ``unix_s`` (s since 1970; NaN
+    when the autopilot did not know it). core/utc_clock.UtcClock takes them."""
+
+    t_s: float
+    boot_s: float
+    unix_s: float
+
+
 MAV_SENSOR_ROTATION_PITCH_270 = 25
 """MAV_SENSOR_ORIENTATION (common.xml) of a downward-facing sensor (PX4 distance_sensor
 ROTATION_DOWNWARD_FACING, ArduPilot RNGFNDx_ORIENT 25)."""
@@ -223,4 +235,5 @@ class LensSample:
 
 Sample = (AttitudeSample | PositionSample | GimbalSample | HomeSample | CaptureSample
           | ParamSample | MountTargetSample | HeartbeatSample | EstimatorSample
-          | TerrainReportSample | RangefinderSample | LensSample | GnssAccuracySample)
+          | TerrainReportSample | RangefinderSample | LensSample | GnssAccuracySample
+          | UtcSample)

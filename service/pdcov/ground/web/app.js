@@ -193,13 +193,18 @@ function candidatePopup(v, c) {
                           ["confidence", fixed(c.confidence, 2)],
                           ["position", `${fixed(c.lat_deg, 7)}, ${fixed(c.lon_deg, 7)} ` +
                                        `\u00b1 ${fixed(c.sigma_m, 1)} m`],
-                          ["first seen", `${fixed(c.first_t_boot_s, 1)} s (boot)`],
-                          ["last seen", `${fixed(c.last_t_boot_s, 1)} s (boot)`]]) {
+                          ["first seen", seenAt(c.first_time_utc, c.first_t_boot_s)],
+                          ["last seen", seenAt(c.last_time_utc, c.last_t_boot_s)]]) {
     dl.appendChild(el("dt", k));
     dl.appendChild(el("dd", val));
   }
   box.appendChild(dl);
   return box;
+}
+function seenAt(utc, bootS) {
+  // The UTC of the detection (the autopilot's real-time clock) when the daemon knew it.
+  const boot = `${fixed(bootS, 1)} s (boot)`;
+  return utc ? `${utc} (${boot})` : boot;
 }
 function styleCandidate(entry, c) {
   const faint = c.p_person < FAINT_BELOW;

@@ -43,6 +43,7 @@ from pdcov.telemetry.samples import (
     PositionSample,
     RangefinderSample,
     TerrainReportSample,
+    UtcSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -176,7 +177,7 @@ def read_dataflash(path: Path, gimbal_instance: int) -> FlightLog:
         tuple(by_type[TerrainReportSample]), tuple(by_type[RangefinderSample]),
         gnss_accuracy=GnssAccuracySeries.from_samples(by_type[GnssAccuracySample]),
         faults=dict(sorted(faults.items())), gimbal_reports=tuple(gimbals),
-        armed_states=_armed_states(armed)), -clock.offset_s)
+        armed_states=_armed_states(armed), utc=tuple(by_type[UtcSample])), -clock.offset_s)
 
 
 _ARMING_TYPES = ("ARM", "EV")

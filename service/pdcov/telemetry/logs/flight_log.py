@@ -24,6 +24,7 @@ from pdcov.telemetry.samples import (
     RangefinderSample,
     Sample,
     TerrainReportSample,
+    UtcSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -64,7 +65,9 @@ class FlightLog:
     armed_states: (t_s, armed) where the autopilot's armed state is first known and where
     it changes (a tlog's HEARTBEATs, DataFlash ARM / EV records, ULog vehicle_status; t_s
     -inf: known from the log's start); None: the log tells none (as a link without
-    HEARTBEAT).
+    HEARTBEAT). utc: the autopilot's real-time clock beside its boot clock, in log order
+    (SYSTEM_TIME, DataFlash GPS GWk/GMS, ULog vehicle_gps_position time_utc_usec), for
+    core/utc_clock.UtcClock.
     """
 
     path: str
@@ -94,6 +97,7 @@ class FlightLog:
     gimbal_reports: tuple[GimbalSample, ...] = ()
     autopilot_component: int = 1
     armed_states: tuple[tuple[float, bool], ...] | None = None
+    utc: tuple[UtcSample, ...] = ()
 
 
 
@@ -150,6 +154,7 @@ def shifted(log: FlightLog, dt_s: float) -> FlightLog:
                    gimbal_reports=tuple(replace(g, t_s=g.t_s + dt_s)
                                         for g in log.gimbal_reports),
                    lens=tuple(replace(s, t_s=s.t_s + dt_s) for s in log.lens),
+                   utc=tuple(replace(u, t_s=u.t_s + dt_s) for u in log.utc),
                    restarts_t_s=tuple(t + dt_s for t in log.restarts_t_s),
                    armed_states=None if log.armed_states is None else
                    tuple((t + dt_s, a) for t, a in log.armed_states))

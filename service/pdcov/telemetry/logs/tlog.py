@@ -60,6 +60,7 @@ from pdcov.telemetry.samples import (
     PositionSample,
     RangefinderSample,
     TerrainReportSample,
+    UtcSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -247,7 +248,8 @@ def read_tlog(path: Path, system_id: int | None, gimbal_instance: int) -> Flight
         tuple(frame_boxes), tuple(sorted(smp[LensSample], key=lambda s: s.t_s)),
         GnssAccuracySeries.from_samples(smp[GnssAccuracySample]),
         {k: n for k, n in sorted(faults.items()) if n}, tuple(v.samples[GimbalSample]),
-        ap_comp, armed_changes((h.t_s, h.armed) for h in smp[HeartbeatSample])),
+        ap_comp, armed_changes((h.t_s, h.armed) for h in smp[HeartbeatSample]),
+        tuple(smp[UtcSample])),
         -proto.clock_state()[0])
 
 

@@ -29,6 +29,7 @@ from pdcov.telemetry.samples import (
     HomeSample,
     PositionSample,
     RangefinderSample,
+    UtcSample,
 )
 from pdcov.telemetry.series import (
     AttitudeSeries,
@@ -100,6 +101,16 @@ def _ulog_gnss_accuracy(t_s: np.ndarray, fields: Mapping[str, np.ndarray]
             for t, h, v, ok in zip(t_s, eph, epv, fix, strict=True)]
 
 
+def _ulog_utc(t_s: np.ndarray, fields: Mapping[str, np.ndarray]) -> list[UtcSample]:
+    """The GPS topic's UTC beside its timestamps: ``time_utc_usec`` (PX4 SensorGps.msg,
+    0 when the receiver has no time; the topic's timestamp is its boot time)."""
+    if "time_utc_usec" not in fields:
+        return []
+    us = np.asarray(fields["time_utc_usec"], float)
+    return [UtcSample(float(t), float(t), u * 1e-6 if u > 0 else math.nan)
+            for t, u in zip(t_s, us, strict=True)]
+
+
 def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
     try:
         from pyulog import ULog
@@ -153,6 +164,7 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
                     "GPS altitude is coarser than the estimator's")
     gnss = next((_ulog_gnss_accuracy(t_of(g), topics[g]) for g in _ULOG_GPS_TOPICS
                  if g in topics), [])
+    utc = next((_ulog_utc(t_of(g), topics[g]) for g in _ULOG_GPS_TOPICS if g in topics), [])
     gimbal_samples: list[GimbalSample] = []
     g = "gimbal_device_attitude_status"
     if g in topics:
@@ -192,7 +204,8 @@ def read_ulog(path: Path, gimbal_instance: int) -> FlightLog:
                      armed_states=armed_changes(
                          (float(t), int(a) == _ARMING_STATE_ARMED) for t, a in zip(
                              t_of("vehicle_status"), col("vehicle_status", "arming_state"),
-                             strict=True)) if "vehicle_status" in topics else None)
+                             strict=True)) if "vehicle_status" in topics else None,
+                     utc=tuple(utc))
 
 
 _PX4_QUALITY_INVALID = 0  # distance_sensor.signal_quality: 0 invalid, -1 unknown, 100 best
