@@ -29,9 +29,9 @@ from pdcov.core.pose import FixedMount, fixed_mount_pose
 from pdcov.core.rotations import R_from_euler_zyx
 from pdcov.detection.candidates import DetectionTracker
 from pdcov.report.exports import VehicleDetections, write_exports
-from pdcov.report.search_areas import Coverage
 from pdcov.report.gis import threshold_outline, write_outline_geojson
 from pdcov.report.kml import ICON_PX, ICONS
+from pdcov.report.search_areas import Coverage
 from tests.support.exports_fixtures import ORIGIN, coverage, detections_doc
 
 KML = "{http://www.opengis.net/kml/2.2}"

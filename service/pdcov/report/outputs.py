@@ -37,7 +37,6 @@ from pdcov.errors import InputFileError
 from pdcov.extras import GIS, PLOTS
 from pdcov.npz_file import read_npy, read_npz
 from pdcov.report.exports import Pin, VehicleDetections, VehicleTrack, write_exports
-from pdcov.report.search_areas import Coverage
 from pdcov.report.grid_file import GRID_NPZ, write_grid_file
 from pdcov.report.output_extent import (
     CROP_ABOVE_CELLS,
@@ -46,6 +45,7 @@ from pdcov.report.output_extent import (
     grid_proportion_curve,
     output_extent,
 )
+from pdcov.report.search_areas import Coverage
 
 if TYPE_CHECKING:
     from pdcov.report.gis import BandReader
