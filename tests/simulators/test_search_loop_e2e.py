@@ -34,7 +34,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from PIL import Image
 
+from tests.support.report_html import ReportPage, inline_png_size
 from tests.support.search_demo import DEMO, PEOPLE, demo_plan
 from tests.support.serve_harness import fly_udp, offline, recording
 
@@ -52,7 +54,7 @@ def flight(tmp_path_factory):
         return subprocess.run(
             [sys.executable, "-m", "pdcov.cli", "watch", "--once", "--vehicle", "sim1",
              "--zenoh-connect", f"tcp/127.0.0.1:{zenoh_port}", "--no-multicast-scouting",
-             "--record", str(record), "--wait-s", "30"],
+             "--record", str(record), "--wait-s", "30", "--config", str(tmp / "m.yaml")],
             capture_output=True, text=True, timeout=120)
 
     out = fly_udp(tmp, doc, demo_plan(tmp), "--targets", str(PEOPLE), "--seed", str(SEED),
@@ -142,3 +144,24 @@ def test_the_ground_station_gets_the_candidates_evaluate_finds(flight, tmp_path)
         assert abs(p["pd"] - c["pd"]) < 1e-6  # the export rounds to 1e-6
         lon, lat = f["geometry"]["coordinates"][:2]
         assert abs(lat - c["lat_deg"]) < 1e-7 and abs(lon - c["lon_deg"]) < 1e-7
+
+
+def test_the_recording_ends_with_the_handover_report_of_the_fleet(flight):
+    """watch --record with the mission config: DIR/fleet/ is a whole run folder, its
+    report.html shows map.png and pins numbered as in detections.geojson; report.pdf too."""
+    assert flight["settled"].returncode == 0
+    fleet = flight["record"] / "fleet"
+    assert {"report.html", "report.pdf", "map.png", "detections.geojson"} <= {
+        p.name for p in fleet.iterdir()}
+    page = ReportPage((fleet / "report.html").read_text())
+    assert page.external() == []
+    [shown] = [i for i in page.images if i["alt"].startswith("P_D map")]
+    with Image.open(fleet / "map.png") as im:
+        assert inline_png_size(shown["src"]) == im.size
+    exported = json.loads((fleet / "detections.geojson").read_text())["features"]
+    ranks = {f["properties"]["uid"]: f["properties"]["rank"] for f in exported
+             if f["properties"]["kind"] == "candidate"}
+    rows = page.table("pin")
+    assert len(rows) == len(ranks) > 20
+    assert [int(r[0]) for r in rows] == sorted(ranks.values()) == list(range(1, len(rows) + 1))
+    assert all(ranks[r[1]] == int(r[0]) for r in rows)

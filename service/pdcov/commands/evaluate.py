@@ -8,7 +8,6 @@ import os
 import sys
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -195,11 +194,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
                           title=f"{mission.vehicle_id} {name}: {source}", track_enu=track,
                           plan_enu=plan_enu,
                           outline_threshold=args.outline_threshold)
-        from pdcov.report.handover import write_report
-        reports, pdf_missing = write_report(args.out, args.out)  # last: it lists the files
-        run_out = replace(run_out, files=(*run_out.files, *(p.name for p in reports)),
-                          not_written=run_out.not_written + (
-                              (f"report.pdf: {pdf_missing}",) if pdf_missing else ()))
+        from pdcov.report.handover import with_report
+        run_out = with_report(run_out)
     if replaced:
         lines.append(f"replaced the previous outputs in {args.out}")
     if args.export_poses:

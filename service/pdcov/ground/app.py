@@ -34,7 +34,7 @@ from pdcov.ground.cot_feed import CotFeed
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
-from pdcov.ground.record_exports import ExportRecorder
+from pdcov.ground.record_exports import ExportRecorder, findings_of
 from pdcov.ground.retask import (
     ReflyError,
     ReflyProposal,
@@ -240,7 +240,9 @@ async def _main(opts: WatchOptions) -> int:
                 opts.basemap.close()
             if recording is not None:
                 recording.close()
-                for line in recording.finish(watcher, opts.mission):
+                findings = None if exports is None else findings_of(
+                    watcher, exports.detection_log)
+                for line in recording.finish(watcher, opts.mission, findings):
                     print(line, flush=True)
             if exports is not None:
                 print(_exports_line(exports, exports.write(watcher)), flush=True)

@@ -16,7 +16,8 @@ Layout (docs/ground-station.md):
     DIR/<vehicle_id>/grid.npz       at the end: the grid the watcher rebuilt (grid.zarr,
                                     the grid store of its tiles, above 64 Mi cells)
     DIR/fleet/                      at the end: the merged grid (the same way) and, with
-                                    the mission config, the report (metrics.json, ...)
+                                    the mission config, a whole run folder: metrics.json,
+                                    figures, exports, report.html and report.pdf
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import os
 import struct
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from pdcov.core.looks import LooksConfig
 from pdcov.core.tiles import MAX_DENSE_CELLS
 from pdcov.errors import PdcovError
 from pdcov.ground.watcher import Watcher
+from pdcov.report.exports import VehicleDetections
 
 TILE_RECORD = struct.Struct("<dI")
 LIMITING_NOT_SENT = "not sent by the vehicle (pdcov before tiles v2)"
@@ -247,22 +249,25 @@ class Recording:
                 self.last_error = f"closing a file: {exc.strerror or exc}"
         self._fds.clear()
 
-    def finish(self, watcher: Watcher, mission: Mission | None) -> list[str]:
-        """Write each vehicle's rebuilt grid and the fleet's grid and report; returns lines
-        saying what was written, and what could not be (a write error is one of them,
-        never raised)."""
+    def finish(self, watcher: Watcher, mission: Mission | None,
+               findings: Sequence[VehicleDetections] | None = None) -> list[str]:
+        """Write each vehicle's rebuilt grid and the fleet's grid, outputs and handover
+        report (with ``findings``, the exports of their detections); returns lines saying
+        what was written, and what could not be (a write error is one of them, never
+        raised)."""
         lines = []
         if self.pending or self.dropped:
             lines.append(f"record: {self.pending + self.dropped} received payloads are not "
                          f"in {self.out} ({self.dropped} dropped while the disk refused "
                          f"writes; last error: {self.last_error or 'none now'})")
         try:
-            return lines + self._finish(watcher, mission)
+            return lines + self._finish(watcher, mission, findings)
         except OSError as exc:
             return lines + [f"record: could not write the final grids in {self.out}: "
                             f"{exc.strerror or exc}"]
 
-    def _finish(self, watcher: Watcher, mission: Mission | None) -> list[str]:
+    def _finish(self, watcher: Watcher, mission: Mission | None,
+                findings: Sequence[VehicleDetections] | None) -> list[str]:
         lines = []
         for vid, feed in sorted(watcher.feeds.items()):
             if feed.state is not None:
@@ -279,6 +284,8 @@ class Recording:
             else None
         if mission is not None and grid is not None \
                 and grid_hash(grid.geometry, grid.free) == merged.hash:
+            from pdcov.ground.record_exports import tracks_of
+            from pdcov.report.handover import with_report
             from pdcov.report.outputs import summary_text, write_outputs
 
             for window in merged.written_windows():  # tile by tile: a county's too
@@ -292,8 +299,9 @@ class Recording:
                                 title=f"pdcov watch: {', '.join(ids)}", track_enu=track,
                                 extra_metrics={"vehicles": list(ids)},
                                 limiting_unknown=None if merged.limiting_known
-                                else LIMITING_NOT_SENT)
-            lines.append(summary_text(run))
+                                else LIMITING_NOT_SENT, exports=findings,
+                                tracks=tracks_of(watcher))
+            lines.append(summary_text(with_report(run)))
         else:
             name = write_state_grid(fleet, merged)
             doc = {"vehicles": list(ids), "frames": merged.frames,

@@ -10,11 +10,14 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pdcov.errors import OutputError
 from pdcov.extras import PLOTS
 from pdcov.report.run_files import RunFiles, read_run_files
+
+if TYPE_CHECKING:
+    from pdcov.report.outputs import RunOutputs
 
 REPORT_HTML = "report.html"
 REPORT_PDF = "report.pdf"
@@ -266,3 +269,13 @@ def write_report(run_dir: str | Path, out_dir: str | Path) -> tuple[list[Path], 
     except OSError as exc:
         raise OutputError(f"{out}: cannot write the report: {exc.strerror or exc}") from None
     return paths, pdf_missing
+
+
+def with_report(run: RunOutputs) -> RunOutputs:
+    """Write the report into the run's folder, last (it lists the files written): ``run``
+    with the reports among its files, and report.pdf among those not written when the
+    plots extra is missing."""
+    paths, pdf_missing = write_report(run.out_dir, run.out_dir)
+    return replace(run, files=(*run.files, *(p.name for p in paths)),
+                   not_written=run.not_written + ((f"{REPORT_PDF}: {pdf_missing}",)
+                                                  if pdf_missing else ()))
