@@ -143,7 +143,7 @@ def test_cli_bad_vantage_input_is_one_line_and_fails(tmp_path, capsys, extra, me
     assert len(err) == 1 and message in err[0], err
 
 
-def test_cli_oblique_pitches_default_to_eight_earth_frame_yaws(tmp_path):
+def test_cli_oblique_pitches_default_to_eight_earth_frame_yaws(tmp_path, capsys):
     import json
 
     cfg = tmp_path / "m.yaml"
@@ -162,6 +162,8 @@ def test_cli_oblique_pitches_default_to_eight_earth_frame_yaws(tmp_path):
     locked = [e["params"][4] for e in items if e["command"] == 1000]
     assert locked and set(locked) == {16}
     assert sum(e["command"] == 19 for e in items) == len(doc["points"])
+    err = capsys.readouterr().err  # a long command shows where it is: its candidates, then
+    assert "vantage candidates" in err and "frames" in err  # the predicted mission
 
 
 def test_over_a_level_terrain_the_cover_is_the_flat_one_lifted():

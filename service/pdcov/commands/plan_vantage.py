@@ -123,7 +123,8 @@ def run_plan_vantage(args: argparse.Namespace) -> int:
     fleet = Fleet(args.vehicles or 1, args.max_flight_time_s)
     t0 = time.monotonic()
     m = plan_vantage_missions(sc, settings, fleet, args.gimbal_command or GimbalCommand.MANAGER,
-                              args.routing_time_s or 2.0, args.hover_item or HoverItem.WAYPOINT)
+                              args.routing_time_s or 2.0, args.hover_item or HoverItem.WAYPOINT,
+                              progress=True)
     elapsed = time.monotonic() - t0
     with replacing_dir(args.out) as replaced:
         summary = write_vantage(args.out, mission, sc, m, elapsed, not args.no_figures)

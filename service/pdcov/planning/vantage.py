@@ -47,6 +47,7 @@ from pdcov.planning.cover import Cover, CoverProblem, exact_cover, greedy_cover
 from pdcov.planning.decomposition import polygons_of
 from pdcov.planning.optimise import Scenario
 from pdcov.planning.plan import GimbalPointing, Plan, Waypoint
+from pdcov.planning.progress import progress as show_progress
 from pdcov.planning.trajectory import Flight, camera_poses
 
 HOVER_HEADINGS = 16
@@ -298,11 +299,11 @@ def _frame_log_miss(sc: Scenario, scratch_grid, x: float, y: float, z: float,
     return (r0, r1, c0, c1), least
 
 
-def candidate_evidence(sc: Scenario, settings: VantageSettings
+def candidate_evidence(sc: Scenario, settings: VantageSettings, *, progress: bool = False
                        ) -> tuple[list[VantagePoint], sparse.csc_matrix, np.ndarray]:
     """The candidates, their evidence (n_free_cells, n_candidates: -log-miss of their hover,
     rows the free cells in row-major order) and the best LimitingFactor any candidate frame
-    gave each free cell."""
+    gave each free cell; ``progress``: a bar over the candidate views on stderr."""
     aims = candidate_pointings(sc, settings)
     cameras = candidate_cameras(sc, settings)
     space = flight_space(sc.free_space, clearance_of(sc, settings))
@@ -325,8 +326,10 @@ def candidate_evidence(sc: Scenario, settings: VantageSettings
     points: list[VantagePoint] = []
     rows: list[np.ndarray] = []
     vals: list[np.ndarray] = []
-    for alt, (x, y), aim, (zoom, camera) in itertools.product(settings.alts_agl_m, xy, aims,
-                                                              cameras.items()):
+    views = itertools.product(settings.alts_agl_m, xy, aims, cameras.items())
+    total = len(settings.alts_agl_m) * len(xy) * len(aims) * len(cameras)
+    for alt, (x, y), aim, (zoom, camera) in show_progress(
+            views, desc="vantage candidates", unit="view", total=total, enabled=progress):
         seen = _frame_log_miss(sc, scratch, float(x), float(y),
                                hover_z_enu_m(sc, float(x), float(y), alt), aim, camera)
         if seen is None:
@@ -387,11 +390,12 @@ def unreachable_message(sc: Scenario, reachable: np.ndarray, limiting: np.ndarra
             f"({xs[cc[first]]:.1f}, {ys[rr[first]]:.1f}) m")
 
 
-def choose_vantage_points(sc: Scenario, settings: VantageSettings) -> VantageCover:
+def choose_vantage_points(sc: Scenario, settings: VantageSettings, *, progress: bool = False
+                          ) -> VantageCover:
     """The cover of the free cells (module doc): greedy, and the integer program when there
     are at most EXACT_MAX_CANDIDATES candidates; the cheaper one is kept. ConfigError (one
-    line) when the target cannot be reached."""
-    points, evidence, limiting = candidate_evidence(sc, settings)
+    line) when the target cannot be reached. ``progress``: candidate_evidence's."""
+    points, evidence, limiting = candidate_evidence(sc, settings, progress=progress)
     n_cells = evidence.shape[0]
     need = math.ceil(settings.target_share * n_cells - 1e-9)
     accel = sc.kinematics.max_accel_mps2

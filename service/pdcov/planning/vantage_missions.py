@@ -73,16 +73,18 @@ def sortie_overhead_s(sc: Scenario, alt_agl_m: float) -> float:
 def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet = ONE_VEHICLE,
                           gimbal_command: GimbalCommand = GimbalCommand.MANAGER,
                           routing_time_s: float = 2.0,
-                          hover_item: HoverItem = HoverItem.WAYPOINT) -> VantageMissions:
+                          hover_item: HoverItem = HoverItem.WAYPOINT, *,
+                          progress: bool = False) -> VantageMissions:
     """Choose the points, route the fleet from home (ENU 0, 0) and predict each mission:
     each point's gimbal pointing commanded with ``gimbal_command`` (the mount command has
-    no earth-frame yaw: ConfigError), its hover written as ``hover_item``."""
+    no earth-frame yaw: ConfigError), its hover written as ``hover_item``. ``progress``:
+    bars on stderr over the candidate views and each mission's predicted frames."""
     if gimbal_command is GimbalCommand.MOUNT and settings.gimbal_yaws:
         raise ConfigError(f"--gimbal-yaws {settings.gimbal_yaws}: MAV_CMD_DO_MOUNT_CONTROL "
                           "takes the yaw relative to the vehicle (ArduPilot AP_Mount), so "
                           "earth-frame yaws need --gimbal-command manager (or give "
                           "--gimbal-yaws 0)")
-    cover = choose_vantage_points(sc, settings)
+    cover = choose_vantage_points(sc, settings, progress=progress)
     space = flight_space(sc.free_space, clearance_of(sc, settings))
     points = cover.points
     home = np.zeros(2)
@@ -105,7 +107,8 @@ def plan_vantage_missions(sc: Scenario, settings: VantageSettings, fleet: Fleet 
             plan = replace(route_plan(r, points, transits, v, accel,
                                       sc.kinematics.gimbal_rate_rad_s, what),
                            gimbal_command=gimbal_command, hover_item=hover_item)
-            pred = predict(sc, plan, PlanParams("vantage", points[r.stops[0]].alt_agl_m, v))
+            pred = predict(sc, plan, PlanParams("vantage", points[r.stops[0]].alt_agl_m, v),
+                           progress=progress)
             ends = leg_time_s(np.linalg.norm(pred.plan.xy_enu_m[[0, -1]], axis=1), v, accel)
             missions.append(VantageMission(r, pred, pred.flight.duration_s
                                            + float(ends.sum()) + overhead))
