@@ -37,6 +37,8 @@ def test_evaluate_writes_the_report_and_the_command_the_same(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert {r[0]: float(r[1]) for r in page.table("P_D at or above")} == pytest.approx(
         metrics["proportion_at_or_above"], abs=0.5e-4)
+    assert metrics["time_on_scene_s"] > 0
+    assert ["time on scene", f"{metrics['time_on_scene_s'] / 60:.1f} min"] in page.tables[0]
     listed = {r[0] for r in page.table("file")}
     assert listed == {p.name for p in out.iterdir() if not p.name.startswith(".")}
     assert "<h1>pdcov handover: uav1: a.csv</h1>" in in_run

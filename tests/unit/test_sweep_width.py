@@ -83,6 +83,7 @@ def test_flight_sample():
                         t_s=0.5 * k) for k in range(5)]
     s = FlightSample.of(poses)
     assert s.track_length_m == pytest.approx(16.0)
+    assert s.time_on_scene_s == 2.0  # 5 frames 0.5 s apart
     assert s.speeds_mps == pytest.approx([8.0] * 4)
     assert np.median(s.heights_agl_m) == 32.0
     assert s.unusable() is None
@@ -90,6 +91,7 @@ def test_flight_sample():
     assert "never moved at 0.5 m/s" in FlightSample.of([poses[0], poses[0]]).unusable()
     joined = FlightSample.joined([s, s])
     assert joined.track_length_m == 32.0 and len(joined.speeds_mps) == 8
+    assert joined.time_on_scene_s == 4.0
 
 
 def test_hovering_frames_are_not_the_search_speed():

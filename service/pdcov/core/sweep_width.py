@@ -147,11 +147,12 @@ class FlightSample:
     """What a flight's frames say of its search effort: heights_agl_m (N,) of the camera
     above the ground under it (m), speeds_mps (ground speeds between consecutive frames
     with a positive time step, m/s), track_length_m (horizontal path between consecutive
-    frames, m)."""
+    frames, m), time_on_scene_s (first to last frame, s; flights added)."""
 
     heights_agl_m: np.ndarray
     speeds_mps: np.ndarray
     track_length_m: float
+    time_on_scene_s: float = 0.0
 
     @classmethod
     def of(cls, poses: Sequence[CameraPose], terrain: TerrainSurface | None = None
@@ -165,14 +166,16 @@ class FlightSample:
         step = np.hypot(np.diff(r[:, 0]), np.diff(r[:, 1]))
         dt = np.diff(t)
         moving = np.isfinite(dt) & (dt > 0)
-        return cls(r[:, 2] - ground, step[moving] / dt[moving], float(step.sum()))
+        span_s = float(t[-1] - t[0]) if len(t) > 1 and np.isfinite(t[[0, -1]]).all() else 0.0
+        return cls(r[:, 2] - ground, step[moving] / dt[moving], float(step.sum()), span_s)
 
     @classmethod
     def joined(cls, samples: Sequence[FlightSample]) -> FlightSample:
         """Several flights' samples as one: heights and speeds together, lengths added."""
         return cls(np.concatenate([s.heights_agl_m for s in samples] or [np.zeros(0)]),
                    np.concatenate([s.speeds_mps for s in samples] or [np.zeros(0)]),
-                   float(sum(s.track_length_m for s in samples)))
+                   float(sum(s.track_length_m for s in samples)),
+                   float(sum(s.time_on_scene_s for s in samples)))
 
     @property
     def sweeping(self) -> np.ndarray:

@@ -280,6 +280,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         doc["limiting_unknown"] = limiting_unknown
     doc["extent"] = extent.document(origin)
     if flight is not None:
+        doc["time_on_scene_s"] = flight.time_on_scene_s
         doc["sweep_width"], reason = sweep_width_document(mission, flight)
         if reason is not None:
             doc["sweep_width_unknown"] = reason
