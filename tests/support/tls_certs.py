@@ -1,6 +1,7 @@
 """Certificates for the Zenoh TLS tests, made here with the ``cryptography`` package: a
 certificate authority and leaf certificates signed by it (key and certificate as PEM
-files), valid for localhost and 127.0.0.1."""
+files, the key encrypted when asked; or one PKCS#12 file), valid for localhost and
+127.0.0.1."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.serialization import pkcs12
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 
@@ -48,17 +50,20 @@ class Authority:
         self.ca = self.folder / "ca.pem"
         self.ca.write_bytes(self._cert.public_bytes(serialization.Encoding.PEM))
 
-    def leaf(self, common_name: str) -> Leaf:
-        """Key and certificate for ``common_name``, usable as TLS server and client."""
+    def leaf(self, common_name: str, *, key_password: bytes | None = None,
+             expired: bool = False) -> Leaf:
+        """Key and certificate for ``common_name``, usable as TLS server and client; the
+        key encrypted with ``key_password``; with ``expired``, one that ended an hour ago."""
         key = ec.generate_private_key(ec.SECP256R1())
         now = dt.datetime.now(dt.timezone.utc)
+        end = now - dt.timedelta(hours=1) if expired else now + dt.timedelta(days=1)
         cert = (
             x509.CertificateBuilder()
             .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
             .issuer_name(self._name).public_key(key.public_key())
             .serial_number(x509.random_serial_number())
-            .not_valid_before(now - dt.timedelta(minutes=5))
-            .not_valid_after(now + dt.timedelta(days=1))
+            .not_valid_before(now - dt.timedelta(days=2))
+            .not_valid_after(end)
             .add_extension(x509.SubjectAlternativeName([
                 x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]),
                 critical=False)
@@ -71,6 +76,19 @@ class Authority:
                    self.folder / f"{common_name}.pem")
         out.key.write_bytes(key.private_bytes(serialization.Encoding.PEM,
                                               serialization.PrivateFormat.PKCS8,
-                                              serialization.NoEncryption()))
+                                              serialization.NoEncryption() if key_password is None
+                                              else serialization.BestAvailableEncryption(
+                                                  key_password)))
         out.cert.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        return out
+
+    def p12(self, leaf: Leaf, password: bytes) -> Path:
+        """``leaf``'s key and certificate, with this CA's, as a PKCS#12 file (what a TAK
+        server hands out) encrypted with ``password``, beside the leaf's files."""
+        key = serialization.load_pem_private_key(leaf.key.read_bytes(), password=None)
+        cert = x509.load_pem_x509_certificate(leaf.cert.read_bytes())
+        out = self.folder / f"{leaf.common_name}.p12"
+        out.write_bytes(pkcs12.serialize_key_and_certificates(
+            leaf.common_name.encode(), key, cert, [self._cert],  # type: ignore[arg-type]
+            serialization.BestAvailableEncryption(password)))
         return out

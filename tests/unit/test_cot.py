@@ -245,7 +245,7 @@ def test_tcp_events_reach_a_loopback_server_and_survive_its_absence():
 
         f = feed_with(candidates=[candidate(3, 15.0, 2.0)])
         feed = CotFeed(f"tcp://127.0.0.1:{port}", CotSchedule(), lambda: [f],
-                       period_s=0.05, retry_s=0.2)
+                       period_s=0.05, retry_s=0.2, settle_s=0.0)
         stop = asyncio.Event()
         task = asyncio.create_task(feed.run(stop))
         await asyncio.sleep(0.3)  # nobody listens yet: refused, logged, retried

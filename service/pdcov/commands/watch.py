@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -57,8 +58,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cot", metavar="URL",
                    help="send the aircraft (with its camera's field of view) and the "
                         "detection candidates as Cursor-on-Target to URL: udp://HOST:PORT "
-                        "(ATAK's mesh group udp://239.2.3.1:6969) or tcp://HOST:PORT (a TAK "
-                        "server)")
+                        "(ATAK's mesh group udp://239.2.3.1:6969), tcp://HOST:PORT (a TAK "
+                        "server's streaming input) or tls://HOST:PORT (its TLS input, "
+                        "mutual TLS: --cot-cert and --cot-ca)")
+    p.add_argument("--cot-cert", type=Path, metavar="FILE",
+                   help="with --cot tls://: the client certificate the TAK server issued, "
+                        "PEM (the key in it or in --cot-key) or PKCS#12 (.p12, its "
+                        "password in --cot-key-password-file)")
+    p.add_argument("--cot-key", type=Path, metavar="PEM",
+                   help="with --cot tls://: the client certificate's private key, PEM")
+    p.add_argument("--cot-key-password-file", type=Path, metavar="PATH",
+                   help="with --cot tls://: the password of the encrypted key or .p12 "
+                        "(chmod 600; never on the command line, which ps shows)")
+    p.add_argument("--cot-ca", type=Path, metavar="PEM",
+                   help="with --cot tls://: the CA that signed the TAK server's "
+                        "certificate; the server is always verified against it")
+    p.add_argument("--cot-server-name", metavar="NAME",
+                   help="with --cot tls://: the host name the server's certificate "
+                        "carries, when it is not the one in the URL (e.g. an IP address "
+                        "dialled)")
     p.add_argument("--once", action="store_true",
                    help="print one report when the grids are in (or after --wait-s) and exit")
     p.add_argument("--wait-s", type=float, default=10.0,
@@ -111,6 +129,11 @@ def run(args: argparse.Namespace) -> int:
 
         COT.require()
         parse_cot_url(args.cot)
+    from pdcov.ground.cot_tls import CotTlsFiles, cot_tls_of
+
+    cot_tls = cot_tls_of(args.cot, CotTlsFiles(
+        args.cot_cert, args.cot_key, args.cot_key_password_file, args.cot_ca,
+        args.cot_server_name), time.time())
     if not args.wait_s > 0:
         raise ConfigError(f"--wait-s {args.wait_s}: expected seconds > 0")
     from pdcov.planning.refly import ReflySettings
@@ -142,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
     return run_watch(WatchOptions(
         bus=bus, vehicle=vehicle, mission=mission, web=web, web_access=access,
         basemap=basemap, plans=plans,
-        record=args.record, once=args.once, wait_s=args.wait_s, cot=args.cot,
+        record=args.record, once=args.once, wait_s=args.wait_s, cot=args.cot, cot_tls=cot_tls,
         plain=args.plain or not stdout_is_terminal(), refly=args.refly,
         refly_settings=settings, yes=args.yes, operator_key=operator_key,
         memory_limit=memory_limit_bytes()))

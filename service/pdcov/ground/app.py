@@ -31,6 +31,7 @@ from pdcov.errors import ConfigError
 from pdcov.ground.basemap import Basemap
 from pdcov.ground.cot import CotSchedule
 from pdcov.ground.cot_feed import CotFeed
+from pdcov.ground.cot_tls import CotTls
 from pdcov.ground.fleet_report import FleetReport
 from pdcov.ground.live import WatchShell
 from pdcov.ground.record import Recording
@@ -67,7 +68,8 @@ class WatchOptions:
     basemap: the tiles under the web map (closed when the watcher ends); plans: the plans
     it draws. record: the recording folder (its exports in record/exports/ every
     exports_period_s). cot: the Cursor-on-Target destination URL (ground/cot_feed.py), or
-    None. operator_key: signs re-flies (none: they are not sent)."""
+    None; cot_tls: its checked TLS identity for tls:// (ground/cot_tls.py). operator_key:
+    signs re-flies (none: they are not sent)."""
 
     bus: BusConfig
     vehicle: str | None = None
@@ -82,6 +84,7 @@ class WatchOptions:
     plain: bool = False
     refresh_s: float = 0.5
     cot: str | None = None
+    cot_tls: CotTls | None = None
     exports_period_s: float = 5.0
     refly: str | None = None
     refly_settings: ReflySettings | None = None
@@ -168,8 +171,8 @@ async def _main(opts: WatchOptions) -> int:
     if warning is not None:
         print(f"pdcov watch: WARNING: {warning}", file=sys.stderr, flush=True)
     recording = Recording(opts.record) if opts.record else None
-    cot = CotFeed(opts.cot, CotSchedule(), lambda: list(watcher.feeds.values())) \
-        if opts.cot else None
+    cot = CotFeed(opts.cot, CotSchedule(), lambda: list(watcher.feeds.values()),
+                  tls=opts.cot_tls) if opts.cot else None
     shell = WatchShell(watcher, opts.bus, record=recording,
                        connect_timeout_s=opts.wait_s if opts.once else None)
     desk = None

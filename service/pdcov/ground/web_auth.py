@@ -39,13 +39,13 @@ import hmac
 import ipaddress
 import re
 import secrets
-import stat
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
 from pdcov.errors import ConfigError
+from pdcov.ground.secret_file import read_secret_file
 
 TOKEN_ENV = "PDCOV_WEB_TOKEN"
 MIN_TOKEN_CHARS = 16
@@ -229,22 +229,7 @@ def check_token(token: str, where: str) -> str:
 
 
 def read_token_file(path: Path, flag: str = "--web-token-file") -> str:
-    """The token in ``path`` (surrounding white space stripped). ConfigError when it is
-    missing, not a regular file, readable or writable by group or others (chmod 600, as
-    ssh asks of a private key) or not a usable token; ``flag`` names it in errors."""
-    try:
-        st = path.stat()
-    except OSError as exc:
-        raise ConfigError(f"{flag} {path}: cannot read it ({exc.strerror})") \
-            from None
-    if not stat.S_ISREG(st.st_mode):
-        raise ConfigError(f"{flag} {path}: not a regular file")
-    if st.st_mode & 0o077:
-        raise ConfigError(f"{flag} {path}: permissions "
-                          f"{stat.S_IMODE(st.st_mode):04o} are too open: group and others "
-                          f"must have no access to it (chmod 600 {path})")
-    try:
-        text = path.read_text(encoding="ascii").strip()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{flag} {path}: cannot read it ({exc})") from None
-    return check_token(text, f"{flag} {path}")
+    """The token in ``path`` (surrounding white space stripped). ConfigError when the file
+    is not a secret file (ground/secret_file.py) or not a usable token; ``flag`` names it
+    in errors."""
+    return check_token(read_secret_file(path, flag).strip(), f"{flag} {path}")
