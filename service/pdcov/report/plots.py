@@ -125,15 +125,19 @@ def thresholds_figure(path: str | Path, curve: tuple[np.ndarray, np.ndarray],
                       shares: dict[float, float], *, title: str) -> None:
     """Proportion of free cells at or above each P_D threshold: ``curve`` (thresholds
     0..1 and the proportions, report/output_extent.py) and the configured thresholds'
-    shares marked (``Metrics.proportion_at_or_above``)."""
+    shares marked (``Metrics.proportion_at_or_above``), their values in a legend (one
+    line each: labels beside close markers of similar shares would overlap)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     t, p = curve
     ax.plot(t, p, color="navy", lw=2)
-    for th, share in shares.items():
-        ax.plot([th], [share], "o", color="crimson")
-        ax.annotate(f"{share:.3f} at {th:g}", (th, share), textcoords="offset points",
-                    xytext=(6, 6), fontsize=9)
+    markers = "osD^vP*Xph"
+    for k, (th, share) in enumerate(sorted(shares.items())):
+        ax.plot([th], [share], markers[k % len(markers)], color="crimson", ls="none",
+                label=f"{share:.3f} at $P_D \\geq {th:g}$")
+    if shares:
+        ax.legend(loc="lower left", fontsize=9, title="share of free cells",
+                  title_fontsize=9)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("$P_D$ threshold")
