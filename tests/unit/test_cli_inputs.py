@@ -120,3 +120,16 @@ def test_an_option_given_twice_is_refused(tmp_path: Path, poses: Path, capsys) -
                        str(tmp_path / "run"), "--out", str(tmp_path / "other")], capsys)
     assert f"--out: given twice ({tmp_path / 'run'} and {tmp_path / 'other'})" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_plan_firmware_sets_the_qgc_firmware_type(tmp_path: Path, capsys) -> None:
+    """No vehicle to ask: --firmware says which autopilot the .plan is for."""
+    import json
+
+    assert cli.main(["plan", "--config", str(DEMO), "--altitude-m", "10", "--no-figures",
+                     "--firmware", "px4", "--out", str(tmp_path / "p")]) == 0
+    doc = json.loads((tmp_path / "p" / "plan.plan").read_text())
+    assert doc["mission"]["firmwareType"] == 12  # MAV_AUTOPILOT_PX4
+    err = usage_error(["plan", "--config", str(DEMO), "--altitude-m", "10", "--firmware",
+                       "apm", "--out", str(tmp_path / "q")], capsys)
+    assert "--firmware" in err and "ardupilot" in err

@@ -15,9 +15,11 @@ from pdcov.core.mission import (
     MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF,
     MAV_CMD_NAV_WAYPOINT,
+    AltitudeFrame,
+    Firmware,
     GimbalCommand,
 )
-from pdcov.errors import InputFileError
+from pdcov.errors import ConfigError, InputFileError
 from pdcov.planning.plan import Plan, Waypoint
 from pdcov.planning.plan_files import read_mission, read_plan, wpl_text, write_plan
 from pdcov.planning.plan_items import mission_items
@@ -88,6 +90,28 @@ def test_qgc_plan_passes_schema_and_holds_the_mission(tmp_path):
     lat, lon = items[2]["params"][4:6]
     assert lat < ORIGIN.lat_deg and lon < ORIGIN.lon_deg
     assert (ORIGIN.lat_deg - lat) * 111_000 == pytest.approx(60.0, rel=0.01)
+
+
+@pytest.mark.parametrize(("firmware", "firmware_type"), [(Firmware.ARDUPILOT, 3),
+                                                         (Firmware.PX4, 12)])
+def test_qgc_firmware_type_is_the_firmwares_mav_autopilot(tmp_path, firmware, firmware_type):
+    """QGC's .plan firmwareType is MAV_AUTOPILOT, as the vehicle's HEARTBEAT says it."""
+    doc = json.loads(write_plan(tmp_path / "m.plan", PLAN, ORIGIN, firmware).read_text())
+    assert doc["mission"]["firmwareType"] == firmware_type
+    assert Firmware.of_mav_autopilot(firmware_type) is firmware
+    assert json.loads(write_plan(tmp_path / "d.plan", PLAN, ORIGIN).read_text())[
+        "mission"]["firmwareType"] == 3  # ArduPilot unless told
+
+
+def test_px4_plan_refuses_terrain_frame_waypoints(tmp_path):
+    terrain = Plan(PLAN.waypoints, altitude_frame=AltitudeFrame.TERRAIN_ALT)
+    for name in ("m.plan", "m.waypoints"):
+        with pytest.raises(ConfigError, match="px4 plan cannot hold item 2: "
+                                              "MAV_FRAME_GLOBAL_TERRAIN_ALT"):
+            write_plan(tmp_path / name, terrain, ORIGIN, Firmware.PX4)
+        assert not (tmp_path / name).exists()
+    write_plan(tmp_path / "a.plan", terrain, ORIGIN, Firmware.ARDUPILOT)
+    assert Firmware.of_mav_autopilot(0) is None  # MAV_AUTOPILOT_GENERIC
 
 
 def test_wpl_layout(tmp_path):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
@@ -203,3 +204,15 @@ def test_cli_upload_reports_success_and_refusal(vehicle_factory, tmp_path, capsy
     full = vehicle_factory(capacity=2)
     assert main(["upload", str(path), "--connect", url(full), "--timeout-s", "5"]) == 1
     assert "MAV_MISSION_NO_SPACE" in capsys.readouterr().err
+
+
+def test_terrain_frame_is_not_sent_to_px4(vehicle_factory):
+    """The HEARTBEAT says PX4, whose mission refuses MAV_FRAME_GLOBAL_TERRAIN_ALT: pdcov
+    says which item before sending anything; ArduPilot takes the same items."""
+    terrain = tuple(replace(it, frame=10) if it.command == 16 else it for it in ITEMS)
+    px4 = vehicle_factory()
+    with pytest.raises(UploadError, match=r"runs px4.*item 2: MAV_FRAME_GLOBAL_TERRAIN_ALT"):
+        upload_mission(terrain, url(px4), home_item(ORIGIN), timeout_s=5)
+    assert px4.counts_seen == 0 and not px4.received
+    ardupilot = vehicle_factory(autopilot=mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    assert upload_mission(terrain, url(ardupilot), home_item(ORIGIN), timeout_s=5).accepted

@@ -18,7 +18,7 @@ from typing import Any
 from pdcov.atomic import atomic_write, replacing_dir, write_text_atomic
 from pdcov.commands.args import finite, output_dir, overlap, positive, positive_int, probability
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.commands.plan_args import planning_overrides, terrain_args
+from pdcov.commands.plan_args import firmware_args, planning_overrides, terrain_args
 from pdcov.commands.plan_output import replaced_note, terrain_warnings, write_prediction
 from pdcov.commands.plan_vantage import write_vantage
 from pdcov.errors import ConfigError
@@ -69,6 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(deg; needs camera.zoom fov_status; default: not zoomed)")
     o.add_argument("--processes", type=positive_int, help="worker processes (default: all cores)")
     terrain_args(o)
+    firmware_args(o)
     o.add_argument("--out", required=True, type=output_dir, help="folder to write")
     o.set_defaults(func=run_optimise)
 
@@ -143,14 +144,16 @@ def run_optimise(args: argparse.Namespace) -> int:
             t1 = time.monotonic()
             vm = plan_vantage_missions(sc, _optimise_vantage(args, s.params.alt_agl_m,
                                                              s.params.speed_mps))
-            summary = write_vantage(out / "best", mission, sc, vm, time.monotonic() - t1, True)
+            summary = write_vantage(out / "best", mission, sc, vm, time.monotonic() - t1, True,
+                                    args.firmware)
             description = vm.missions[0].prediction.plan.description
         else:
             plan, spacing = build_plan(sc, with_spacing(s.params, s.spacing_m))
             pred = predict(sc, plan, s.params)
             summary = write_prediction(out / "best", mission, pred, pred.grid,
                                         f"best: {plan.description} at {s.params.alt_agl_m:g} m",
-                                        spacing, terrain_warnings=terrain_warnings(sc, pred))
+                                        spacing, terrain_warnings=terrain_warnings(sc, pred),
+                                        firmware=args.firmware)
             description = plan.description
         write_text_atomic(out / "optimise.json", json.dumps({
             "target_pd": args.target_pd, "min_proportion": args.min_proportion,

@@ -19,7 +19,13 @@ from pathlib import Path
 from pdcov.atomic import replacing_dir
 from pdcov.commands.args import finite, output_dir, positive
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.commands.plan_args import planning_overrides, side_overlap, spacing_args, terrain_args
+from pdcov.commands.plan_args import (
+    firmware_args,
+    planning_overrides,
+    side_overlap,
+    spacing_args,
+    terrain_args,
+)
 from pdcov.commands.plan_output import replaced_note, terrain_warnings, write_prediction
 from pdcov.commands.plan_vantage import VANTAGE_FLAGS, run_plan_vantage, vantage_args
 from pdcov.errors import ConfigError
@@ -61,6 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=output_dir, help="folder to write")
     p.add_argument("--no-figures", action="store_true", help="skip heatmap/threshold PNGs")
     terrain_args(p)
+    firmware_args(p)
     vantage_args(p)
     p.set_defaults(func=run_plan)
 
@@ -95,6 +102,7 @@ def run_plan(args: argparse.Namespace) -> int:
             args.out, mission, pred, pred.grid,
             f"predicted: {plan.description} at {args.altitude_m:g} m",
             spacing if "spacing" in PATTERN_OPTIONS[args.pattern] else None,
-            figures=not args.no_figures, terrain_warnings=terrain_warnings(sc, pred))
+            figures=not args.no_figures, terrain_warnings=terrain_warnings(sc, pred),
+            firmware=args.firmware)
     print(summary + replaced_note(replaced, args.out))
     return 0

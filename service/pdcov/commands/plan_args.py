@@ -1,5 +1,6 @@
 """The options ``pdcov plan``, ``optimise`` and ``refly`` share: track spacing or side
-overlap, and the ``--terrain-*`` flags over the mission config's ``planning`` section."""
+overlap, the ``--terrain-*`` flags over the mission config's ``planning`` section, and the
+firmware the plan files are written for."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import argparse
 from typing import Any
 
 from pdcov.commands.args import finite, overlap, positive
-from pdcov.core.mission import AltitudeFrame
+from pdcov.core.mission import AltitudeFrame, Firmware
 
 
 def spacing_args(p: argparse.ArgumentParser) -> None:
@@ -31,6 +32,14 @@ def terrain_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--terrain-clearance-m", type=finite,
                    help="warn where terrain plus this rises into the path (default "
                         "planning.terrain_clearance_m, 10)")
+
+
+def firmware_args(p: argparse.ArgumentParser) -> None:
+    """--firmware: the autopilot the plan files are for (no vehicle is connected to ask)."""
+    p.add_argument("--firmware", type=Firmware, choices=list(Firmware),
+                   default=Firmware.ARDUPILOT,
+                   help="the vehicle's autopilot: the .plan's firmwareType, and PX4 refuses "
+                        "terrain-frame waypoints (default ardupilot)")
 
 
 def planning_overrides(args: argparse.Namespace) -> dict[str, Any]:

@@ -10,6 +10,7 @@ from pathlib import Path
 from pdcov.config.mission import Mission
 from pdcov.core.blur import describe_blur
 from pdcov.core.grid import CoverageGrid
+from pdcov.core.mission import Firmware
 from pdcov.planning.optimise import Prediction, Scenario
 from pdcov.planning.plan_files import write_plan
 from pdcov.planning.terrain_follow import clearance_intrusions, steep_legs
@@ -37,15 +38,17 @@ def terrain_warnings(sc: Scenario, pred: Prediction) -> list[str]:
 
 def write_prediction(out: Path, mission: Mission, pred: Prediction, grid: CoverageGrid,
                       title: str, spacing_m: float | None, figures: bool = True,
-                      terrain_warnings: Sequence[str] = ()) -> str:
-    """Plan files and the predicted evaluation in ``out``; returns the summary text. The
-    ``terrain_warnings`` (the function of that name) go to stderr and metrics.json."""
+                      terrain_warnings: Sequence[str] = (),
+                      firmware: Firmware = Firmware.ARDUPILOT) -> str:
+    """Plan files (for ``firmware``) and the predicted evaluation in ``out``; returns the
+    summary text. The ``terrain_warnings`` (the function of that name) go to stderr and
+    metrics.json."""
     for line in terrain_warnings:
         print(f"WARNING: terrain: {line}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     origin = mission.origin()
-    write_plan(out / "plan.plan", pred.plan, origin)
-    write_plan(out / "plan.waypoints", pred.plan, origin)
+    write_plan(out / "plan.plan", pred.plan, origin, firmware)
+    write_plan(out / "plan.waypoints", pred.plan, origin, firmware)
     extra = {"plan": {"description": pred.plan.description,
                       "waypoints": len(pred.plan.waypoints),
                       "spacing_m": spacing_m,

@@ -20,7 +20,7 @@ from pdcov.commands.mission_file import load_mission_warned
 from pdcov.commands.plan_args import planning_overrides
 from pdcov.commands.plan_output import replaced_note
 from pdcov.config.mission import Mission
-from pdcov.core.mission import GimbalCommand, HoverItem
+from pdcov.core.mission import Firmware, GimbalCommand, HoverItem
 from pdcov.errors import ConfigError
 from pdcov.extras import ROUTING
 from pdcov.planning.cover import Cover
@@ -127,7 +127,8 @@ def run_plan_vantage(args: argparse.Namespace) -> int:
                               progress=True)
     elapsed = time.monotonic() - t0
     with replacing_dir(args.out) as replaced:
-        summary = write_vantage(args.out, mission, sc, m, elapsed, not args.no_figures)
+        summary = write_vantage(args.out, mission, sc, m, elapsed, not args.no_figures,
+                                args.firmware)
     print(summary + replaced_note(replaced, args.out))
     return 0
 
@@ -153,8 +154,9 @@ def _pointing_doc(aim: GimbalPointing | None, zoom_hfov_deg: float | None) -> di
 
 
 def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
-                  elapsed_s: float, figures: bool) -> str:
-    """The mission files (plan.plan / plan.waypoints for one mission, else
+                  elapsed_s: float, figures: bool,
+                  firmware: Firmware = Firmware.ARDUPILOT) -> str:
+    """The mission files for ``firmware`` (plan.plan / plan.waypoints for one mission, else
     vehicle-V-sortie-S.plan / .waypoints each), vantage.json and the predicted evaluation of
     all missions together in ``out``; returns the summary text."""
     out.mkdir(parents=True, exist_ok=True)
@@ -163,8 +165,8 @@ def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
     for vm in m.missions:
         r = vm.route
         stem = "plan" if len(m.missions) == 1 else f"vehicle-{r.vehicle}-sortie-{r.sortie}"
-        write_plan(out / f"{stem}.plan", vm.prediction.plan, origin)
-        write_plan(out / f"{stem}.waypoints", vm.prediction.plan, origin)
+        write_plan(out / f"{stem}.plan", vm.prediction.plan, origin, firmware)
+        write_plan(out / f"{stem}.waypoints", vm.prediction.plan, origin, firmware)
         names.append(stem)
     c = m.cover
     doc = {"candidates": c.n_candidates, "objective": str(c.objective),

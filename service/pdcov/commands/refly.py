@@ -13,7 +13,13 @@ import numpy as np
 from pdcov.atomic import replacing_dir, write_text_atomic
 from pdcov.commands.args import finite, output_dir, positive, probability
 from pdcov.commands.mission_file import load_mission_warned
-from pdcov.commands.plan_args import planning_overrides, side_overlap, spacing_args, terrain_args
+from pdcov.commands.plan_args import (
+    firmware_args,
+    planning_overrides,
+    side_overlap,
+    spacing_args,
+    terrain_args,
+)
 from pdcov.commands.plan_output import replaced_note, terrain_warnings, write_prediction
 from pdcov.core.grid import CoverageGrid
 from pdcov.errors import ConfigError
@@ -37,6 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--start-enu-m", type=finite, nargs=2, default=[0.0, 0.0],
                    metavar=("X", "Y"), help="where the follow-up starts (home: 0 0)")
     terrain_args(r)
+    firmware_args(r)
     r.add_argument("--out", required=True, type=output_dir, help="folder to write")
     r.set_defaults(func=run_refly)
 
@@ -60,7 +67,8 @@ def run_refly(args: argparse.Namespace) -> int:
     with replacing_dir(out) as replaced:
         summary = write_prediction(out, mission, r.prediction, flown,
                                     f"after the follow-up: {r.plan.description}", spacing,
-                                    terrain_warnings=terrain_warnings(sc, r.prediction))
+                                    terrain_warnings=terrain_warnings(sc, r.prediction),
+                                    firmware=args.firmware)
         write_text_atomic(out / "gaps.json", json.dumps({
             "target_pd": args.target_pd,
             "before": {"cells": r.gaps_before.n_cells,

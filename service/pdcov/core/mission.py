@@ -23,6 +23,8 @@ MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
 MAV_FRAME_GLOBAL_TERRAIN_ALT = 10
 NAV_POSITION_COMMANDS = (MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_LOITER_TIME)
 """The navigation items a plan's waypoints are written as (a hover: either)."""
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,3 +125,35 @@ class GimbalCommand(str, Enum):
             raise ValueError("MAV_CMD_DO_MOUNT_CONTROL has no earth-frame yaw")
         return MissionItem(MAV_CMD_DO_MOUNT_CONTROL, MAV_FRAME_MISSION, param1=pitch_deg,
                            param3=yaw_deg, z_m=float(MAV_MOUNT_MODE_MAVLINK_TARGETING))
+
+
+class Firmware(str, Enum):
+    """The autopilot firmware a plan is written for; prints as its text. Its MAV_AUTOPILOT
+    number is the HEARTBEAT's ``autopilot`` field and a QGC .plan's ``firmwareType``."""
+
+    ARDUPILOT = "ardupilot"
+    PX4 = "px4"
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    @property
+    def mav_autopilot(self) -> int:
+        return {Firmware.ARDUPILOT: MAV_AUTOPILOT_ARDUPILOTMEGA,
+                Firmware.PX4: MAV_AUTOPILOT_PX4}[self]
+
+    @classmethod
+    def of_mav_autopilot(cls, autopilot: int) -> Firmware | None:
+        """The firmware of a HEARTBEAT's MAV_AUTOPILOT; None for any other autopilot."""
+        return next((f for f in cls if f.mav_autopilot == autopilot), None)
+
+    def refused_items(self, items: tuple[MissionItem, ...]) -> list[str]:
+        """One line per item this firmware's mission refuses (seq from 0, home not counted).
+        Every command pdcov writes is taken by both (docs/planning.md); PX4 answers
+        MAV_MISSION_UNSUPPORTED_FRAME to MAV_FRAME_GLOBAL_TERRAIN_ALT (it keeps no terrain
+        database)."""
+        if self is not Firmware.PX4:
+            return []
+        return [f"item {k}: MAV_FRAME_GLOBAL_TERRAIN_ALT ({it.frame}), which PX4 missions "
+                f"do not take: plan with --terrain-frame amsl or relative"
+                for k, it in enumerate(items) if it.frame == MAV_FRAME_GLOBAL_TERRAIN_ALT]

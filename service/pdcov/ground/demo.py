@@ -174,15 +174,25 @@ class FleetStatus:
             return dict(self.status)
 
 
+# A status every this many seconds of the simulated flight. Its pose is the only position
+# the ground station gets (the track of its heat map, map and exports), and the daemon
+# publishes it by the wall clock: at 0.5 s of wall time, 8x real time gave a point every
+# 4 s of flight, the spiral drawn in a dozen straight segments.
+STATUS_PERIOD_FLIGHT_S = 0.5
+
+
 def vehicle_config(doc: Mapping[str, Any], vehicle: DemoVehicle, router: str,
-                   state_dir: Path) -> dict[str, Any]:
+                   state_dir: Path, speed: float = 1.0) -> dict[str, Any]:
     """The mission config of one demo vehicle: the demo mission, its id, a peer session to
-    the router (loopback, no multicast scouting), its state folder."""
+    the router (loopback, no multicast scouting) with a status every
+    STATUS_PERIOD_FLIGHT_S of a flight simulated ``speed`` times faster than real time, its
+    state folder."""
     out = dict(doc)
     out["vehicle_id"] = vehicle.vehicle_id
     out["log"] = {**dict(doc.get("log") or {}), "system_id": vehicle.system_id}
     out["bus"] = {"mode": "peer", "connect": [router], "listen": ["tcp/127.0.0.1:0"],
-                  "multicast_scouting": False, "status_period_s": 0.5,
+                  "multicast_scouting": False,
+                  "status_period_s": STATUS_PERIOD_FLIGHT_S / speed,
                   "tiles_period_s": 0.2}
     out["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 5.0}
     return out
@@ -210,7 +220,7 @@ def run_live_demo(demo: LiveDemo, stdout: IO[str] | None = None) -> dict[str, An
         for v in demo.vehicles:
             cfg = out / "configs" / f"{v.vehicle_id}.yaml"
             write_text_atomic(cfg, yaml.safe_dump(vehicle_config(
-                demo.mission_doc, v, router_ep, out / "state" / v.vehicle_id)))
+                demo.mission_doc, v, router_ep, out / "state" / v.vehicle_id, demo.speed)))
             configs.append(cfg)
         py = sys.executable
         watch = [py, "-m", "pdcov.cli", "watch", "--config", str(configs[0]), "--mode",

@@ -44,8 +44,9 @@ from pdcov.core.grid_store import write_update
 from pdcov.core.looks import LooksConfig
 from pdcov.core.tiles import MAX_DENSE_CELLS
 from pdcov.errors import PdcovError
+from pdcov.ground.record_exports import tracks_of
 from pdcov.ground.watcher import Watcher
-from pdcov.report.exports import VehicleDetections
+from pdcov.report.exports import VehicleDetections, tracks_enu
 
 TILE_RECORD = struct.Struct("<dI")
 LIMITING_NOT_SENT = "not sent by the vehicle (pdcov before tiles v2)"
@@ -284,7 +285,6 @@ class Recording:
             else None
         if mission is not None and grid is not None \
                 and grid_hash(grid.geometry, grid.free) == merged.hash:
-            from pdcov.ground.record_exports import tracks_of
             from pdcov.report.handover import with_report
             from pdcov.report.outputs import summary_text, write_outputs
 
@@ -294,13 +294,13 @@ class Recording:
                     if layer is not Layer.LIMITING or merged.limiting_known:
                         grid.layer(layer).write(window, merged.read(layer, window))
             grid.frames = merged.frames
-            track = _track_enu(watcher, ids, mission) if len(ids) == 1 else None
+            tracks = [t for t in tracks_of(watcher) if t.vehicle in ids]
             run = write_outputs(fleet, mission, grid, mission.origin(),
-                                title=f"pdcov watch: {', '.join(ids)}", track_enu=track,
-                                extra_metrics={"vehicles": list(ids)},
+                                title=f"pdcov watch: {', '.join(ids)}",
+                                track_enu=tracks_enu(tracks, mission.origin()),
+                                tracks=tracks, extra_metrics={"vehicles": list(ids)},
                                 limiting_unknown=None if merged.limiting_known
-                                else LIMITING_NOT_SENT, exports=findings,
-                                tracks=tracks_of(watcher))
+                                else LIMITING_NOT_SENT, exports=findings)
             lines.append(summary_text(with_report(run)))
         else:
             name = write_state_grid(fleet, merged)
@@ -318,13 +318,3 @@ class Recording:
             lines.append(f"wrote {name} and metrics.json in {fleet} (figures need the "
                          f"mission config: {why})")
         return lines
-
-
-def _track_enu(watcher: Watcher, ids: tuple[str, ...], mission: Mission) -> np.ndarray | None:
-    from pdcov.core.geodesy import geodetic_to_enu
-
-    pts = watcher.feeds[ids[0]].track_lat_lon_alt
-    if len(pts) < 2:
-        return None
-    a = np.asarray(pts, dtype=float)
-    return geodetic_to_enu(a[:, 0], a[:, 1], a[:, 2], mission.origin())

@@ -19,14 +19,14 @@ from pdcov.core.mission import (
     MAV_FRAME_GLOBAL_RELATIVE_ALT,
     MAV_FRAME_GLOBAL_TERRAIN_ALT,
     NAV_POSITION_COMMANDS,
+    Firmware,
     MissionItem,
 )
-from pdcov.errors import InputFileError
+from pdcov.errors import ConfigError, InputFileError
 from pdcov.planning.plan import Plan
 from pdcov.planning.plan_items import home_item, mission_items, plan_from_mission_items
 from pdcov.yaml_file import read_text
 
-QGC_FIRMWARE_ARDUPILOT = 3
 QGC_VEHICLE_MULTIROTOR = 2
 
 
@@ -44,8 +44,9 @@ def _json_number(v: float) -> float | None:
 
 
 def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
-                      cruise_speed_mps: float) -> dict[str, Any]:
-    """A QGroundControl plan (file version 1, mission version 2) of simple mission items."""
+                      cruise_speed_mps: float, firmware: Firmware) -> dict[str, Any]:
+    """A QGroundControl plan (file version 1, mission version 2) of simple mission items,
+    its ``firmwareType`` the firmware's MAV_AUTOPILOT (QGC's own numbering)."""
     simple = []
     wp_frames = {it.frame for it in items if it.command in NAV_POSITION_COMMANDS}
     plan_mode = _QGC_ALTITUDE_MODE.get(wp_frames.pop(), 0) if len(wp_frames) == 1 else 0
@@ -64,7 +65,7 @@ def qgc_plan_document(items: tuple[MissionItem, ...], origin: Origin,
         "fileType": "Plan", "groundStation": "pdcov", "version": 1,
         "geoFence": {"circles": [], "polygons": [], "version": 2},
         "rallyPoints": {"points": [], "version": 2},
-        "mission": {"version": 2, "firmwareType": QGC_FIRMWARE_ARDUPILOT,
+        "mission": {"version": 2, "firmwareType": firmware.mav_autopilot,
                     "vehicleType": QGC_VEHICLE_MULTIROTOR, "globalPlanAltitudeMode": plan_mode,
                     "cruiseSpeed": cruise_speed_mps, "hoverSpeed": cruise_speed_mps,
                     "plannedHomePosition": [origin.lat_deg, origin.lon_deg,
@@ -173,13 +174,19 @@ def mission_from_wpl_text(text: str, source: str) -> MissionFile:
 WPL_SUFFIXES = (".waypoints", ".txt", ".mission")
 
 
-def write_plan(path: str | Path, plan: Plan, origin: Origin) -> Path:
-    """Write ``plan`` (atomically) as QGC ``.plan`` JSON, or WPL 110 for
-    .waypoints/.txt/.mission."""
+def write_plan(path: str | Path, plan: Plan, origin: Origin,
+               firmware: Firmware = Firmware.ARDUPILOT) -> Path:
+    """Write ``plan`` (atomically) for ``firmware`` as QGC ``.plan`` JSON, or WPL 110 for
+    .waypoints/.txt/.mission; ConfigError, before writing, naming the items the firmware's
+    mission would refuse (``Firmware.refused_items``)."""
     path = Path(path)
     items = mission_items(plan, origin)
+    refused = firmware.refused_items(items)
+    if refused:
+        raise ConfigError(f"{path}: a {firmware} plan cannot hold {'; '.join(refused[:1])}"
+                          + (f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""))
     if path.suffix == ".plan":
-        doc = qgc_plan_document(items, origin, plan.waypoints[0].speed_mps)
+        doc = qgc_plan_document(items, origin, plan.waypoints[0].speed_mps, firmware)
         write_text_atomic(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     elif path.suffix in WPL_SUFFIXES:
         write_text_atomic(path, wpl_text(items, origin))

@@ -36,7 +36,13 @@ from typing import Any
 import numpy as np
 
 from pdcov.atomic import atomic_write, write_text_atomic
-from pdcov.core.geodesy import Origin, deg_rounded, enu_to_geodetic, grid_references
+from pdcov.core.geodesy import (
+    Origin,
+    deg_rounded,
+    enu_to_geodetic,
+    geodetic_to_enu,
+    grid_references,
+)
 from pdcov.extras import GIS, GPX, GRID_REFERENCES, PLOTS
 from pdcov.report.pin_rank import candidate_ranks
 from pdcov.report.search_areas import Coverage, MapLayers, Polygon, map_layers
@@ -115,6 +121,20 @@ class VehicleTrack:
                 segments.append(TrackSegment(
                     lla, flights_unix_s[i] if i < len(flights_unix_s) else None))
         return cls(vehicle, tuple(segments))
+
+
+def tracks_enu(tracks: Sequence[VehicleTrack], origin: Origin) -> np.ndarray | None:
+    """Every segment of ``tracks`` (M, 2) in ENU m about ``origin``, one after the other
+    with a NaN row between (a line drawn through them breaks there rather than joining two
+    vehicles or flights); None without any position."""
+    parts = []
+    for track in tracks:
+        for seg in track.segments:
+            lla = np.asarray(seg.lat_lon_alt, dtype=float).reshape(-1, 3)
+            alt = np.where(np.isfinite(lla[:, 2]), lla[:, 2], origin.ground_alt_msl_m)
+            parts += [geodetic_to_enu(lla[:, 0], lla[:, 1], alt, origin)[:, :2],
+                      np.full((1, 2), np.nan)]
+    return np.concatenate(parts[:-1]) if parts else None
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,7 +18,6 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -26,7 +25,7 @@ from pdcov.core.domain import Domain, GridGeometry
 from pdcov.core.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from pdcov.report.colours import PD_COLORMAP
 from pdcov.report.exports import Pin, VehicleTrack
-from pdcov.report.plots import draw_domain, pyplot, save_figure
+from pdcov.report.plots import draw_domain, graticule, pyplot, save_figure
 
 MAX_BASEMAP_TILES = 64
 """The most tiles a map reads; more at the best zoom: a coarser one."""
@@ -112,32 +111,6 @@ def basemap_rgb(tiles: BasemapTiles, lat_deg: np.ndarray, lon_deg: np.ndarray,
     return (out if found else None), z
 
 
-def _nice_step_deg(span_deg: float) -> float:
-    """A graticule step giving 3 to 8 lines over ``span_deg``."""
-    for step in (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0):
-        if span_deg / step <= 8:
-            return step
-    return 2.0
-
-
-def _graticule(ax: Any, bounds: tuple[float, float, float, float], origin: Origin) -> None:
-    """Lines of constant latitude and longitude over the ENU extent, labelled in degrees."""
-    x0, x1, y0, y1 = bounds
-    xs, ys = np.meshgrid(np.linspace(x0, x1, 80), np.linspace(y0, y1, 80))
-    lla = enu_to_geodetic(np.stack([xs, ys, np.zeros_like(xs)], axis=-1), origin)
-    for values, hemispheres in ((lla[..., 0], "NS"), (lla[..., 1], "EW")):
-        step = _nice_step_deg(float(np.ptp(values)))
-        levels = np.arange(math.ceil(values.min() / step), math.floor(values.max() / step) + 1
-                           ) * step
-        if not len(levels):
-            continue
-        decimals = max(0, -math.floor(math.log10(step)))
-        lines = ax.contour(xs, ys, values, levels=levels, colors="0.25", linewidths=0.5,
-                           linestyles=":")
-        ax.clabel(lines, fontsize=6, fmt=lambda v, d=decimals, h=hemispheres:
-                  f"{abs(v):.{d}f}°{h[0] if v >= 0 else h[1]}")
-
-
 def _pin_label(p: Pin) -> str:
     rank = p.properties.get("rank")
     return str(rank) if isinstance(rank, int) else "?"
@@ -201,7 +174,7 @@ def map_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray, geometry: Gri
             ax.annotate(_pin_label(p), (x, y), textcoords="offset points", xytext=(4, 4),
                         fontsize=7, fontweight="bold", zorder=6,
                         bbox={"boxstyle": "round,pad=0.15", "fc": "white", "alpha": 0.8})
-    _graticule(ax, bounds, origin)
+    graticule(ax, bounds, origin)
     ax.set_xlim(bounds[0], bounds[1])
     ax.set_ylim(bounds[2], bounds[3])
     ax.set_aspect("equal")

@@ -361,7 +361,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
             heatmap_figure(out / "heatmap.png", drawn.pd, drawn.mask, g, mission.domain,
                            title=title, outline_enu=outline, threshold=threshold,
                            track_enu=track_enu, plan_enu=plan_enu,
-                           terrain_z_m=drawn.terrain_z_m, hidden=drawn.hidden)
+                           terrain_z_m=drawn.terrain_z_m, hidden=drawn.hidden, origin=origin)
             thresholds_figure(out / "thresholds.png", grid_proportion_curve(grid),
                               metrics.proportion_at_or_above, title=title)
             if not map_figure(out / "map.png", drawn.pd, drawn.mask, g, mission.domain,

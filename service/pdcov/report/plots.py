@@ -4,6 +4,7 @@ map, the threshold curve and Fig. 8's comparison. Axes are ENU metres (east righ
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ import numpy as np
 
 from pdcov.atomic import atomic_path
 from pdcov.core.domain import Domain, GridGeometry
+from pdcov.core.geodesy import Origin, enu_to_geodetic
 from pdcov.extras import PLOTS
 from pdcov.report.colours import PD_COLORMAP
 
@@ -44,16 +46,46 @@ def draw_domain(ax: Any, domain: Domain) -> None:
                 label="obstacle" if i == 0 else None)
 
 
+def nice_step_deg(span_deg: float) -> float:
+    """A graticule step giving 3 to 8 lines over ``span_deg``."""
+    for step in (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0):
+        if span_deg / step <= 8:
+            return step
+    return 2.0
+
+
+def graticule(ax: Any, bounds: tuple[float, float, float, float], origin: Origin) -> None:
+    """Lines of constant latitude and longitude (WGS84, exact: curved where the ENU plane
+    bends them) over the ENU extent ``bounds`` (x0, x1, y0, y1 m about ``origin``),
+    labelled in degrees."""
+    x0, x1, y0, y1 = bounds
+    xs, ys = np.meshgrid(np.linspace(x0, x1, 80), np.linspace(y0, y1, 80))
+    lla = enu_to_geodetic(np.stack([xs, ys, np.zeros_like(xs)], axis=-1), origin)
+    for values, hemispheres in ((lla[..., 0], "NS"), (lla[..., 1], "EW")):
+        step = nice_step_deg(float(np.ptp(values)))
+        levels = np.arange(math.ceil(values.min() / step), math.floor(values.max() / step) + 1
+                           ) * step
+        if not len(levels):
+            continue
+        decimals = max(0, -math.floor(math.log10(step)))
+        lines = ax.contour(xs, ys, values, levels=levels, colors="0.25", linewidths=0.5,
+                           linestyles=":")
+        ax.clabel(lines, fontsize=6, fmt=lambda v, d=decimals, h=hemispheres:
+                  f"{abs(v):.{d}f}°{h[0] if v >= 0 else h[1]}")
+
+
 def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
                    geometry: GridGeometry, domain: Domain, *, title: str,
                    outline_enu: Sequence[Sequence[Sequence[Sequence[float]]]] = (),
                    threshold: float | None = None, track_enu: np.ndarray | None = None,
                    plan_enu: np.ndarray | None = None, terrain_z_m: np.ndarray | None = None,
-                   hidden: np.ndarray | None = None) -> None:
+                   hidden: np.ndarray | None = None, origin: Origin | None = None) -> None:
     """Fig. 7: cumulative P_D per cell with a colour bar, the domain and obstacles, the
-    planned path, the flown track and the outline of the cells at or above ``threshold``.
-    With ``terrain_z_m`` (cell-centre heights, m) the P_D is drawn over the terrain's
-    hillshade; ``hidden`` (bool per cell) marks the cells terrain hid from every frame."""
+    planned path, the flown track (NaN rows break it) and the outline of the cells at or
+    above ``threshold``, on axes of ENU metres, with the latitude and longitude lines
+    (``graticule``) when the ``origin`` is given. With ``terrain_z_m`` (cell-centre
+    heights, m) the P_D is drawn over the terrain's hillshade; ``hidden`` (bool per cell)
+    marks the cells terrain hid from every frame."""
     from matplotlib.colors import LightSource, ListedColormap
     from matplotlib.patches import Patch
 
@@ -92,11 +124,14 @@ def heatmap_figure(path: str | Path, pd: np.ndarray, mask: np.ndarray,
             ax.plot(r[:, 0], r[:, 1], color="deepskyblue", lw=1.6,
                     label=f"$P_D \\geq {threshold:g}$" if k == 0 and ring is poly[0] else None)
     pad = 0.05 * max(x1 - x0, y1 - y0)
-    ax.set_xlim(x0 - pad, x1 + pad)
-    ax.set_ylim(y0 - pad, y1 + pad)
+    bounds = (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
+    if origin is not None:
+        graticule(ax, bounds, origin)
+    ax.set_xlim(*bounds[:2])
+    ax.set_ylim(*bounds[2:])
     ax.set_aspect("equal")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
+    ax.set_xlabel("east (m)" if origin is None else "east of the origin (m)")
+    ax.set_ylabel("north (m)" if origin is None else "north of the origin (m)")
     ax.set_title(title)
     ax.legend(handles=ax.get_legend_handles_labels()[0] + legend_extra,
               loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=5, fontsize=8,
@@ -125,15 +160,19 @@ def thresholds_figure(path: str | Path, curve: tuple[np.ndarray, np.ndarray],
                       shares: dict[float, float], *, title: str) -> None:
     """Proportion of free cells at or above each P_D threshold: ``curve`` (thresholds
     0..1 and the proportions, report/output_extent.py) and the configured thresholds'
-    shares marked (``Metrics.proportion_at_or_above``)."""
+    shares marked (``Metrics.proportion_at_or_above``), their values in a legend (one
+    line each: labels beside close markers of similar shares would overlap)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     t, p = curve
     ax.plot(t, p, color="navy", lw=2)
-    for th, share in shares.items():
-        ax.plot([th], [share], "o", color="crimson")
-        ax.annotate(f"{share:.3f} at {th:g}", (th, share), textcoords="offset points",
-                    xytext=(6, 6), fontsize=9)
+    markers = "osD^vP*Xph"
+    for k, (th, share) in enumerate(sorted(shares.items())):
+        ax.plot([th], [share], markers[k % len(markers)], color="crimson", ls="none",
+                label=f"{share:.3f} at $P_D \\geq {th:g}$")
+    if shares:
+        ax.legend(loc="lower left", fontsize=9, title="share of free cells",
+                  title_fontsize=9)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("$P_D$ threshold")

@@ -28,6 +28,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from pdcov.core.mission import MAV_AUTOPILOT_ARDUPILOTMEGA
 from pdcov.telemetry.adapters import (
     MAV_AUTOPILOT_INVALID,
     MAVLINK_TYPES,
@@ -57,7 +58,6 @@ EKF_STATUS_REPORT, ESTIMATOR_STATUS = 193, 230
 ZOOM_MESSAGES = {"hfov_rad": 271, "zoom_level": 260, "focal_length_mm": 259}
 """The message of each zoom report (core/zoom.py LensQuantity): CAMERA_FOV_STATUS,
 CAMERA_SETTINGS, CAMERA_INFORMATION."""
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 ALLOWED_COMMANDS = frozenset({MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE})
 ALLOWED_MESSAGES = frozenset({"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ",
                               "NAMED_VALUE_FLOAT", "STATUSTEXT", "MISSION_COUNT",

@@ -20,7 +20,7 @@ import time
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from pdcov.core.mission import MissionItem
+from pdcov.core.mission import Firmware, MissionItem
 from pdcov.errors import PdcovError, TelemetryError
 from pdcov.telemetry.link_params import wait_autopilot_heartbeat
 from pdcov.telemetry.link_url import pymavlink_device
@@ -59,13 +59,20 @@ def upload_mission(items: tuple[MissionItem, ...], url: str, home: MissionItem,
     Waits for the autopilot's HEARTBEAT as ``link_params.wait_autopilot_heartbeat`` does
     (sending ours each second, as a udpout: link needs; ignoring ground stations and
     components that are no autopilot, such as a gimbal or camera).
-    Raises UploadError when no vehicle answers within ``timeout_s``."""
+    Raises UploadError when no vehicle answers within ``timeout_s``, and, before sending
+    anything, when the HEARTBEAT's firmware would refuse items (``Firmware.refused_items``:
+    e.g. terrain-frame waypoints to PX4)."""
     conn = mavlink2_connection(url, source_system, source_component)
     try:
         try:
             vehicle = wait_autopilot_heartbeat(conn, timeout_s)
         except TelemetryError as exc:
             raise UploadError(f"no vehicle HEARTBEAT on {url} to upload to: {exc}") from None
+        firmware = Firmware.of_mav_autopilot(vehicle.autopilot)
+        refused = firmware.refused_items(items) if firmware else []
+        if refused:
+            raise UploadError(f"the vehicle on {url} runs {firmware}, whose mission would "
+                              f"refuse {'; '.join(refused)}; nothing was sent")
         items = with_home(items, home, vehicle.autopilot)
         upload = MissionUpload(items, vehicle.get_srcSystem(), vehicle.get_srcComponent(),
                                conn.mav, retry_s=retry_s)
