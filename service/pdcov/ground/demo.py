@@ -179,20 +179,24 @@ class FleetStatus:
 # publishes it by the wall clock: at 0.5 s of wall time, 8x real time gave a point every
 # 4 s of flight, the spiral drawn in a dozen straight segments.
 STATUS_PERIOD_FLIGHT_S = 0.5
+MIN_STATUS_PERIOD_S = 0.1
+"""But no more than 10 statuses a second of wall time per daemon (at 8x: a point every 0.8 s
+of flight, 4 m at 5 m/s), so that two daemons, the simulators and the watcher keep to two
+cores."""
 
 
 def vehicle_config(doc: Mapping[str, Any], vehicle: DemoVehicle, router: str,
                    state_dir: Path, speed: float = 1.0) -> dict[str, Any]:
     """The mission config of one demo vehicle: the demo mission, its id, a peer session to
     the router (loopback, no multicast scouting) with a status every
-    STATUS_PERIOD_FLIGHT_S of a flight simulated ``speed`` times faster than real time, its
-    state folder."""
+    STATUS_PERIOD_FLIGHT_S of a flight simulated ``speed`` times faster than real time (at
+    least MIN_STATUS_PERIOD_S of wall time), its state folder."""
     out = dict(doc)
     out["vehicle_id"] = vehicle.vehicle_id
     out["log"] = {**dict(doc.get("log") or {}), "system_id": vehicle.system_id}
     out["bus"] = {"mode": "peer", "connect": [router], "listen": ["tcp/127.0.0.1:0"],
                   "multicast_scouting": False,
-                  "status_period_s": STATUS_PERIOD_FLIGHT_S / speed,
+                  "status_period_s": max(STATUS_PERIOD_FLIGHT_S / speed, MIN_STATUS_PERIOD_S),
                   "tiles_period_s": 0.2}
     out["service"] = {"state_dir": str(state_dir), "checkpoint_period_s": 5.0}
     return out
