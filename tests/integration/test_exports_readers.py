@@ -91,7 +91,7 @@ def test_gdal_libkml_reads_the_kml_and_kmz(out, name):
     assert [f["geometry"]["coordinates"][:2] for f in cands] == [
         pytest.approx([c["lon_deg"], c["lat_deg"]], abs=0.5e-7) for c in src]
     pin = cands[0]["properties"]  # LIBKML: the name, description and ExtendedData fields
-    assert pin["Name"] == "person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks"
+    assert pin["Name"] == "pin 1: person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks"
     assert "uid: alpha.3fa2c1.3" in pin["description"]
     assert "p_person: 0.9731" in pin["description"]
     assert (pin["uid"], float(pin["p_person"]), int(pin["looks"]), int(pin["hits"])) == (

@@ -73,7 +73,7 @@ def test_tracks_and_waypoints_read_back_with_gpxpy(tmp_path):
              pytest.approx(c["lon_deg"], abs=0.5e-7), pytest.approx(c["alt_msl_m"]),
              "person") for c in src]
     assert doc.waypoints[0].description == (
-        "person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks; sigma 0.5 m; "
+        "pin 1: person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks; sigma 0.5 m; "
         "MGRS 32T LS 65735 51092")
 
 

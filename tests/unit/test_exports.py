@@ -110,8 +110,8 @@ def test_caltopo_shapes_markers_and_assignments(run):
     markers = by_class["Marker"]
     assert len(markers) == 2  # candidates only
     assert markers[0]["properties"]["marker-color"] == "FF0000"  # CalTopo writes no '#'
-    assert markers[0]["properties"]["title"] == ("person alpha.3fa2c1.3: p_person 0.97, "
-                                                 "detected 9 of 14 looks")
+    assert markers[0]["properties"]["title"] == ("pin 1: person alpha.3fa2c1.3: p_person "
+                                                 "0.97, detected 9 of 14 looks")
     assert {k: markers[1]["properties"][k] for k in ("uid", "p_person", "looks", "hits")} \
         == {"uid": "alpha.3fa2c1.4", "p_person": 0.0412, "looks": 3, "hits": 1}
     # The outlines cover exactly the free cells at or above each threshold (1 m cells), to

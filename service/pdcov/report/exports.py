@@ -149,13 +149,17 @@ class Pin:
 
     @property
     def title(self) -> str:
-        """A label for a map tool: 'person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14
-        looks'."""
+        """A label for a map tool, led by the pin's rank (report/pin_rank.py): 'pin 1:
+        person alpha.3fa2c1.3: p_person 0.97, detected 9 of 14 looks'; a detection's 'person
+        of pin 1 (alpha.3fa2c1.3) at t 12.5 s'."""
         p = self.properties
+        rank = p.get("rank")
         if self.kind == "candidate":
-            return (f"{p['class']} {p['uid']}: p_person {p['p_person']:.2f}, detected "
-                    f"{p['hits']} of {p['looks']} looks")
-        return f"{p['class']} (pin {p['uid']}) at t {p['t_boot_s']:.1f} s"
+            return (("" if rank is None else f"pin {rank}: ") + f"{p['class']} {p['uid']}: "
+                    f"p_person {p['p_person']:.2f}, detected {p['hits']} of {p['looks']} "
+                    "looks")
+        return (f"{p['class']} of " + ("" if rank is None else f"pin {rank} ")
+                + f"({p['uid']}) at t {p['t_boot_s']:.1f} s")
 
     @property
     def description(self) -> str:

@@ -67,8 +67,8 @@ def _elevation(alt_msl_m: float | None) -> float | None:
 
 
 def waypoint_description(p: Pin) -> str:
-    """A candidate waypoint's description: its title ('person uav1.3fa2c1.3: p_person
-    0.97, detected 9 of 14 looks'), its 1-sigma horizontal uncertainty and MGRS."""
+    """A candidate waypoint's description: its title ('pin 1: person uav1.3fa2c1.3:
+    p_person 0.97, detected 9 of 14 looks'), its 1-sigma horizontal uncertainty and MGRS."""
     mgrs = p.properties.get("mgrs")
     return (f"{p.title}; sigma {p.properties['sigma_m']:.1f} m"
             + ("" if mgrs is None else f"; MGRS {mgrs}"))

@@ -182,6 +182,8 @@ def kml_document(layers: MapLayers | None, all_pins: Sequence[Pin], overlay: Ove
     for kind in ("candidate", "detection"):
         folder = _sub(doc, "Folder")
         _sub(folder, "name", f"{kind}s")
+        if kind == "detection":  # every box of every pin: listed, drawn when asked for
+            _sub(folder, "visibility", "0")
         for p in all_pins:
             if p.kind != kind:
                 continue
