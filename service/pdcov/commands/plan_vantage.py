@@ -18,7 +18,7 @@ from pdcov.atomic import replacing_dir, write_text_atomic
 from pdcov.commands.args import finite, nonnegative, positive, positive_int, probability
 from pdcov.commands.mission_file import load_mission_warned
 from pdcov.commands.plan_args import planning_overrides
-from pdcov.commands.plan_output import replaced_note
+from pdcov.commands.plan_output import replaced_note, write_route
 from pdcov.config.mission import Mission
 from pdcov.core.mission import Firmware, GimbalCommand, HoverItem
 from pdcov.errors import ConfigError
@@ -161,12 +161,13 @@ def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
     all missions together in ``out``; returns the summary text."""
     out.mkdir(parents=True, exist_ok=True)
     origin = mission.origin()
-    names = []
+    names, route_missing = [], None
     for vm in m.missions:
         r = vm.route
         stem = "plan" if len(m.missions) == 1 else f"vehicle-{r.vehicle}-sortie-{r.sortie}"
         write_plan(out / f"{stem}.plan", vm.prediction.plan, origin, firmware)
         write_plan(out / f"{stem}.waypoints", vm.prediction.plan, origin, firmware)
+        route_missing = write_route(out / f"{stem}.gpx", vm.prediction.plan, mission)
         names.append(stem)
     c = m.cover
     doc = {"candidates": c.n_candidates, "objective": str(c.objective),
@@ -204,4 +205,6 @@ def write_vantage(out: Path, mission: Mission, sc: Scenario, m: VantageMissions,
     for name, vm in zip(names, m.missions, strict=True):
         lines.append(f"{name}: {len(vm.route.stops)} points, {vm.flight_time_s:.1f} s "
                      f"(take-off to landing), {vm.prediction.flight.path_length_m:.1f} m")
+    if route_missing is not None:
+        lines.append(f"not written: the missions' .gpx routes: {route_missing}")
     return summary_text(run, lines)

@@ -107,3 +107,20 @@ def gpx_document(tracks: Sequence[VehicleTrack], all_pins: Sequence[Pin], title:
                 name=str(p.properties["uid"]), description=waypoint_description(p),
                 type=str(p.properties["class"]), time=_utc_time(p.properties.get("time_utc"))))
     return doc.to_xml(version="1.1").encode("utf-8")
+
+
+def route_document(name: str, description: str, lat_lon_alt: np.ndarray) -> bytes:
+    """A planned mission as a GPX route (UTF-8 bytes): one ``rte`` named ``name`` with a
+    ``rtept`` per waypoint ('WP 1', ...) of ``lat_lon_alt`` (N, 3: degrees, m MSL; NaN
+    altitudes left out)."""
+    import gpxpy.gpx
+
+    doc = gpxpy.gpx.GPX()
+    doc.creator = CREATOR
+    doc.name = name
+    rte = gpxpy.gpx.GPXRoute(name=name, description=description)
+    rte.points = [gpxpy.gpx.GPXRoutePoint(latitude=deg_rounded(lat), longitude=deg_rounded(lon),
+                                          elevation=_elevation(alt), name=f"WP {k}")
+                  for k, (lat, lon, alt) in enumerate(lat_lon_alt.tolist(), 1)]
+    doc.routes.append(rte)
+    return doc.to_xml(version="1.1").encode("utf-8")
