@@ -29,3 +29,14 @@ def test_plan_reports_progress_to_a_pipe(tmp_path: Path, capsys) -> None:
                      str(tmp_path / "p"), "--no-figures"]) == 0
     err = capsys.readouterr().err
     assert "frames:" in err and "\r" not in err
+
+
+def test_evaluate_says_which_files_it_is_writing(tmp_path: Path, capsys) -> None:
+    poses = DEMO.parents[3] / "tests" / "data" / "poses_nadir_10m.csv"
+    assert cli.main(["evaluate", "--config", str(DEMO), "--poses", str(poses), "--out",
+                     str(tmp_path / "run")]) == 0
+    err = capsys.readouterr().err
+    stages = [line for line in err.splitlines() if line.startswith("writing ")]
+    assert [s.split(" in ")[0] for s in stages] == [
+        "writing metrics.json and grid.npz", "writing the GeoTIFFs and outline.geojson",
+        "writing the exports", "writing the figures"]

@@ -185,7 +185,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
                                     flights_unix_s=[r.track_unix_s for r in runs])],
                                 flight=FlightSample.joined(
                                     [r.flight for r in runs if r.flight is not None]),
-                                basemap=basemap)
+                                basemap=basemap, progress=progress)
         if detections is not None:
             from pdcov.report.detections import write_detections
             write_detections(args.out, detections)

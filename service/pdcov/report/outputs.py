@@ -13,6 +13,7 @@ files the gis extra: without one, the rest is written and the run says what was 
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -254,7 +255,8 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
                   tracks: Sequence[VehicleTrack] = (),
                   limiting_unknown: str | None = None,
                   flight: FlightSample | None = None,
-                  basemap: BasemapTiles | None = None) -> RunOutputs:
+                  basemap: BasemapTiles | None = None,
+                  progress: bool = False) -> RunOutputs:
     """Write the run's files into ``out_dir`` (created if needed): those whose extra is
     not installed are named in ``not_written`` instead. ``exports``: the detections to
     export with the coverage (report/exports.py; gaps below the outline threshold), None
@@ -264,7 +266,12 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     limiting_unknown, and grid.npz holds no limiting factor nor is limiting.tif written.
     ``flight``: the frames' heights, speeds and track (core/sweep_width.py) for
     metrics.json's sweep_width (``sweep_width_document``); None: no sweep_width.
-    ``basemap``: the tiles map.png is drawn over (report/map_figure.py)."""
+    ``basemap``: the tiles map.png is drawn over (report/map_figure.py). ``progress``: a
+    line on stderr as each kind of file is begun (a county's GeoTIFFs take a minute)."""
+    def stage(what: str) -> None:
+        if progress:
+            print(f"writing {what} in {out_dir}", file=sys.stderr, flush=True)
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = grid.metrics(mission.thresholds)
@@ -288,6 +295,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     threshold = outline_threshold if outline_threshold is not None else max(mission.thresholds)
     files = ["metrics.json"]
     not_written = []
+    stage("metrics.json and grid.npz")
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
     grid_file = write_grid_file(out, grid, with_limiting=limiting_unknown is None)
     files += [grid_file.name] if grid_file.name else []
@@ -297,6 +305,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
     gis_missing = GIS.message()
     outline: list[list[list[list[float]]]] = []
     if gis_missing is None:
+        stage("the GeoTIFFs and outline.geojson")
         from pdcov.report.gis import (
             array_band,
             threshold_outline,
@@ -345,6 +354,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         not_written.append(f"{', '.join(gis_files)}: {gis_missing}")
     exported_pins: tuple[Pin, ...] = ()
     if exports is not None:
+        stage("the exports")
         coverage = Coverage(drawn.pd, drawn.mask, g, origin, tuple(mission.thresholds),
                             threshold)
         exported = write_exports(out, coverage, exports, title=title, tracks=tracks)
@@ -352,6 +362,7 @@ def write_outputs(out_dir: str | Path, mission: Mission, grid: CoverageGrid, ori
         not_written += exported.not_written
         exported_pins = exported.pins
     if figures:
+        stage("the figures")
         figure_files = ["heatmap.png", "thresholds.png", "map.png"]
         plots_missing = PLOTS.message()
         if plots_missing is None:
