@@ -47,7 +47,8 @@ def test_pose_csv_gives_the_core_grid(tmp_path):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics) == {"version", "frames", "cells_free", "cells_observed",
                             "proportion_at_or_above", "mean_pd", "expected_false_alarms",
-                            "limiting_cells", "motion_blur", "extent", "sweep_width"}
+                            "limiting_cells", "motion_blur", "extent", "time_on_scene_s",
+                            "sweep_width"}
     # A small grid's outputs cover it whole (docs/outputs.md "Extent").
     assert metrics["extent"]["cropped"] is False and metrics["extent"]["rows"] == [0, 40]
     assert metrics["extent"]["x_enu_m"] == [0, 40] and metrics["extent"]["cols"] == [0, 40]
