@@ -67,6 +67,15 @@ def test_a_minute_of_statuses_fits_the_budget():
     assert sum(s > 1200 for s in sizes) == 60 // FULL_EVERY  # the periodic full ones
 
 
+def test_the_summary_numbers_go_out_rounded_to_what_they_mean():
+    doc = decode_status(StatusEncoder().encode(flying_status(0)))
+    assert doc["t_s"] == 31.235 and doc["mean_pd"] == 0.234568
+    assert doc["expected_false_alarms"] == 123.4568
+    assert doc["proportion_at_or_above"] == {"0.5": 0.123457, "0.7": 0.098765,
+                                             "0.8": 0.045679}
+    assert doc["uptime_s"] == 12.345  # the daemon's own rounding (service/core.py)
+
+
 def test_every_status_decodes_and_merging_restores_the_full_one():
     enc = StatusEncoder()
     merged = None

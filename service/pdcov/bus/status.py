@@ -52,6 +52,10 @@ not a detail change (else every checkpoint's status would be full: 1,061-1,071 B
 status, over the 1 kB/s budget, in benchmarks.fleet)."""
 _POSE_DECIMALS = {"lat_deg": 7, "lon_deg": 7, "alt_msl_m": 2, "heading_deg": 1, "t_s": 3,
                   "gnss_h_acc_m": 3}
+_SUMMARY_DECIMALS = {"t_s": 3, "mean_pd": 6, "expected_false_alarms": 4}
+"""The summary's numbers to what they mean (1 ms; a millionth of P_D; 1e-4 false alarms),
+proportion_at_or_above's shares to 6 decimals: 17-digit floats put the statuses of a busy
+flight over the 1 kB/s budget (1,014 B per status in benchmarks.fleet)."""
 
 _U32 = 2**32 - 1
 _U64 = 2**64 - 1
@@ -62,6 +66,12 @@ def encode_status(fields: Mapping[str, Any]) -> bytes:
     Non-finite floats become null (JSON has no NaN)."""
     doc = {"schema": STATUS_SCHEMA, "version": STATUS_VERSION, **fields}
     return json.dumps(finite_or_null(doc), separators=(",", ":"), allow_nan=False).encode()
+
+
+def _rounded(value: Any, decimals: int) -> Any:
+    """A finite float rounded to ``decimals``; anything else as it is."""
+    return round(value, decimals) if isinstance(value, float) and math.isfinite(value) \
+        else value
 
 
 class StatusEncoder:
@@ -75,7 +85,8 @@ class StatusEncoder:
     status leaves out (bar the terrain check, whose counts change with every reading), less
     the message ages that change every time. Both kinds carry every required field, so any
     version-1 receiver reads both. Pose numbers are rounded to what they mean (1 cm in
-    latitude and longitude, 0.1 deg, 1 ms, 1 mm of GNSS accuracy)."""
+    latitude and longitude, 0.1 deg, 1 ms, 1 mm of GNSS accuracy), and so are the
+    summary's (_SUMMARY_DECIMALS)."""
 
     def __init__(self, full_every: int = FULL_EVERY) -> None:
         if full_every < 1:
@@ -85,11 +96,14 @@ class StatusEncoder:
         self._detail: str | None = None
 
     def encode(self, fields: Mapping[str, Any]) -> bytes:
-        doc = dict(fields)
+        doc = {k: _rounded(v, _SUMMARY_DECIMALS[k]) if k in _SUMMARY_DECIMALS else v
+               for k, v in fields.items()}
+        shares = doc.get("proportion_at_or_above")
+        if isinstance(shares, Mapping):
+            doc["proportion_at_or_above"] = {t: _rounded(v, 6) for t, v in shares.items()}
         pose = doc.get("pose")
         if isinstance(pose, Mapping):
-            doc["pose"] = {k: round(v, _POSE_DECIMALS[k]) if k in _POSE_DECIMALS
-                           and isinstance(v, float) and math.isfinite(v) else v
+            doc["pose"] = {k: _rounded(v, _POSE_DECIMALS[k]) if k in _POSE_DECIMALS else v
                            for k, v in pose.items()}
         detail = _detail_signature(doc)
         if (self._since_full is None or self._since_full + 1 >= self.full_every
