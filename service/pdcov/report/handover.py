@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from pdcov.atomic import write_text_atomic
 from pdcov.errors import OutputError
 from pdcov.extras import PLOTS
 from pdcov.report.run_files import RunFiles, read_run_files
@@ -259,8 +260,6 @@ def write_report(run_dir: str | Path, out_dir: str | Path) -> tuple[list[Path], 
     paths = [out / REPORT_HTML]
     try:
         out.mkdir(parents=True, exist_ok=True)
-        from pdcov.atomic import write_text_atomic
-
         write_text_atomic(paths[0], handover_html(report))
         if pdf_missing is None:
             from pdcov.report.handover_pdf import write_handover_pdf
