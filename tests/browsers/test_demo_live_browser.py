@@ -68,5 +68,6 @@ def test_live_demo_in_a_headless_browser(tmp_path):
     expected = status["proportion_at_or_above"]["0.8"]
     assert float(share) == expected
     assert text == f"{100 * expected:.1f} %"
-    assert float(mean_pd) == pytest.approx(status["mean_pd"], rel=1e-12)
+    # The status carries mean_pd to 6 decimals (docs/protocol.md "full and brief statuses").
+    assert float(mean_pd) == pytest.approx(status["mean_pd"], abs=5e-7)
     assert mid_shot.stat().st_size > 10_000

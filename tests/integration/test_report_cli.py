@@ -118,3 +118,16 @@ def test_evaluate_draws_map_png_over_the_basemap_and_refuses_a_missing_one(tmp_p
     ev.assert_clean_failure(ev.cli("evaluate", "--config", str(config), "--poses", str(csv),
                                    "--out", str(tmp_path / "x"), "--basemap",
                                    str(tmp_path / "nowhere")), "--basemap", "no such file")
+
+
+@needs_poppler
+def test_a_title_in_another_script_reads_back_from_the_pdf(tmp_path):
+    # Latin-1 text goes out in the standard PDF fonts; any other script in embedded DejaVu.
+    from pdcov.report.handover import Handover, Section
+    from pdcov.report.handover_pdf import write_handover_pdf
+
+    for title, font in (("Поиск № 3 – ü", "DejaVuSans"), ("Search 3 – ü", "Helvetica")):
+        pdf = write_handover_pdf(tmp_path / "r.pdf", Handover(
+            title, (("run", title),), (Section("h", text=("…",)),)))
+        assert f"pdcov handover: {title}" in poppler("pdftotext", str(pdf), "-")
+        assert font in poppler("pdffonts", str(pdf))
