@@ -126,7 +126,7 @@ def test_a_title_in_another_script_reads_back_from_the_pdf(tmp_path):
     from pdcov.report.handover import Handover, Section
     from pdcov.report.handover_pdf import write_handover_pdf
 
-    for title, font in (("Поиск № 3 – ü", "DejaVuSans"), ("Search 3 – ü", "Helvetica")):
+    for title, font in (("Поиск № 3 – ü", "DejaVuSans"), ("Search $3 to $5 – ü", "Helvetica")):
         pdf = write_handover_pdf(tmp_path / "r.pdf", Handover(
             title, (("run", title),), (Section("h", text=("…",)),)))
         assert f"pdcov handover: {title}" in poppler("pdftotext", str(pdf), "-")

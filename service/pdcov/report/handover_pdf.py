@@ -69,8 +69,7 @@ class _Pages:
         y = self.y_in if y_in is None else y_in
         self.fig.text((_MARGIN_IN + x_in) / _PAGE_IN[0], 1 - y / _PAGE_IN[1], s,
                       fontsize=size_pt, fontweight=weight or self.plain, family=family,
-                      color=colour,
-                      ha=ha, va="top")
+                      color=colour, ha=ha, va="top", parse_math=False)  # '$' is a dollar
 
     def line(self, s: str, size_pt: float, **kw: Any) -> None:
         """``s`` at the cursor, wrapped to the page's width, the cursor moved below it."""
