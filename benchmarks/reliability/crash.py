@@ -24,7 +24,7 @@ class CrashResult:
     resumed: int
     set_aside: int
     stale_frames: list[int] = field(default_factory=list)  # frames missing vs the bound
-    ages_s: list[float] = field(default_factory=list)      # kill time - checkpoint written
+    ages_s: list[float] = field(default_factory=list)  # kill - checkpoint, 0: held every frame
     restarts_s: list[float] = field(default_factory=list)  # kill to first resumed status
     period_s: float = 0.0
     failures: list[str] = field(default_factory=list)
@@ -148,7 +148,12 @@ def crash(folder: Path, kills: int, period_s: float = 0.25, seed: int = 2,
                 if grid is None:
                     res.failures.append(f"kill {k + 1}: the checkpoint does not resume")
                     continue
-                res.ages_s.append(t_kill - meta["written_unix_s"])
+                # The checkpoint's age at the kill, when the daemon had reported frames it
+                # lacks; 0 when it held them all (no new frame: nothing to write).
+                reported = max((s["frames"]["grid"] for t, s in w.statuses if t <= t_kill),
+                               default=0)
+                res.ages_s.append(t_kill - meta["written_unix_s"]
+                                  if grid.frames < reported else 0.0)
                 # Every frame a status reported period + 0.5 s before the kill is in it.
                 bound = max((s["frames"]["grid"] for t, s in w.statuses
                              if t <= t_kill - period_s - 0.5), default=0)

@@ -131,7 +131,8 @@ def report(soak_r: SoakResult, crash_r: CrashResult, router_r: RouterResult,
         f"| checkpoints set aside (unreadable) | {crash_r.set_aside} |",
         f"| checkpoints missing frames a status reported {crash_r.period_s + 0.5:g} s before "
         f"the kill | {len(crash_r.stale_frames)} |",
-        f"| checkpoint age at the kill (its write time to the kill), median / max; the "
+        f"| checkpoint age at the kill (its write time to the kill; 0 when it held every "
+        f"frame reported: nothing new to write), median / max; the "
         f"period is {crash_r.period_s:g} s | {np.nanmedian(ages):.2f} / "
         f"{np.nanmax(ages):.2f} s |",
         f"| kill to the restarted daemon's first status, median / max | "
